@@ -1,0 +1,360 @@
+//! Scenario files (TOML): the rig, the robot, the goal, the obstacles' motion, the sensing
+//! chain and the planner settings of one run. Documented with examples in
+//! `scenarios/README.md`. Unknown keys are refused, and [`Scenario::validate`] names the
+//! key of any bad value.
+
+use num_complex::Complex64 as Point;
+use serde::Deserialize;
+use std::path::Path;
+
+/// A whole scenario.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    /// Simulated time after which the run ends as a timeout, s.
+    pub time_limit: f64,
+    /// A lane between walls at `y = ±half_width`; absent for free space.
+    #[serde(default)]
+    pub lane: Option<LaneSpec>,
+    pub robot: RobotSpec,
+    pub goal: GoalSpec,
+    #[serde(default)]
+    pub obstacles: Vec<ObstacleSpec>,
+    pub sensing: SensingSpec,
+    pub planner: PlannerSpec,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LaneSpec {
+    /// Half the lane's width `h`, m: the lines at `y = ±h` bound the robot's *centre*
+    /// (configuration space, as obstacles' planning radii `a_0 + a_r` include the robot).
+    pub half_width: f64,
+}
+
+/// The robot: a differential-drive base with stepper wheels.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotSpec {
+    pub start: [f64; 2],
+    #[serde(default)]
+    pub heading_deg: f64,
+    /// Radius of the robot's footprint `a_r`, m.
+    pub radius: f64,
+    /// Distance between the wheels `l_w`, m.
+    pub wheel_base: f64,
+    pub wheel_radius: f64,
+    /// Stepper full steps per wheel revolution.
+    pub steps_per_rev: u32,
+    pub microsteps: u32,
+    /// Largest wheel rim speed, m/s (the motor boards' rate limit).
+    pub max_wheel_speed: f64,
+    /// Wheel acceleration ramp, m/s² (the motor boards' ramp).
+    pub wheel_accel: f64,
+    /// Largest speed the planner commands for the robot's centre, m/s.
+    pub max_speed: f64,
+}
+
+impl RobotSpec {
+    /// Pulses per metre of wheel rim travel.
+    pub fn pulses_per_metre(&self) -> f64 {
+        f64::from(self.steps_per_rev) * f64::from(self.microsteps) / (2.0 * std::f64::consts::PI * self.wheel_radius)
+    }
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoalSpec {
+    pub position: [f64; 2],
+    /// The run succeeds when the robot's centre is this close to the goal, m.
+    #[serde(default = "default_goal_tolerance")]
+    pub tolerance: f64,
+}
+
+fn default_goal_tolerance() -> f64 {
+    0.02
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleSpec {
+    /// The obstacle's true radius `a_0`, m.
+    pub radius: f64,
+    pub start: [f64; 2],
+    #[serde(default)]
+    pub motion: Motion,
+}
+
+/// How an obstacle moves. Positions are analytic in time, so the truth at any past
+/// moment (for a delayed sensor) is exact.
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Motion {
+    #[default]
+    Stationary,
+    /// Constant velocity, m/s.
+    Constant { velocity: [f64; 2] },
+    /// From `start` through each point in turn at `speed` (m/s), then stop (or start over
+    /// from `start` when `repeat`).
+    Waypoints {
+        points: Vec<[f64; 2]>,
+        speed: f64,
+        #[serde(default)]
+        repeat: bool,
+    },
+}
+
+/// The sensing chain between the world and the planner.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensingSpec {
+    /// Control period `T`: one time-division frame, s.
+    pub sample_time: f64,
+    /// Pure delay from the world to the planner's input (processing, transport), s.
+    #[serde(default)]
+    pub delay: f64,
+    /// Standard deviation of the position noise on every measured point, m.
+    #[serde(default)]
+    pub position_noise: f64,
+    /// Cut-off of a first-order low-pass filter on measured positions, Hz; 0 = none.
+    #[serde(default)]
+    pub lowpass_hz: f64,
+    /// Seed of the noise generator.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+}
+
+fn default_seed() -> u64 {
+    1
+}
+
+/// Planner settings (see the planner module of `flowgate` for their meaning).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlannerSpec {
+    /// Far-field speed of the goal sink, m/s (`m = cruise_speed · R_ref`).
+    pub cruise_speed: f64,
+    /// Goal smoothing factor `c1` of `K(r)`, 1/m.
+    pub c1: f64,
+    /// Steering gain `K_c` of eq. 30.
+    pub kc: f64,
+    /// Safety margin rule for the planning radius.
+    #[serde(default)]
+    pub margin: MarginSpec,
+    /// The deterministic tie-break for symmetric configurations.
+    #[serde(default = "default_true")]
+    pub tie_break: bool,
+    /// Delay compensation for the robot: dead-reckon its delayed pose forward with its own
+    /// recent commands to the moment the command acts.
+    #[serde(default = "default_true")]
+    pub predict_robot: bool,
+    /// Delay compensation for the obstacles: predict them with their Kalman filters to the
+    /// moment the command acts. `false` reproduces the paper's E3, which planned on the
+    /// delayed obstacle positions.
+    #[serde(default = "default_true")]
+    pub predict_obstacles: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// How the planning radius `R` grows from `R_0 = a_0 + a_r`.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq)]
+#[serde(tag = "rule", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MarginSpec {
+    /// `R = R_0`.
+    #[default]
+    None,
+    /// `R = R_0 + metres`.
+    Fixed { metres: f64 },
+    /// `R = factor · R_0`.
+    Factor { factor: f64 },
+    /// `R = R_0 + U_a Δt` (eq. 29): `U_a` the obstacle's estimated speed plus
+    /// `extra_speed`, `Δt` the measured sensing-to-actuation delay.
+    Delay {
+        #[serde(default)]
+        extra_speed: f64,
+    },
+}
+
+/// A scenario that could not be loaded, naming the file and the key.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    #[error("cannot read scenario {path}: {source}")]
+    Read { path: String, source: std::io::Error },
+    #[error("scenario {path}: {source}")]
+    Parse { path: String, source: Box<toml::de::Error> },
+    #[error("scenario {path}: `{key}` {why}")]
+    Invalid { path: String, key: String, why: String },
+}
+
+impl Scenario {
+    /// Read, parse and validate a scenario file.
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ScenarioError::Read { path: path.display().to_string(), source })?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+
+    /// Parse and validate scenario text; `origin` names it in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, ScenarioError> {
+        let s: Scenario =
+            toml::from_str(text).map_err(|e| ScenarioError::Parse { path: origin.into(), source: Box::new(e) })?;
+        s.validate().map_err(|(key, why)| ScenarioError::Invalid { path: origin.into(), key, why })?;
+        Ok(s)
+    }
+
+    /// Check every value; on error, the key and why.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        let positive = |key: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((key.to_string(), format!("must be a positive number, is {v}")))
+            }
+        };
+        let non_negative = |key: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err((key.to_string(), format!("must be >= 0, is {v}")))
+            }
+        };
+        let finite = |key: &str, p: [f64; 2]| {
+            if p.iter().all(|v| v.is_finite()) {
+                Ok(())
+            } else {
+                Err((key.to_string(), "must be finite".to_string()))
+            }
+        };
+        positive("time_limit", self.time_limit)?;
+        if let Some(lane) = self.lane {
+            positive("lane.half_width", lane.half_width)?;
+        }
+        let r = &self.robot;
+        finite("robot.start", r.start)?;
+        positive("robot.radius", r.radius)?;
+        positive("robot.wheel_base", r.wheel_base)?;
+        positive("robot.wheel_radius", r.wheel_radius)?;
+        positive("robot.max_wheel_speed", r.max_wheel_speed)?;
+        positive("robot.wheel_accel", r.wheel_accel)?;
+        positive("robot.max_speed", r.max_speed)?;
+        if r.steps_per_rev == 0 || r.microsteps == 0 {
+            return Err(("robot.steps_per_rev".into(), "steps_per_rev and microsteps must be at least 1".into()));
+        }
+        finite("goal.position", self.goal.position)?;
+        positive("goal.tolerance", self.goal.tolerance)?;
+        for (i, o) in self.obstacles.iter().enumerate() {
+            positive(&format!("obstacles[{i}].radius"), o.radius)?;
+            finite(&format!("obstacles[{i}].start"), o.start)?;
+            match &o.motion {
+                Motion::Stationary => {}
+                Motion::Constant { velocity } => finite(&format!("obstacles[{i}].motion.velocity"), *velocity)?,
+                Motion::Waypoints { points, speed, .. } => {
+                    positive(&format!("obstacles[{i}].motion.speed"), *speed)?;
+                    if points.is_empty() {
+                        return Err((format!("obstacles[{i}].motion.points"), "needs at least one point".into()));
+                    }
+                    for p in points {
+                        finite(&format!("obstacles[{i}].motion.points"), *p)?;
+                    }
+                }
+            }
+        }
+        let s = &self.sensing;
+        positive("sensing.sample_time", s.sample_time)?;
+        non_negative("sensing.delay", s.delay)?;
+        non_negative("sensing.position_noise", s.position_noise)?;
+        non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
+        let p = &self.planner;
+        positive("planner.cruise_speed", p.cruise_speed)?;
+        positive("planner.c1", p.c1)?;
+        positive("planner.kc", p.kc)?;
+        match p.margin {
+            MarginSpec::None => {}
+            MarginSpec::Fixed { metres } => non_negative("planner.margin.metres", metres)?,
+            MarginSpec::Factor { factor } => {
+                if !(factor.is_finite() && factor >= 1.0) {
+                    return Err(("planner.margin.factor".into(), format!("must be >= 1, is {factor}")));
+                }
+            }
+            MarginSpec::Delay { extra_speed } => non_negative("planner.margin.extra_speed", extra_speed)?,
+        }
+        Ok(())
+    }
+
+    pub fn robot_start(&self) -> Point {
+        point(self.robot.start)
+    }
+    pub fn goal(&self) -> Point {
+        point(self.goal.position)
+    }
+}
+
+/// `[x, y]` as a point.
+pub fn point(p: [f64; 2]) -> Point {
+    Point::new(p[0], p[1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+        name = "t"
+        time_limit = 10
+        [robot]
+        start = [0, 0]
+        radius = 0.07
+        wheel_base = 0.108
+        wheel_radius = 0.02
+        steps_per_rev = 200
+        microsteps = 8
+        max_wheel_speed = 0.3
+        wheel_accel = 2.0
+        max_speed = 0.15
+        [goal]
+        position = [1, 0]
+        [[obstacles]]
+        radius = 0.07
+        start = [0.5, 0]
+        motion = { kind = "constant", velocity = [-0.05, 0] }
+        [sensing]
+        sample_time = 0.02
+        [planner]
+        cruise_speed = 0.1
+        c1 = 20
+        kc = 0.06
+        margin = { rule = "factor", factor = 1.1 }
+    "#;
+
+    #[test]
+    fn parses_a_scenario() {
+        let s = Scenario::from_toml(MINIMAL, "t").unwrap();
+        assert_eq!(s.obstacles[0].motion, Motion::Constant { velocity: [-0.05, 0.0] });
+        assert_eq!(s.planner.margin, MarginSpec::Factor { factor: 1.1 });
+        assert!(s.planner.tie_break);
+        assert_eq!(s.goal.tolerance, 0.02);
+    }
+
+    #[test]
+    fn refuses_bad_values_naming_the_key() {
+        let bad = MINIMAL.replace("radius = 0.07\n        start = [0.5, 0]", "radius = -1\n        start = [0.5, 0]");
+        let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
+        assert!(err.contains("`obstacles[0].radius` must be a positive number"), "{err}");
+        let bad = MINIMAL.replace("factor = 1.1", "factor = 0.5");
+        let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
+        assert!(err.contains("planner.margin.factor"), "{err}");
+    }
+
+    #[test]
+    fn refuses_unknown_keys() {
+        let bad = MINIMAL.replace("c1 = 20", "c1 = 20\nc2 = 3");
+        let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
+        assert!(err.contains("unknown field `c2`"), "{err}");
+    }
+}

@@ -1,0 +1,171 @@
+//! The simulated world: a differential-drive robot whose wheels turn by the pulses of a
+//! two-axis pulse generator, obstacles that follow their scripts, optional lane walls, and
+//! the truth a run is judged by (contact, clearance against the true radii).
+//!
+//! Time is an argument: [`World::step`] advances by `dt`, nothing reads a clock.
+
+mod axis;
+mod obstacle;
+mod robot;
+
+pub use axis::{Axis, AxisConfig};
+pub use obstacle::ObstaclePath;
+pub use robot::{DiffDrive, Pose};
+
+use crate::scenario::Scenario;
+use crate::Point;
+
+/// Which wheel an axis drives.
+pub const LEFT: usize = 0;
+pub const RIGHT: usize = 1;
+
+/// The world of one scenario.
+#[derive(Debug, Clone)]
+pub struct World {
+    time: f64,
+    pose: Pose,
+    drive: DiffDrive,
+    axes: [Axis; 2],
+    robot_radius: f64,
+    obstacles: Vec<(ObstaclePath, f64)>,
+    lane_half_width: Option<f64>,
+    truth: Truth,
+}
+
+/// What really happened, judged against the true radii.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Truth {
+    /// Smallest gap between the robot's footprint and any obstacle's, m (negative: overlap).
+    pub min_obstacle_clearance: f64,
+    /// Smallest gap between the robot's centre and a lane line, m (`+inf` in free space).
+    /// The lane bounds the robot's centre, as the planning radii include the robot's radius.
+    pub min_wall_clearance: f64,
+    /// When the robot first touched an obstacle or a wall, s.
+    pub first_contact: Option<f64>,
+    /// Path length travelled by the robot's centre, m.
+    pub path_length: f64,
+    /// Largest wheel rim speed reached, m/s: left, right.
+    pub peak_wheel_speed: [f64; 2],
+}
+
+impl World {
+    /// The world at time 0 of a scenario.
+    pub fn new(scenario: &Scenario) -> Self {
+        let r = &scenario.robot;
+        let drive = DiffDrive { wheel_base: r.wheel_base, pulses_per_metre: r.pulses_per_metre() };
+        let axis = AxisConfig {
+            accel: r.wheel_accel * drive.pulses_per_metre,
+            max_rate: r.max_wheel_speed * drive.pulses_per_metre,
+        };
+        let mut world = Self {
+            time: 0.0,
+            pose: Pose { position: scenario.robot_start(), heading: r.heading_deg.to_radians() },
+            drive,
+            axes: [Axis::new(axis), Axis::new(axis)],
+            robot_radius: r.radius,
+            obstacles: scenario.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect(),
+            lane_half_width: scenario.lane.map(|l| l.half_width),
+            truth: Truth {
+                min_obstacle_clearance: f64::INFINITY,
+                min_wall_clearance: f64::INFINITY,
+                first_contact: None,
+                path_length: 0.0,
+                peak_wheel_speed: [0.0; 2],
+            },
+        };
+        world.judge();
+        world
+    }
+
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+    pub fn pose(&self) -> Pose {
+        self.pose
+    }
+    pub fn robot_radius(&self) -> f64 {
+        self.robot_radius
+    }
+    pub fn truth(&self) -> Truth {
+        self.truth
+    }
+    pub fn axes(&self) -> &[Axis; 2] {
+        &self.axes
+    }
+    pub fn lane_half_width(&self) -> Option<f64> {
+        self.lane_half_width
+    }
+    /// Number of obstacles.
+    pub fn obstacle_count(&self) -> usize {
+        self.obstacles.len()
+    }
+    /// Obstacle `k`'s true centre at time `t` (any `t`, past or future).
+    pub fn obstacle_position(&self, k: usize, t: f64) -> Point {
+        self.obstacles[k].0.position(t)
+    }
+    /// Obstacle `k`'s true velocity at time `t`.
+    pub fn obstacle_velocity(&self, k: usize, t: f64) -> Point {
+        self.obstacles[k].0.velocity(t)
+    }
+    /// Obstacle `k`'s true radius.
+    pub fn obstacle_radius(&self, k: usize) -> f64 {
+        self.obstacles[k].1
+    }
+    /// Wheel rim speeds now, m/s: left, right.
+    pub fn wheel_speeds(&self) -> [f64; 2] {
+        self.axes.map(|a| a.rate() / self.drive.pulses_per_metre)
+    }
+
+    /// Set both axes' target pulse rates (pulses/s), as a velocity command does.
+    pub fn command_pulse_rates(&mut self, rates: [i32; 2]) {
+        self.axes[LEFT].set_target(rates[LEFT]);
+        self.axes[RIGHT].set_target(rates[RIGHT]);
+    }
+
+    /// Stop both axes at once (e-stop, command timeout).
+    pub fn stop_axes(&mut self) {
+        self.axes.iter_mut().for_each(Axis::stop_now);
+    }
+
+    /// Advance the world by `dt` seconds, in sub-steps of at most 1 ms so the kinematics
+    /// and the contact check stay accurate whatever the control period.
+    pub fn step(&mut self, dt: f64) {
+        let n = (dt / 1e-3).ceil().max(1.0) as usize;
+        let h = dt / n as f64;
+        for _ in 0..n {
+            let before = self.pose.position;
+            let pulses = [self.axes[LEFT].step(h), self.axes[RIGHT].step(h)];
+            self.pose = self.drive.advance(self.pose, pulses);
+            self.time += h;
+            self.truth.path_length += (self.pose.position - before).norm();
+            let speeds = self.wheel_speeds();
+            for (peak, v) in self.truth.peak_wheel_speed.iter_mut().zip(speeds) {
+                *peak = peak.max(v.abs());
+            }
+            self.judge();
+        }
+    }
+
+    /// Clearances now: to each obstacle (footprints), and to the nearest wall.
+    pub fn clearances(&self) -> impl Iterator<Item = f64> + '_ {
+        self.obstacles.iter().map(move |(path, radius)| {
+            (self.pose.position - path.position(self.time)).norm() - radius - self.robot_radius
+        })
+    }
+
+    /// Gap between the robot's centre and the nearest lane line now (`+inf` in free space).
+    pub fn wall_clearance(&self) -> f64 {
+        self.lane_half_width.map_or(f64::INFINITY, |h| h - self.pose.position.im.abs())
+    }
+
+    fn judge(&mut self) {
+        let obstacle = self.clearances().fold(f64::INFINITY, f64::min);
+        let wall = self.wall_clearance();
+        let t = &mut self.truth;
+        t.min_obstacle_clearance = t.min_obstacle_clearance.min(obstacle);
+        t.min_wall_clearance = t.min_wall_clearance.min(wall);
+        if t.first_contact.is_none() && (obstacle < 0.0 || wall < 0.0) {
+            t.first_contact = Some(self.time);
+        }
+    }
+}

@@ -1,0 +1,102 @@
+//! Scripted obstacle motion, analytic in time so that the truth at any moment is exact.
+
+use crate::scenario::{point, Motion, ObstacleSpec};
+use crate::Point;
+
+/// An obstacle's path: a start and legs of constant velocity.
+#[derive(Debug, Clone)]
+pub struct ObstaclePath {
+    start: Point,
+    /// Legs as (start time, start point, velocity); after the last leg the obstacle rests
+    /// (or, with `repeat`, the schedule starts again).
+    legs: Vec<(f64, Point, Point)>,
+    end: f64,
+    repeat: bool,
+}
+
+impl ObstaclePath {
+    pub fn new(spec: &ObstacleSpec) -> Self {
+        let start = point(spec.start);
+        match &spec.motion {
+            Motion::Stationary => Self { start, legs: Vec::new(), end: 0.0, repeat: false },
+            Motion::Constant { velocity } => {
+                Self { start, legs: vec![(0.0, start, point(*velocity))], end: f64::INFINITY, repeat: false }
+            }
+            Motion::Waypoints { points, speed, repeat } => {
+                let mut legs = Vec::new();
+                let (mut t, mut from) = (0.0, start);
+                for &p in points.iter().map(|p| point(*p)).collect::<Vec<_>>().iter().chain(repeat.then_some(&start)) {
+                    let d = p - from;
+                    if d.norm() > 0.0 {
+                        legs.push((t, from, d / d.norm() * *speed));
+                        t += d.norm() / speed;
+                    }
+                    from = p;
+                }
+                Self { start, legs, end: t, repeat: *repeat && t > 0.0 }
+            }
+        }
+    }
+
+    fn leg_at(&self, t: f64) -> Option<(f64, Point, Point)> {
+        let t = if self.repeat { t.rem_euclid(self.end) } else { t };
+        if t >= self.end {
+            return None;
+        }
+        self.legs.iter().rev().find(|l| l.0 <= t).map(|&(t0, p0, v)| (t - t0, p0, v))
+    }
+
+    pub fn position(&self, t: f64) -> Point {
+        match self.leg_at(t.max(0.0)) {
+            Some((dt, p0, v)) => p0 + v * dt,
+            None => self.rest_point(),
+        }
+    }
+
+    pub fn velocity(&self, t: f64) -> Point {
+        self.leg_at(t.max(0.0)).map_or(Point::new(0.0, 0.0), |(_, _, v)| v)
+    }
+
+    fn rest_point(&self) -> Point {
+        match self.legs.last() {
+            Some(&(t0, p0, v)) if self.end.is_finite() => p0 + v * (self.end - t0),
+            _ => self.start,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(motion: Motion) -> ObstacleSpec {
+        ObstacleSpec { radius: 0.1, start: [0.0, 0.0], motion }
+    }
+
+    #[test]
+    fn waypoints_then_rest() {
+        let p = ObstaclePath::new(&spec(Motion::Waypoints {
+            points: vec![[1.0, 0.0], [1.0, 1.0]],
+            speed: 0.5,
+            repeat: false,
+        }));
+        assert!((p.position(1.0) - Point::new(0.5, 0.0)).norm() < 1e-12);
+        assert!((p.position(3.0) - Point::new(1.0, 0.5)).norm() < 1e-12);
+        assert!((p.velocity(3.0) - Point::new(0.0, 0.5)).norm() < 1e-12);
+        assert!((p.position(10.0) - Point::new(1.0, 1.0)).norm() < 1e-12);
+        assert_eq!(p.velocity(10.0), Point::new(0.0, 0.0));
+    }
+
+    #[test]
+    fn repeating_waypoints_loop() {
+        let p = ObstaclePath::new(&spec(Motion::Waypoints { points: vec![[1.0, 0.0]], speed: 1.0, repeat: true }));
+        assert!((p.position(1.5) - Point::new(0.5, 0.0)).norm() < 1e-12);
+        assert!((p.position(2.25) - Point::new(0.25, 0.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn constant_velocity() {
+        let p = ObstaclePath::new(&spec(Motion::Constant { velocity: [-0.1, 0.2] }));
+        assert!((p.position(2.0) - Point::new(-0.2, 0.4)).norm() < 1e-12);
+    }
+}

@@ -1,0 +1,81 @@
+//! Differential-drive kinematics: wheel travel in, pose out.
+
+use crate::Point;
+
+/// The robot's pose: centre and heading (rad, from +x, counter-clockwise).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    pub position: Point,
+    pub heading: f64,
+}
+
+/// A differential-drive base.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DiffDrive {
+    pub wheel_base: f64,
+    /// Step pulses per metre of wheel rim travel.
+    pub pulses_per_metre: f64,
+}
+
+impl DiffDrive {
+    /// The pose after the wheels emitted `pulses` (left, right) from `pose`. Exact for
+    /// constant wheel speeds over the step (the centre moves on an arc).
+    pub fn advance(&self, pose: Pose, pulses: [f64; 2]) -> Pose {
+        let [dl, dr] = pulses.map(|p| p / self.pulses_per_metre);
+        let ds = 0.5 * (dl + dr);
+        let dtheta = (dr - dl) / self.wheel_base;
+        // Chord of the arc: ds · sinc(dθ/2) along the mean heading.
+        let half = 0.5 * dtheta;
+        let chord = if half.abs() < 1e-9 { ds } else { ds * half.sin() / half };
+        let mean = pose.heading + half;
+        Pose { position: pose.position + Point::from_polar(chord, mean), heading: wrap_angle(pose.heading + dtheta) }
+    }
+}
+
+/// An angle in `(-π, π]`.
+pub fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = (a + PI).rem_euclid(TAU) - PI;
+    if w <= -PI {
+        w + TAU
+    } else {
+        w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    #[test]
+    fn straight_and_turn_in_place() {
+        let d = DiffDrive { wheel_base: 0.1, pulses_per_metre: 1000.0 };
+        let p = d.advance(Pose { position: Point::new(0.0, 0.0), heading: 0.0 }, [100.0, 100.0]);
+        assert!((p.position - Point::new(0.1, 0.0)).norm() < 1e-12);
+        // Opposite wheels, each travelling a quarter of the wheel circle: half a turn.
+        let quarter = PI * 0.1 / 4.0 * 1000.0;
+        let p = d.advance(p, [-quarter, quarter]);
+        assert!((p.position - Point::new(0.1, 0.0)).norm() < 1e-12);
+        assert!((p.heading - PI / 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_full_circle_in_small_steps_closes() {
+        let d = DiffDrive { wheel_base: 0.1, pulses_per_metre: 1000.0 };
+        let mut p = Pose { position: Point::new(0.0, 0.0), heading: 0.0 };
+        // Left wheel on radius 0.15, right on 0.25: the centre circles at radius 0.2.
+        let n = 1000;
+        for _ in 0..n {
+            p = d.advance(p, [2.0 * PI * 0.15 * 1000.0 / n as f64, 2.0 * PI * 0.25 * 1000.0 / n as f64]);
+        }
+        assert!(p.position.norm() < 1e-9, "{:?}", p.position);
+    }
+
+    #[test]
+    fn wraps_angles() {
+        assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
+        assert!((wrap_angle(-PI) - PI).abs() < 1e-12);
+        assert!((wrap_angle(0.5) - 0.5).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,129 @@
+//! `flowgate plan`: the offline scenario runner.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use flowgate::offline::{self, sweep};
+use flowgate::report;
+use flowgate_sim::scenario::Scenario;
+
+/// Print a line; a closed stdout (`| head`) ends the command quietly instead of panicking.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout().lock(), $($arg)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            return Err(e.into());
+        }
+    }};
+}
+
+#[derive(Args, Debug)]
+pub struct PlanArgs {
+    /// The scenario file (TOML).
+    #[arg(long, value_name = "FILE", conflicts_with = "all")]
+    scenario: Option<PathBuf>,
+    /// The scenario file, positionally (for `--sweep N FILE`).
+    #[arg(value_name = "FILE", conflicts_with_all = ["all", "scenario"])]
+    file: Option<PathBuf>,
+    /// Run every `*.toml` in this folder and print a table.
+    #[arg(long, value_name = "DIR")]
+    all: Option<PathBuf>,
+    /// Run a Monte-Carlo sweep of this many episodes around the scenario.
+    #[arg(long, value_name = "N", conflicts_with = "all")]
+    sweep: Option<usize>,
+    /// Seed of the sweep.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Worker threads for the sweep.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Where to write summary.json and the plots (default: out/plan/<scenario>).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
+
+pub fn run(args: PlanArgs) -> Result<()> {
+    if let Some(dir) = &args.all {
+        return run_all(dir, args.out.as_deref());
+    }
+    let Some(file) = args.scenario.as_ref().or(args.file.as_ref()) else {
+        bail!("name a scenario: --scenario FILE, or --all DIR");
+    };
+    let scenario = Scenario::load(file)?;
+    let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
+    if let Some(n) = args.sweep {
+        let started = std::time::Instant::now();
+        let report = sweep::sweep(&scenario, n, args.seed, args.threads);
+        say!("{report}");
+        say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
+        std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+        let path = out.join("sweep.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+        say!("  wrote {}", path.display());
+        return Ok(());
+    }
+    let run = offline::run(&scenario, true);
+    say!("{}", report::one_line(&run));
+    write_outputs(&scenario, &run, &out)?;
+    say!("  wrote {}/{{summary.json,trajectory.svg,history.svg}}", out.display());
+    Ok(())
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem().map_or_else(|| "scenario".into(), |s| s.to_string_lossy().into_owned())
+}
+
+fn write_outputs(scenario: &Scenario, run: &offline::Run, out: &Path) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&run.summary)?)?;
+    std::fs::write(out.join("trajectory.svg"), report::trajectory_svg(scenario, run))?;
+    std::fs::write(out.join("history.svg"), report::history_svg(scenario, run))?;
+    Ok(())
+}
+
+fn run_all(dir: &Path, out: Option<&Path>) -> Result<()> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!("no *.toml scenarios in {}", dir.display());
+    }
+    say!(
+        "{:<26} {:<9} {:>7} {:>11} {:>9} {:>6} {:>10} {:>10}",
+        "scenario",
+        "outcome",
+        "time s",
+        "clear. mm",
+        "wall mm",
+        "path×",
+        "wheel mm/s",
+        "plan p99µs"
+    );
+    for file in files {
+        let scenario = Scenario::load(&file)?;
+        let run = offline::run(&scenario, out.is_some());
+        let s = &run.summary;
+        say!(
+            "{:<26} {:<9} {:>7.1} {:>11} {:>9} {:>6.2} {:>10.0} {:>10.1}",
+            stem(&file),
+            s.outcome.to_string(),
+            s.end_time,
+            s.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),
+            s.min_wall_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),
+            s.path_length_ratio,
+            s.peak_wheel_speed[0].max(s.peak_wheel_speed[1]) * 1e3,
+            s.planner_compute.p99_us
+        );
+        if let Some(out) = out {
+            write_outputs(&scenario, &run, &out.join(stem(&file)))?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,6 @@
+//! Control: the per-cycle step (estimate in, pulse rates out). Pure in time: `t` is an
+//! argument, so the same step runs live, offline, in replay and in benchmarks.
+
+mod step;
+
+pub use step::{ControlConfig, ControlStep, Estimate, StallConfig, StepOutput, StepStatus};

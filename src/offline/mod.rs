@@ -1,0 +1,332 @@
+//! The offline scenario runner: the control step in closed loop with the simulator's
+//! world, in virtual time. The sensing chain of a rig is modelled between them: a pure
+//! delay, position noise on each LED, a low-pass filter, the Kalman tracker and (when the
+//! scenario asks) delay compensation. Outcomes are judged by the world's truth.
+
+pub mod sweep;
+
+use std::collections::VecDeque;
+use std::time::Instant;
+
+use flowgate_sim::scenario::{MarginSpec, Scenario};
+use flowgate_sim::world::World;
+use hdrhistogram::Histogram;
+use num_complex::Complex64 as C;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::Serialize;
+
+use crate::control::{ControlConfig, ControlStep, Estimate, StallConfig, StepStatus};
+use crate::planner::drive::{DriveConfig, WheelSpeeds};
+use crate::planner::{Margin, ObstacleEstimate, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
+use crate::track::{ConstantVelocityKf, KalmanConfig, LedGeometry, LowPass, Pose};
+
+/// How a run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Goal,
+    Collision,
+    Timeout,
+    Stall,
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Outcome::Goal => "goal",
+            Outcome::Collision => "collision",
+            Outcome::Timeout => "timeout",
+            Outcome::Stall => "stall",
+        })
+    }
+}
+
+/// Percentiles of the planner's compute time per cycle, µs.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ComputeTime {
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub max_us: f64,
+}
+
+/// The result of one run (`summary.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub scenario: String,
+    pub outcome: Outcome,
+    /// Simulated time at the end of the run, s.
+    pub end_time: f64,
+    pub time_to_goal: Option<f64>,
+    /// Smallest gap between the robot's and an obstacle's true footprints, m (None: no obstacles).
+    pub min_obstacle_clearance: Option<f64>,
+    /// Smallest gap between the robot's footprint and a wall, m (None: free space).
+    pub min_wall_clearance: Option<f64>,
+    pub first_contact: Option<f64>,
+    pub path_length: f64,
+    /// Path length over the straight start-goal distance.
+    pub path_length_ratio: f64,
+    /// Largest wheel rim speeds, m/s: left, right.
+    pub peak_wheel_speed: [f64; 2],
+    pub planner_compute: ComputeTime,
+    pub cycles: u64,
+    /// Cycles in which the planner refused its input and the robot was stopped.
+    pub invalid_cycles: u64,
+    pub saturated_cycles: u64,
+    pub tie_break_cycles: u64,
+    /// Some obstacle was at least as fast as the robot's speed limit: no guarantee.
+    pub obstacle_faster_than_robot: bool,
+}
+
+/// One cycle of a recorded run, for the plots.
+#[derive(Debug, Clone)]
+pub struct TraceRow {
+    pub t: f64,
+    pub pose: Pose,
+    /// Commanded velocity (saturated), m/s.
+    pub command: C,
+    /// Realised speed of the robot's centre, m/s.
+    pub speed: f64,
+    pub obstacles: Vec<C>,
+}
+
+/// A finished run.
+#[derive(Debug, Clone)]
+pub struct Run {
+    pub summary: Summary,
+    pub trace: Vec<TraceRow>,
+}
+
+/// The control configuration a scenario describes.
+pub fn control_config(s: &Scenario) -> ControlConfig {
+    let r = &s.robot;
+    let p = &s.planner;
+    let reference_radius = r.radius + s.obstacles.iter().map(|o| o.radius).fold(r.radius, f64::max);
+    ControlConfig {
+        planner: PlannerConfig {
+            space: s.lane.map_or(Space::Free, |l| Space::Lane { half_width: l.half_width }),
+            cruise_speed: p.cruise_speed,
+            c1: p.c1,
+            reference_radius,
+            max_speed: r.max_speed,
+            margin: match p.margin {
+                MarginSpec::None => Margin::None,
+                MarginSpec::Fixed { metres } => Margin::Fixed(metres),
+                MarginSpec::Factor { factor } => Margin::Factor(factor),
+                MarginSpec::Delay { extra_speed } => Margin::Delay { extra_speed },
+            },
+            tie_break: p.tie_break.then(TieBreak::default),
+        },
+        drive: DriveConfig {
+            wheel_base: r.wheel_base,
+            wheel_radius: r.wheel_radius,
+            steps_per_rev: r.steps_per_rev,
+            microsteps: r.microsteps,
+            max_wheel_speed: r.max_wheel_speed,
+            steering_gain: p.kc,
+            sample_time: s.sensing.sample_time,
+        },
+        goal: s.goal(),
+        goal_tolerance: s.goal.tolerance,
+        robot_radius: r.radius,
+        stall: StallConfig::default(),
+    }
+}
+
+/// The LEDs on the simulated robot: half its radius ahead of and behind its centre.
+pub fn led_geometry(s: &Scenario) -> LedGeometry {
+    LedGeometry { front: 0.5 * s.robot.radius, rear: 0.5 * s.robot.radius }
+}
+
+impl From<flowgate_sim::world::Pose> for Pose {
+    fn from(p: flowgate_sim::world::Pose) -> Self {
+        Pose { position: p.position, heading: p.heading }
+    }
+}
+
+/// The simulated sensing chain: what the gateway would see of the world.
+struct Sensor {
+    delay: f64,
+    noise: Option<Normal<f64>>,
+    rng: ChaCha8Rng,
+    leds: LedGeometry,
+    led_filters: [LowPass; 2],
+    obstacle_filters: Vec<LowPass>,
+    /// The robot's true pose over the last `delay` seconds.
+    history: VecDeque<(f64, Pose)>,
+}
+
+impl Sensor {
+    fn new(s: &Scenario) -> Self {
+        let hz = s.sensing.lowpass_hz;
+        Self {
+            delay: s.sensing.delay,
+            noise: (s.sensing.position_noise > 0.0).then(|| Normal::new(0.0, s.sensing.position_noise).unwrap()),
+            rng: ChaCha8Rng::seed_from_u64(s.sensing.seed),
+            leds: led_geometry(s),
+            led_filters: [LowPass::new(hz), LowPass::new(hz)],
+            obstacle_filters: s.obstacles.iter().map(|_| LowPass::new(hz)).collect(),
+            history: VecDeque::with_capacity((s.sensing.delay / s.sensing.sample_time).ceil() as usize + 4),
+        }
+    }
+
+    fn noisy(&mut self, p: C) -> C {
+        match self.noise {
+            Some(n) => p + C::new(n.sample(&mut self.rng), n.sample(&mut self.rng)),
+            None => p,
+        }
+    }
+
+    /// Measure at world time `t`: the robot pose and obstacle centres as they were at
+    /// `t - delay`, noisy and filtered. Returns the time of validity.
+    fn measure(&mut self, world: &World, dt: f64, obstacles: &mut [C]) -> (f64, Option<Pose>) {
+        let t = world.time();
+        self.history.push_back((t, world.pose().into()));
+        let t_valid = (t - self.delay).max(0.0);
+        while self.history.len() > 1 && self.history[1].0 <= t_valid + 1e-9 {
+            self.history.pop_front();
+        }
+        let truth = self.history[0].1;
+        let (front, rear) = self.leds.leds(truth);
+        let (front, rear) = (self.noisy(front), self.noisy(rear));
+        let front = self.led_filters[0].filter(front, dt);
+        let rear = self.led_filters[1].filter(rear, dt);
+        for (k, slot) in obstacles.iter_mut().enumerate() {
+            let p = self.noisy(world.obstacle_position(k, t_valid));
+            *slot = self.obstacle_filters[k].filter(p, dt);
+        }
+        (t_valid, self.leds.pose(front, rear))
+    }
+}
+
+/// Dead reckoning of the robot from its own recent commands, to bridge the sensing delay.
+struct CommandHistory {
+    commands: VecDeque<(f64, WheelSpeeds)>,
+}
+
+impl CommandHistory {
+    /// The pose `measured` at `t_valid`, advanced to `t` with the commands issued since.
+    fn predict(&self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
+        let mut pose = measured;
+        for (i, &(t0, w)) in self.commands.iter().enumerate() {
+            let t1 = self.commands.get(i + 1).map_or(t, |c| c.0);
+            let span = (t1.min(t) - t0.max(t_valid)).max(0.0);
+            if span > 0.0 {
+                let v = 0.5 * (w.left + w.right);
+                let omega = (w.right - w.left) / wheel_base;
+                let mid = pose.heading + 0.5 * omega * span;
+                pose.position += C::from_polar(v * span, mid);
+                pose.heading += omega * span;
+            }
+        }
+        pose
+    }
+}
+
+/// Run a scenario to its end. With `record`, keep a trace row per cycle for the plots.
+pub fn run(s: &Scenario, record: bool) -> Run {
+    let config = control_config(s);
+    let mut control = ControlStep::new(config);
+    let mut world = World::new(s);
+    let mut sensor = Sensor::new(s);
+    let t_step = s.sensing.sample_time;
+    let n = s.obstacles.len().min(MAX_OBSTACLES);
+    let kalman = KalmanConfig { measurement_noise: s.sensing.position_noise.max(1e-3), ..KalmanConfig::default() };
+    let mut filters: Vec<Option<ConstantVelocityKf>> = vec![None; n];
+    let mut measured = vec![C::default(); n];
+    let mut estimates = [ObstacleEstimate { center: C::default(), velocity: C::default(), radius: 0.0 }; MAX_OBSTACLES];
+    let mut commands = CommandHistory { commands: VecDeque::new() };
+    let mut compute = Histogram::<u64>::new(3).expect("histogram");
+    let mut trace = Vec::new();
+    let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
+    let mut last_pose: Option<Pose> = None;
+    // Δt the margin rule sees: the sensing delay plus one period until the command acts.
+    let delay = s.sensing.delay + t_step;
+
+    let outcome = loop {
+        let t = world.time();
+        let (t_valid, pose) = sensor.measure(&world, t_step, &mut measured);
+        for (k, z) in measured.iter().enumerate() {
+            match &mut filters[k] {
+                Some(kf) => {
+                    kf.update(t_valid, *z);
+                }
+                None => filters[k] = Some(ConstantVelocityKf::new(kalman, t_valid, *z)),
+            }
+            let kf = filters[k].as_ref().expect("filter started above");
+            let predict = s.planner.predict_obstacles;
+            let (center, velocity) = kf.predict(if predict { t } else { t_valid });
+            estimates[k] =
+                ObstacleEstimate { center: if predict { center } else { *z }, velocity, radius: s.obstacles[k].radius };
+        }
+        // A lost pose (coincident LEDs) keeps the last one; the gateway would stop instead.
+        let pose = match pose.or(last_pose) {
+            Some(p) => p,
+            None => break Outcome::Timeout,
+        };
+        last_pose = Some(pose);
+        let pose = if s.planner.predict_robot { commands.predict(pose, t_valid, t, s.robot.wheel_base) } else { pose };
+
+        let started = Instant::now();
+        let out = control.step(t, &Estimate { pose, obstacles: &estimates[..n], delay });
+        let _ = compute.record(started.elapsed().as_nanos() as u64);
+        cycles += 1;
+        if let Some(plan) = out.plan {
+            saturated += u64::from(plan.flags.saturated);
+            tie_break += u64::from(plan.flags.tie_break);
+            faster |= plan.flags.obstacle_faster_than_robot;
+        }
+        match out.status {
+            StepStatus::AtGoal => break Outcome::Goal,
+            StepStatus::Stalled => break Outcome::Stall,
+            StepStatus::Invalid(_) => invalid += 1,
+            StepStatus::Driving => {}
+        }
+        world.command_pulse_rates(out.pulses);
+        commands.commands.push_back((t, out.wheels));
+        while commands.commands.len() > 1 && commands.commands[1].0 <= t_valid - t_step {
+            commands.commands.pop_front();
+        }
+        if record {
+            let w = world.wheel_speeds();
+            trace.push(TraceRow {
+                t,
+                pose: world.pose().into(),
+                command: out.plan.map_or(C::default(), |p| p.velocity),
+                speed: 0.5 * (w[0] + w[1]),
+                obstacles: (0..n).map(|k| world.obstacle_position(k, t)).collect(),
+            });
+        }
+        world.step(t_step);
+        if world.truth().first_contact.is_some() {
+            break Outcome::Collision;
+        }
+        if world.time() >= s.time_limit {
+            break Outcome::Timeout;
+        }
+    };
+
+    let truth = world.truth();
+    let straight = (s.goal() - s.robot_start()).norm();
+    let us = |q: f64| compute.value_at_quantile(q) as f64 / 1e3;
+    let summary = Summary {
+        scenario: s.name.clone(),
+        outcome,
+        end_time: world.time(),
+        time_to_goal: (outcome == Outcome::Goal).then(|| world.time()),
+        min_obstacle_clearance: (n > 0).then_some(truth.min_obstacle_clearance),
+        min_wall_clearance: s.lane.map(|_| truth.min_wall_clearance),
+        first_contact: truth.first_contact,
+        path_length: truth.path_length,
+        path_length_ratio: if straight > 0.0 { truth.path_length / straight } else { 0.0 },
+        peak_wheel_speed: truth.peak_wheel_speed,
+        planner_compute: ComputeTime { p50_us: us(0.5), p99_us: us(0.99), max_us: compute.max() as f64 / 1e3 },
+        cycles,
+        invalid_cycles: invalid,
+        saturated_cycles: saturated,
+        tie_break_cycles: tie_break,
+        obstacle_faster_than_robot: faster,
+    };
+    Run { summary, trace }
+}

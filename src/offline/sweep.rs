@@ -1,0 +1,207 @@
+//! Monte-Carlo sweeps around a scenario: the evidence for the safety envelope.
+//!
+//! Each episode perturbs the base scenario, reproducibly from `(seed, episode)`:
+//! - every moving obstacle's speed × U(0.5, 1.5), its heading ± U(20°);
+//! - the robot's start ± U(3 cm) in x and y (kept inside the lane);
+//! - the sensing delay U(0, max(2 × base delay, 0.3 s));
+//! - the noise seed.
+//!
+//! The report gives outcome rates, the distribution of minimum clearance, and success
+//! against obstacle speed / robot speed limit and against delay.
+
+use flowgate_sim::scenario::{Motion, Scenario};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use super::{run, Outcome};
+
+/// One episode's perturbation and result.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Episode {
+    pub outcome: Outcome,
+    pub min_clearance: Option<f64>,
+    /// Fastest obstacle speed over the robot's speed limit.
+    pub speed_ratio: f64,
+    pub delay: f64,
+}
+
+/// Success rate in one bin of a parameter.
+#[derive(Debug, Clone, Serialize)]
+pub struct Bin {
+    pub from: f64,
+    pub to: f64,
+    pub episodes: usize,
+    pub goal_rate: f64,
+    pub collision_rate: f64,
+}
+
+/// The sweep's report (printed as a table, written as JSON).
+#[derive(Debug, Clone, Serialize)]
+pub struct SweepReport {
+    pub scenario: String,
+    pub episodes: usize,
+    pub seed: u64,
+    pub goal_rate: f64,
+    pub collision_rate: f64,
+    pub timeout_rate: f64,
+    pub stall_rate: f64,
+    /// Minimum clearance percentiles over the episodes, m: min, p5, p25, p50.
+    pub clearance_min: f64,
+    pub clearance_p5: f64,
+    pub clearance_p25: f64,
+    pub clearance_p50: f64,
+    pub by_speed_ratio: Vec<Bin>,
+    pub by_delay: Vec<Bin>,
+}
+
+/// The scenario of episode `i`.
+pub fn perturb(base: &Scenario, seed: u64, i: u64) -> Scenario {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ i.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let mut s = base.clone();
+    for o in &mut s.obstacles {
+        let scale = rng.random_range(0.5..1.5);
+        let turn = rng.random_range(-20f64..20.0).to_radians();
+        match &mut o.motion {
+            Motion::Stationary => {}
+            Motion::Constant { velocity } => {
+                let v = num_complex::Complex64::new(velocity[0], velocity[1])
+                    * scale
+                    * num_complex::Complex64::from_polar(1.0, turn);
+                *velocity = [v.re, v.im];
+            }
+            Motion::Waypoints { speed, .. } => *speed *= scale,
+        }
+    }
+    s.robot.start[0] += rng.random_range(-0.03..0.03);
+    s.robot.start[1] += rng.random_range(-0.03..0.03);
+    if let Some(lane) = s.lane {
+        let room = lane.half_width - s.robot.radius - 1e-3;
+        s.robot.start[1] = s.robot.start[1].clamp(-room, room);
+    }
+    s.sensing.delay = rng.random_range(0.0..(2.0 * base.sensing.delay).max(0.3));
+    s.sensing.seed = rng.random();
+    s
+}
+
+fn fastest_obstacle(s: &Scenario) -> f64 {
+    s.obstacles
+        .iter()
+        .map(|o| match &o.motion {
+            Motion::Stationary => 0.0,
+            Motion::Constant { velocity } => velocity[0].hypot(velocity[1]),
+            Motion::Waypoints { speed, .. } => *speed,
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Run `n` episodes around `base` on `threads` threads.
+pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize) -> SweepReport {
+    let threads = threads.max(1);
+    let episodes: Vec<Episode> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..threads)
+            .map(|w| {
+                scope.spawn(move || {
+                    (w..n)
+                        .step_by(threads)
+                        .map(|i| {
+                            let s = perturb(base, seed, i as u64);
+                            let r = run(&s, false).summary;
+                            Episode {
+                                outcome: r.outcome,
+                                min_clearance: r.min_obstacle_clearance,
+                                speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
+                                delay: s.sensing.delay,
+                            }
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles.into_iter().flat_map(|h| h.join().expect("sweep worker panicked")).collect()
+    });
+    report(base, seed, &episodes)
+}
+
+fn report(base: &Scenario, seed: u64, episodes: &[Episode]) -> SweepReport {
+    let n = episodes.len().max(1) as f64;
+    let rate = |o: Outcome| episodes.iter().filter(|e| e.outcome == o).count() as f64 / n;
+    let mut clearances: Vec<f64> = episodes.iter().filter_map(|e| e.min_clearance).collect();
+    clearances.sort_by(f64::total_cmp);
+    let pct = |q: f64| {
+        if clearances.is_empty() {
+            f64::NAN
+        } else {
+            clearances[((clearances.len() - 1) as f64 * q).round() as usize]
+        }
+    };
+    let bins = |edges: &[f64], key: fn(&Episode) -> f64| -> Vec<Bin> {
+        edges
+            .windows(2)
+            .map(|w| {
+                let inside: Vec<&Episode> = episodes.iter().filter(|e| key(e) >= w[0] && key(e) < w[1]).collect();
+                let m = inside.len().max(1) as f64;
+                Bin {
+                    from: w[0],
+                    to: w[1],
+                    episodes: inside.len(),
+                    goal_rate: inside.iter().filter(|e| e.outcome == Outcome::Goal).count() as f64 / m,
+                    collision_rate: inside.iter().filter(|e| e.outcome == Outcome::Collision).count() as f64 / m,
+                }
+            })
+            .filter(|b| b.episodes > 0)
+            .collect()
+    };
+    SweepReport {
+        scenario: base.name.clone(),
+        episodes: episodes.len(),
+        seed,
+        goal_rate: rate(Outcome::Goal),
+        collision_rate: rate(Outcome::Collision),
+        timeout_rate: rate(Outcome::Timeout),
+        stall_rate: rate(Outcome::Stall),
+        clearance_min: pct(0.0),
+        clearance_p5: pct(0.05),
+        clearance_p25: pct(0.25),
+        clearance_p50: pct(0.5),
+        by_speed_ratio: bins(&[0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, f64::INFINITY], |e| e.speed_ratio),
+        by_delay: bins(&[0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.9, 1.2, f64::INFINITY], |e| e.delay),
+    }
+}
+
+impl std::fmt::Display for SweepReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let pc = |x: f64| 100.0 * x;
+        writeln!(f, "sweep of {} episodes around {} (seed {})", self.episodes, self.scenario, self.seed)?;
+        writeln!(
+            f,
+            "  goal {:.1}%  collision {:.1}%  timeout {:.1}%  stall {:.1}%",
+            pc(self.goal_rate),
+            pc(self.collision_rate),
+            pc(self.timeout_rate),
+            pc(self.stall_rate)
+        )?;
+        writeln!(
+            f,
+            "  min clearance (m): min {:.4}  p5 {:.4}  p25 {:.4}  p50 {:.4}",
+            self.clearance_min, self.clearance_p5, self.clearance_p25, self.clearance_p50
+        )?;
+        for (title, bins) in
+            [("obstacle speed / robot limit", &self.by_speed_ratio), ("sensing delay (s)", &self.by_delay)]
+        {
+            writeln!(f, "  {title:<30} {:>9} {:>8} {:>10}", "episodes", "goal", "collision")?;
+            for b in bins {
+                let range =
+                    if b.to.is_finite() { format!("{:.2} - {:.2}", b.from, b.to) } else { format!(">= {:.2}", b.from) };
+                writeln!(
+                    f,
+                    "  {range:<30} {:>9} {:>7.1}% {:>9.1}%",
+                    b.episodes,
+                    pc(b.goal_rate),
+                    pc(b.collision_rate)
+                )?;
+            }
+        }
+        Ok(())
+    }
+}

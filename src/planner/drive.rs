@@ -1,0 +1,124 @@
+//! From a velocity command to wheel speeds (eq. 30) and stepper pulse rates.
+//!
+//! `v_{l,r} = v ∓ K_c l_w Δθ / (2T)`, `Δθ = wrap(arg(u + i v) − θ)`.
+//! Beyond the paper: the forward speed is `|u + i v| · max(cos Δθ, 0)`, so a robot facing
+//! away from the command turns before it drives (the paper's robot started roughly aligned);
+//! and both wheels are scaled by one factor when either exceeds the wheel limit, which
+//! keeps the path's curvature while slowing down.
+
+use num_complex::Complex64 as C;
+
+/// The drive's geometry and the steering gain.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveConfig {
+    /// `l_w`, m.
+    pub wheel_base: f64,
+    pub wheel_radius: f64,
+    pub steps_per_rev: u32,
+    pub microsteps: u32,
+    /// Wheel rim speed limit, m/s.
+    pub max_wheel_speed: f64,
+    /// `K_c`.
+    pub steering_gain: f64,
+    /// `T`, s.
+    pub sample_time: f64,
+}
+
+impl DriveConfig {
+    /// Step pulses per metre of rim travel.
+    pub fn pulses_per_metre(&self) -> f64 {
+        f64::from(self.steps_per_rev) * f64::from(self.microsteps) / (std::f64::consts::TAU * self.wheel_radius)
+    }
+}
+
+/// Wheel rim speeds, m/s (positive drives the robot forward).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WheelSpeeds {
+    pub left: f64,
+    pub right: f64,
+}
+
+/// Eq. 30 with the heading gate and wheel limits described in the module docs.
+pub fn wheel_speeds(command: C, heading: f64, cfg: &DriveConfig) -> WheelSpeeds {
+    let speed = command.norm();
+    if speed.is_nan() || speed <= 0.0 || !heading.is_finite() {
+        return WheelSpeeds::default();
+    }
+    let dtheta = wrap_angle(command.arg() - heading);
+    let v = speed * dtheta.cos().max(0.0);
+    let turn = cfg.steering_gain * cfg.wheel_base * dtheta / (2.0 * cfg.sample_time);
+    let (left, right) = (v - turn, v + turn);
+    let scale = (left.abs().max(right.abs()) / cfg.max_wheel_speed).max(1.0);
+    WheelSpeeds { left: left / scale, right: right / scale }
+}
+
+/// Wheel speeds to signed pulse rates (pulses/s), rounded to the nearest pulse.
+pub fn pulse_rates(w: WheelSpeeds, cfg: &DriveConfig) -> [i32; 2] {
+    let ppm = cfg.pulses_per_metre();
+    let max = f64::from(flowgate_protocol::motor::MAX_PULSE_RATE);
+    [w.left, w.right].map(|v| (v * ppm).round().clamp(-max, max) as i32)
+}
+
+/// An angle in `(-π, π]`.
+pub fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = (a + PI).rem_euclid(TAU) - PI;
+    if w <= -PI {
+        w + TAU
+    } else {
+        w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn cfg() -> DriveConfig {
+        DriveConfig {
+            wheel_base: 0.108,
+            wheel_radius: 0.02,
+            steps_per_rev: 200,
+            microsteps: 8,
+            max_wheel_speed: 0.25,
+            steering_gain: 0.06,
+            sample_time: 0.02,
+        }
+    }
+
+    #[test]
+    fn equation_30() {
+        let c = cfg();
+        // Aligned: both wheels at the commanded speed.
+        let w = wheel_speeds(C::new(0.1, 0.0), 0.0, &c);
+        assert!((w.left - 0.1).abs() < 1e-12 && (w.right - 0.1).abs() < 1e-12);
+        // Δθ = 0.2 rad to the left: right wheel faster by K_c l_w Δθ / T.
+        let w = wheel_speeds(C::from_polar(0.1, 0.2), 0.0, &c);
+        let turn = 0.06 * 0.108 * 0.2 / (2.0 * 0.02);
+        assert!((w.right - w.left - 2.0 * turn).abs() < 1e-12);
+        assert!((0.5 * (w.left + w.right) - 0.1 * 0.2f64.cos()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn pulse_rate_conversion() {
+        // 200 steps x 8 microsteps per rev of a 2 cm wheel: 12732.4 pulses/m.
+        let p = pulse_rates(WheelSpeeds { left: 0.1, right: -0.05 }, &cfg());
+        assert_eq!(p, [1273, -637]);
+    }
+
+    proptest! {
+        #[test]
+        fn wheel_limits_hold_and_curvature_is_kept(speed in 0.0..2.0f64, arg in -4.0..4.0f64, heading in -4.0..4.0f64) {
+            let c = cfg();
+            let w = wheel_speeds(C::from_polar(speed, arg), heading, &c);
+            prop_assert!(w.left.abs() <= c.max_wheel_speed + 1e-12 && w.right.abs() <= c.max_wheel_speed + 1e-12);
+            prop_assert!(w.left.is_finite() && w.right.is_finite());
+            // Turning toward the command: the sign of (right - left) follows Δθ.
+            let dtheta = wrap_angle(arg - heading);
+            if speed > 0.0 && dtheta.abs() > 1e-6 {
+                prop_assert_eq!((w.right - w.left).signum(), dtheta.signum());
+            }
+        }
+    }
+}

@@ -1,0 +1,231 @@
+//! The planner: estimated obstacles and robot position in, a velocity command out.
+//!
+//! Pure and allocation-free: the same call serves the live gateway, the offline scenario
+//! runner, replay and the benchmarks. The field itself is in [`field`]; the conversion of
+//! the command to wheel speeds and pulse rates (eq. 30) in [`drive`].
+//!
+//! On top of the field the planner adds what a real rig needs:
+//! - **Planning radius** `R = a_0 + a_r` grown by a [`Margin`] rule for sensing delay
+//!   (eq. 29: `R > R_0 + U_a Δt`), fixed, by factor, or from the measured delay.
+//! - **Tie-break** for the symmetric configurations where the field alone deadlocks
+//!   (robot, obstacle and goal collinear with the robot behind the obstacle: every term is
+//!   real on that axis, so the robot stalls at the rear stagnation point or, if the
+//!   obstacle comes at it, is pushed straight back). Rule, deterministic: when the robot
+//!   lies within [`TieBreak::angle`] of the goal-obstacle axis on the far side, that
+//!   obstacle's planning circle is shifted toward the robot's left by up to
+//!   [`TieBreak::shift`]·R and grown by the same amount (so it still covers the true
+//!   circle). The robot then passes keeping the obstacle on its left ("keep right"). The
+//!   shift fades linearly to zero at the edge of the cone and never exceeds half the
+//!   robot's current gap, so the field stays continuous and the robot is never placed
+//!   inside a planning circle.
+//! - **Saturation** to the robot's speed limit, keeping the direction.
+//! - **Flags**: speed limit below an obstacle's speed (avoidance not guaranteed), tie-break
+//!   active, command saturated.
+
+pub mod drive;
+pub mod field;
+
+pub use field::{Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
+use num_complex::Complex64 as C;
+
+/// How the planning radius grows from `R_0 = a_0 + a_r`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Margin {
+    /// `R = R_0`.
+    None,
+    /// `R = R_0 + metres`.
+    Fixed(f64),
+    /// `R = factor · R_0`.
+    Factor(f64),
+    /// `R = R_0 + (|V̂_k| + extra_speed) Δt`, `Δt` the measured sensing-to-actuation delay.
+    Delay { extra_speed: f64 },
+}
+
+impl Margin {
+    /// The planning radius for an obstacle of `r0 = a_0 + a_r` moving at `speed`.
+    pub fn radius(self, r0: f64, speed: f64, delay: f64) -> f64 {
+        match self {
+            Margin::None => r0,
+            Margin::Fixed(m) => r0 + m,
+            Margin::Factor(f) => r0 * f,
+            Margin::Delay { extra_speed } => r0 + (speed + extra_speed) * delay,
+        }
+    }
+}
+
+/// The symmetric-configuration tie-break (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TieBreak {
+    /// Half-angle of the cone behind the obstacle where it acts, rad.
+    pub angle: f64,
+    /// Largest shift of the planning circle, as a fraction of its radius.
+    pub shift: f64,
+}
+
+impl Default for TieBreak {
+    fn default() -> Self {
+        Self { angle: 12f64.to_radians(), shift: 0.15 }
+    }
+}
+
+/// Planner settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlannerConfig {
+    pub space: Space,
+    /// Far-field speed of the goal sink, m/s: the sink strength is `m = cruise_speed · R_ref`.
+    pub cruise_speed: f64,
+    /// `c1` of `K(r)`, 1/m: near the goal the speed falls off as `m c1 r / R_ref`.
+    pub c1: f64,
+    /// `R_ref` of `K(r)`, m.
+    pub reference_radius: f64,
+    /// The robot's largest speed; commands are saturated to it, m/s.
+    pub max_speed: f64,
+    pub margin: Margin,
+    pub tie_break: Option<TieBreak>,
+}
+
+/// An obstacle as estimated by tracking, at the time the command will act.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObstacleEstimate {
+    pub center: C,
+    pub velocity: C,
+    /// The obstacle's own radius `a_0`, m.
+    pub radius: f64,
+}
+
+/// Everything the planner needs for one command.
+#[derive(Debug, Clone, Copy)]
+pub struct PlanInput<'a> {
+    pub position: C,
+    pub goal: C,
+    /// The robot's radius `a_r`, m.
+    pub robot_radius: f64,
+    pub obstacles: &'a [ObstacleEstimate],
+    /// Measured sensing-to-actuation delay `Δt`, s (for [`Margin::Delay`]).
+    pub delay: f64,
+}
+
+/// Facts about a command worth logging.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PlanFlags {
+    /// The field's speed exceeded the limit and was scaled down.
+    pub saturated: bool,
+    /// An obstacle is at least as fast as the robot's limit: avoidance is not guaranteed.
+    pub obstacle_faster_than_robot: bool,
+    /// The tie-break shifted at least one planning circle.
+    pub tie_break: bool,
+}
+
+/// One planner result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plan {
+    /// The raw field velocity `u + i v`, m/s.
+    pub field: C,
+    /// The command after saturation, m/s.
+    pub velocity: C,
+    pub flags: PlanFlags,
+}
+
+/// A planner input it cannot give a command for. The caller stops the robot.
+pub type PlannerError = FieldError;
+
+/// The planner.
+#[derive(Debug, Clone, Copy)]
+pub struct Planner {
+    config: PlannerConfig,
+}
+
+impl Planner {
+    pub fn new(config: PlannerConfig) -> Self {
+        Self { config }
+    }
+    pub fn config(&self) -> &PlannerConfig {
+        &self.config
+    }
+
+    /// The sink for a goal.
+    pub fn sink(&self, goal: C) -> Sink {
+        let c = &self.config;
+        Sink { goal, strength: c.cruise_speed * c.reference_radius, c1: c.c1, reference_radius: c.reference_radius }
+    }
+
+    /// The obstacles as planned: margins and tie-break applied. Returns the count.
+    pub fn plan_obstacles(
+        &self,
+        input: &PlanInput<'_>,
+        out: &mut [PlanObstacle; MAX_OBSTACLES],
+    ) -> Result<(usize, PlanFlags), PlannerError> {
+        if input.obstacles.len() > MAX_OBSTACLES {
+            return Err(FieldError::TooManyObstacles);
+        }
+        let mut flags = PlanFlags::default();
+        let to_goal = input.goal - input.position;
+        let left = if to_goal.norm() > 0.0 { C::i() * to_goal / to_goal.norm() } else { C::default() };
+        for (slot, o) in out.iter_mut().zip(input.obstacles) {
+            let speed = o.velocity.norm();
+            flags.obstacle_faster_than_robot |= speed >= self.config.max_speed;
+            let mut p = PlanObstacle {
+                center: o.center,
+                velocity: o.velocity,
+                radius: self.config.margin.radius(o.radius + input.robot_radius, speed, input.delay),
+            };
+            if let Some(tb) = self.config.tie_break {
+                let shift = tie_break_shift(&tb, input.position, input.goal, &p);
+                if shift > 0.0 {
+                    p.center += left * shift;
+                    p.radius += shift;
+                    flags.tie_break = true;
+                }
+            }
+            *slot = p;
+        }
+        Ok((input.obstacles.len(), flags))
+    }
+
+    /// The field for this input (margins and tie-break applied).
+    pub fn field(&self, input: &PlanInput<'_>) -> Result<(Field, PlanFlags), PlannerError> {
+        let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+        let (n, flags) = self.plan_obstacles(input, &mut planned)?;
+        Ok((Field::new(self.config.space, self.sink(input.goal), &planned[..n])?, flags))
+    }
+
+    /// The velocity command at the robot's position.
+    pub fn plan(&self, input: &PlanInput<'_>) -> Result<Plan, PlannerError> {
+        let (field, mut flags) = self.field(input)?;
+        let v = field.velocity(input.position)?;
+        let speed = v.norm();
+        let velocity = if speed > self.config.max_speed {
+            flags.saturated = true;
+            v * (self.config.max_speed / speed)
+        } else {
+            v
+        };
+        Ok(Plan { field: v, velocity, flags })
+    }
+}
+
+/// How far the tie-break shifts obstacle `o`'s planning circle for a robot at `z`.
+fn tie_break_shift(tb: &TieBreak, z: C, goal: C, o: &PlanObstacle) -> f64 {
+    let p = z - o.center; // robot, seen from the obstacle
+    let g = goal - o.center; // goal, seen from the obstacle
+    let (np, ng) = (p.norm(), g.norm());
+    if np == 0.0 || ng == 0.0 {
+        return 0.0;
+    }
+    let cos = (p * g.conj()).re / (np * ng);
+    let sin = (p * g.conj()).im / (np * ng);
+    // Behind the obstacle: the angle between p and -g is small.
+    if cos >= 0.0 {
+        return 0.0;
+    }
+    let angle = sin.abs().asin();
+    let fade = 1.0 - angle / tb.angle;
+    if fade <= 0.0 {
+        return 0.0;
+    }
+    let gap = np - o.radius;
+    (tb.shift * o.radius * fade).min(0.5 * gap.max(0.0))
+}
+
+#[cfg(test)]
+mod tests;

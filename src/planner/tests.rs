@@ -1,0 +1,268 @@
+//! The checks of `planner-math.md` section 3, as properties over random configurations.
+
+use super::*;
+use proptest::prelude::*;
+use std::f64::consts::PI;
+
+fn sink(goal: C) -> Sink {
+    Sink { goal, strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 }
+}
+
+fn pt() -> impl Strategy<Value = C> {
+    (-1.0..1.0f64, -1.0..1.0f64).prop_map(|(x, y)| C::new(x, y))
+}
+
+fn vel() -> impl Strategy<Value = C> {
+    (-0.3..0.3f64, -0.3..0.3f64).prop_map(|(x, y)| C::new(x, y))
+}
+
+/// The normal speed of the flow at angle θ on obstacle `o`'s circle, minus the
+/// obstacle's own normal speed: zero when the boundary condition holds.
+fn boundary_residual(field: &Field, o: &PlanObstacle, theta: f64) -> f64 {
+    let n = C::from_polar(1.0, theta);
+    let z = o.center + n * o.radius * (1.0 + 1e-11);
+    let v = field.velocity(z).unwrap();
+    (v * n.conj()).re - (o.velocity * n.conj()).re
+}
+
+/// Up to `n` non-overlapping obstacles with the goal outside all of them.
+fn scene(n: usize) -> impl Strategy<Value = (C, Vec<PlanObstacle>)> {
+    (pt(), proptest::collection::vec((pt(), vel(), 0.05..0.25f64), n)).prop_filter_map(
+        "overlapping obstacles or goal inside one",
+        |(goal, raw)| {
+            let obs: Vec<PlanObstacle> =
+                raw.into_iter().map(|(center, velocity, radius)| PlanObstacle { center, velocity, radius }).collect();
+            let apart = obs.iter().enumerate().all(|(i, a)| {
+                (goal - a.center).norm() > a.radius * 1.05
+                    && obs[..i].iter().all(|b| (a.center - b.center).norm() > (a.radius + b.radius) * 1.05)
+            });
+            apart.then_some((goal, obs))
+        },
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(300))]
+
+    /// Check 1: single obstacle in free space, any K: the flow's normal speed on the circle
+    /// equals the obstacle's.
+    #[test]
+    fn single_obstacle_boundary_condition((goal, obs) in scene(1), theta in 0.0..2.0 * PI, c1 in 1.0..100.0f64) {
+        let field = Field::new(Space::Free, Sink { c1, ..sink(goal) }, &obs).unwrap();
+        let scale = field.velocity(obs[0].center + obs[0].radius * 3.0).unwrap().norm() + obs[0].velocity.norm() + 1e-3;
+        let r = boundary_residual(&field, &obs[0], theta);
+        prop_assert!(r.abs() < 1e-6 * scale, "residual {r} (scale {scale})");
+    }
+
+    /// Check 1, blended: two to five obstacles with gap weights: exact on every circle.
+    #[test]
+    fn blended_boundary_condition_on_every_circle((goal, obs) in (2usize..=5).prop_flat_map(scene), theta in 0.0..2.0 * PI) {
+        let field = Field::new(Space::Free, sink(goal), &obs).unwrap();
+        for o in &obs {
+            let r = boundary_residual(&field, o, theta);
+            prop_assert!(r.abs() < 1e-5, "residual {r} on {o:?}");
+        }
+    }
+
+    /// Check 2: the walls are streamlines of every lane term (v = 0 on y = ±h).
+    #[test]
+    fn walls_are_streamlines(h in 0.1..1.0f64, a in pt(), mu in vel(), x in -3.0..3.0f64) {
+        let space = Space::Lane { half_width: h };
+        let a = C::new(a.re, a.im * h * 0.9);
+        for y in [h, -h] {
+            let z = C::new(x, y);
+            let s = space.sink(z, a);
+            let d = space.doublet(z, a, mu);
+            // F = u - i v: v = -Im F.
+            prop_assert!(s.im.abs() < 1e-9 * (1.0 + s.norm()), "sink v = {}", s.im);
+            prop_assert!(d.im.abs() < 1e-9 * (1.0 + d.norm()), "doublet v = {}", d.im);
+        }
+    }
+
+    /// Check 2 on the whole lane field with an obstacle (just inside the walls).
+    #[test]
+    fn lane_field_walls(a in pt(), v in vel(), x in -2.0..2.0f64) {
+        let h = 0.4;
+        let obs = [PlanObstacle { center: C::new(a.re, a.im * 0.2), velocity: v, radius: 0.1 }];
+        let goal = C::new(1.5, 0.0);
+        let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
+        for y in [h * (1.0 - 1e-12), -h * (1.0 - 1e-12)] {
+            let z = C::new(x, y);
+            if (z - obs[0].center).norm() > 0.1 {
+                let f = field.eval(z).unwrap();
+                prop_assert!(f.im.abs() < 1e-7 * (1.0 + f.norm()), "v = {} at {z}", f.im);
+            }
+        }
+    }
+
+    /// Check 3: the closed forms equal truncated sums of wall images (period 4ih).
+    #[test]
+    fn closed_forms_match_image_sums(h in 0.2..0.6f64, a in pt(), z in pt(), mu in vel()) {
+        let a = C::new(a.re, a.im * h * 0.9);
+        let z = C::new(z.re, z.im * h * 0.9);
+        prop_assume!((z - a).norm() > 0.05);
+        let lane = Space::Lane { half_width: h };
+        let n = 20_000;
+        let (mut sink_sum, mut doublet_sum) = (C::default(), C::default());
+        for k in -n..=n {
+            let shift = C::new(0.0, 4.0 * h * f64::from(k));
+            let direct = a + shift; // the source and its translates
+            let mirror = a.conj() + C::new(0.0, 2.0 * h) + shift; // its mirror images
+            sink_sum += -(z - direct).inv() - (z - mirror).inv();
+            doublet_sum += mu / ((z - direct) * (z - direct)) + mu.conj() / ((z - mirror) * (z - mirror));
+        }
+        let s = lane.sink(z, a);
+        let d = lane.doublet(z, a, mu);
+        prop_assert!((s - sink_sum).norm() < 1e-3 * s.norm().max(1.0), "sink {s} vs sum {sink_sum}");
+        prop_assert!((d - doublet_sum).norm() < 1e-3 * d.norm().max(1.0), "doublet {d} vs sum {doublet_sum}");
+    }
+
+    /// Check 4: far away the free-space speed with K tends to m/R.
+    #[test]
+    fn far_field_speed(((goal, obs), dir) in (scene(1), 0.0..2.0 * PI)) {
+        let s = sink(goal);
+        let field = Field::new(Space::Free, s, &obs).unwrap();
+        let z = goal + C::from_polar(1e4, dir);
+        let speed = field.velocity(z).unwrap().norm();
+        let expect = s.strength / s.reference_radius;
+        prop_assert!((speed - expect).abs() < 1e-3 * expect, "{speed} vs {expect}");
+    }
+
+    /// No configuration the planner accepts gives a NaN or infinite command.
+    #[test]
+    fn commands_are_always_finite((goal, obs) in (0usize..=4).prop_flat_map(scene), z in pt(), lane in proptest::option::of(1.0..3.0f64)) {
+        let space = lane.map_or(Space::Free, |half_width| Space::Lane { half_width });
+        if let Ok(field) = Field::new(space, sink(goal), &obs) {
+            if let Ok(v) = field.velocity(z) {
+                prop_assert!(v.re.is_finite() && v.im.is_finite(), "{v} at {z}");
+            }
+        }
+    }
+}
+
+/// Check 5: goal far on +x, obstacle at the origin: the field vanishes at z = ±R.
+#[test]
+fn stagnation_points() {
+    let r = 0.14;
+    let obs = [PlanObstacle { center: C::default(), velocity: C::default(), radius: r }];
+    let field = Field::new(Space::Free, sink(C::new(1e7, 0.0)), &obs).unwrap();
+    let scale = field.velocity(C::new(0.0, 5.0 * r)).unwrap().norm();
+    for x in [-r, r] {
+        let v = field.velocity(C::new(x * (1.0 + 1e-9), 0.0)).unwrap();
+        assert!(v.norm() < 1e-6 * scale, "speed {} at {x}", v.norm());
+    }
+    // The rear point is a saddle: on the axis the flow runs into it, off the axis past it.
+    let on_axis = field.velocity(C::new(-3.0 * r, 0.0)).unwrap();
+    assert!(on_axis.re > 0.0 && on_axis.im.abs() < 1e-12);
+}
+
+/// Check 6: goal within R of an obstacle centre is reported, never garbage.
+#[test]
+fn goal_inside_obstacle_is_an_error() {
+    let obs = [PlanObstacle { center: C::new(0.5, 0.0), velocity: C::default(), radius: 0.14 }];
+    let err = Field::new(Space::Free, sink(C::new(0.6, 0.0)), &obs).unwrap_err();
+    assert_eq!(err, FieldError::GoalInsideObstacle { index: 0 });
+}
+
+#[test]
+fn invalid_inputs_are_typed_errors() {
+    let o = PlanObstacle { center: C::new(0.5, 0.0), velocity: C::default(), radius: 0.14 };
+    let goal = C::new(1.0, 0.0);
+    assert_eq!(Field::new(Space::Lane { half_width: 0.0 }, sink(goal), &[o]).unwrap_err(), FieldError::BadLane(0.0));
+    let nan = PlanObstacle { center: C::new(f64::NAN, 0.0), ..o };
+    assert_eq!(Field::new(Space::Free, sink(goal), &[nan]).unwrap_err(), FieldError::NonFinite);
+    let field = Field::new(Space::Free, sink(goal), &[o]).unwrap();
+    assert_eq!(field.eval(C::new(0.45, 0.0)).unwrap_err(), FieldError::InsideObstacle { index: 0 });
+    assert_eq!(field.eval(C::new(f64::INFINITY, 0.0)).unwrap_err(), FieldError::NonFinite);
+    assert_eq!(field.eval(goal).unwrap(), C::default());
+    let lane = Field::new(Space::Lane { half_width: 0.2 }, sink(goal * 0.1), &[]).unwrap();
+    assert_eq!(lane.eval(C::new(0.0, 0.3)).unwrap_err(), FieldError::OutsideLane);
+    let too_many = [o; MAX_OBSTACLES + 1];
+    assert_eq!(Field::new(Space::Free, sink(goal), &too_many).unwrap_err(), FieldError::TooManyObstacles);
+}
+
+/// The lane's image pair comes from free space, so an obstacle's circle is only nearly a
+/// streamline. Far from the goal the lane's flow is the channel's uniform flow, much faster
+/// than a free sink's `m/d`; the field cancels the uniform part of the wall images at each
+/// obstacle with a self-consistent lane doublet (see `field.rs`), which leaves a residual
+/// of higher order in R/h.
+/// Measured here against the local speed of the lane flow and bounded, so a change that
+/// worsens it shows: 0.6% for R = 3 cm and 21% for R = 14 cm in h = 20 cm (a 70% blockage).
+#[test]
+fn lane_circle_residual_is_measured_and_bounded() {
+    let s = Sink { goal: C::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
+    let lane = Space::Lane { half_width: 0.2 };
+    let local = Field::new(lane, s, &[]).unwrap().velocity(C::new(0.0, 0.0)).unwrap().norm();
+    for (radius, bound) in [(0.03, 0.01), (0.05, 0.02), (0.14, 0.25)] {
+        let obs = PlanObstacle { center: C::new(0.0, 0.0), velocity: C::new(-0.056, 0.0), radius };
+        let field = Field::new(lane, s, &[obs]).unwrap();
+        let worst =
+            (0..360).map(|d| boundary_residual(&field, &obs, f64::from(d).to_radians()).abs()).fold(0.0, f64::max);
+        eprintln!(
+            "lane circle residual, R = {radius} m, h = 0.2 m: {:.1}% of the local lane speed",
+            100.0 * worst / local
+        );
+        assert!(worst < bound * local, "R = {radius}: {worst} vs local {local}");
+    }
+}
+
+fn planner(tie_break: Option<TieBreak>) -> Planner {
+    Planner::new(PlannerConfig {
+        space: Space::Free,
+        cruise_speed: 0.1,
+        c1: 20.0,
+        reference_radius: 0.14,
+        max_speed: 0.15,
+        margin: Margin::None,
+        tie_break,
+    })
+}
+
+/// The symmetric head-on case: without the tie-break every term is real on the axis and
+/// the command has no lateral part; with it, the command turns the robot to its right
+/// (keep right), deterministically.
+#[test]
+fn tie_break_breaks_the_symmetric_case() {
+    let obstacles = [ObstacleEstimate { center: C::new(0.0, 0.0), velocity: C::new(-0.05, 0.0), radius: 0.07 }];
+    let input = PlanInput {
+        position: C::new(-0.4, 0.0),
+        goal: C::new(0.6, 0.0),
+        robot_radius: 0.07,
+        obstacles: &obstacles,
+        delay: 0.0,
+    };
+    let plain = planner(None).plan(&input).unwrap();
+    assert_eq!(plain.velocity.im, 0.0);
+    let broken = planner(Some(TieBreak::default())).plan(&input).unwrap();
+    assert!(broken.flags.tie_break);
+    assert!(broken.velocity.im < -1e-4, "expected a push to the right (−y), got {}", broken.velocity);
+    // Off the axis, outside the cone, the tie-break leaves the field alone.
+    let off = PlanInput { position: C::new(-0.4, 0.2), ..input };
+    let tb = planner(Some(TieBreak::default())).plan(&off).unwrap();
+    assert!(!tb.flags.tie_break);
+    assert_eq!(tb.velocity, planner(None).plan(&off).unwrap().velocity);
+}
+
+#[test]
+fn margins() {
+    assert_eq!(Margin::None.radius(0.14, 0.1, 0.6), 0.14);
+    assert!((Margin::Factor(1.1).radius(0.14, 0.1, 0.6) - 0.154).abs() < 1e-12);
+    assert!((Margin::Fixed(0.02).radius(0.14, 0.1, 0.6) - 0.16).abs() < 1e-12);
+    assert!((Margin::Delay { extra_speed: 0.0 }.radius(0.14, 0.141, 0.6) - (0.14 + 0.141 * 0.6)).abs() < 1e-12);
+}
+
+#[test]
+fn saturation_keeps_direction_and_flags_fast_obstacles() {
+    let obstacles = [ObstacleEstimate { center: C::new(0.3, 0.3), velocity: C::new(0.0, -0.2), radius: 0.07 }];
+    let input = PlanInput {
+        position: C::new(-2.0, 0.0),
+        goal: C::new(2.0, 0.0),
+        robot_radius: 0.07,
+        obstacles: &obstacles,
+        delay: 0.0,
+    };
+    let p = Planner::new(PlannerConfig { cruise_speed: 0.5, ..*planner(None).config() }).plan(&input).unwrap();
+    assert!(p.flags.saturated && p.flags.obstacle_faster_than_robot);
+    assert!((p.velocity.norm() - 0.15).abs() < 1e-12);
+    assert!((p.velocity.arg() - p.field.arg()).abs() < 1e-12);
+}

@@ -1,0 +1,206 @@
+//! Reports a person reads: the trajectory and history plots of a run (SVG).
+
+mod svg;
+
+use std::fmt::Write as _;
+
+use flowgate_sim::scenario::Scenario;
+use num_complex::Complex64 as C;
+
+use crate::offline::{control_config, Run};
+use crate::planner::{Field, ObstacleEstimate, PlanInput, Planner};
+use svg::{Axes, Svg};
+
+const ROBOT: &str = "#1f77b4";
+const OBSTACLE: &str = "#d62728";
+const STREAM: &str = "#9ecae1";
+const COMMAND: &str = "#ff7f0e";
+
+/// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
+/// leave `bounds`, reach the goal, or meet an obstacle.
+pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, bounds: (C, C)) -> Vec<Vec<C>> {
+    let dir = |z: C| field.velocity(z).ok().filter(|v| v.norm() > 1e-12).map(|v| v / v.norm());
+    let inside = |z: C| z.re >= bounds.0.re && z.re <= bounds.1.re && z.im >= bounds.0.im && z.im <= bounds.1.im;
+    seeds
+        .iter()
+        .map(|&seed| {
+            let mut line = vec![seed];
+            let mut z = seed;
+            for _ in 0..max_steps {
+                let Some(d1) = dir(z) else { break };
+                let Some(d2) = dir(z + d1 * (0.5 * step)) else { break };
+                z += d2 * step;
+                if !inside(z) || (z - field.sink().goal).norm() < step {
+                    break;
+                }
+                line.push(z);
+            }
+            line
+        })
+        .collect()
+}
+
+/// The field at the start of a scenario, as the planner would see it with perfect sensing.
+pub fn start_field(s: &Scenario) -> Option<Field> {
+    let config = control_config(s);
+    let obstacles: Vec<ObstacleEstimate> = s
+        .obstacles
+        .iter()
+        .map(|o| {
+            let path = flowgate_sim::world::ObstaclePath::new(o);
+            ObstacleEstimate { center: path.position(0.0), velocity: path.velocity(0.0), radius: o.radius }
+        })
+        .collect();
+    let input = PlanInput {
+        position: s.robot_start(),
+        goal: s.goal(),
+        robot_radius: s.robot.radius,
+        obstacles: &obstacles,
+        delay: s.sensing.delay + s.sensing.sample_time,
+    };
+    Planner::new(config.planner).field(&input).ok().map(|(f, _)| f)
+}
+
+/// `trajectory.svg`: walls, streamlines at the start, obstacles' paths with their circles at
+/// intervals, the robot's path and the goal.
+pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
+    let mut pts: Vec<C> = run.trace.iter().map(|r| r.pose.position).collect();
+    pts.extend(run.trace.iter().flat_map(|r| r.obstacles.iter().copied()));
+    pts.push(s.goal());
+    pts.push(s.robot_start());
+    let pad = 0.1 + s.obstacles.iter().map(|o| o.radius).fold(s.robot.radius, f64::max);
+    let (mut lo, mut hi) = bounds(&pts, pad);
+    if let Some(lane) = s.lane {
+        lo.im = lo.im.min(-lane.half_width - 0.05);
+        hi.im = hi.im.max(lane.half_width + 0.05);
+    }
+    let mut svg = Svg::new(760.0, 560.0);
+    let ax = Axes::equal(&svg, lo, hi, (60.0, 40.0, 20.0, 50.0));
+    ax.frame(&mut svg, "x (m)", "y (m)");
+    let title = format!(
+        "{} | outcome: {} | min clearance {} | t = {:.1} s",
+        s.name,
+        run.summary.outcome,
+        run.summary.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1} mm", c * 1e3)),
+        run.summary.end_time
+    );
+    svg.text(svg.width / 2.0, 22.0, &title, "middle", 14.0, "#000");
+
+    if let Some(field) = start_field(s) {
+        let to_goal = s.goal() - s.robot_start();
+        let across = C::i() * to_goal / to_goal.norm().max(1e-9);
+        let span = (hi - lo).norm() * 0.5;
+        let seeds: Vec<C> = (-12..=12).map(|k| s.robot_start() + across * (span * f64::from(k) / 12.0)).collect();
+        for line in streamlines(&field, &seeds, 0.004, 2000, (lo, hi)) {
+            ax.polyline(&mut svg, &line, STREAM, 1.0, None);
+        }
+    }
+    if let Some(lane) = s.lane {
+        for y in [lane.half_width, -lane.half_width] {
+            ax.polyline(&mut svg, &[C::new(lo.re, y), C::new(hi.re, y)], "#444", 3.0, None);
+        }
+    }
+    // Obstacles: path, and circles about every second (solid: true radius).
+    let every = (1.0 / s.sensing.sample_time).round().max(1.0) as usize;
+    for (k, o) in s.obstacles.iter().enumerate() {
+        let path: Vec<C> = run.trace.iter().map(|r| r.obstacles[k]).collect();
+        ax.polyline(&mut svg, &path, OBSTACLE, 1.5, Some("4 3"));
+        for (i, row) in run.trace.iter().enumerate().filter(|(i, _)| i % every == 0) {
+            ax.circle(&mut svg, row.obstacles[k], o.radius, OBSTACLE, 0.8, 0.08);
+            if i % (5 * every) == 0 {
+                ax.label(&mut svg, row.obstacles[k], &format!("{:.0}s", row.t), OBSTACLE);
+            }
+        }
+    }
+    let path: Vec<C> = run.trace.iter().map(|r| r.pose.position).collect();
+    ax.polyline(&mut svg, &path, ROBOT, 2.0, None);
+    for (_, row) in run.trace.iter().enumerate().filter(|(i, _)| i % (5 * every) == 0) {
+        ax.circle(&mut svg, row.pose.position, s.robot.radius, ROBOT, 0.8, 0.05);
+        ax.label(&mut svg, row.pose.position, &format!("{:.0}s", row.t), ROBOT);
+    }
+    ax.marker(&mut svg, s.robot_start(), ROBOT, "start");
+    ax.marker(&mut svg, s.goal(), "#2ca02c", "goal");
+    let legend = [
+        (ROBOT, "robot path (circles every 5 s)"),
+        (OBSTACLE, "obstacles (circles every 1 s)"),
+        (STREAM, "field streamlines at t = 0"),
+    ];
+    for (i, (color, text)) in legend.iter().enumerate() {
+        let y = svg.height - 30.0 + 0.0 * i as f64;
+        let x = 70.0 + 230.0 * i as f64;
+        svg.rect(x, y - 8.0, 14.0, 4.0, color);
+        svg.text(x + 20.0, y, text, "start", 11.0, "#333");
+    }
+    svg.finish()
+}
+
+/// `history.svg`: speed and azimuth against time, commanded and realised (the paper's
+/// figures 6-9 (a) and (b)).
+pub fn history_svg(s: &Scenario, run: &Run) -> String {
+    let mut svg = Svg::new(760.0, 560.0);
+    svg.text(svg.width / 2.0, 22.0, &format!("{}: speed and azimuth", s.name), "middle", 14.0, "#000");
+    let t_end = run.trace.last().map_or(1.0, |r| r.t).max(1e-3);
+    let commanded: Vec<C> = run.trace.iter().map(|r| C::new(r.t, r.command.norm() * 1e3)).collect();
+    let realised: Vec<C> = run.trace.iter().map(|r| C::new(r.t, r.speed * 1e3)).collect();
+    let v_max = commanded.iter().chain(&realised).map(|p| p.im).fold(10.0, f64::max) * 1.1;
+    let top = Axes::new(&svg, C::new(0.0, 0.0), C::new(t_end, v_max), (60.0, 40.0, 290.0, 20.0));
+    top.frame(&mut svg, "time (s)", "speed (mm/s)");
+    top.polyline(&mut svg, &commanded, COMMAND, 1.5, Some("5 3"));
+    top.polyline(&mut svg, &realised, ROBOT, 1.5, None);
+
+    let unwrap = |angles: &mut Vec<C>| {
+        for i in 1..angles.len() {
+            let d = crate::planner::drive::wrap_angle((angles[i].im - angles[i - 1].im).to_radians()).to_degrees();
+            angles[i].im = angles[i - 1].im + d;
+        }
+    };
+    let mut cmd_az: Vec<C> = run
+        .trace
+        .iter()
+        .filter(|r| r.command.norm() > 1e-6)
+        .map(|r| C::new(r.t, r.command.arg().to_degrees()))
+        .collect();
+    let mut real_az: Vec<C> = run.trace.iter().map(|r| C::new(r.t, r.pose.heading.to_degrees())).collect();
+    unwrap(&mut cmd_az);
+    unwrap(&mut real_az);
+    let (a_lo, a_hi) = cmd_az
+        .iter()
+        .chain(&real_az)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p.im), hi.max(p.im)));
+    let (a_lo, a_hi) = if a_lo.is_finite() { (a_lo - 10.0, a_hi + 10.0) } else { (-90.0, 90.0) };
+    let bottom = Axes::new(&svg, C::new(0.0, a_lo), C::new(t_end, a_hi), (60.0, 300.0, 40.0, 20.0));
+    bottom.frame(&mut svg, "time (s)", "azimuth (deg)");
+    bottom.polyline(&mut svg, &cmd_az, COMMAND, 1.5, Some("5 3"));
+    bottom.polyline(&mut svg, &real_az, ROBOT, 1.5, None);
+    for (i, (color, text)) in [(COMMAND, "commanded"), (ROBOT, "realised")].iter().enumerate() {
+        let x = 80.0 + 140.0 * i as f64;
+        svg.rect(x, 36.0, 14.0, 4.0, color);
+        svg.text(x + 20.0, 42.0, text, "start", 11.0, "#333");
+    }
+    svg.finish()
+}
+
+fn bounds(pts: &[C], pad: f64) -> (C, C) {
+    let (lo, hi) = pts
+        .iter()
+        .fold((C::new(f64::INFINITY, f64::INFINITY), C::new(f64::NEG_INFINITY, f64::NEG_INFINITY)), |(lo, hi), p| {
+            (C::new(lo.re.min(p.re), lo.im.min(p.im)), C::new(hi.re.max(p.re), hi.im.max(p.im)))
+        });
+    (lo - C::new(pad, pad), hi + C::new(pad, pad))
+}
+
+/// A one-line result for the terminal.
+pub fn one_line(run: &Run) -> String {
+    let s = &run.summary;
+    let mut line = format!("{:<28} {:<9}", s.scenario, s.outcome.to_string());
+    let _ = write!(
+        line,
+        " t={:>5.1}s clearance={:>7} path×{:.2} wheels≤{:.0}mm/s planner p99={:.1}µs",
+        s.end_time,
+        s.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1}mm", c * 1e3)),
+        s.path_length_ratio,
+        s.peak_wheel_speed[0].max(s.peak_wheel_speed[1]) * 1e3,
+        s.planner_compute.p99_us
+    );
+    line
+}

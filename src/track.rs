@@ -1,0 +1,192 @@
+//! Tracking: the robot's pose from its two LEDs, and each obstacle's position and velocity
+//! from a constant-velocity Kalman filter, predicted to the moment a command acts (delay
+//! compensation). Time is an argument everywhere.
+
+use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
+use num_complex::Complex64 as C;
+
+/// The robot's pose: centre and heading (rad from +x, counter-clockwise).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    pub position: C,
+    pub heading: f64,
+}
+
+/// Where the robot's LEDs sit along its heading, measured from its centre (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LedGeometry {
+    /// Distance of the front LED ahead of the centre.
+    pub front: f64,
+    /// Distance of the rear LED behind the centre.
+    pub rear: f64,
+}
+
+impl LedGeometry {
+    /// The pose from the two LED positions; `None` if they coincide (no heading).
+    pub fn pose(&self, front: C, rear: C) -> Option<Pose> {
+        let axis = front - rear;
+        let len = axis.norm();
+        if len.is_nan() || len <= 0.0 {
+            return None;
+        }
+        let position = rear + axis * (self.rear / (self.front + self.rear));
+        Some(Pose { position, heading: axis.arg() })
+    }
+    /// Where the LEDs of a robot at `pose` are.
+    pub fn leds(&self, pose: Pose) -> (C, C) {
+        let u = C::from_polar(1.0, pose.heading);
+        (pose.position + u * self.front, pose.position - u * self.rear)
+    }
+}
+
+/// Kalman filter settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KalmanConfig {
+    /// Standard deviation of a position measurement, m.
+    pub measurement_noise: f64,
+    /// Spectral density of the unmodelled acceleration, m²/s³.
+    pub process_noise: f64,
+}
+
+impl Default for KalmanConfig {
+    fn default() -> Self {
+        Self { measurement_noise: 0.003, process_noise: 0.05 }
+    }
+}
+
+/// A constant-velocity Kalman filter on one point: state `[x, y, vx, vy]`.
+#[derive(Debug, Clone)]
+pub struct ConstantVelocityKf {
+    config: KalmanConfig,
+    t: f64,
+    x: Vector4<f64>,
+    p: Matrix4<f64>,
+}
+
+impl ConstantVelocityKf {
+    /// A filter started at a first measurement `z` taken at `t`, velocity unknown.
+    pub fn new(config: KalmanConfig, t: f64, z: C) -> Self {
+        let r = config.measurement_noise.powi(2);
+        let p = Matrix4::from_diagonal(&Vector4::new(r, r, 0.25, 0.25));
+        Self { config, t, x: Vector4::new(z.re, z.im, 0.0, 0.0), p }
+    }
+
+    fn transition(dt: f64) -> Matrix4<f64> {
+        let mut f = Matrix4::identity();
+        f[(0, 2)] = dt;
+        f[(1, 3)] = dt;
+        f
+    }
+
+    fn process(&self, dt: f64) -> Matrix4<f64> {
+        let q = self.config.process_noise;
+        let (a, b, c) = (dt.powi(3) / 3.0 * q, dt.powi(2) / 2.0 * q, dt * q);
+        Matrix4::new(a, 0.0, b, 0.0, 0.0, a, 0.0, b, b, 0.0, c, 0.0, 0.0, b, 0.0, c)
+    }
+
+    /// Fold in a measurement `z` taken at `t` (measurements must come in time order; an
+    /// older one is ignored and `false` returned).
+    pub fn update(&mut self, t: f64, z: C) -> bool {
+        let dt = t - self.t;
+        if dt < 0.0 || !z.re.is_finite() || !z.im.is_finite() {
+            return false;
+        }
+        let f = Self::transition(dt);
+        self.x = f * self.x;
+        self.p = f * self.p * f.transpose() + self.process(dt);
+        self.t = t;
+        let h = Matrix2x4::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0);
+        let r = Matrix2::identity() * self.config.measurement_noise.powi(2);
+        let s = h * self.p * h.transpose() + r;
+        let Some(s_inv) = s.try_inverse() else { return false };
+        let k = self.p * h.transpose() * s_inv;
+        let innovation = Vector2::new(z.re, z.im) - h * self.x;
+        self.x += k * innovation;
+        self.p = (Matrix4::identity() - k * h) * self.p;
+        true
+    }
+
+    /// Position and velocity predicted to time `t` (no state change).
+    pub fn predict(&self, t: f64) -> (C, C) {
+        let dt = t - self.t;
+        let v = C::new(self.x[2], self.x[3]);
+        (C::new(self.x[0], self.x[1]) + v * dt, v)
+    }
+
+    /// Time of the last measurement.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+}
+
+/// A first-order low-pass filter on a point (cut-off `hz`; 0 passes through).
+#[derive(Debug, Clone, Copy)]
+pub struct LowPass {
+    hz: f64,
+    state: Option<C>,
+}
+
+impl LowPass {
+    pub fn new(hz: f64) -> Self {
+        Self { hz, state: None }
+    }
+    /// Filter `x` after `dt` seconds.
+    pub fn filter(&mut self, x: C, dt: f64) -> C {
+        if self.hz <= 0.0 {
+            return x;
+        }
+        let alpha = 1.0 - (-std::f64::consts::TAU * self.hz * dt).exp();
+        let y = match self.state {
+            Some(y) => y + (x - y) * alpha,
+            None => x,
+        };
+        self.state = Some(y);
+        y
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pose_from_leds_round_trips() {
+        let g = LedGeometry { front: 0.04, rear: 0.02 };
+        let pose = Pose { position: C::new(0.1, -0.2), heading: 2.0 };
+        let (f, r) = g.leds(pose);
+        let back = g.pose(f, r).unwrap();
+        assert!((back.position - pose.position).norm() < 1e-12);
+        assert!((back.heading - pose.heading).abs() < 1e-12);
+        assert!(g.pose(f, f).is_none());
+    }
+
+    /// A noiseless constant-velocity target: the filter learns its velocity and predicts
+    /// ahead of the measurements.
+    #[test]
+    fn kalman_tracks_constant_velocity() {
+        let v = C::new(0.141, -0.05);
+        let at = |t: f64| C::new(-0.3, 0.2) + v * t;
+        let mut kf = ConstantVelocityKf::new(KalmanConfig::default(), 0.0, at(0.0));
+        for k in 1..=100 {
+            let t = f64::from(k) * 0.02;
+            assert!(kf.update(t, at(t)));
+        }
+        let (p, est_v) = kf.predict(2.0 + 0.6);
+        assert!((est_v - v).norm() < 2e-3, "{est_v}");
+        assert!((p - at(2.6)).norm() < 2e-3, "{p}");
+        assert!(!kf.update(1.0, at(1.0)), "an older measurement is refused");
+    }
+
+    #[test]
+    fn low_pass_lags_a_ramp_by_its_time_constant() {
+        // A first-order filter lags a ramp by τ = 1/(2π fc): 0.159 s at 1 Hz.
+        let mut lp = LowPass::new(1.0);
+        let dt = 0.001;
+        let mut y = C::default();
+        for k in 0..20_000 {
+            y = lp.filter(C::new(f64::from(k) * dt, 0.0), dt);
+        }
+        let lag = 19_999.0 * dt - y.re;
+        assert!((lag - 1.0 / std::f64::consts::TAU).abs() < 2e-3, "{lag}");
+    }
+}

@@ -1,0 +1,176 @@
+//! The paper's experiments, closed loop against the simulator's world, judged by its truth
+//! (contact and clearance against the true radii), plus the pinned bad cases.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use flowgate::offline::{self, sweep, Outcome};
+use flowgate_sim::scenario::Scenario;
+
+fn scenario(name: &str) -> Scenario {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name);
+    Scenario::load(&path).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn assert_goal_without_contact(name: &str) {
+    let run = offline::run(&scenario(name), false);
+    let s = &run.summary;
+    assert_eq!(s.outcome, Outcome::Goal, "{name}: {s:?}");
+    assert!(s.first_contact.is_none(), "{name}: contact at {:?}", s.first_contact);
+    assert!(s.min_obstacle_clearance.unwrap_or(1.0) > 0.0, "{name}: {s:?}");
+    assert!(s.min_wall_clearance.unwrap_or(1.0) > 0.0, "{name}: {s:?}");
+}
+
+#[test]
+fn e1_standing_obstacle_reaches_goal() {
+    assert_goal_without_contact("e1-standing-obstacle.toml");
+}
+
+#[test]
+fn e2_lane_head_on_reaches_goal() {
+    assert_goal_without_contact("e2-lane-head-on.toml");
+}
+
+#[test]
+fn e4_lowpass_lag_reaches_goal() {
+    assert_goal_without_contact("e4-lowpass-lag.toml");
+}
+
+#[test]
+fn e5_moving_and_standing_reaches_goal() {
+    assert_goal_without_contact("e5-moving-and-standing.toml");
+}
+
+#[test]
+fn e6_two_moving_reaches_goal() {
+    assert_goal_without_contact("e6-two-moving.toml");
+}
+
+/// Paper Fig. 3: with a 0.6 s delay the robot collides at R = R_0 and succeeds at 1.1 R_0.
+#[test]
+fn e3_delay_collides_without_margin_and_succeeds_with_it() {
+    let a = offline::run(&scenario("e3a-delay-no-margin.toml"), false).summary;
+    assert_eq!(a.outcome, Outcome::Collision, "{a:?}");
+    assert!(a.first_contact.is_some());
+    let b = offline::run(&scenario("e3b-delay-margin.toml"), false).summary;
+    assert_eq!(b.outcome, Outcome::Goal, "{b:?}");
+    assert!(b.min_obstacle_clearance.unwrap() > 0.0);
+}
+
+/// Pinned: robot, obstacle and goal collinear. Without the tie-break the robot runs into
+/// the rear stagnation point and stalls; with it, it goes round (keeping right).
+#[test]
+fn rear_stagnation_stalls_without_tie_break_and_passes_with_it() {
+    let mut s = scenario("e1s-standing-obstacle-symmetric.toml");
+    s.planner.tie_break = false;
+    let stuck = offline::run(&s, true);
+    assert_eq!(stuck.summary.outcome, Outcome::Stall, "{:?}", stuck.summary);
+    let last = stuck.trace.last().unwrap().pose.position;
+    assert!(last.im.abs() < 1e-3, "stalled on the axis, at {last}");
+    assert!((last.re + 0.14).abs() < 0.02, "at the rear stagnation point x = -R, got {last}");
+
+    s.planner.tie_break = true;
+    let run = offline::run(&s, true);
+    assert_eq!(run.summary.outcome, Outcome::Goal, "{:?}", run.summary);
+    assert!(run.summary.tie_break_cycles > 0);
+    // Keep right: heading +x, the robot passes the obstacle on the -y side.
+    let passing = run.trace.iter().find(|r| r.pose.position.re > 0.0).unwrap();
+    assert!(passing.pose.position.im < 0.0, "{}", passing.pose.position);
+}
+
+/// Pinned: a symmetric head-on approach in free space. Without the tie-break every term is
+/// real on the axis and the field pushes the robot straight back; a differential-drive
+/// robot has to turn round to obey (Δθ = π), and the obstacle runs into it. With the
+/// tie-break it passes.
+#[test]
+fn head_on_deadlock_is_broken_by_the_tie_break() {
+    let mut s = scenario("e1s-standing-obstacle-symmetric.toml");
+    s.obstacles[0].start = [0.3, 0.0];
+    s.obstacles[0].motion = flowgate_sim::scenario::Motion::Constant { velocity: [-0.06, 0.0] };
+    s.goal.position = [0.6, 0.0];
+    s.time_limit = 20.0;
+    s.planner.tie_break = false;
+    let plain = offline::run(&s, true);
+    // It cannot pick a side, turns round to retreat, and the obstacle catches it.
+    assert_eq!(plain.summary.outcome, Outcome::Collision, "{:?}", plain.summary);
+    assert_eq!(plain.summary.tie_break_cycles, 0);
+
+    s.planner.tie_break = true;
+    let broken = offline::run(&s, false).summary;
+    assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
+    assert!(broken.first_contact.is_none());
+}
+
+/// E7: an obstacle faster than the robot's limit is flagged; whatever happens is reported.
+#[test]
+fn e7_flags_an_obstacle_faster_than_the_robot() {
+    let s = offline::run(&scenario("e7-obstacle-faster-than-robot.toml"), false).summary;
+    assert!(s.obstacle_faster_than_robot, "{s:?}");
+    let e1 = offline::run(&scenario("e1-standing-obstacle.toml"), false).summary;
+    assert!(!e1.obstacle_faster_than_robot);
+}
+
+#[test]
+fn sweep_is_reproducible_and_accounts_for_every_episode() {
+    let base = scenario("e2-lane-head-on.toml");
+    let a = sweep::sweep(&base, 60, 7, 2);
+    let b = sweep::sweep(&base, 60, 7, 1);
+    assert_eq!(a.episodes, 60);
+    let total = a.goal_rate + a.collision_rate + a.timeout_rate + a.stall_rate;
+    assert!((total - 1.0).abs() < 1e-9, "{total}");
+    assert_eq!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&b).unwrap(), "same seed, same report");
+    let c = sweep::sweep(&base, 60, 8, 2);
+    assert_ne!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&c).unwrap(), "another seed differs");
+}
+
+fn flowgate() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_flowgate"))
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("flowgate-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn plan_command_writes_summary_and_plots() {
+    let out = temp_dir("plan");
+    let status = flowgate()
+        .args(["plan", "--scenario"])
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(String::from_utf8_lossy(&status.stdout).contains("goal"));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["outcome"], "goal");
+    for key in ["min_obstacle_clearance", "time_to_goal", "path_length_ratio", "peak_wheel_speed", "planner_compute"] {
+        assert!(!summary[key].is_null(), "summary.json lacks {key}");
+    }
+    assert!(summary["planner_compute"]["p99_us"].as_f64().unwrap() > 0.0);
+    for plot in ["trajectory.svg", "history.svg"] {
+        let svg = std::fs::read_to_string(out.join(plot)).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("<polyline"), "{plot}");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn plan_command_refuses_a_bad_scenario_naming_the_key() {
+    let dir = temp_dir("bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml"))
+            .unwrap()
+            .replace("sample_time = 0.017", "sample_time = -1");
+    std::fs::write(dir.join("bad.toml"), text).unwrap();
+    let out = flowgate().args(["plan", "--scenario"]).arg(dir.join("bad.toml")).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("sensing.sample_time") && err.contains("positive"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
