@@ -309,6 +309,12 @@ impl MotorMessage {
             return Err(MotorError::Length { kind, id, dlc: frame.dlc(), expected });
         }
         let field = |field| MotorError::Field { kind, field };
+        // i24 reads -2^23 too; the protocol's rates are symmetric, ±MAX_PULSE_RATE.
+        let rate = |v: Option<i32>, name| match v {
+            Some(v) if v >= -MAX_PULSE_RATE => Ok(v),
+            Some(_) => Err(field(name)),
+            None => Err(MotorError::Length { kind, id, dlc: frame.dlc(), expected }),
+        };
         let mut r = Reader::new(data);
         // Lengths were checked above, so the reader cannot run short; map it to an error anyway.
         let short = MotorError::Length { kind, id, dlc: frame.dlc(), expected };
@@ -331,8 +337,8 @@ impl MotorMessage {
                     MotorKind::Emergency => Self::Emergency { node, faults: FaultBits(r.u8().ok_or(short)?) },
                     MotorKind::Velocity => Self::Velocity {
                         node,
-                        left: r.i24().ok_or(short)?,
-                        right: r.i24().ok_or(short)?,
+                        left: rate(r.i24(), "left")?,
+                        right: rate(r.i24(), "right")?,
                         seq: r.u8().ok_or(short)?,
                     },
                     MotorKind::Config => {
@@ -351,7 +357,7 @@ impl MotorMessage {
                         seq_errors: r.u8().ok_or(short)?,
                     },
                     MotorKind::AxisRates => {
-                        Self::AxisRates { node, left: r.i24().ok_or(short)?, right: r.i24().ok_or(short)? }
+                        Self::AxisRates { node, left: rate(r.i24(), "left")?, right: rate(r.i24(), "right")? }
                     }
                     MotorKind::Position => {
                         Self::Position { node, left: r.i32().ok_or(short)?, right: r.i32().ok_or(short)? }
@@ -514,6 +520,19 @@ mod tests {
         assert_eq!(MotorMessage::parse(&ext), Err(MotorError::ExtendedId(0x101)));
         let rtr = CanFrame::remote(CanId::Standard(0x701), 1).unwrap();
         assert_eq!(MotorMessage::parse(&rtr), Err(MotorError::Remote(0x701)));
+    }
+
+    /// Found by the `motor_decode` fuzz target: -2^23 fits the i24 field but not the
+    /// protocol's symmetric rate range, so it must be refused on parse as on emit.
+    #[test]
+    fn parse_refuses_the_one_rate_emit_cannot_write() {
+        for id in [0x101, 0x281] {
+            let mut data = [0u8; 7];
+            data[..3].copy_from_slice(&[0x00, 0x00, 0x80]);
+            let dlc = if id == 0x101 { 7 } else { 6 };
+            let f = CanFrame::new(CanId::Standard(id), &data[..dlc]).unwrap();
+            assert!(matches!(MotorMessage::parse(&f), Err(MotorError::Field { field: "left", .. })), "{id:x}");
+        }
     }
 
     #[test]

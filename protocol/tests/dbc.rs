@@ -168,6 +168,8 @@ fn render_dbc() -> String {
             };
             for s in signals {
                 let (min, max) = match (s.signed, s.len) {
+                    // Pulse rates are symmetric: ±(2^23 - 1).
+                    (true, 24) => (-((1i64 << 23) - 1), (1i64 << 23) - 1),
                     (true, n) => (-(1i64 << (n - 1)), (1i64 << (n - 1)) - 1),
                     (false, n) => (0, (1i64 << n) - 1),
                 };
