@@ -9,7 +9,14 @@
 //! Points in the plane are `Complex64` (`x + i y`, metres): the planner works in the
 //! complex plane, and so does the world, to keep one convention.
 
+pub mod calibration;
+pub mod faults;
+pub mod motor_board;
+pub mod psd_controller;
+pub mod rig;
 pub mod scenario;
+pub mod slcan_adapter;
+pub mod truth;
 pub mod world;
 
 pub use num_complex::Complex64 as Point;

@@ -24,6 +24,7 @@
 //! - `std` (default): `std::error::Error` for the error types. Without it the crate is `no_std`.
 //! - `codec`: `tokio_util::codec` decoders/encoders ([`codec`]) that yield a bad frame as an
 //!   error item and carry on, resynchronise after garbage, and count what they dropped.
+//! - `socketcan`: `From`/`TryFrom` between [`CanFrame`] and `socketcan::CanFrame`.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
 
@@ -37,5 +38,8 @@ mod wire;
 
 #[cfg(feature = "codec")]
 pub mod codec;
+
+#[cfg(feature = "socketcan")]
+mod socketcan_frames;
 
 pub use can::{CanFrame, CanId};

@@ -122,6 +122,11 @@ impl World {
         self.axes[RIGHT].set_target(rates[RIGHT]);
     }
 
+    /// Set both axes' ramp and rate limit (pulses).
+    pub fn configure_axes(&mut self, config: AxisConfig) {
+        self.axes.iter_mut().for_each(|a| a.set_config(config));
+    }
+
     /// Stop both axes at once (e-stop, command timeout).
     pub fn stop_axes(&mut self) {
         self.axes.iter_mut().for_each(Axis::stop_now);

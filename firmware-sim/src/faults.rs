@@ -1,0 +1,186 @@
+//! Seeded, reproducible faults, set from the scenario's `[faults]` table or the command
+//! line (`--fault key=value`). Every fault is off by default.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Deserialize;
+
+/// What goes wrong, and when (times in seconds since the simulator started).
+#[derive(Debug, Clone, Default, Deserialize, serde::Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FaultPlan {
+    /// Seed of every random fault.
+    #[serde(default)]
+    pub seed: u64,
+    /// Probability that a byte the controller sends is dropped.
+    #[serde(default)]
+    pub serial_drop: f64,
+    /// Probability that a byte the controller sends is corrupted (one bit flipped).
+    #[serde(default)]
+    pub serial_corrupt: f64,
+    /// At these times the controller's line emits a burst of `serial_burst_len` garbage bytes.
+    #[serde(default)]
+    pub serial_burst_at: Vec<f64>,
+    #[serde(default = "default_burst")]
+    pub serial_burst_len: usize,
+    /// Extra delay of every sample before it is sent, ms.
+    #[serde(default)]
+    pub sample_delay_ms: f64,
+    /// Uniform jitter added to that delay, ± ms.
+    #[serde(default)]
+    pub sample_jitter_ms: f64,
+    /// LED occlusions: `[led, from_s, to_s]`; the LED reads as a weak signal meanwhile.
+    #[serde(default)]
+    pub occlusions: Vec<[f64; 3]>,
+    /// The PSD controller resets (schedule lost, streaming stops, Fault::Reset sent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controller_reset_at: Option<f64>,
+    /// Probability that a CAN frame (either direction) is lost.
+    #[serde(default)]
+    pub can_loss: f64,
+    /// The motor board stops sending heartbeats (it keeps working otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heartbeat_stop_at: Option<f64>,
+    /// The motor board's driver faults: axes stop, state Fault.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board_fault_at: Option<f64>,
+    /// The motor board goes bus-off at this time for `bus_off_s` seconds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bus_off_at: Option<f64>,
+    #[serde(default = "default_bus_off")]
+    pub bus_off_s: f64,
+}
+
+fn default_burst() -> usize {
+    64
+}
+fn default_bus_off() -> f64 {
+    1.0
+}
+
+impl FaultPlan {
+    /// Parse `key=value` settings (the command line) over this plan.
+    pub fn with_settings(&self, settings: &[String]) -> Result<Self, String> {
+        if settings.is_empty() {
+            return Ok(self.clone());
+        }
+        let mut table: toml::Table = toml::Table::try_from(self).map_err(|e| e.to_string())?;
+        for s in settings {
+            let (key, value) = s.split_once('=').ok_or_else(|| format!("fault `{s}`: expected key=value"))?;
+            let parsed: toml::Table =
+                toml::from_str(&format!("v = {value}")).map_err(|e| format!("fault `{s}`: {e}"))?;
+            table.insert(key.trim().to_string(), parsed["v"].clone());
+        }
+        table.try_into().map_err(|e: toml::de::Error| format!("faults: {e}"))
+    }
+
+    /// Whether LED `led` is occluded at `t`.
+    pub fn occluded(&self, led: u8, t: f64) -> bool {
+        self.occlusions.iter().any(|o| o[0] as u8 == led && t >= o[1] && t < o[2])
+    }
+
+    /// Whether the board is bus-off at `t`.
+    pub fn bus_off(&self, t: f64) -> bool {
+        self.bus_off_at.is_some_and(|at| t >= at && t < at + self.bus_off_s)
+    }
+}
+
+/// The random part of a fault plan: one seeded generator per link, so that the faults on
+/// one link do not change when traffic on another does.
+#[derive(Debug)]
+pub struct SerialFaults {
+    rng: ChaCha8Rng,
+    drop: f64,
+    corrupt: f64,
+    /// Bytes dropped, bytes corrupted so far.
+    pub dropped: u64,
+    pub corrupted: u64,
+}
+
+impl SerialFaults {
+    pub fn new(plan: &FaultPlan) -> Self {
+        Self {
+            rng: ChaCha8Rng::seed_from_u64(plan.seed ^ 0x5e71a1),
+            drop: plan.serial_drop,
+            corrupt: plan.serial_corrupt,
+            dropped: 0,
+            corrupted: 0,
+        }
+    }
+    /// Apply drop and corruption to outgoing bytes, in place.
+    pub fn apply(&mut self, bytes: &mut Vec<u8>) {
+        if self.drop <= 0.0 && self.corrupt <= 0.0 {
+            return;
+        }
+        let rng = &mut self.rng;
+        let (drop, corrupt) = (self.drop, self.corrupt);
+        let before = bytes.len();
+        bytes.retain(|_| !rng.random_bool(drop.min(1.0)));
+        self.dropped += (before - bytes.len()) as u64;
+        for b in bytes.iter_mut() {
+            if rng.random_bool(corrupt.min(1.0)) {
+                *b ^= 1 << rng.random_range(0..8);
+                self.corrupted += 1;
+            }
+        }
+    }
+    /// A burst of garbage bytes (no zero bytes, so the receiver sees one over-long run).
+    pub fn burst(&mut self, len: usize) -> Vec<u8> {
+        (0..len).map(|_| self.rng.random_range(1..=255u8)).collect()
+    }
+    /// Uniform in ±1.
+    pub fn unit(&mut self) -> f64 {
+        self.rng.random_range(-1.0..1.0)
+    }
+}
+
+/// CAN frame loss.
+#[derive(Debug)]
+pub struct CanFaults {
+    rng: ChaCha8Rng,
+    loss: f64,
+    pub lost: u64,
+}
+
+impl CanFaults {
+    pub fn new(plan: &FaultPlan) -> Self {
+        Self { rng: ChaCha8Rng::seed_from_u64(plan.seed ^ 0xca7), loss: plan.can_loss, lost: 0 }
+    }
+    /// Whether this frame is lost.
+    pub fn lose(&mut self) -> bool {
+        let lost = self.loss > 0.0 && self.rng.random_bool(self.loss.min(1.0));
+        self.lost += u64::from(lost);
+        lost
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_override_the_plan() {
+        let plan = FaultPlan::default()
+            .with_settings(&["serial_drop=0.1".into(), "occlusions=[[1, 2.0, 3.0]]".into(), "board_fault_at=4".into()])
+            .unwrap();
+        assert_eq!(plan.serial_drop, 0.1);
+        assert!(plan.occluded(1, 2.5) && !plan.occluded(1, 3.5) && !plan.occluded(2, 2.5));
+        assert_eq!(plan.board_fault_at, Some(4.0));
+        assert!(FaultPlan::default().with_settings(&["nonsense=1".into()]).unwrap_err().contains("nonsense"));
+        assert!(FaultPlan::default().with_settings(&["serial_drop".into()]).is_err());
+    }
+
+    #[test]
+    fn serial_faults_are_reproducible() {
+        let plan = FaultPlan { serial_drop: 0.2, serial_corrupt: 0.1, seed: 7, ..FaultPlan::default() };
+        let run = || {
+            let mut f = SerialFaults::new(&plan);
+            let mut bytes: Vec<u8> = (0..=255).collect();
+            f.apply(&mut bytes);
+            (bytes, f.dropped, f.corrupted)
+        };
+        let (a, dropped, corrupted) = run();
+        assert_eq!(a, run().0);
+        assert!(dropped > 20 && corrupted > 5, "{dropped} {corrupted}");
+    }
+}

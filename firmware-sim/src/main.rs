@@ -1,0 +1,107 @@
+//! `flowgate-sim`: the simulated rig as a program. It prints the paths of its endpoints,
+//! runs until SIGINT/SIGTERM, then writes the world's truth and removes its links.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use flowgate_protocol::motor::NodeId;
+use flowgate_sim::calibration::CameraModel;
+use flowgate_sim::faults::FaultPlan;
+use flowgate_sim::rig::{self, CanEndpoint, RigConfig, SerialEndpoint};
+use flowgate_sim::scenario::Scenario;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "flowgate-sim",
+    version,
+    about = "The simulated flowgate rig: PSD controller on a serial line, motor board on CAN"
+)]
+struct Args {
+    /// The world: a scenario file (robot, obstacles, lane).
+    #[arg(long, value_name = "FILE")]
+    scenario: PathBuf,
+    /// Make a stable symlink to the PSD controller's pty.
+    #[arg(long, value_name = "PATH", conflicts_with = "psd_device")]
+    psd_link: Option<PathBuf>,
+    /// Serve the PSD controller on this serial device instead of a new pty.
+    #[arg(long, value_name = "DEVICE")]
+    psd_device: Option<PathBuf>,
+    /// Baud rate for --psd-device.
+    #[arg(long, default_value_t = 921_600)]
+    baud: u32,
+    /// The motor board's CAN endpoint: `slcan-pty` or `socketcan:IFACE`.
+    #[arg(long, default_value = "slcan-pty")]
+    can: String,
+    /// Make a stable symlink to the SLCAN adapter's pty.
+    #[arg(long, value_name = "PATH")]
+    can_link: Option<PathBuf>,
+    /// The motor board's node id (1-15).
+    #[arg(long, default_value_t = 1)]
+    node: u8,
+    /// A camera model (TOML: homography, k1, counts); default: the standard one.
+    #[arg(long, value_name = "FILE")]
+    camera: Option<PathBuf>,
+    /// PSD position noise, counts (σ).
+    #[arg(long, default_value_t = 1.0)]
+    noise: f64,
+    /// Faults from a TOML file (the keys of `[faults]`).
+    #[arg(long, value_name = "FILE")]
+    faults: Option<PathBuf>,
+    /// One fault setting, `key=value` (repeatable), e.g. `--fault serial_drop=0.01`.
+    #[arg(long = "fault", value_name = "KEY=VALUE")]
+    fault: Vec<String>,
+    /// Write the world's truth here at exit (`.json`, or CSV otherwise).
+    #[arg(long, value_name = "FILE")]
+    truth: Option<PathBuf>,
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt().with_env_filter(tracing_subscriber::EnvFilter::from_default_env()).init();
+    let args = Args::parse();
+    let scenario = Scenario::load(&args.scenario)?;
+    let mut config = RigConfig::new(scenario);
+    config.psd = match args.psd_device {
+        Some(path) => SerialEndpoint::Device { path, baud: args.baud },
+        None => SerialEndpoint::Pty { link: args.psd_link },
+    };
+    config.can = args.can.parse::<CanEndpoint>().map_err(anyhow::Error::msg)?;
+    if let (CanEndpoint::SlcanPty { link }, Some(l)) = (&mut config.can, args.can_link) {
+        *link = Some(l);
+    }
+    config.node = NodeId::new(args.node).with_context(|| format!("--node {}: node ids are 1-15", args.node))?;
+    if let Some(path) = args.camera {
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        config.camera = toml::from_str::<CameraModel>(&text).with_context(|| format!("camera {}", path.display()))?;
+    }
+    config.noise_counts = args.noise;
+    let base = match args.faults {
+        Some(path) => {
+            let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+            toml::from_str::<FaultPlan>(&text).with_context(|| format!("faults {}", path.display()))?
+        }
+        None => FaultPlan::default(),
+    };
+    config.faults = base.with_settings(&args.fault).map_err(anyhow::Error::msg)?;
+
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    runtime.block_on(async move {
+        let handle = rig::start(config).await?;
+        println!("psd: {}", handle.psd_path.display());
+        if let Some(can) = &handle.can_path {
+            println!("can: slcan {}", can.display());
+        }
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut term = signal(SignalKind::terminate())?;
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        }
+        let truth = handle.stop().await;
+        if let Some(path) = args.truth {
+            truth.write(&path).with_context(|| format!("writing truth to {}", path.display()))?;
+            eprintln!("truth written to {}", path.display());
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,313 @@
+//! The PSD camera controller's firmware, as a state machine: requests in, replies and
+//! samples out, time an argument.
+//!
+//! It fires the scheduled LEDs one slot at a time. Each slot's sample is stamped with the
+//! controller's clock at the middle of the slot and sent at the slot's end (plus any
+//! injected delay); a `FrameEnd` follows the last slot, and a dark slot (all LEDs off) ends
+//! the frame when configured. Heartbeats go out every 100 ms whatever the state.
+
+use flowgate_protocol::psd::{
+    self, ControllerState, FaultCode, Info, Message, MessageType, NackReason, Packet, Sample, SampleFlags, Schedule,
+};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+use crate::calibration::CameraModel;
+use crate::faults::FaultPlan;
+use crate::world::World;
+use crate::Point;
+
+/// Heartbeat period, s.
+pub const HEARTBEAT_PERIOD: f64 = 0.1;
+/// The simulated firmware's identity.
+pub const FIRMWARE: [u8; 3] = [1, 0, 0];
+pub const MAX_LEDS: u8 = 16;
+/// Nominal spot intensity and ambient level, counts.
+const INTENSITY: f64 = 3000.0;
+const AMBIENT: f64 = 180.0;
+const WEAK_INTENSITY: u16 = 40;
+
+/// Where each LED id is in the world.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LedMap {
+    pub robot_front: u8,
+    pub robot_rear: u8,
+    /// Obstacle k carries LED `first_obstacle + k`.
+    pub first_obstacle: u8,
+    /// Robot LEDs' distance ahead of / behind its centre, m.
+    pub robot_led_offset: f64,
+}
+
+impl LedMap {
+    /// The default rig: robot front LED 1, rear LED 2, obstacles from LED 3.
+    pub fn standard(robot_radius: f64) -> Self {
+        Self { robot_front: 1, robot_rear: 2, first_obstacle: 3, robot_led_offset: 0.5 * robot_radius }
+    }
+
+    /// Where LED `led` is at time `t`, if it exists.
+    pub fn position(&self, led: u8, world: &World, t: f64) -> Option<Point> {
+        let pose = world.pose();
+        let u = Point::from_polar(1.0, pose.heading);
+        if led == self.robot_front {
+            Some(pose.position + u * self.robot_led_offset)
+        } else if led == self.robot_rear {
+            Some(pose.position - u * self.robot_led_offset)
+        } else {
+            let k = usize::from(led.checked_sub(self.first_obstacle)?);
+            (k < world.obstacle_count()).then(|| world.obstacle_position(k, t))
+        }
+    }
+}
+
+/// One message the controller wants sent, and the earliest time it may go.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outgoing {
+    pub at: f64,
+    pub packet: Packet,
+}
+
+/// The controller.
+#[derive(Debug)]
+pub struct PsdController {
+    camera: CameraModel,
+    leds: LedMap,
+    noise: Option<Normal<f64>>,
+    rng: ChaCha8Rng,
+    faults: FaultPlan,
+    /// Controller clock at sim time 0, µs (a controller that booted earlier).
+    clock_origin_us: f64,
+    seq: u16,
+    schedule: Option<Schedule>,
+    streaming: bool,
+    frame: u32,
+    /// The slot to fire next and when it starts.
+    slot: usize,
+    slot_start: f64,
+    samples_in_frame: u8,
+    next_heartbeat: f64,
+    reset_done: bool,
+}
+
+impl PsdController {
+    /// A controller with `noise_counts` of Gaussian position noise, seeded.
+    pub fn new(camera: CameraModel, leds: LedMap, noise_counts: f64, seed: u64, faults: FaultPlan) -> Self {
+        Self {
+            camera,
+            leds,
+            noise: (noise_counts > 0.0).then(|| Normal::new(0.0, noise_counts).expect("finite noise")),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            faults,
+            clock_origin_us: 1_000_000.0,
+            seq: 0,
+            schedule: None,
+            streaming: false,
+            frame: 0,
+            slot: 0,
+            slot_start: 0.0,
+            samples_in_frame: 0,
+            next_heartbeat: 0.0,
+            reset_done: false,
+        }
+    }
+
+    pub fn info(&self) -> Info {
+        Info { firmware: FIRMWARE, psd_counts: [self.camera.counts; 2], max_leds: MAX_LEDS, clock_hz: 1_000_000 }
+    }
+
+    /// The controller clock at sim time `t`, µs.
+    pub fn clock_us(&self, t: f64) -> u64 {
+        (self.clock_origin_us + t * 1e6).round().max(0.0) as u64
+    }
+
+    pub fn streaming(&self) -> bool {
+        self.streaming
+    }
+
+    fn packet(&mut self, message: Message) -> Packet {
+        let p = Packet::new(self.seq, message);
+        self.seq = self.seq.wrapping_add(1);
+        p
+    }
+
+    /// The boot message (a controller announces every start).
+    pub fn boot(&mut self, t: f64, out: &mut Vec<Outgoing>) {
+        let p = self.packet(Message::Fault { code: FaultCode::Reset, detail: 0 });
+        out.push(Outgoing { at: t, packet: p });
+    }
+
+    /// Handle one frame from the host: a packet, or the error it decoded to.
+    pub fn handle(&mut self, t: f64, request: Result<Packet, psd::Error>, out: &mut Vec<Outgoing>) {
+        let reply = match request {
+            // The frame's seq is unknown when it could not be read: nack seq 0, with the
+            // type byte when the header was readable.
+            Err(e) => {
+                let msg_type = match e {
+                    psd::Error::UnknownType(b) => b,
+                    psd::Error::PayloadLength { msg_type, .. } | psd::Error::Field { msg_type, .. } => msg_type as u8,
+                    _ => 0,
+                };
+                Message::Nack { seq: 0, msg_type, reason: e.nack_reason() }
+            }
+            Ok(Packet { seq, message }) => {
+                let msg_type = message.msg_type() as u8;
+                let ack = Message::Ack { seq, msg_type };
+                let nack = |reason| Message::Nack { seq, msg_type, reason };
+                match message {
+                    Message::GetInfo => Message::Info(self.info()),
+                    Message::SetSchedule(_) if self.streaming => nack(NackReason::Busy),
+                    Message::SetSchedule(s) if s.slots().len() > usize::from(MAX_LEDS) => nack(NackReason::TooManyLeds),
+                    Message::SetSchedule(s) => {
+                        self.schedule = Some(s);
+                        ack
+                    }
+                    Message::StartStream => match self.schedule {
+                        None => nack(NackReason::NotConfigured),
+                        Some(_) => {
+                            if !self.streaming {
+                                self.streaming = true;
+                                self.slot = 0;
+                                self.slot_start = t;
+                                self.samples_in_frame = 0;
+                            }
+                            ack
+                        }
+                    },
+                    Message::StopStream => {
+                        self.streaming = false;
+                        ack
+                    }
+                    Message::Ping { nonce } => Message::Pong { nonce, t_ctrl_us: self.clock_us(t) },
+                    Message::TimeSync { host_time_us } => {
+                        Message::TimeSyncReply { host_time_us, t_ctrl_us: self.clock_us(t) }
+                    }
+                    m if !m.msg_type().is_request() => nack(NackReason::WrongDirection),
+                    _ => nack(NackReason::UnknownType),
+                }
+            }
+        };
+        let p = self.packet(reply);
+        out.push(Outgoing { at: t, packet: p });
+    }
+
+    /// When [`PsdController::poll`] next has something to do.
+    pub fn next_event(&self) -> f64 {
+        let mut next = self.next_heartbeat;
+        if let (true, Some(s)) = (self.streaming, &self.schedule) {
+            next = next.min(self.slot_start + self.slot_len(s));
+        }
+        if let (Some(at), false) = (self.faults.controller_reset_at, self.reset_done) {
+            next = next.min(at);
+        }
+        next
+    }
+
+    fn slot_len(&self, s: &Schedule) -> f64 {
+        match s.slots().get(self.slot) {
+            Some(slot) => f64::from(slot.slot_us) * 1e-6,
+            None => f64::from(s.dark_slot_us) * 1e-6,
+        }
+    }
+
+    /// Everything due by time `t`: samples of finished slots, frame ends, heartbeats, faults.
+    pub fn poll(&mut self, t: f64, world: &World, out: &mut Vec<Outgoing>) {
+        if let (Some(at), false) = (self.faults.controller_reset_at, self.reset_done) {
+            if t >= at {
+                self.reset_done = true;
+                self.schedule = None;
+                self.streaming = false;
+                self.seq = 0;
+                self.clock_origin_us = -at * 1e6; // the clock restarts from zero
+                self.boot(at, out);
+            }
+        }
+        while let (true, Some(schedule)) = (self.streaming, self.schedule) {
+            let end = self.slot_start + self.slot_len(&schedule);
+            if end > t {
+                break;
+            }
+            let n = schedule.slots().len();
+            if self.slot < n {
+                let slot = schedule.slots()[self.slot];
+                let mid = self.slot_start + 0.5 * f64::from(slot.slot_us) * 1e-6;
+                let sample = self.sample(self.slot as u8, slot.led, mid, world, schedule.dark_slot_us > 0);
+                let delay = self.injected_delay();
+                let p = self.packet(Message::Sample(sample));
+                out.push(Outgoing { at: end + delay, packet: p });
+                self.samples_in_frame += 1;
+            }
+            self.slot += 1;
+            self.slot_start = end;
+            let frame_done = self.slot > n || (self.slot == n && schedule.dark_slot_us == 0);
+            if frame_done {
+                let p = self.packet(Message::FrameEnd {
+                    frame: self.frame,
+                    t_ctrl_us: self.clock_us(end),
+                    samples: self.samples_in_frame,
+                });
+                out.push(Outgoing { at: end, packet: p });
+                self.frame = self.frame.wrapping_add(1);
+                self.slot = 0;
+                self.samples_in_frame = 0;
+            }
+        }
+        while self.next_heartbeat <= t {
+            let state = if self.streaming { ControllerState::Streaming } else { ControllerState::Idle };
+            let at = self.next_heartbeat;
+            let p = self.packet(Message::Heartbeat { t_ctrl_us: self.clock_us(at), state });
+            out.push(Outgoing { at, packet: p });
+            self.next_heartbeat += HEARTBEAT_PERIOD;
+        }
+    }
+
+    fn injected_delay(&mut self) -> f64 {
+        let f = &self.faults;
+        if f.sample_delay_ms <= 0.0 && f.sample_jitter_ms <= 0.0 {
+            return 0.0;
+        }
+        let jitter = f.sample_jitter_ms * rand::Rng::random_range(&mut self.rng, -1.0..1.0);
+        ((f.sample_delay_ms + jitter) * 1e-3).max(0.0)
+    }
+
+    fn sample(&mut self, slot: u8, led: u8, t: f64, world: &World, dark: bool) -> Sample {
+        let half = f64::from(self.camera.counts) / 2.0;
+        let raw = self.leds.position(led, world, t).and_then(|p| self.camera.project(p));
+        let mut flags = if dark { SampleFlags::AMBIENT_SUBTRACTED } else { 0 };
+        let (mut x, mut y, intensity) = match raw {
+            Some(r) if self.camera.in_view(r) && !self.faults.occluded(led, t) => {
+                let ambient = if dark { 0.0 } else { AMBIENT };
+                (r.0, r.1, (INTENSITY + ambient) as u16)
+            }
+            // Out of view, occluded, or an LED that is not there: too little light.
+            Some(r) => {
+                flags |= SampleFlags::WEAK_SIGNAL;
+                (r.0, r.1, WEAK_INTENSITY)
+            }
+            None => {
+                flags |= SampleFlags::WEAK_SIGNAL;
+                (0.0, 0.0, WEAK_INTENSITY)
+            }
+        };
+        if let Some(n) = self.noise {
+            x += n.sample(&mut self.rng);
+            y += n.sample(&mut self.rng);
+        }
+        x = x.clamp(-half, half - 1.0);
+        y = y.clamp(-half, half - 1.0);
+        Sample {
+            frame: self.frame,
+            slot,
+            led,
+            t_ctrl_us: self.clock_us(t),
+            x: x.round() as i32,
+            y: y.round() as i32,
+            intensity,
+            flags: SampleFlags(flags),
+        }
+    }
+}
+
+/// Helpers for tests and tools: the message type of a packet.
+pub fn kind(p: &Packet) -> MessageType {
+    p.message.msg_type()
+}

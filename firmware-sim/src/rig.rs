@@ -1,0 +1,469 @@
+//! The simulated rig in real time: the world, the PSD controller on a serial endpoint and
+//! the motor board on a CAN endpoint, in one process.
+//!
+//! One task owns the world and both firmware state machines and advances them by the
+//! wall clock; small I/O tasks move bytes between them and the endpoints:
+//! - PSD serial: a fresh pty (its path printed; optionally a stable symlink), or a real
+//!   serial device;
+//! - CAN: `slcan-pty` (the simulator plays a USB-CAN adapter in SLCAN mode on a pty, with
+//!   the bus and the board behind it), or `socketcan:IFACE` (the board on a real or virtual
+//!   CAN interface).
+//!
+//! The controller's outgoing bytes pass through a bounded queue to the serial writer, like a
+//! UART's FIFO: when nobody reads the line, bytes are dropped and counted, never blocking
+//! the simulation.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use bytes::BytesMut;
+use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec, StreamError};
+use flowgate_protocol::motor::NodeId;
+use flowgate_protocol::psd::{self, Packet};
+use flowgate_protocol::slcan::{Command, Line, Response, MAX_LINE_LEN};
+use flowgate_protocol::CanFrame;
+use futures_util::StreamExt;
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{mpsc, oneshot};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+use tokio_serial::SerialPort as _;
+use tokio_util::codec::{Encoder, FramedRead};
+
+use crate::calibration::CameraModel;
+use crate::faults::{CanFaults, FaultPlan, SerialFaults};
+use crate::motor_board::MotorBoard;
+use crate::psd_controller::{LedMap, Outgoing, PsdController};
+use crate::scenario::Scenario;
+use crate::slcan_adapter::SlcanAdapter;
+use crate::truth::{TruthRecord, SAMPLE_PERIOD};
+use crate::world::World;
+
+/// Where the PSD controller's serial line is.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SerialEndpoint {
+    /// A new pty; `link` makes a stable symlink to its path.
+    Pty { link: Option<PathBuf> },
+    /// A real serial device.
+    Device { path: PathBuf, baud: u32 },
+}
+
+/// Where the motor board's CAN bus is.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CanEndpoint {
+    /// The simulator plays an SLCAN adapter on a new pty; `link` makes a symlink to it.
+    SlcanPty { link: Option<PathBuf> },
+    /// A SocketCAN interface (`can0`, `vcan0`).
+    SocketCan { interface: String },
+}
+
+impl FromStr for CanEndpoint {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.split_once(':') {
+            None if s == "slcan-pty" => Ok(Self::SlcanPty { link: None }),
+            Some(("socketcan", iface)) if !iface.is_empty() => Ok(Self::SocketCan { interface: iface.to_string() }),
+            _ => Err(format!("CAN endpoint `{s}`: expected `slcan-pty` or `socketcan:IFACE` (e.g. socketcan:vcan0)")),
+        }
+    }
+}
+
+/// Everything the rig is made of.
+#[derive(Debug, Clone)]
+pub struct RigConfig {
+    pub scenario: Scenario,
+    pub camera: CameraModel,
+    pub leds: LedMap,
+    pub psd: SerialEndpoint,
+    pub can: CanEndpoint,
+    pub node: NodeId,
+    pub faults: FaultPlan,
+    /// PSD position noise, counts (σ).
+    pub noise_counts: f64,
+    pub seed: u64,
+}
+
+impl RigConfig {
+    /// A rig for `scenario` with the standard camera and LEDs, SLCAN on a pty, node 1.
+    pub fn new(scenario: Scenario) -> Self {
+        let leds = LedMap::standard(scenario.robot.radius);
+        let seed = scenario.sensing.seed;
+        Self {
+            scenario,
+            camera: CameraModel::default(),
+            leds,
+            psd: SerialEndpoint::Pty { link: None },
+            can: CanEndpoint::SlcanPty { link: None },
+            node: NodeId::new(1).expect("node 1"),
+            faults: FaultPlan::default(),
+            noise_counts: 1.0,
+            seed,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RigError {
+    #[error("cannot create a pty: {0}")]
+    Pty(#[source] tokio_serial::Error),
+    #[error("cannot open serial device {path}: {source}")]
+    Device { path: PathBuf, source: tokio_serial::Error },
+    #[error("cannot create link {path}: {source}")]
+    Link { path: PathBuf, source: std::io::Error },
+    #[error("cannot open CAN interface {interface}: {source} (does it exist and is it up? `ip link add dev vcan0 type vcan; ip link set up vcan0`)")]
+    SocketCan { interface: String, source: std::io::Error },
+}
+
+/// Counters of the rig's links, readable while it runs.
+#[derive(Debug, Default)]
+pub struct RigStats {
+    /// Bytes the controller sent that the serial writer could not take (line not read).
+    pub serial_overflow_bytes: AtomicU64,
+    pub serial_bytes_dropped: AtomicU64,
+    pub serial_bytes_corrupted: AtomicU64,
+    pub can_frames_lost: AtomicU64,
+    pub psd_requests: AtomicU64,
+    pub psd_bad_requests: AtomicU64,
+    pub can_frames_in: AtomicU64,
+    pub can_frames_out: AtomicU64,
+}
+
+/// A running rig.
+#[derive(Debug)]
+pub struct RigHandle {
+    /// The path a host opens for the PSD controller.
+    pub psd_path: PathBuf,
+    /// The SLCAN adapter's path (with `slcan-pty`).
+    pub can_path: Option<PathBuf>,
+    pub stats: Arc<RigStats>,
+    stop: Option<oneshot::Sender<()>>,
+    task: JoinHandle<TruthRecord>,
+    links: Vec<PathBuf>,
+}
+
+impl RigHandle {
+    /// Stop the rig; returns the world's truth. Removes the links it made.
+    pub async fn stop(mut self) -> TruthRecord {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        let truth = (&mut self.task).await.unwrap_or_default();
+        for link in &self.links {
+            let _ = std::fs::remove_file(link);
+        }
+        truth
+    }
+}
+
+fn make_link(link: &Path, target: &Path) -> Result<(), RigError> {
+    if link.symlink_metadata().is_ok_and(|m| m.file_type().is_symlink()) {
+        let _ = std::fs::remove_file(link);
+    }
+    std::os::unix::fs::symlink(target, link).map_err(|source| RigError::Link { path: link.to_path_buf(), source })
+}
+
+/// A pty pair: the master for the simulator, the slave's path for the host.
+///
+/// The simulator keeps a plain descriptor on the slave so that a host can close and reopen
+/// it without the line hanging up. It is not serialport's handle: serialport locks every
+/// tty it opens (`flock`), which would lock the host out.
+fn pty() -> Result<(tokio_serial::SerialStream, std::fs::File, PathBuf), RigError> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let (master, slave) = tokio_serial::SerialStream::pair().map_err(RigError::Pty)?;
+    let path = slave.name().map(PathBuf::from).ok_or_else(|| {
+        RigError::Pty(tokio_serial::Error::new(tokio_serial::ErrorKind::Unknown, "pty without a name"))
+    })?;
+    let keep = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY)
+        .open(&path)
+        .map_err(|e| RigError::Pty(e.into()))?;
+    drop(slave);
+    Ok((master, keep, path))
+}
+
+/// Serial line I/O: decoded input (mapped by `map`) to the returned receiver, bytes from
+/// the returned sender out.
+fn spawn_serial<S, D, O>(
+    port: S,
+    codec: D,
+    map: fn(D::Item) -> O,
+) -> (mpsc::Receiver<O>, mpsc::Sender<Vec<u8>>, JoinHandle<()>)
+where
+    S: AsyncRead + AsyncWrite + Send + 'static,
+    D: tokio_util::codec::Decoder<Error = std::io::Error> + Send + 'static,
+    D::Item: Send,
+    O: Send + 'static,
+{
+    let (read, mut write) = tokio::io::split(port);
+    let (in_tx, in_rx) = mpsc::channel(256);
+    let (out_tx, mut out_rx) = mpsc::channel::<Vec<u8>>(256);
+    let task = tokio::spawn(async move {
+        let mut frames = FramedRead::new(read, codec);
+        loop {
+            tokio::select! {
+                item = frames.next() => match item {
+                    Some(Ok(item)) => { if in_tx.send(map(item)).await.is_err() { break } }
+                    Some(Err(_)) | None => break,
+                },
+                bytes = out_rx.recv() => match bytes {
+                    Some(b) => { if write.write_all(&b).await.is_err() { break } }
+                    None => break,
+                },
+            }
+        }
+    });
+    (in_rx, out_tx, task)
+}
+
+/// A PSD frame as the controller takes it: the packet, or why it did not decode.
+fn psd_item(item: Result<Packet, StreamError<psd::Error>>) -> Result<Packet, psd::Error> {
+    item.map_err(|e| match e {
+        StreamError::Frame { error, .. } => error,
+        StreamError::Overlong { .. } => psd::Error::TooLong,
+    })
+}
+
+/// An SLCAN line as the adapter takes it: `None` for a line that did not parse.
+fn slcan_item(item: Result<Command, StreamError<flowgate_protocol::slcan::SlcanError>>) -> Option<Command> {
+    item.ok()
+}
+
+/// The CAN side as the rig loop sees it.
+enum Bus {
+    Slcan { adapter: SlcanAdapter, rx: mpsc::Receiver<Option<Command>>, tx: mpsc::Sender<Vec<u8>> },
+    Socket { rx: mpsc::Receiver<CanFrame>, tx: mpsc::Sender<CanFrame> },
+}
+
+/// Start the rig. Returns once its endpoints exist, so a host can open them at once.
+pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
+    let mut links = Vec::new();
+    let mut keep_alive: Vec<std::fs::File> = Vec::new();
+    let (psd_port, psd_path) = match &config.psd {
+        SerialEndpoint::Pty { link } => {
+            let (master, slave, path) = pty()?;
+            keep_alive.push(slave);
+            if let Some(link) = link {
+                make_link(link, &path)?;
+                links.push(link.clone());
+            }
+            (master, path)
+        }
+        SerialEndpoint::Device { path, baud } => {
+            let port = tokio_serial::SerialStream::open(&tokio_serial::new(path.to_string_lossy(), *baud))
+                .map_err(|source| RigError::Device { path: path.clone(), source })?;
+            (port, path.clone())
+        }
+    };
+    let (psd_rx, psd_tx, psd_task) = spawn_serial(psd_port, PsdCodec::new(), psd_item);
+
+    let mut can_path = None;
+    let (bus, can_task) = match &config.can {
+        CanEndpoint::SlcanPty { link } => {
+            let (master, slave, path) = pty()?;
+            keep_alive.push(slave);
+            if let Some(link) = link {
+                make_link(link, &path)?;
+                links.push(link.clone());
+            }
+            can_path = Some(path);
+            let (rx, tx, task) = spawn_serial(master, SlcanAdapterCodec::new(), slcan_item);
+            (Bus::Slcan { adapter: SlcanAdapter::default(), rx, tx }, task)
+        }
+        CanEndpoint::SocketCan { interface } => {
+            let socket = socketcan::tokio::CanSocket::open(interface)
+                .map_err(|source| RigError::SocketCan { interface: interface.clone(), source })?;
+            let (in_tx, rx) = mpsc::channel(256);
+            let (tx, mut out_rx) = mpsc::channel::<CanFrame>(256);
+            let task = tokio::spawn(async move {
+                let mut socket = socket;
+                loop {
+                    tokio::select! {
+                        frame = socket.next() => match frame {
+                            Some(Ok(f)) => {
+                                if let Ok(f) = CanFrame::try_from(&f) {
+                                    if in_tx.send(f).await.is_err() { break }
+                                }
+                            }
+                            Some(Err(e)) => tracing::warn!("CAN read: {e}"),
+                            None => break,
+                        },
+                        out = out_rx.recv() => match out {
+                            Some(f) => { if let Err(e) = socket.write_frame(f.into()).await { tracing::warn!("CAN write: {e}") } }
+                            None => break,
+                        },
+                    }
+                }
+            });
+            (Bus::Socket { rx, tx }, task)
+        }
+    };
+
+    let stats = Arc::new(RigStats::default());
+    let (stop_tx, stop_rx) = oneshot::channel();
+    let loop_stats = stats.clone();
+    let task = tokio::spawn(async move {
+        let truth = run(config, psd_rx, psd_tx, bus, stop_rx, loop_stats).await;
+        psd_task.abort();
+        can_task.abort();
+        drop(keep_alive);
+        truth
+    });
+    Ok(RigHandle { psd_path, can_path, stats, stop: Some(stop_tx), task, links })
+}
+
+async fn run(
+    config: RigConfig,
+    mut psd_rx: mpsc::Receiver<Result<Packet, psd::Error>>,
+    psd_tx: mpsc::Sender<Vec<u8>>,
+    mut bus: Bus,
+    mut stop: oneshot::Receiver<()>,
+    stats: Arc<RigStats>,
+) -> TruthRecord {
+    let mut world = World::new(&config.scenario);
+    let mut controller =
+        PsdController::new(config.camera, config.leds, config.noise_counts, config.seed, config.faults.clone());
+    let mut board = MotorBoard::new(config.node, config.faults.clone());
+    let mut serial_faults = SerialFaults::new(&config.faults);
+    let mut can_faults = CanFaults::new(&config.faults);
+    let mut bursts: VecDeque<f64> = config.faults.serial_burst_at.iter().copied().collect();
+    let burst_len = config.faults.serial_burst_len;
+    let mut truth = TruthRecord::default();
+    let mut next_truth = 0.0;
+
+    let origin = Instant::now();
+    let now = || origin.elapsed().as_secs_f64();
+    let mut psd_out: Vec<Outgoing> = Vec::new();
+    let mut pending: VecDeque<Outgoing> = VecDeque::new();
+    let mut can_out: Vec<CanFrame> = Vec::new();
+    let mut to_host: Vec<Response> = Vec::new();
+    let mut to_bus: Vec<CanFrame> = Vec::new();
+    let mut wire = [0u8; psd::MAX_WIRE_LEN];
+
+    controller.boot(0.0, &mut psd_out);
+    board.boot(0.0, &mut world, &mut can_out);
+
+    loop {
+        let t = now();
+        if t > world.time() {
+            world.step(t - world.time());
+        }
+        controller.poll(t, &world, &mut psd_out);
+        board.poll(t, &mut world, &mut can_out);
+
+        // Serial out: in order, each message no earlier than its time (injected delay).
+        let mut last_at = pending.back().map_or(0.0, |o| o.at);
+        for o in psd_out.drain(..) {
+            last_at = last_at.max(o.at);
+            pending.push_back(Outgoing { at: last_at, packet: o.packet });
+        }
+        let mut bytes = Vec::new();
+        while pending.front().is_some_and(|o| o.at <= t) {
+            let o = pending.pop_front().expect("checked");
+            if let Ok(n) = o.packet.encode(&mut wire) {
+                bytes.extend_from_slice(&wire[..n]);
+            }
+        }
+        while bursts.front().is_some_and(|&at| at <= t) {
+            bursts.pop_front();
+            bytes.extend(serial_faults.burst(burst_len));
+        }
+        if !bytes.is_empty() {
+            serial_faults.apply(&mut bytes);
+            stats.serial_bytes_dropped.store(serial_faults.dropped, Ordering::Relaxed);
+            stats.serial_bytes_corrupted.store(serial_faults.corrupted, Ordering::Relaxed);
+            let n = bytes.len() as u64;
+            if psd_tx.try_send(bytes).is_err() {
+                stats.serial_overflow_bytes.fetch_add(n, Ordering::Relaxed);
+            }
+        }
+
+        // CAN out: the board's frames onto the bus (unless bus-off or lost).
+        let bus_off = config.faults.bus_off(t);
+        for f in can_out.drain(..) {
+            if bus_off || can_faults.lose() {
+                continue;
+            }
+            stats.can_frames_out.fetch_add(1, Ordering::Relaxed);
+            match &mut bus {
+                Bus::Slcan { adapter, tx, .. } => {
+                    if let Some(r) = adapter.from_bus(f, t) {
+                        send_line(tx, &r);
+                    }
+                }
+                Bus::Socket { tx, .. } => {
+                    let _ = tx.try_send(f);
+                }
+            }
+        }
+        stats.can_frames_lost.store(can_faults.lost, Ordering::Relaxed);
+
+        while next_truth <= t {
+            truth.record(&world);
+            next_truth += SAMPLE_PERIOD;
+        }
+
+        let mut next = controller.next_event().min(board.next_event()).min(next_truth).min(t + 0.005);
+        if let Some(o) = pending.front() {
+            next = next.min(o.at);
+        }
+        if let Some(&b) = bursts.front() {
+            next = next.min(b);
+        }
+        let deadline = origin + Duration::from_secs_f64(next.max(t));
+        let (slcan_rx, socket_rx) = match &mut bus {
+            Bus::Slcan { rx, .. } => (Some(rx), None),
+            Bus::Socket { rx, .. } => (None, Some(rx)),
+        };
+        tokio::select! {
+            _ = &mut stop => break,
+            _ = tokio::time::sleep_until(deadline) => {}
+            Some(request) = psd_rx.recv() => {
+                stats.psd_requests.fetch_add(1, Ordering::Relaxed);
+                if request.is_err() {
+                    stats.psd_bad_requests.fetch_add(1, Ordering::Relaxed);
+                }
+                controller.handle(now(), request, &mut psd_out);
+            }
+            Some(line) = async { match slcan_rx { Some(rx) => rx.recv().await, None => std::future::pending().await } } => {
+                if let Bus::Slcan { adapter, tx, .. } = &mut bus {
+                    adapter.handle(line, &mut to_host, &mut to_bus);
+                    for r in to_host.drain(..) {
+                        send_line(tx, &r);
+                    }
+                }
+            }
+            Some(frame) = async { match socket_rx { Some(rx) => rx.recv().await, None => std::future::pending().await } } => {
+                to_bus.push(frame);
+            }
+        }
+        let t = now();
+        for f in to_bus.drain(..) {
+            stats.can_frames_in.fetch_add(1, Ordering::Relaxed);
+            if !config.faults.bus_off(t) && !can_faults.lose() {
+                board.handle(t, &f, &mut world, &mut can_out);
+            }
+        }
+    }
+    truth.record(&world);
+    truth
+}
+
+fn send_line(tx: &mpsc::Sender<Vec<u8>>, r: &Response) {
+    let mut buf = [0u8; MAX_LINE_LEN];
+    if let Ok(n) = r.emit(&mut buf) {
+        let _ = tx.try_send(buf[..n].to_vec());
+    }
+}
+
+/// Encode a PSD packet into bytes (for tools and tests that write to the simulator).
+pub fn encode_packet(p: Packet) -> Vec<u8> {
+    let mut buf = BytesMut::new();
+    PsdCodec::new().encode(p, &mut buf).expect("packets fit");
+    buf.to_vec()
+}

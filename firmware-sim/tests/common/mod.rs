@@ -1,0 +1,84 @@
+//! A host for the simulator's tests: opens the PSD pty like a gateway would and speaks the
+//! protocol with the project's own codec.
+#![allow(dead_code)]
+
+use std::path::Path;
+use std::time::Duration;
+
+use flowgate_protocol::codec::{PsdCodec, StreamError};
+use flowgate_protocol::psd::{self, Message, Packet};
+use flowgate_sim::rig::{self, RigConfig, RigHandle};
+use flowgate_sim::scenario::Scenario;
+use futures_util::{SinkExt, StreamExt};
+use tokio::time::{timeout, Instant};
+use tokio_serial::SerialPortBuilderExt;
+use tokio_util::codec::Framed;
+
+pub const WAIT: Duration = Duration::from_secs(3);
+
+pub fn scenario(name: &str) -> Scenario {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name);
+    Scenario::load(&path).unwrap()
+}
+
+pub async fn rig(config: RigConfig) -> RigHandle {
+    rig::start(config).await.expect("rig starts")
+}
+
+pub struct Host {
+    pub link: Framed<tokio_serial::SerialStream, PsdCodec>,
+    seq: u16,
+}
+
+/// One frame as the host received it, with its arrival time.
+pub type Arrival = (Instant, Result<Packet, StreamError<psd::Error>>);
+
+impl Host {
+    pub async fn open(path: &Path) -> Self {
+        let port = tokio_serial::new(path.to_string_lossy(), 921_600).open_native_async().expect("open pty");
+        Self { link: Framed::new(port, PsdCodec::new()), seq: 100 }
+    }
+
+    pub async fn send(&mut self, message: Message) -> u16 {
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        self.link.send(Packet::new(seq, message)).await.unwrap();
+        seq
+    }
+
+    pub async fn send_raw(&mut self, bytes: &[u8]) {
+        use tokio::io::AsyncWriteExt;
+        self.link.get_mut().write_all(bytes).await.unwrap();
+    }
+
+    /// The next frame (good or bad), within `WAIT`.
+    pub async fn next(&mut self) -> Arrival {
+        let item = timeout(WAIT, self.link.next()).await.expect("a frame within 3 s").expect("link open").unwrap();
+        (Instant::now(), item)
+    }
+
+    /// The first good packet satisfying `pred`, skipping others, within `WAIT`.
+    pub async fn until(&mut self, pred: impl Fn(&Message) -> bool) -> Packet {
+        let deadline = Instant::now() + WAIT;
+        loop {
+            let item = tokio::time::timeout_at(deadline, self.link.next()).await.expect("expected packet within 3 s");
+            if let Some(Ok(Ok(p))) = item {
+                if pred(&p.message) {
+                    return p;
+                }
+            }
+        }
+    }
+
+    /// Send a request and return the reply that names its seq (or answers it).
+    pub async fn request(&mut self, message: Message) -> Message {
+        let seq = self.send(message).await;
+        self.until(|m| match m {
+            Message::Ack { seq: s, .. } | Message::Nack { seq: s, .. } => *s == seq,
+            Message::Info(_) | Message::Pong { .. } | Message::TimeSyncReply { .. } => true,
+            _ => false,
+        })
+        .await
+        .message
+    }
+}
