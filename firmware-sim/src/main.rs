@@ -86,15 +86,17 @@ fn main() -> Result<()> {
 
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     runtime.block_on(async move {
+        // Handlers first: a supervisor may signal as soon as the endpoints are announced.
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut interrupt = signal(SignalKind::interrupt())?;
+        let mut term = signal(SignalKind::terminate())?;
         let handle = rig::start(config).await?;
         println!("psd: {}", handle.psd_path.display());
         if let Some(can) = &handle.can_path {
             println!("can: slcan {}", can.display());
         }
-        use tokio::signal::unix::{signal, SignalKind};
-        let mut term = signal(SignalKind::terminate())?;
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => {}
+            _ = interrupt.recv() => {}
             _ = term.recv() => {}
         }
         let truth = handle.stop().await;

@@ -152,16 +152,22 @@ async fn time_division_follows_the_schedule() {
         assert_eq!(w[1].t_ctrl_us - w[0].t_ctrl_us, 14_000, "frame period");
         assert_eq!(w[1].frame, w[0].frame + 1);
     }
-    // Arrival: host time between samples follows the controller's stamps within ±5 ms
-    // (the simulator is paced by a tokio timer on a shared 2-core machine).
-    let (t0, s0) = (samples[0].0, samples[0].1.t_ctrl_us);
-    let mut worst = 0.0f64;
-    for (at, s) in samples {
-        let host_us = at.duration_since(t0).as_secs_f64() * 1e6;
-        let ctrl_us = (s.t_ctrl_us - s0) as f64;
-        worst = worst.max((host_us - ctrl_us).abs());
-    }
-    eprintln!("time division: {} samples, worst arrival offset {:.0} µs", samples.len(), worst);
-    assert!(worst < 5_000.0, "arrival drifts from the stamps by {worst} µs");
+    // Arrival: how late each sample reaches the host relative to the least-delayed one
+    // (which fixes the offset between the two clocks). Stated tolerance: median under
+    // 3 ms, worst under 30 ms; the simulator is paced by a tokio timer on a shared 2-core
+    // machine, and the test runs beside others. The stamps above are exact regardless.
+    let offsets: Vec<f64> = samples
+        .iter()
+        .map(|(at, s)| {
+            at.duration_since(samples[0].0).as_secs_f64() * 1e6 - (s.t_ctrl_us - samples[0].1.t_ctrl_us) as f64
+        })
+        .collect();
+    let base = offsets.iter().copied().fold(f64::INFINITY, f64::min);
+    let mut lateness: Vec<f64> = offsets.iter().map(|o| o - base).collect();
+    lateness.sort_by(f64::total_cmp);
+    let (p50, worst) = (lateness[lateness.len() / 2], lateness[lateness.len() - 1]);
+    eprintln!("time division: {} samples, arrival lateness p50 {p50:.0} µs, worst {worst:.0} µs", samples.len());
+    assert!(p50 < 3_000.0, "median lateness {p50} µs");
+    assert!(worst < 30_000.0, "worst lateness {worst} µs");
     rig.stop().await;
 }
