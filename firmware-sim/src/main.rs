@@ -45,7 +45,7 @@ struct Args {
     /// PSD position noise, counts (σ).
     #[arg(long, default_value_t = 1.0)]
     noise: f64,
-    /// Faults from a TOML file (the keys of `[faults]`).
+    /// Faults from a TOML file (the keys of `[faults]`), instead of the scenario's.
     #[arg(long, value_name = "FILE")]
     faults: Option<PathBuf>,
     /// One fault setting, `key=value` (repeatable), e.g. `--fault serial_drop=0.01`.
@@ -80,7 +80,7 @@ fn main() -> Result<()> {
             let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
             toml::from_str::<FaultPlan>(&text).with_context(|| format!("faults {}", path.display()))?
         }
-        None => FaultPlan::default(),
+        None => config.faults.clone(),
     };
     config.faults = base.with_settings(&args.fault).map_err(anyhow::Error::msg)?;
 

@@ -88,10 +88,12 @@ pub struct RigConfig {
 }
 
 impl RigConfig {
-    /// A rig for `scenario` with the standard camera and LEDs, SLCAN on a pty, node 1.
+    /// A rig for `scenario` with the standard camera and LEDs, SLCAN on a pty, node 1, and
+    /// the scenario's faults.
     pub fn new(scenario: Scenario) -> Self {
         let leds = LedMap::standard(scenario.robot.radius);
         let seed = scenario.sensing.seed;
+        let faults = scenario.faults.clone();
         Self {
             scenario,
             camera: CameraModel::default(),
@@ -99,7 +101,7 @@ impl RigConfig {
             psd: SerialEndpoint::Pty { link: None },
             can: CanEndpoint::SlcanPty { link: None },
             node: NodeId::new(1).expect("node 1"),
-            faults: FaultPlan::default(),
+            faults,
             noise_counts: 1.0,
             seed,
         }

@@ -25,6 +25,10 @@ pub struct Scenario {
     pub obstacles: Vec<ObstacleSpec>,
     pub sensing: SensingSpec,
     pub planner: PlannerSpec,
+    /// Faults the simulator injects when it runs this scenario (all off by default;
+    /// `flowgate-sim --fault key=value` overrides single keys).
+    #[serde(default)]
+    pub faults: crate::faults::FaultPlan,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -349,6 +353,15 @@ mod tests {
         let bad = MINIMAL.replace("factor = 1.1", "factor = 0.5");
         let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
         assert!(err.contains("planner.margin.factor"), "{err}");
+    }
+
+    #[test]
+    fn carries_a_fault_plan() {
+        let with = format!("{MINIMAL}\n[faults]\nserial_drop = 0.01\nboard_fault_at = 2.5\n");
+        let s = Scenario::from_toml(&with, "t").unwrap();
+        assert_eq!(s.faults.serial_drop, 0.01);
+        assert_eq!(s.faults.board_fault_at, Some(2.5));
+        assert_eq!(Scenario::from_toml(MINIMAL, "t").unwrap().faults, crate::faults::FaultPlan::default());
     }
 
     #[test]

@@ -226,3 +226,19 @@ async fn bus_off_arrives_as_silence_then_a_bus_fault() {
     assert!(arrivals.iter().any(|(_, m)| matches!(m, MotorMessage::Status { state: BoardState::Fault, faults, .. } if faults.contains(FaultBits::BUS))));
     rig.stop().await;
 }
+
+/// Faults set in the scenario's `[faults]` table reach the rig as well.
+#[tokio::test]
+async fn faults_from_the_scenario_file_are_injected() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/e1-standing-obstacle.toml");
+    let text = std::fs::read_to_string(&path).unwrap() + "\n[faults]\ncontroller_reset_at = 0.4\n";
+    let scenario = flowgate_sim::scenario::Scenario::from_toml(&text, "e1 + faults").unwrap();
+    let rig = rig(RigConfig::new(scenario)).await;
+    let mut host = streaming(&rig).await;
+    host.until(|m| matches!(m, Message::Fault { code: FaultCode::Reset, .. })).await;
+    assert!(matches!(
+        host.request(Message::StartStream).await,
+        Message::Nack { reason: NackReason::NotConfigured, .. }
+    ));
+    rig.stop().await;
+}
