@@ -6,7 +6,10 @@
 //! speeds, pulse rates) -> [`control`] (the control step). [`offline`] closes the loop
 //! around the simulator's world in virtual time.
 
+pub mod calib;
+pub mod config;
 pub mod control;
+pub mod link;
 pub mod offline;
 pub mod planner;
 pub mod report;

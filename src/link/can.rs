@@ -1,0 +1,287 @@
+//! CAN backends behind one trait.
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::str::FromStr;
+use std::sync::{Arc, Mutex};
+
+use flowgate_protocol::codec::{SlcanHostCodec, StreamError};
+use flowgate_protocol::slcan::{Bitrate, Command, Response};
+use flowgate_protocol::CanFrame;
+use futures_util::{SinkExt, StreamExt};
+use tokio::sync::broadcast;
+use tokio_util::codec::Framed;
+
+/// A CAN endpoint, parsed from its URL.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CanUrl {
+    /// `socketcan:IFACE`
+    SocketCan { interface: String },
+    /// `slcan:PATH[?bitrate=BPS][&baud=BAUD]`
+    Slcan { path: PathBuf, bitrate: u32, baud: u32 },
+    /// `memory`: in-process, for unit tests.
+    Memory,
+}
+
+impl FromStr for CanUrl {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = |why: &str| format!("CAN endpoint `{s}`: {why} (expected socketcan:IFACE or slcan:PATH?bitrate=BPS)");
+        let (scheme, rest) = s.split_once(':').map_or((s, ""), |(a, b)| (a, b));
+        match scheme {
+            "socketcan" if !rest.is_empty() => Ok(Self::SocketCan { interface: rest.to_string() }),
+            "slcan" if !rest.is_empty() => {
+                let (path, query) = rest.split_once('?').unwrap_or((rest, ""));
+                let (mut bitrate, mut baud) = (1_000_000, 921_600);
+                for kv in query.split('&').filter(|kv| !kv.is_empty()) {
+                    let (k, v) = kv.split_once('=').ok_or_else(|| bad(&format!("`{kv}` is not key=value")))?;
+                    let v: u32 = v.parse().map_err(|_| bad(&format!("`{v}` is not a number")))?;
+                    match k {
+                        "bitrate" => bitrate = v,
+                        "baud" => baud = v,
+                        _ => return Err(bad(&format!("unknown option `{k}`"))),
+                    }
+                }
+                if Bitrate::from_bps(bitrate).is_none() {
+                    return Err(bad(&format!("bitrate {bitrate} is not one of SLCAN's S0-S8")));
+                }
+                Ok(Self::Slcan { path: path.into(), bitrate, baud })
+            }
+            "memory" => Ok(Self::Memory),
+            _ => Err(bad("unknown scheme")),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CanError {
+    #[error("CAN interface {interface}: {source} (does it exist and is it up? e.g. `ip link set up can0`)")]
+    SocketCan { interface: String, source: std::io::Error },
+    #[error("SLCAN adapter: {0}")]
+    Serial(#[from] super::SerialError),
+    #[error("SLCAN adapter at {path} did not accept `{command}`")]
+    SlcanRefused { path: String, command: String },
+    #[error("SLCAN adapter at {path} did not answer")]
+    SlcanSilent { path: String },
+    #[error("CAN link closed")]
+    Closed,
+    #[error("CAN I/O: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// What a CAN link delivers: frames, and what else the bus says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CanEvent {
+    Frame(CanFrame),
+    /// An error frame (SocketCAN) or a line the adapter sent that did not parse.
+    Error,
+}
+
+type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
+
+/// A CAN bus: send a frame, receive the next event.
+pub trait CanLink: Send {
+    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>>;
+    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>>;
+}
+
+/// Open the endpoint a URL names.
+pub async fn open_can(url: &CanUrl) -> Result<Box<dyn CanLink>, CanError> {
+    Ok(match url {
+        CanUrl::SocketCan { interface } => Box::new(SocketCanLink::open(interface)?),
+        CanUrl::Slcan { path, bitrate, baud } => Box::new(SlcanLink::open(path, *bitrate, *baud).await?),
+        CanUrl::Memory => Box::new(MemoryBus::new().attach()),
+    })
+}
+
+/// SocketCAN (`can0`, `vcan0`).
+pub struct SocketCanLink {
+    socket: socketcan::tokio::CanSocket,
+}
+
+impl SocketCanLink {
+    pub fn open(interface: &str) -> Result<Self, CanError> {
+        let socket = socketcan::tokio::CanSocket::open(interface)
+            .map_err(|source| CanError::SocketCan { interface: interface.to_string(), source })?;
+        Ok(Self { socket })
+    }
+}
+
+impl std::fmt::Debug for SocketCanLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SocketCanLink")
+    }
+}
+
+impl CanLink for SocketCanLink {
+    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>> {
+        Box::pin(async move { Ok(self.socket.write_frame(frame.into()).await?) })
+    }
+    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
+        Box::pin(async move {
+            match self.socket.next().await {
+                Some(Ok(f)) => Ok(CanFrame::try_from(&f).map_or(CanEvent::Error, CanEvent::Frame)),
+                Some(Err(e)) => Err(CanError::Io(std::io::Error::other(e))),
+                None => Err(CanError::Closed),
+            }
+        })
+    }
+}
+
+/// An SLCAN (LAWICEL) USB-CAN adapter on a serial port.
+pub struct SlcanLink {
+    link: Framed<tokio_serial::SerialStream, SlcanHostCodec>,
+}
+
+impl SlcanLink {
+    /// Open the adapter, set the bitrate and open the channel.
+    pub async fn open(path: &std::path::Path, bitrate: u32, baud: u32) -> Result<Self, CanError> {
+        let port = super::open_serial(path, baud)?;
+        let mut link = Framed::new(port, SlcanHostCodec::new());
+        let name = path.display().to_string();
+        let bitrate = Bitrate::from_bps(bitrate).expect("checked when parsed");
+        // Close first (an adapter left open refuses the bitrate); its answer does not matter.
+        for (cmd, must_succeed) in
+            [(Command::Close, false), (Command::SetBitrate(bitrate), true), (Command::Open, true)]
+        {
+            link.send(cmd).await?;
+            let answer = tokio::time::timeout(std::time::Duration::from_secs(1), async {
+                loop {
+                    match link.next().await {
+                        Some(Ok(Ok(Response::Ok))) => return Ok(true),
+                        Some(Ok(Ok(Response::Error))) => return Ok(false),
+                        Some(Ok(_)) => continue, // frames or noise before the answer
+                        Some(Err(e)) => return Err(CanError::Io(e)),
+                        None => return Err(CanError::Closed),
+                    }
+                }
+            })
+            .await
+            .map_err(|_| CanError::SlcanSilent { path: name.clone() })??;
+            if must_succeed && !answer {
+                return Err(CanError::SlcanRefused { path: name, command: format!("{cmd:?}") });
+            }
+        }
+        Ok(Self { link })
+    }
+}
+
+impl std::fmt::Debug for SlcanLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SlcanLink")
+    }
+}
+
+impl CanLink for SlcanLink {
+    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>> {
+        Box::pin(async move { Ok(self.link.send(Command::Transmit(frame)).await?) })
+    }
+    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
+        Box::pin(async move {
+            loop {
+                match self.link.next().await {
+                    Some(Ok(Ok(Response::Frame { frame, .. }))) => return Ok(CanEvent::Frame(frame)),
+                    // Transmit acks and OKs carry nothing for the caller.
+                    Some(Ok(Ok(_))) => continue,
+                    Some(Ok(Err(StreamError::Frame { .. } | StreamError::Overlong { .. }))) => {
+                        return Ok(CanEvent::Error)
+                    }
+                    Some(Err(e)) => return Err(e.into()),
+                    None => return Err(CanError::Closed),
+                }
+            }
+        })
+    }
+}
+
+/// An in-process CAN bus for unit tests: every attached link sees every other's frames.
+#[derive(Clone)]
+pub struct MemoryBus {
+    tx: broadcast::Sender<(usize, CanFrame)>,
+    next_id: Arc<Mutex<usize>>,
+}
+
+impl std::fmt::Debug for MemoryBus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("MemoryBus")
+    }
+}
+
+impl Default for MemoryBus {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl MemoryBus {
+    pub fn new() -> Self {
+        Self { tx: broadcast::channel(1024).0, next_id: Arc::new(Mutex::new(0)) }
+    }
+    /// A new node on the bus.
+    pub fn attach(&self) -> MemoryLink {
+        let mut id = self.next_id.lock().expect("not poisoned");
+        *id += 1;
+        MemoryLink { id: *id, tx: self.tx.clone(), rx: self.tx.subscribe() }
+    }
+}
+
+pub struct MemoryLink {
+    id: usize,
+    tx: broadcast::Sender<(usize, CanFrame)>,
+    rx: broadcast::Receiver<(usize, CanFrame)>,
+}
+
+impl std::fmt::Debug for MemoryLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("MemoryLink")
+    }
+}
+
+impl CanLink for MemoryLink {
+    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>> {
+        let _ = self.tx.send((self.id, frame));
+        Box::pin(async { Ok(()) })
+    }
+    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
+        Box::pin(async move {
+            loop {
+                match self.rx.recv().await {
+                    Ok((from, f)) if from != self.id => return Ok(CanEvent::Frame(f)),
+                    Ok(_) => continue,
+                    Err(broadcast::error::RecvError::Lagged(_)) => return Ok(CanEvent::Error),
+                    Err(broadcast::error::RecvError::Closed) => return Err(CanError::Closed),
+                }
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flowgate_protocol::CanId;
+
+    #[test]
+    fn parses_urls() {
+        assert_eq!("socketcan:vcan0".parse::<CanUrl>(), Ok(CanUrl::SocketCan { interface: "vcan0".into() }));
+        assert_eq!(
+            "slcan:/dev/ttyACM0?bitrate=500000".parse::<CanUrl>(),
+            Ok(CanUrl::Slcan { path: "/dev/ttyACM0".into(), bitrate: 500_000, baud: 921_600 })
+        );
+        assert!("slcan:/dev/x?bitrate=123".parse::<CanUrl>().unwrap_err().contains("S0-S8"));
+        assert!("slcan:/dev/x?speed=1".parse::<CanUrl>().unwrap_err().contains("unknown option `speed`"));
+        assert!("can0".parse::<CanUrl>().unwrap_err().contains("unknown scheme"));
+    }
+
+    #[tokio::test]
+    async fn memory_bus_delivers_to_others_only() {
+        let bus = MemoryBus::new();
+        let (mut a, mut b) = (bus.attach(), bus.attach());
+        let f = CanFrame::new(CanId::Standard(0x101), &[1]).unwrap();
+        a.send(f).await.unwrap();
+        assert_eq!(b.recv().await.unwrap(), CanEvent::Frame(f));
+        b.send(f).await.unwrap();
+        assert_eq!(a.recv().await.unwrap(), CanEvent::Frame(f));
+    }
+}
