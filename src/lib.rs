@@ -9,6 +9,8 @@
 pub mod calib;
 pub mod config;
 pub mod control;
+pub mod demo;
+pub mod gateway;
 pub mod link;
 pub mod offline;
 pub mod planner;

@@ -19,16 +19,23 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Run the simulator and the gateway together (no hardware needed).
-    Demo,
+    /// Run the simulator and the gateway together over real ptys (no hardware needed).
+    Demo(cli::demo::DemoArgs),
     /// Run scenarios offline in virtual time: one, all in a folder, or a Monte-Carlo sweep.
     Plan(cli::plan::PlanArgs),
 }
 
 fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
     let cli = Cli::parse();
     match cli.command {
-        Command::Demo => cli::demo::run(),
+        Command::Demo(args) => cli::demo::run(args),
         Command::Plan(args) => cli::plan::run(args),
     }
 }

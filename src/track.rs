@@ -119,6 +119,43 @@ impl ConstantVelocityKf {
     }
 }
 
+/// Dead reckoning from the robot's own recent commands, to bring a delayed pose up to now.
+#[derive(Debug, Clone, Default)]
+pub struct DeadReckoning {
+    /// (time issued, left and right wheel speeds m/s), oldest first.
+    commands: std::collections::VecDeque<(f64, f64, f64)>,
+}
+
+impl DeadReckoning {
+    /// Record the wheel speeds commanded at `t`.
+    pub fn command(&mut self, t: f64, left: f64, right: f64) {
+        self.commands.push_back((t, left, right));
+    }
+
+    /// Forget commands that ended before `t` (keeps the one in force at `t`).
+    pub fn forget_before(&mut self, t: f64) {
+        while self.commands.len() > 1 && self.commands[1].0 <= t {
+            self.commands.pop_front();
+        }
+    }
+
+    /// The pose measured at `t_valid`, advanced to `t` with the commands in force meanwhile.
+    pub fn predict(&self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
+        let mut pose = measured;
+        for (i, &(t0, left, right)) in self.commands.iter().enumerate() {
+            let t1 = self.commands.get(i + 1).map_or(t, |c| c.0);
+            let span = (t1.min(t) - t0.max(t_valid)).max(0.0);
+            if span > 0.0 {
+                let v = 0.5 * (left + right);
+                let omega = (right - left) / wheel_base;
+                pose.position += C::from_polar(v * span, pose.heading + 0.5 * omega * span);
+                pose.heading += omega * span;
+            }
+        }
+        pose
+    }
+}
+
 /// A first-order low-pass filter on a point (cut-off `hz`; 0 passes through).
 #[derive(Debug, Clone, Copy)]
 pub struct LowPass {
@@ -175,6 +212,18 @@ mod tests {
         assert!((est_v - v).norm() < 2e-3, "{est_v}");
         assert!((p - at(2.6)).norm() < 2e-3, "{p}");
         assert!(!kf.update(1.0, at(1.0)), "an older measurement is refused");
+    }
+
+    #[test]
+    fn dead_reckoning_bridges_the_delay() {
+        let mut dr = DeadReckoning::default();
+        dr.command(0.0, 0.1, 0.1); // straight at 0.1 m/s
+        dr.command(1.0, 0.0, 0.0); // then stopped
+        let start = Pose { position: C::new(0.0, 0.0), heading: 0.0 };
+        let p = dr.predict(start, 0.5, 2.0, 0.1);
+        assert!((p.position - C::new(0.05, 0.0)).norm() < 1e-12, "{}", p.position);
+        dr.forget_before(1.5);
+        assert_eq!(dr.predict(start, 1.5, 2.0, 0.1), start);
     }
 
     #[test]

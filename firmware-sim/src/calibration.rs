@@ -24,11 +24,11 @@ fn default_counts() -> u16 {
 }
 
 impl Default for CameraModel {
-    /// A camera about 4000 counts per metre, a little rotated and tilted, no distortion:
-    /// the floor within about ±0.5 m is in view.
+    /// A camera about 2400 counts per metre, a little rotated and tilted, no distortion:
+    /// the floor within about ±0.8 m is in view (the paper's workspace is about ±0.4 m).
     fn default() -> Self {
         Self {
-            homography: [[3900.0, 120.0, 15.0], [-100.0, 4050.0, -20.0], [0.02, -0.01, 1.0]],
+            homography: [[2400.0, 70.0, 10.0], [-60.0, 2480.0, -12.0], [0.012, -0.006, 1.0]],
             k1: 0.0,
             counts: default_counts(),
         }

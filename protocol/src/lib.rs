@@ -40,6 +40,6 @@ mod wire;
 pub mod codec;
 
 #[cfg(feature = "socketcan")]
-mod socketcan_frames;
+pub mod socketcan_frames;
 
 pub use can::{CanFrame, CanId};

@@ -1,8 +1,95 @@
-use anyhow::Result;
+//! `flowgate demo`: the simulator and the gateway together, no hardware.
 
-pub fn run() -> Result<()> {
-    anyhow::bail!(
-        "the live demo (simulator + gateway over ptys) is not built yet: it arrives with the gateway. \
-         Meanwhile `flowgate plan --all scenarios/` runs the planner against the simulated world offline"
-    )
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use flowgate::demo;
+use flowgate_sim::scenario::Scenario;
+
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// The scenario to run (default: E2, the lane head-on).
+    #[arg(long, value_name = "FILE")]
+    scenario: Option<PathBuf>,
+    /// The CAN endpoint: `slcan-pty` (default), or `socketcan:vcan0` where vcan exists.
+    #[arg(long, default_value = "slcan-pty")]
+    can: String,
+    /// Where to write trajectory.svg, trace.json, cycles.csv, can.log, truth.json.
+    #[arg(long, value_name = "DIR", default_value = "out/demo")]
+    out: PathBuf,
+}
+
+pub fn run(args: DemoArgs) -> Result<()> {
+    let scenario = match &args.scenario {
+        Some(path) => Scenario::load(path)?,
+        None => Scenario::from_toml(demo::DEFAULT_SCENARIO, "E2 (built in)")?,
+    };
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let out = std::fs::canonicalize(&args.out)?;
+    println!("flowgate demo: {} (simulator + gateway over ptys, CAN {})", scenario.name, args.can);
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    let run = runtime.block_on(demo::run(&scenario, &args.can, Some(out.clone()), |p| {
+        println!(
+            "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
+            p.t,
+            p.state,
+            p.goal_distance,
+            p.clearance.map_or("-".into(), |c| format!("{:.3} m", c)),
+            p.e2e_us,
+            p.cycles
+        );
+    }))?;
+    let t = &run.truth.summary;
+    println!();
+    println!(
+        "outcome          {}",
+        if run.contact {
+            "COLLISION"
+        } else if run.reached_goal {
+            "goal reached, no contact"
+        } else {
+            "goal not reached"
+        }
+    );
+    println!(
+        "world truth      min clearance {} , path {:.3} m, {:.1} s",
+        t.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1} mm", c * 1e3)),
+        t.path_length,
+        t.duration
+    );
+    println!("{}", run.report);
+    // The trajectory from the world's truth.
+    let trace: Vec<flowgate::offline::TraceRow> = run
+        .truth
+        .samples
+        .iter()
+        .map(|s| flowgate::offline::TraceRow {
+            t: s.t,
+            pose: flowgate::track::Pose { position: flowgate::Point::new(s.x, s.y), heading: s.heading },
+            command: flowgate::Point::default(),
+            speed: 0.5 * (s.wheel_speeds[0] + s.wheel_speeds[1]),
+            obstacles: s.obstacles.iter().map(|o| flowgate::Point::new(o[0], o[1])).collect(),
+        })
+        .collect();
+    let offline = flowgate::offline::run(&scenario, false);
+    let mut summary = offline.summary;
+    summary.outcome = if run.contact {
+        flowgate::offline::Outcome::Collision
+    } else if run.reached_goal {
+        flowgate::offline::Outcome::Goal
+    } else {
+        flowgate::offline::Outcome::Timeout
+    };
+    summary.min_obstacle_clearance = t.min_obstacle_clearance;
+    summary.end_time = t.duration;
+    let live = flowgate::offline::Run { summary, trace };
+    std::fs::write(out.join("trajectory.svg"), flowgate::report::trajectory_svg(&scenario, &live))?;
+    run.truth.write(&out.join("truth.json"))?;
+    std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;
+    println!("\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,truth.json,report.json}}", out.display());
+    if run.contact || !run.reached_goal {
+        anyhow::bail!("the demo run did not reach the goal cleanly");
+    }
+    Ok(())
 }

@@ -74,9 +74,16 @@ pub enum CanError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CanEvent {
     Frame(CanFrame),
-    /// An error frame (SocketCAN) or a line the adapter sent that did not parse.
-    Error,
+    /// A SocketCAN error frame; `bus_off` when the controller went bus-off.
+    ErrorFrame {
+        bus_off: bool,
+    },
+    /// A line from an SLCAN adapter that did not parse.
+    Garbled,
 }
+
+/// SocketCAN's error class bit for bus-off (linux/can/error.h, CAN_ERR_BUSOFF).
+const CAN_ERR_BUSOFF: u32 = 0x0000_0040;
 
 type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 
@@ -121,7 +128,10 @@ impl CanLink for SocketCanLink {
     fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
         Box::pin(async move {
             match self.socket.next().await {
-                Some(Ok(f)) => Ok(CanFrame::try_from(&f).map_or(CanEvent::Error, CanEvent::Frame)),
+                Some(Ok(f)) => Ok(match CanFrame::try_from(&f) {
+                    Ok(frame) => CanEvent::Frame(frame),
+                    Err(e) => CanEvent::ErrorFrame { bus_off: e.0 & CAN_ERR_BUSOFF != 0 },
+                }),
                 Some(Err(e)) => Err(CanError::Io(std::io::Error::other(e))),
                 None => Err(CanError::Closed),
             }
@@ -185,7 +195,7 @@ impl CanLink for SlcanLink {
                     // Transmit acks and OKs carry nothing for the caller.
                     Some(Ok(Ok(_))) => continue,
                     Some(Ok(Err(StreamError::Frame { .. } | StreamError::Overlong { .. }))) => {
-                        return Ok(CanEvent::Error)
+                        return Ok(CanEvent::Garbled)
                     }
                     Some(Err(e)) => return Err(e.into()),
                     None => return Err(CanError::Closed),
@@ -249,7 +259,7 @@ impl CanLink for MemoryLink {
                 match self.rx.recv().await {
                     Ok((from, f)) if from != self.id => return Ok(CanEvent::Frame(f)),
                     Ok(_) => continue,
-                    Err(broadcast::error::RecvError::Lagged(_)) => return Ok(CanEvent::Error),
+                    Err(broadcast::error::RecvError::Lagged(_)) => return Ok(CanEvent::Garbled),
                     Err(broadcast::error::RecvError::Closed) => return Err(CanError::Closed),
                 }
             }

@@ -7,5 +7,5 @@
 mod can;
 mod serial;
 
-pub use can::{open_can, CanError, CanLink, CanUrl, MemoryBus, SlcanLink, SocketCanLink};
+pub use can::{open_can, CanError, CanEvent, CanLink, CanUrl, MemoryBus, SlcanLink, SocketCanLink};
 pub use serial::{open_serial, SerialError};

@@ -18,9 +18,9 @@ use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
 use crate::control::{ControlConfig, ControlStep, Estimate, StallConfig, StepStatus};
-use crate::planner::drive::{DriveConfig, WheelSpeeds};
+use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, ObstacleEstimate, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
-use crate::track::{ConstantVelocityKf, KalmanConfig, LedGeometry, LowPass, Pose};
+use crate::track::{ConstantVelocityKf, DeadReckoning, KalmanConfig, LedGeometry, LowPass, Pose};
 
 /// How a run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -200,30 +200,6 @@ impl Sensor {
     }
 }
 
-/// Dead reckoning of the robot from its own recent commands, to bridge the sensing delay.
-struct CommandHistory {
-    commands: VecDeque<(f64, WheelSpeeds)>,
-}
-
-impl CommandHistory {
-    /// The pose `measured` at `t_valid`, advanced to `t` with the commands issued since.
-    fn predict(&self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
-        let mut pose = measured;
-        for (i, &(t0, w)) in self.commands.iter().enumerate() {
-            let t1 = self.commands.get(i + 1).map_or(t, |c| c.0);
-            let span = (t1.min(t) - t0.max(t_valid)).max(0.0);
-            if span > 0.0 {
-                let v = 0.5 * (w.left + w.right);
-                let omega = (w.right - w.left) / wheel_base;
-                let mid = pose.heading + 0.5 * omega * span;
-                pose.position += C::from_polar(v * span, mid);
-                pose.heading += omega * span;
-            }
-        }
-        pose
-    }
-}
-
 /// Run a scenario to its end. With `record`, keep a trace row per cycle for the plots.
 pub fn run(s: &Scenario, record: bool) -> Run {
     let config = control_config(s);
@@ -236,7 +212,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
     let mut filters: Vec<Option<ConstantVelocityKf>> = vec![None; n];
     let mut measured = vec![C::default(); n];
     let mut estimates = [ObstacleEstimate { center: C::default(), velocity: C::default(), radius: 0.0 }; MAX_OBSTACLES];
-    let mut commands = CommandHistory { commands: VecDeque::new() };
+    let mut commands = DeadReckoning::default();
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
@@ -284,10 +260,8 @@ pub fn run(s: &Scenario, record: bool) -> Run {
             StepStatus::Driving => {}
         }
         world.command_pulse_rates(out.pulses);
-        commands.commands.push_back((t, out.wheels));
-        while commands.commands.len() > 1 && commands.commands[1].0 <= t_valid - t_step {
-            commands.commands.pop_front();
-        }
+        commands.command(t, out.wheels.left, out.wheels.right);
+        commands.forget_before(t_valid - t_step);
         if record {
             let w = world.wheel_speeds();
             trace.push(TraceRow {

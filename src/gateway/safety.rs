@@ -1,0 +1,212 @@
+//! The gateway's safety state machine.
+//!
+//! ```text
+//!  Idle --arm--> Armed --pose and board ready--> Running --goal/stall/operator stop--> Stopping --> Stopped
+//!    any state --fault--> Fault (axes stopped at once); Fault and Stopped --arm--> Armed
+//! ```
+//!
+//! Motion is commanded only in `Running`. A fault never clears itself: the operator re-arms
+//! (`SIGUSR1`, or the `arm` call), and only once the cause is gone does the gateway leave
+//! `Armed` for `Running`.
+
+use flowgate_protocol::motor::GatewayState;
+
+/// Why the gateway stopped or faulted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum StopReason {
+    GoalReached,
+    Stalled,
+    Operator,
+    Shutdown,
+    PoseLost,
+    SamplesStopped,
+    SerialGarbled,
+    SerialLost,
+    HeartbeatLost,
+    BusOff,
+    BoardFault,
+    PlannerInvalid,
+}
+
+impl StopReason {
+    /// Whether this is a fault (stop at once, latch) rather than an orderly stop.
+    pub fn is_fault(self) -> bool {
+        !matches!(self, Self::GoalReached | Self::Stalled | Self::Operator | Self::Shutdown)
+    }
+}
+
+impl std::fmt::Display for StopReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::GoalReached => "goal reached",
+            Self::Stalled => "stalled (no progress)",
+            Self::Operator => "operator stop",
+            Self::Shutdown => "shutdown signal",
+            Self::PoseLost => "robot pose lost",
+            Self::SamplesStopped => "no samples from the PSD controller",
+            Self::SerialGarbled => "garbled serial frames beyond budget",
+            Self::SerialLost => "serial device lost",
+            Self::HeartbeatLost => "motor board heartbeat lost",
+            Self::BusOff => "CAN bus-off",
+            Self::BoardFault => "motor board fault",
+            Self::PlannerInvalid => "planner refused its input",
+        })
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    Idle,
+    Armed,
+    Running,
+    Stopping(StopReason),
+    Stopped(StopReason),
+    Fault(StopReason),
+}
+
+impl State {
+    /// The state as the gateway heartbeat carries it.
+    pub fn wire(self) -> GatewayState {
+        match self {
+            State::Idle => GatewayState::Idle,
+            State::Armed => GatewayState::Armed,
+            State::Running => GatewayState::Running,
+            State::Stopping(_) => GatewayState::Stopping,
+            State::Stopped(_) => GatewayState::Stopped,
+            State::Fault(_) => GatewayState::Fault,
+        }
+    }
+    pub fn may_move(self) -> bool {
+        self == State::Running
+    }
+}
+
+/// What the state machine asks the motor side to do on a transition.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Action {
+    None,
+    /// Reset faults and enable the board.
+    EnableBoard,
+    /// Ramp to zero and disable.
+    OrderlyStop,
+    /// Emergency stop, at once.
+    EmergencyStop,
+}
+
+#[derive(Debug, Clone)]
+pub struct Safety {
+    state: State,
+    /// Every transition with its time, for the report.
+    pub history: Vec<(f64, State)>,
+}
+
+impl Default for Safety {
+    fn default() -> Self {
+        Self { state: State::Idle, history: vec![(0.0, State::Idle)] }
+    }
+}
+
+impl Safety {
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    fn go(&mut self, t: f64, s: State) {
+        if s != self.state {
+            self.state = s;
+            self.history.push((t, s));
+        }
+    }
+
+    /// The operator arms (or re-arms after a stop or fault).
+    pub fn arm(&mut self, t: f64) -> Action {
+        match self.state {
+            State::Idle | State::Stopped(_) | State::Fault(_) => {
+                self.go(t, State::Armed);
+                Action::EnableBoard
+            }
+            _ => Action::None,
+        }
+    }
+
+    /// Pose and board are ready: start moving (only from Armed).
+    pub fn ready(&mut self, t: f64) {
+        if self.state == State::Armed {
+            self.go(t, State::Running);
+        }
+    }
+
+    /// An orderly stop (goal, stall, operator, shutdown) or a fault.
+    pub fn stop(&mut self, t: f64, reason: StopReason) -> Action {
+        match (self.state, reason.is_fault()) {
+            (State::Fault(_), _) => Action::None,
+            (_, true) => {
+                self.go(t, State::Fault(reason));
+                Action::EmergencyStop
+            }
+            (State::Running | State::Armed, false) => {
+                self.go(t, State::Stopping(reason));
+                Action::OrderlyStop
+            }
+            (State::Idle, false) => {
+                self.go(t, State::Stopped(reason));
+                Action::None
+            }
+            _ => Action::None,
+        }
+    }
+
+    /// The axes have come to rest after an orderly stop.
+    pub fn at_rest(&mut self, t: f64) {
+        if let State::Stopping(r) = self.state {
+            self.go(t, State::Stopped(r));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn runs_only_after_arming_and_readiness() {
+        let mut s = Safety::default();
+        s.ready(0.0);
+        assert_eq!(s.state(), State::Idle, "not armed: no motion");
+        assert_eq!(s.arm(0.1), Action::EnableBoard);
+        assert!(!s.state().may_move());
+        s.ready(0.2);
+        assert!(s.state().may_move());
+        assert_eq!(s.stop(1.0, StopReason::GoalReached), Action::OrderlyStop);
+        assert_eq!(s.state(), State::Stopping(StopReason::GoalReached));
+        s.at_rest(1.5);
+        assert_eq!(s.state(), State::Stopped(StopReason::GoalReached));
+    }
+
+    #[test]
+    fn faults_latch_until_rearmed() {
+        let mut s = Safety::default();
+        s.arm(0.0);
+        s.ready(0.0);
+        assert_eq!(s.stop(1.0, StopReason::HeartbeatLost), Action::EmergencyStop);
+        assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost));
+        // Nothing but an arm leaves Fault: not readiness, not another stop.
+        s.ready(2.0);
+        assert_eq!(s.stop(2.0, StopReason::GoalReached), Action::None);
+        assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost));
+        assert_eq!(s.arm(3.0), Action::EnableBoard);
+        s.ready(3.1);
+        assert_eq!(s.state(), State::Running);
+        assert_eq!(s.history.len(), 6);
+    }
+
+    #[test]
+    fn an_orderly_stop_while_stopping_does_not_restart_anything() {
+        let mut s = Safety::default();
+        s.arm(0.0);
+        s.ready(0.0);
+        s.stop(1.0, StopReason::Shutdown);
+        assert_eq!(s.stop(1.1, StopReason::GoalReached), Action::None);
+        assert_eq!(s.stop(1.2, StopReason::PoseLost), Action::EmergencyStop, "a fault still wins");
+    }
+}
