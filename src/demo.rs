@@ -77,6 +77,9 @@ pub fn gateway_config(s: &Scenario, psd: &Path, can: &str, out_dir: Option<PathB
     }
 }
 
+/// How long the simulator keeps running after the gateway stopped.
+const LINGER: Duration = Duration::from_millis(800);
+
 /// How a demo run went.
 #[derive(Debug)]
 pub struct DemoRun {
@@ -138,6 +141,8 @@ pub async fn run(
             _ = tokio::time::sleep_until(limit) => break,
         }
     }
+    // Keep the world running a moment, so its truth shows the robot at rest after a stop.
+    tokio::time::sleep(LINGER).await;
     on_progress(&progress_rx.borrow());
     let _ = stop_tx.send(true);
     let report = gw.await??;

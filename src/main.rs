@@ -21,6 +21,8 @@ struct Cli {
 enum Command {
     /// Run the simulator and the gateway together over real ptys (no hardware needed).
     Demo(cli::demo::DemoArgs),
+    /// Run the gateway on a rig (serial PSD controller, CAN motor boards).
+    Run(cli::run::RunArgs),
     /// Run scenarios offline in virtual time: one, all in a folder, or a Monte-Carlo sweep.
     Plan(cli::plan::PlanArgs),
 }
@@ -37,5 +39,6 @@ fn main() -> Result<()> {
     match cli.command {
         Command::Demo(args) => cli::demo::run(args),
         Command::Plan(args) => cli::plan::run(args),
+        Command::Run(args) => cli::run::run(args),
     }
 }

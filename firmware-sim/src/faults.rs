@@ -18,6 +18,9 @@ pub struct FaultPlan {
     /// Probability that a byte the controller sends is corrupted (one bit flipped).
     #[serde(default)]
     pub serial_corrupt: f64,
+    /// Corrupt only between these times `[from_s, to_s]` (default: the whole run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial_corrupt_during: Option<[f64; 2]>,
     /// At these times the controller's line emits a burst of `serial_burst_len` garbage bytes.
     #[serde(default)]
     pub serial_burst_at: Vec<f64>,
@@ -92,6 +95,7 @@ pub struct SerialFaults {
     rng: ChaCha8Rng,
     drop: f64,
     corrupt: f64,
+    corrupt_during: Option<[f64; 2]>,
     /// Bytes dropped, bytes corrupted so far.
     pub dropped: u64,
     pub corrupted: u64,
@@ -103,17 +107,22 @@ impl SerialFaults {
             rng: ChaCha8Rng::seed_from_u64(plan.seed ^ 0x5e71a1),
             drop: plan.serial_drop,
             corrupt: plan.serial_corrupt,
+            corrupt_during: plan.serial_corrupt_during,
             dropped: 0,
             corrupted: 0,
         }
     }
-    /// Apply drop and corruption to outgoing bytes, in place.
-    pub fn apply(&mut self, bytes: &mut Vec<u8>) {
-        if self.drop <= 0.0 && self.corrupt <= 0.0 {
+    /// Apply drop and corruption to bytes sent at time `t`, in place.
+    pub fn apply(&mut self, t: f64, bytes: &mut Vec<u8>) {
+        let corrupt = match self.corrupt_during {
+            Some([from, to]) if t < from || t >= to => 0.0,
+            _ => self.corrupt,
+        };
+        if self.drop <= 0.0 && corrupt <= 0.0 {
             return;
         }
         let rng = &mut self.rng;
-        let (drop, corrupt) = (self.drop, self.corrupt);
+        let drop = self.drop;
         let before = bytes.len();
         bytes.retain(|_| !rng.random_bool(drop.min(1.0)));
         self.dropped += (before - bytes.len()) as u64;
@@ -171,12 +180,24 @@ mod tests {
     }
 
     #[test]
+    fn corruption_keeps_to_its_window() {
+        let plan = FaultPlan { serial_corrupt: 1.0, serial_corrupt_during: Some([1.0, 2.0]), ..FaultPlan::default() };
+        let mut f = SerialFaults::new(&plan);
+        let mut before = vec![0x55u8; 32];
+        f.apply(0.5, &mut before);
+        assert_eq!(before, vec![0x55u8; 32]);
+        let mut during = vec![0x55u8; 32];
+        f.apply(1.5, &mut during);
+        assert!(during.iter().all(|&b| b != 0x55));
+    }
+
+    #[test]
     fn serial_faults_are_reproducible() {
         let plan = FaultPlan { serial_drop: 0.2, serial_corrupt: 0.1, seed: 7, ..FaultPlan::default() };
         let run = || {
             let mut f = SerialFaults::new(&plan);
             let mut bytes: Vec<u8> = (0..=255).collect();
-            f.apply(&mut bytes);
+            f.apply(0.0, &mut bytes);
             (bytes, f.dropped, f.corrupted)
         };
         let (a, dropped, corrupted) = run();

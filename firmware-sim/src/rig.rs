@@ -376,7 +376,7 @@ async fn run(
             bytes.extend(serial_faults.burst(burst_len));
         }
         if !bytes.is_empty() {
-            serial_faults.apply(&mut bytes);
+            serial_faults.apply(t, &mut bytes);
             stats.serial_bytes_dropped.store(serial_faults.dropped, Ordering::Relaxed);
             stats.serial_bytes_corrupted.store(serial_faults.corrupted, Ordering::Relaxed);
             let n = bytes.len() as u64;

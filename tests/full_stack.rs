@@ -1,0 +1,242 @@
+//! Simulator and gateway together over real ptys (SLCAN on a pty for CAN), judged by the
+//! simulator's world truth, never by the gateway's belief. These run in real time.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use flowgate::demo::{self, DemoRun};
+use flowgate_sim::scenario::Scenario;
+use flowgate_sim::truth::TruthRecord;
+
+fn scenario(name: &str) -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap()
+}
+
+async fn run(s: &Scenario) -> DemoRun {
+    demo::run(s, "slcan-pty", None, |_| {}).await.expect("demo runs")
+}
+
+async fn assert_reaches_goal(name: &str) {
+    let r = run(&scenario(name)).await;
+    assert!(!r.contact, "{name}: contact, truth {:?}", r.truth.summary);
+    assert!(r.reached_goal, "{name}: goal not reached: truth {:?}\n{}", r.truth.summary, r.report);
+    assert_eq!(r.report.stop_reason.as_deref(), Some("goal reached"), "{}", r.report);
+    assert!(r.report.counters.cycles > 100);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn e1_standing_obstacle_full_stack() {
+    assert_reaches_goal("e1-standing-obstacle.toml").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn e5_moving_and_standing_full_stack() {
+    assert_reaches_goal("e5-moving-and-standing.toml").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn e6_two_moving_full_stack() {
+    assert_reaches_goal("e6-two-moving.toml").await;
+}
+
+/// E2 through the `flowgate demo` command a newcomer runs: it succeeds and writes its files.
+#[test]
+fn e2_through_the_demo_command() {
+    let out = std::env::temp_dir().join(format!("flowgate-demo-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let result = Command::new(env!("CARGO_BIN_EXE_flowgate")).args(["demo", "--out"]).arg(&out).output().unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    assert!(result.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&result.stderr));
+    assert!(stdout.contains("goal reached, no contact"), "{stdout}");
+    assert!(stdout.contains("e2e latency"), "{stdout}");
+    let cycles = std::fs::read_to_string(out.join("cycles.csv")).unwrap();
+    assert!(cycles.starts_with("cycle,frame,t_ctrl_us,rx_ns,decode_ns,track_ns,plan_ns,can_write_ns"));
+    assert!(cycles.lines().count() > 100);
+    let trace: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("trace.json")).unwrap()).unwrap();
+    assert!(trace["traceEvents"].as_array().unwrap().len() > 400);
+    let can = std::fs::read_to_string(out.join("can.log")).unwrap();
+    assert!(can.lines().any(|l| l.contains(" slcan0 101#")), "velocity frames in can.log");
+    assert!(std::fs::read_to_string(out.join("trajectory.svg")).unwrap().contains("<polyline"));
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("truth.json")).unwrap()).unwrap();
+    assert!(truth["summary"]["first_contact"].is_null());
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// From the world's truth: the wheels stood still from `by` seconds (sim time) onwards, and
+/// were moving before the fault at `fault`.
+fn assert_stopped(truth: &TruthRecord, fault: f64, by: f64) {
+    let moving_before =
+        truth.samples.iter().filter(|s| s.t > 1.0 && s.t < fault).any(|s| s.wheel_speeds[0].abs() > 0.02);
+    assert!(moving_before, "the robot was not moving before the fault");
+    let after: Vec<_> = truth.samples.iter().filter(|s| s.t >= by).collect();
+    assert!(!after.is_empty(), "truth ends before {by} s");
+    for s in &after {
+        assert!(
+            s.wheel_speeds.iter().all(|v| v.abs() < 1e-6),
+            "wheels still turning at t = {:.2} s: {:?}",
+            s.t,
+            s.wheel_speeds
+        );
+    }
+    let stop_at =
+        truth.samples.iter().find(|s| s.t >= fault && s.wheel_speeds.iter().all(|v| v.abs() < 1e-6)).map(|s| s.t);
+    eprintln!("fault at {fault:.2} s, wheels at rest at {stop_at:?} s");
+}
+
+async fn faulted(mut s: Scenario, faults: &[&str]) -> DemoRun {
+    s.faults = s.faults.with_settings(&faults.iter().map(|f| f.to_string()).collect::<Vec<_>>()).unwrap();
+    run(&s).await
+}
+
+/// Pose lost (robot front LED occluded from 2 s): stop within the 300 ms pose timeout plus
+/// a cycle; stated budget 0.5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pose_lost_stops_the_wheels() {
+    let r = faulted(scenario("e1-standing-obstacle.toml"), &["occlusions=[[1, 2.0, 100.0]]"]).await;
+    assert_eq!(r.report.stop_reason.as_deref(), Some("robot pose lost"), "{}", r.report);
+    assert_stopped(&r.truth, 2.0, 2.5);
+}
+
+/// Garbled serial beyond the budget (5% of bytes corrupted from 2 s: most frames fail their
+/// CRC): stop within 0.5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn garbled_serial_stops_the_wheels() {
+    let r =
+        faulted(scenario("e1-standing-obstacle.toml"), &["serial_corrupt=0.05", "serial_corrupt_during=[2.0, 2.8]"])
+            .await;
+    assert_eq!(r.report.stop_reason.as_deref(), Some("garbled serial frames beyond budget"), "{}", r.report);
+    assert!(r.report.counters.bad_serial_frames > 20);
+    assert_stopped(&r.truth, 2.0, 2.5);
+}
+
+/// Motor heartbeat lost at 2 s: stop within the 400 ms heartbeat timeout; budget 0.6 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn heartbeat_lost_stops_the_wheels() {
+    let r = faulted(scenario("e1-standing-obstacle.toml"), &["heartbeat_stop_at=2.0"]).await;
+    assert_eq!(r.report.stop_reason.as_deref(), Some("motor board heartbeat lost"), "{}", r.report);
+    assert_stopped(&r.truth, 2.0, 2.6);
+}
+
+/// Bus-off at 2 s for 1 s: the board stops at once (it cannot be commanded); the gateway
+/// faults when the board falls silent and stays stopped after the bus returns. Budget 0.1 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bus_off_stops_the_wheels() {
+    let r = faulted(scenario("e1-standing-obstacle.toml"), &["bus_off_at=2.0", "bus_off_s=1.0"]).await;
+    assert_eq!(r.report.final_state, "fault", "{}", r.report);
+    assert_stopped(&r.truth, 2.0, 2.1);
+}
+
+/// SIGINT to `flowgate run`: an orderly stop (ramp down, disable). Budget 0.5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigint_stops_the_wheels() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let origin = tokio::time::Instant::now();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let cfg = demo::gateway_config(&s, &handle.psd_path, &can, None);
+    let dir = std::env::temp_dir().join(format!("flowgate-sigint-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config_path = dir.join("rig.toml");
+    std::fs::write(&config_path, rig_toml(&cfg)).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["run", "--config"])
+        .arg(&config_path)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    // Await the event: the gateway announces `state: running`.
+    // Read the gateway's output throughout; tell the test when it announces `state: running`.
+    let (running_tx, running_rx) = tokio::sync::oneshot::channel();
+    let reader = std::thread::spawn(move || {
+        let mut running_tx = Some(running_tx);
+        let mut seen = Vec::new();
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if line == "state: running" {
+                if let Some(tx) = running_tx.take() {
+                    let _ = tx.send(());
+                }
+            }
+            seen.push(line);
+        }
+        seen
+    });
+    tokio::time::timeout(Duration::from_secs(10), running_rx).await.expect("gateway runs within 10 s").unwrap();
+    // Let it drive a second, then interrupt.
+    tokio::time::sleep(Duration::from_secs(1)).await; // the robot must be moving; not a synchronisation
+    let sigint_at = origin.elapsed().as_secs_f64();
+    #[allow(unsafe_code)]
+    // SAFETY: kill(2) on our own child's pid with a valid signal.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGINT);
+    }
+    let status = tokio::task::spawn_blocking(move || child.wait().unwrap()).await.unwrap();
+    let lines = reader.join().unwrap();
+    assert!(status.success(), "{status:?}: {lines:?}");
+    assert!(lines.iter().any(|l| l.contains("shutdown signal")), "{lines:?}");
+    // The world keeps running past the stop budget, so its truth covers it.
+    tokio::time::sleep_until(origin + Duration::from_secs_f64(sigint_at + 0.8)).await;
+    let truth = handle.stop().await;
+    assert_stopped(&truth, sigint_at, sigint_at + 0.5);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A second gateway on the same serial port is refused with a clear error.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_gateway_on_the_same_port_is_refused() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.clone())).await.unwrap();
+    let first = flowgate::link::open_serial(&handle.psd_path, 921_600).unwrap();
+    let err = flowgate::link::open_serial(&handle.psd_path, 921_600).unwrap_err();
+    assert!(err.to_string().contains("in use by another program"), "{err}");
+    drop(first);
+    flowgate::link::open_serial(&handle.psd_path, 921_600).expect("free again");
+    handle.stop().await;
+}
+
+/// The gateway config as TOML (what an operator would write).
+fn rig_toml(c: &flowgate::config::GatewayConfig) -> String {
+    let h = c.calibration.homography.unwrap();
+    let obstacles: Vec<String> =
+        c.leds.obstacles.iter().map(|o| format!("{{ led = {}, radius = {} }}", o.led, o.radius)).collect();
+    let margin = match c.planner.margin {
+        flowgate::config::MarginSection::None => "{ rule = \"none\" }".to_string(),
+        flowgate::config::MarginSection::Fixed { metres } => format!("{{ rule = \"fixed\", metres = {metres} }}"),
+        flowgate::config::MarginSection::Factor { factor } => format!("{{ rule = \"factor\", factor = {factor} }}"),
+        flowgate::config::MarginSection::Delay { extra_speed } => {
+            format!("{{ rule = \"delay\", extra_speed = {extra_speed} }}")
+        }
+    };
+    format!(
+        "[serial]\nport = \"{}\"\n[leds]\nrobot_front = {}\nrobot_rear = {}\nfront_offset = {}\nrear_offset = {}\nobstacles = [{}]\n\
+         [schedule]\nslot_us = {}\n[calibration]\nhomography = {:?}\n[can]\nendpoint = \"{}\"\n\
+         [drive]\nwheel_radius = {}\nsteps_per_rev = {}\nmicrosteps = {}\nwheel_base = {}\nmax_wheel_speed = {}\nwheel_accel = {}\n\
+         [robot]\nradius = {}\nmax_speed = {}\n[planner]\ngoal = {:?}\ncruise_speed = {}\nc1 = {}\nkc = {}\nmargin = {}\n",
+        c.serial.port.display(),
+        c.leds.robot_front,
+        c.leds.robot_rear,
+        c.leds.front_offset,
+        c.leds.rear_offset,
+        obstacles.join(", "),
+        c.schedule.slot_us,
+        h,
+        c.can.endpoint,
+        c.drive.wheel_radius,
+        c.drive.steps_per_rev,
+        c.drive.microsteps,
+        c.drive.wheel_base,
+        c.drive.max_wheel_speed,
+        c.drive.wheel_accel,
+        c.robot.radius,
+        c.robot.max_speed,
+        c.planner.goal,
+        c.planner.cruise_speed,
+        c.planner.c1,
+        c.planner.kc,
+        margin
+    )
+}
