@@ -54,7 +54,8 @@ pub fn gateway_config(s: &Scenario, psd: &Path, can: &str, out_dir: Option<PathB
             wheel_base: s.robot.wheel_base,
             max_wheel_speed: s.robot.max_wheel_speed,
             wheel_accel: s.robot.wheel_accel,
-            command_timeout_ms: 100,
+            // Ten cycles: a shared test machine can stall a cycle or two.
+            command_timeout_ms: 200,
         },
         robot: RobotSection { radius: s.robot.radius, max_speed: s.robot.max_speed },
         planner: PlannerSection {

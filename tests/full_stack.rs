@@ -240,3 +240,79 @@ fn rig_toml(c: &flowgate::config::GatewayConfig) -> String {
         margin
     )
 }
+
+/// The serial device vanishes at 2 s and comes back 0.6 s later: the robot stops, the gateway
+/// reconnects on its own, stays stopped until the operator re-arms, then carries on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
+    use flowgate::gateway::{self, Controls, Progress};
+    use flowgate_sim::rig::{RigConfig, SerialEndpoint};
+    let mut s = scenario("e1-standing-obstacle.toml");
+    s.faults = s.faults.with_settings(&["serial_vanish_at=2.0".into(), "serial_vanish_s=0.6".into()]).unwrap();
+    let dir = std::env::temp_dir().join(format!("flowgate-vanish-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let link = dir.join("psd");
+    let mut rig_cfg = RigConfig::new(s.clone());
+    rig_cfg.psd = SerialEndpoint::Pty { link: Some(link.clone()) };
+    let origin = tokio::time::Instant::now();
+    let handle = flowgate_sim::rig::start(rig_cfg).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let cfg = demo::gateway_config(&s, &link, &can, None);
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let (arm_tx, arm_rx) = tokio::sync::mpsc::channel(1);
+    let (progress_tx, mut progress) = tokio::sync::watch::channel(Progress::default());
+    let gw = tokio::spawn(gateway::run(cfg, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
+    let wait_for = |progress: &mut tokio::sync::watch::Receiver<Progress>, pred: fn(&Progress) -> bool| {
+        let mut rx = progress.clone();
+        let look = progress.clone();
+        async move {
+            match tokio::time::timeout(Duration::from_secs(10), rx.wait_for(|p| pred(p))).await {
+                Ok(p) => p.unwrap().to_owned(),
+                Err(_) => panic!("not within 10 s; progress {:?}", *look.borrow()),
+            }
+        }
+    };
+    wait_for(&mut progress, |p| p.state == "running").await;
+    wait_for(&mut progress, |p| p.state == "fault").await;
+    let fault_at = origin.elapsed().as_secs_f64();
+    // It reconnects by itself, and stays in fault: no automatic restart.
+    wait_for(&mut progress, |p| p.serial_reconnects >= 1).await;
+    assert_eq!(progress.borrow().state, "fault");
+    let rearm_at = origin.elapsed().as_secs_f64();
+    arm_tx.send(()).await.unwrap();
+    wait_for(&mut progress, |p| p.state == "running").await;
+    wait_for(&mut progress, |p| p.state == "stopped").await;
+    stop_tx.send(true).unwrap();
+    let report = gw.await.unwrap().unwrap();
+    let truth = handle.stop().await;
+    // The first fault latches: the board's own command timeout (commands stop with the
+    // samples) or the gateway's serial or sample watchdog, whichever fires first.
+    let faults: Vec<&String> = report.transitions.iter().map(|(_, s)| s).filter(|s| s.starts_with("Fault(")).collect();
+    assert_eq!(faults.len(), 1, "{:?}", report.transitions);
+    assert!(
+        ["Fault(SerialLost)", "Fault(SamplesStopped)", "Fault(BoardFault)"].contains(&faults[0].as_str()),
+        "{:?}",
+        report.transitions
+    );
+    assert!(report.counters.serial_reconnects >= 1, "{report}");
+    assert_eq!(report.stop_reason.as_deref(), Some("goal reached"), "{report}");
+    // Truth: at rest from half a second after the fault until re-armed, then at the goal.
+    let resting: Vec<_> = truth.samples.iter().filter(|x| x.t > fault_at + 0.5 && x.t < rearm_at).collect();
+    assert!(!resting.is_empty());
+    assert!(resting.iter().all(|x| x.wheel_speeds.iter().all(|v| v.abs() < 1e-6)), "moved while faulted");
+    let end = truth.summary.final_position;
+    assert!((end[0] - s.goal.position[0]).hypot(end[1] - s.goal.position[1]) < s.goal.tolerance + 0.01);
+    assert!(truth.summary.first_contact.is_none());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Frames from node ids that are not configured, and frames that do not decode, are counted
+/// and ignored: the run is unaffected.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn foreign_and_undecodable_can_frames_are_counted_and_ignored() {
+    let r = faulted(scenario("e1-standing-obstacle.toml"), &["foreign_frames=true"]).await;
+    assert!(r.reached_goal && !r.contact, "{}", r.report);
+    let c = r.report.counters;
+    assert!(c.can_foreign > 20, "{c:?}");
+    assert!(c.can_undecodable > 40, "{c:?}");
+}

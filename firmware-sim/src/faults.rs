@@ -38,6 +38,17 @@ pub struct FaultPlan {
     /// The PSD controller resets (schedule lost, streaming stops, Fault::Reset sent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub controller_reset_at: Option<f64>,
+    /// The PSD controller's serial device vanishes (its pty closes, as when a USB adapter
+    /// is pulled) and comes back `serial_vanish_s` later on a new pty behind the same link,
+    /// with the controller freshly booted. Needs a pty endpoint with a link.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial_vanish_at: Option<f64>,
+    #[serde(default = "default_vanish")]
+    pub serial_vanish_s: f64,
+    /// Other traffic on the bus: every 100 ms, a status frame from node 9, a frame on an id
+    /// no motor message uses, and an undecodable (short) frame on the board's own status id.
+    #[serde(default)]
+    pub foreign_frames: bool,
     /// Probability that a CAN frame (either direction) is lost.
     #[serde(default)]
     pub can_loss: f64,
@@ -59,6 +70,9 @@ fn default_burst() -> usize {
 }
 fn default_bus_off() -> f64 {
     1.0
+}
+fn default_vanish() -> f64 {
+    0.5
 }
 
 impl FaultPlan {

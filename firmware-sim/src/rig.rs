@@ -246,10 +246,11 @@ enum Bus {
 pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
     let mut links = Vec::new();
     let mut keep_alive: Vec<std::fs::File> = Vec::new();
+    let mut psd_keep = None;
     let (psd_port, psd_path) = match &config.psd {
         SerialEndpoint::Pty { link } => {
             let (master, slave, path) = pty()?;
-            keep_alive.push(slave);
+            psd_keep = Some(slave);
             if let Some(link) = link {
                 make_link(link, &path)?;
                 links.push(link.clone());
@@ -263,6 +264,7 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
         }
     };
     let (psd_rx, psd_tx, psd_task) = spawn_serial(psd_port, PsdCodec::new(), psd_item);
+    let psd = PsdIo { rx: psd_rx, tx: psd_tx, task: psd_task, keep: psd_keep };
 
     let mut can_path = None;
     let (bus, can_task) = match &config.can {
@@ -310,8 +312,8 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
     let (stop_tx, stop_rx) = oneshot::channel();
     let loop_stats = stats.clone();
     let task = tokio::spawn(async move {
-        let truth = run(config, psd_rx, psd_tx, bus, stop_rx, loop_stats).await;
-        psd_task.abort();
+        let (truth, psd) = run(config, psd, bus, stop_rx, loop_stats).await;
+        psd.task.abort();
         can_task.abort();
         drop(keep_alive);
         truth
@@ -319,14 +321,50 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
     Ok(RigHandle { psd_path, can_path, stats, stop: Some(stop_tx), task, links })
 }
 
+/// The PSD controller's serial endpoint as the loop holds it (replaceable: it can vanish).
+struct PsdIo {
+    rx: mpsc::Receiver<Result<Packet, psd::Error>>,
+    tx: mpsc::Sender<Vec<u8>>,
+    task: JoinHandle<()>,
+    /// Our descriptor on the pty's slave, keeping the line up.
+    keep: Option<std::fs::File>,
+}
+
+impl PsdIo {
+    /// A new pty behind `link`.
+    fn reopen(link: &Path) -> Result<Self, RigError> {
+        let (master, keep, path) = pty()?;
+        make_link(link, &path)?;
+        let (rx, tx, task) = spawn_serial(master, PsdCodec::new(), psd_item);
+        Ok(Self { rx, tx, task, keep: Some(keep) })
+    }
+}
+
+/// Frames from elsewhere on the bus (the `foreign_frames` fault).
+fn foreign_frames(node: NodeId) -> [CanFrame; 3] {
+    use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage};
+    let other = MotorMessage::Status {
+        node: NodeId::new(9).expect("9"),
+        state: BoardState::Enabled,
+        faults: FaultBits::default(),
+        last_seq: 0,
+        seq_errors: 0,
+    };
+    let std = |id: u16, data: &[u8]| CanFrame::new(flowgate_protocol::CanId::Standard(id), data).expect("valid");
+    [
+        other.to_frame().expect("valid"),
+        std(0x123, &[0xDE, 0xAD]),
+        std(0x200 | u16::from(node.get()), &[2]), // our status id, one byte: does not decode
+    ]
+}
+
 async fn run(
     config: RigConfig,
-    mut psd_rx: mpsc::Receiver<Result<Packet, psd::Error>>,
-    psd_tx: mpsc::Sender<Vec<u8>>,
+    mut psd: PsdIo,
     mut bus: Bus,
     mut stop: oneshot::Receiver<()>,
     stats: Arc<RigStats>,
-) -> TruthRecord {
+) -> (TruthRecord, PsdIo) {
     let mut world = World::new(&config.scenario);
     let mut controller =
         PsdController::new(config.camera, config.leds, config.noise_counts, config.seed, config.faults.clone());
@@ -337,6 +375,14 @@ async fn run(
     let burst_len = config.faults.serial_burst_len;
     let mut truth = TruthRecord::default();
     let mut next_truth = 0.0;
+    let psd_link = match &config.psd {
+        SerialEndpoint::Pty { link } => link.clone(),
+        SerialEndpoint::Device { .. } => None,
+    };
+    // (vanish at, back at), while pending.
+    let mut vanish = config.faults.serial_vanish_at.map(|at| (at, at + config.faults.serial_vanish_s));
+    let mut psd_gone = false;
+    let mut next_foreign = if config.faults.foreign_frames { 0.0 } else { f64::INFINITY };
 
     let origin = Instant::now();
     let now = || origin.elapsed().as_secs_f64();
@@ -357,6 +403,38 @@ async fn run(
         }
         controller.poll(t, &world, &mut psd_out);
         board.poll(t, &mut world, &mut can_out);
+        if let Some((gone_at, back_at)) = vanish {
+            if !psd_gone && t >= gone_at {
+                // Pull the plug: the pty closes; the host's reads fail.
+                psd.task.abort();
+                psd.keep = None;
+                psd_gone = true;
+                pending.clear();
+                psd_out.clear();
+            } else if psd_gone && t >= back_at {
+                vanish = None;
+                match psd_link.as_deref().map(PsdIo::reopen) {
+                    Some(Ok(io)) => {
+                        psd = io;
+                        psd_gone = false;
+                        controller = PsdController::new(
+                            config.camera,
+                            config.leds,
+                            config.noise_counts,
+                            config.seed,
+                            config.faults.clone(),
+                        );
+                        controller.boot(t, &mut psd_out);
+                    }
+                    Some(Err(e)) => tracing::error!("serial device cannot come back: {e}"),
+                    None => tracing::error!("serial_vanish_at needs a pty endpoint with a link"),
+                }
+            }
+        }
+        if t >= next_foreign {
+            next_foreign = t + 0.1;
+            can_out.extend(foreign_frames(config.node));
+        }
 
         // Serial out: in order, each message no earlier than its time (injected delay).
         let mut last_at = pending.back().map_or(0.0, |o| o.at);
@@ -380,7 +458,7 @@ async fn run(
             stats.serial_bytes_dropped.store(serial_faults.dropped, Ordering::Relaxed);
             stats.serial_bytes_corrupted.store(serial_faults.corrupted, Ordering::Relaxed);
             let n = bytes.len() as u64;
-            if psd_tx.try_send(bytes).is_err() {
+            if psd_gone || psd.tx.try_send(bytes).is_err() {
                 stats.serial_overflow_bytes.fetch_add(n, Ordering::Relaxed);
             }
         }
@@ -417,6 +495,10 @@ async fn run(
         if let Some(&b) = bursts.front() {
             next = next.min(b);
         }
+        if let Some((gone_at, back_at)) = vanish {
+            next = next.min(if psd_gone { back_at } else { gone_at });
+        }
+        next = next.min(next_foreign);
         let deadline = origin + Duration::from_secs_f64(next.max(t));
         let (slcan_rx, socket_rx) = match &mut bus {
             Bus::Slcan { rx, .. } => (Some(rx), None),
@@ -425,7 +507,7 @@ async fn run(
         tokio::select! {
             _ = &mut stop => break,
             _ = tokio::time::sleep_until(deadline) => {}
-            Some(request) = psd_rx.recv() => {
+            Some(request) = psd.rx.recv(), if !psd_gone => {
                 stats.psd_requests.fetch_add(1, Ordering::Relaxed);
                 if request.is_err() {
                     stats.psd_bad_requests.fetch_add(1, Ordering::Relaxed);
@@ -453,7 +535,7 @@ async fn run(
         }
     }
     truth.record(&world);
-    truth
+    (truth, psd)
 }
 
 fn send_line(tx: &mpsc::Sender<Vec<u8>>, r: &Response) {

@@ -82,6 +82,7 @@ pub struct Progress {
     /// Smallest estimated gap to an obstacle's footprint, m.
     pub clearance: Option<f64>,
     pub e2e_us: f64,
+    pub serial_reconnects: u64,
 }
 
 /// Counters of everything unusual the gateway saw.
@@ -427,7 +428,6 @@ pub async fn run(
                 match read {
                     Ok(0) | Err(_) => {
                         line = None;
-                        counters.serial_reconnects += 0;
                         next_reconnect = t_read + 0.2;
                         pending_action = safety.stop(t_read, StopReason::SerialLost);
                         tracing::error!("serial line lost; reconnecting");
@@ -470,8 +470,18 @@ pub async fn run(
                                     clock_offset_us = 0.5 * (host_time_us as f64 + now() * 1e6) - t_ctrl_us as f64;
                                 }
                                 Ok(Packet { message: Message::FrameEnd { frame: frame_no, t_ctrl_us, .. }, .. }) => {
-                                    // One cycle.
+                                    // One cycle, with a tracing span carrying its stage timings.
                                     let decode_ns = std::mem::take(&mut decode_ns_pending);
+                                    let span = tracing::debug_span!(
+                                        "cycle",
+                                        n = counters.cycles,
+                                        frame = frame_no,
+                                        decode_ns,
+                                        track_ns = tracing::field::Empty,
+                                        plan_ns = tracing::field::Empty,
+                                        can_write_ns = tracing::field::Empty,
+                                        e2e_ns = tracing::field::Empty,
+                                    );
                                     let track_start = Instant::now();
                                     let host_s = |t_ctrl: u64| (t_ctrl as f64 + clock_offset_us) * 1e-6;
                                     let usable = |led: u8| frame.leds[usize::from(led)].filter(|s| s.3);
@@ -577,6 +587,10 @@ pub async fn run(
                                                 y: position.im,
                                                 goal_distance: (goal - position).norm(),
                                             };
+                                            span.record("track_ns", track_ns);
+                                            span.record("plan_ns", plan_ns);
+                                            span.record("can_write_ns", can_write_ns);
+                                            span.record("e2e_ns", rec.e2e_ns);
                                             last_command = Some(done);
                                             counters.cycles += 1;
                                             timing.add(&rec);
@@ -691,6 +705,9 @@ pub async fn run(
                                 last_sample = now();
                                 counters.serial_reconnects += 1;
                                 tracing::info!("serial line back; waiting to be re-armed");
+                                if let Some(tx) = &progress {
+                                    tx.send_modify(|p| p.serial_reconnects = counters.serial_reconnects);
+                                }
                             }
                             Err(e) => tracing::warn!("serial reconnect: {e}"),
                         }
