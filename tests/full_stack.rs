@@ -266,7 +266,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
         let mut rx = progress.clone();
         let look = progress.clone();
         async move {
-            match tokio::time::timeout(Duration::from_secs(10), rx.wait_for(|p| pred(p))).await {
+            match tokio::time::timeout(Duration::from_secs(10), rx.wait_for(pred)).await {
                 Ok(p) => p.unwrap().to_owned(),
                 Err(_) => panic!("not within 10 s; progress {:?}", *look.borrow()),
             }
