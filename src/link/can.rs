@@ -109,7 +109,12 @@ pub struct SocketCanLink {
 
 impl SocketCanLink {
     pub fn open(interface: &str) -> Result<Self, CanError> {
+        use socketcan::SocketOptions as _;
         let socket = socketcan::tokio::CanSocket::open(interface)
+            .map_err(|source| CanError::SocketCan { interface: interface.to_string(), source })?;
+        // Error frames (bus-off and the rest) are delivered only when asked for.
+        socket
+            .set_error_filter_accept_all()
             .map_err(|source| CanError::SocketCan { interface: interface.to_string(), source })?;
         Ok(Self { socket })
     }
