@@ -45,7 +45,8 @@ fn temp(name: &str) -> PathBuf {
 /// `candump -L IFACE` into `file`, returning once it provably captures (a marker frame seen).
 async fn candump(iface: &str, file: &Path) -> Child {
     let out = std::fs::File::create(file).unwrap();
-    let child = Command::new("candump").args(["-L", iface]).stdout(out).spawn().expect("candump (can-utils) installed");
+    let mut child =
+        Command::new("candump").args(["-L", iface]).stdout(out).spawn().expect("candump (can-utils) installed");
     for _ in 0..200 {
         cansend(iface, "7F0#C0FFEE");
         tokio::time::sleep(Duration::from_millis(20)).await; // polling the capture file for the marker
@@ -53,6 +54,8 @@ async fn candump(iface: &str, file: &Path) -> Child {
             return child;
         }
     }
+    let _ = child.kill();
+    let _ = child.wait();
     panic!("candump never captured the marker frame");
 }
 
