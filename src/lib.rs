@@ -6,6 +6,7 @@
 //! speeds, pulse rates) -> [`control`] (the control step). [`offline`] closes the loop
 //! around the simulator's world in virtual time.
 
+pub mod bench;
 pub mod calib;
 pub mod config;
 pub mod control;

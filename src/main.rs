@@ -23,6 +23,8 @@ enum Command {
     Demo(cli::demo::DemoArgs),
     /// Run the gateway on a rig (serial PSD controller, CAN motor boards).
     Run(cli::run::RunArgs),
+    /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.
+    Bench(cli::bench::BenchArgs),
     /// Run scenarios offline in virtual time: one, all in a folder, or a Monte-Carlo sweep.
     Plan(cli::plan::PlanArgs),
 }
@@ -40,5 +42,6 @@ fn main() -> Result<()> {
         Command::Demo(args) => cli::demo::run(args),
         Command::Plan(args) => cli::plan::run(args),
         Command::Run(args) => cli::run::run(args),
+        Command::Bench(args) => cli::bench::run(args),
     }
 }

@@ -21,7 +21,9 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> Result<()> {
     let cfg = GatewayConfig::load(&args.config)?;
-    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    // The gateway is one loop: a single-threaded runtime keeps its wake-ups on one thread
+    // (the telemetry writer has its own blocking thread).
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async move {
         let mut interrupt = signal(SignalKind::interrupt())?;
         let mut terminate = signal(SignalKind::terminate())?;
