@@ -305,8 +305,12 @@ impl Default for FrameSamples {
 }
 
 impl FrameSamples {
-    fn clear(&mut self) {
-        self.leds = [None; 256];
+    /// Forget the scheduled LEDs' samples for the next frame. Only scheduled LEDs are read,
+    /// so only they are cleared (a handful of slots, not all 256, on every cycle).
+    fn clear(&mut self, schedule: &Schedule) {
+        for slot in schedule.slots() {
+            self.leds[usize::from(slot.led)] = None;
+        }
     }
 }
 
@@ -504,7 +508,7 @@ pub async fn run(
                                             }
                                         }
                                     }
-                                    frame.clear();
+                                    frame.clear(&sched);
                                     let t = now();
                                     let mut plan_ns = 0;
                                     let mut pulses = [0i32; 2];
