@@ -130,25 +130,31 @@ async fn e2_over_socketcan_agrees_with_candump_and_cantools() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// cansend injects malformed frames and then an emergency stop: the malformed ones are
-/// counted and ignored, the e-stop stops the wheels at once, nothing crashes.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn cansend_estop_and_malformed_frames() {
-    let Some(iface) = vcan("cansend_estop_and_malformed_frames") else { return };
+/// Start E1 over SocketCAN on `iface`; return once the gateway has been running past `t` s.
+async fn e1_running_for(iface: &str, t: f64) -> tokio::task::JoinHandle<Result<demo::DemoRun, demo::DemoError>> {
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     let s = scenario("e1-standing-obstacle.toml");
     let url = format!("socketcan:{iface}");
     let run = tokio::spawn(async move {
         let mut sent = false;
         demo::run(&s, &url, None, move |p| {
-            if !sent && p.state == "running" && p.t > 1.5 {
+            if !sent && p.state == "running" && p.t > t {
                 sent = true;
-                let _ = tx.send(p.t);
+                let _ = tx.send(());
             }
         })
         .await
     });
     rx.recv().await.expect("the gateway runs");
+    run
+}
+
+/// cansend injects malformed frames and then an emergency stop: the malformed ones are
+/// counted and ignored, the e-stop stops the wheels at once, nothing crashes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cansend_estop_and_malformed_frames() {
+    let Some(iface) = vcan("cansend_estop_and_malformed_frames") else { return };
+    let run = e1_running_for(&iface, 1.5).await;
     for f in ["101#00", "7FF#DEADBEEF", "109#0000000000000000", "011#55"] {
         cansend(&iface, f);
     }
@@ -165,20 +171,7 @@ async fn cansend_estop_and_malformed_frames() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_bus_off_error_frame_faults_the_gateway() {
     let Some(iface) = vcan("a_bus_off_error_frame_faults_the_gateway") else { return };
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
-    let s = scenario("e1-standing-obstacle.toml");
-    let url = format!("socketcan:{iface}");
-    let run = tokio::spawn(async move {
-        let mut sent = false;
-        demo::run(&s, &url, None, move |p| {
-            if !sent && p.state == "running" && p.t > 1.0 {
-                sent = true;
-                let _ = tx.send(());
-            }
-        })
-        .await
-    });
-    rx.recv().await.expect("the gateway runs");
+    let run = e1_running_for(&iface, 1.0).await;
     // CAN_ERR_FLAG | CAN_ERR_BUSOFF, as a controller driver would report it.
     cansend(&iface, "20000040#0000000000000000");
     let r = run.await.unwrap().expect("both sides survive");
