@@ -28,10 +28,10 @@ use flowgate_protocol::psd::{self, FaultCode, LedSlot, Message, Packet, Schedule
 use flowgate_protocol::CanFrame;
 use num_complex::Complex64 as C;
 use serde::Serialize;
-use tokio::io::{AsyncReadExt, AsyncWriteExt, ReadHalf, WriteHalf};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
-use tokio_util::codec::{Decoder, Encoder};
+use tokio_util::codec::Decoder;
 
 use crate::calib::Calibration;
 use crate::config::{GatewayConfig, MarginSection};
@@ -204,10 +204,10 @@ fn unix_now() -> f64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
 
-/// The PSD serial line, with its decoder and our sequence counter.
+/// The PSD serial line, with its decoder and our sequence counter. The port is not split:
+/// the loop never reads and writes at once, so halves (and their lock) are not needed.
 struct PsdLine {
-    rd: ReadHalf<tokio_serial::SerialStream>,
-    wr: WriteHalf<tokio_serial::SerialStream>,
+    port: tokio_serial::SerialStream,
     buf: BytesMut,
     codec: PsdCodec,
     seq: u16,
@@ -216,16 +216,17 @@ struct PsdLine {
 impl PsdLine {
     fn open(cfg: &GatewayConfig) -> Result<Self, SerialError> {
         let port = open_serial(&cfg.serial.port, cfg.serial.baud)?;
-        let (rd, wr) = tokio::io::split(port);
-        Ok(Self { rd, wr, buf: BytesMut::with_capacity(4096), codec: PsdCodec::new(), seq: 0 })
+        Ok(Self { port, buf: BytesMut::with_capacity(4096), codec: PsdCodec::new(), seq: 0 })
     }
 
     async fn send(&mut self, message: Message) -> std::io::Result<u16> {
         let seq = self.seq;
         self.seq = self.seq.wrapping_add(1);
-        let mut out = BytesMut::with_capacity(psd::MAX_WIRE_LEN);
-        self.codec.encode(Packet::new(seq, message), &mut out)?;
-        self.wr.write_all(&out).await?;
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        let n = Packet::new(seq, message)
+            .encode(&mut wire)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        self.port.write_all(&wire[..n]).await?;
         Ok(seq)
     }
 
@@ -238,7 +239,7 @@ impl PsdLine {
             loop {
                 let item = match self.codec.decode(&mut self.buf) {
                     Ok(Some(item)) => item,
-                    _ => match tokio::time::timeout_at(deadline, self.rd.read_buf(&mut self.buf)).await {
+                    _ => match tokio::time::timeout_at(deadline, self.port.read_buf(&mut self.buf)).await {
                         Ok(Ok(n)) if n > 0 => continue,
                         Ok(_) => return Err(silent()),
                         Err(_) => break, // resend
@@ -332,7 +333,7 @@ pub async fn run(
     let mut control = ControlStep::new(control_cfg);
     let goal = control_cfg.goal;
 
-    let mut can: Box<dyn CanLink> = open_can(&cfg.can_url()).await?;
+    let mut can: CanLink = open_can(&cfg.can_url()).await?;
     let mut line = Some(PsdLine::open(&cfg)?);
     let (recorder, writer) = match &cfg.telemetry.out_dir {
         Some(dir) => {
@@ -424,7 +425,7 @@ pub async fn run(
             // Serial bytes.
             read = async {
                 match line.as_mut() {
-                    Some(l) => l.rd.read(&mut read_buf).await,
+                    Some(l) => l.port.read(&mut read_buf).await,
                     None => std::future::pending().await,
                 }
             } => {

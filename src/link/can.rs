@@ -1,17 +1,17 @@
 //! CAN backends behind one trait.
 
-use std::future::Future;
 use std::path::PathBuf;
-use std::pin::Pin;
 use std::str::FromStr;
 use std::sync::{Arc, Mutex};
 
+use bytes::BytesMut;
 use flowgate_protocol::codec::{SlcanHostCodec, StreamError};
-use flowgate_protocol::slcan::{Bitrate, Command, Response};
+use flowgate_protocol::slcan::{self, Bitrate, Command, Line as _, Response};
 use flowgate_protocol::CanFrame;
-use futures_util::{SinkExt, StreamExt};
+use futures_util::StreamExt;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::broadcast;
-use tokio_util::codec::Framed;
+use tokio_util::codec::Decoder;
 
 /// A CAN endpoint, parsed from its URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -85,20 +85,42 @@ pub enum CanEvent {
 /// SocketCAN's error class bit for bus-off (linux/can/error.h, CAN_ERR_BUSOFF).
 const CAN_ERR_BUSOFF: u32 = 0x0000_0040;
 
-type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
+/// A CAN bus: send a frame, receive the next event. A closed set of backends, dispatched
+/// by `match` so the per-cycle send and receive neither box a future nor allocate.
+#[derive(Debug)]
+pub enum CanLink {
+    SocketCan(SocketCanLink),
+    Slcan(SlcanLink),
+    Memory(MemoryLink),
+}
 
-/// A CAN bus: send a frame, receive the next event.
-pub trait CanLink: Send {
-    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>>;
-    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>>;
+impl CanLink {
+    /// Queue a frame for the bus. Returns once the kernel has it; it does not wait for the
+    /// bytes to leave the wire (no `tcdrain`), which would stall the loop for the wire time.
+    pub async fn send(&mut self, frame: CanFrame) -> Result<(), CanError> {
+        match self {
+            Self::SocketCan(l) => l.send(frame).await,
+            Self::Slcan(l) => l.send(frame).await,
+            Self::Memory(l) => l.send(frame),
+        }
+    }
+
+    /// The next event. Cancel-safe: a dropped call loses nothing, so it can sit in `select!`.
+    pub async fn recv(&mut self) -> Result<CanEvent, CanError> {
+        match self {
+            Self::SocketCan(l) => l.recv().await,
+            Self::Slcan(l) => l.recv().await,
+            Self::Memory(l) => l.recv().await,
+        }
+    }
 }
 
 /// Open the endpoint a URL names.
-pub async fn open_can(url: &CanUrl) -> Result<Box<dyn CanLink>, CanError> {
+pub async fn open_can(url: &CanUrl) -> Result<CanLink, CanError> {
     Ok(match url {
-        CanUrl::SocketCan { interface } => Box::new(SocketCanLink::open(interface)?),
-        CanUrl::Slcan { path, bitrate, baud } => Box::new(SlcanLink::open(path, *bitrate, *baud).await?),
-        CanUrl::Memory => Box::new(MemoryBus::new().attach()),
+        CanUrl::SocketCan { interface } => CanLink::SocketCan(SocketCanLink::open(interface)?),
+        CanUrl::Slcan { path, bitrate, baud } => CanLink::Slcan(SlcanLink::open(path, *bitrate, *baud).await?),
+        CanUrl::Memory => CanLink::Memory(MemoryBus::new().attach()),
     })
 }
 
@@ -126,49 +148,49 @@ impl std::fmt::Debug for SocketCanLink {
     }
 }
 
-impl CanLink for SocketCanLink {
-    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>> {
-        Box::pin(async move { Ok(self.socket.write_frame(frame.into()).await?) })
+impl SocketCanLink {
+    async fn send(&mut self, frame: CanFrame) -> Result<(), CanError> {
+        Ok(self.socket.write_frame(frame.into()).await?)
     }
-    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
-        Box::pin(async move {
-            match self.socket.next().await {
-                Some(Ok(f)) => Ok(match CanFrame::try_from(&f) {
-                    Ok(frame) => CanEvent::Frame(frame),
-                    Err(e) => CanEvent::ErrorFrame { bus_off: e.0 & CAN_ERR_BUSOFF != 0 },
-                }),
-                Some(Err(e)) => Err(CanError::Io(std::io::Error::other(e))),
-                None => Err(CanError::Closed),
-            }
-        })
+    async fn recv(&mut self) -> Result<CanEvent, CanError> {
+        match self.socket.next().await {
+            Some(Ok(f)) => Ok(match CanFrame::try_from(&f) {
+                Ok(frame) => CanEvent::Frame(frame),
+                Err(e) => CanEvent::ErrorFrame { bus_off: e.0 & CAN_ERR_BUSOFF != 0 },
+            }),
+            Some(Err(e)) => Err(CanError::Io(std::io::Error::other(e))),
+            None => Err(CanError::Closed),
+        }
     }
 }
 
-/// An SLCAN (LAWICEL) USB-CAN adapter on a serial port.
+/// An SLCAN (LAWICEL) USB-CAN adapter on a serial port. One owner of the port, no split
+/// halves: reads and writes are never in flight together (the gateway's `select!` drops
+/// the read before it writes), so no lock is needed.
 pub struct SlcanLink {
-    link: Framed<tokio_serial::SerialStream, SlcanHostCodec>,
+    port: tokio_serial::SerialStream,
+    rx: BytesMut,
+    codec: SlcanHostCodec,
 }
 
 impl SlcanLink {
     /// Open the adapter, set the bitrate and open the channel.
     pub async fn open(path: &std::path::Path, bitrate: u32, baud: u32) -> Result<Self, CanError> {
         let port = super::open_serial(path, baud)?;
-        let mut link = Framed::new(port, SlcanHostCodec::new());
+        let mut link = Self { port, rx: BytesMut::with_capacity(4096), codec: SlcanHostCodec::new() };
         let name = path.display().to_string();
         let bitrate = Bitrate::from_bps(bitrate).expect("checked when parsed");
         // Close first (an adapter left open refuses the bitrate); its answer does not matter.
         for (cmd, must_succeed) in
             [(Command::Close, false), (Command::SetBitrate(bitrate), true), (Command::Open, true)]
         {
-            link.send(cmd).await?;
+            link.write(&cmd).await?;
             let answer = tokio::time::timeout(std::time::Duration::from_secs(1), async {
                 loop {
-                    match link.next().await {
-                        Some(Ok(Ok(Response::Ok))) => return Ok(true),
-                        Some(Ok(Ok(Response::Error))) => return Ok(false),
-                        Some(Ok(_)) => continue, // frames or noise before the answer
-                        Some(Err(e)) => return Err(CanError::Io(e)),
-                        None => return Err(CanError::Closed),
+                    match link.next_line().await? {
+                        Ok(Response::Ok) => return Ok::<_, CanError>(true),
+                        Ok(Response::Error) => return Ok(false),
+                        _ => continue, // frames or noise before the answer
                     }
                 }
             })
@@ -178,35 +200,47 @@ impl SlcanLink {
                 return Err(CanError::SlcanRefused { path: name, command: format!("{cmd:?}") });
             }
         }
-        Ok(Self { link })
+        Ok(link)
+    }
+
+    async fn write(&mut self, command: &Command) -> Result<(), CanError> {
+        let mut line = [0u8; slcan::MAX_LINE_LEN];
+        let n = command.emit(&mut line).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        Ok(self.port.write_all(&line[..n]).await?)
+    }
+
+    /// The next line from the adapter, parsed or not. Cancel-safe: bytes land in `rx`
+    /// only when a read completes.
+    async fn next_line(&mut self) -> Result<Result<Response, StreamError<slcan::SlcanError>>, CanError> {
+        loop {
+            if let Some(line) = self.codec.decode(&mut self.rx)? {
+                return Ok(line);
+            }
+            if self.port.read_buf(&mut self.rx).await? == 0 {
+                return Err(CanError::Closed);
+            }
+        }
+    }
+
+    async fn send(&mut self, frame: CanFrame) -> Result<(), CanError> {
+        self.write(&Command::Transmit(frame)).await
+    }
+
+    async fn recv(&mut self) -> Result<CanEvent, CanError> {
+        loop {
+            match self.next_line().await? {
+                Ok(Response::Frame { frame, .. }) => return Ok(CanEvent::Frame(frame)),
+                // Transmit acks and OKs carry nothing for the caller.
+                Ok(_) => continue,
+                Err(StreamError::Frame { .. } | StreamError::Overlong { .. }) => return Ok(CanEvent::Garbled),
+            }
+        }
     }
 }
 
 impl std::fmt::Debug for SlcanLink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("SlcanLink")
-    }
-}
-
-impl CanLink for SlcanLink {
-    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>> {
-        Box::pin(async move { Ok(self.link.send(Command::Transmit(frame)).await?) })
-    }
-    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
-        Box::pin(async move {
-            loop {
-                match self.link.next().await {
-                    Some(Ok(Ok(Response::Frame { frame, .. }))) => return Ok(CanEvent::Frame(frame)),
-                    // Transmit acks and OKs carry nothing for the caller.
-                    Some(Ok(Ok(_))) => continue,
-                    Some(Ok(Err(StreamError::Frame { .. } | StreamError::Overlong { .. }))) => {
-                        return Ok(CanEvent::Garbled)
-                    }
-                    Some(Err(e)) => return Err(e.into()),
-                    None => return Err(CanError::Closed),
-                }
-            }
-        })
     }
 }
 
@@ -253,22 +287,20 @@ impl std::fmt::Debug for MemoryLink {
     }
 }
 
-impl CanLink for MemoryLink {
-    fn send(&mut self, frame: CanFrame) -> BoxFuture<'_, Result<(), CanError>> {
+impl MemoryLink {
+    pub fn send(&mut self, frame: CanFrame) -> Result<(), CanError> {
         let _ = self.tx.send((self.id, frame));
-        Box::pin(async { Ok(()) })
+        Ok(())
     }
-    fn recv(&mut self) -> BoxFuture<'_, Result<CanEvent, CanError>> {
-        Box::pin(async move {
-            loop {
-                match self.rx.recv().await {
-                    Ok((from, f)) if from != self.id => return Ok(CanEvent::Frame(f)),
-                    Ok(_) => continue,
-                    Err(broadcast::error::RecvError::Lagged(_)) => return Ok(CanEvent::Garbled),
-                    Err(broadcast::error::RecvError::Closed) => return Err(CanError::Closed),
-                }
+    pub async fn recv(&mut self) -> Result<CanEvent, CanError> {
+        loop {
+            match self.rx.recv().await {
+                Ok((from, f)) if from != self.id => return Ok(CanEvent::Frame(f)),
+                Ok(_) => continue,
+                Err(broadcast::error::RecvError::Lagged(_)) => return Ok(CanEvent::Garbled),
+                Err(broadcast::error::RecvError::Closed) => return Err(CanError::Closed),
             }
-        })
+        }
     }
 }
 
@@ -294,9 +326,9 @@ mod tests {
         let bus = MemoryBus::new();
         let (mut a, mut b) = (bus.attach(), bus.attach());
         let f = CanFrame::new(CanId::Standard(0x101), &[1]).unwrap();
-        a.send(f).await.unwrap();
+        a.send(f).unwrap();
         assert_eq!(b.recv().await.unwrap(), CanEvent::Frame(f));
-        b.send(f).await.unwrap();
+        b.send(f).unwrap();
         assert_eq!(a.recv().await.unwrap(), CanEvent::Frame(f));
     }
 }

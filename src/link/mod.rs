@@ -1,11 +1,11 @@
 //! Links to the rig: the PSD controller's serial line and the motor boards' CAN bus.
 //!
-//! CAN backends sit behind one async trait, [`CanLink`], selected by a URL-like string
+//! CAN backends sit behind one enum, [`CanLink`], selected by a URL-like string
 //! ([`CanUrl`]): `socketcan:can0`, `slcan:/dev/ttyACM0?bitrate=1000000`, or `memory`
 //! (an in-process bus for unit tests only).
 
 mod can;
 mod serial;
 
-pub use can::{open_can, CanError, CanEvent, CanLink, CanUrl, MemoryBus, SlcanLink, SocketCanLink};
+pub use can::{open_can, CanError, CanEvent, CanLink, CanUrl, MemoryBus, MemoryLink, SlcanLink, SocketCanLink};
 pub use serial::{open_serial, SerialError};
