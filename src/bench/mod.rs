@@ -23,7 +23,7 @@ use serde::Serialize;
 use tokio::io::AsyncReadExt;
 
 use pace::Pacer;
-use peers::{CanSide, Controller, NullGateway, Stamped};
+use peers::{CanSide, Controller, NullGateway, Stamped, ToBus};
 
 /// The PSD line's baud rate and the CAN bitrate the wire times are stated for.
 pub const BAUD: u32 = 921_600;
@@ -106,6 +106,10 @@ pub struct Wire {
     pub command_frame_us: f64,
     /// The same command as an SLCAN line over a `BAUD` serial link, µs.
     pub command_slcan_us: f64,
+    /// One whole time-division frame as the bench sends it (two samples and the frame end)
+    /// at `BAUD`, µs, and the sample rate the PSD line can carry at most that way.
+    pub psd_frame_us: f64,
+    pub psd_max_samples_per_s: f64,
 }
 
 impl Wire {
@@ -113,10 +117,17 @@ impl Wire {
         let sample = psd::SAMPLE_WIRE_LEN as f64 * 10.0 / f64::from(BAUD) * 1e6;
         let can_bits = 1 + 11 + 3 + 4 + 8 * 7 + 15 + 3 + 7 + 3; // SOF id RTR/IDE/r0 DLC data CRC ACK EOF IFS
         let slcan_line = 1 + 3 + 1 + 14 + 1;
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        let frame_end = psd::Packet::new(0, psd::Message::FrameEnd { frame: 0, t_ctrl_us: 0, samples: 2 })
+            .encode(&mut wire)
+            .expect("fits");
+        let psd_frame_us = (2 * psd::SAMPLE_WIRE_LEN + frame_end) as f64 * 10.0 / f64::from(BAUD) * 1e6;
         Self {
             sample_frame_us: sample,
             command_frame_us: f64::from(can_bits) / f64::from(CAN_BITRATE) * 1e6,
             command_slcan_us: f64::from(slcan_line) * 10.0 / f64::from(BAUD) * 1e6,
+            psd_frame_us,
+            psd_max_samples_per_s: 2.0 * 1e6 / psd_frame_us,
         }
     }
 }
@@ -130,13 +141,16 @@ impl Default for Wire {
 #[derive(Debug, Clone, Serialize)]
 pub struct BenchReport {
     pub transport: String,
+    /// The wire time the latency is compared with: one sample frame plus one command on this
+    /// transport (an SLCAN line, or a CAN frame), µs.
+    pub wire_per_cycle_us: f64,
     pub wire: Wire,
     pub phases: Vec<Phase>,
-    /// The highest rate sustained with no lost command and under 1% late cycles, in
-    /// samples/s (two LEDs per frame).
+    /// The highest rate sustained, with every slower phase, with no lost command and under
+    /// 1% late cycles, in samples/s (two LEDs per frame).
     pub sustained_samples_per_s: f64,
-    /// The highest rate at which the gateway lost no command and was late no more often
-    /// than the null gateway plus one point: where flowgate itself is not the bottleneck.
+    /// The same, but late no more often than the null gateway plus one point: the rates at
+    /// which flowgate itself is not the bottleneck.
     pub sustained_vs_floor_samples_per_s: f64,
     pub planner_note: &'static str,
 }
@@ -171,70 +185,94 @@ fn rig_toml(psd: &Path, can_endpoint: &str, slot_us: u32) -> String {
     )
 }
 
-/// What one paced run measured at the wire.
-struct Measured {
-    frame_rate_hz: f64,
-    cycles_sent: u64,
-    commands_received: u64,
-    late_percent: f64,
-    latency_us: Percentiles,
-    elapsed_s: f64,
+/// One side of the comparison: a PSD pty and a CAN side, and the /proc entry whose CPU
+/// time counts (the gateway process, or the null gateway's thread).
+struct Target {
+    controller: Controller,
+    can: CanSide,
+    proc_dir: String,
 }
 
-/// Send `spec.cycles` frames at `spec.frame_rate_hz` and match the k-th command to the
-/// k-th frame (one command per frame, in order). `each_second` runs about once a second,
-/// between frames (heartbeats, RSS samples).
-async fn paced(
-    controller: &mut Controller,
-    can: &CanSide,
-    spec: &PhaseSpec,
-    mut each_second: impl FnMut(&CanSide),
-) -> Measured {
-    can.drain();
-    let period = Duration::from_secs_f64(1.0 / spec.frame_rate_hz);
-    let mut written: Vec<Instant> = Vec::with_capacity(spec.cycles as usize);
-    let mut commands: Vec<Stamped> = Vec::with_capacity(spec.cycles as usize);
-    let start = Instant::now();
-    let mut next_second = start;
-    let mut pacer = Pacer::new(period);
-    for _ in 0..spec.cycles {
-        pacer.wait();
-        controller.frame(start.elapsed().as_secs_f64()).await;
-        written.push(Instant::now());
-        if written.last().is_some_and(|t| *t >= next_second) {
-            next_second += Duration::from_secs(1);
-            each_second(can);
+/// What the blocks of one phase measured on one target.
+struct Tally {
+    latency: Histogram<u64>,
+    sent: u64,
+    received: u64,
+    late: u64,
+    elapsed_s: f64,
+    cpu_s: f64,
+    rss_peak_mb: f64,
+}
+
+impl Tally {
+    fn new() -> Self {
+        Self {
+            latency: Histogram::new_with_bounds(1, 10_000_000_000, 3).expect("bounds"),
+            sent: 0,
+            received: 0,
+            late: 0,
+            elapsed_s: 0.0,
+            cpu_s: 0.0,
+            rss_peak_mb: 0.0,
         }
-        commands.extend(can.commands.try_iter());
+    }
+
+    fn percentiles(&self) -> Percentiles {
+        let q = |p: f64| self.latency.value_at_quantile(p) as f64 / 1e3;
+        Percentiles { p50: q(0.5), p99: q(0.99), p999: q(0.999), max: self.latency.max() as f64 / 1e3 }
+    }
+
+    fn late_percent(&self) -> f64 {
+        100.0 * self.late as f64 / self.sent.max(1) as f64
+    }
+}
+
+/// Send `cycles` frames, one per `period`, to one target, and match the k-th command to the
+/// k-th frame (one command per frame, in order). The gateway's board (`board`) says it is
+/// alive at the start and about once a second, whichever target runs.
+async fn block(target: &mut Target, period: Duration, cycles: u64, tally: &mut Tally, board: &ToBus) {
+    target.can.drain();
+    board_alive(board);
+    let cpu0 = proc_stat(&target.proc_dir).0;
+    let mut written: Vec<Instant> = Vec::with_capacity(cycles as usize);
+    let mut commands: Vec<Stamped> = Vec::with_capacity(cycles as usize);
+    let start = Instant::now();
+    let mut next_second = start + Duration::from_secs(1);
+    let mut pacer = Pacer::new(period);
+    for _ in 0..cycles {
+        pacer.wait();
+        target.controller.frame(start.elapsed().as_secs_f64()).await;
+        let now = Instant::now();
+        written.push(now);
+        if now >= next_second {
+            next_second += Duration::from_secs(1);
+            board_alive(board);
+        }
+        commands.extend(target.can.commands.try_iter());
     }
     // The last commands: wait for them, but not forever (a lost command stays lost).
     let drain_end = Instant::now() + Duration::from_millis(500);
     while commands.len() < written.len() && Instant::now() < drain_end {
-        if let Ok(c) = can.commands.recv_timeout(Duration::from_millis(10)) {
+        if let Ok(c) = target.can.commands.recv_timeout(Duration::from_millis(10)) {
             commands.push(c);
         }
     }
-    let elapsed_s = written.last().map_or(0.0, |t| t.duration_since(start).as_secs_f64()).max(1e-9);
-    let mut hist = Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3).expect("bounds");
-    let mut late = 0u64;
+    let (cpu1, rss) = proc_stat(&target.proc_dir);
+    // Paced time: first deadline to the last frame, plus the period that frame owns.
+    tally.elapsed_s += written.last().map_or(0.0, |t| t.duration_since(start).as_secs_f64()) + period.as_secs_f64();
+    tally.cpu_s += cpu1 - cpu0;
+    tally.rss_peak_mb = tally.rss_peak_mb.max(rss);
+    tally.sent += written.len() as u64;
+    tally.received += commands.len().min(written.len()) as u64;
     for (w, (r, _)) in written.iter().zip(&commands) {
         let latency = r.saturating_duration_since(*w);
-        late += u64::from(latency > period);
-        let _ = hist.record(latency.as_nanos().max(1) as u64);
-    }
-    let q = |p: f64| hist.value_at_quantile(p) as f64 / 1e3;
-    Measured {
-        frame_rate_hz: written.len() as f64 / elapsed_s,
-        cycles_sent: written.len() as u64,
-        commands_received: commands.len() as u64,
-        late_percent: 100.0 * late as f64 / written.len().max(1) as f64,
-        latency_us: Percentiles { p50: q(0.5), p99: q(0.99), p999: q(0.999), max: hist.max() as f64 / 1e3 },
-        elapsed_s,
+        tally.late += u64::from(latency > period);
+        let _ = tally.latency.record(latency.as_nanos().max(1) as u64);
     }
 }
 
 /// Heartbeats and an Enabled status, as a live board sends them.
-fn board_alive(can: &CanSide) {
+fn board_alive(can: &ToBus) {
     let node = NodeId::new(1).expect("1");
     can.send(MotorMessage::Heartbeat { node, state: BoardState::Enabled });
     can.send(MotorMessage::Status {
@@ -246,8 +284,20 @@ fn board_alive(can: &CanSide) {
     });
 }
 
-/// Run the benchmark: each phase with a floor first through the null gateway, then the
-/// gateway (`gateway_exe run`) through every phase.
+fn can_side(transport: &Transport) -> std::io::Result<CanSide> {
+    match transport {
+        Transport::SlcanPty => Ok(CanSide::slcan()),
+        Transport::SocketCan { interface } => CanSide::socketcan(interface),
+    }
+}
+
+/// How long each target runs before the other takes over: short enough that both see the
+/// same moments of a noisy host and the idle gateway's watchdogs (2 s here) never trip.
+const BLOCK: Duration = Duration::from_millis(500);
+
+/// Run the benchmark. The gateway (`gateway_exe run`) and the null gateway each get their
+/// own PSD pty and CAN side; every phase alternates between them in blocks of [`BLOCK`],
+/// so the floor is measured over the same seconds as the gateway.
 pub async fn run(
     gateway_exe: &Path,
     transport: &Transport,
@@ -255,43 +305,21 @@ pub async fn run(
     workdir: &Path,
 ) -> std::io::Result<BenchReport> {
     std::fs::create_dir_all(workdir)?;
-    let mut controller = Controller::new();
-    let can = match transport {
-        Transport::SlcanPty => CanSide::slcan(),
-        Transport::SocketCan { interface } => CanSide::socketcan(interface)?,
-    };
-
-    // The floor, every rate, before the gateway holds the ports.
-    let mut floors = Vec::new();
-    {
-        let null = NullGateway::start(controller.path.clone(), &can.endpoint)?;
-        let thread = format!("/proc/self/task/{}", null.tid);
-        for spec in phases {
-            if !spec.floor {
-                floors.push(None);
-                continue;
-            }
-            let cpu0 = proc_stat(&thread).0;
-            let m = paced(&mut controller, &can, spec, |_| {}).await;
-            let cpu_percent = 100.0 * (proc_stat(&thread).0 - cpu0) / m.elapsed_s;
-            floors.push(Some(Floor {
-                commands_received: m.commands_received,
-                late_percent: m.late_percent,
-                latency_us: m.latency_us,
-                cpu_percent,
-            }));
-        }
-    }
+    let mut gateway = Target { controller: Controller::new(), can: can_side(transport)?, proc_dir: String::new() };
+    let mut floor = Target { controller: Controller::new(), can: can_side(transport)?, proc_dir: String::new() };
+    let null = NullGateway::start(floor.controller.path.clone(), &floor.can.endpoint)?;
+    floor.proc_dir = format!("/proc/self/task/{}", null.tid);
 
     let config = workdir.join("bench-rig.toml");
-    std::fs::write(&config, rig_toml(&controller.path, &can.endpoint, 500))?;
+    std::fs::write(&config, rig_toml(&gateway.controller.path, &gateway.can.endpoint, 500))?;
     let mut child = tokio::process::Command::new(gateway_exe)
         .args(["run", "--config"])
         .arg(&config)
         .stdout(std::process::Stdio::null())
         .kill_on_drop(true)
         .spawn()?;
-    let proc_dir = format!("/proc/{}", child.id().unwrap_or(0));
+    gateway.proc_dir = format!("/proc/{}", child.id().unwrap_or(0));
+    let board = gateway.can.board();
 
     // Bring-up: answer its requests, be a live board, stream at 50 Hz until it commands.
     let origin = Instant::now();
@@ -306,57 +334,79 @@ pub async fn run(
         }
         if Instant::now() >= next_frame {
             next_frame += Duration::from_millis(20);
-            board_alive(&can);
-            controller.frame(origin.elapsed().as_secs_f64()).await;
+            board_alive(&board);
+            gateway.controller.frame(origin.elapsed().as_secs_f64()).await;
         }
-        commands += can.commands.try_iter().count();
+        commands += gateway.can.commands.try_iter().count();
         let wait = tokio::time::Instant::from_std(next_frame.min(Instant::now() + Duration::from_millis(5)));
         tokio::select! {
-            n = controller.port.read(&mut psd_in) => { let n = n?; let b = psd_in[..n].to_vec(); controller.serve(&b).await; }
+            n = gateway.controller.port.read(&mut psd_in) => {
+                let n = n?;
+                let b = psd_in[..n].to_vec();
+                gateway.controller.serve(&b).await;
+            }
             _ = tokio::time::sleep_until(wait) => {}
         }
     }
 
     let mut report_phases = Vec::new();
-    for (spec, floor) in phases.iter().zip(floors) {
-        let (cpu0, rss0) = proc_stat(&proc_dir);
-        let mut rss_peak = rss0;
-        let m = paced(&mut controller, &can, spec, |can| {
-            board_alive(can);
-            rss_peak = rss_peak.max(proc_stat(&proc_dir).1);
-        })
-        .await;
-        let (cpu1, rss1) = proc_stat(&proc_dir);
+    for spec in phases {
+        let period = Duration::from_secs_f64(1.0 / spec.frame_rate_hz);
+        let per_block = ((BLOCK.as_secs_f64() * spec.frame_rate_hz) as u64).clamp(1, spec.cycles);
+        let (mut g, mut f) = (Tally::new(), Tally::new());
+        let rss0 = proc_stat(&gateway.proc_dir).1;
+        let mut left = spec.cycles;
+        while left > 0 {
+            let n = per_block.min(left);
+            left -= n;
+            if spec.floor {
+                block(&mut floor, period, n, &mut f, &board).await;
+            }
+            block(&mut gateway, period, n, &mut g, &board).await;
+            floor.can.drain(); // on a shared bus (vcan) it heard the gateway's commands too
+        }
+        let rss1 = proc_stat(&gateway.proc_dir).1;
         report_phases.push(Phase {
             name: spec.name.to_string(),
-            frame_rate_hz: m.frame_rate_hz,
-            samples_per_s: 2.0 * m.frame_rate_hz,
-            cycles_sent: m.cycles_sent,
-            commands_received: m.commands_received,
-            late_percent: m.late_percent,
-            latency_us: m.latency_us,
-            floor,
-            cpu_percent: 100.0 * (cpu1 - cpu0) / m.elapsed_s,
-            rss_mb: [rss0, rss_peak.max(rss1), rss1],
+            frame_rate_hz: g.sent as f64 / g.elapsed_s,
+            samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
+            cycles_sent: g.sent,
+            commands_received: g.received,
+            late_percent: g.late_percent(),
+            latency_us: g.percentiles(),
+            floor: spec.floor.then(|| Floor {
+                commands_received: f.received,
+                late_percent: f.late_percent(),
+                latency_us: f.percentiles(),
+                cpu_percent: 100.0 * f.cpu_s / f.elapsed_s.max(1e-9),
+            }),
+            cpu_percent: 100.0 * g.cpu_s / g.elapsed_s.max(1e-9),
+            rss_mb: [rss0, g.rss_peak_mb.max(rss1), rss1],
         });
     }
+    drop(null);
     let _ = child.kill().await;
-    let all_answered = |p: &&Phase| p.commands_received == p.cycles_sent;
-    let sustained = report_phases
-        .iter()
-        .filter(all_answered)
-        .filter(|p| p.late_percent < 1.0)
-        .map(|p| p.samples_per_s)
-        .fold(0.0, f64::max);
-    let sustained_vs_floor = report_phases
-        .iter()
-        .filter(all_answered)
-        .filter(|p| p.floor.is_some_and(|f| p.late_percent <= f.late_percent + 1.0))
-        .map(|p| p.samples_per_s)
-        .fold(0.0, f64::max);
+    // Sustained: the highest rate that passes with every slower latency phase passing too.
+    let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
+        let mut latency_phases: Vec<&Phase> = report_phases.iter().filter(|p| p.floor.is_some()).collect();
+        latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
+        latency_phases
+            .iter()
+            .take_while(|p| p.commands_received == p.cycles_sent && passes(p))
+            .last()
+            .map_or(0.0, |p| p.samples_per_s)
+    };
+    let sustained = sustained_by(&|p| p.late_percent < 1.0);
+    let sustained_vs_floor = sustained_by(&|p| p.floor.is_some_and(|f| p.late_percent <= f.late_percent + 1.0));
+    let wire = Wire::new();
     Ok(BenchReport {
         transport: transport.describe(),
-        wire: Wire::new(),
+        wire_per_cycle_us: wire.sample_frame_us
+            + match transport {
+                Transport::SlcanPty => wire.command_slcan_us,
+                Transport::SocketCan { .. } => wire.command_frame_us,
+            },
+        wire,
         phases: report_phases,
         sustained_samples_per_s: sustained,
         sustained_vs_floor_samples_per_s: sustained_vs_floor,
@@ -372,6 +422,11 @@ impl std::fmt::Display for BenchReport {
             f,
             "wire: one sample frame {:.0} µs at {} baud; one command frame {:.0} µs on CAN at {} bit/s ({:.0} µs as an SLCAN line)",
             w.sample_frame_us, BAUD, w.command_frame_us, CAN_BITRATE, w.command_slcan_us
+        )?;
+        writeln!(
+            f,
+            "wire capacity: a frame of two samples and its end takes {:.0} µs, so the PSD line carries at most {:.0} samples/s; faster phases test flowgate beyond the wire",
+            w.psd_frame_us, w.psd_max_samples_per_s
         )?;
         writeln!(
             f,
@@ -421,18 +476,19 @@ impl std::fmt::Display for BenchReport {
                 p.rss_mb[2],
                 floor,
                 floor_lost,
-                p.latency_us.p50 / (w.sample_frame_us + w.command_slcan_us)
+                p.latency_us.p50 / self.wire_per_cycle_us
             )?;
         }
         writeln!(f, "lost: frames with no command; late: command after the next frame was due")?;
         writeln!(f, "floor: the same rate through a null gateway (same endpoints, no work): the pty, scheduler and CAN transport alone")?;
         writeln!(
             f,
-            "p50/wire: median gateway-added latency over the wire time of one sample frame plus one command line"
+            "p50/wire: median gateway-added latency over the wire time of one sample frame plus one command ({:.0} µs)",
+            self.wire_per_cycle_us
         )?;
         writeln!(
             f,
-            "sustained: {:.0} samples/s with nothing lost and under 1% late; {:.0} samples/s with nothing lost and late no more than the floor + 1 point",
+            "sustained (with every slower phase): {:.0} samples/s with nothing lost and under 1% late; {:.0} samples/s with nothing lost and late no more than the floor + 1 point",
             self.sustained_samples_per_s, self.sustained_vs_floor_samples_per_s
         )
     }
@@ -450,5 +506,8 @@ mod tests {
         assert!((w.sample_frame_us - 330.0 / 0.9216).abs() < 1e-9);
         assert!((w.command_frame_us - 103.0).abs() < 1e-9);
         assert!((w.command_slcan_us - 200.0 / 0.9216).abs() < 1e-9);
+        // Two 33-byte samples and a 21-byte frame end (13-byte payload, protocol/README.md).
+        assert!((w.psd_frame_us - 870.0 / 0.9216).abs() < 1e-9);
+        assert!((w.psd_max_samples_per_s - 2.0 * 92_160.0 / 87.0).abs() < 1e-6);
     }
 }

@@ -134,7 +134,12 @@ pub struct CanSide {
     _keep: Option<std::fs::File>,
 }
 
-enum ToBus {
+/// A handle for speaking on the bus as the motor board.
+#[derive(Clone)]
+pub struct ToBus(Bus);
+
+#[derive(Clone)]
+enum Bus {
     Slcan(tokio::sync::mpsc::UnboundedSender<Vec<u8>>),
     SocketCan(Arc<socketcan::CanSocket>),
 }
@@ -191,7 +196,7 @@ impl CanSide {
         Self {
             endpoint: format!("slcan:{}?bitrate={}", path.display(), super::CAN_BITRATE),
             commands,
-            to_bus: ToBus::Slcan(out),
+            to_bus: ToBus(Bus::Slcan(out)),
             _keep: Some(keep),
         }
     }
@@ -217,28 +222,40 @@ impl CanSide {
                 }
             }
         });
-        Ok(Self { endpoint: format!("socketcan:{interface}"), commands, to_bus: ToBus::SocketCan(socket), _keep: None })
+        Ok(Self {
+            endpoint: format!("socketcan:{interface}"),
+            commands,
+            to_bus: ToBus(Bus::SocketCan(socket)),
+            _keep: None,
+        })
     }
 
-    /// Put a message on the bus as the board.
-    pub fn send(&self, m: MotorMessage) {
-        let frame: CanFrame = m.to_frame().expect("valid");
-        match &self.to_bus {
-            ToBus::Slcan(out) => {
-                let mut line = [0u8; flowgate_protocol::slcan::MAX_LINE_LEN];
-                let n = Response::Frame { frame, timestamp_ms: None }.emit(&mut line).expect("fits");
-                let _ = out.send(line[..n].to_vec());
-            }
-            ToBus::SocketCan(socket) => {
-                use socketcan::Socket as _;
-                let _ = socket.write_frame(&socketcan::CanFrame::from(frame));
-            }
-        }
+    /// A handle to speak on this bus as the board.
+    pub fn board(&self) -> ToBus {
+        self.to_bus.clone()
     }
 
     /// Forget commands already received.
     pub fn drain(&self) {
         while self.commands.try_recv().is_ok() {}
+    }
+}
+
+impl ToBus {
+    /// Put a message on the bus as the board.
+    pub fn send(&self, m: MotorMessage) {
+        let frame: CanFrame = m.to_frame().expect("valid");
+        match &self.0 {
+            Bus::Slcan(out) => {
+                let mut line = [0u8; flowgate_protocol::slcan::MAX_LINE_LEN];
+                let n = Response::Frame { frame, timestamp_ms: None }.emit(&mut line).expect("fits");
+                let _ = out.send(line[..n].to_vec());
+            }
+            Bus::SocketCan(socket) => {
+                use socketcan::Socket as _;
+                let _ = socket.write_frame(&socketcan::CanFrame::from(frame));
+            }
+        }
     }
 }
 

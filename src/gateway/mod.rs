@@ -72,7 +72,9 @@ pub struct Controls {
     pub arm: mpsc::Receiver<()>,
 }
 
-/// What the gateway shows while it runs (for a live display).
+/// What the gateway shows while it runs (for a live display). Receivers are woken when the
+/// state or the reconnect count changes; the per-cycle figures are updated silently, for a
+/// display that samples them with `borrow()` at its own pace.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Progress {
     pub t: f64,
@@ -409,7 +411,8 @@ pub async fn run(
             }
         }
         if let Some(tx) = &progress {
-            tx.send_modify(|p| p.state = state_name(safety.state()));
+            let state = state_name(safety.state());
+            tx.send_if_modified(|p| std::mem::replace(&mut p.state, state) != state);
         }
 
         let shutdown_requested = *controls.shutdown.borrow();
@@ -601,12 +604,13 @@ pub async fn run(
                                             timing.add(&rec);
                                             recorder.record(Record::Cycle(rec));
                                             if let Some(tx) = &progress {
-                                                tx.send_modify(|p| {
+                                                tx.send_if_modified(|p| {
                                                     p.t = done;
                                                     p.cycles = counters.cycles;
                                                     p.goal_distance = rec.goal_distance;
                                                     p.clearance = clearance;
                                                     p.e2e_us = rec.e2e_ns as f64 / 1e3;
+                                                    false // no wake-up per cycle
                                                 });
                                             }
                                         }
