@@ -178,3 +178,23 @@ async fn a_bus_off_error_frame_faults_the_gateway() {
     assert_eq!(r.report.stop_reason.as_deref(), Some("CAN bus-off"), "{}", r.report);
     assert!(r.report.counters.can_error_frames >= 1);
 }
+
+/// `flowgate bench --can socketcan:IFACE` works end to end: the gateway process and the null
+/// gateway both answer every frame over SocketCAN, and the bench's raw-socket reader sees
+/// every command. No timing is asserted (performance is measured by the bench, not tests).
+#[tokio::test(flavor = "current_thread")]
+async fn the_bench_runs_over_socketcan() {
+    let Some(iface) = vcan("the_bench_runs_over_socketcan") else { return };
+    use flowgate::bench::{PhaseSpec, Transport};
+    let dir = temp("bench");
+    let exe = Path::new(env!("CARGO_BIN_EXE_flowgate"));
+    let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 50.0, cycles: 100, floor: true }];
+    let report = flowgate::bench::run(exe, &Transport::SocketCan { interface: iface }, &phases, &dir)
+        .await
+        .expect("bench runs over SocketCAN");
+    let p = &report.phases[0];
+    assert_eq!((p.cycles_sent, p.commands_received), (100, 100), "one gateway command per frame");
+    assert_eq!(p.floor.expect("floor asked for").commands_received, 100, "one null-gateway command per frame");
+    assert!(report.transport.contains("SocketCAN"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -44,6 +44,8 @@ pub struct Controller {
     frame: u32,
     camera: flowgate_sim::calibration::CameraModel,
     out: Vec<u8>,
+    /// The robot's swing runs on this clock, continuous across blocks and phases.
+    origin: Instant,
 }
 
 impl Controller {
@@ -59,6 +61,7 @@ impl Controller {
             frame: 0,
             camera: flowgate_sim::calibration::CameraModel::default(),
             out: Vec::with_capacity(3 * psd::MAX_WIRE_LEN),
+            origin: Instant::now(),
         }
     }
 
@@ -98,9 +101,10 @@ impl Controller {
     }
 
     /// One time-division frame: the robot's two LEDs, then the frame end, written in one
-    /// go. Returns when the last byte is in the pty. The robot swings along x so the
-    /// planner never stalls.
-    pub async fn frame(&mut self, t: f64) {
+    /// go. Returns when the last byte is in the pty. The robot swings along x (0.2 m,
+    /// period 4.2 s) so the planner never sees it stall.
+    pub async fn frame(&mut self) {
+        let t = self.origin.elapsed().as_secs_f64();
         let x = 0.2 * (t * 1.5).sin();
         let stamp = Self::clock_us();
         self.out.clear();
@@ -211,14 +215,21 @@ impl CanSide {
         );
         let (cmd_tx, commands) = mpsc::channel();
         let reader = Arc::clone(&socket);
-        std::thread::spawn(move || {
-            while let Ok(f) = reader.read_frame() {
-                let now = Instant::now();
-                let Ok(frame) = CanFrame::try_from(&f) else { continue };
-                if let Ok(MotorMessage::Velocity { seq, .. }) = MotorMessage::parse(&frame) {
-                    if cmd_tx.send((now, seq)).is_err() {
-                        return;
-                    }
+        std::thread::spawn(move || loop {
+            let f = match reader.read_frame() {
+                Ok(f) => f,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => {
+                    // The commands after this count as lost: say why.
+                    eprintln!("bench: reading the CAN socket failed: {e}");
+                    return;
+                }
+            };
+            let now = Instant::now();
+            let Ok(frame) = CanFrame::try_from(&f) else { continue };
+            if let Ok(MotorMessage::Velocity { seq, .. }) = MotorMessage::parse(&frame) {
+                if cmd_tx.send((now, seq)).is_err() {
+                    return;
                 }
             }
         });

@@ -15,6 +15,10 @@ pub struct BenchArgs {
     /// interface (`socketcan:vcan0`; see scripts/vcan-vm on machines without CAN).
     #[arg(long, value_name = "ENDPOINT", default_value = "slcan-pty")]
     can: String,
+    /// Cycles of the paper's T = 17 ms phase (3000 by default, 51 s; 100000 takes 28 minutes,
+    /// twice that with its floor).
+    #[arg(long, value_name = "N")]
+    paper_cycles: Option<u64>,
     /// Where to write bench.json.
     #[arg(long, value_name = "DIR", default_value = "out/bench")]
     out: PathBuf,
@@ -24,8 +28,8 @@ const fn phase(name: &'static str, frame_rate_hz: f64, cycles: u64) -> PhaseSpec
     PhaseSpec { name, frame_rate_hz, cycles, floor: true }
 }
 
-/// Two LEDs a frame, so samples/s = 2 x frames/s. The latency phases have at least 10^5
-/// cycles; the last phase is one hour's worth of the paper's T = 17 ms cycles (211,765),
+/// Two LEDs a frame, so samples/s = 2 x frames/s. The latency phases above the paper's rate
+/// have 10^5 cycles; the last phase is one hour's worth of the paper's T = 17 ms cycles (211,765),
 /// played at 5 kHz, for memory.
 const FULL: &[PhaseSpec] = &[
     phase("T=17ms (paper)", 1000.0 / 17.0, 3_000),
@@ -52,10 +56,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
             _ => bail!("--can {other}: expected slcan-pty or socketcan:IFACE"),
         },
     };
-    let phases = if args.quick { QUICK } else { FULL };
+    let mut phases = if args.quick { QUICK } else { FULL }.to_vec();
+    if let Some(n) = args.paper_cycles {
+        if n == 0 {
+            bail!("--paper-cycles must be positive");
+        }
+        phases[0].cycles = n;
+    }
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    let report = runtime.block_on(flowgate::bench::run(&exe, &transport, phases, &args.out))?;
+    let report = runtime.block_on(flowgate::bench::run(&exe, &transport, &phases, &args.out))?;
     println!("{report}");
     let path = args.out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
