@@ -8,7 +8,7 @@ use flowgate::bench::{PhaseSpec, Transport};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
-    /// Short phases (a smoke run of a minute) instead of the full set (about twelve minutes).
+    /// Short phases (a smoke run of a minute) instead of the full set (about seven minutes).
     #[arg(long)]
     quick: bool,
     /// The CAN side: an SLCAN adapter on a pty (`slcan-pty`, the default) or a SocketCAN
