@@ -168,12 +168,13 @@ fn make_link(link: &Path, target: &Path) -> Result<(), RigError> {
     std::os::unix::fs::symlink(target, link).map_err(|source| RigError::Link { path: link.to_path_buf(), source })
 }
 
-/// A pty pair: the master for the simulator, the slave's path for the host.
+/// A pty pair: the master for the simulator (or any scripted peer), an open descriptor
+/// on the slave, and the slave's path for the host.
 ///
 /// The simulator keeps a plain descriptor on the slave so that a host can close and reopen
 /// it without the line hanging up. It is not serialport's handle: serialport locks every
 /// tty it opens (`flock`), which would lock the host out.
-fn pty() -> Result<(tokio_serial::SerialStream, std::fs::File, PathBuf), RigError> {
+pub fn pty() -> Result<(tokio_serial::SerialStream, std::fs::File, PathBuf), RigError> {
     use std::os::unix::fs::OpenOptionsExt;
     let (master, slave) = tokio_serial::SerialStream::pair().map_err(RigError::Pty)?;
     let path = slave.name().map(PathBuf::from).ok_or_else(|| {

@@ -7,7 +7,7 @@ use std::sync::mpsc;
 use std::sync::Arc;
 use std::time::Instant;
 
-use bytes::BytesMut;
+use bytes::{Bytes, BytesMut};
 use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec};
 use flowgate_protocol::motor::{MotorMessage, NodeId};
 use flowgate_protocol::psd::{self, Info, Message, Packet, Sample, SampleFlags};
@@ -18,20 +18,6 @@ use tokio_util::codec::Decoder;
 
 /// A velocity command seen on the bus: when it became readable, and its seq.
 pub type Stamped = (Instant, u8);
-
-/// A new pty: the master as a stream for us, the slave's path for the peer, and an open
-/// slave fd that keeps the pty alive between peers (without it the master reads EIO
-/// whenever no peer has the slave open).
-pub fn pty() -> (tokio_serial::SerialStream, PathBuf, std::fs::File) {
-    use std::os::unix::fs::OpenOptionsExt;
-    use tokio_serial::SerialPort as _;
-    let (master, slave) = tokio_serial::SerialStream::pair().expect("pty");
-    let path = PathBuf::from(slave.name().expect("pty name"));
-    let keep =
-        std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NOCTTY).open(&path).expect("pty slave");
-    drop(slave);
-    (master, path, keep)
-}
 
 /// The scripted PSD controller on the master side of a pty.
 pub struct Controller {
@@ -50,7 +36,7 @@ pub struct Controller {
 
 impl Controller {
     pub fn new() -> Self {
-        let (port, path, keep) = pty();
+        let (port, keep, path) = flowgate_sim::rig::pty().expect("pty");
         Self {
             port,
             path,
@@ -144,7 +130,7 @@ pub struct ToBus(Bus);
 
 #[derive(Clone)]
 enum Bus {
-    Slcan(tokio::sync::mpsc::UnboundedSender<Vec<u8>>),
+    Slcan(tokio::sync::mpsc::UnboundedSender<Bytes>),
     SocketCan(Arc<socketcan::CanSocket>),
 }
 
@@ -157,9 +143,9 @@ impl CanSide {
         std::thread::spawn(move || {
             let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
             rt.block_on(async move {
-                let (adapter, path, keep) = pty();
+                let (adapter, keep, path) = flowgate_sim::rig::pty().expect("pty");
                 let (mut rd, mut wr) = tokio::io::split(adapter);
-                let (out_tx, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<Vec<u8>>();
+                let (out_tx, mut out_rx) = tokio::sync::mpsc::unbounded_channel::<Bytes>();
                 setup_tx.send((path, keep, out_tx.clone())).expect("bench alive");
                 let writer = tokio::spawn(async move {
                     while let Some(bytes) = out_rx.recv().await {
@@ -178,7 +164,7 @@ impl CanSide {
                     let now = Instant::now();
                     buf.extend_from_slice(&chunk[..n]);
                     while let Ok(Some(item)) = codec.decode(&mut buf) {
-                        let reply: &[u8] = match item {
+                        let reply: &'static [u8] = match item {
                             Ok(Command::Transmit(f)) => {
                                 if let Ok(MotorMessage::Velocity { seq, .. }) = MotorMessage::parse(&f) {
                                     if cmd_tx.send((now, seq)).is_err() {
@@ -190,7 +176,7 @@ impl CanSide {
                             Ok(_) => b"\r",
                             Err(_) => b"\x07",
                         };
-                        let _ = out_tx.send(reply.to_vec());
+                        let _ = out_tx.send(Bytes::from_static(reply)); // no allocation per line
                     }
                 }
                 writer.abort();
@@ -260,7 +246,7 @@ impl ToBus {
             Bus::Slcan(out) => {
                 let mut line = [0u8; flowgate_protocol::slcan::MAX_LINE_LEN];
                 let n = Response::Frame { frame, timestamp_ms: None }.emit(&mut line).expect("fits");
-                let _ = out.send(line[..n].to_vec());
+                let _ = out.send(Bytes::copy_from_slice(&line[..n]));
             }
             Bus::SocketCan(socket) => {
                 use socketcan::Socket as _;
