@@ -28,7 +28,7 @@ fn planner(space: Space) -> Planner {
         c1: 20.0,
         reference_radius: 0.14,
         max_speed: 0.15,
-        margin: Margin::Factor(1.1),
+        margin: Margin::Factor { factor: 1.1 },
         tie_break: Some(TieBreak::default()),
     })
 }

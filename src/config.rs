@@ -1,15 +1,30 @@
-//! The gateway's configuration (`flowgate run --config rig.toml`). `rig.example.toml`
-//! documents every key. Unknown keys are refused, and [`GatewayConfig::validate`] names
-//! the key of any bad value and says why.
+//! The rig configuration (`flowgate run --config rig.toml`), parsed once into a typed
+//! [`Rig`].
+//!
+//! [`GatewayConfig`] is the file as written (`rig.example.toml` documents every key):
+//! unknown keys are refused, and [`GatewayConfig::validate`] names the key of any bad value
+//! and says why. [`Rig`] is what the gateway runs with: the CAN URL parsed, the node id
+//! checked, the LED schedule built, the calibration fitted, the control settings made,
+//! every duration a `Duration`. The lab tools build the same `GatewayConfig` from a
+//! scenario file, so rig configs and scenarios share one set of rules and one
+//! constructor of the control settings.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
-use serde::Deserialize;
+use flowgate_protocol::motor::{NodeId, MAX_U24};
+use flowgate_protocol::psd::{LedSlot, Schedule, MAX_SCHEDULE_LEDS};
+use num_complex::Complex64 as C;
+use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
+use crate::control::{ControlConfig, StallConfig};
 use crate::link::CanUrl;
+use crate::planner::drive::DriveConfig;
+use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
+use crate::track::{KalmanConfig, LedGeometry};
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GatewayConfig {
     pub serial: SerialConfig,
@@ -20,8 +35,9 @@ pub struct GatewayConfig {
     pub can: CanConfig,
     pub drive: DriveSection,
     pub robot: RobotSection,
-    pub planner: PlannerSection,
-    #[serde(default)]
+    pub goal: GoalSection,
+    pub planner: PlannerSettings,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lane: Option<LaneSection>,
     #[serde(default)]
     pub safety: SafetyConfig,
@@ -29,7 +45,7 @@ pub struct GatewayConfig {
     pub telemetry: TelemetryConfig,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SerialConfig {
     pub port: PathBuf,
@@ -41,7 +57,7 @@ fn default_baud() -> u32 {
     921_600
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct LedConfig {
     pub robot_front: u8,
@@ -54,7 +70,7 @@ pub struct LedConfig {
     pub obstacles: Vec<ObstacleLed>,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObstacleLed {
     pub led: u8,
@@ -62,12 +78,17 @@ pub struct ObstacleLed {
     pub radius: f64,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+/// The time-division schedule: each LED's slot (`slot_us`), or the whole frame
+/// (`frame_us`, split over the LEDs to the microsecond so the period is exact).
+#[derive(Debug, Clone, Copy, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScheduleConfig {
-    /// Each LED's slot, µs.
-    #[serde(default = "default_slot")]
-    pub slot_us: u16,
+    /// Each LED's slot, µs (default 4000 when `frame_us` is not given).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slot_us: Option<u32>,
+    /// The whole frame, µs, dark slot included: the control period T.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_us: Option<u32>,
     /// Dark slot for ambient subtraction, µs; 0 = none.
     #[serde(default)]
     pub dark_slot_us: u16,
@@ -75,24 +96,17 @@ pub struct ScheduleConfig {
     pub averaging: u8,
 }
 
-fn default_slot() -> u16 {
-    4000
-}
 fn default_one() -> u8 {
     1
 }
 
-impl Default for ScheduleConfig {
-    fn default() -> Self {
-        Self { slot_us: default_slot(), dark_slot_us: 0, averaging: 1 }
-    }
-}
+const DEFAULT_SLOT_US: u32 = 4000;
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationConfig {
     /// Floor metres -> PSD counts, row-major. Either this or `points`.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub homography: Option<[[f64; 3]; 3]>,
     /// Reference points measured on the rig, fitted by least squares (at least 4).
     #[serde(default)]
@@ -107,14 +121,14 @@ fn default_counts() -> u16 {
     4096
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RefPoint {
     pub raw: [f64; 2],
     pub floor: [f64; 2],
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CanConfig {
     /// `socketcan:can0`, `slcan:/dev/ttyACM0?bitrate=1000000`.
@@ -128,7 +142,7 @@ fn default_node() -> u8 {
     1
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DriveSection {
     pub wheel_radius: f64,
@@ -148,7 +162,7 @@ fn default_cmd_timeout() -> u16 {
     100
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RobotSection {
     /// `a_r`, m.
@@ -157,53 +171,59 @@ pub struct RobotSection {
     pub max_speed: f64,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+/// Where the robot goes (the same section in rig configs and scenario files).
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct PlannerSection {
-    pub goal: [f64; 2],
+pub struct GoalSection {
+    /// m, floor coordinates.
+    pub position: [f64; 2],
+    /// The goal counts as reached within this distance, m.
     #[serde(default = "default_tolerance")]
-    pub goal_tolerance: f64,
-    pub cruise_speed: f64,
-    pub c1: f64,
-    pub kc: f64,
-    #[serde(default)]
-    pub margin: MarginSection,
-    #[serde(default = "default_true")]
-    pub tie_break: bool,
+    pub tolerance: f64,
 }
 
 fn default_tolerance() -> f64 {
     0.02
 }
+
+/// The planner's settings: the `[planner]` section of rig configs and scenario files alike.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlannerSettings {
+    /// Far-field speed of the goal sink, m/s (`m = cruise_speed · R_ref`).
+    pub cruise_speed: f64,
+    /// Goal smoothing factor `c1` of `K(r)`, 1/m.
+    pub c1: f64,
+    /// Steering gain `K_c` of eq. 30.
+    pub kc: f64,
+    /// Safety margin rule for the planning radius.
+    #[serde(default)]
+    pub margin: Margin,
+    /// The deterministic keep-right tie-break for symmetric configurations.
+    #[serde(default = "default_true")]
+    pub tie_break: bool,
+    /// Delay compensation for the robot: dead-reckon its delayed pose forward with its own
+    /// recent commands to the moment the command acts.
+    #[serde(default = "default_true")]
+    pub predict_robot: bool,
+    /// Delay compensation for the obstacles: predict them with their Kalman filters to the
+    /// moment the command acts. `false` reproduces the paper's E3, which planned on the
+    /// delayed obstacle positions.
+    #[serde(default = "default_true")]
+    pub predict_obstacles: bool,
+}
+
 fn default_true() -> bool {
     true
 }
 
-#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq)]
-#[serde(tag = "rule", rename_all = "snake_case", deny_unknown_fields)]
-pub enum MarginSection {
-    #[default]
-    None,
-    Fixed {
-        metres: f64,
-    },
-    Factor {
-        factor: f64,
-    },
-    /// `R0 + (|V| + extra_speed) Δt` with Δt measured online.
-    Delay {
-        #[serde(default)]
-        extra_speed: f64,
-    },
-}
-
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct LaneSection {
     pub half_width: f64,
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SafetyConfig {
     /// Stop when the robot's pose has not been seen for this long, ms.
@@ -244,11 +264,16 @@ impl Default for SafetyConfig {
     }
 }
 
-#[derive(Debug, Clone, Deserialize)]
+/// Longest watchdog accepted, ms: a minute. Longer is a typo, not a rig.
+const MAX_WATCHDOG_MS: u32 = 60_000;
+/// Largest telemetry queue accepted, records.
+const MAX_QUEUE: usize = 1 << 20;
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TelemetryConfig {
     /// Where trace.json, cycles.csv and can.log go; none = no files.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_dir: Option<PathBuf>,
     /// Capacity of the queue to the writer task (records beyond it are dropped and counted).
     #[serde(default = "default_queue")]
@@ -272,136 +297,184 @@ pub enum ConfigError {
     Read { path: String, source: std::io::Error },
     #[error("config {path}: {source}")]
     Parse { path: String, source: Box<toml::de::Error> },
-    #[error("config {path}: `{key}` {why}")]
-    Invalid { path: String, key: String, why: String },
+    #[error("config {path}: {invalid}")]
+    Invalid { path: String, invalid: Invalid },
+}
+
+/// A bad value: its key and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("`{key}` {why}")]
+pub struct Invalid {
+    pub key: String,
+    pub why: String,
+}
+
+fn invalid<T>(key: &str, why: impl Into<String>) -> Result<T, Invalid> {
+    Err(Invalid { key: key.to_string(), why: why.into() })
+}
+
+fn positive(key: &str, v: f64) -> Result<(), Invalid> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        invalid(key, format!("must be a positive number, is {v}"))
+    }
+}
+
+fn non_negative(key: &str, v: f64) -> Result<(), Invalid> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(())
+    } else {
+        invalid(key, format!("must be a number >= 0, is {v}"))
+    }
+}
+
+impl PlannerSettings {
+    /// The planner's rules, shared by rig configs and scenario files.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        positive("planner.cruise_speed", self.cruise_speed)?;
+        positive("planner.c1", self.c1)?;
+        positive("planner.kc", self.kc)?;
+        match self.margin {
+            Margin::None => Ok(()),
+            Margin::Fixed { metres } => non_negative("planner.margin.metres", metres),
+            Margin::Factor { factor } if factor.is_finite() && factor >= 1.0 => Ok(()),
+            Margin::Factor { factor } => invalid("planner.margin.factor", format!("must be >= 1, is {factor}")),
+            Margin::Delay { extra_speed } => non_negative("planner.margin.extra_speed", extra_speed),
+        }
+    }
+}
+
+impl ScheduleConfig {
+    /// The schedule for `leds` in firing order.
+    fn build(&self, leds: &[u8]) -> Result<Schedule, Invalid> {
+        let n = leds.len() as u32;
+        let slots: Vec<u32> = match (self.slot_us, self.frame_us) {
+            (Some(_), Some(_)) => return invalid("schedule", "give `slot_us` or `frame_us`, not both"),
+            (slot, None) => vec![slot.unwrap_or(DEFAULT_SLOT_US); leds.len()],
+            (None, Some(frame)) => {
+                let lit =
+                    frame.checked_sub(u32::from(self.dark_slot_us)).filter(|&lit| lit >= n).ok_or_else(|| Invalid {
+                        key: "schedule.frame_us".into(),
+                        why: format!("{frame} µs leaves less than 1 µs per LED after the dark slot"),
+                    })?;
+                // The remainder goes one microsecond at a time to the first slots: exact T.
+                (0..n).map(|i| lit / n + u32::from(i < lit % n)).collect()
+            }
+        };
+        let key = if self.frame_us.is_some() { "schedule.frame_us" } else { "schedule.slot_us" };
+        let mut wire = Vec::with_capacity(leds.len());
+        for (&led, &us) in leds.iter().zip(&slots) {
+            let slot_us = u16::try_from(us).ok().filter(|&us| us > 0).ok_or_else(|| Invalid {
+                key: key.into(),
+                why: format!("a slot of {us} µs is outside 1-{} µs", u16::MAX),
+            })?;
+            wire.push(LedSlot { led, slot_us });
+        }
+        if self.averaging == 0 {
+            return invalid("schedule.averaging", "must be at least 1");
+        }
+        Schedule::new(&wire, self.dark_slot_us, self.averaging).or_else(|e| invalid(key, e.to_string()))
+    }
 }
 
 impl GatewayConfig {
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+    /// Read, parse and check a rig config, into the typed rig.
+    pub fn load(path: &Path) -> Result<Rig, ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|source| ConfigError::Read { path: path.display().to_string(), source })?;
-        Self::from_toml(&text, &path.display().to_string())
+        Self::from_toml(&text, &path.display().to_string())?.rig(&path.display().to_string())
     }
 
+    /// Parse (not yet check) config text; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let c: Self =
-            toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.into(), source: Box::new(e) })?;
-        c.validate().map_err(|(key, why)| ConfigError::Invalid { path: origin.into(), key, why })?;
-        Ok(c)
+        toml::from_str(text).map_err(|e| ConfigError::Parse { path: origin.into(), source: Box::new(e) })
     }
 
-    /// The CAN endpoint, parsed.
-    pub fn can_url(&self) -> CanUrl {
-        self.can.endpoint.parse().expect("validated")
+    /// The config as TOML (what an operator would write).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a config always serialises")
     }
 
-    /// The calibration, from the homography or fitted from the points.
-    pub fn calibration(&self) -> Calibration {
-        let c = &self.calibration;
-        match c.homography {
-            Some(h) => Calibration::from_homography(h, c.k1, c.counts).expect("validated"),
-            None => {
-                let pts: Vec<_> = c.points.iter().map(|p| (p.raw, p.floor)).collect();
-                Calibration::fit(&pts, c.k1, c.counts).expect("validated").0
-            }
-        }
+    /// Check every value and build the rig; `origin` names the config in errors.
+    pub fn rig(&self, origin: &str) -> Result<Rig, ConfigError> {
+        self.validate().map_err(|invalid| ConfigError::Invalid { path: origin.into(), invalid })
     }
 
-    /// Check every value; on error, the key and why.
-    pub fn validate(&self) -> Result<(), (String, String)> {
-        let err = |key: &str, why: String| Err((key.to_string(), why));
-        let positive = |key: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                err(key, format!("must be a positive number, is {v}"))
-            }
-        };
+    /// Check every value; on success, the typed rig. On error, the key and why.
+    pub fn validate(&self) -> Result<Rig, Invalid> {
         if self.serial.baud == 0 {
-            return err("serial.baud", "must be positive".into());
+            return invalid("serial.baud", "must be positive");
+        }
+        if self.serial.port.as_os_str().is_empty() {
+            return invalid("serial.port", "is empty");
         }
         let l = &self.leds;
         if l.robot_front == l.robot_rear {
-            return err("leds.robot_rear", format!("must differ from leds.robot_front ({})", l.robot_front));
+            return invalid("leds.robot_rear", format!("must differ from leds.robot_front ({})", l.robot_front));
         }
+        non_negative("leds.front_offset", l.front_offset)?;
+        non_negative("leds.rear_offset", l.rear_offset)?;
         positive("leds.front_offset", l.front_offset + l.rear_offset)?;
         let mut ids = vec![l.robot_front, l.robot_rear];
         for (i, o) in l.obstacles.iter().enumerate() {
             if ids.contains(&o.led) {
-                return err(&format!("leds.obstacles[{i}].led"), format!("LED {} is used twice", o.led));
+                return invalid(&format!("leds.obstacles[{i}].led"), format!("LED {} is used twice", o.led));
             }
             ids.push(o.led);
             positive(&format!("leds.obstacles[{i}].radius"), o.radius)?;
         }
-        if ids.len() > flowgate_protocol::psd::MAX_SCHEDULE_LEDS {
-            return err(
+        if ids.len() > MAX_SCHEDULE_LEDS || l.obstacles.len() > MAX_OBSTACLES {
+            return invalid(
                 "leds.obstacles",
-                format!("{} LEDs in all, at most {}", ids.len(), flowgate_protocol::psd::MAX_SCHEDULE_LEDS),
+                format!(
+                    "{} obstacles ({} LEDs in all): at most {} obstacles and {MAX_SCHEDULE_LEDS} LEDs",
+                    l.obstacles.len(),
+                    ids.len(),
+                    MAX_OBSTACLES.min(MAX_SCHEDULE_LEDS - 2)
+                ),
             );
         }
-        if self.schedule.slot_us == 0 {
-            return err("schedule.slot_us", "must be positive".into());
-        }
-        if self.schedule.averaging == 0 {
-            return err("schedule.averaging", "must be at least 1".into());
-        }
-        let c = &self.calibration;
-        match (c.homography, c.points.len()) {
-            (Some(_), n) if n > 0 => {
-                return err("calibration", "give either `homography` or `points`, not both".into())
-            }
-            (Some(h), _) => {
-                if let Err(e) = Calibration::from_homography(h, c.k1, c.counts) {
-                    return err("calibration.homography", e.to_string());
-                }
-            }
-            (None, _) => {
-                let pts: Vec<_> = c.points.iter().map(|p| (p.raw, p.floor)).collect();
-                if let Err(e) = Calibration::fit(&pts, c.k1, c.counts) {
-                    return err("calibration.points", e.to_string());
-                }
-            }
-        }
-        if let Err(e) = self.can.endpoint.parse::<CanUrl>() {
-            return err("can.endpoint", e);
-        }
-        if flowgate_protocol::motor::NodeId::new(self.can.node).is_none() {
-            return err("can.node", format!("must be 1-15, is {}", self.can.node));
-        }
+        let schedule = self.schedule.build(&ids)?;
+        let sample_period = Duration::from_micros(u64::from(schedule.frame_period_us()));
+        let calibration = self.calibration()?;
+        let can: CanUrl = self.can.endpoint.parse().or_else(|e: String| invalid("can.endpoint", e))?;
+        let Some(node) = NodeId::new(self.can.node) else {
+            return invalid("can.node", format!("must be 1-15, is {}", self.can.node));
+        };
         let d = &self.drive;
         positive("drive.wheel_radius", d.wheel_radius)?;
         positive("drive.wheel_base", d.wheel_base)?;
         positive("drive.max_wheel_speed", d.max_wheel_speed)?;
         positive("drive.wheel_accel", d.wheel_accel)?;
         if d.steps_per_rev == 0 || d.microsteps == 0 {
-            return err("drive.steps_per_rev", "steps_per_rev and microsteps must be at least 1".into());
+            return invalid("drive.steps_per_rev", "steps_per_rev and microsteps must be at least 1");
         }
         if d.command_timeout_ms == 0 {
-            return err("drive.command_timeout_ms", "must be positive".into());
+            return invalid("drive.command_timeout_ms", "must be positive");
+        }
+        if sample_period >= Duration::from_millis(u64::from(d.command_timeout_ms)) {
+            return invalid(
+                "drive.command_timeout_ms",
+                format!(
+                    "{} ms is not longer than the control period T = {} µs: the board would stop between commands",
+                    d.command_timeout_ms,
+                    sample_period.as_micros()
+                ),
+            );
         }
         positive("robot.radius", self.robot.radius)?;
         positive("robot.max_speed", self.robot.max_speed)?;
-        let p = &self.planner;
-        if !p.goal.iter().all(|v| v.is_finite()) {
-            return err("planner.goal", "must be finite".into());
+        let g = &self.goal;
+        if !g.position.iter().all(|v| v.is_finite()) {
+            return invalid("goal.position", "must be finite");
         }
-        positive("planner.goal_tolerance", p.goal_tolerance)?;
-        positive("planner.cruise_speed", p.cruise_speed)?;
-        positive("planner.c1", p.c1)?;
-        positive("planner.kc", p.kc)?;
-        match p.margin {
-            MarginSection::Factor { factor } if factor.is_nan() || factor < 1.0 => {
-                return err("planner.margin.factor", format!("must be >= 1, is {factor}"))
-            }
-            MarginSection::Fixed { metres } if metres.is_nan() || metres < 0.0 => {
-                return err("planner.margin.metres", format!("must be >= 0, is {metres}"))
-            }
-            _ => {}
-        }
+        positive("goal.tolerance", g.tolerance)?;
+        self.planner.validate()?;
         if let Some(lane) = self.lane {
             positive("lane.half_width", lane.half_width)?;
-            if p.goal[1].abs() >= lane.half_width {
-                return err("planner.goal", format!("lies outside the lane (|y| >= {})", lane.half_width));
+            if g.position[1].abs() >= lane.half_width {
+                return invalid("goal.position", format!("lies outside the lane (|y| >= {})", lane.half_width));
             }
         }
         let s = &self.safety;
@@ -410,15 +483,158 @@ impl GatewayConfig {
             ("safety.heartbeat_timeout_ms", s.heartbeat_timeout_ms),
             ("safety.sample_timeout_ms", s.sample_timeout_ms),
         ] {
-            if v == 0 {
-                return err(key, "must be positive".into());
+            if v == 0 || v > MAX_WATCHDOG_MS {
+                return invalid(key, format!("must be 1-{MAX_WATCHDOG_MS} ms, is {v}"));
             }
         }
-        if self.telemetry.queue == 0 {
-            return err("telemetry.queue", "must be positive".into());
+        if self.telemetry.queue == 0 || self.telemetry.queue > MAX_QUEUE {
+            return invalid("telemetry.queue", format!("must be 1-{MAX_QUEUE} records, is {}", self.telemetry.queue));
         }
-        Ok(())
+        let control = self.control_config(sample_period);
+        let ppm = control.drive.pulses_per_metre();
+        let to_rate = |key: &str, v: f64| {
+            let rate = (v * ppm).round();
+            if rate >= 1.0 && rate <= f64::from(MAX_U24) {
+                Ok(rate as u32)
+            } else {
+                invalid(key, format!("is {rate} pulses/s at this wheel and stepper: must be 1-{MAX_U24}"))
+            }
+        };
+        let board = BoardSettings {
+            accel: to_rate("drive.wheel_accel", d.wheel_accel)?,
+            max_rate: to_rate("drive.max_wheel_speed", d.max_wheel_speed)?,
+            command_timeout_ms: d.command_timeout_ms,
+        };
+        let ms = |v: u32| Duration::from_millis(u64::from(v));
+        Ok(Rig {
+            serial: self.serial.clone(),
+            can,
+            node,
+            schedule,
+            sample_period,
+            robot_front: l.robot_front,
+            robot_rear: l.robot_rear,
+            led_geometry: LedGeometry { front: l.front_offset, rear: l.rear_offset },
+            obstacles: l.obstacles.clone(),
+            calibration,
+            control,
+            board,
+            tracking: TrackingSettings {
+                predict_robot: self.planner.predict_robot,
+                predict_obstacles: self.planner.predict_obstacles,
+                kalman: KalmanConfig::default(),
+            },
+            safety: SafetySettings {
+                pose_timeout: ms(s.pose_timeout_ms),
+                bad_frames_per_s: s.bad_frames_per_s,
+                heartbeat_timeout: ms(s.heartbeat_timeout_ms),
+                sample_timeout: ms(s.sample_timeout_ms),
+            },
+            telemetry: self.telemetry.clone(),
+        })
     }
+
+    fn calibration(&self) -> Result<Calibration, Invalid> {
+        let c = &self.calibration;
+        if !c.k1.is_finite() {
+            return invalid("calibration.k1", format!("must be finite, is {}", c.k1));
+        }
+        if c.counts < 2 {
+            return invalid("calibration.counts", format!("must be at least 2, is {}", c.counts));
+        }
+        match (c.homography, c.points.len()) {
+            (Some(_), n) if n > 0 => invalid("calibration", "give either `homography` or `points`, not both"),
+            (Some(h), _) => Calibration::from_homography(h, c.k1, c.counts)
+                .or_else(|e| invalid("calibration.homography", e.to_string())),
+            (None, _) => {
+                let pts: Vec<_> = c.points.iter().map(|p| (p.raw, p.floor)).collect();
+                Calibration::fit(&pts, c.k1, c.counts)
+                    .map(|(cal, _rms)| cal)
+                    .or_else(|e| invalid("calibration.points", e.to_string()))
+            }
+        }
+    }
+
+    /// The control settings: the one place a config becomes a [`ControlConfig`].
+    fn control_config(&self, sample_period: Duration) -> ControlConfig {
+        let robot = self.robot.radius;
+        let reference_radius = robot + self.leds.obstacles.iter().map(|o| o.radius).fold(robot, f64::max);
+        let p = &self.planner;
+        let d = &self.drive;
+        ControlConfig {
+            planner: PlannerConfig {
+                space: self.lane.map_or(Space::Free, |l| Space::Lane { half_width: l.half_width }),
+                cruise_speed: p.cruise_speed,
+                c1: p.c1,
+                reference_radius,
+                max_speed: self.robot.max_speed,
+                margin: p.margin,
+                tie_break: p.tie_break.then(TieBreak::default),
+            },
+            drive: DriveConfig {
+                wheel_base: d.wheel_base,
+                wheel_radius: d.wheel_radius,
+                steps_per_rev: d.steps_per_rev,
+                microsteps: d.microsteps,
+                max_wheel_speed: d.max_wheel_speed,
+                steering_gain: p.kc,
+                sample_time: sample_period.as_secs_f64(),
+            },
+            goal: C::new(self.goal.position[0], self.goal.position[1]),
+            goal_tolerance: self.goal.tolerance,
+            robot_radius: robot,
+            stall: StallConfig::default(),
+        }
+    }
+}
+
+/// What the motor board is configured with, in its units.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BoardSettings {
+    /// Acceleration ramp, pulses/s².
+    pub accel: u32,
+    /// Rate limit, pulses/s.
+    pub max_rate: u32,
+    pub command_timeout_ms: u16,
+}
+
+/// How the tracker estimates the state the command will act on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingSettings {
+    pub predict_robot: bool,
+    pub predict_obstacles: bool,
+    pub kalman: KalmanConfig,
+}
+
+/// The gateway's watchdogs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SafetySettings {
+    pub pose_timeout: Duration,
+    pub bad_frames_per_s: u32,
+    pub heartbeat_timeout: Duration,
+    pub sample_timeout: Duration,
+}
+
+/// The rig as the gateway runs it: every setting parsed, checked and typed, once.
+#[derive(Debug, Clone)]
+pub struct Rig {
+    pub serial: SerialConfig,
+    pub can: CanUrl,
+    pub node: NodeId,
+    /// The LED schedule: robot front, robot rear, then each obstacle's LED.
+    pub schedule: Schedule,
+    /// One time-division frame: the control period T, exact to the microsecond.
+    pub sample_period: Duration,
+    pub robot_front: u8,
+    pub robot_rear: u8,
+    pub led_geometry: LedGeometry,
+    pub obstacles: Vec<ObstacleLed>,
+    pub calibration: Calibration,
+    pub control: ControlConfig,
+    pub board: BoardSettings,
+    pub tracking: TrackingSettings,
+    pub safety: SafetySettings,
+    pub telemetry: TelemetryConfig,
 }
 
 #[cfg(test)]
@@ -427,12 +643,17 @@ mod tests {
 
     const EXAMPLE: &str = include_str!("../rig.example.toml");
 
+    fn rig(text: &str) -> Result<Rig, ConfigError> {
+        GatewayConfig::from_toml(text, "rig.toml")?.rig("rig.toml")
+    }
+
     #[test]
     fn the_example_is_valid() {
-        let c = GatewayConfig::from_toml(EXAMPLE, "rig.example.toml").unwrap();
-        assert_eq!(c.can_url(), CanUrl::Slcan { path: "/dev/ttyACM0".into(), bitrate: 1_000_000, baud: 921_600 });
-        assert_eq!(c.leds.obstacles.len(), 2);
-        let _ = c.calibration();
+        let r = rig(EXAMPLE).unwrap();
+        assert_eq!(r.can, CanUrl::Slcan { path: "/dev/ttyACM0".into(), bitrate: 1_000_000, baud: 921_600 });
+        assert_eq!(r.obstacles.len(), 2);
+        assert_eq!(r.schedule.slots().len(), 4);
+        assert_eq!(r.sample_period, Duration::from_micros(4 * 4000 + 1000));
     }
 
     #[test]
@@ -443,14 +664,42 @@ mod tests {
             ("wheel_radius = 0.025", "wheel_radius = -0.025", "drive.wheel_radius"),
             ("robot_rear = 2", "robot_rear = 1", "leds.robot_rear"),
             ("factor = 1.1", "factor = 0.9", "planner.margin.factor"),
+            ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = nan", "planner.margin.extra_speed"),
+            ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = -1", "planner.margin.extra_speed"),
+            ("k1 = 0.0", "k1 = nan", "calibration.k1"),
+            ("counts = 4096", "counts = 0", "calibration.counts"),
+            ("queue = 8192", "queue = 9223372036854775807", "telemetry.queue"),
+            ("pose_timeout_ms = 300", "pose_timeout_ms = 4000000000", "safety.pose_timeout_ms"),
+            ("command_timeout_ms = 100", "command_timeout_ms = 10", "drive.command_timeout_ms"),
+            ("slot_us = 4000", "slot_us = 70000", "schedule.slot_us"),
         ];
         for (from, to, key) in cases {
             assert!(EXAMPLE.contains(from), "example lacks {from}");
-            let err = GatewayConfig::from_toml(&EXAMPLE.replace(from, to), "rig.toml").unwrap_err().to_string();
+            let err = rig(&EXAMPLE.replace(from, to)).unwrap_err().to_string();
             assert!(err.contains(&format!("`{key}`")), "{to}: {err}");
         }
-        let err =
-            GatewayConfig::from_toml(&EXAMPLE.replace("[safety]", "[safety]\nbogus = 1"), "rig.toml").unwrap_err();
+        let err = rig(&EXAMPLE.replace("[safety]", "[safety]\nbogus = 1")).unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
+    }
+
+    /// A frame length that does not divide by the LED count still gives the exact period.
+    #[test]
+    fn frame_us_keeps_the_period_exact() {
+        let text = EXAMPLE.replace("slot_us = 4000 ", "frame_us = 20000 ");
+        let r = rig(&text).unwrap();
+        assert_eq!(r.sample_period, Duration::from_millis(20));
+        let slots: Vec<u16> = r.schedule.slots().iter().map(|s| s.slot_us).collect();
+        assert_eq!(slots, [4750, 4750, 4750, 4750]);
+        let odd = EXAMPLE.replace("slot_us = 4000 ", "frame_us = 20003 ");
+        let slots: Vec<u16> = rig(&odd).unwrap().schedule.slots().iter().map(|s| s.slot_us).collect();
+        assert_eq!(slots, [4751, 4751, 4751, 4750]);
+    }
+
+    /// What `to_toml` writes reads back as the same rig.
+    #[test]
+    fn round_trips_through_toml() {
+        let c = GatewayConfig::from_toml(EXAMPLE, "rig.toml").unwrap();
+        let again = GatewayConfig::from_toml(&c.to_toml(), "again").unwrap();
+        assert_eq!(again.rig("again").unwrap().control, c.rig("rig.toml").unwrap().control);
     }
 }

@@ -2,20 +2,23 @@
 //! (CAN) that steers a mobile robot around moving obstacles.
 //!
 //! Modules follow the data flow of one sample cycle:
-//! [`track`] (robot pose and obstacle motion) -> [`planner`] (navigation function, wheel
-//! speeds, pulse rates) -> [`control`] (the control step). [`offline`] closes the loop
-//! around the simulator's world in virtual time.
+//! [`link`] (serial and CAN transports) -> [`gateway`] (the core: PSD session, tracking,
+//! control, safety; and the tokio shell) -> [`calib`] (PSD counts to floor) -> [`track`]
+//! (robot pose and obstacle motion) -> [`control`] and [`planner`] (navigation function,
+//! wheel speeds, pulse rates). [`config`] parses the rig once into a typed [`config::Rig`];
+//! [`time`] keeps host and controller clocks apart. The lab tools ([`lab`]: the simulator
+//! in virtual and real time, sweeps, plots, the benchmark) are behind the `lab` feature, so
+//! the deployed gateway never contains the simulator.
 
-pub mod bench;
 pub mod calib;
 pub mod config;
 pub mod control;
-pub mod demo;
 pub mod gateway;
+#[cfg(feature = "lab")]
+pub mod lab;
 pub mod link;
-pub mod offline;
 pub mod planner;
-pub mod report;
+pub mod time;
 pub mod track;
 
 pub use num_complex::Complex64 as Point;

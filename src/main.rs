@@ -20,12 +20,16 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Run the simulator and the gateway together over real ptys (no hardware needed).
+    #[cfg(feature = "lab")]
     Demo(cli::demo::DemoArgs),
     /// Run the gateway on a rig (serial PSD controller, CAN motor boards).
     Run(cli::run::RunArgs),
     /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.
+    #[cfg(feature = "lab")]
     Bench(cli::bench::BenchArgs),
-    /// Run scenarios offline in virtual time: one, all in a folder, or a Monte-Carlo sweep.
+    /// Run scenarios in virtual time (the whole stack, or --planner-only): one, all in a
+    /// folder, or a Monte-Carlo sweep.
+    #[cfg(feature = "lab")]
     Plan(cli::plan::PlanArgs),
 }
 
@@ -39,9 +43,12 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.command {
+        #[cfg(feature = "lab")]
         Command::Demo(args) => cli::demo::run(args),
+        #[cfg(feature = "lab")]
         Command::Plan(args) => cli::plan::run(args),
         Command::Run(args) => cli::run::run(args),
+        #[cfg(feature = "lab")]
         Command::Bench(args) => cli::bench::run(args),
     }
 }

@@ -5,6 +5,10 @@
 use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
 use num_complex::Complex64 as C;
 
+use crate::config::TrackingSettings;
+use crate::control::Estimate;
+use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
+
 /// The robot's pose: centre and heading (rad from +x, counter-clockwise).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
@@ -55,7 +59,7 @@ impl Default for KalmanConfig {
 }
 
 /// A constant-velocity Kalman filter on one point: state `[x, y, vx, vy]`.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Copy)]
 pub struct ConstantVelocityKf {
     config: KalmanConfig,
     t: f64,
@@ -127,6 +131,11 @@ pub struct DeadReckoning {
 }
 
 impl DeadReckoning {
+    /// Room for `n` commands before it allocates (the delay over the period, plus some).
+    pub fn with_capacity(n: usize) -> Self {
+        Self { commands: std::collections::VecDeque::with_capacity(n) }
+    }
+
     /// Record the wheel speeds commanded at `t`.
     pub fn command(&mut self, t: f64, left: f64, right: f64) {
         self.commands.push_back((t, left, right));
@@ -153,6 +162,133 @@ impl DeadReckoning {
             }
         }
         pose
+    }
+}
+
+/// Everything tracking knows: the robot's last measured pose, a Kalman filter per obstacle,
+/// and the robot's recent commands for dead reckoning. Measurements go in with their time
+/// of validity; [`Tracker::estimate`] gives the state at the moment a command will act.
+/// Used by the gateway core and by the offline runner alike. Allocation-free after
+/// construction.
+#[derive(Debug, Clone)]
+pub struct Tracker {
+    settings: TrackingSettings,
+    geometry: LedGeometry,
+    radii: [f64; MAX_OBSTACLES],
+    count: usize,
+    filters: [Option<ConstantVelocityKf>; MAX_OBSTACLES],
+    /// Each obstacle's last measured position (planned on when prediction is off).
+    measured: [C; MAX_OBSTACLES],
+    pose: Option<(f64, Pose)>,
+    dead_reckoning: DeadReckoning,
+    estimates: [ObstacleEstimate; MAX_OBSTACLES],
+}
+
+/// The state a command will act on, with the time its pose was measured.
+#[derive(Debug, Clone, Copy)]
+pub struct Tracked<'a> {
+    pub estimate: Estimate<'a>,
+    /// When the pose it starts from was valid, s.
+    pub pose_valid_at: f64,
+    /// The smallest estimated gap between the robot's centre and an obstacle's footprint, m.
+    pub clearance: Option<f64>,
+}
+
+impl Tracker {
+    /// A tracker for obstacles of these radii (at most [`MAX_OBSTACLES`]; more are ignored,
+    /// which the config refuses at load).
+    pub fn new(settings: TrackingSettings, geometry: LedGeometry, radii: &[f64]) -> Self {
+        let count = radii.len().min(MAX_OBSTACLES);
+        let mut r = [0.0; MAX_OBSTACLES];
+        r[..count].copy_from_slice(&radii[..count]);
+        Self {
+            settings,
+            geometry,
+            radii: r,
+            count,
+            filters: [None; MAX_OBSTACLES],
+            measured: [C::default(); MAX_OBSTACLES],
+            pose: None,
+            dead_reckoning: DeadReckoning::with_capacity(64),
+            estimates: [ObstacleEstimate { center: C::default(), velocity: C::default(), radius: 0.0 }; MAX_OBSTACLES],
+        }
+    }
+
+    /// The robot's two LEDs, valid at `t_valid`. Returns whether they gave a pose (they do
+    /// unless they coincide).
+    pub fn observe_robot(&mut self, t_valid: f64, front: C, rear: C) -> bool {
+        match self.geometry.pose(front, rear) {
+            Some(pose) if self.pose.is_none_or(|(t, _)| t_valid >= t) => {
+                self.pose = Some((t_valid, pose));
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Obstacle `k` seen at `p`, valid at `t_valid`. Returns whether its filter took it
+    /// (an older measurement than the filter's last, or a non-finite one, is refused).
+    pub fn observe_obstacle(&mut self, k: usize, t_valid: f64, p: C) -> bool {
+        if k >= self.count {
+            return false;
+        }
+        let taken = match &mut self.filters[k] {
+            Some(kf) => kf.update(t_valid, p),
+            None if p.re.is_finite() && p.im.is_finite() => {
+                self.filters[k] = Some(ConstantVelocityKf::new(self.settings.kalman, t_valid, p));
+                true
+            }
+            None => false,
+        };
+        if taken {
+            self.measured[k] = p;
+        }
+        taken
+    }
+
+    /// When the last pose was valid, s.
+    pub fn pose_time(&self) -> Option<f64> {
+        self.pose.map(|(t, _)| t)
+    }
+
+    /// Forget the pose (after a stop, so a stale one is never driven on).
+    pub fn forget_pose(&mut self) {
+        self.pose = None;
+    }
+
+    /// The robot was commanded these wheel speeds at `t` (for dead reckoning).
+    pub fn commanded(&mut self, t: f64, left: f64, right: f64) {
+        self.dead_reckoning.command(t, left, right);
+    }
+
+    /// The state at `t`, when the command will act: the pose dead-reckoned from its time of
+    /// validity, the obstacles predicted by their filters, and the sensing-to-actuation delay
+    /// (age of the pose plus the period the command holds). `None` before any pose.
+    pub fn estimate(&mut self, t: f64, sample_time: f64, wheel_base: f64) -> Option<Tracked<'_>> {
+        let (t_valid, measured) = self.pose?;
+        self.dead_reckoning.forget_before(t_valid - sample_time);
+        let pose = if self.settings.predict_robot {
+            self.dead_reckoning.predict(measured, t_valid, t, wheel_base)
+        } else {
+            measured
+        };
+        let mut n = 0;
+        let mut clearance: Option<f64> = None;
+        for k in 0..self.count {
+            let Some(kf) = &self.filters[k] else { continue };
+            let predict = self.settings.predict_obstacles;
+            let (center, velocity) = kf.predict(if predict { t } else { kf.time() });
+            let center = if predict { center } else { self.measured[k] };
+            self.estimates[n] = ObstacleEstimate { center, velocity, radius: self.radii[k] };
+            n += 1;
+            let gap = (center - pose.position).norm() - self.radii[k];
+            clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
+        }
+        Some(Tracked {
+            estimate: Estimate { pose, obstacles: &self.estimates[..n], delay: t - t_valid + sample_time },
+            pose_valid_at: t_valid,
+            clearance,
+        })
     }
 }
 

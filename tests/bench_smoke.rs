@@ -2,14 +2,14 @@
 //! frame with exactly one command and reports sane figures. No timing is asserted here;
 //! performance is measured by `flowgate bench`, not by tests.
 
-use flowgate::bench::{PhaseSpec, Transport};
+use flowgate::lab::bench::{PhaseSpec, Transport};
 
 #[tokio::test(flavor = "current_thread")]
 async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     let dir = std::env::temp_dir().join(format!("flowgate-bench-smoke-{}", std::process::id()));
     let exe = std::path::Path::new(env!("CARGO_BIN_EXE_flowgate"));
     let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true }];
-    let report = flowgate::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
+    let report = flowgate::lab::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
     let p = &report.phases[0];
     assert_eq!(p.cycles_sent, 100);
     assert_eq!(p.commands_received, 100, "one command per frame");

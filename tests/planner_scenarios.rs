@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use flowgate::offline::{self, sweep, Outcome};
-use flowgate_sim::scenario::Scenario;
+use flowgate::lab::offline::{self, sweep, Mode, Outcome};
+use flowgate::lab::Scenario;
 
 fn scenario(name: &str) -> Scenario {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name);
@@ -113,13 +113,13 @@ fn e7_flags_an_obstacle_faster_than_the_robot() {
 #[test]
 fn sweep_is_reproducible_and_accounts_for_every_episode() {
     let base = scenario("e2-lane-head-on.toml");
-    let a = sweep::sweep(&base, 60, 7, 2);
-    let b = sweep::sweep(&base, 60, 7, 1);
+    let a = sweep::sweep(&base, 60, 7, 2, Mode::PlannerOnly);
+    let b = sweep::sweep(&base, 60, 7, 1, Mode::PlannerOnly);
     assert_eq!(a.episodes, 60);
     let total = a.goal_rate + a.collision_rate + a.timeout_rate + a.stall_rate;
     assert!((total - 1.0).abs() < 1e-9, "{total}");
     assert_eq!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&b).unwrap(), "same seed, same report");
-    let c = sweep::sweep(&base, 60, 8, 2);
+    let c = sweep::sweep(&base, 60, 8, 2, Mode::PlannerOnly);
     assert_ne!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&c).unwrap(), "another seed differs");
 }
 

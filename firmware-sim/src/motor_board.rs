@@ -190,6 +190,14 @@ impl MotorBoard {
                 self.faults.0 |= FaultBits::BUS;
                 self.state = BoardState::Fault;
             }
+            // Its periodic frames fall silent, but their timers run on: `next_event` must
+            // not stay in the past.
+            while self.next_heartbeat <= t {
+                self.next_heartbeat += HEARTBEAT_PERIOD;
+            }
+            while self.next_status <= t {
+                self.next_status += STATUS_PERIOD;
+            }
             return;
         }
         let timeout = f64::from(self.timeout_ms) * 1e-3;

@@ -342,7 +342,7 @@ impl PsdIo {
 }
 
 /// Frames from elsewhere on the bus (the `foreign_frames` fault).
-fn foreign_frames(node: NodeId) -> [CanFrame; 3] {
+pub fn foreign_frames(node: NodeId) -> [CanFrame; 3] {
     use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage};
     let other = MotorMessage::Status {
         node: NodeId::new(9).expect("9"),

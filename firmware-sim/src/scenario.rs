@@ -1,5 +1,7 @@
 //! Scenario files (TOML): the rig, the robot, the goal, the obstacles' motion, the sensing
-//! chain and the planner settings of one run. Documented with examples in
+//! chain and the planner settings of one run. The `[planner]` table is the gateway's: the
+//! simulator carries it unread, and flowgate parses and checks it with the same type and
+//! rules as a rig config's `[planner]`. Documented with examples in
 //! `scenarios/README.md`. Unknown keys are refused, and [`Scenario::validate`] names the
 //! key of any bad value.
 
@@ -24,7 +26,9 @@ pub struct Scenario {
     #[serde(default)]
     pub obstacles: Vec<ObstacleSpec>,
     pub sensing: SensingSpec,
-    pub planner: PlannerSpec,
+    /// The gateway's planner settings, not read by the simulator.
+    #[serde(default)]
+    pub planner: toml::Table,
     /// Faults the simulator injects when it runs this scenario (all off by default;
     /// `flowgate-sim --fault key=value` overrides single keys).
     #[serde(default)]
@@ -135,56 +139,6 @@ fn default_seed() -> u64 {
     1
 }
 
-/// Planner settings (see the planner module of `flowgate` for their meaning).
-#[derive(Debug, Clone, Copy, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PlannerSpec {
-    /// Far-field speed of the goal sink, m/s (`m = cruise_speed · R_ref`).
-    pub cruise_speed: f64,
-    /// Goal smoothing factor `c1` of `K(r)`, 1/m.
-    pub c1: f64,
-    /// Steering gain `K_c` of eq. 30.
-    pub kc: f64,
-    /// Safety margin rule for the planning radius.
-    #[serde(default)]
-    pub margin: MarginSpec,
-    /// The deterministic tie-break for symmetric configurations.
-    #[serde(default = "default_true")]
-    pub tie_break: bool,
-    /// Delay compensation for the robot: dead-reckon its delayed pose forward with its own
-    /// recent commands to the moment the command acts.
-    #[serde(default = "default_true")]
-    pub predict_robot: bool,
-    /// Delay compensation for the obstacles: predict them with their Kalman filters to the
-    /// moment the command acts. `false` reproduces the paper's E3, which planned on the
-    /// delayed obstacle positions.
-    #[serde(default = "default_true")]
-    pub predict_obstacles: bool,
-}
-
-fn default_true() -> bool {
-    true
-}
-
-/// How the planning radius `R` grows from `R_0 = a_0 + a_r`.
-#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq)]
-#[serde(tag = "rule", rename_all = "snake_case", deny_unknown_fields)]
-pub enum MarginSpec {
-    /// `R = R_0`.
-    #[default]
-    None,
-    /// `R = R_0 + metres`.
-    Fixed { metres: f64 },
-    /// `R = factor · R_0`.
-    Factor { factor: f64 },
-    /// `R = R_0 + U_a Δt` (eq. 29): `U_a` the obstacle's estimated speed plus
-    /// `extra_speed`, `Δt` the measured sensing-to-actuation delay.
-    Delay {
-        #[serde(default)]
-        extra_speed: f64,
-    },
-}
-
 /// A scenario that could not be loaded, naming the file and the key.
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -274,20 +228,6 @@ impl Scenario {
         non_negative("sensing.delay", s.delay)?;
         non_negative("sensing.position_noise", s.position_noise)?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
-        let p = &self.planner;
-        positive("planner.cruise_speed", p.cruise_speed)?;
-        positive("planner.c1", p.c1)?;
-        positive("planner.kc", p.kc)?;
-        match p.margin {
-            MarginSpec::None => {}
-            MarginSpec::Fixed { metres } => non_negative("planner.margin.metres", metres)?,
-            MarginSpec::Factor { factor } => {
-                if !(factor.is_finite() && factor >= 1.0) {
-                    return Err(("planner.margin.factor".into(), format!("must be >= 1, is {factor}")));
-                }
-            }
-            MarginSpec::Delay { extra_speed } => non_negative("planner.margin.extra_speed", extra_speed)?,
-        }
         Ok(())
     }
 
@@ -340,8 +280,7 @@ mod tests {
     fn parses_a_scenario() {
         let s = Scenario::from_toml(MINIMAL, "t").unwrap();
         assert_eq!(s.obstacles[0].motion, Motion::Constant { velocity: [-0.05, 0.0] });
-        assert_eq!(s.planner.margin, MarginSpec::Factor { factor: 1.1 });
-        assert!(s.planner.tie_break);
+        assert_eq!(s.planner["kc"].as_float(), Some(0.06), "carried for the gateway, unread");
         assert_eq!(s.goal.tolerance, 0.02);
     }
 
@@ -350,9 +289,6 @@ mod tests {
         let bad = MINIMAL.replace("radius = 0.07\n        start = [0.5, 0]", "radius = -1\n        start = [0.5, 0]");
         let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
         assert!(err.contains("`obstacles[0].radius` must be a positive number"), "{err}");
-        let bad = MINIMAL.replace("factor = 1.1", "factor = 0.5");
-        let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
-        assert!(err.contains("planner.margin.factor"), "{err}");
     }
 
     #[test]
@@ -366,8 +302,8 @@ mod tests {
 
     #[test]
     fn refuses_unknown_keys() {
-        let bad = MINIMAL.replace("c1 = 20", "c1 = 20\nc2 = 3");
+        let bad = MINIMAL.replace("[sensing]", "[sensing]\nbogus = 3");
         let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
-        assert!(err.contains("unknown field `c2`"), "{err}");
+        assert!(err.contains("unknown field `bogus`"), "{err}");
     }
 }

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use flowgate::bench::{PhaseSpec, Transport};
+use flowgate::lab::bench::{PhaseSpec, Transport};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -65,7 +65,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    let report = runtime.block_on(flowgate::bench::run(&exe, &transport, &phases, &args.out))?;
+    let report = runtime.block_on(flowgate::lab::bench::run(&exe, &transport, &phases, &args.out))?;
     println!("{report}");
     let path = args.out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;

@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use flowgate::demo;
-use flowgate_sim::scenario::Scenario;
+use flowgate::lab::offline::{self, Outcome};
+use flowgate::lab::{demo, Scenario};
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
@@ -33,7 +33,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         println!(
             "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
             p.t,
-            p.state,
+            p.state.name(),
             p.goal_distance,
             p.clearance.map_or("-".into(), |c| format!("{:.3} m", c)),
             p.e2e_us,
@@ -60,11 +60,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
     );
     println!("{}", run.report);
     // The trajectory from the world's truth.
-    let trace: Vec<flowgate::offline::TraceRow> = run
+    let trace: Vec<offline::TraceRow> = run
         .truth
         .samples
         .iter()
-        .map(|s| flowgate::offline::TraceRow {
+        .map(|s| offline::TraceRow {
             t: s.t,
             pose: flowgate::track::Pose { position: flowgate::Point::new(s.x, s.y), heading: s.heading },
             command: flowgate::Point::default(),
@@ -72,19 +72,18 @@ pub fn run(args: DemoArgs) -> Result<()> {
             obstacles: s.obstacles.iter().map(|o| flowgate::Point::new(o[0], o[1])).collect(),
         })
         .collect();
-    let offline = flowgate::offline::run(&scenario, false);
-    let mut summary = offline.summary;
+    let mut summary = offline::run(&scenario, false).summary;
     summary.outcome = if run.contact {
-        flowgate::offline::Outcome::Collision
+        Outcome::Collision
     } else if run.reached_goal {
-        flowgate::offline::Outcome::Goal
+        Outcome::Goal
     } else {
-        flowgate::offline::Outcome::Timeout
+        Outcome::Timeout
     };
     summary.min_obstacle_clearance = t.min_obstacle_clearance;
     summary.end_time = t.duration;
-    let live = flowgate::offline::Run { summary, trace };
-    std::fs::write(out.join("trajectory.svg"), flowgate::report::trajectory_svg(&scenario, &live))?;
+    let live = offline::Run { summary, trace };
+    std::fs::write(out.join("trajectory.svg"), flowgate::lab::report::trajectory_svg(&scenario, &live))?;
     run.truth.write(&out.join("truth.json"))?;
     std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;
     println!("\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,truth.json,report.json}}", out.display());

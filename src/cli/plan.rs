@@ -4,9 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use flowgate::offline::{self, sweep};
-use flowgate::report;
-use flowgate_sim::scenario::Scenario;
+use flowgate::lab::offline::{self, sweep, Mode};
+use flowgate::lab::{report, sim, Scenario};
 
 /// Print a line; a closed stdout (`| head`) ends the command quietly instead of panicking.
 macro_rules! say {
@@ -41,14 +40,19 @@ pub struct PlanArgs {
     /// Worker threads for the sweep.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Run the planner alone against a modelled sensing chain (faster), instead of the whole
+    /// stack (the gateway core, the firmware and the wire protocols) in virtual time.
+    #[arg(long)]
+    planner_only: bool,
     /// Where to write summary.json and the plots (default: out/plan/<scenario>).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
 }
 
 pub fn run(args: PlanArgs) -> Result<()> {
+    let mode = if args.planner_only { Mode::PlannerOnly } else { Mode::FullStack };
     if let Some(dir) = &args.all {
-        return run_all(dir, args.out.as_deref());
+        return run_all(dir, args.out.as_deref(), mode);
     }
     let Some(file) = args.scenario.as_ref().or(args.file.as_ref()) else {
         bail!("name a scenario: --scenario FILE, or --all DIR");
@@ -56,8 +60,11 @@ pub fn run(args: PlanArgs) -> Result<()> {
     let scenario = Scenario::load(file)?;
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
     if let Some(n) = args.sweep {
+        if n == 0 {
+            bail!("--sweep needs at least one episode");
+        }
         let started = std::time::Instant::now();
-        let report = sweep::sweep(&scenario, n, args.seed, args.threads);
+        let report = sweep::sweep(&scenario, n, args.seed, args.threads, mode);
         say!("{report}");
         say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
         std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -66,11 +73,30 @@ pub fn run(args: PlanArgs) -> Result<()> {
         say!("  wrote {}", path.display());
         return Ok(());
     }
-    let run = offline::run(&scenario, true);
-    say!("{}", report::one_line(&run));
+    let run = one(&scenario, mode, Some(&out))?;
+    say!("{}  ({mode})", report::one_line(&run));
     write_outputs(&scenario, &run, &out)?;
-    say!("  wrote {}/{{summary.json,trajectory.svg,history.svg}}", out.display());
+    let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
+    say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
     Ok(())
+}
+
+/// One run in `mode`; a full-stack run also leaves its `cycles.csv` and `can.log` in `out`.
+fn one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<offline::Run> {
+    Ok(match mode {
+        Mode::PlannerOnly => offline::run(scenario, out.is_some()),
+        Mode::FullStack => {
+            let options = sim::Options { truth_samples: out.is_some(), telemetry: out.is_some(), ..Default::default() };
+            let episode = sim::run(scenario, options);
+            if let Some(e) = episode.setup_error {
+                bail!("{}: the simulated PSD controller could not be configured: {e}", scenario.name);
+            }
+            if let (Some(t), Some(out)) = (&episode.telemetry, out) {
+                t.write(out).with_context(|| format!("writing {}", out.display()))?;
+            }
+            offline::Run::from_episode(scenario, &episode)
+        }
+    })
 }
 
 fn stem(path: &Path) -> String {
@@ -85,7 +111,7 @@ fn write_outputs(scenario: &Scenario, run: &offline::Run, out: &Path) -> Result<
     Ok(())
 }
 
-fn run_all(dir: &Path, out: Option<&Path>) -> Result<()> {
+fn run_all(dir: &Path, out: Option<&Path>, mode: Mode) -> Result<()> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -95,6 +121,7 @@ fn run_all(dir: &Path, out: Option<&Path>) -> Result<()> {
     if files.is_empty() {
         bail!("no *.toml scenarios in {}", dir.display());
     }
+    say!("{mode}");
     say!(
         "{:<26} {:<9} {:>7} {:>11} {:>9} {:>6} {:>10} {:>10}",
         "scenario",
@@ -108,21 +135,25 @@ fn run_all(dir: &Path, out: Option<&Path>) -> Result<()> {
     );
     for file in files {
         let scenario = Scenario::load(&file)?;
-        let run = offline::run(&scenario, out.is_some());
+        let dir = out.map(|o| o.join(stem(&file)));
+        let run = one(&scenario, mode, dir.as_deref())?;
         let s = &run.summary;
         say!(
-            "{:<26} {:<9} {:>7.1} {:>11} {:>9} {:>6.2} {:>10.0} {:>10.1}",
+            "{:<26} {:<9} {:>7.1} {:>11} {:>9} {:>6.2} {:>10.0} {:>10}",
             stem(&file),
             s.outcome.to_string(),
-            s.end_time,
+            s.time_to_goal.unwrap_or(s.end_time),
             s.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),
             s.min_wall_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),
             s.path_length_ratio,
             s.peak_wheel_speed[0].max(s.peak_wheel_speed[1]) * 1e3,
-            s.planner_compute.p99_us
+            match mode {
+                Mode::PlannerOnly => format!("{:.1}", s.planner_compute.p99_us),
+                Mode::FullStack => "-".into(), // virtual time: stages take no time
+            }
         );
-        if let Some(out) = out {
-            write_outputs(&scenario, &run, &out.join(stem(&file)))?;
+        if let Some(dir) = dir {
+            write_outputs(&scenario, &run, &dir)?;
         }
     }
     Ok(())

@@ -20,7 +20,7 @@ pub struct RunArgs {
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
-    let cfg = GatewayConfig::load(&args.config)?;
+    let rig = GatewayConfig::load(&args.config)?;
     // The gateway is one loop: a single-threaded runtime keeps its wake-ups on one thread
     // (the telemetry writer has its own blocking thread).
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
@@ -32,8 +32,8 @@ pub fn run(args: RunArgs) -> Result<()> {
         let (arm_tx, arm_rx) = mpsc::channel(4);
         let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
         let mut gateway =
-            tokio::spawn(gateway::run(cfg, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
-        let mut last_state = "";
+            tokio::spawn(gateway::run(rig, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
+        let mut last_state = None;
         let report = loop {
             tokio::select! {
                 r = &mut gateway => break r??,
@@ -43,9 +43,9 @@ pub fn run(args: RunArgs) -> Result<()> {
                 changed = progress_rx.changed() => {
                     if changed.is_ok() {
                         let state = progress_rx.borrow().state;
-                        if state != last_state && !state.is_empty() {
-                            say(&format!("state: {state}"));
-                            last_state = state;
+                        if last_state != Some(state) {
+                            say(&format!("state: {}", state.name()));
+                            last_state = Some(state);
                         }
                     }
                 }

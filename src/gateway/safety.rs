@@ -35,6 +35,28 @@ impl StopReason {
     }
 }
 
+impl serde::Serialize for StopReason {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+/// A state serialises as `"running"`, or `"fault: robot pose lost"` with its reason.
+impl serde::Serialize for State {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl std::fmt::Display for State {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.reason() {
+            Some(r) => write!(f, "{}: {r}", self.name()),
+            None => f.write_str(self.name()),
+        }
+    }
+}
+
 impl std::fmt::Display for StopReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
@@ -54,8 +76,9 @@ impl std::fmt::Display for StopReason {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum State {
+    #[default]
     Idle,
     Armed,
     Running,
@@ -65,6 +88,31 @@ pub enum State {
 }
 
 impl State {
+    /// Its name in logs, CSV and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Idle => "idle",
+            State::Armed => "armed",
+            State::Running => "running",
+            State::Stopping(_) => "stopping",
+            State::Stopped(_) => "stopped",
+            State::Fault(_) => "fault",
+        }
+    }
+
+    /// Why it stopped, in the states that have a reason.
+    pub fn reason(self) -> Option<StopReason> {
+        match self {
+            State::Stopping(r) | State::Stopped(r) | State::Fault(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    /// Stopped or faulted: nothing more will happen without an operator.
+    pub fn is_terminal(self) -> bool {
+        matches!(self, State::Stopped(_) | State::Fault(_))
+    }
+
     /// The state as the gateway heartbeat carries it.
     pub fn wire(self) -> GatewayState {
         match self {

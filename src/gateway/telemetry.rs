@@ -22,8 +22,12 @@ use hdrhistogram::Histogram;
 use serde::Serialize;
 use tokio::sync::mpsc;
 
-/// One control cycle's timing. Times are ns since the gateway started (host monotonic clock).
-#[derive(Debug, Clone, Copy, Default)]
+use super::safety::State;
+use crate::time::HostTime;
+
+/// One control cycle's timing. Times are ns since the gateway started (host monotonic clock;
+/// virtual time in the deterministic simulation).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CycleRecord {
     pub cycle: u64,
     /// The controller's frame counter and the frame's end on its clock (µs).
@@ -45,7 +49,7 @@ pub struct CycleRecord {
     pub deadline_miss: bool,
     /// Measured sensing-to-actuation delay used by the planner, s.
     pub delay_s: f64,
-    pub state: &'static str,
+    pub state: State,
     pub pulses: [i32; 2],
     pub x: f64,
     pub y: f64,
@@ -55,7 +59,16 @@ pub struct CycleRecord {
 impl CycleRecord {
     pub const CSV_HEADER: &'static str = "cycle,frame,t_ctrl_us,rx_ns,decode_ns,track_ns,plan_ns,can_write_ns,can_done_ns,e2e_ns,period_ns,deadline_miss,delay_s,state,pulses_left,pulses_right,x,y,goal_distance";
 
-    fn csv(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
+    /// The command frame was written: it took `write_ns` and was done at `done`.
+    pub fn written(&mut self, write_ns: u64, done: HostTime, sample_period: std::time::Duration) {
+        self.can_write_ns = write_ns;
+        self.can_done_ns = done.as_nanos();
+        self.e2e_ns = self.can_done_ns.saturating_sub(self.rx_ns);
+        self.deadline_miss = u128::from(self.e2e_ns) > sample_period.as_nanos();
+    }
+
+    /// One `cycles.csv` row.
+    pub fn csv(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
         writeln!(
             out,
             "{},{},{},{},{},{},{},{},{},{},{},{},{:.6},{},{},{},{:.5},{:.5},{:.5}",
@@ -72,7 +85,7 @@ impl CycleRecord {
             self.period_ns,
             u8::from(self.deadline_miss),
             self.delay_s,
-            self.state,
+            self.state.name(),
             self.pulses[0],
             self.pulses[1],
             self.x,
@@ -85,10 +98,30 @@ impl CycleRecord {
 /// A CAN frame seen by the gateway, for `can.log`.
 #[derive(Debug, Clone, Copy)]
 pub struct CanRecord {
-    /// Wall-clock time, s since the Unix epoch (candump's format).
-    pub unix_s: f64,
+    /// When, s: since the Unix epoch on the rig (candump's format), virtual time in
+    /// simulation.
+    pub at_s: f64,
     pub frame: CanFrame,
     pub sent: bool,
+}
+
+impl CanRecord {
+    /// One `can.log` line, candump `-L` format: `(1700000000.000123) can0 101#0102`.
+    pub fn candump(&self, interface: &str, out: &mut impl std::io::Write) -> std::io::Result<()> {
+        write!(out, "({:.6}) {interface} ", self.at_s)?;
+        match self.frame.id() {
+            flowgate_protocol::CanId::Standard(id) => write!(out, "{id:03X}#")?,
+            flowgate_protocol::CanId::Extended(id) => write!(out, "{id:08X}#")?,
+        }
+        if self.frame.is_remote() {
+            write!(out, "R{}", self.frame.dlc())?;
+        } else {
+            for b in self.frame.data() {
+                write!(out, "{b:02X}")?;
+            }
+        }
+        writeln!(out)
+    }
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -207,13 +240,7 @@ pub fn start_writer(
                     )?;
                 }
                 Record::Can(f) => {
-                    let data: String = f.frame.data().iter().map(|b| format!("{b:02X}")).collect();
-                    let id = match f.frame.id() {
-                        flowgate_protocol::CanId::Standard(id) => format!("{id:03X}"),
-                        flowgate_protocol::CanId::Extended(id) => format!("{id:08X}"),
-                    };
-                    let body = if f.frame.is_remote() { format!("R{}", f.frame.dlc()) } else { data };
-                    writeln!(can, "({:.6}) {interface} {id}#{body}", f.unix_s)?;
+                    f.candump(&interface, &mut can)?;
                     written.can_frames += 1;
                 }
             }

@@ -66,6 +66,8 @@ pub enum CanError {
     SlcanSilent { path: String },
     #[error("CAN link closed")]
     Closed,
+    #[error("CAN {what} did not finish within its deadline (adapter stalled?)")]
+    Timeout { what: &'static str },
     #[error("CAN I/O: {0}")]
     Io(#[from] std::io::Error),
 }
@@ -80,6 +82,16 @@ pub enum CanEvent {
     },
     /// A line from an SLCAN adapter that did not parse.
     Garbled,
+}
+
+/// What an SLCAN adapter's line means to the gateway: a frame, a garbled line, or nothing
+/// (transmit acks and OKs carry nothing for the caller).
+pub fn slcan_event(line: Result<Response, StreamError<slcan::SlcanError>>) -> Option<CanEvent> {
+    match line {
+        Ok(Response::Frame { frame, .. }) => Some(CanEvent::Frame(frame)),
+        Ok(_) => None,
+        Err(StreamError::Frame { .. } | StreamError::Overlong { .. }) => Some(CanEvent::Garbled),
+    }
 }
 
 /// SocketCAN's error class bit for bus-off (linux/can/error.h, CAN_ERR_BUSOFF).
@@ -228,11 +240,8 @@ impl SlcanLink {
 
     async fn recv(&mut self) -> Result<CanEvent, CanError> {
         loop {
-            match self.next_line().await? {
-                Ok(Response::Frame { frame, .. }) => return Ok(CanEvent::Frame(frame)),
-                // Transmit acks and OKs carry nothing for the caller.
-                Ok(_) => continue,
-                Err(StreamError::Frame { .. } | StreamError::Overlong { .. }) => return Ok(CanEvent::Garbled),
+            if let Some(event) = slcan_event(self.next_line().await?) {
+                return Ok(event);
             }
         }
     }

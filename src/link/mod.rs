@@ -7,5 +7,7 @@
 mod can;
 mod serial;
 
-pub use can::{open_can, CanError, CanEvent, CanLink, CanUrl, MemoryBus, MemoryLink, SlcanLink, SocketCanLink};
+pub use can::{
+    open_can, slcan_event, CanError, CanEvent, CanLink, CanUrl, MemoryBus, MemoryLink, SlcanLink, SocketCanLink,
+};
 pub use serial::{open_serial, SerialError};

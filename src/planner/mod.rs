@@ -28,17 +28,23 @@ pub mod field;
 pub use field::{Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
 use num_complex::Complex64 as C;
 
-/// How the planning radius grows from `R_0 = a_0 + a_r`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// How the planning radius grows from `R_0 = a_0 + a_r`. The one margin type: the rig
+/// config and scenario files deserialise into it (`margin = { rule = "factor", factor = 1.1 }`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(tag = "rule", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Margin {
     /// `R = R_0`.
+    #[default]
     None,
     /// `R = R_0 + metres`.
-    Fixed(f64),
+    Fixed { metres: f64 },
     /// `R = factor · R_0`.
-    Factor(f64),
-    /// `R = R_0 + (|V̂_k| + extra_speed) Δt`, `Δt` the measured sensing-to-actuation delay.
-    Delay { extra_speed: f64 },
+    Factor { factor: f64 },
+    /// `R = R_0 + (|V̂_k| + extra_speed) Δt` (eq. 29), `Δt` the measured sensing-to-actuation delay.
+    Delay {
+        #[serde(default)]
+        extra_speed: f64,
+    },
 }
 
 impl Margin {
@@ -46,8 +52,8 @@ impl Margin {
     pub fn radius(self, r0: f64, speed: f64, delay: f64) -> f64 {
         match self {
             Margin::None => r0,
-            Margin::Fixed(m) => r0 + m,
-            Margin::Factor(f) => r0 * f,
+            Margin::Fixed { metres } => r0 + metres,
+            Margin::Factor { factor } => r0 * factor,
             Margin::Delay { extra_speed } => r0 + (speed + extra_speed) * delay,
         }
     }

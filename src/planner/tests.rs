@@ -246,8 +246,8 @@ fn tie_break_breaks_the_symmetric_case() {
 #[test]
 fn margins() {
     assert_eq!(Margin::None.radius(0.14, 0.1, 0.6), 0.14);
-    assert!((Margin::Factor(1.1).radius(0.14, 0.1, 0.6) - 0.154).abs() < 1e-12);
-    assert!((Margin::Fixed(0.02).radius(0.14, 0.1, 0.6) - 0.16).abs() < 1e-12);
+    assert!((Margin::Factor { factor: 1.1 }.radius(0.14, 0.1, 0.6) - 0.154).abs() < 1e-12);
+    assert!((Margin::Fixed { metres: 0.02 }.radius(0.14, 0.1, 0.6) - 0.16).abs() < 1e-12);
     assert!((Margin::Delay { extra_speed: 0.0 }.radius(0.14, 0.141, 0.6) - (0.14 + 0.141 * 0.6)).abs() < 1e-12);
 }
 

@@ -142,7 +142,7 @@ impl World {
             let pulses = [self.axes[LEFT].step(h), self.axes[RIGHT].step(h)];
             self.pose = self.drive.advance(self.pose, pulses);
             self.time += h;
-            self.truth.path_length += (self.pose.position - before).norm();
+            self.truth.path_length += distance(self.pose.position, before);
             let speeds = self.wheel_speeds();
             for (peak, v) in self.truth.peak_wheel_speed.iter_mut().zip(speeds) {
                 *peak = peak.max(v.abs());
@@ -154,7 +154,7 @@ impl World {
     /// Clearances now: to each obstacle (footprints), and to the nearest wall.
     pub fn clearances(&self) -> impl Iterator<Item = f64> + '_ {
         self.obstacles.iter().map(move |(path, radius)| {
-            (self.pose.position - path.position(self.time)).norm() - radius - self.robot_radius
+            distance(self.pose.position, path.position(self.time)) - radius - self.robot_radius
         })
     }
 
@@ -173,4 +173,11 @@ impl World {
             t.first_contact = Some(self.time);
         }
     }
+}
+
+/// Euclidean distance. `sqrt` of the squares, not `hypot`: the world evaluates this every
+/// millisecond of every run, and its points are far from overflow.
+fn distance(a: Point, b: Point) -> f64 {
+    let d = a - b;
+    (d.re * d.re + d.im * d.im).sqrt()
 }

@@ -21,6 +21,9 @@ impl DiffDrive {
     /// The pose after the wheels emitted `pulses` (left, right) from `pose`. Exact for
     /// constant wheel speeds over the step (the centre moves on an arc).
     pub fn advance(&self, pose: Pose, pulses: [f64; 2]) -> Pose {
+        if pulses == [0.0, 0.0] {
+            return pose; // at rest (most of a stopped or waiting run): no trigonometry
+        }
         let [dl, dr] = pulses.map(|p| p / self.pulses_per_metre);
         let ds = 0.5 * (dl + dr);
         let dtheta = (dr - dl) / self.wheel_base;
@@ -35,6 +38,9 @@ impl DiffDrive {
 /// An angle in `(-π, π]`.
 pub fn wrap_angle(a: f64) -> f64 {
     use std::f64::consts::{PI, TAU};
+    if a > -PI && a <= PI {
+        return a; // the common case, every millisecond of a run: no division
+    }
     let w = (a + PI).rem_euclid(TAU) - PI;
     if w <= -PI {
         w + TAU

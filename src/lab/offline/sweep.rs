@@ -9,12 +9,13 @@
 //! The report gives outcome rates, the distribution of minimum clearance, and success
 //! against obstacle speed / robot speed limit and against delay.
 
-use flowgate_sim::scenario::{Motion, Scenario};
+use flowgate_sim::scenario::Motion;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::{run, Outcome};
+use super::{Mode, Outcome};
+use crate::lab::Scenario;
 
 /// One episode's perturbation and result.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -40,12 +41,15 @@ pub struct Bin {
 #[derive(Debug, Clone, Serialize)]
 pub struct SweepReport {
     pub scenario: String,
+    /// Which runner made it: the full stack or the planner alone.
+    pub mode: Mode,
     pub episodes: usize,
     pub seed: u64,
     pub goal_rate: f64,
     pub collision_rate: f64,
     pub timeout_rate: f64,
     pub stall_rate: f64,
+    pub fault_rate: f64,
     /// Minimum clearance percentiles over the episodes, m: min, p5, p25, p50.
     pub clearance_min: f64,
     pub clearance_p5: f64,
@@ -96,7 +100,7 @@ fn fastest_obstacle(s: &Scenario) -> f64 {
 }
 
 /// Run `n` episodes around `base` on `threads` threads.
-pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize) -> SweepReport {
+pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -> SweepReport {
     let threads = threads.max(1);
     let episodes: Vec<Episode> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads)
@@ -106,10 +110,10 @@ pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize) -> SweepRepor
                         .step_by(threads)
                         .map(|i| {
                             let s = perturb(base, seed, i as u64);
-                            let r = run(&s, false).summary;
+                            let (outcome, min_clearance) = mode.episode(&s);
                             Episode {
-                                outcome: r.outcome,
-                                min_clearance: r.min_obstacle_clearance,
+                                outcome,
+                                min_clearance,
                                 speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
                                 delay: s.sensing.delay,
                             }
@@ -120,10 +124,10 @@ pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize) -> SweepRepor
             .collect();
         handles.into_iter().flat_map(|h| h.join().expect("sweep worker panicked")).collect()
     });
-    report(base, seed, &episodes)
+    report(base, seed, mode, &episodes)
 }
 
-fn report(base: &Scenario, seed: u64, episodes: &[Episode]) -> SweepReport {
+fn report(base: &Scenario, seed: u64, mode: Mode, episodes: &[Episode]) -> SweepReport {
     let n = episodes.len().max(1) as f64;
     let rate = |o: Outcome| episodes.iter().filter(|e| e.outcome == o).count() as f64 / n;
     let mut clearances: Vec<f64> = episodes.iter().filter_map(|e| e.min_clearance).collect();
@@ -154,12 +158,14 @@ fn report(base: &Scenario, seed: u64, episodes: &[Episode]) -> SweepReport {
     };
     SweepReport {
         scenario: base.name.clone(),
+        mode,
         episodes: episodes.len(),
         seed,
         goal_rate: rate(Outcome::Goal),
         collision_rate: rate(Outcome::Collision),
         timeout_rate: rate(Outcome::Timeout),
         stall_rate: rate(Outcome::Stall),
+        fault_rate: rate(Outcome::Fault),
         clearance_min: pct(0.0),
         clearance_p5: pct(0.05),
         clearance_p25: pct(0.25),
@@ -172,14 +178,19 @@ fn report(base: &Scenario, seed: u64, episodes: &[Episode]) -> SweepReport {
 impl std::fmt::Display for SweepReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let pc = |x: f64| 100.0 * x;
-        writeln!(f, "sweep of {} episodes around {} (seed {})", self.episodes, self.scenario, self.seed)?;
         writeln!(
             f,
-            "  goal {:.1}%  collision {:.1}%  timeout {:.1}%  stall {:.1}%",
+            "sweep of {} episodes around {} (seed {}, {})",
+            self.episodes, self.scenario, self.seed, self.mode
+        )?;
+        writeln!(
+            f,
+            "  goal {:.1}%  collision {:.1}%  timeout {:.1}%  stall {:.1}%  fault {:.1}%",
             pc(self.goal_rate),
             pc(self.collision_rate),
             pc(self.timeout_rate),
-            pc(self.stall_rate)
+            pc(self.stall_rate),
+            pc(self.fault_rate)
         )?;
         writeln!(
             f,

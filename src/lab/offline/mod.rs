@@ -1,14 +1,15 @@
-//! The offline scenario runner: the control step in closed loop with the simulator's
-//! world, in virtual time. The sensing chain of a rig is modelled between them: a pure
-//! delay, position noise on each LED, a low-pass filter, the Kalman tracker and (when the
-//! scenario asks) delay compensation. Outcomes are judged by the world's truth.
+//! The planner-only scenario runner: the control step in closed loop with the simulator's
+//! world, in virtual time, with the rig's sensing chain modelled between them (a pure
+//! delay, position noise on each LED, a low-pass filter) and the gateway's own
+//! [`Tracker`] (Kalman filters, delay compensation). Faster than the full stack
+//! ([`super::sim`]), which runs the gateway core through the firmware and the wire
+//! protocols; outcomes of both are judged by the world's truth.
 
 pub mod sweep;
 
 use std::collections::VecDeque;
 use std::time::Instant;
 
-use flowgate_sim::scenario::{MarginSpec, Scenario};
 use flowgate_sim::world::World;
 use hdrhistogram::Histogram;
 use num_complex::Complex64 as C;
@@ -17,10 +18,11 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::control::{ControlConfig, ControlStep, Estimate, StallConfig, StepStatus};
-use crate::planner::drive::DriveConfig;
-use crate::planner::{Margin, ObstacleEstimate, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
-use crate::track::{ConstantVelocityKf, DeadReckoning, KalmanConfig, LedGeometry, LowPass, Pose};
+use super::Scenario;
+use crate::control::{ControlStep, StepStatus};
+use crate::gateway::{State, StopReason};
+use crate::planner::MAX_OBSTACLES;
+use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
 
 /// How a run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -30,6 +32,8 @@ pub enum Outcome {
     Collision,
     Timeout,
     Stall,
+    /// The gateway faulted (full-stack runs only).
+    Fault,
 }
 
 impl std::fmt::Display for Outcome {
@@ -39,7 +43,88 @@ impl std::fmt::Display for Outcome {
             Outcome::Collision => "collision",
             Outcome::Timeout => "timeout",
             Outcome::Stall => "stall",
+            Outcome::Fault => "fault",
         })
+    }
+}
+
+/// Which runner: the whole stack (the gateway core through the firmware and the wire
+/// protocols, [`super::sim`]) or the planner alone against a modelled sensing chain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    FullStack,
+    PlannerOnly,
+}
+
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Mode::FullStack => "full stack",
+            Mode::PlannerOnly => "planner only",
+        })
+    }
+}
+
+impl Mode {
+    /// One episode's outcome and smallest true clearance to an obstacle.
+    pub fn episode(self, s: &Scenario) -> (Outcome, Option<f64>) {
+        match self {
+            Mode::PlannerOnly => {
+                let r = run(s, false).summary;
+                (r.outcome, r.min_obstacle_clearance)
+            }
+            Mode::FullStack => {
+                let options = super::sim::Options { stop_at_contact: true, ..Default::default() };
+                let e = super::sim::run(s, options);
+                (e.outcome, e.truth.summary.min_obstacle_clearance)
+            }
+        }
+    }
+}
+
+impl Run {
+    /// A full-stack episode as a run for the plots and the table, from the world's truth.
+    pub fn from_episode(s: &Scenario, e: &super::sim::Episode) -> Self {
+        let t = &e.truth.summary;
+        let straight = (s.goal() - s.robot_start()).norm();
+        let trace: Vec<TraceRow> = e
+            .truth
+            .samples
+            .iter()
+            .map(|x| TraceRow {
+                t: x.t,
+                pose: Pose { position: C::new(x.x, x.y), heading: x.heading },
+                command: C::default(),
+                speed: 0.5 * (x.wheel_speeds[0] + x.wheel_speeds[1]),
+                obstacles: x.obstacles.iter().map(|o| C::new(o[0], o[1])).collect(),
+            })
+            .collect();
+        let summary = Summary {
+            scenario: s.name.clone(),
+            outcome: e.outcome,
+            end_time: t.duration,
+            time_to_goal: e
+                .report
+                .transitions
+                .iter()
+                .find(|(_, st)| *st == State::Stopping(StopReason::GoalReached))
+                .map(|(at, _)| *at)
+                .filter(|_| e.outcome == Outcome::Goal),
+            min_obstacle_clearance: t.min_obstacle_clearance,
+            min_wall_clearance: t.min_wall_clearance,
+            first_contact: t.first_contact,
+            path_length: t.path_length,
+            path_length_ratio: if straight > 0.0 { t.path_length / straight } else { 0.0 },
+            peak_wheel_speed: t.peak_wheel_speed,
+            planner_compute: ComputeTime { p50_us: 0.0, p99_us: 0.0, max_us: 0.0 },
+            cycles: e.report.counters.cycles,
+            invalid_cycles: e.report.counters.planner_invalid,
+            saturated_cycles: 0,
+            tie_break_cycles: 0,
+            obstacle_faster_than_robot: false,
+        };
+        Run { summary, trace }
     }
 }
 
@@ -98,42 +183,6 @@ pub struct Run {
     pub trace: Vec<TraceRow>,
 }
 
-/// The control configuration a scenario describes.
-pub fn control_config(s: &Scenario) -> ControlConfig {
-    let r = &s.robot;
-    let p = &s.planner;
-    let reference_radius = r.radius + s.obstacles.iter().map(|o| o.radius).fold(r.radius, f64::max);
-    ControlConfig {
-        planner: PlannerConfig {
-            space: s.lane.map_or(Space::Free, |l| Space::Lane { half_width: l.half_width }),
-            cruise_speed: p.cruise_speed,
-            c1: p.c1,
-            reference_radius,
-            max_speed: r.max_speed,
-            margin: match p.margin {
-                MarginSpec::None => Margin::None,
-                MarginSpec::Fixed { metres } => Margin::Fixed(metres),
-                MarginSpec::Factor { factor } => Margin::Factor(factor),
-                MarginSpec::Delay { extra_speed } => Margin::Delay { extra_speed },
-            },
-            tie_break: p.tie_break.then(TieBreak::default),
-        },
-        drive: DriveConfig {
-            wheel_base: r.wheel_base,
-            wheel_radius: r.wheel_radius,
-            steps_per_rev: r.steps_per_rev,
-            microsteps: r.microsteps,
-            max_wheel_speed: r.max_wheel_speed,
-            steering_gain: p.kc,
-            sample_time: s.sensing.sample_time,
-        },
-        goal: s.goal(),
-        goal_tolerance: s.goal.tolerance,
-        robot_radius: r.radius,
-        stall: StallConfig::default(),
-    }
-}
-
 /// The LEDs on the simulated robot: half its radius ahead of and behind its centre.
 pub fn led_geometry(s: &Scenario) -> LedGeometry {
     LedGeometry { front: 0.5 * s.robot.radius, rear: 0.5 * s.robot.radius }
@@ -178,9 +227,9 @@ impl Sensor {
         }
     }
 
-    /// Measure at world time `t`: the robot pose and obstacle centres as they were at
-    /// `t - delay`, noisy and filtered. Returns the time of validity.
-    fn measure(&mut self, world: &World, dt: f64, obstacles: &mut [C]) -> (f64, Option<Pose>) {
+    /// Measure at world time `t`: the robot's LEDs and the obstacle centres as they were at
+    /// `t - delay`, noisy and filtered. Returns the time of validity and the LEDs.
+    fn measure(&mut self, world: &World, dt: f64, obstacles: &mut [C]) -> (f64, C, C) {
         let t = world.time();
         self.history.push_back((t, world.pose().into()));
         let t_valid = (t - self.delay).max(0.0);
@@ -196,56 +245,38 @@ impl Sensor {
             let p = self.noisy(world.obstacle_position(k, t_valid));
             *slot = self.obstacle_filters[k].filter(p, dt);
         }
-        (t_valid, self.leds.pose(front, rear))
+        (t_valid, front, rear)
     }
 }
 
 /// Run a scenario to its end. With `record`, keep a trace row per cycle for the plots.
 pub fn run(s: &Scenario, record: bool) -> Run {
-    let config = control_config(s);
+    let mut rig = s.rig();
+    rig.tracking.kalman = KalmanConfig { measurement_noise: s.sensing.position_noise.max(1e-3), ..rig.tracking.kalman };
+    let config = rig.control;
     let mut control = ControlStep::new(config);
     let mut world = World::new(s);
     let mut sensor = Sensor::new(s);
-    let t_step = s.sensing.sample_time;
+    let t_step = rig.sample_period.as_secs_f64();
     let n = s.obstacles.len().min(MAX_OBSTACLES);
-    let kalman = KalmanConfig { measurement_noise: s.sensing.position_noise.max(1e-3), ..KalmanConfig::default() };
-    let mut filters: Vec<Option<ConstantVelocityKf>> = vec![None; n];
+    let radii: Vec<f64> = s.obstacles.iter().map(|o| o.radius).collect();
+    let mut tracker = Tracker::new(rig.tracking, led_geometry(s), &radii);
     let mut measured = vec![C::default(); n];
-    let mut estimates = [ObstacleEstimate { center: C::default(), velocity: C::default(), radius: 0.0 }; MAX_OBSTACLES];
-    let mut commands = DeadReckoning::default();
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
-    let mut last_pose: Option<Pose> = None;
-    // Δt the margin rule sees: the sensing delay plus one period until the command acts.
-    let delay = s.sensing.delay + t_step;
 
     let outcome = loop {
         let t = world.time();
-        let (t_valid, pose) = sensor.measure(&world, t_step, &mut measured);
+        let (t_valid, front, rear) = sensor.measure(&world, t_step, &mut measured);
         for (k, z) in measured.iter().enumerate() {
-            match &mut filters[k] {
-                Some(kf) => {
-                    kf.update(t_valid, *z);
-                }
-                None => filters[k] = Some(ConstantVelocityKf::new(kalman, t_valid, *z)),
-            }
-            let kf = filters[k].as_ref().expect("filter started above");
-            let predict = s.planner.predict_obstacles;
-            let (center, velocity) = kf.predict(if predict { t } else { t_valid });
-            estimates[k] =
-                ObstacleEstimate { center: if predict { center } else { *z }, velocity, radius: s.obstacles[k].radius };
+            tracker.observe_obstacle(k, t_valid, *z);
         }
         // A lost pose (coincident LEDs) keeps the last one; the gateway would stop instead.
-        let pose = match pose.or(last_pose) {
-            Some(p) => p,
-            None => break Outcome::Timeout,
-        };
-        last_pose = Some(pose);
-        let pose = if s.planner.predict_robot { commands.predict(pose, t_valid, t, s.robot.wheel_base) } else { pose };
-
+        tracker.observe_robot(t_valid, front, rear);
+        let Some(tracked) = tracker.estimate(t, t_step, config.drive.wheel_base) else { break Outcome::Timeout };
         let started = Instant::now();
-        let out = control.step(t, &Estimate { pose, obstacles: &estimates[..n], delay });
+        let out = control.step(t, &tracked.estimate);
         let _ = compute.record(started.elapsed().as_nanos() as u64);
         cycles += 1;
         if let Some(plan) = out.plan {
@@ -260,8 +291,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
             StepStatus::Driving => {}
         }
         world.command_pulse_rates(out.pulses);
-        commands.command(t, out.wheels.left, out.wheels.right);
-        commands.forget_before(t_valid - t_step);
+        tracker.commanded(t, out.wheels.left, out.wheels.right);
         if record {
             let w = world.wheel_speeds();
             trace.push(TraceRow {

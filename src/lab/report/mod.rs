@@ -4,10 +4,10 @@ mod svg;
 
 use std::fmt::Write as _;
 
-use flowgate_sim::scenario::Scenario;
 use num_complex::Complex64 as C;
 
-use crate::offline::{control_config, Run};
+use crate::lab::offline::Run;
+use crate::lab::Scenario;
 use crate::planner::{Field, ObstacleEstimate, PlanInput, Planner};
 use svg::{Axes, Svg};
 
@@ -42,7 +42,7 @@ pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, boun
 
 /// The field at the start of a scenario, as the planner would see it with perfect sensing.
 pub fn start_field(s: &Scenario) -> Option<Field> {
-    let config = control_config(s);
+    let config = s.rig().control;
     let obstacles: Vec<ObstacleEstimate> = s
         .obstacles
         .iter()

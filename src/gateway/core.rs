@@ -1,0 +1,604 @@
+//! The gateway core: everything the gateway decides, with no I/O and no clock.
+//!
+//! Inputs come with the host time at which they happened: PSD bytes as read, CAN events as
+//! received, the line opening or failing, operator requests, and ticks when the core's own
+//! deadline comes ([`Core::next_deadline`]). Outputs are queued for the caller to take
+//! with [`Core::poll`]: packets for the PSD controller, CAN frames, each cycle's command
+//! with its timing record, and state changes. The same core runs on the rig (the tokio
+//! shell in [`super::shell`]), in the deterministic full-stack simulation, and in
+//! benchmarks; that is what makes a virtual-time test evidence about the rig.
+//!
+//! Per cycle (one PSD time-division frame, closed by its `FrameEnd`):
+//! decode -> floor coordinates (calibration) -> [`Tracker`] -> control step -> one CAN
+//! velocity frame. Watchdogs are deadlines, so they fire from [`Core::tick`] however the
+//! I/O around the core behaves.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use flowgate_protocol::codec::StreamError;
+use flowgate_protocol::motor::{BoardState, EStopReason, FaultBits, MotorMessage, NmtCommand, Target};
+use flowgate_protocol::psd::{FaultCode, Message, Packet};
+use flowgate_protocol::CanFrame;
+use num_complex::Complex64 as C;
+
+use super::psd_session::{PsdSession, SessionEvent, SetupError};
+use super::safety::{Action, Safety, State, StopReason};
+use super::telemetry::CycleRecord;
+use super::{Counters, Progress};
+use crate::config::Rig;
+use crate::control::{ControlStep, StepStatus};
+use crate::link::CanEvent;
+use crate::time::{CtrlTime, HostTime};
+use crate::track::Tracker;
+
+/// How often the gateway sends its heartbeat.
+pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
+/// How long an orderly stop may take before the gateway calls the axes at rest.
+pub const STOP_GRACE: Duration = Duration::from_secs(1);
+/// The window over which bad serial frames are counted against the budget.
+const BAD_FRAME_WINDOW: Duration = Duration::from_secs(1);
+
+/// Measures how long each stage of a cycle takes. The core reads no clock of its own: the
+/// rig's shell hands it a monotonic one, the deterministic simulation [`NoClock`] (every
+/// stage then takes zero time, and the outputs depend on the inputs alone).
+pub trait StageClock {
+    /// Nanoseconds from an arbitrary origin.
+    fn now_ns(&mut self) -> u64;
+}
+
+/// A stage clock that always says zero.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoClock;
+
+impl StageClock for NoClock {
+    fn now_ns(&mut self) -> u64 {
+        0
+    }
+}
+
+/// What the core asks of its caller.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Output {
+    /// A packet for the PSD controller.
+    Psd(Packet),
+    /// A CAN frame (board configuration, stops, heartbeats).
+    Can(CanFrame),
+    /// A cycle's velocity command: write `frame`, then complete `record` with
+    /// [`CycleRecord::written`] and record it.
+    Command { frame: CanFrame, record: CycleRecord },
+    /// The safety state changed.
+    State { at: HostTime, state: State },
+    /// The PSD controller is configured and streaming.
+    Streaming,
+    /// The PSD controller could not be configured; the caller closes the line (and tries
+    /// again later, or gives up if it never streamed).
+    SetupFailed(SetupError),
+}
+
+/// One LED's sample in the frame being collected.
+#[derive(Debug, Clone, Copy)]
+struct RawSample {
+    x: i32,
+    y: i32,
+    at: CtrlTime,
+    usable: bool,
+}
+
+/// What the core knows of the motor board.
+#[derive(Debug, Default)]
+struct BoardView {
+    last_heartbeat: Option<HostTime>,
+    state: Option<BoardState>,
+    faults: FaultBits,
+    rates: [i32; 2],
+}
+
+/// The gateway core. `K` times the stages of a cycle.
+#[derive(Debug)]
+pub struct Core<K: StageClock> {
+    rig: Rig,
+    clock: K,
+    psd: PsdSession,
+    tracker: Tracker,
+    control: ControlStep,
+    safety: Safety,
+    board: BoardView,
+    /// Per LED id: this frame's sample.
+    frame: [Option<RawSample>; 256],
+    out: VecDeque<Output>,
+    counters: Counters,
+    progress: Progress,
+    last_sample: HostTime,
+    armed_at: HostTime,
+    /// Arrival times of bad serial frames within the last window.
+    bad_frames: VecDeque<HostTime>,
+    next_heartbeat: HostTime,
+    stopping_since: Option<HostTime>,
+    velocity_seq: u8,
+    last_command: Option<HostTime>,
+    /// Decode time since the last cycle, ns.
+    decode_ns: u64,
+    shutdown: bool,
+    streamed: bool,
+}
+
+impl<K: StageClock> Core<K> {
+    pub fn new(rig: Rig, clock: K) -> Self {
+        let radii: Vec<f64> = rig.obstacles.iter().map(|o| o.radius).collect();
+        let budget = rig.safety.bad_frames_per_s as usize + 1;
+        Self {
+            psd: PsdSession::new(rig.schedule),
+            tracker: Tracker::new(rig.tracking, rig.led_geometry, &radii),
+            control: ControlStep::new(rig.control),
+            safety: Safety::default(),
+            board: BoardView::default(),
+            frame: [None; 256],
+            out: VecDeque::with_capacity(64),
+            counters: Counters::default(),
+            progress: Progress::default(),
+            last_sample: HostTime::ZERO,
+            armed_at: HostTime::ZERO,
+            bad_frames: VecDeque::with_capacity(budget.min(4096)),
+            next_heartbeat: HostTime::ZERO,
+            stopping_since: None,
+            velocity_seq: 0,
+            last_command: None,
+            decode_ns: 0,
+            shutdown: false,
+            streamed: false,
+            clock,
+            rig,
+        }
+    }
+
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+    pub fn state(&self) -> State {
+        self.safety.state()
+    }
+    pub fn safety(&self) -> &Safety {
+        &self.safety
+    }
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+    pub fn progress(&self) -> Progress {
+        self.progress
+    }
+    /// Whether the controller has streamed at least once (a setup failure before that is a
+    /// startup failure).
+    pub fn has_streamed(&self) -> bool {
+        self.streamed
+    }
+    /// Shutdown was asked for and the robot is at rest: the caller may end the run.
+    pub fn finished(&self) -> bool {
+        self.shutdown && matches!(self.state(), State::Idle | State::Stopped(_) | State::Fault(_))
+    }
+    /// Whether the PSD line is closed (lost, or never opened).
+    pub fn psd_down(&self) -> bool {
+        self.psd.is_down()
+    }
+
+    /// The next output, if any.
+    pub fn poll(&mut self) -> Option<Output> {
+        self.out.pop_front()
+    }
+
+    /// When the core next needs a [`Core::tick`], whatever else happens.
+    pub fn next_deadline(&self) -> HostTime {
+        let mut next = self.next_heartbeat.min(self.psd.deadline());
+        let state = self.state();
+        if is_active(state) {
+            next = next.min(self.last_sample + self.rig.safety.sample_timeout);
+            let heard = self.board.last_heartbeat.map_or(self.armed_at, |h| h.max(self.armed_at));
+            next = next.min(heard + self.rig.safety.heartbeat_timeout);
+        }
+        if state == State::Running {
+            next = next.min(self.pose_deadline());
+        }
+        if let Some(since) = self.stopping_since {
+            next = next.min(since + STOP_GRACE);
+        }
+        if let Some(at) = self.keep_alive_due() {
+            next = next.min(at);
+        }
+        next
+    }
+
+    /// When an enabled but idle board (Armed, Stopping) needs a zero command to keep its
+    /// command timeout from firing: half its timeout after the last command. Cycles send
+    /// commands as they come; this covers a pipeline that delivers none yet (a long sensing
+    /// delay, the first pose still on its way).
+    fn keep_alive_due(&self) -> Option<HostTime> {
+        let idle_enabled = matches!(self.state(), State::Armed | State::Stopping(_));
+        let half = Duration::from_millis(u64::from(self.rig.board.command_timeout_ms)) / 2;
+        self.last_command.filter(|_| idle_enabled).map(|last| last + half)
+    }
+
+    /// The PSD line opened: configure the controller.
+    pub fn psd_connected(&mut self, now: HostTime) {
+        let out = &mut self.out;
+        self.psd.connect(now, &mut |p| out.push_back(Output::Psd(p)));
+    }
+
+    /// The PSD line failed (read error, end of file, write timeout): a serial fault.
+    pub fn psd_lost(&mut self, now: HostTime) {
+        self.psd.down();
+        self.stop(now, StopReason::SerialLost);
+    }
+
+    /// Bytes read from the PSD line at `now`.
+    pub fn psd_bytes(&mut self, now: HostTime, bytes: &[u8]) {
+        if self.psd.is_down() {
+            return;
+        }
+        self.psd.feed(bytes);
+        loop {
+            let started = self.clock.now_ns();
+            let item = self.psd.next_item();
+            self.decode_ns += self.clock.now_ns().saturating_sub(started);
+            match item {
+                None => break,
+                Some(Err(e)) => self.bad_frame(now, e),
+                Some(Ok(packet)) => self.packet(now, packet),
+            }
+        }
+    }
+
+    /// A CAN event at `now`.
+    pub fn can_event(&mut self, now: HostTime, event: CanEvent) {
+        match event {
+            CanEvent::Frame(f) => self.can_frame(now, &f),
+            CanEvent::Garbled => self.counters.can_undecodable += 1,
+            CanEvent::ErrorFrame { bus_off } => {
+                self.counters.can_error_frames += 1;
+                if bus_off {
+                    self.stop(now, StopReason::BusOff);
+                }
+            }
+        }
+    }
+
+    /// The CAN link failed (a write error or timeout, the interface gone).
+    pub fn can_failed(&mut self, now: HostTime) {
+        self.stop(now, StopReason::BusOff);
+    }
+
+    /// The operator arms (or re-arms after a stop or fault).
+    pub fn arm(&mut self, now: HostTime) {
+        let action = self.safety.arm(now.secs());
+        self.armed_at = now;
+        self.last_sample = now;
+        self.board.last_heartbeat = None;
+        self.act(now, action);
+    }
+
+    /// Stop in order and end the run once at rest.
+    pub fn shutdown(&mut self, now: HostTime) {
+        self.shutdown = true;
+        if !matches!(self.state(), State::Stopping(_)) {
+            self.stop(now, StopReason::Shutdown);
+        }
+    }
+
+    /// Time passed: heartbeats, retries, watchdogs, the end of an orderly stop.
+    pub fn tick(&mut self, now: HostTime) {
+        if now >= self.next_heartbeat {
+            let state = self.state().wire();
+            self.send(MotorMessage::GatewayHeartbeat { state });
+            self.next_heartbeat = now + HEARTBEAT_PERIOD;
+        }
+        let out = &mut self.out;
+        if let Some(e) = self.psd.tick(now, &mut |p| out.push_back(Output::Psd(p))) {
+            self.out.push_back(Output::SetupFailed(e));
+        }
+        if let Some(reason) = self.watchdog(now) {
+            self.stop(now, reason);
+        }
+        self.check_at_rest(now);
+        if self.keep_alive_due().is_some_and(|at| now >= at) {
+            self.last_command = Some(now);
+            self.send(MotorMessage::Velocity { node: self.rig.node, left: 0, right: 0, seq: self.velocity_seq });
+            self.velocity_seq = self.velocity_seq.wrapping_add(1);
+        }
+    }
+
+    fn pose_deadline(&self) -> HostTime {
+        let seen = self.tracker.pose_time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
+        seen + self.rig.safety.pose_timeout
+    }
+
+    /// The first watchdog that has expired, if any.
+    fn watchdog(&self, now: HostTime) -> Option<StopReason> {
+        let state = self.state();
+        if !is_active(state) {
+            return None;
+        }
+        let s = &self.rig.safety;
+        let heard = self.board.last_heartbeat.map_or(self.armed_at, |h| h.max(self.armed_at));
+        if now.since(self.last_sample) > s.sample_timeout {
+            Some(StopReason::SamplesStopped)
+        } else if state == State::Running && now > self.pose_deadline() {
+            Some(StopReason::PoseLost)
+        } else if now.since(heard) > s.heartbeat_timeout {
+            Some(StopReason::HeartbeatLost)
+        } else {
+            None
+        }
+    }
+
+    fn bad_frame(&mut self, now: HostTime, e: StreamError<flowgate_protocol::psd::Error>) {
+        self.counters.bad_serial_frames += 1;
+        if let StreamError::Overlong { dropped } = e {
+            self.counters.serial_dropped_bytes += dropped as u64;
+        }
+        tracing::debug!("bad serial frame: {e}");
+        while self.bad_frames.front().is_some_and(|&b| now.since(b) > BAD_FRAME_WINDOW) {
+            self.bad_frames.pop_front();
+        }
+        if self.bad_frames.len() == self.bad_frames.capacity() {
+            self.bad_frames.pop_front(); // never grows: the budget is already exceeded
+        }
+        self.bad_frames.push_back(now);
+        if self.bad_frames.len() > self.rig.safety.bad_frames_per_s as usize && is_active(self.state()) {
+            self.stop(now, StopReason::SerialGarbled);
+        }
+    }
+
+    fn packet(&mut self, now: HostTime, packet: Packet) {
+        let out = &mut self.out;
+        match self.psd.on_packet(now, &packet, &mut |p| out.push_back(Output::Psd(p))) {
+            SessionEvent::Consumed => return,
+            SessionEvent::Failed(e) => {
+                self.out.push_back(Output::SetupFailed(e));
+                return;
+            }
+            SessionEvent::Streaming => {
+                self.last_sample = now;
+                if self.streamed {
+                    self.counters.serial_reconnects += 1;
+                    self.progress.serial_reconnects = self.counters.serial_reconnects;
+                }
+                self.streamed = true;
+                self.out.push_back(Output::Streaming);
+                return;
+            }
+            SessionEvent::Pass => {}
+        }
+        match packet.message {
+            Message::Sample(s) => {
+                self.counters.samples += 1;
+                self.last_sample = now;
+                let at = CtrlTime(s.t_ctrl_us);
+                self.frame[usize::from(s.led)] = Some(RawSample { x: s.x, y: s.y, at, usable: s.flags.is_usable() });
+            }
+            Message::FrameEnd { frame, t_ctrl_us, .. } => self.cycle(now, frame, CtrlTime(t_ctrl_us)),
+            Message::Fault { code: FaultCode::Reset, .. } => {
+                // The controller rebooted (or announces its boot while we configure it): its
+                // schedule is gone. Configure it again; any motion was already stopped by
+                // the sample watchdog.
+                let out = &mut self.out;
+                if self.psd.restart(now, &mut |p| out.push_back(Output::Psd(p))) {
+                    tracing::warn!("PSD controller reset; reconfiguring");
+                }
+            }
+            _ => {} // heartbeats, other faults (the link checks come with the safety issue)
+        }
+    }
+
+    /// One time-division frame is complete: track, decide, command.
+    fn cycle(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
+        let track_start = self.clock.now_ns();
+        self.track_frame();
+        let t = now.secs();
+        let period = self.rig.sample_period.as_secs_f64();
+        let (robot_radius, wheel_base) = (self.rig.control.robot_radius, self.rig.control.drive.wheel_base);
+        let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
+        // The tracker's estimate borrows it: decide inside, act on the decision after.
+        let (pose, delay, clearance, step, track_ns, plan_start, ready) = {
+            let Some(tracked) =
+                self.tracker.estimate(t, period, wheel_base).filter(|tr| t - tr.pose_valid_at < pose_timeout)
+            else {
+                // No fresh pose: no command (the pose watchdog stops a running robot; the
+                // keep-alive feeds a board that waits for its first pose).
+                return;
+            };
+            let track_ns = self.clock.now_ns().saturating_sub(track_start);
+            let ready = self.safety.state() == State::Armed && self.board.state == Some(BoardState::Enabled);
+            if ready {
+                self.safety.ready(t);
+            }
+            let plan_start = self.clock.now_ns();
+            let step = self.safety.state().may_move().then(|| self.control.step(t, &tracked.estimate));
+            (tracked.estimate.pose, tracked.estimate.delay, tracked.clearance, step, track_ns, plan_start, ready)
+        };
+        if ready {
+            self.state_changed(now);
+        }
+        self.progress.clearance = clearance.map(|c| c - robot_radius);
+        let mut pulses = [0i32; 2];
+        let mut wheels = (0.0, 0.0);
+        if let Some(out) = step {
+            match out.status {
+                StepStatus::Driving => {
+                    pulses = out.pulses;
+                    wheels = (out.wheels.left, out.wheels.right);
+                }
+                StepStatus::AtGoal => self.stop(now, StopReason::GoalReached),
+                StepStatus::Stalled => self.stop(now, StopReason::Stalled),
+                StepStatus::Invalid(e) => {
+                    self.counters.planner_invalid += 1;
+                    tracing::error!("planner: {e}");
+                    self.stop(now, StopReason::PlannerInvalid);
+                }
+            }
+        }
+        let plan_ns = self.clock.now_ns().saturating_sub(plan_start);
+        // Commands go out in Running (motion), Armed and Stopping (zero, keeping the
+        // enabled board's command timeout fed).
+        if !matches!(self.state(), State::Running | State::Armed | State::Stopping(_)) {
+            return;
+        }
+        self.tracker.commanded(t, wheels.0, wheels.1);
+        let record = CycleRecord { track_ns, plan_ns, ..self.record(now, frame_no, end, pulses, delay, pose.position) };
+        self.command(now, pulses, record, pose.position);
+    }
+
+    /// A cycle's record, stage timings other than decode left at zero.
+    fn record(&mut self, now: HostTime, frame: u32, end: CtrlTime, pulses: [i32; 2], delay: f64, at: C) -> CycleRecord {
+        CycleRecord {
+            cycle: self.counters.cycles,
+            frame,
+            t_ctrl_us: end.0,
+            rx_ns: now.as_nanos(),
+            decode_ns: std::mem::take(&mut self.decode_ns),
+            period_ns: self.last_command.map_or(0, |lc| now.since(lc).as_nanos() as u64),
+            delay_s: delay,
+            state: self.state(),
+            pulses,
+            x: at.re,
+            y: at.im,
+            goal_distance: (self.rig.control.goal - at).norm(),
+            ..CycleRecord::default()
+        }
+    }
+
+    /// The frame's samples into the tracker, in floor coordinates on the host clock.
+    fn track_frame(&mut self) {
+        let clock = self.psd.clock();
+        let cal = &self.rig.calibration;
+        let floor = |s: RawSample| {
+            let p = cal.to_floor(f64::from(s.x), f64::from(s.y))?;
+            Some((p, clock.to_host(s.at).secs()))
+        };
+        let usable = |led: u8| self.frame[usize::from(led)].filter(|s| s.usable);
+        if let (Some(f), Some(r)) = (usable(self.rig.robot_front), usable(self.rig.robot_rear)) {
+            if let (Some((fp, _)), Some((rp, _))) = (floor(f), floor(r)) {
+                let at = clock.to_host(f.at.midpoint(r.at)).secs();
+                self.tracker.observe_robot(at, fp, rp);
+            }
+        }
+        for (k, o) in self.rig.obstacles.iter().enumerate() {
+            if let Some((p, at)) = usable(o.led).and_then(floor) {
+                self.tracker.observe_obstacle(k, at, p);
+            }
+        }
+        for slot in self.rig.schedule.slots() {
+            self.frame[usize::from(slot.led)] = None;
+        }
+    }
+
+    fn command(&mut self, now: HostTime, pulses: [i32; 2], record: CycleRecord, position: C) {
+        let message =
+            MotorMessage::Velocity { node: self.rig.node, left: pulses[0], right: pulses[1], seq: self.velocity_seq };
+        self.velocity_seq = self.velocity_seq.wrapping_add(1);
+        let Ok(frame) = message.to_frame() else {
+            // Pulse rates come from the drive model clamped to the wheel limit, which the
+            // config keeps in range; a frame that cannot be built is a planner fault.
+            self.stop(now, StopReason::PlannerInvalid);
+            return;
+        };
+        self.last_command = Some(now);
+        self.counters.cycles += 1;
+        self.progress.t = now.secs();
+        self.progress.cycles = self.counters.cycles;
+        self.progress.goal_distance = (self.rig.control.goal - position).norm();
+        self.out.push_back(Output::Command { frame, record });
+    }
+
+    fn can_frame(&mut self, now: HostTime, frame: &CanFrame) {
+        self.counters.can_frames_in += 1;
+        match MotorMessage::parse(frame) {
+            Ok(m) if m.node() == Some(self.rig.node) => match m {
+                MotorMessage::Heartbeat { state, .. } => {
+                    self.board.last_heartbeat = Some(now);
+                    self.board.state = Some(state);
+                }
+                MotorMessage::Status { state, faults, .. } => {
+                    self.board.state = Some(state);
+                    self.board.faults = faults;
+                    if faults.contains(FaultBits::BUS) && is_active(self.state()) {
+                        self.stop(now, StopReason::BusOff);
+                    } else if self.state() == State::Running && matches!(state, BoardState::Fault | BoardState::EStop) {
+                        self.stop(now, StopReason::BoardFault);
+                    }
+                }
+                MotorMessage::AxisRates { left, right, .. } => {
+                    self.board.rates = [left, right];
+                    self.check_at_rest(now);
+                }
+                _ => {}
+            },
+            Ok(MotorMessage::GatewayHeartbeat { .. }) => {}
+            Ok(m) if m.node().is_some() => self.counters.can_foreign += 1,
+            Ok(_) => {}
+            Err(_) => self.counters.can_undecodable += 1,
+        }
+    }
+
+    fn check_at_rest(&mut self, now: HostTime) {
+        if let (State::Stopping(_), Some(since)) = (self.state(), self.stopping_since) {
+            if self.board.rates == [0, 0] || now.since(since) > STOP_GRACE {
+                self.safety.at_rest(now.secs());
+                self.stopping_since = None;
+                self.send(MotorMessage::Nmt { target: Target::Node(self.rig.node), command: NmtCommand::Disable });
+                self.state_changed(now);
+            }
+        }
+    }
+
+    fn stop(&mut self, now: HostTime, reason: StopReason) {
+        let action = self.safety.stop(now.secs(), reason);
+        self.act(now, action);
+    }
+
+    /// Carry out what a transition asks of the motor side.
+    fn act(&mut self, now: HostTime, action: Action) {
+        let node = self.rig.node;
+        match action {
+            Action::None => {}
+            Action::EnableBoard => {
+                let b = self.rig.board;
+                self.send(MotorMessage::Nmt { target: Target::Node(node), command: NmtCommand::FaultReset });
+                self.send(MotorMessage::Config {
+                    node,
+                    accel: b.accel,
+                    max_rate: b.max_rate,
+                    timeout_ms: b.command_timeout_ms,
+                });
+                self.send(MotorMessage::Nmt { target: Target::Node(node), command: NmtCommand::Enable });
+                self.last_command = Some(now);
+            }
+            Action::OrderlyStop => self.stopping_since = Some(now),
+            Action::EmergencyStop => {
+                self.send(MotorMessage::EStop { target: Target::Node(node), reason: EStopReason::GatewayFault });
+                self.stopping_since = None;
+                self.tracker.forget_pose();
+                tracing::warn!("emergency stop: {}", self.state());
+            }
+        }
+        self.state_changed(now);
+    }
+
+    fn state_changed(&mut self, now: HostTime) {
+        let state = self.state();
+        if self.progress.state != state {
+            self.progress.state = state;
+            self.out.push_back(Output::State { at: now, state });
+        }
+    }
+
+    fn send(&mut self, message: MotorMessage) {
+        // The gateway's own messages are built from validated settings and are in range.
+        if let Ok(frame) = message.to_frame() {
+            self.out.push_back(Output::Can(frame));
+        }
+    }
+}
+
+/// States in which the watchdogs are armed.
+fn is_active(state: State) -> bool {
+    matches!(state, State::Armed | State::Running | State::Stopping(_))
+}

@@ -1,0 +1,226 @@
+//! The PSD controller's serial session, without I/O: the byte stream decoded into packets,
+//! and the configuration handshake (Info, schedule, time sync, start) as a state machine
+//! with its retry deadline. The core feeds it bytes and time; it hands back packets to
+//! send and the packets that are not part of the handshake.
+
+use std::time::Duration;
+
+use bytes::BytesMut;
+use flowgate_protocol::codec::{PsdCodec, StreamError};
+use flowgate_protocol::psd::{self, Info, Message, NackReason, Packet, Schedule};
+use tokio_util::codec::Decoder as _;
+
+use crate::time::{ClockOffset, CtrlTime, HostTime};
+
+/// How long a request waits for its answer before it is sent again.
+pub const RETRY_AFTER: Duration = Duration::from_millis(350);
+/// How many times a request is sent before the controller counts as silent.
+pub const TRIES: u8 = 3;
+/// Bytes held for decoding: a few frames (the shell reads at most 1 KiB at a time).
+const BUFFER: usize = 4096;
+
+/// Why the controller could not be configured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum SetupError {
+    #[error("PSD controller did not answer {request} ({TRIES} tries, {} ms apart): powered? right port and baud?", RETRY_AFTER.as_millis())]
+    Silent { request: &'static str },
+    #[error("PSD controller refused {request}: {reason:?}")]
+    Refused { request: &'static str, reason: NackReason },
+}
+
+/// The handshake's steps, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    Info,
+    Schedule,
+    TimeSync,
+    Start,
+}
+
+impl Step {
+    fn name(self) -> &'static str {
+        match self {
+            Step::Info => "GetInfo",
+            Step::Schedule => "SetSchedule",
+            Step::TimeSync => "TimeSync",
+            Step::Start => "StartStream",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// No line.
+    Down,
+    /// Waiting for the answer to `step`'s request, sent as `seq` at `sent`.
+    Setup {
+        step: Step,
+        seq: u16,
+        sent: HostTime,
+        tries: u8,
+    },
+    Streaming,
+}
+
+/// What a packet meant to the session.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SessionEvent {
+    /// Part of the handshake; nothing for the core.
+    Consumed,
+    /// The handshake finished: samples will flow.
+    Streaming,
+    /// The handshake failed.
+    Failed(SetupError),
+    /// Not the session's: the core handles it (samples, frame ends, heartbeats, faults).
+    Pass,
+}
+
+/// The session.
+#[derive(Debug)]
+pub struct PsdSession {
+    schedule: Schedule,
+    codec: PsdCodec,
+    buf: BytesMut,
+    seq: u16,
+    phase: Phase,
+    offset: ClockOffset,
+    info: Option<Info>,
+}
+
+impl PsdSession {
+    pub fn new(schedule: Schedule) -> Self {
+        Self {
+            schedule,
+            codec: PsdCodec::new(),
+            buf: BytesMut::with_capacity(BUFFER),
+            seq: 0,
+            phase: Phase::Down,
+            offset: ClockOffset::default(),
+            info: None,
+        }
+    }
+
+    /// The line is open: stop any stream left running and start the handshake.
+    pub fn connect(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
+        self.buf.clear();
+        self.codec = PsdCodec::new();
+        send(self.packet(Message::StopStream));
+        self.request(now, Step::Info, 1, send);
+    }
+
+    /// The controller rebooted (it announced a reset): its schedule is gone, configure it
+    /// again from the schedule on.
+    /// Returns whether it had been streaming (a reset in the middle of a run).
+    pub fn restart(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) -> bool {
+        let was_streaming = self.phase == Phase::Streaming;
+        if self.phase != Phase::Down {
+            self.request(now, Step::Schedule, 1, send);
+        }
+        was_streaming
+    }
+
+    /// The line is gone.
+    pub fn down(&mut self) {
+        self.phase = Phase::Down;
+        self.buf.clear();
+    }
+
+    pub fn is_streaming(&self) -> bool {
+        self.phase == Phase::Streaming
+    }
+    pub fn is_down(&self) -> bool {
+        self.phase == Phase::Down
+    }
+    pub fn info(&self) -> Option<Info> {
+        self.info
+    }
+    /// Controller stamps to host time, from the last time sync.
+    pub fn clock(&self) -> ClockOffset {
+        self.offset
+    }
+
+    /// Bytes read from the line.
+    pub fn feed(&mut self, bytes: &[u8]) {
+        self.buf.extend_from_slice(bytes);
+    }
+
+    /// The next decoded item, `None` when more bytes are needed.
+    pub fn next_item(&mut self) -> Option<Result<Packet, StreamError<psd::Error>>> {
+        // The codec's io::Error is for I/O only, which a byte buffer never has.
+        self.codec.decode(&mut self.buf).ok().flatten()
+    }
+
+    /// When the pending request is due again.
+    pub fn deadline(&self) -> HostTime {
+        match self.phase {
+            Phase::Setup { sent, .. } => sent + RETRY_AFTER,
+            _ => HostTime::NEVER,
+        }
+    }
+
+    /// Retry or give up on a request that went unanswered.
+    pub fn tick(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) -> Option<SetupError> {
+        let Phase::Setup { step, tries, .. } = self.phase else { return None };
+        if now < self.deadline() {
+            return None;
+        }
+        if tries >= TRIES {
+            self.phase = Phase::Down;
+            return Some(SetupError::Silent { request: step.name() });
+        }
+        self.request(now, step, tries + 1, send);
+        None
+    }
+
+    /// A packet from the controller.
+    pub fn on_packet(&mut self, now: HostTime, packet: &Packet, send: &mut impl FnMut(Packet)) -> SessionEvent {
+        let Phase::Setup { step, seq, sent, .. } = self.phase else { return SessionEvent::Pass };
+        let next = match (step, packet.message) {
+            (Step::Info, Message::Info(info)) => {
+                self.info = Some(info);
+                Step::Schedule
+            }
+            (Step::Schedule, Message::Ack { seq: s, .. }) if s == seq => Step::TimeSync,
+            (Step::TimeSync, Message::TimeSyncReply { host_time_us, t_ctrl_us })
+                if host_time_us == sent.as_nanos() / 1000 =>
+            {
+                self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+                Step::Start
+            }
+            (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {
+                self.phase = Phase::Streaming;
+                return SessionEvent::Streaming;
+            }
+            (_, Message::Nack { seq: s, reason, .. }) if s == seq => {
+                self.phase = Phase::Down;
+                return SessionEvent::Failed(SetupError::Refused { request: step.name(), reason });
+            }
+            (_, Message::Sample(_) | Message::FrameEnd { .. } | Message::Heartbeat { .. } | Message::Fault { .. }) => {
+                return SessionEvent::Pass
+            }
+            _ => return SessionEvent::Consumed, // late or foreign answers
+        };
+        self.request(now, next, 1, send);
+        SessionEvent::Consumed
+    }
+
+    fn request(&mut self, now: HostTime, step: Step, tries: u8, send: &mut impl FnMut(Packet)) {
+        let message = match step {
+            Step::Info => Message::GetInfo,
+            Step::Schedule => Message::SetSchedule(self.schedule),
+            Step::TimeSync => Message::TimeSync { host_time_us: now.as_nanos() / 1000 },
+            Step::Start => Message::StartStream,
+        };
+        // The reply echoes whole microseconds: keep `sent` on that grid so it matches.
+        let sent = HostTime::from_nanos(now.as_nanos() / 1000 * 1000);
+        let packet = self.packet(message);
+        self.phase = Phase::Setup { step, seq: packet.seq, sent, tries };
+        send(packet);
+    }
+
+    fn packet(&mut self, message: Message) -> Packet {
+        let p = Packet::new(self.seq, message);
+        self.seq = self.seq.wrapping_add(1);
+        p
+    }
+}

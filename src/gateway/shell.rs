@@ -1,0 +1,289 @@
+//! The tokio shell around the [`Core`] on a rig: it opens the links, reads the PSD serial
+//! line and the CAN bus, writes what the core asks (every write under a deadline), sleeps
+//! until the core's next deadline, and reopens a lost serial line. All decisions are the
+//! core's; the shell only moves bytes and reads the clock.
+
+use std::time::Duration;
+
+use flowgate_protocol::psd::{self, Packet};
+use flowgate_protocol::CanFrame;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{mpsc, watch};
+use tokio::time::{timeout, Instant};
+
+use super::core::{Core, Output, StageClock};
+use super::telemetry::{self, CanRecord, Record, Recorder, Timing};
+use super::{GatewayError, Progress, Report};
+use crate::config::Rig;
+use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl};
+use crate::time::HostTime;
+
+/// Deadline of one write to the PSD line (a few frames at 921600 baud take well under 1 ms).
+const PSD_WRITE_DEADLINE: Duration = Duration::from_millis(50);
+/// Deadline of one CAN frame's write (SocketCAN queue or one SLCAN line).
+const CAN_WRITE_DEADLINE: Duration = Duration::from_millis(20);
+/// Deadline of opening the CAN link (an SLCAN adapter answers three commands).
+const CAN_OPEN_DEADLINE: Duration = Duration::from_secs(5);
+/// How often a lost serial line is tried again.
+const REOPEN_EVERY: Duration = Duration::from_millis(200);
+/// How long the CAN side rests after a receive error before it is read again.
+const CAN_ERROR_BACKOFF: Duration = Duration::from_millis(50);
+
+/// What the loop is told from outside.
+#[derive(Debug)]
+pub struct Controls {
+    /// Becomes `true` to stop (orderly) and end the run.
+    pub shutdown: watch::Receiver<bool>,
+    /// The operator re-arms after a stop or fault.
+    pub arm: mpsc::Receiver<()>,
+}
+
+/// The host's monotonic clock, for the stage timings.
+#[derive(Debug, Clone, Copy)]
+struct Monotonic(std::time::Instant);
+
+impl StageClock for Monotonic {
+    fn now_ns(&mut self) -> u64 {
+        self.0.elapsed().as_nanos() as u64
+    }
+}
+
+/// The shell's I/O: the links, the telemetry queue, the timing summary.
+struct Io {
+    origin: Instant,
+    port: String,
+    psd: Option<tokio_serial::SerialStream>,
+    can: CanLink,
+    recorder: Recorder,
+    timing: Timing,
+    progress: Option<watch::Sender<Progress>>,
+    sample_period: Duration,
+    next_reopen: HostTime,
+    can_resume: HostTime,
+    armed: bool,
+}
+
+impl Io {
+    fn now(&self) -> HostTime {
+        HostTime::from_nanos(self.origin.elapsed().as_nanos() as u64)
+    }
+
+    fn instant(&self, t: HostTime) -> Instant {
+        // A deadline that never comes still needs an instant: an hour ahead will do.
+        let far = self.origin.elapsed() + Duration::from_secs(3600);
+        self.origin + Duration::from_nanos(t.as_nanos()).min(far)
+    }
+
+    fn lose_psd<K: StageClock>(&mut self, core: &mut Core<K>) {
+        self.psd = None;
+        let now = self.now();
+        self.next_reopen = now + REOPEN_EVERY;
+        core.psd_lost(now);
+    }
+
+    /// Carry out everything the core has asked for. A startup failure ends the run.
+    async fn drain<K: StageClock>(&mut self, core: &mut Core<K>) -> Result<(), GatewayError> {
+        while let Some(output) = core.poll() {
+            match output {
+                Output::Psd(packet) => {
+                    if self.write_psd(packet).await.is_err() {
+                        tracing::error!("serial write failed or timed out; reconnecting");
+                        self.lose_psd(core);
+                    }
+                }
+                Output::Can(frame) => {
+                    if self.send_can(frame).await.is_err() {
+                        core.can_failed(self.now());
+                    }
+                }
+                Output::Command { frame, mut record } => {
+                    let started = Instant::now();
+                    let sent = self.send_can(frame).await;
+                    record.written(started.elapsed().as_nanos() as u64, self.now(), self.sample_period);
+                    self.timing.add(&record);
+                    self.recorder.record(Record::Cycle(record));
+                    if let Some(tx) = &self.progress {
+                        // Sampled by displays at their own pace: no wake-up per cycle.
+                        tx.send_if_modified(|p| {
+                            *p = core.progress();
+                            p.e2e_us = record.e2e_ns as f64 / 1e3;
+                            false
+                        });
+                    }
+                    if sent.is_err() {
+                        core.can_failed(self.now());
+                    }
+                }
+                Output::State { state, .. } => {
+                    tracing::info!("state: {state}");
+                    if let Some(tx) = &self.progress {
+                        let p = core.progress();
+                        tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
+                    }
+                }
+                Output::Streaming => {
+                    if let Some(tx) = &self.progress {
+                        let reconnects = core.counters().serial_reconnects;
+                        tx.send_if_modified(|p| std::mem::replace(&mut p.serial_reconnects, reconnects) != reconnects);
+                    }
+                    // Starting the run is the operator's arm; after that, only the operator re-arms.
+                    if !self.armed {
+                        self.armed = true;
+                        core.arm(self.now());
+                    }
+                }
+                Output::SetupFailed(source) if !core.has_streamed() => {
+                    return Err(GatewayError::Setup { port: self.port.clone(), source });
+                }
+                Output::SetupFailed(e) => {
+                    tracing::warn!("serial reconnect: {e}");
+                    self.lose_psd(core);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    async fn write_psd(&mut self, packet: Packet) -> std::io::Result<()> {
+        let Some(port) = &mut self.psd else { return Ok(()) };
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        let n = packet.encode(&mut wire).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        timeout(PSD_WRITE_DEADLINE, port.write_all(&wire[..n])).await.map_err(|_| std::io::ErrorKind::TimedOut)?
+    }
+
+    async fn send_can(&mut self, frame: CanFrame) -> Result<(), CanError> {
+        let result = match timeout(CAN_WRITE_DEADLINE, self.can.send(frame)).await {
+            Ok(r) => r,
+            Err(_) => Err(CanError::Timeout { what: "write" }),
+        };
+        self.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: true }));
+        if let Err(e) = &result {
+            tracing::error!("CAN write: {e}");
+        }
+        result
+    }
+
+    fn reopen<K: StageClock>(&mut self, core: &mut Core<K>, path: &std::path::Path, baud: u32) {
+        let now = self.now();
+        self.next_reopen = now + REOPEN_EVERY;
+        if let Ok(port) = open_serial(path, baud) {
+            self.psd = Some(port);
+            self.next_reopen = HostTime::NEVER;
+            core.psd_connected(now);
+        }
+    }
+}
+
+fn unix_now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Run the gateway until shutdown. Startup failures are returned; everything after is
+/// handled by the core's safety state machine and reported.
+pub async fn run(
+    rig: Rig,
+    mut controls: Controls,
+    progress: Option<watch::Sender<Progress>>,
+) -> Result<Report, GatewayError> {
+    let origin = Instant::now();
+    let can = match timeout(CAN_OPEN_DEADLINE, open_can(&rig.can)).await {
+        Ok(link) => link?,
+        Err(_) => return Err(CanError::Timeout { what: "open" }.into()),
+    };
+    let psd = open_serial(&rig.serial.port, rig.serial.baud)?;
+    let (recorder, writer) = match &rig.telemetry.out_dir {
+        Some(dir) => {
+            let interface = match &rig.can {
+                CanUrl::SocketCan { interface } => interface.clone(),
+                _ => "slcan0".to_string(),
+            };
+            let (r, w) = telemetry::start_writer(dir, rig.telemetry.queue, interface)
+                .map_err(|source| GatewayError::Telemetry { path: dir.display().to_string(), source })?;
+            (r, Some(w))
+        }
+        None => (Recorder::disabled(), None),
+    };
+    let (path, baud) = (rig.serial.port.clone(), rig.serial.baud);
+    let mut io = Io {
+        origin,
+        port: path.display().to_string(),
+        psd: Some(psd),
+        can,
+        recorder,
+        timing: Timing::default(),
+        progress,
+        sample_period: rig.sample_period,
+        next_reopen: HostTime::NEVER,
+        can_resume: HostTime::ZERO,
+        armed: false,
+    };
+    let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
+    core.psd_connected(io.now());
+    let mut read_buf = [0u8; 1024];
+    let mut shutdown_seen = *controls.shutdown.borrow();
+    if shutdown_seen {
+        core.shutdown(io.now());
+    }
+    loop {
+        io.drain(&mut core).await?;
+        if core.finished() {
+            break;
+        }
+        let can_ready = io.now() >= io.can_resume;
+        let wake = io.instant(core.next_deadline().min(io.next_reopen).min(if can_ready {
+            HostTime::NEVER
+        } else {
+            io.can_resume
+        }));
+        tokio::select! {
+            read = async {
+                match io.psd.as_mut() {
+                    Some(port) => port.read(&mut read_buf).await,
+                    None => std::future::pending().await,
+                }
+            } => match read {
+                Ok(n) if n > 0 => core.psd_bytes(io.now(), &read_buf[..n]),
+                _ => {
+                    tracing::error!("serial line lost; reconnecting");
+                    io.lose_psd(&mut core);
+                }
+            },
+            event = io.can.recv(), if can_ready => match event {
+                Ok(event) => {
+                    if let CanEvent::Frame(frame) = event {
+                        io.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: false }));
+                    }
+                    core.can_event(io.now(), event);
+                }
+                Err(e) => {
+                    tracing::error!("CAN: {e}");
+                    io.can_resume = io.now() + CAN_ERROR_BACKOFF;
+                    core.can_failed(io.now());
+                }
+            },
+            _ = tokio::time::sleep_until(wake) => {
+                let now = io.now();
+                if io.psd.is_none() && now >= io.next_reopen {
+                    io.reopen(&mut core, &path, baud);
+                }
+                core.tick(now);
+            }
+            Some(()) = controls.arm.recv() => core.arm(io.now()),
+            changed = controls.shutdown.changed(), if !shutdown_seen => {
+                // A dropped sender is a shutdown too: nobody is left to ask for one.
+                if changed.is_err() || *controls.shutdown.borrow() {
+                    shutdown_seen = true;
+                    core.shutdown(io.now());
+                }
+            }
+        }
+    }
+    let dropped = io.recorder.dropped();
+    let timing = std::mem::take(&mut io.timing);
+    drop(io);
+    let files = match writer {
+        Some(w) => w.await.ok().and_then(Result::ok).unwrap_or_default(),
+        None => telemetry::WrittenFiles::default(),
+    };
+    Ok(Report::new(&core, Some(&timing), dropped, files))
+}

@@ -1,0 +1,98 @@
+//! The demo harness: the simulator and the gateway together, in one process, over real
+//! ptys (SLCAN on a pty by default, or SocketCAN where vcan exists). `flowgate demo` and
+//! the full-stack tests use it; runs are judged by the simulator's world truth.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use flowgate_sim::rig::{self, CanEndpoint, RigConfig};
+use flowgate_sim::truth::TruthRecord;
+use tokio::sync::{mpsc, watch};
+
+use super::Scenario;
+use crate::config::ConfigError;
+use crate::gateway::{self, Controls, GatewayError, Progress, Report};
+
+/// The scenario the demo runs by default (E2, the lane head-on).
+pub const DEFAULT_SCENARIO: &str = include_str!("../../scenarios/e2-lane-head-on.toml");
+
+/// How long the simulator keeps running after the gateway stopped.
+const LINGER: Duration = Duration::from_millis(800);
+
+/// How a demo run went.
+#[derive(Debug)]
+pub struct DemoRun {
+    pub report: Report,
+    pub truth: TruthRecord,
+    /// Whether the robot ended within the goal tolerance (+1 cm for the stop ramp).
+    pub reached_goal: bool,
+    pub contact: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error("simulator: {0}")]
+    Rig(#[from] rig::RigError),
+    #[error("gateway: {0}")]
+    Gateway(#[from] GatewayError),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("--can: {0}")]
+    Endpoint(String),
+    #[error("gateway task: {0}")]
+    Join(#[from] tokio::task::JoinError),
+}
+
+/// Run `scenario` with the simulator and the gateway until the gateway stops (goal, fault)
+/// or the scenario's time limit. `on_progress` is called about twice a second.
+pub async fn run(
+    scenario: &Scenario,
+    can: &str,
+    out_dir: Option<PathBuf>,
+    mut on_progress: impl FnMut(&Progress),
+) -> Result<DemoRun, DemoError> {
+    let mut rig_cfg = RigConfig::new(scenario.sim.clone());
+    let can_url = match can.parse::<CanEndpoint>().map_err(DemoError::Endpoint)? {
+        CanEndpoint::SocketCan { interface } => {
+            rig_cfg.can = CanEndpoint::SocketCan { interface: interface.clone() };
+            format!("socketcan:{interface}")
+        }
+        CanEndpoint::SlcanPty { .. } => String::new(),
+    };
+    let handle = rig::start(rig_cfg).await?;
+    let can_url = if can_url.is_empty() {
+        format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().expect("slcan pty").display())
+    } else {
+        can_url
+    };
+    let rig = scenario.gateway_config(&handle.psd_path, &can_url, out_dir).rig("the demo's rig")?;
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (_arm_tx, arm_rx) = mpsc::channel(1);
+    let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
+    let gw = tokio::spawn(gateway::run(rig, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
+    let limit = tokio::time::Instant::now() + Duration::from_secs_f64(scenario.time_limit);
+    let mut ticker = tokio::time::interval(Duration::from_millis(500));
+    loop {
+        tokio::select! {
+            _ = ticker.tick() => on_progress(&progress_rx.borrow()),
+            changed = progress_rx.changed() => {
+                let state = progress_rx.borrow().state;
+                if changed.is_err() || state.is_terminal() {
+                    break;
+                }
+            }
+            _ = tokio::time::sleep_until(limit) => break,
+        }
+    }
+    // Keep the world running a moment, so its truth shows the robot at rest after a stop.
+    tokio::time::sleep(LINGER).await;
+    on_progress(&progress_rx.borrow());
+    let _ = stop_tx.send(true);
+    let report = gw.await??;
+    let truth = handle.stop().await;
+    let end = truth.summary.final_position;
+    let goal = scenario.goal.position;
+    let reached_goal = (end[0] - goal[0]).hypot(end[1] - goal[1]) <= scenario.goal.tolerance + 0.01;
+    let contact = truth.summary.first_contact.is_some();
+    Ok(DemoRun { report, truth, reached_goal, contact })
+}

@@ -1,0 +1,21 @@
+//! The lab tools (cargo feature `lab`, on by default): everything that needs the simulator.
+//! The deployed gateway is built without them (`--no-default-features`) and so never
+//! contains the simulator.
+//!
+//! - [`scenario`]: scenario files as the gateway sees them, and the rig config a scenario
+//!   implies (the same [`crate::config::GatewayConfig`] and rules a rig uses);
+//! - [`sim`]: the whole stack in deterministic virtual time: the real gateway core wired to
+//!   the simulator's firmware and world through the real encoders and decoders;
+//! - [`offline`]: the planner-only runner (control step against the world, with a modelled
+//!   sensing chain), and sweeps over either mode;
+//! - [`demo`]: the simulator and the gateway in real time over real ptys;
+//! - [`report`]: plots; [`bench`]: the gateway benchmark over ptys and SocketCAN.
+
+pub mod bench;
+pub mod demo;
+pub mod offline;
+pub mod report;
+pub mod scenario;
+pub mod sim;
+
+pub use scenario::Scenario;

@@ -1,0 +1,180 @@
+//! Scenario files as the lab tools run them: the simulator's part (world, sensing, faults,
+//! checked by the simulator) and the gateway's `[planner]` settings, parsed and checked by
+//! the same type and rules as a rig config. A scenario also implies a rig config (the
+//! simulator's camera and LEDs, the scenario's robot, goal and planner), built here once
+//! and checked by [`GatewayConfig::validate`] like any rig's.
+
+use std::ops::{Deref, DerefMut};
+use std::path::{Path, PathBuf};
+
+use flowgate_sim::calibration::CameraModel;
+use flowgate_sim::psd_controller::LedMap;
+use serde::Deserialize;
+
+use crate::config::*;
+
+/// A scenario: the simulator's part and the gateway's planner settings.
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    pub sim: flowgate_sim::scenario::Scenario,
+    pub planner: PlannerSettings,
+}
+
+/// A scenario reads like the simulator's (`s.robot`, `s.obstacles`, `s.sensing`, ...), with
+/// the planner settings typed.
+impl Deref for Scenario {
+    type Target = flowgate_sim::scenario::Scenario;
+    fn deref(&self) -> &Self::Target {
+        &self.sim
+    }
+}
+
+impl DerefMut for Scenario {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        &mut self.sim
+    }
+}
+
+/// A scenario that could not be loaded, naming the file and the key.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    #[error(transparent)]
+    Sim(#[from] flowgate_sim::scenario::ScenarioError),
+    #[error("scenario {path}: [planner]: {source}")]
+    Planner { path: String, source: Box<toml::de::Error> },
+    #[error("scenario {path}: {invalid}")]
+    Invalid { path: String, invalid: Invalid },
+}
+
+/// The board's command timeout in the simulated rig: ten cycles of 20 ms, so a shared test
+/// machine can stall a cycle or two without the board stopping the robot.
+const SIM_COMMAND_TIMEOUT_MS: u16 = 200;
+
+impl Scenario {
+    /// Read, parse and check a scenario file.
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let sim = flowgate_sim::scenario::Scenario::load(path)?;
+        Self::new(sim, &path.display().to_string())
+    }
+
+    /// Parse and check scenario text; `origin` names it in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self, ScenarioError> {
+        Self::new(flowgate_sim::scenario::Scenario::from_toml(text, origin)?, origin)
+    }
+
+    /// The gateway's part of a parsed simulator scenario, checked.
+    pub fn new(sim: flowgate_sim::scenario::Scenario, origin: &str) -> Result<Self, ScenarioError> {
+        let planner = PlannerSettings::deserialize(toml::Value::Table(sim.planner.clone()))
+            .map_err(|e| ScenarioError::Planner { path: origin.into(), source: Box::new(e) })?;
+        let s = Self { sim, planner };
+        let frame_us = s.frame_us().map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        s.config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us)
+            .validate()
+            .map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        Ok(s)
+    }
+
+    /// The control period as whole microseconds (the PSD schedule's unit).
+    fn frame_us(&self) -> Result<u32, Invalid> {
+        let us = self.sensing.sample_time * 1e6;
+        let whole = us.round();
+        if (us - whole).abs() > 1e-6 || !(1.0..=f64::from(u32::MAX)).contains(&whole) {
+            return Err(Invalid {
+                key: "sensing.sample_time".into(),
+                why: format!("must be a whole number of microseconds, is {} s", self.sensing.sample_time),
+            });
+        }
+        Ok(whole as u32)
+    }
+
+    /// The rig config of this scenario's simulated rig, with the PSD controller at `psd`
+    /// and the CAN bus at `can`.
+    pub fn gateway_config(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>) -> GatewayConfig {
+        let frame_us = self.frame_us().expect("checked when loaded");
+        self.config_with(psd, can, out_dir, frame_us)
+    }
+
+    /// The typed rig of this scenario (endpoints unused: for the virtual-time tools).
+    pub fn rig(&self) -> Rig {
+        self.gateway_config(Path::new("/dev/null"), "slcan:/dev/null", None).validate().expect("checked when loaded")
+    }
+
+    fn config_with(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>, frame_us: u32) -> GatewayConfig {
+        let leds = LedMap::standard(self.robot.radius);
+        let cam = CameraModel::default();
+        let r = &self.robot;
+        let timeout_ms = (3 * frame_us / 1000 + 1).max(u32::from(SIM_COMMAND_TIMEOUT_MS));
+        let delay_ms = (self.sensing.delay * 1e3).ceil().clamp(0.0, 60_000.0) as u32;
+        GatewayConfig {
+            serial: SerialConfig { port: psd.to_path_buf(), baud: 921_600 },
+            leds: LedConfig {
+                robot_front: leds.robot_front,
+                robot_rear: leds.robot_rear,
+                front_offset: leds.robot_led_offset,
+                rear_offset: leds.robot_led_offset,
+                obstacles: self
+                    .obstacles
+                    .iter()
+                    .enumerate()
+                    .map(|(k, o)| ObstacleLed {
+                        led: leds.first_obstacle.saturating_add(u8::try_from(k).unwrap_or(u8::MAX)),
+                        radius: o.radius,
+                    })
+                    .collect(),
+            },
+            schedule: ScheduleConfig { slot_us: None, frame_us: Some(frame_us), dark_slot_us: 0, averaging: 1 },
+            calibration: CalibrationConfig {
+                homography: Some(cam.homography),
+                points: Vec::new(),
+                k1: cam.k1,
+                counts: cam.counts,
+            },
+            can: CanConfig { endpoint: can.to_string(), node: 1 },
+            drive: DriveSection {
+                wheel_radius: r.wheel_radius,
+                steps_per_rev: r.steps_per_rev,
+                microsteps: r.microsteps,
+                wheel_base: r.wheel_base,
+                max_wheel_speed: r.max_wheel_speed,
+                wheel_accel: r.wheel_accel,
+                command_timeout_ms: u16::try_from(timeout_ms).unwrap_or(u16::MAX),
+            },
+            robot: RobotSection { radius: r.radius, max_speed: r.max_speed },
+            goal: GoalSection { position: self.goal.position, tolerance: self.goal.tolerance },
+            planner: self.planner,
+            lane: self.lane.map(|l| LaneSection { half_width: l.half_width }),
+            // A rig with a known sensing delay accepts poses that old (and no older), and its
+            // first samples come that much later.
+            safety: SafetyConfig {
+                pose_timeout_ms: SafetyConfig::default().pose_timeout_ms + delay_ms,
+                sample_timeout_ms: SafetyConfig::default().sample_timeout_ms + delay_ms,
+                ..SafetyConfig::default()
+            },
+            telemetry: TelemetryConfig { out_dir, ..TelemetryConfig::default() },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const E2: &str = include_str!("../../scenarios/e2-lane-head-on.toml");
+
+    #[test]
+    fn planner_settings_share_the_rig_rules() {
+        let s = Scenario::from_toml(E2, "e2").unwrap();
+        assert_eq!(s.rig().sample_period, std::time::Duration::from_millis(20), "exact, not 19.998 ms");
+        for (from, to, key) in [
+            ("kc = ", "kc = -", "planner.kc"),
+            ("rule = \"none\"", "rule = \"delay\", extra_speed = nan", "planner.margin.extra_speed"),
+            ("sample_time = 0.02", "sample_time = 0.0200005", "sensing.sample_time"),
+        ] {
+            assert!(E2.contains(from), "{from}");
+            let err = Scenario::from_toml(&E2.replacen(from, to, 1), "e2").unwrap_err().to_string();
+            assert!(err.contains(&format!("`{key}`")), "{to}: {err}");
+        }
+        let err = Scenario::from_toml(&E2.replace("[planner]", "[planner]\nbogus = 1"), "e2").unwrap_err();
+        assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
+    }
+}

@@ -1,0 +1,639 @@
+//! The whole stack in deterministic virtual time, on one thread.
+//!
+//! The real gateway [`Core`] is wired to the simulator's firmware (the PSD controller, an
+//! SLCAN USB-CAN adapter and the motor board on its bus) and its world, through the real
+//! encoders and decoders: COBS + CRC frames on the serial line, SLCAN lines to the adapter,
+//! CAN frames on the bus. Each direction of each line is a [`Wire`] that delivers its bytes
+//! in order after their transmission time (10 bits a byte). Time jumps from one event to the
+//! next: the core's deadline, a firmware event, a delivery, a fault. Every random choice is
+//! seeded by the scenario, so one seed gives one run, byte for byte (`cycles.csv` and
+//! `can.log` included): a failure is replayed exactly from its seed.
+//!
+//! The harness plays the rig shell's part the way [`crate::gateway::shell`] does: it arms on
+//! the controller's first stream, reopens a lost serial line every 200 ms, and hands every
+//! output of the core to its line.
+
+use std::collections::VecDeque;
+use std::path::Path;
+
+use bytes::BytesMut;
+use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec, SlcanHostCodec, StreamError};
+use flowgate_protocol::psd;
+use flowgate_protocol::slcan::{Bitrate, Command, Line as _, MAX_LINE_LEN};
+use flowgate_protocol::CanFrame;
+use flowgate_sim::calibration::CameraModel;
+use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
+use flowgate_sim::motor_board::MotorBoard;
+use flowgate_sim::psd_controller::{LedMap, Outgoing, PsdController};
+use flowgate_sim::truth::{TruthRecord, SAMPLE_PERIOD};
+use flowgate_sim::world::World;
+use tokio_util::codec::Decoder as _;
+
+use super::offline::Outcome;
+use super::Scenario;
+use crate::gateway::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
+use crate::gateway::{Core, NoClock, Output, Report, SetupError, StageClock, State};
+use crate::link::{slcan_event, CanEvent};
+use crate::time::HostTime;
+
+/// The PSD line's and the SLCAN adapter's serial rate, baud.
+pub const SERIAL_BAUD: f64 = 921_600.0;
+/// The longest the world advances without an event (so its truth is sampled finely).
+const MAX_STEP_NS: u64 = 5_000_000;
+/// How often the shell tries a lost serial line again, s.
+const REOPEN_EVERY: f64 = 0.2;
+/// How long the world keeps running after the gateway stopped, s (its truth then shows
+/// the robot at rest).
+pub const LINGER: f64 = 0.8;
+
+/// What to keep of a run.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Options {
+    /// Truth samples every 20 ms (for plots and stop-time checks); the summary is always kept.
+    pub truth_samples: bool,
+    /// `cycles.csv` and `can.log`, in memory.
+    pub telemetry: bool,
+    /// End the run at the first contact (sweeps need no more).
+    pub stop_at_contact: bool,
+}
+
+/// One direction of a serial line: bytes in order, each chunk arriving after its
+/// transmission time and no earlier than the chunk before it. Chunks are taken whole and in
+/// order, so the buffer empties (and rewinds) whenever the line goes idle.
+#[derive(Debug)]
+struct Wire {
+    bytes: Vec<u8>,
+    head: usize,
+    chunks: VecDeque<(u64, usize)>,
+    free_at: u64,
+    byte_ns: u64,
+}
+
+impl Wire {
+    fn new(baud: f64) -> Self {
+        Self {
+            bytes: Vec::with_capacity(4096),
+            head: 0,
+            chunks: VecDeque::with_capacity(64),
+            free_at: 0,
+            byte_ns: (10.0 / baud * 1e9).round() as u64,
+        }
+    }
+
+    /// Send `data` at `at`; returns when its last byte arrives.
+    fn send(&mut self, at: u64, data: &[u8]) -> u64 {
+        let arrive = at.max(self.free_at) + data.len() as u64 * self.byte_ns;
+        self.free_at = arrive;
+        self.bytes.extend_from_slice(data);
+        self.chunks.push_back((arrive, data.len()));
+        arrive
+    }
+
+    fn next(&self) -> u64 {
+        self.chunks.front().map_or(u64::MAX, |c| c.0)
+    }
+
+    /// The next chunk due by `t` into `buf`.
+    fn take(&mut self, t: u64, buf: &mut Vec<u8>) -> bool {
+        match self.chunks.front() {
+            Some(&(at, len)) if at <= t => {
+                self.chunks.pop_front();
+                buf.clear();
+                buf.extend_from_slice(&self.bytes[self.head..self.head + len]);
+                self.head += len;
+                if self.chunks.is_empty() {
+                    self.clear();
+                }
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.bytes.clear();
+        self.head = 0;
+        self.chunks.clear();
+    }
+}
+
+/// The simulated rig's firmware side: what rebuilding the controller needs.
+#[derive(Debug, Clone)]
+struct ControllerSpec {
+    camera: CameraModel,
+    leds: LedMap,
+    noise_counts: f64,
+    seed: u64,
+    faults: FaultPlan,
+}
+
+impl ControllerSpec {
+    fn build(&self) -> PsdController {
+        PsdController::new(self.camera, self.leds, self.noise_counts, self.seed, self.faults.clone())
+    }
+}
+
+/// `cycles.csv` and `can.log` of a virtual run.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Telemetry {
+    pub cycles_csv: Vec<u8>,
+    pub can_log: Vec<u8>,
+}
+
+impl Telemetry {
+    /// Write both files into `dir`.
+    pub fn write(&self, dir: &Path) -> std::io::Result<()> {
+        std::fs::create_dir_all(dir)?;
+        std::fs::write(dir.join("cycles.csv"), &self.cycles_csv)?;
+        std::fs::write(dir.join("can.log"), &self.can_log)
+    }
+}
+
+/// A finished virtual run.
+#[derive(Debug, Clone)]
+pub struct Episode {
+    pub report: Report,
+    pub truth: TruthRecord,
+    pub outcome: Outcome,
+    /// The robot ended within the goal tolerance (+1 cm for the stop ramp).
+    pub reached_goal: bool,
+    pub contact: bool,
+    /// Since when the wheels have stood still, s (None: still turning at the end).
+    pub at_rest_since: Option<f64>,
+    pub telemetry: Option<Telemetry>,
+    /// The PSD controller could not be configured (the run never started).
+    pub setup_error: Option<SetupError>,
+}
+
+/// The stack in virtual time. `K` times the core's stages ([`NoClock`] for determinism).
+#[derive(Debug)]
+pub struct VirtualRig<K: StageClock = NoClock> {
+    t: u64,
+    world: World,
+    spec: ControllerSpec,
+    controller: PsdController,
+    board: MotorBoard,
+    adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
+    core: Core<K>,
+    plan: FaultPlan,
+    serial_faults: SerialFaults,
+    can_faults: CanFaults,
+    bursts: VecDeque<f64>,
+    vanish: Option<(f64, f64)>,
+    psd_gone: bool,
+    next_reopen: f64,
+    next_foreign: f64,
+    psd_out: Vec<Outgoing>,
+    pending: VecDeque<Outgoing>,
+    to_host: Wire,
+    to_controller: Wire,
+    controller_rx: BytesMut,
+    controller_codec: PsdCodec,
+    can_up: Wire,
+    can_down: Wire,
+    host_rx: BytesMut,
+    host_codec: SlcanHostCodec,
+    adapter_rx: BytesMut,
+    adapter_codec: SlcanAdapterCodec,
+    can_out: Vec<CanFrame>,
+    adapter_replies: Vec<flowgate_protocol::slcan::Response>,
+    to_bus: Vec<CanFrame>,
+    scratch: Vec<u8>,
+    armed: bool,
+    setup_error: Option<SetupError>,
+    options: Options,
+    truth: TruthRecord,
+    next_truth: f64,
+    at_rest_since: Option<f64>,
+    telemetry: Option<Telemetry>,
+    /// Latency and period histograms (with telemetry only: they are large to allocate).
+    timing: Option<Timing>,
+}
+
+impl VirtualRig<NoClock> {
+    /// The scenario's rig, deterministic.
+    pub fn new(scenario: &Scenario, options: Options) -> Self {
+        Self::with_clock(scenario, NoClock, options)
+    }
+}
+
+impl<K: StageClock> VirtualRig<K> {
+    /// The scenario's rig, the core's stages timed by `clock`. The scenario's sensing chain
+    /// is played by the firmware: its delay as the controller's sample delay, its position
+    /// noise as PSD noise in counts (a low-pass filter is not part of the real chain).
+    pub fn with_clock(scenario: &Scenario, clock: K, options: Options) -> Self {
+        let mut plan = scenario.faults.clone();
+        if plan.sample_delay_ms == 0.0 {
+            plan.sample_delay_ms = scenario.sensing.delay * 1e3;
+        }
+        let camera = CameraModel::default();
+        let spec = ControllerSpec {
+            camera,
+            leds: LedMap::standard(scenario.robot.radius),
+            noise_counts: scenario.sensing.position_noise * counts_per_metre(&camera),
+            seed: scenario.sensing.seed,
+            faults: plan.clone(),
+        };
+        let node = flowgate_protocol::motor::NodeId::new(1).expect("node 1");
+        let mut world = World::new(scenario);
+        let mut controller = spec.build();
+        let mut board = MotorBoard::new(node, plan.clone());
+        let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
+        controller.boot(0.0, &mut psd_out);
+        board.boot(0.0, &mut world, &mut can_out);
+        let mut rig = Self {
+            t: 0,
+            core: Core::new(scenario.rig(), clock),
+            serial_faults: SerialFaults::new(&plan),
+            can_faults: CanFaults::new(&plan),
+            bursts: plan.serial_burst_at.iter().copied().collect(),
+            vanish: plan.serial_vanish_at.map(|at| (at, at + plan.serial_vanish_s)),
+            psd_gone: false,
+            next_reopen: f64::INFINITY,
+            next_foreign: if plan.foreign_frames { 0.0 } else { f64::INFINITY },
+            plan,
+            world,
+            spec,
+            controller,
+            board,
+            adapter: Default::default(),
+            psd_out,
+            pending: VecDeque::with_capacity(64),
+            to_host: Wire::new(SERIAL_BAUD),
+            to_controller: Wire::new(SERIAL_BAUD),
+            controller_rx: BytesMut::with_capacity(1024),
+            controller_codec: PsdCodec::new(),
+            can_up: Wire::new(SERIAL_BAUD),
+            can_down: Wire::new(SERIAL_BAUD),
+            host_rx: BytesMut::with_capacity(1024),
+            host_codec: SlcanHostCodec::new(),
+            adapter_rx: BytesMut::with_capacity(1024),
+            adapter_codec: SlcanAdapterCodec::new(),
+            can_out,
+            adapter_replies: Vec::with_capacity(8),
+            to_bus: Vec::with_capacity(8),
+            scratch: Vec::with_capacity(1024),
+            armed: false,
+            setup_error: None,
+            options,
+            truth: TruthRecord::default(),
+            next_truth: if options.truth_samples { 0.0 } else { f64::INFINITY },
+            at_rest_since: Some(0.0),
+            telemetry: options.telemetry.then(|| Telemetry {
+                cycles_csv: format!("{}\n", CycleRecord::CSV_HEADER).into_bytes(),
+                can_log: Vec::new(),
+            }),
+            timing: options.telemetry.then(Timing::default),
+        };
+        // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
+        for cmd in [Command::Close, Command::SetBitrate(Bitrate::M1), Command::Open] {
+            rig.host_line(cmd);
+        }
+        rig.core.psd_connected(HostTime::ZERO);
+        rig.firmware_out();
+        rig
+    }
+
+    pub fn core(&self) -> &Core<K> {
+        &self.core
+    }
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+    /// Virtual time, s.
+    pub fn time(&self) -> f64 {
+        secs(self.t)
+    }
+
+    /// Run the scenario: until the gateway has stopped (goal, stall, fault) and the world
+    /// has run [`LINGER`] more, or the scenario's time limit.
+    pub fn run(mut self, time_limit: f64, goal: [f64; 2], tolerance: f64) -> Episode {
+        let mut end = time_limit;
+        while self.time() < end && self.setup_error.is_none() {
+            self.step();
+            if self.options.stop_at_contact && self.world.truth().first_contact.is_some() {
+                break;
+            }
+            if self.core.state().is_terminal() && end == time_limit {
+                end = (self.time() + LINGER).min(time_limit);
+            }
+        }
+        self.finish(goal, tolerance)
+    }
+
+    /// Run until virtual time `t` (s).
+    pub fn run_until(&mut self, t: f64) {
+        while self.time() < t && self.setup_error.is_none() {
+            self.step();
+        }
+    }
+
+    /// The operator arms (or re-arms) now.
+    pub fn arm(&mut self) {
+        self.core.arm(HostTime::from_nanos(self.t));
+        self.drain_core();
+        self.firmware_out();
+    }
+
+    /// A shutdown request now (as SIGINT gives the rig's gateway).
+    pub fn shutdown(&mut self) {
+        self.core.shutdown(HostTime::from_nanos(self.t));
+        self.drain_core();
+        self.firmware_out();
+    }
+
+    /// Advance to the next event and handle everything due then.
+    pub fn step(&mut self) {
+        let next = self.next_event().max(self.t + 1);
+        let dt = secs(next) - self.world.time();
+        if dt > 0.0 {
+            self.world.step(dt);
+        }
+        self.t = next;
+        self.faults_due();
+        self.firmware_poll();
+        self.deliver();
+        let now = HostTime::from_nanos(self.t);
+        if now >= self.core.next_deadline() {
+            self.core.tick(now);
+        }
+        self.drain_core();
+        self.firmware_out();
+        self.observe();
+    }
+
+    fn next_event(&self) -> u64 {
+        let mut next = self.core.next_deadline().as_nanos().min(self.t + MAX_STEP_NS);
+        let mut at = |s: f64| next = next.min(ns(s));
+        if !self.psd_gone {
+            at(self.controller.next_event());
+        }
+        at(self.board.next_event());
+        at(self.pending.front().map_or(f64::INFINITY, |o| o.at));
+        at(self.next_truth);
+        at(self.bursts.front().copied().unwrap_or(f64::INFINITY));
+        at(self.vanish.map_or(f64::INFINITY, |(gone, back)| if self.psd_gone { back } else { gone }));
+        at(self.next_reopen);
+        at(self.next_foreign);
+        for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
+            next = next.min(w.next());
+        }
+        next
+    }
+
+    /// The serial device vanishing and coming back; foreign traffic on the bus.
+    fn faults_due(&mut self) {
+        let t = self.time();
+        let now = HostTime::from_nanos(self.t);
+        if let Some((gone_at, back_at)) = self.vanish {
+            if !self.psd_gone && t >= gone_at {
+                // The pty closes: the host's read fails at once.
+                self.psd_gone = true;
+                self.to_host.clear();
+                self.to_controller.clear();
+                self.pending.clear();
+                self.psd_out.clear();
+                self.core.psd_lost(now);
+                self.next_reopen = t + REOPEN_EVERY;
+            } else if self.psd_gone && t >= back_at {
+                self.vanish = None;
+                self.psd_gone = false;
+                self.controller = self.spec.build();
+                self.controller.boot(t, &mut self.psd_out);
+            }
+        }
+        if t >= self.next_reopen {
+            if self.psd_gone {
+                self.next_reopen += REOPEN_EVERY;
+            } else {
+                self.next_reopen = f64::INFINITY;
+                self.controller_rx.clear();
+                self.core.psd_connected(now);
+            }
+        }
+        if t >= self.next_foreign {
+            self.next_foreign += 0.1;
+            self.can_out.extend(flowgate_sim::rig::foreign_frames(self.board.node()));
+        }
+    }
+
+    fn firmware_poll(&mut self) {
+        let t = self.time();
+        if !self.psd_gone {
+            self.controller.poll(t, &self.world, &mut self.psd_out);
+        }
+        self.board.poll(t, &mut self.world, &mut self.can_out);
+        self.firmware_out();
+    }
+
+    /// The firmware's outputs onto the lines: the controller's packets in order, each no
+    /// earlier than its time (injected delay), through the serial faults; the board's
+    /// frames through the adapter to the host.
+    fn firmware_out(&mut self) {
+        let t = self.time();
+        let mut last_at = self.pending.back().map_or(0.0, |o| o.at);
+        for o in self.psd_out.drain(..) {
+            last_at = last_at.max(o.at);
+            self.pending.push_back(Outgoing { at: last_at, packet: o.packet });
+        }
+        self.scratch.clear();
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        while self.pending.front().is_some_and(|o| o.at <= t) {
+            let o = self.pending.pop_front().expect("checked");
+            if let Ok(n) = o.packet.encode(&mut wire) {
+                self.scratch.extend_from_slice(&wire[..n]);
+            }
+        }
+        while self.bursts.front().is_some_and(|&at| at <= t) {
+            self.bursts.pop_front();
+            let burst = self.serial_faults.burst(self.plan.serial_burst_len);
+            self.scratch.extend(burst);
+        }
+        if !self.scratch.is_empty() && !self.psd_gone {
+            self.serial_faults.apply(t, &mut self.scratch);
+            self.to_host.send(self.t, &self.scratch);
+        }
+        let bus_off = self.plan.bus_off(t);
+        let mut line = [0u8; MAX_LINE_LEN];
+        for f in self.can_out.drain(..) {
+            if bus_off || self.can_faults.lose() {
+                continue;
+            }
+            if let Some(Ok(n)) = self.adapter.from_bus(f, t).map(|r| r.emit(&mut line)) {
+                self.can_up.send(self.t, &line[..n]);
+            }
+        }
+    }
+
+    /// Everything the lines deliver by now.
+    fn deliver(&mut self) {
+        let t = self.time();
+        let now = HostTime::from_nanos(self.t);
+        while self.to_controller.take(self.t, &mut self.scratch) {
+            self.controller_rx.extend_from_slice(&self.scratch);
+            while let Ok(Some(item)) = self.controller_codec.decode(&mut self.controller_rx) {
+                let request = item.map_err(|e| match e {
+                    StreamError::Frame { error, .. } => error,
+                    StreamError::Overlong { .. } => psd::Error::TooLong,
+                });
+                self.controller.handle(t, request, &mut self.psd_out);
+            }
+        }
+        while self.to_host.take(self.t, &mut self.scratch) {
+            self.core.psd_bytes(now, &self.scratch);
+        }
+        while self.can_down.take(self.t, &mut self.scratch) {
+            self.adapter_rx.extend_from_slice(&self.scratch);
+            while let Ok(Some(line)) = self.adapter_codec.decode(&mut self.adapter_rx) {
+                self.adapter.handle(line.ok(), &mut self.adapter_replies, &mut self.to_bus);
+            }
+            let mut buf = [0u8; MAX_LINE_LEN];
+            for r in self.adapter_replies.drain(..) {
+                if let Ok(n) = r.emit(&mut buf) {
+                    self.can_up.send(self.t, &buf[..n]);
+                }
+            }
+            let bus_off = self.plan.bus_off(t);
+            for f in self.to_bus.drain(..) {
+                if !bus_off && !self.can_faults.lose() {
+                    self.board.handle(t, &f, &mut self.world, &mut self.can_out);
+                }
+            }
+        }
+        while self.can_up.take(self.t, &mut self.scratch) {
+            self.host_rx.extend_from_slice(&self.scratch);
+            while let Ok(Some(line)) = self.host_codec.decode(&mut self.host_rx) {
+                if let Some(event) = slcan_event(line) {
+                    if let (CanEvent::Frame(frame), Some(tel)) = (event, &mut self.telemetry) {
+                        let _ = CanRecord { at_s: t, frame, sent: false }.candump("slcan0", &mut tel.can_log);
+                    }
+                    self.core.can_event(now, event);
+                }
+            }
+        }
+    }
+
+    /// Hand each of the core's outputs to its line, as the shell does.
+    fn drain_core(&mut self) {
+        let now = HostTime::from_nanos(self.t);
+        while let Some(output) = self.core.poll() {
+            match output {
+                Output::Psd(packet) => {
+                    let mut wire = [0u8; psd::MAX_WIRE_LEN];
+                    if let (Ok(n), false) = (packet.encode(&mut wire), self.psd_gone) {
+                        self.to_controller.send(self.t, &wire[..n]);
+                    }
+                }
+                Output::Can(frame) => {
+                    self.send_can(frame);
+                }
+                Output::Command { frame, mut record } => {
+                    let done = self.send_can(frame);
+                    record.written(done - self.t, HostTime::from_nanos(done), self.core.rig().sample_period);
+                    if let Some(timing) = &mut self.timing {
+                        timing.add(&record);
+                    }
+                    if let Some(tel) = &mut self.telemetry {
+                        let _ = record.csv(&mut tel.cycles_csv);
+                    }
+                }
+                Output::State { .. } => {}
+                Output::Streaming if !self.armed => {
+                    self.armed = true;
+                    self.core.arm(now);
+                }
+                Output::Streaming => {}
+                Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
+                Output::SetupFailed(_) => {
+                    self.core.psd_lost(now);
+                    self.next_reopen = self.time() + REOPEN_EVERY;
+                }
+            }
+        }
+    }
+
+    /// One SLCAN command from the host to the adapter; returns when it has left the line.
+    fn host_line(&mut self, cmd: Command) -> u64 {
+        let mut line = [0u8; MAX_LINE_LEN];
+        match cmd.emit(&mut line) {
+            Ok(n) => self.can_down.send(self.t, &line[..n]),
+            Err(_) => self.t,
+        }
+    }
+
+    fn send_can(&mut self, frame: CanFrame) -> u64 {
+        let at_s = self.time();
+        if let Some(tel) = &mut self.telemetry {
+            let _ = CanRecord { at_s, frame, sent: true }.candump("slcan0", &mut tel.can_log);
+        }
+        self.host_line(Command::Transmit(frame))
+    }
+
+    /// The world's truth: samples for plots, and since when the wheels stand still.
+    fn observe(&mut self) {
+        let t = self.time();
+        if self.world.wheel_speeds().iter().all(|v| v.abs() < 1e-9) {
+            self.at_rest_since.get_or_insert(t);
+        } else {
+            self.at_rest_since = None;
+        }
+        while self.next_truth <= t {
+            self.truth.record(&self.world);
+            self.next_truth += SAMPLE_PERIOD;
+        }
+    }
+
+    /// End the run here: the episode as it stands.
+    pub fn finish(mut self, goal: [f64; 2], tolerance: f64) -> Episode {
+        self.truth.record(&self.world);
+        let summary = &self.truth.summary;
+        let end = summary.final_position;
+        let reached_goal = (end[0] - goal[0]).hypot(end[1] - goal[1]) <= tolerance + 0.01;
+        let contact = summary.first_contact.is_some();
+        let outcome = match self.core.state() {
+            _ if contact => Outcome::Collision,
+            State::Stopped(crate::gateway::StopReason::GoalReached) if reached_goal => Outcome::Goal,
+            State::Stopped(crate::gateway::StopReason::Stalled) => Outcome::Stall,
+            State::Fault(_) => Outcome::Fault,
+            _ => Outcome::Timeout,
+        };
+        Episode {
+            report: Report::new(&self.core, self.timing.as_ref(), 0, WrittenFiles::default()),
+            truth: self.truth,
+            outcome,
+            reached_goal,
+            contact,
+            at_rest_since: self.at_rest_since,
+            telemetry: self.telemetry,
+            setup_error: self.setup_error,
+        }
+    }
+}
+
+/// Run `scenario` through the whole stack in virtual time.
+pub fn run(scenario: &Scenario, options: Options) -> Episode {
+    VirtualRig::new(scenario, options).run(scenario.time_limit, scenario.goal.position, scenario.goal.tolerance)
+}
+
+fn secs(ns: u64) -> f64 {
+    ns as f64 * 1e-9
+}
+
+/// Seconds to whole nanoseconds, rounded up so an event is never handled before it is due.
+fn ns(s: f64) -> u64 {
+    if s.is_finite() {
+        (s * 1e9).ceil().clamp(0.0, u64::MAX as f64) as u64
+    } else {
+        u64::MAX
+    }
+}
+
+/// PSD counts per metre of floor near the origin, from the camera model.
+fn counts_per_metre(camera: &CameraModel) -> f64 {
+    let (a, b) =
+        (camera.project(num_complex::Complex64::new(0.0, 0.0)), camera.project(num_complex::Complex64::new(0.01, 0.0)));
+    match (a, b) {
+        (Some(a), Some(b)) => (b.0 - a.0).hypot(b.1 - a.1) / 0.01,
+        _ => 0.0,
+    }
+}

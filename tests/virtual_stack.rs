@@ -1,0 +1,216 @@
+//! The whole stack in deterministic virtual time: the gateway core, the simulator's PSD
+//! controller, SLCAN adapter and motor board, and its world, through the real encoders and
+//! decoders (src/lab/sim.rs). Judged by the world's truth. Every figure asserted here is
+//! exact for its seed: the README's stop table quotes these assertions.
+
+use std::path::Path;
+use std::time::Duration;
+
+use flowgate::gateway::{State, StopReason};
+use flowgate::lab::offline::Outcome;
+use flowgate::lab::sim::{self, Episode, Options, VirtualRig};
+use flowgate::lab::Scenario;
+
+fn scenario(name: &str) -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap()
+}
+
+fn with_faults(name: &str, faults: &[&str]) -> Scenario {
+    let mut s = scenario(name);
+    s.faults = s.faults.with_settings(&faults.iter().map(|f| f.to_string()).collect::<Vec<_>>()).unwrap();
+    s
+}
+
+fn options() -> Options {
+    Options { truth_samples: true, telemetry: true, stop_at_contact: false }
+}
+
+fn assert_goal(name: &str) {
+    let e = sim::run(&scenario(name), options());
+    assert_eq!(e.outcome, Outcome::Goal, "{name}: {}\n{:?}", e.report, e.truth.summary);
+    assert!(!e.contact && e.reached_goal);
+    assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached));
+    assert!(e.report.counters.cycles > 300, "{}", e.report);
+}
+
+#[test]
+fn e1_standing_obstacle_reaches_the_goal() {
+    assert_goal("e1-standing-obstacle.toml");
+}
+
+#[test]
+fn e2_lane_head_on_reaches_the_goal() {
+    assert_goal("e2-lane-head-on.toml");
+}
+
+#[test]
+fn e4_lowpass_lag_reaches_the_goal_with_its_delay_on_the_wire() {
+    assert_goal("e4-lowpass-lag.toml");
+}
+
+#[test]
+fn e5_moving_and_standing_reaches_the_goal() {
+    assert_goal("e5-moving-and-standing.toml");
+}
+
+#[test]
+fn e6_two_moving_reaches_the_goal() {
+    assert_goal("e6-two-moving.toml");
+}
+
+/// One seed, one run: byte-identical `cycles.csv` and `can.log`. Another seed differs.
+#[test]
+fn the_same_seed_gives_byte_identical_telemetry() {
+    let a = sim::run(&scenario("e2-lane-head-on.toml"), options()).telemetry.unwrap();
+    let b = sim::run(&scenario("e2-lane-head-on.toml"), options()).telemetry.unwrap();
+    assert!(a.cycles_csv.len() > 20_000 && a.can_log.len() > 20_000);
+    assert_eq!(a, b, "same seed, same bytes");
+    let mut other = scenario("e2-lane-head-on.toml");
+    other.sensing.seed = 2;
+    let c = sim::run(&other, options()).telemetry.unwrap();
+    assert_ne!(a.cycles_csv, c.cycles_csv, "another seed, other noise");
+}
+
+/// The period is exact on the rig path: E2's 20 ms frame is 20.000 ms, not 19.998.
+#[test]
+fn the_control_period_is_exact() {
+    let e = sim::run(&scenario("e2-lane-head-on.toml"), options());
+    assert_eq!(e.report.sample_time, 0.020);
+    let csv = String::from_utf8(e.telemetry.unwrap().cycles_csv).unwrap();
+    let periods: Vec<u64> = csv.lines().skip(2).map(|l| l.split(',').nth(10).unwrap().parse().unwrap()).collect();
+    // Exact to the virtual clock's resolution: firmware times are rounded up to whole ns.
+    assert!(periods.iter().all(|&p| p.abs_diff(20_000_000) <= 1), "{:?}", &periods[..5]);
+}
+
+/// The time of the first transition into `state`.
+fn when(e: &Episode, pred: impl Fn(State) -> bool) -> f64 {
+    e.report.transitions.iter().find(|(_, s)| pred(*s)).map(|(t, _)| *t).unwrap_or_else(|| panic!("{}", e.report))
+}
+
+/// The wheels stood still from `by` on, and turned before `fault`; returns when they stopped.
+fn stopped(e: &Episode, fault: f64, by: f64) -> f64 {
+    let moving = e.truth.samples.iter().any(|s| s.t > 1.0 && s.t < fault && s.wheel_speeds[0].abs() > 0.02);
+    assert!(moving, "the robot was not moving before the fault");
+    let rest = e.at_rest_since.unwrap_or_else(|| panic!("still turning at the end: {}", e.report));
+    assert!(rest <= by, "wheels at rest only from {rest:.4} s, budget until {by:.4} s\n{}", e.report);
+    rest
+}
+
+/// One cycle of E1 (T = 17 ms).
+const T_E1: f64 = 0.017;
+
+/// Pose lost: the robot's front LED occluded from 2 s. The pose watchdog (300 ms) fires and
+/// the wheels stop within it plus one cycle.
+#[test]
+fn pose_lost_stops_the_wheels_within_the_watchdog_and_a_cycle() {
+    let e = sim::run(&with_faults("e1-standing-obstacle.toml", &["occlusions=[[1, 2.0, 100.0]]"]), options());
+    assert_eq!(e.report.final_state, State::Fault(StopReason::PoseLost), "{}", e.report);
+    let rest = stopped(&e, 2.0, 2.0 + 0.300 + T_E1);
+    eprintln!("pose lost: wheels at rest {:.1} ms after the occlusion", (rest - 2.0) * 1e3);
+}
+
+/// The motor board's heartbeat stops at 2 s: the heartbeat watchdog (400 ms) plus a cycle.
+#[test]
+fn heartbeat_lost_stops_the_wheels_within_the_watchdog_and_a_cycle() {
+    let e = sim::run(&with_faults("e1-standing-obstacle.toml", &["heartbeat_stop_at=2.0"]), options());
+    assert_eq!(e.report.final_state, State::Fault(StopReason::HeartbeatLost), "{}", e.report);
+    let rest = stopped(&e, 2.0, 2.0 + 0.400 + T_E1);
+    eprintln!("heartbeat lost: wheels at rest {:.1} ms after the last heartbeat", (rest - 2.0) * 1e3);
+}
+
+/// Garbled serial (5% of bytes corrupted from 2 s): more than 20 bad frames within a second
+/// fault the gateway; the wheels stop within a cycle of that.
+#[test]
+fn garbled_serial_stops_the_wheels_within_a_cycle_of_the_budget() {
+    let e = sim::run(
+        &with_faults("e1-standing-obstacle.toml", &["serial_corrupt=0.05", "serial_corrupt_during=[2.0, 2.8]"]),
+        options(),
+    );
+    assert_eq!(e.report.final_state, State::Fault(StopReason::SerialGarbled), "{}", e.report);
+    assert!(e.report.counters.bad_serial_frames > 20);
+    let fault = when(&e, |s| matches!(s, State::Fault(_)));
+    assert!(fault < 2.2, "21 bad frames take {:.3} s", fault - 2.0);
+    let rest = stopped(&e, 2.0, fault + T_E1);
+    eprintln!(
+        "garbled: fault {:.1} ms after the first corruption, rest {:.1} ms",
+        (fault - 2.0) * 1e3,
+        (rest - 2.0) * 1e3
+    );
+}
+
+/// The board's driver faults at 2 s: the board stops its axes at once, and the gateway
+/// names the cause from the board's next status (every 50 ms).
+#[test]
+fn a_board_fault_stops_the_wheels_and_is_named() {
+    let e = sim::run(&with_faults("e1-standing-obstacle.toml", &["board_fault_at=2.0"]), options());
+    assert_eq!(e.report.final_state, State::Fault(StopReason::BoardFault), "{}", e.report);
+    stopped(&e, 2.0, 2.0 + 0.001);
+    assert!(when(&e, |s| matches!(s, State::Fault(_))) <= 2.0 + 0.050 + 0.001);
+}
+
+/// Bus-off at 2 s for 1 s: the board stops itself (it cannot be commanded). Over SLCAN the
+/// gateway sees only its silence: the heartbeat watchdog names it, and the gateway stays
+/// faulted after the bus returns.
+#[test]
+fn bus_off_stops_the_wheels_at_once_and_faults_the_gateway() {
+    let e = sim::run(&with_faults("e1-standing-obstacle.toml", &["bus_off_at=2.0", "bus_off_s=1.0"]), options());
+    assert_eq!(e.report.final_state, State::Fault(StopReason::HeartbeatLost), "{}", e.report);
+    stopped(&e, 2.0, 2.0 + 0.001);
+}
+
+/// An orderly stop (what SIGINT asks of the rig's gateway) at 3 s: the wheels ramp down at
+/// the board's acceleration (0.25 m/s at 1 m/s² takes 0.25 s) and the board is disabled.
+#[test]
+fn an_orderly_stop_ramps_the_wheels_down() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let mut rig = VirtualRig::new(&s, options());
+    rig.run_until(3.0);
+    assert_eq!(rig.core().state(), State::Running);
+    rig.shutdown();
+    rig.run_until(4.0);
+    assert!(rig.core().finished());
+    let e = rig.finish(s.goal.position, s.goal.tolerance);
+    assert_eq!(e.report.final_state, State::Stopped(StopReason::Shutdown), "{}", e.report);
+    let rest = stopped(&e, 3.0, 3.0 + T_E1 + s.robot.max_wheel_speed / s.robot.wheel_accel);
+    eprintln!("orderly stop: wheels at rest {:.1} ms after the request", (rest - 3.0) * 1e3);
+}
+
+/// The serial device vanishes at 2 s for 0.6 s: a serial fault at once; the gateway reopens
+/// the line by itself, stays in fault (no automatic re-arm), and drives on only when re-armed.
+#[test]
+fn serial_vanishing_faults_reconnects_and_waits_for_rearm() {
+    let s = with_faults("e1-standing-obstacle.toml", &["serial_vanish_at=2.0", "serial_vanish_s=0.6"]);
+    let mut rig = VirtualRig::new(&s, options());
+    rig.run_until(4.0);
+    assert_eq!(rig.core().state(), State::Fault(StopReason::SerialLost));
+    assert_eq!(rig.core().counters().serial_reconnects, 1);
+    rig.arm();
+    rig.run_until(s.time_limit);
+    let e = rig.finish(s.goal.position, s.goal.tolerance);
+    let fault = when(&e, |st| st == State::Fault(StopReason::SerialLost));
+    assert!((fault - 2.0).abs() < 1e-6, "{fault}");
+    let resting: Vec<_> = e.truth.samples.iter().filter(|x| x.t > fault + T_E1 && x.t < 4.0).collect();
+    assert!(!resting.is_empty() && resting.iter().all(|x| x.wheel_speeds.iter().all(|v| v.abs() < 1e-9)));
+    assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached), "{}", e.report);
+    assert!(e.reached_goal && !e.contact);
+}
+
+/// Frames from other nodes and frames that do not decode are counted and ignored.
+#[test]
+fn foreign_and_undecodable_can_frames_are_counted_and_ignored() {
+    let e = sim::run(&with_faults("e1-standing-obstacle.toml", &["foreign_frames=true"]), options());
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    let c = e.report.counters;
+    assert!(c.can_foreign > 50 && c.can_undecodable > 50, "{c:?}");
+}
+
+/// A controller that never answers is a startup failure naming the request.
+#[test]
+fn a_silent_controller_is_a_startup_failure() {
+    let mut s = scenario("e1-standing-obstacle.toml");
+    s.faults.serial_drop = 1.0;
+    let e = sim::run(&s, options());
+    let err = e.setup_error.expect("no setup").to_string();
+    assert!(err.contains("did not answer GetInfo"), "{err}");
+    let _ = Duration::ZERO;
+}
