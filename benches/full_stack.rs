@@ -1,1 +1,98 @@
-fn main() {}
+//! The whole stack in virtual time: what one episode costs, how fast sweeps go, and where
+//! a cycle's time goes. `cargo bench --bench full_stack` (README "The whole stack in
+//! virtual time"). Times are thread CPU time, so a busy neighbour does not inflate them.
+
+use std::path::Path;
+use std::time::Instant;
+
+use flowgate::gateway::StageClock;
+use flowgate::lab::offline::{sweep, Mode};
+use flowgate::lab::sim::{self, Options, VirtualRig};
+use flowgate::lab::Scenario;
+use rustix::time::{clock_gettime, ClockId};
+
+/// This thread's CPU time, ns.
+fn cpu_ns() -> u64 {
+    let t = clock_gettime(ClockId::ThreadCPUTime);
+    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
+}
+
+/// The core's stages timed on the thread's CPU clock.
+#[derive(Debug, Clone, Copy)]
+struct ThreadCpu;
+
+impl StageClock for ThreadCpu {
+    fn now_ns(&mut self) -> u64 {
+        cpu_ns()
+    }
+}
+
+fn scenario(name: &str) -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).expect("scenario")
+}
+
+fn main() {
+    let e2 = scenario("e2-lane-head-on.toml");
+    let runs = 200;
+
+    // One E2 episode through the whole stack, as a sweep runs it.
+    let _ = sim::run(&e2, Options::default());
+    let mut per_episode = Vec::with_capacity(runs);
+    let mut simulated = 0.0;
+    for _ in 0..runs {
+        let start = cpu_ns();
+        let e = sim::run(&e2, Options::default());
+        per_episode.push(cpu_ns() - start);
+        simulated = e.truth.summary.duration;
+    }
+    per_episode.sort_unstable();
+    let median = per_episode[runs / 2] as f64 / 1e6;
+    println!("E2 episode, full stack: {simulated:.1} s simulated in {median:.2} ms of CPU (median of {runs}; min {:.2}, max {:.2}): {:.0} times faster than real time",
+        per_episode[0] as f64 / 1e6, per_episode[runs - 1] as f64 / 1e6, simulated * 1e3 / median);
+
+    // Where the time goes: the core's stages on the CPU clock, the world stepped alone, the rest.
+    let start = cpu_ns();
+    let rig = VirtualRig::with_clock(&e2, ThreadCpu, Options { telemetry: true, ..Options::default() });
+    let e = rig.run(e2.time_limit, e2.goal.position, e2.goal.tolerance);
+    let total = (cpu_ns() - start) as f64;
+    let csv = String::from_utf8(e.telemetry.expect("telemetry").cycles_csv).expect("utf-8");
+    let mut stages = [0f64; 3];
+    let mut cycles = 0;
+    for line in csv.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        for (k, col) in [4, 5, 6].into_iter().enumerate() {
+            stages[k] += f[col].parse::<f64>().expect("ns");
+        }
+        cycles += 1;
+    }
+    let mut world = flowgate_sim::world::World::new(&e2);
+    let start = cpu_ns();
+    while world.time() < e.truth.summary.duration {
+        world.step(0.005);
+    }
+    let world_ns = (cpu_ns() - start) as f64;
+    let per = |ns: f64| ns / f64::from(cycles) / 1e3;
+    let rest = total - stages.iter().sum::<f64>() - world_ns;
+    println!("one cycle ({cycles} cycles, with telemetry): {:.2} µs in all", per(total));
+    for (name, ns) in [
+        ("decode (COBS, CRC, packets)", stages[0]),
+        ("track (calibration, pose, Kalman)", stages[1]),
+        ("plan (control step)", stages[2]),
+        ("world (kinematics, contact; 1 ms steps)", world_ns),
+        ("firmware, encoders, SLCAN, wires, telemetry", rest),
+    ] {
+        println!("  {name:<45} {:>6.2} µs  {:>4.0}%", per(ns), 100.0 * ns / total);
+    }
+
+    // Sweeps on this machine's two cores.
+    for (mode, n) in [(Mode::FullStack, 4000), (Mode::PlannerOnly, 4000)] {
+        let started = Instant::now();
+        let report = sweep::sweep(&e2, n, 1, 2, mode);
+        let rate = n as f64 / started.elapsed().as_secs_f64();
+        println!(
+            "sweep around E2, {mode}: {n} episodes in {:.2} s = {rate:.0} episodes/s (2 threads); goal {:.1}%",
+            started.elapsed().as_secs_f64(),
+            100.0 * report.goal_rate
+        );
+    }
+}

@@ -86,15 +86,20 @@ fn one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<offline::R
     Ok(match mode {
         Mode::PlannerOnly => offline::run(scenario, out.is_some()),
         Mode::FullStack => {
-            let options = sim::Options { truth_samples: out.is_some(), telemetry: out.is_some(), ..Default::default() };
-            let episode = sim::run(scenario, options);
+            let options = sim::Options { truth_samples: out.is_some(), telemetry: true, ..Default::default() };
+            let episode = sim::run_timed(scenario, options);
             if let Some(e) = episode.setup_error {
                 bail!("{}: the simulated PSD controller could not be configured: {e}", scenario.name);
             }
-            if let (Some(t), Some(out)) = (&episode.telemetry, out) {
-                t.write(out).with_context(|| format!("writing {}", out.display()))?;
+            let mut run = offline::Run::from_episode(scenario, &episode);
+            if let Some(t) = &episode.telemetry {
+                let [p50_us, p99_us, max_us] = t.plan_us();
+                run.summary.planner_compute = offline::ComputeTime { p50_us, p99_us, max_us };
+                if let Some(out) = out {
+                    t.write(out).with_context(|| format!("writing {}", out.display()))?;
+                }
             }
-            offline::Run::from_episode(scenario, &episode)
+            run
         }
     })
 }
@@ -147,10 +152,7 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode) -> Result<()> {
             s.min_wall_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),
             s.path_length_ratio,
             s.peak_wheel_speed[0].max(s.peak_wheel_speed[1]) * 1e3,
-            match mode {
-                Mode::PlannerOnly => format!("{:.1}", s.planner_compute.p99_us),
-                Mode::FullStack => "-".into(), // virtual time: stages take no time
-            }
+            format!("{:.1}", s.planner_compute.p99_us)
         );
         if let Some(dir) = dir {
             write_outputs(&scenario, &run, &dir)?;

@@ -133,6 +133,23 @@ impl ControllerSpec {
     }
 }
 
+/// A stage clock on the host's monotonic clock: the core's stages take their real compute
+/// time (virtual time itself is unaffected, but `cycles.csv` then differs run to run).
+#[derive(Debug, Clone, Copy)]
+pub struct HostClock(std::time::Instant);
+
+impl Default for HostClock {
+    fn default() -> Self {
+        Self(std::time::Instant::now())
+    }
+}
+
+impl StageClock for HostClock {
+    fn now_ns(&mut self) -> u64 {
+        self.0.elapsed().as_nanos() as u64
+    }
+}
+
 /// `cycles.csv` and `can.log` of a virtual run.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Telemetry {
@@ -141,6 +158,16 @@ pub struct Telemetry {
 }
 
 impl Telemetry {
+    /// The planner's compute time per cycle (the `plan_ns` column): p50, p99, max, µs.
+    pub fn plan_us(&self) -> [f64; 3] {
+        let text = String::from_utf8_lossy(&self.cycles_csv);
+        let mut ns: Vec<u64> =
+            text.lines().skip(1).filter_map(|l| l.split(',').nth(6).and_then(|v| v.parse().ok())).collect();
+        ns.sort_unstable();
+        let q = |p: f64| ns.get(((ns.len().max(1) - 1) as f64 * p).round() as usize).map_or(0.0, |&v| v as f64 / 1e3);
+        [q(0.5), q(0.99), q(1.0)]
+    }
+
     /// Write both files into `dir`.
     pub fn write(&self, dir: &Path) -> std::io::Result<()> {
         std::fs::create_dir_all(dir)?;
@@ -610,9 +637,19 @@ impl<K: StageClock> VirtualRig<K> {
     }
 }
 
-/// Run `scenario` through the whole stack in virtual time.
+/// Run `scenario` through the whole stack in virtual time, deterministically.
 pub fn run(scenario: &Scenario, options: Options) -> Episode {
     VirtualRig::new(scenario, options).run(scenario.time_limit, scenario.goal.position, scenario.goal.tolerance)
+}
+
+/// The same, with the core's stages timed on the host's clock (for reports, not for
+/// byte-for-byte comparisons).
+pub fn run_timed(scenario: &Scenario, options: Options) -> Episode {
+    VirtualRig::with_clock(scenario, HostClock::default(), options).run(
+        scenario.time_limit,
+        scenario.goal.position,
+        scenario.goal.tolerance,
+    )
 }
 
 fn secs(ns: u64) -> f64 {
