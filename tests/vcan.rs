@@ -193,7 +193,12 @@ async fn the_bench_runs_over_socketcan() {
         .await
         .expect("bench runs over SocketCAN");
     let p = &report.phases[0];
-    assert_eq!((p.cycles_sent, p.commands_received), (100, 100), "one gateway command per frame");
+    assert_eq!(
+        (p.cycles_sent, p.commands_received),
+        (100, 100),
+        "one gateway command per frame; gateway states {:?}",
+        report.gateway_states
+    );
     assert_eq!(p.floor.expect("floor asked for").commands_received, 100, "one null-gateway command per frame");
     assert!(report.transport.contains("SocketCAN"));
     let _ = std::fs::remove_dir_all(&dir);

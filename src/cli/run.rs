@@ -44,7 +44,7 @@ pub fn run(args: RunArgs) -> Result<()> {
                     if changed.is_ok() {
                         let state = progress_rx.borrow().state;
                         if last_state != Some(state) {
-                            say(&format!("state: {}", state.name()));
+                            say(&format!("state: {state}"));
                             last_state = Some(state);
                         }
                     }

@@ -318,11 +318,12 @@ impl<K: StageClock> Core<K> {
         }
         let s = &self.rig.safety;
         let heard = self.board.last_heartbeat.map_or(self.armed_at, |h| h.max(self.armed_at));
-        if now.since(self.last_sample) > s.sample_timeout {
+        // Each fires at its deadline, the very time `next_deadline` asks to be ticked.
+        if now >= self.last_sample + s.sample_timeout {
             Some(StopReason::SamplesStopped)
-        } else if state == State::Running && now > self.pose_deadline() {
+        } else if state == State::Running && now >= self.pose_deadline() {
             Some(StopReason::PoseLost)
-        } else if now.since(heard) > s.heartbeat_timeout {
+        } else if now >= heard + s.heartbeat_timeout {
             Some(StopReason::HeartbeatLost)
         } else {
             None
@@ -367,6 +368,12 @@ impl<K: StageClock> Core<K> {
             }
             SessionEvent::Pass => {}
         }
+        let timed = matches!(packet.message, Message::Sample(_) | Message::FrameEnd { .. });
+        if timed && !self.psd.is_streaming() {
+            // Before time sync its stamps mean nothing on our clock: discard, and count.
+            self.counters.samples_unsynced += 1;
+            return;
+        }
         match packet.message {
             Message::Sample(s) => {
                 self.counters.samples += 1;
@@ -391,7 +398,7 @@ impl<K: StageClock> Core<K> {
     /// One time-division frame is complete: track, decide, command.
     fn cycle(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
         let track_start = self.clock.now_ns();
-        self.track_frame();
+        self.track_frame(now);
         let t = now.secs();
         let period = self.rig.sample_period.as_secs_f64();
         let (robot_radius, wheel_base) = (self.rig.control.robot_radius, self.rig.control.drive.wheel_base);
@@ -465,9 +472,19 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// The frame's samples into the tracker, in floor coordinates on the host clock.
-    fn track_frame(&mut self) {
+    /// The frame's samples into the tracker, in floor coordinates on the host clock. A
+    /// sample stamped after `now` (beyond a period of clock tolerance) is discarded and
+    /// counted: one future stamp would otherwise make every later, true one look old.
+    fn track_frame(&mut self, now: HostTime) {
         let clock = self.psd.clock();
+        let latest = now + self.rig.sample_period;
+        for slot in self.rig.schedule.slots() {
+            let entry = &mut self.frame[usize::from(slot.led)];
+            if entry.is_some_and(|s| clock.to_host(s.at) > latest) {
+                *entry = None;
+                self.counters.samples_from_future += 1;
+            }
+        }
         let cal = &self.rig.calibration;
         let floor = |s: RawSample| {
             let p = cal.to_floor(f64::from(s.x), f64::from(s.y))?;
@@ -540,7 +557,7 @@ impl<K: StageClock> Core<K> {
 
     fn check_at_rest(&mut self, now: HostTime) {
         if let (State::Stopping(_), Some(since)) = (self.state(), self.stopping_since) {
-            if self.board.rates == [0, 0] || now.since(since) > STOP_GRACE {
+            if self.board.rates == [0, 0] || now >= since + STOP_GRACE {
                 self.safety.at_rest(now.secs());
                 self.stopping_since = None;
                 self.send(MotorMessage::Nmt { target: Target::Node(self.rig.node), command: NmtCommand::Disable });
@@ -601,4 +618,150 @@ impl<K: StageClock> Core<K> {
 /// States in which the watchdogs are armed.
 fn is_active(state: State) -> bool {
     matches!(state, State::Armed | State::Running | State::Stopping(_))
+}
+
+#[cfg(test)]
+mod tests {
+    //! The core driven by hand, byte by byte and in virtual time: no simulator, no I/O.
+
+    use flowgate_protocol::psd::{Info, Sample, SampleFlags, MAX_WIRE_LEN};
+
+    use super::*;
+    use crate::config::GatewayConfig;
+
+    const CTRL_EPOCH_US: u64 = 5_000_000; // the controller booted 5 s before us
+
+    fn core() -> Core<NoClock> {
+        let text = include_str!("../../rig.example.toml");
+        Core::new(GatewayConfig::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
+    }
+
+    fn ms(v: u64) -> HostTime {
+        HostTime::from_nanos(v * 1_000_000)
+    }
+
+    fn bytes(message: Message, seq: u16) -> Vec<u8> {
+        let mut wire = [0u8; MAX_WIRE_LEN];
+        let n = Packet::new(seq, message).encode(&mut wire).unwrap();
+        wire[..n].to_vec()
+    }
+
+    /// Answer every request the core has queued, as a controller would, at `now`.
+    fn answer(core: &mut Core<NoClock>, now: HostTime) -> Vec<Output> {
+        let mut other = Vec::new();
+        while let Some(o) = core.poll() {
+            let Output::Psd(p) = o else {
+                other.push(o);
+                continue;
+            };
+            let reply = match p.message {
+                Message::GetInfo => Message::Info(Info {
+                    firmware: [1, 0, 0],
+                    psd_counts: [4096; 2],
+                    max_leds: 16,
+                    clock_hz: 1_000_000,
+                }),
+                Message::TimeSync { host_time_us } => {
+                    Message::TimeSyncReply { host_time_us, t_ctrl_us: now.as_nanos() / 1000 + CTRL_EPOCH_US }
+                }
+                Message::StopStream => continue,
+                m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
+            };
+            core.psd_bytes(now, &bytes(reply, 0));
+        }
+        other
+    }
+
+    /// A frame of the robot's two LEDs at the floor origin, stamped `stamp_us` on the
+    /// controller's clock.
+    fn frame(core: &mut Core<NoClock>, now: HostTime, n: u32, stamp_us: u64) {
+        let cal = core.rig().calibration;
+        let mut out = Vec::new();
+        for (slot, led, x) in [(0u8, 1u8, 0.035), (1, 2, -0.035)] {
+            let (rx, ry) = cal.to_raw(C::new(x, 0.0)).unwrap();
+            let s = Sample {
+                frame: n,
+                slot,
+                led,
+                t_ctrl_us: stamp_us,
+                x: rx.round() as i32,
+                y: ry.round() as i32,
+                intensity: 3000,
+                flags: SampleFlags(0),
+            };
+            out.extend(bytes(Message::Sample(s), 0));
+        }
+        out.extend(bytes(Message::FrameEnd { frame: n, t_ctrl_us: stamp_us, samples: 2 }, 0));
+        core.psd_bytes(now, &out);
+    }
+
+    #[test]
+    fn the_handshake_syncs_the_clock_and_samples_before_it_are_discarded() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        // A stream already running before the handshake: its stamps mean nothing yet.
+        frame(&mut c, ms(1), 0, CTRL_EPOCH_US + 1000);
+        assert_eq!(c.counters().samples_unsynced, 3);
+        assert_eq!(c.counters().samples, 0);
+        let out = answer(&mut c, ms(2));
+        assert!(out.contains(&Output::Streaming), "{out:?}");
+        assert!(c.psd.is_streaming());
+        // Synced: a frame stamped 1 ms ago is a pose 1 ms old.
+        frame(&mut c, ms(10), 1, 9_000 + CTRL_EPOCH_US);
+        assert_eq!(c.counters().samples, 2);
+        let at = c.tracker.pose_time().unwrap();
+        assert!((at - 0.009).abs() < 1e-6, "{at}");
+    }
+
+    #[test]
+    fn a_future_stamp_is_discarded_and_does_not_freeze_the_pose() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        answer(&mut c, ms(1));
+        frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+        // CRC-valid, stamped an hour ahead.
+        frame(&mut c, ms(40), 1, CTRL_EPOCH_US + 3_600_000_000);
+        assert_eq!(c.counters().samples_from_future, 2);
+        frame(&mut c, ms(60), 2, CTRL_EPOCH_US + 59_000);
+        let at = c.tracker.pose_time().unwrap();
+        assert!((at - 0.059).abs() < 1e-6, "the true pose is taken: {at}");
+    }
+
+    #[test]
+    fn a_silent_controller_fails_the_handshake_after_three_tries() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        let mut failed = None;
+        let mut now = ms(0);
+        while failed.is_none() && now < ms(5000) {
+            now = c.next_deadline();
+            c.tick(now);
+            while let Some(o) = c.poll() {
+                if let Output::SetupFailed(e) = o {
+                    failed = Some((now, e));
+                }
+            }
+        }
+        let (at, e) = failed.expect("gave up");
+        assert_eq!(e, SetupError::Silent { request: "GetInfo" });
+        assert_eq!(at, ms(1050), "three tries, 350 ms apart");
+    }
+
+    #[test]
+    fn watchdogs_fire_at_their_deadline() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        answer(&mut c, ms(1));
+        c.arm(ms(1));
+        let expected = ms(1) + c.rig().safety.sample_timeout;
+        assert!(c.next_deadline() <= expected);
+        let mut now = ms(1);
+        while c.state() == State::Armed {
+            now = c.next_deadline();
+            c.tick(now);
+        }
+        // The first to expire: the board's heartbeat (never heard) or the samples.
+        assert!(matches!(c.state(), State::Fault(StopReason::SamplesStopped | StopReason::HeartbeatLost)));
+        assert!(now <= expected, "{now} vs {expected}");
+    }
 }

@@ -61,6 +61,10 @@ pub struct Progress {
 pub struct Counters {
     pub cycles: u64,
     pub samples: u64,
+    /// Samples and frame ends that came before time sync (discarded).
+    pub samples_unsynced: u64,
+    /// Samples stamped in the future by more than a period (discarded).
+    pub samples_from_future: u64,
     pub bad_serial_frames: u64,
     pub serial_dropped_bytes: u64,
     pub serial_reconnects: u64,
@@ -142,6 +146,11 @@ impl std::fmt::Display for Report {
             f,
             "serial           {} samples, {} bad frames, {} bytes dropped, {} reconnects",
             c.samples, c.bad_serial_frames, c.serial_dropped_bytes, c.serial_reconnects
+        )?;
+        writeln!(
+            f,
+            "                 {} samples before time sync, {} stamped in the future (discarded)",
+            c.samples_unsynced, c.samples_from_future
         )?;
         writeln!(
             f,

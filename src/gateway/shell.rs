@@ -20,8 +20,9 @@ use crate::time::HostTime;
 
 /// Deadline of one write to the PSD line (a few frames at 921600 baud take well under 1 ms).
 const PSD_WRITE_DEADLINE: Duration = Duration::from_millis(50);
-/// Deadline of one CAN frame's write (SocketCAN queue or one SLCAN line).
-const CAN_WRITE_DEADLINE: Duration = Duration::from_millis(20);
+/// Deadline of one CAN frame's write (SocketCAN queue or one SLCAN line): half the board's
+/// default command timeout, so a stalled adapter is named before the board stops itself.
+const CAN_WRITE_DEADLINE: Duration = Duration::from_millis(50);
 /// Deadline of opening the CAN link (an SLCAN adapter answers three commands).
 const CAN_OPEN_DEADLINE: Duration = Duration::from_secs(5);
 /// How often a lost serial line is tried again.
