@@ -84,6 +84,12 @@ impl Calibration {
         (p.z.abs() > 1e-12).then(|| Point::new(p.x / p.z, p.y / p.z)).filter(|p| p.re.is_finite() && p.im.is_finite())
     }
 
+    /// Whether the PSD sees a floor point: its reading lies within the sensor's counts. The
+    /// calibrated arena is this set.
+    pub fn in_view(&self, floor: Point) -> bool {
+        self.to_raw(floor).is_some_and(|(x, y)| x.abs() < self.half_scale && y.abs() < self.half_scale)
+    }
+
     /// Raw reading (distorted counts) of a floor point: the forward model.
     pub fn to_raw(&self, floor: Point) -> Option<(f64, f64)> {
         let p = self.h * Vector3::new(floor.re, floor.im, 1.0);

@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
 use crate::control::{ControlConfig, StallConfig};
+use crate::gateway::operator::Goal;
 use crate::link::CanUrl;
 use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
@@ -35,7 +36,10 @@ pub struct GatewayConfig {
     pub can: CanConfig,
     pub drive: DriveSection,
     pub robot: RobotSection,
-    pub goal: GoalSection,
+    /// The goal `flowgate run --arm` drives to at start; goals otherwise come from the
+    /// operator at run time (`flowgate ctl goal X Y`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub goal: Option<GoalSection>,
     pub planner: PlannerSettings,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lane: Option<LaneSection>,
@@ -43,6 +47,20 @@ pub struct GatewayConfig {
     pub safety: SafetyConfig,
     #[serde(default)]
     pub telemetry: TelemetryConfig,
+    #[serde(default)]
+    pub operator: OperatorConfig,
+}
+
+/// The local control interface: the only way to command motion.
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct OperatorConfig {
+    /// The control socket (a unix socket, mode 0660); none = no control interface.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub socket: Option<PathBuf>,
+    /// The group that may use it (by name, from /etc/group); default: the gateway's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -465,17 +483,24 @@ impl GatewayConfig {
         }
         positive("robot.radius", self.robot.radius)?;
         positive("robot.max_speed", self.robot.max_speed)?;
-        let g = &self.goal;
-        if !g.position.iter().all(|v| v.is_finite()) {
-            return invalid("goal.position", "must be finite");
+        if let Some(g) = &self.goal {
+            if !g.position.iter().all(|v| v.is_finite()) {
+                return invalid("goal.position", "must be finite");
+            }
+            positive("goal.tolerance", g.tolerance)?;
         }
-        positive("goal.tolerance", g.tolerance)?;
         self.planner.validate()?;
         if let Some(lane) = self.lane {
             positive("lane.half_width", lane.half_width)?;
-            if g.position[1].abs() >= lane.half_width {
-                return invalid("goal.position", format!("lies outside the lane (|y| >= {})", lane.half_width));
+            if let Some(g) = self.goal.filter(|g| g.position[1].abs() >= lane.half_width) {
+                return invalid(
+                    "goal.position",
+                    format!("{:?} lies outside the lane (|y| >= {})", g.position, lane.half_width),
+                );
             }
+        }
+        if self.operator.socket.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+            return invalid("operator.socket", "is empty");
         }
         let s = &self.safety;
         for (key, v) in [
@@ -531,6 +556,8 @@ impl GatewayConfig {
                 sample_timeout: ms(s.sample_timeout_ms),
             },
             telemetry: self.telemetry.clone(),
+            goal: self.goal.map(|g| Goal { position: g.position, tolerance: g.tolerance }),
+            operator: self.operator.clone(),
         })
     }
 
@@ -580,8 +607,8 @@ impl GatewayConfig {
                 steering_gain: p.kc,
                 sample_time: sample_period.as_secs_f64(),
             },
-            goal: C::new(self.goal.position[0], self.goal.position[1]),
-            goal_tolerance: self.goal.tolerance,
+            goal: self.goal.map_or(C::default(), |g| C::new(g.position[0], g.position[1])),
+            goal_tolerance: self.goal.map_or(default_tolerance(), |g| g.tolerance),
             robot_radius: robot,
             stall: StallConfig::default(),
         }
@@ -635,6 +662,9 @@ pub struct Rig {
     pub tracking: TrackingSettings,
     pub safety: SafetySettings,
     pub telemetry: TelemetryConfig,
+    /// The goal to drive to when armed at start (`flowgate run --arm`).
+    pub goal: Option<Goal>,
+    pub operator: OperatorConfig,
 }
 
 #[cfg(test)]

@@ -22,8 +22,10 @@ enum Command {
     /// Run the simulator and the gateway together over real ptys (no hardware needed).
     #[cfg(feature = "lab")]
     Demo(cli::demo::DemoArgs),
-    /// Run the gateway on a rig (serial PSD controller, CAN motor boards).
+    /// Run the gateway on a rig (serial PSD controller, CAN motor boards). Starts idle.
     Run(cli::run::RunArgs),
+    /// Operate a running gateway: status, arm, start, stop, estop, reset, goal, cancel.
+    Ctl(cli::ctl::CtlArgs),
     /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.
     #[cfg(feature = "lab")]
     Bench(cli::bench::BenchArgs),
@@ -48,6 +50,7 @@ fn main() -> Result<()> {
         #[cfg(feature = "lab")]
         Command::Plan(args) => cli::plan::run(args),
         Command::Run(args) => cli::run::run(args),
+        Command::Ctl(args) => cli::ctl::run(args),
         #[cfg(feature = "lab")]
         Command::Bench(args) => cli::bench::run(args),
     }

@@ -76,7 +76,7 @@ async fn sigint_stops_the_wheels() {
     let config_path = dir.join("rig.toml");
     std::fs::write(&config_path, cfg.to_toml()).unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["run", "--config"])
+        .args(["run", "--arm", "--config"])
         .arg(&config_path)
         .stdout(Stdio::piped())
         .spawn()
@@ -132,9 +132,12 @@ async fn a_second_gateway_on_the_same_port_is_refused() {
 }
 
 /// The serial device vanishes at 2 s and comes back 0.6 s later: the robot stops, the gateway
-/// reconnects on its own, stays stopped until the operator re-arms, then carries on.
+/// reconnects on its own, stays in fault until the operator resets, arms and starts it, then
+/// carries on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
+    use flowgate::gateway::control_socket::{Command, Peer};
+    use flowgate::gateway::operator::Request;
     use flowgate::gateway::{self, Controls, Progress};
     use flowgate_sim::rig::{RigConfig, SerialEndpoint};
     let mut s = scenario("e1-standing-obstacle.toml");
@@ -149,9 +152,21 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
     let rig = s.gateway_config(&link, &can, None).rig("test").unwrap();
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
-    let (arm_tx, arm_rx) = tokio::sync::mpsc::channel(1);
     let (progress_tx, mut progress) = tokio::sync::watch::channel(Progress::default());
-    let gw = tokio::spawn(gateway::run(rig, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
+    let controls = Controls::new(stop_rx, true);
+    let operator = controls.sender();
+    let gw = tokio::spawn(gateway::run(rig, controls, Some(progress_tx)));
+    // The operator's request, as the control socket would pass it on.
+    let ask = |request: Request| {
+        let operator = operator.clone();
+        async move {
+            let (reply, answer) = tokio::sync::oneshot::channel();
+            let peer = Peer { uid: 0, gid: 0, pid: None };
+            operator.send(Command { request, peer, reply }).await.unwrap();
+            let reply = answer.await.unwrap();
+            assert!(reply.ok, "{reply:?}");
+        }
+    };
     let wait_for = |progress: &mut tokio::sync::watch::Receiver<Progress>, pred: fn(&Progress) -> bool| {
         let mut rx = progress.clone();
         let look = progress.clone();
@@ -169,7 +184,9 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     wait_for(&mut progress, |p| p.serial_reconnects >= 1).await;
     assert!(matches!(progress.borrow().state, State::Fault(_)));
     let rearm_at = origin.elapsed().as_secs_f64();
-    arm_tx.send(()).await.unwrap();
+    ask(Request::Reset).await;
+    ask(Request::Arm).await;
+    ask(Request::Start).await;
     wait_for(&mut progress, |p| p.state == State::Running).await;
     wait_for(&mut progress, |p| matches!(p.state, State::Stopped(_))).await;
     stop_tx.send(true).unwrap();

@@ -6,6 +6,7 @@
 use std::path::Path;
 use std::time::Duration;
 
+use flowgate::gateway::operator::{Refusal, Request};
 use flowgate::gateway::{State, StopReason};
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, Episode, Options, VirtualRig};
@@ -22,7 +23,7 @@ fn with_faults(name: &str, faults: &[&str]) -> Scenario {
 }
 
 fn options() -> Options {
-    Options { truth_samples: true, telemetry: true, stop_at_contact: false }
+    Options { truth_samples: true, telemetry: true, ..Options::default() }
 }
 
 fn assert_goal(name: &str) {
@@ -184,7 +185,14 @@ fn serial_vanishing_faults_reconnects_and_waits_for_rearm() {
     rig.run_until(4.0);
     assert_eq!(rig.core().state(), State::Fault(StopReason::SerialLost));
     assert_eq!(rig.core().counters().serial_reconnects, 1);
-    rig.arm();
+    assert_eq!(
+        rig.request(&Request::Arm),
+        Err(Refusal::Faulted(State::Fault(StopReason::SerialLost))),
+        "a fault is reset first"
+    );
+    rig.request(&Request::Reset).unwrap();
+    rig.request(&Request::Arm).unwrap();
+    rig.request(&Request::Start).unwrap();
     rig.run_until(s.time_limit);
     let e = rig.finish(s.goal.position, s.goal.tolerance);
     let fault = when(&e, |st| st == State::Fault(StopReason::SerialLost));

@@ -1,5 +1,6 @@
 #[cfg(feature = "lab")]
 pub mod bench;
+pub mod ctl;
 #[cfg(feature = "lab")]
 pub mod demo;
 #[cfg(feature = "lab")]

@@ -1,7 +1,9 @@
 //! `flowgate run --config rig.toml`: the gateway service.
 //!
-//! SIGINT/SIGTERM stop the robot in order and end the run; SIGUSR1 re-arms after a stop or
-//! fault (there is no automatic restart). State changes are printed as `state: NAME`.
+//! It starts idle and moves nothing until an operator arms and starts it over the control
+//! socket (`flowgate ctl`); `--arm` arms and starts towards the config's `[goal]` at once
+//! (the demo and tests; never a service). SIGINT/SIGTERM stop the robot in order and end
+//! the run. There is no automatic restart. State changes are printed as `state: ...`.
 
 use std::path::PathBuf;
 
@@ -10,36 +12,39 @@ use clap::Args;
 use flowgate::config::GatewayConfig;
 use flowgate::gateway::{self, Controls, Progress};
 use tokio::signal::unix::{signal, SignalKind};
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 
 #[derive(Args, Debug)]
 pub struct RunArgs {
     /// The rig configuration (see rig.example.toml).
     #[arg(long, value_name = "FILE")]
     config: PathBuf,
+    /// Arm and start towards the config's [goal] as soon as the PSD controller streams,
+    /// without an operator. For the demo and tests only: a service never uses it.
+    #[arg(long)]
+    arm: bool,
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
     let rig = GatewayConfig::load(&args.config)?;
+    if args.arm && rig.goal.is_none() {
+        anyhow::bail!("--arm needs a [goal] in {}", args.config.display());
+    }
     // The gateway is one loop: a single-threaded runtime keeps its wake-ups on one thread
     // (the telemetry writer has its own blocking thread).
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async move {
         let mut interrupt = signal(SignalKind::interrupt())?;
         let mut terminate = signal(SignalKind::terminate())?;
-        let mut user1 = signal(SignalKind::user_defined1())?;
         let (stop_tx, stop_rx) = watch::channel(false);
-        let (arm_tx, arm_rx) = mpsc::channel(4);
         let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-        let mut gateway =
-            tokio::spawn(gateway::run(rig, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
+        let mut gateway = tokio::spawn(gateway::run(rig, Controls::new(stop_rx, args.arm), Some(progress_tx)));
         let mut last_state = None;
         let report = loop {
             tokio::select! {
                 r = &mut gateway => break r??,
                 _ = interrupt.recv() => { let _ = stop_tx.send(true); }
                 _ = terminate.recv() => { let _ = stop_tx.send(true); }
-                _ = user1.recv() => { let _ = arm_tx.try_send(()); }
                 changed = progress_rx.changed() => {
                     if changed.is_ok() {
                         let state = progress_rx.borrow().state;

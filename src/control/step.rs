@@ -76,6 +76,13 @@ impl ControlStep {
     pub fn new(config: ControlConfig) -> Self {
         Self { config, planner: Planner::new(config.planner), progress_anchor: None }
     }
+    /// Drive to a new goal from the next step (progress is judged afresh).
+    pub fn set_goal(&mut self, goal: C, tolerance: f64) {
+        self.config.goal = goal;
+        self.config.goal_tolerance = tolerance;
+        self.progress_anchor = None;
+    }
+
     pub fn config(&self) -> &ControlConfig {
         &self.config
     }

@@ -22,6 +22,7 @@ use flowgate_protocol::psd::{FaultCode, Message, Packet};
 use flowgate_protocol::CanFrame;
 use num_complex::Complex64 as C;
 
+use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
 use super::psd_session::{PsdSession, SessionEvent, SetupError};
 use super::safety::{Action, Safety, State, StopReason};
 use super::telemetry::CycleRecord;
@@ -29,6 +30,7 @@ use super::{Counters, Progress};
 use crate::config::Rig;
 use crate::control::{ControlStep, StepStatus};
 use crate::link::CanEvent;
+use crate::planner::{FieldError, Space};
 use crate::time::{CtrlTime, HostTime};
 use crate::track::Tracker;
 
@@ -121,6 +123,10 @@ pub struct Core<K: StageClock> {
     decode_ns: u64,
     shutdown: bool,
     streamed: bool,
+    /// The goal being driven to, then the rest of the queue.
+    goals: VecDeque<Goal>,
+    /// The operator asked to start: go from Armed to Running once ready.
+    start_requested: bool,
 }
 
 impl<K: StageClock> Core<K> {
@@ -147,6 +153,8 @@ impl<K: StageClock> Core<K> {
             decode_ns: 0,
             shutdown: false,
             streamed: false,
+            goals: VecDeque::with_capacity(MAX_GOALS),
+            start_requested: false,
             clock,
             rig,
         }
@@ -266,13 +274,173 @@ impl<K: StageClock> Core<K> {
         self.stop(now, StopReason::BusOff);
     }
 
-    /// The operator arms (or re-arms after a stop or fault).
-    pub fn arm(&mut self, now: HostTime) {
-        let action = self.safety.arm(now.secs());
-        self.armed_at = now;
-        self.last_sample = now;
-        self.board.last_heartbeat = None;
-        self.act(now, action);
+    /// An operator's request at `now`. Refusals say exactly why and change nothing.
+    pub fn request(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
+        let state = self.state();
+        match request {
+            Request::Status => Ok(()),
+            Request::Arm => match state {
+                State::Idle | State::Stopped(_) => {
+                    let action = self.safety.arm(now.secs());
+                    self.armed_at = now;
+                    self.last_sample = now;
+                    self.board.last_heartbeat = None;
+                    self.start_requested = false;
+                    self.act(now, action);
+                    Ok(())
+                }
+                State::Fault(_) => Err(Refusal::Faulted(state)),
+                _ => Err(Refusal::Already(state)),
+            },
+            Request::Start => match state {
+                State::Armed if self.goals.is_empty() => Err(Refusal::NoGoal),
+                State::Armed => {
+                    self.start_requested = true;
+                    Ok(())
+                }
+                State::Running => Err(Refusal::Already(state)),
+                State::Fault(_) => Err(Refusal::Faulted(state)),
+                _ => Err(Refusal::NotArmed(state)),
+            },
+            Request::Stop | Request::Cancel => {
+                if matches!(request, Request::Cancel) {
+                    self.goals.clear();
+                }
+                self.start_requested = false;
+                if matches!(state, State::Running | State::Armed) {
+                    self.stop(now, StopReason::Operator);
+                }
+                Ok(())
+            }
+            Request::EStop => {
+                self.start_requested = false;
+                // Accepted whatever the state. In a fault the board was e-stopped already; it
+                // hears the operator's e-stop again all the same.
+                if matches!(state, State::Fault(_)) {
+                    let target = Target::Node(self.rig.node);
+                    self.send(MotorMessage::EStop { target, reason: EStopReason::Operator });
+                } else {
+                    self.stop(now, StopReason::OperatorEStop);
+                }
+                Ok(())
+            }
+            Request::Reset => match state {
+                State::Fault(reason) if self.cause_present(now, reason) => Err(Refusal::CauseStillPresent(reason)),
+                State::Fault(_) => {
+                    self.send(MotorMessage::Nmt {
+                        target: Target::Node(self.rig.node),
+                        command: NmtCommand::FaultReset,
+                    });
+                    self.safety.reset(now.secs());
+                    self.state_changed(now);
+                    Ok(())
+                }
+                _ => Err(Refusal::NotFaulted(state)),
+            },
+            Request::Goal { goals } => self.set_goals(now, goals),
+        }
+    }
+
+    /// Arm, set `goal` and start: what `flowgate run --arm`, the demo and the virtual rig do
+    /// when the controller first streams.
+    pub fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
+        self.request(now, &Request::Arm)?;
+        self.request(now, &Request::Goal { goals: vec![goal] })?;
+        self.request(now, &Request::Start)
+    }
+
+    /// What the gateway knows now: state, goals, pose, obstacles.
+    pub fn status(&mut self, now: HostTime) -> Status {
+        let period = self.rig.sample_period.as_secs_f64();
+        let (wheel_base, robot, margin) =
+            (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
+        let (pose, obstacles) = match self.tracker.estimate(now.secs(), period, wheel_base) {
+            Some(tr) => {
+                let p = tr.estimate.pose;
+                let delay = tr.estimate.delay;
+                let obstacles = tr
+                    .estimate
+                    .obstacles
+                    .iter()
+                    .map(|o| ObstacleStatus {
+                        position: [o.center.re, o.center.im],
+                        velocity: [o.velocity.re, o.velocity.im],
+                        planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
+                    })
+                    .collect();
+                (Some([p.position.re, p.position.im, p.heading]), obstacles)
+            }
+            None => (None, Vec::new()),
+        };
+        Status {
+            state: self.state(),
+            last_stop: self.safety.history.iter().rev().find_map(|(_, s)| s.reason()),
+            goals: self.goals.iter().copied().collect(),
+            pose,
+            obstacles,
+            cycles: self.counters.cycles,
+        }
+    }
+
+    /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,
+    /// outside every obstacle's planning circle now.
+    fn set_goals(&mut self, now: HostTime, goals: &[Goal]) -> Result<(), Refusal> {
+        if goals.is_empty() {
+            return Err(Refusal::EmptyQueue);
+        }
+        if goals.len() > MAX_GOALS {
+            return Err(Refusal::TooManyGoals(goals.len()));
+        }
+        let obstacles = self.status(now).obstacles;
+        for (index, g) in goals.iter().enumerate() {
+            let [x, y] = g.position;
+            let bad = |why: String| Refusal::BadGoal { index, x, y, why };
+            let at = C::new(x, y);
+            if !(x.is_finite() && y.is_finite() && g.tolerance.is_finite() && g.tolerance > 0.0) {
+                return Err(bad("position and tolerance must be finite, the tolerance positive".into()));
+            }
+            if !self.rig.calibration.in_view(at) {
+                return Err(bad("outside the calibrated arena (the PSD does not see it)".into()));
+            }
+            if let Space::Lane { half_width } = self.rig.control.planner.space {
+                if y.abs() >= half_width {
+                    return Err(bad(format!("outside the lane (|y| >= {half_width} m)")));
+                }
+            }
+            for (k, o) in obstacles.iter().enumerate() {
+                let gap = (at - C::new(o.position[0], o.position[1])).norm();
+                if gap <= o.planning_radius {
+                    return Err(bad(format!(
+                        "inside obstacle {k}'s planning circle ({gap:.3} m from it, radius {:.3} m)",
+                        o.planning_radius
+                    )));
+                }
+            }
+        }
+        self.goals.clear();
+        self.goals.extend(goals.iter().copied());
+        let first = goals[0];
+        self.control.set_goal(C::new(first.position[0], first.position[1]), first.tolerance);
+        Ok(())
+    }
+
+    /// Whether a fault's cause persists now.
+    fn cause_present(&self, now: HostTime, reason: StopReason) -> bool {
+        let s = &self.rig.safety;
+        let heard = self.board.last_heartbeat.is_some_and(|h| now < h + s.heartbeat_timeout);
+        let sampling = !self.psd.is_down() && now < self.last_sample + s.sample_timeout;
+        match reason {
+            StopReason::SerialLost => self.psd.is_down(),
+            StopReason::SamplesStopped | StopReason::SerialGarbled => !sampling,
+            StopReason::PoseLost => {
+                !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
+            }
+            StopReason::HeartbeatLost => !heard,
+            StopReason::BusOff => !heard || self.board.faults.contains(FaultBits::BUS),
+            // The reset clears the board's latched fault; a driver fault that persists
+            // faults the gateway again once it runs.
+            _ => false,
+        }
     }
 
     /// Stop in order and end the run once at rest.
@@ -413,7 +581,10 @@ impl<K: StageClock> Core<K> {
                 return;
             };
             let track_ns = self.clock.now_ns().saturating_sub(track_start);
-            let ready = self.safety.state() == State::Armed && self.board.state == Some(BoardState::Enabled);
+            let ready = self.safety.state() == State::Armed
+                && self.start_requested
+                && !self.goals.is_empty()
+                && self.board.state == Some(BoardState::Enabled);
             if ready {
                 self.safety.ready(t);
             }
@@ -433,8 +604,12 @@ impl<K: StageClock> Core<K> {
                     pulses = out.pulses;
                     wheels = (out.wheels.left, out.wheels.right);
                 }
-                StepStatus::AtGoal => self.stop(now, StopReason::GoalReached),
+                StepStatus::AtGoal => self.goal_reached(now),
                 StepStatus::Stalled => self.stop(now, StopReason::Stalled),
+                StepStatus::Invalid(FieldError::GoalInsideObstacle { index }) => {
+                    tracing::warn!("goal inside obstacle {index}'s planning circle: stopping");
+                    self.stop(now, StopReason::GoalBlocked);
+                }
                 StepStatus::Invalid(e) => {
                     self.counters.planner_invalid += 1;
                     tracing::error!("planner: {e}");
@@ -467,8 +642,23 @@ impl<K: StageClock> Core<K> {
             pulses,
             x: at.re,
             y: at.im,
-            goal_distance: (self.rig.control.goal - at).norm(),
+            goal_distance: (self.control.config().goal - at).norm(),
             ..CycleRecord::default()
+        }
+    }
+
+    /// A goal is reached: on to the next in the queue, or stop.
+    fn goal_reached(&mut self, now: HostTime) {
+        self.goals.pop_front();
+        match self.goals.front() {
+            Some(next) => {
+                tracing::info!("goal reached; next goal ({}, {})", next.position[0], next.position[1]);
+                self.control.set_goal(C::new(next.position[0], next.position[1]), next.tolerance);
+            }
+            None => {
+                self.start_requested = false;
+                self.stop(now, StopReason::GoalReached);
+            }
         }
     }
 
@@ -521,7 +711,7 @@ impl<K: StageClock> Core<K> {
         self.counters.cycles += 1;
         self.progress.t = now.secs();
         self.progress.cycles = self.counters.cycles;
-        self.progress.goal_distance = (self.rig.control.goal - position).norm();
+        self.progress.goal_distance = (self.control.config().goal - position).norm();
         self.out.push_back(Output::Command { frame, record });
     }
 
@@ -590,7 +780,12 @@ impl<K: StageClock> Core<K> {
             }
             Action::OrderlyStop => self.stopping_since = Some(now),
             Action::EmergencyStop => {
-                self.send(MotorMessage::EStop { target: Target::Node(node), reason: EStopReason::GatewayFault });
+                let reason = if self.state() == State::Fault(StopReason::OperatorEStop) {
+                    EStopReason::Operator
+                } else {
+                    EStopReason::GatewayFault
+                };
+                self.send(MotorMessage::EStop { target: Target::Node(node), reason });
                 self.stopping_since = None;
                 self.tracker.forget_pose();
                 tracing::warn!("emergency stop: {}", self.state());
@@ -752,7 +947,7 @@ mod tests {
         let mut c = core();
         c.psd_connected(ms(0));
         answer(&mut c, ms(1));
-        c.arm(ms(1));
+        c.request(ms(1), &Request::Arm).unwrap();
         let expected = ms(1) + c.rig().safety.sample_timeout;
         assert!(c.next_deadline() <= expected);
         let mut now = ms(1);

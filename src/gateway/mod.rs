@@ -13,7 +13,9 @@
 //! Telemetry goes to a writer thread through a bounded queue (see [`telemetry`]): the loop
 //! never waits on it.
 
+pub mod control_socket;
 pub mod core;
+pub mod operator;
 pub mod psd_session;
 pub mod safety;
 pub mod shell;
@@ -39,6 +41,8 @@ pub enum GatewayError {
     Setup { port: String, source: SetupError },
     #[error("telemetry output {path}: {source}")]
     Telemetry { path: String, source: std::io::Error },
+    #[error(transparent)]
+    ControlSocket(#[from] control_socket::ControlSocketError),
 }
 
 /// What the gateway shows while it runs (for a live display). Receivers are woken when the

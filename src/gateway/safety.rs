@@ -1,13 +1,15 @@
 //! The gateway's safety state machine.
 //!
 //! ```text
-//!  Idle --arm--> Armed --pose and board ready--> Running --goal/stall/operator stop--> Stopping --> Stopped
-//!    any state --fault--> Fault (axes stopped at once); Fault and Stopped --arm--> Armed
+//!  Idle --arm--> Armed --start (pose, board, goal ready)--> Running --goal/stall/stop--> Stopping --> Stopped
+//!  Stopped --arm--> Armed;  any state --fault or e-stop--> Fault (axes stopped at once)
+//!  Fault --reset (cause gone)--> Idle
 //! ```
 //!
-//! Motion is commanded only in `Running`. A fault never clears itself: the operator re-arms
-//! (`SIGUSR1`, or the `arm` call), and only once the cause is gone does the gateway leave
-//! `Armed` for `Running`.
+//! The gateway starts in `Idle` and moves nothing until an operator arms it and starts it
+//! (`flowgate ctl arm`, `start`; `flowgate run --arm` does both at start, for the demo and
+//! tests only). Motion is commanded only in `Running`. A fault never clears itself: the
+//! operator resets it, which is refused while its cause persists, and then arms again.
 
 use flowgate_protocol::motor::GatewayState;
 
@@ -18,6 +20,10 @@ pub enum StopReason {
     Stalled,
     Operator,
     Shutdown,
+    /// The goal came to lie inside an obstacle's planning circle (orderly stop).
+    GoalBlocked,
+    /// An operator's emergency stop (a fault: latched until reset).
+    OperatorEStop,
     PoseLost,
     SamplesStopped,
     SerialGarbled,
@@ -31,7 +37,7 @@ pub enum StopReason {
 impl StopReason {
     /// Whether this is a fault (stop at once, latch) rather than an orderly stop.
     pub fn is_fault(self) -> bool {
-        !matches!(self, Self::GoalReached | Self::Stalled | Self::Operator | Self::Shutdown)
+        !matches!(self, Self::GoalReached | Self::Stalled | Self::Operator | Self::Shutdown | Self::GoalBlocked)
     }
 }
 
@@ -61,6 +67,8 @@ impl std::fmt::Display for StopReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
             Self::GoalReached => "goal reached",
+            Self::GoalBlocked => "goal inside an obstacle's planning circle",
+            Self::OperatorEStop => "operator emergency stop",
             Self::Stalled => "stalled (no progress)",
             Self::Operator => "operator stop",
             Self::Shutdown => "shutdown signal",
@@ -169,7 +177,7 @@ impl Safety {
     /// The operator arms (or re-arms after a stop or fault).
     pub fn arm(&mut self, t: f64) -> Action {
         match self.state {
-            State::Idle | State::Stopped(_) | State::Fault(_) => {
+            State::Idle | State::Stopped(_) => {
                 self.go(t, State::Armed);
                 Action::EnableBoard
             }
@@ -202,6 +210,15 @@ impl Safety {
             }
             _ => Action::None,
         }
+    }
+
+    /// Leave a fault for Idle (the caller has checked that its cause is gone).
+    pub fn reset(&mut self, t: f64) -> bool {
+        let faulted = matches!(self.state, State::Fault(_));
+        if faulted {
+            self.go(t, State::Idle);
+        }
+        faulted
     }
 
     /// The axes have come to rest after an orderly stop.
@@ -242,10 +259,12 @@ mod tests {
         s.ready(2.0);
         assert_eq!(s.stop(2.0, StopReason::GoalReached), Action::None);
         assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost));
+        assert_eq!(s.arm(2.5), Action::None, "arming does not clear a fault");
+        assert!(s.reset(2.9));
         assert_eq!(s.arm(3.0), Action::EnableBoard);
         s.ready(3.1);
         assert_eq!(s.state(), State::Running);
-        assert_eq!(s.history.len(), 6);
+        assert_eq!(s.history.len(), 7);
     }
 
     #[test]

@@ -11,7 +11,9 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 use tokio::time::{timeout, Instant};
 
+use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
+use super::operator::Request;
 use super::telemetry::{self, CanRecord, Record, Recorder, Timing};
 use super::{GatewayError, Progress, Report};
 use crate::config::Rig;
@@ -35,8 +37,23 @@ const CAN_ERROR_BACKOFF: Duration = Duration::from_millis(50);
 pub struct Controls {
     /// Becomes `true` to stop (orderly) and end the run.
     pub shutdown: watch::Receiver<bool>,
-    /// The operator re-arms after a stop or fault.
-    pub arm: mpsc::Receiver<()>,
+    /// Arm and start towards the config's `[goal]` as soon as the controller streams
+    /// (`flowgate run --arm`, the demo). Otherwise the gateway waits, idle, for an operator.
+    pub arm_at_start: bool,
+    requests: mpsc::Receiver<Command>,
+    sender: mpsc::Sender<Command>,
+}
+
+impl Controls {
+    pub fn new(shutdown: watch::Receiver<bool>, arm_at_start: bool) -> Self {
+        let (sender, requests) = mpsc::channel(control_socket::QUEUE);
+        Self { shutdown, arm_at_start, requests, sender }
+    }
+
+    /// Where operator requests go (the control socket uses one too).
+    pub fn sender(&self) -> mpsc::Sender<Command> {
+        self.sender.clone()
+    }
 }
 
 /// The host's monotonic clock, for the stage timings.
@@ -61,7 +78,8 @@ struct Io {
     sample_period: Duration,
     next_reopen: HostTime,
     can_resume: HostTime,
-    armed: bool,
+    /// Arm and start at the first stream (`--arm`); done once.
+    arm_at_start: bool,
 }
 
 impl Io {
@@ -115,8 +133,12 @@ impl Io {
                         core.can_failed(self.now());
                     }
                 }
-                Output::State { state, .. } => {
+                Output::State { state, at } => {
                     tracing::info!("state: {state}");
+                    self.recorder.record(Record::Event(telemetry::EventRecord {
+                        at_s: at.secs(),
+                        text: format!("state: {state}"),
+                    }));
                     if let Some(tx) = &self.progress {
                         let p = core.progress();
                         tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
@@ -127,10 +149,16 @@ impl Io {
                         let reconnects = core.counters().serial_reconnects;
                         tx.send_if_modified(|p| std::mem::replace(&mut p.serial_reconnects, reconnects) != reconnects);
                     }
-                    // Starting the run is the operator's arm; after that, only the operator re-arms.
-                    if !self.armed {
-                        self.armed = true;
-                        core.arm(self.now());
+                    // `--arm`: the operator's arm and start, given on the command line, once.
+                    if std::mem::take(&mut self.arm_at_start) {
+                        match core.rig().goal {
+                            Some(goal) => {
+                                if let Err(e) = core.arm_and_start(self.now(), goal) {
+                                    tracing::error!("--arm: {e}");
+                                }
+                            }
+                            None => tracing::error!("--arm: the config has no [goal] to drive to"),
+                        }
                     }
                 }
                 Output::SetupFailed(source) if !core.has_streamed() => {
@@ -164,6 +192,29 @@ impl Io {
         result
     }
 
+    /// An operator's request: the core decides, the peer gets the answer and the state.
+    fn handle<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
+        let now = self.now();
+        let result = core.request(now, &cmd.request);
+        let status = (cmd.request == Request::Status || result.is_ok()).then(|| core.status(now));
+        let text = match &result {
+            Ok(()) => format!("{}: {:?} accepted", cmd.peer, cmd.request),
+            Err(e) => format!("{}: {:?} refused: {e}", cmd.peer, cmd.request),
+        };
+        if cmd.request != Request::Status {
+            match &result {
+                Ok(()) => tracing::info!("{text}"),
+                Err(_) => tracing::warn!("{text}"),
+            }
+            self.recorder.record(Record::Event(telemetry::EventRecord { at_s: now.secs(), text }));
+        }
+        let reply = match result {
+            Ok(()) => Reply { ok: true, error: None, status },
+            Err(e) => Reply { ok: false, error: Some(e.to_string()), status },
+        };
+        let _ = cmd.reply.send(reply);
+    }
+
     fn reopen<K: StageClock>(&mut self, core: &mut Core<K>, path: &std::path::Path, baud: u32) {
         let now = self.now();
         self.next_reopen = now + REOPEN_EVERY;
@@ -192,6 +243,14 @@ pub async fn run(
         Err(_) => return Err(CanError::Timeout { what: "open" }.into()),
     };
     let psd = open_serial(&rig.serial.port, rig.serial.baud)?;
+    let _socket_task = match &rig.operator.socket {
+        Some(path) => {
+            let socket = ControlSocket::bind(path, rig.operator.group.as_deref())?;
+            tracing::info!("control socket {}", path.display());
+            Some(tokio::spawn(socket.serve(controls.sender())))
+        }
+        None => None,
+    };
     let (recorder, writer) = match &rig.telemetry.out_dir {
         Some(dir) => {
             let interface = match &rig.can {
@@ -216,7 +275,7 @@ pub async fn run(
         sample_period: rig.sample_period,
         next_reopen: HostTime::NEVER,
         can_resume: HostTime::ZERO,
-        armed: false,
+        arm_at_start: controls.arm_at_start,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
     core.psd_connected(io.now());
@@ -269,7 +328,7 @@ pub async fn run(
                 }
                 core.tick(now);
             }
-            Some(()) = controls.arm.recv() => core.arm(io.now()),
+            Some(cmd) = controls.requests.recv() => io.handle(&mut core, cmd),
             changed = controls.shutdown.changed(), if !shutdown_seen => {
                 // A dropped sender is a shutdown too: nobody is left to ask for one.
                 if changed.is_err() || *controls.shutdown.borrow() {
@@ -278,6 +337,9 @@ pub async fn run(
                 }
             }
         }
+    }
+    if let Some(task) = _socket_task {
+        task.abort();
     }
     let dropped = io.recorder.dropped();
     let timing = std::mem::take(&mut io.timing);

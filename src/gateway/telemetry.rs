@@ -7,7 +7,8 @@
 //! record has to wake it: queueing one costs the loop no system call. The writer produces:
 //! - `cycles.csv`: one row per cycle (columns in [`CycleRecord::CSV_HEADER`]);
 //! - `trace.json`: Chrome/Perfetto trace events, one complete event per stage per cycle;
-//! - `can.log`: every CAN frame sent and received, candump `-L` format.
+//! - `can.log`: every CAN frame sent and received, candump `-L` format;
+//! - `events.log`: state changes and operator requests (who asked, and the answer).
 //!
 //! The loop keeps HDR histograms of end-to-end latency and command period in memory for the
 //! summary printed at exit.
@@ -124,10 +125,19 @@ impl CanRecord {
     }
 }
 
-#[derive(Debug, Clone, Copy)]
+/// Something that happened, in words: a state change, an operator's request and its answer.
+#[derive(Debug, Clone)]
+pub struct EventRecord {
+    pub at_s: f64,
+    pub text: String,
+}
+
+#[derive(Debug, Clone)]
 pub enum Record {
     Cycle(CycleRecord),
     Can(CanRecord),
+    /// Events (rare: they may allocate).
+    Event(EventRecord),
 }
 
 /// The loop's end of the telemetry queue.
@@ -181,6 +191,7 @@ pub fn start_writer(
     std::fs::create_dir_all(dir)?;
     let (tx, mut rx) = mpsc::channel::<Record>(capacity);
     let paths = (dir.join("cycles.csv"), dir.join("trace.json"), dir.join("can.log"));
+    let mut events = std::io::BufWriter::new(std::fs::File::create(dir.join("events.log"))?);
     let mut cycles = std::io::BufWriter::new(std::fs::File::create(&paths.0)?);
     let mut trace = std::io::BufWriter::new(std::fs::File::create(&paths.1)?);
     let mut can = std::io::BufWriter::new(std::fs::File::create(&paths.2)?);
@@ -243,10 +254,12 @@ pub fn start_writer(
                     f.candump(&interface, &mut can)?;
                     written.can_frames += 1;
                 }
+                Record::Event(e) => writeln!(events, "({:.6}) {}", e.at_s, e.text)?,
             }
         }
         write!(trace, "],\"displayTimeUnit\":\"ms\"}}")?;
         cycles.flush()?;
+        events.flush()?;
         trace.flush()?;
         can.flush()?;
         Ok(written)

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use flowgate_sim::rig::{self, CanEndpoint, RigConfig};
 use flowgate_sim::truth::TruthRecord;
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 
 use super::Scenario;
 use crate::config::ConfigError;
@@ -67,9 +67,8 @@ pub async fn run(
     };
     let rig = scenario.gateway_config(&handle.psd_path, &can_url, out_dir).rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
-    let (_arm_tx, arm_rx) = mpsc::channel(1);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-    let gw = tokio::spawn(gateway::run(rig, Controls { shutdown: stop_rx, arm: arm_rx }, Some(progress_tx)));
+    let gw = tokio::spawn(gateway::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));
     let limit = tokio::time::Instant::now() + Duration::from_secs_f64(scenario.time_limit);
     let mut ticker = tokio::time::interval(Duration::from_millis(500));
     loop {

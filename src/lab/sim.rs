@@ -31,6 +31,7 @@ use tokio_util::codec::Decoder as _;
 
 use super::offline::Outcome;
 use super::Scenario;
+use crate::gateway::operator::{Refusal, Request, Status};
 use crate::gateway::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
 use crate::gateway::{Core, NoClock, Output, Report, SetupError, StageClock, State};
 use crate::link::{slcan_event, CanEvent};
@@ -55,6 +56,10 @@ pub struct Options {
     pub telemetry: bool,
     /// End the run at the first contact (sweeps need no more).
     pub stop_at_contact: bool,
+    /// Start idle and wait for operator requests ([`VirtualRig::request`]), as the rig's
+    /// gateway does without `--arm`. By default the run arms and starts towards the
+    /// scenario's goal when the controller first streams.
+    pub wait_for_operator: bool,
 }
 
 /// One direction of a serial line: bytes in order, each chunk arriving after its
@@ -355,11 +360,17 @@ impl<K: StageClock> VirtualRig<K> {
         }
     }
 
-    /// The operator arms (or re-arms) now.
-    pub fn arm(&mut self) {
-        self.core.arm(HostTime::from_nanos(self.t));
+    /// An operator's request now.
+    pub fn request(&mut self, request: &Request) -> Result<(), Refusal> {
+        let result = self.core.request(HostTime::from_nanos(self.t), request);
         self.drain_core();
         self.firmware_out();
+        result
+    }
+
+    /// The operator's status view now.
+    pub fn status(&mut self) -> Status {
+        self.core.status(HostTime::from_nanos(self.t))
     }
 
     /// A shutdown request now (as SIGINT gives the rig's gateway).
@@ -567,7 +578,12 @@ impl<K: StageClock> VirtualRig<K> {
                 Output::State { .. } => {}
                 Output::Streaming if !self.armed => {
                     self.armed = true;
-                    self.core.arm(now);
+                    if !self.options.wait_for_operator {
+                        if let Some(goal) = self.core.rig().goal {
+                            // A refused start shows in the report: the run stays idle.
+                            let _ = self.core.arm_and_start(now, goal);
+                        }
+                    }
                 }
                 Output::Streaming => {}
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),

@@ -319,7 +319,7 @@ pub async fn run(
     std::fs::write(&config, rig_toml(&gateway.controller.path, &gateway.can.endpoint, 500))?;
     let gateway_log = workdir.join("gateway.log");
     let mut child = tokio::process::Command::new(gateway_exe)
-        .args(["run", "--config"])
+        .args(["run", "--arm", "--config"])
         .arg(&config)
         .stdout(std::fs::File::create(&gateway_log)?)
         .kill_on_drop(true)

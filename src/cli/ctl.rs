@@ -1,0 +1,156 @@
+//! `flowgate ctl`: the operator's commands, sent to a running gateway's control socket.
+//!
+//! One JSON request per line, one reply per line (src/gateway/operator.rs). The exit status
+//! is non-zero when the gateway refuses, with its reason.
+
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use flowgate::config::GatewayConfig;
+use flowgate::gateway::operator::{Goal, Request};
+
+#[derive(Args, Debug)]
+pub struct CtlArgs {
+    /// The control socket (default: `[operator] socket` of --config).
+    #[arg(long, value_name = "PATH", conflicts_with = "config")]
+    socket: Option<PathBuf>,
+    /// The rig config naming the socket.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Print the gateway's raw JSON reply.
+    #[arg(long)]
+    json: bool,
+    #[command(subcommand)]
+    command: CtlCommand,
+}
+
+#[derive(Subcommand, Debug)]
+enum CtlCommand {
+    /// State, last stop, goals, pose, obstacles.
+    Status,
+    /// Enable the board (nothing moves yet).
+    Arm,
+    /// Drive to the goal.
+    Start,
+    /// Stop in order (ramp down, disable).
+    Stop,
+    /// Emergency stop, at once, whatever the state.
+    Estop,
+    /// Leave a fault, once its cause is gone.
+    Reset,
+    /// Set the goal: `goal X Y [--tolerance M]`, or a queue: `goal --queue X,Y X,Y ...`.
+    Goal {
+        /// x y, m.
+        #[arg(num_args = 2, value_names = ["X", "Y"], allow_negative_numbers = true, required_unless_present = "queue")]
+        xy: Vec<f64>,
+        /// Goals driven in order, each `X,Y`.
+        #[arg(long, num_args = 1.., value_name = "X,Y", allow_negative_numbers = true, conflicts_with = "xy")]
+        queue: Vec<String>,
+        /// m.
+        #[arg(long, default_value_t = 0.02)]
+        tolerance: f64,
+    },
+    /// Drop the goals; a running robot stops in order.
+    Cancel,
+}
+
+fn request(command: &CtlCommand) -> Result<Request> {
+    Ok(match command {
+        CtlCommand::Status => Request::Status,
+        CtlCommand::Arm => Request::Arm,
+        CtlCommand::Start => Request::Start,
+        CtlCommand::Stop => Request::Stop,
+        CtlCommand::Estop => Request::EStop,
+        CtlCommand::Reset => Request::Reset,
+        CtlCommand::Cancel => Request::Cancel,
+        CtlCommand::Goal { xy, queue, tolerance } => {
+            let goals = if queue.is_empty() {
+                vec![Goal { position: [xy[0], xy[1]], tolerance: *tolerance }]
+            } else {
+                queue
+                    .iter()
+                    .map(|p| {
+                        let (x, y) = p.split_once(',').with_context(|| format!("--queue {p}: expected X,Y"))?;
+                        let v = |s: &str| {
+                            s.trim().parse::<f64>().with_context(|| format!("--queue {p}: `{s}` is not a number"))
+                        };
+                        Ok(Goal { position: [v(x)?, v(y)?], tolerance: *tolerance })
+                    })
+                    .collect::<Result<_>>()?
+            };
+            Request::Goal { goals }
+        }
+    })
+}
+
+pub fn run(args: CtlArgs) -> Result<()> {
+    let socket = match (&args.socket, &args.config) {
+        (Some(s), _) => s.clone(),
+        (None, Some(c)) => {
+            let rig = GatewayConfig::load(c)?;
+            rig.operator.socket.with_context(|| format!("{} has no [operator] socket", c.display()))?
+        }
+        (None, None) => bail!("name the gateway: --socket PATH or --config rig.toml"),
+    };
+    let req = request(&args.command)?;
+    let mut stream = UnixStream::connect(&socket)
+        .with_context(|| format!("control socket {} (is the gateway running? may you use it?)", socket.display()))?;
+    stream.set_read_timeout(Some(Duration::from_secs(5)))?;
+    let mut line = serde_json::to_string(&req)?;
+    line.push('\n');
+    stream.write_all(line.as_bytes())?;
+    let mut reply = String::new();
+    BufReader::new(&stream).read_line(&mut reply).context("reading the gateway's reply")?;
+    let value: serde_json::Value = serde_json::from_str(&reply).context("the gateway's reply is not JSON")?;
+    if args.json {
+        println!("{}", reply.trim_end());
+    } else {
+        print_reply(&value);
+    }
+    if value["ok"] != serde_json::Value::Bool(true) {
+        bail!("refused: {}", value["error"].as_str().unwrap_or("(no reason given)"));
+    }
+    Ok(())
+}
+
+fn print_reply(v: &serde_json::Value) {
+    let Some(s) = v.get("status").filter(|s| !s.is_null()) else {
+        if v["ok"] == serde_json::Value::Bool(true) {
+            println!("ok");
+        }
+        return;
+    };
+    println!("state      {}", s["state"].as_str().unwrap_or("?"));
+    println!("last stop  {}", s["last_stop"].as_str().unwrap_or("-"));
+    let goals: Vec<String> = s["goals"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|g| format!("({}, {})", g["position"][0], g["position"][1]))
+        .collect();
+    println!("goals      {}", if goals.is_empty() { "-".into() } else { goals.join(" then ") });
+    match s["pose"].as_array() {
+        Some(p) => println!(
+            "pose       x {:.3} m  y {:.3} m  heading {:.1}°",
+            p[0].as_f64().unwrap_or(f64::NAN),
+            p[1].as_f64().unwrap_or(f64::NAN),
+            p[2].as_f64().unwrap_or(f64::NAN).to_degrees()
+        ),
+        None => println!("pose       -"),
+    }
+    for (k, o) in s["obstacles"].as_array().into_iter().flatten().enumerate() {
+        println!(
+            "obstacle {k} at ({:.3}, {:.3}) m, velocity ({:.3}, {:.3}) m/s, planning radius {:.3} m",
+            o["position"][0].as_f64().unwrap_or(f64::NAN),
+            o["position"][1].as_f64().unwrap_or(f64::NAN),
+            o["velocity"][0].as_f64().unwrap_or(f64::NAN),
+            o["velocity"][1].as_f64().unwrap_or(f64::NAN),
+            o["planning_radius"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    println!("cycles     {}", s["cycles"]);
+}

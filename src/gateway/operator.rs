@@ -1,0 +1,102 @@
+//! What an operator may ask of the gateway, and what it answers: the vocabulary of the
+//! control socket (`flowgate ctl`). One JSON object per line each way:
+//!
+//! ```text
+//! {"cmd":"status"}   {"cmd":"arm"}   {"cmd":"start"}   {"cmd":"stop"}   {"cmd":"estop"}
+//! {"cmd":"reset"}    {"cmd":"cancel"}
+//! {"cmd":"goal","goals":[{"position":[0.6,0.0],"tolerance":0.02}, ...]}   (one goal, or a queue)
+//! ```
+//!
+//! Answers are `{"ok":true,"status":{...}}` or `{"ok":false,"error":"not armed",...}`. The
+//! rules live in the core ([`super::Core::request`]); this module only names things.
+
+use serde::{Deserialize, Serialize};
+
+use super::safety::{State, StopReason};
+
+/// A goal: where, and how close counts as there.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Goal {
+    /// Floor coordinates, m.
+    pub position: [f64; 2],
+    /// m (default 0.02).
+    #[serde(default = "default_tolerance")]
+    pub tolerance: f64,
+}
+
+fn default_tolerance() -> f64 {
+    0.02
+}
+
+/// Longest goal queue accepted.
+pub const MAX_GOALS: usize = 64;
+
+/// One operator request.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(tag = "cmd", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Request {
+    /// The state, the last stop's reason, goals, pose, obstacles, counters.
+    Status,
+    /// Enable the board (Idle or Stopped -> Armed). Nothing moves yet.
+    Arm,
+    /// Drive to the goal (Armed -> Running once the pose and the board are ready).
+    Start,
+    /// Orderly stop: ramp down, disable.
+    Stop,
+    /// Emergency stop, at once, whatever the state. Always accepted.
+    #[serde(rename = "estop")]
+    EStop,
+    /// Leave Fault for Idle, only when the fault's cause is gone.
+    Reset,
+    /// Set the goal, or a queue of goals driven in order (replaces any queue).
+    Goal { goals: Vec<Goal> },
+    /// Drop the goals; a running robot stops in order.
+    Cancel,
+}
+
+/// Why a request was refused: exactly, so the operator knows what to do.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Refusal {
+    #[error("not armed (state {0}): arm first")]
+    NotArmed(State),
+    #[error("already {0}")]
+    Already(State),
+    #[error("{0}: reset first")]
+    Faulted(State),
+    #[error("not in fault (state {0})")]
+    NotFaulted(State),
+    #[error("fault: {0}, cause still present")]
+    CauseStillPresent(StopReason),
+    #[error("no goal: set one with `goal X Y`")]
+    NoGoal,
+    #[error("no goals given")]
+    EmptyQueue,
+    #[error("{0} goals: at most {MAX_GOALS}")]
+    TooManyGoals(usize),
+    #[error("goal {index} ({x}, {y}): {why}")]
+    BadGoal { index: usize, x: f64, y: f64, why: String },
+}
+
+/// An obstacle as the gateway estimates it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ObstacleStatus {
+    pub position: [f64; 2],
+    pub velocity: [f64; 2],
+    /// The obstacle's radius plus the robot's, grown by the margin rule now, m.
+    pub planning_radius: f64,
+}
+
+/// The answer to `status`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Status {
+    pub state: State,
+    /// Why the gateway last stopped or faulted.
+    pub last_stop: Option<StopReason>,
+    /// The goal being driven to, then the rest of the queue.
+    pub goals: Vec<Goal>,
+    /// x, y (m), heading (rad), when the gateway has a pose.
+    pub pose: Option<[f64; 3]>,
+    pub obstacles: Vec<ObstacleStatus>,
+    pub cycles: u64,
+}

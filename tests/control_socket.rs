@@ -1,0 +1,157 @@
+//! The control socket of the real `flowgate run`, against the simulator over real ptys:
+//! `flowgate ctl` drives a session (status, arm, goal, start); bad requests get clear errors
+//! and change nothing; the socket admits only its owner and group.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use flowgate::lab::Scenario;
+
+fn flowgate() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_flowgate"))
+}
+
+fn ctl(socket: &Path, args: &[&str]) -> Output {
+    flowgate().args(["ctl", "--socket"]).arg(socket).args(args).output().unwrap()
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// One raw request line, one reply line.
+fn raw(socket: &Path, line: &[u8]) -> serde_json::Value {
+    let mut s = UnixStream::connect(socket).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    s.write_all(line).unwrap();
+    let mut reply = String::new();
+    BufReader::new(&s).read_line(&mut reply).unwrap();
+    serde_json::from_str(&reply).unwrap_or_else(|e| panic!("{e}: {reply}"))
+}
+
+/// Lines of the gateway's output, as they come.
+fn lines(from: impl Read + Send + 'static) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(from).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    rx
+}
+
+/// Wait (10 s at most) for a line containing `what`.
+fn await_line(rx: &mpsc::Receiver<String>, what: &str, seen: &mut Vec<String>) {
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    while let Some(left) = deadline.checked_duration_since(std::time::Instant::now()) {
+        match rx.recv_timeout(left) {
+            Ok(line) => {
+                let hit = line.contains(what);
+                seen.push(line);
+                if hit {
+                    return;
+                }
+            }
+            Err(_) => break,
+        }
+    }
+    panic!("no line with `{what}`: {seen:#?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_operator_session_over_the_control_socket() {
+    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-ctl-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let socket = dir.join("control.sock");
+    let mut cfg = s.gateway_config(&handle.psd_path, &can, Some(dir.join("telemetry")));
+    cfg.goal = None; // goals come from the operator
+    cfg.operator.socket = Some(socket.clone());
+    std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();
+    let mut child = flowgate()
+        .args(["run", "--config"])
+        .arg(dir.join("rig.toml"))
+        .env("RUST_LOG", "flowgate=info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = lines(child.stdout.take().unwrap());
+    let log = lines(child.stderr.take().unwrap());
+    let (mut seen, mut logged) = (Vec::new(), Vec::new());
+    await_line(&log, "control socket", &mut logged);
+
+    // Idle: nothing moves until asked.
+    let status = ctl(&socket, &["status"]);
+    assert!(status.status.success() && text(&status).contains("state      idle"), "{}", text(&status));
+    assert_eq!(std::fs::metadata(&socket).unwrap().permissions().mode() & 0o777, 0o660);
+
+    // Bad requests: a clear error each, and nothing changes.
+    let malformed = raw(&socket, b"{\"cmd\":\n");
+    assert!(malformed["error"].as_str().unwrap().starts_with("malformed request"), "{malformed}");
+    let unknown = raw(&socket, b"{\"cmd\":\"fly\"}\n");
+    assert!(unknown["error"].as_str().unwrap().contains("unknown variant `fly`"), "{unknown}");
+    let mut long = vec![b' '; 5000];
+    long.push(b'\n');
+    let oversized = raw(&socket, &long);
+    assert_eq!(oversized["error"], "request longer than 4096 bytes: ignored");
+    let refused = ctl(&socket, &["start"]);
+    assert!(
+        !refused.status.success() && text(&refused).contains("refused: not armed (state idle)"),
+        "{}",
+        text(&refused)
+    );
+    let inside = ctl(&socket, &["goal", "0.0", "0.02"]);
+    assert!(!inside.status.success(), "{}", text(&inside));
+    assert!(raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["state"] == "idle");
+
+    // Only the owner and the group: another user is refused by the socket's permissions.
+    if std::fs::metadata("/proc/self").unwrap().uid() == 0 {
+        let other = Command::new("setpriv")
+            .args([
+                "--reuid=65534",
+                "--regid=65534",
+                "--clear-groups",
+                env!("CARGO_BIN_EXE_flowgate"),
+                "ctl",
+                "--socket",
+            ])
+            .arg(&socket)
+            .arg("status")
+            .output()
+            .unwrap();
+        assert!(!other.status.success(), "{}", text(&other));
+        assert!(text(&other).contains("Permission denied"), "{}", text(&other));
+    }
+
+    // The session: arm, a goal, start; the robot drives there and stops.
+    for args in [&["arm"][..], &["goal", "0.35", "0.05"], &["start"]] {
+        let o = ctl(&socket, args);
+        assert!(o.status.success(), "{args:?}: {}", text(&o));
+    }
+    await_line(&out, "state: running", &mut seen);
+    await_line(&out, "state: stopped: goal reached", &mut seen);
+    let done = ctl(&socket, &["status"]);
+    assert!(text(&done).contains("last stop  goal reached"), "{}", text(&done));
+
+    let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
+    assert!(child.wait().unwrap().success());
+    let truth = handle.stop().await;
+    let end = truth.summary.final_position;
+    assert!((end[0] - 0.35).hypot(end[1] - 0.05) < 0.03, "{end:?}");
+    assert!(truth.summary.first_contact.is_none());
+    // Who asked what, in the telemetry.
+    let events = std::fs::read_to_string(dir.join("telemetry/events.log")).unwrap();
+    assert!(events.contains("uid 0") || events.contains("uid "), "{events}");
+    assert!(events.contains("Start accepted") && events.contains("refused: not armed"), "{events}");
+    assert!(!socket.exists(), "the socket is removed at exit");
+    let _ = std::fs::remove_dir_all(&dir);
+}

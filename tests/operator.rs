@@ -1,0 +1,195 @@
+//! Operator control in deterministic virtual time: the gateway starts idle, moves only when
+//! armed and started, drives goals and queues, and answers every request exactly. The
+//! robot's motion is judged by the simulator's world truth.
+
+use std::path::Path;
+
+use flowgate::gateway::operator::{Goal, Refusal, Request};
+use flowgate::gateway::{State, StopReason};
+use flowgate::lab::offline::Outcome;
+use flowgate::lab::sim::{Options, VirtualRig};
+use flowgate::lab::Scenario;
+use flowgate_sim::scenario::Motion;
+
+/// One cycle of E1 (T = 17 ms).
+const T: f64 = 0.017;
+
+fn scenario(name: &str) -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap()
+}
+
+/// The rig's gateway as a service runs it: idle, waiting for an operator.
+fn idle(s: &Scenario) -> VirtualRig {
+    VirtualRig::new(s, Options { truth_samples: true, telemetry: true, wait_for_operator: true, ..Options::default() })
+}
+
+fn goal(x: f64, y: f64) -> Request {
+    Request::Goal { goals: vec![Goal { position: [x, y], tolerance: 0.02 }] }
+}
+
+#[test]
+fn it_starts_idle_and_moves_nothing_for_ten_seconds() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let mut rig = idle(&s);
+    rig.run_until(10.0);
+    assert_eq!(rig.core().state(), State::Idle);
+    let e = rig.finish(s.goal.position, s.goal.tolerance);
+    let t = &e.truth.summary;
+    assert!(t.duration >= 10.0);
+    assert_eq!(t.path_length, 0.0, "the robot moved");
+    assert_eq!(t.peak_wheel_speed, [0.0, 0.0]);
+    assert!(e.truth.samples.len() > 400 && e.truth.samples.iter().all(|x| x.wheel_speeds == [0.0, 0.0]));
+}
+
+#[test]
+fn arm_goal_and_start_reach_the_goal_and_each_refusal_says_why() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let mut rig = idle(&s);
+    rig.run_until(0.5);
+    assert_eq!(rig.request(&Request::Start), Err(Refusal::NotArmed(State::Idle)));
+    rig.request(&Request::Arm).unwrap();
+    assert_eq!(rig.request(&Request::Arm), Err(Refusal::Already(State::Armed)));
+    assert_eq!(rig.request(&Request::Start), Err(Refusal::NoGoal));
+    assert_eq!(rig.request(&Request::Reset), Err(Refusal::NotFaulted(State::Armed)));
+    rig.request(&goal(s.goal.position[0], s.goal.position[1])).unwrap();
+    rig.run_until(2.0);
+    assert_eq!(rig.core().state(), State::Armed, "armed with a goal, but not started: still");
+    assert_eq!(rig.world().truth().path_length, 0.0);
+    rig.request(&Request::Start).unwrap();
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached));
+}
+
+#[test]
+fn a_queue_of_three_goals_is_driven_in_order() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let queue = [[-0.05, -0.3], [0.35, -0.25], [0.35, 0.05]];
+    let mut rig = idle(&s);
+    rig.run_until(0.5);
+    rig.request(&Request::Arm).unwrap();
+    let goals = queue.iter().map(|&p| Goal { position: p, tolerance: 0.02 }).collect();
+    rig.request(&Request::Goal { goals }).unwrap();
+    assert_eq!(rig.status().goals.len(), 3);
+    rig.request(&Request::Start).unwrap();
+    let last = queue[2];
+    let e = rig.run(60.0, last, 0.02);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert!(!e.contact);
+    // World truth: the robot passes each goal, in order.
+    let mut from = 0;
+    for g in queue {
+        let i = e.truth.samples[from..]
+            .iter()
+            .position(|x| (x.x - g[0]).hypot(x.y - g[1]) < 0.03)
+            .unwrap_or_else(|| panic!("never at {g:?} after sample {from}"));
+        from += i;
+    }
+    // One stop only, at the end: the intermediate goals are passed through.
+    let stops = e.report.transitions.iter().filter(|(_, s)| matches!(s, State::Stopping(_))).count();
+    assert_eq!(stops, 1, "{:?}", e.report.transitions);
+}
+
+/// Running, stopping, armed or idle: an e-stop stops the wheels within one cycle and
+/// latches, and a reset is accepted once its cause (the operator) is gone.
+#[test]
+fn estop_stops_the_wheels_within_a_cycle_from_any_state() {
+    let s = scenario("e1-standing-obstacle.toml");
+    for before in ["running", "stopping", "armed", "idle"] {
+        let mut rig = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() });
+        rig.run_until(3.0);
+        match before {
+            "stopping" => {
+                rig.request(&Request::Stop).unwrap();
+                rig.run_until(3.05);
+                assert!(matches!(rig.core().state(), State::Stopping(_)));
+            }
+            "armed" => {
+                rig.request(&Request::EStop).unwrap();
+                rig.request(&Request::Reset).unwrap();
+                rig.request(&Request::Arm).unwrap();
+                rig.run_until(3.05);
+            }
+            "idle" => {
+                rig.request(&Request::EStop).unwrap();
+                rig.request(&Request::Reset).unwrap();
+                rig.run_until(3.05);
+            }
+            _ => {}
+        }
+        let at = rig.time();
+        let state = rig.core().state();
+        rig.request(&Request::EStop).unwrap();
+        rig.run_until(at + 0.5);
+        assert_eq!(rig.core().state(), State::Fault(StopReason::OperatorEStop), "from {state}");
+        let e = rig.finish(s.goal.position, s.goal.tolerance);
+        let rest = e.at_rest_since.expect("at rest");
+        assert!(rest <= at + T, "from {state}: at rest {:.1} ms after the e-stop", (rest - at) * 1e3);
+    }
+}
+
+#[test]
+fn stop_ramps_the_wheels_down_in_order() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let mut rig = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() });
+    rig.run_until(3.0);
+    rig.request(&Request::Stop).unwrap();
+    rig.run_until(4.5);
+    assert_eq!(rig.core().state(), State::Stopped(StopReason::Operator));
+    let e = rig.finish(s.goal.position, s.goal.tolerance);
+    let rest = e.at_rest_since.unwrap();
+    let ramp = s.robot.max_wheel_speed / s.robot.wheel_accel;
+    assert!(rest > 3.0 + 0.05, "a ramp, not an e-stop: at rest {:.1} ms after", (rest - 3.0) * 1e3);
+    assert!(rest <= 3.0 + T + ramp, "{rest}");
+}
+
+#[test]
+fn goals_inside_an_obstacle_outside_the_lane_or_the_arena_are_refused() {
+    let s = scenario("e1-standing-obstacle.toml");
+    let mut rig = idle(&s);
+    rig.run_until(1.0);
+    let inside = rig.request(&goal(0.02, 0.0)).unwrap_err().to_string();
+    assert!(inside.contains("inside obstacle 0's planning circle"), "{inside}");
+    let far = rig.request(&goal(5.0, 0.0)).unwrap_err().to_string();
+    assert!(far.contains("outside the calibrated arena"), "{far}");
+    let nan = rig.request(&goal(f64::NAN, 0.0)).unwrap_err().to_string();
+    assert!(nan.contains("finite"), "{nan}");
+    assert_eq!(rig.request(&Request::Goal { goals: vec![] }), Err(Refusal::EmptyQueue));
+    assert!(rig.status().goals.is_empty(), "a refused goal changes nothing");
+    let lane = scenario("e2-lane-head-on.toml");
+    let mut rig = idle(&lane);
+    rig.run_until(1.0);
+    let out = rig.request(&goal(0.3, 0.25)).unwrap_err().to_string();
+    assert!(out.contains("outside the lane"), "{out}");
+}
+
+/// An obstacle that comes to rest on the goal while the robot drives: an orderly stop,
+/// with that reason.
+#[test]
+fn a_goal_that_becomes_blocked_stops_the_robot_in_order() {
+    let mut s = scenario("e1-standing-obstacle.toml");
+    s.obstacles[0].start = [0.35, 0.45];
+    s.obstacles[0].motion = Motion::Waypoints { points: vec![[0.35, 0.05]], speed: 0.2, repeat: false };
+    let e = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() }).run(
+        s.time_limit,
+        s.goal.position,
+        s.goal.tolerance,
+    );
+    assert_eq!(e.report.final_state, State::Stopped(StopReason::GoalBlocked), "{}", e.report);
+    assert!(!e.contact);
+}
+
+/// A fault's reset is refused while its cause persists (the board's heartbeat stays away).
+#[test]
+fn reset_is_refused_while_the_cause_persists() {
+    let mut s = scenario("e1-standing-obstacle.toml");
+    s.faults = s.faults.with_settings(&["heartbeat_stop_at=2.0".to_string()]).unwrap();
+    let mut rig = VirtualRig::new(&s, Options::default());
+    rig.run_until(3.0);
+    assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost));
+    let refusal = rig.request(&Request::Reset).unwrap_err();
+    assert_eq!(refusal, Refusal::CauseStillPresent(StopReason::HeartbeatLost));
+    assert_eq!(refusal.to_string(), "fault: motor board heartbeat lost, cause still present");
+    assert_eq!(rig.request(&Request::Arm), Err(Refusal::Faulted(State::Fault(StopReason::HeartbeatLost))));
+    assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost));
+}
