@@ -113,6 +113,18 @@ async fn an_operator_session_over_the_control_socket() {
     assert!(!inside.status.success(), "{}", text(&inside));
     assert!(raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["state"] == "idle");
 
+    // A flooding client is served at most once per 10 ms, on its own connection.
+    let mut flood = UnixStream::connect(&socket).unwrap();
+    let started = std::time::Instant::now();
+    flood.write_all(&b"{\"cmd\":\"status\"}\n".repeat(20)).unwrap();
+    let mut replies = BufReader::new(&flood);
+    for _ in 0..20 {
+        let mut reply = String::new();
+        replies.read_line(&mut reply).unwrap();
+        assert!(reply.contains("\"ok\":true"), "{reply}");
+    }
+    assert!(started.elapsed() >= Duration::from_millis(190), "{:?}", started.elapsed());
+
     // Only the owner and the group: another user is refused by the socket's permissions.
     if std::fs::metadata("/proc/self").unwrap().uid() == 0 {
         let other = Command::new("setpriv")

@@ -2,8 +2,9 @@
 //! `flowgate ctl` and other local tools send one JSON request per line and read one JSON
 //! reply per line. It is the only way to command motion.
 //!
-//! Each connection is its own task; requests reach the gateway loop through a small bounded
-//! queue, so a flood of requests waits on its own connection and never on the control loop.
+//! Each connection is its own task, served at most once per [`MIN_INTERVAL`]; requests
+//! reach the gateway loop through a small bounded queue, so a flood of requests waits on its
+//! own connection and never on the control loop.
 //! Every request is answered: malformed, oversized and unknown ones with a clear error and no
 //! effect.
 
@@ -27,6 +28,10 @@ const MAX_CLIENTS: usize = 8;
 pub const QUEUE: usize = 16;
 /// How long a client waits for the loop's answer.
 const ANSWER_DEADLINE: Duration = Duration::from_secs(2);
+/// The least time between two requests of one connection: operators and their scripts ask
+/// at human rates, and a flooding client waits on its own connection (at most 100 requests
+/// a second each, 800 in all), never taking the control loop's time.
+pub const MIN_INTERVAL: Duration = Duration::from_millis(10);
 
 /// Who asked, from the socket's peer credentials.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -160,8 +165,11 @@ async fn connection(stream: UnixStream, tx: mpsc::Sender<Command>) -> std::io::R
     let (read, mut write) = stream.into_split();
     let mut read = BufReader::new(read);
     let mut line = Vec::with_capacity(256);
+    let mut next = tokio::time::Instant::now();
     loop {
         line.clear();
+        tokio::time::sleep_until(next).await;
+        next = tokio::time::Instant::now() + MIN_INTERVAL;
         // Read at most one byte past the limit: enough to know the line is too long.
         let n = (&mut read).take(MAX_REQUEST as u64 + 1).read_until(b'\n', &mut line).await?;
         if n == 0 {
