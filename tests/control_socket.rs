@@ -153,6 +153,7 @@ async fn an_operator_session_over_the_control_socket() {
     await_line(&out, "state: stopped: goal reached", &mut seen);
     let done = ctl(&socket, &["status"]);
     assert!(text(&done).contains("last stop  goal reached"), "{}", text(&done));
+    assert!(text(&done).contains("latency    p50 "), "{}", text(&done));
 
     let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
     assert!(child.wait().unwrap().success());

@@ -153,4 +153,12 @@ fn print_reply(v: &serde_json::Value) {
         );
     }
     println!("cycles     {}", s["cycles"]);
+    if let Some(l) = s.get("latency_us").filter(|l| !l.is_null()) {
+        println!(
+            "latency    p50 {:.0} µs  p99 {:.0} µs  max {:.0} µs   (serial read -> CAN write done)",
+            l["p50_us"].as_f64().unwrap_or(f64::NAN),
+            l["p99_us"].as_f64().unwrap_or(f64::NAN),
+            l["max_us"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
 }

@@ -379,6 +379,7 @@ impl<K: StageClock> Core<K> {
             pose,
             obstacles,
             cycles: self.counters.cycles,
+            latency_us: None,
         }
     }
 

@@ -99,4 +99,7 @@ pub struct Status {
     pub pose: Option<[f64; 3]>,
     pub obstacles: Vec<ObstacleStatus>,
     pub cycles: u64,
+    /// Cycle latency so far, serial read to CAN write done (filled in by the rig's shell,
+    /// which measures it; none in virtual time).
+    pub latency_us: Option<super::telemetry::Distribution>,
 }

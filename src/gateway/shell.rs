@@ -196,7 +196,11 @@ impl Io {
     fn handle<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
         let now = self.now();
         let result = core.request(now, &cmd.request);
-        let status = (cmd.request == Request::Status || result.is_ok()).then(|| core.status(now));
+        let status = (cmd.request == Request::Status || result.is_ok()).then(|| {
+            let mut status = core.status(now);
+            status.latency_us = (self.timing.cycles > 0).then(|| self.timing.e2e());
+            status
+        });
         let text = match &result {
             Ok(()) => format!("{}: {:?} accepted", cmd.peer, cmd.request),
             Err(e) => format!("{}: {:?} refused: {e}", cmd.peer, cmd.request),

@@ -277,7 +277,7 @@ pub struct Timing {
 }
 
 /// Percentiles, µs.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct Distribution {
     pub p50_us: f64,
     pub p99_us: f64,
