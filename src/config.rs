@@ -19,10 +19,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
 use crate::control::{ControlConfig, StallConfig};
-use crate::gateway::operator::Goal;
 use crate::link::CanUrl;
 use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
+pub use crate::track::TrackingSettings;
 use crate::track::{KalmanConfig, LedGeometry};
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -39,7 +39,7 @@ pub struct GatewayConfig {
     /// The goal `flowgate run --arm` drives to at start; goals otherwise come from the
     /// operator at run time (`flowgate ctl goal X Y`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub goal: Option<GoalSection>,
+    pub goal: Option<Goal>,
     pub planner: PlannerSettings,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lane: Option<LaneSection>,
@@ -189,13 +189,14 @@ pub struct RobotSection {
     pub max_speed: f64,
 }
 
-/// Where the robot goes (the same section in rig configs and scenario files).
-#[derive(Debug, Clone, Copy, Deserialize, Serialize)]
+/// A goal: where, and how close counts as there (the rig config's `[goal]`, and each goal an
+/// operator sets).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct GoalSection {
-    /// m, floor coordinates.
+pub struct Goal {
+    /// Floor coordinates, m.
     pub position: [f64; 2],
-    /// The goal counts as reached within this distance, m.
+    /// m (default 0.02).
     #[serde(default = "default_tolerance")]
     pub tolerance: f64,
 }
@@ -556,7 +557,7 @@ impl GatewayConfig {
                 sample_timeout: ms(s.sample_timeout_ms),
             },
             telemetry: self.telemetry.clone(),
-            goal: self.goal.map(|g| Goal { position: g.position, tolerance: g.tolerance }),
+            goal: self.goal,
             operator: self.operator.clone(),
         })
     }
@@ -623,14 +624,6 @@ pub struct BoardSettings {
     /// Rate limit, pulses/s.
     pub max_rate: u32,
     pub command_timeout_ms: u16,
-}
-
-/// How the tracker estimates the state the command will act on.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TrackingSettings {
-    pub predict_robot: bool,
-    pub predict_obstacles: bool,
-    pub kalman: KalmanConfig,
 }
 
 /// The gateway's watchdogs.

@@ -5,8 +5,6 @@
 use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
 use num_complex::Complex64 as C;
 
-use crate::config::TrackingSettings;
-use crate::control::Estimate;
 use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
 
 /// The robot's pose: centre and heading (rad from +x, counter-clockwise).
@@ -14,6 +12,23 @@ use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
 pub struct Pose {
     pub position: C,
     pub heading: f64,
+}
+
+/// The estimated state at the moment the command will act.
+#[derive(Debug, Clone, Copy)]
+pub struct Estimate<'a> {
+    pub pose: Pose,
+    pub obstacles: &'a [ObstacleEstimate],
+    /// Measured sensing-to-actuation delay, s.
+    pub delay: f64,
+}
+
+/// How the tracker estimates the state the command will act on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingSettings {
+    pub predict_robot: bool,
+    pub predict_obstacles: bool,
+    pub kalman: KalmanConfig,
 }
 
 /// Where the robot's LEDs sit along its heading, measured from its centre (m).

@@ -3,4 +3,5 @@
 
 mod step;
 
-pub use step::{ControlConfig, ControlStep, Estimate, StallConfig, StepOutput, StepStatus};
+pub use crate::track::Estimate;
+pub use step::{ControlConfig, ControlStep, StallConfig, StepOutput, StepStatus};

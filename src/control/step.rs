@@ -1,6 +1,6 @@
 use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
-use crate::planner::{ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError};
-use crate::track::Pose;
+use crate::planner::{Plan, PlanInput, Planner, PlannerConfig, PlannerError};
+use crate::track::Estimate;
 use num_complex::Complex64 as C;
 
 /// When the robot counts as stalled: it moved less than `min_progress` in `window` seconds
@@ -27,15 +27,6 @@ pub struct ControlConfig {
     pub goal_tolerance: f64,
     pub robot_radius: f64,
     pub stall: StallConfig,
-}
-
-/// The estimated state at the moment the command will act.
-#[derive(Debug, Clone, Copy)]
-pub struct Estimate<'a> {
-    pub pose: Pose,
-    pub obstacles: &'a [ObstacleEstimate],
-    /// Measured sensing-to-actuation delay, s.
-    pub delay: f64,
 }
 
 /// What the step decided.

@@ -14,20 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use super::safety::{State, StopReason};
 
-/// A goal: where, and how close counts as there.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct Goal {
-    /// Floor coordinates, m.
-    pub position: [f64; 2],
-    /// m (default 0.02).
-    #[serde(default = "default_tolerance")]
-    pub tolerance: f64,
-}
-
-fn default_tolerance() -> f64 {
-    0.02
-}
+pub use crate::config::Goal;
 
 /// Longest goal queue accepted.
 pub const MAX_GOALS: usize = 64;

@@ -19,3 +19,29 @@ pub mod scenario;
 pub mod sim;
 
 pub use scenario::Scenario;
+
+use serde::Serialize;
+
+/// How a run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Goal,
+    Collision,
+    Timeout,
+    Stall,
+    /// The gateway faulted (full-stack runs only).
+    Fault,
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Outcome::Goal => "goal",
+            Outcome::Collision => "collision",
+            Outcome::Timeout => "timeout",
+            Outcome::Stall => "stall",
+            Outcome::Fault => "fault",
+        })
+    }
+}

@@ -140,7 +140,7 @@ impl Scenario {
                 command_timeout_ms: u16::try_from(timeout_ms).unwrap_or(u16::MAX),
             },
             robot: RobotSection { radius: r.radius, max_speed: r.max_speed },
-            goal: Some(GoalSection { position: self.goal.position, tolerance: self.goal.tolerance }),
+            goal: Some(Goal { position: self.goal.position, tolerance: self.goal.tolerance }),
             planner: self.planner,
             lane: self.lane.map(|l| LaneSection { half_width: l.half_width }),
             // A rig with a known sensing delay accepts poses that old (and no older), and its

@@ -29,8 +29,7 @@ use flowgate_sim::truth::{TruthRecord, SAMPLE_PERIOD};
 use flowgate_sim::world::World;
 use tokio_util::codec::Decoder as _;
 
-use super::offline::Outcome;
-use super::Scenario;
+use super::{Outcome, Scenario};
 use crate::gateway::operator::{Refusal, Request, Status};
 use crate::gateway::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
 use crate::gateway::{Core, NoClock, Output, Report, SetupError, StageClock, State};

@@ -18,35 +18,12 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
+pub use super::Outcome;
 use super::Scenario;
 use crate::control::{ControlStep, StepStatus};
 use crate::gateway::{State, StopReason};
 use crate::planner::MAX_OBSTACLES;
 use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
-
-/// How a run ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Outcome {
-    Goal,
-    Collision,
-    Timeout,
-    Stall,
-    /// The gateway faulted (full-stack runs only).
-    Fault,
-}
-
-impl std::fmt::Display for Outcome {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Outcome::Goal => "goal",
-            Outcome::Collision => "collision",
-            Outcome::Timeout => "timeout",
-            Outcome::Stall => "stall",
-            Outcome::Fault => "fault",
-        })
-    }
-}
 
 /// Which runner: the whole stack (the gateway core through the firmware and the wire
 /// protocols, [`super::sim`]) or the planner alone against a modelled sensing chain.
