@@ -174,3 +174,16 @@ fn plan_command_refuses_a_bad_scenario_naming_the_key() {
     assert!(err.contains("sensing.sample_time") && err.contains("positive"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A command-line error is one line naming its cause once.
+#[test]
+fn errors_name_their_cause_once() {
+    let out = flowgate().args(["run", "--config", "/nonexistent/rig.toml"]).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    let out = flowgate().args(["demo", "--can", "socketcna:vcan0"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("socketcna:vcan0"), "{err}");
+}

@@ -30,8 +30,15 @@ impl FromStr for CanUrl {
         let bad = |why: &str| format!("CAN endpoint `{s}`: {why} (expected socketcan:IFACE or slcan:PATH?bitrate=BPS)");
         let (scheme, rest) = s.split_once(':').map_or((s, ""), |(a, b)| (a, b));
         match scheme {
-            "socketcan" if !rest.is_empty() => Ok(Self::SocketCan { interface: rest.to_string() }),
-            "slcan" if !rest.is_empty() => {
+            "socketcan" if rest.is_empty() => Err(bad("no interface named (socketcan:can0)")),
+            "socketcan" if rest.starts_with('/') || rest.contains(['/', ' ', '?', ':']) || rest.len() > 15 => {
+                Err(bad(&format!("`{rest}` is not an interface name (socketcan:can0, not socketcan://can0)")))
+            }
+            "socketcan" => Ok(Self::SocketCan { interface: rest.to_string() }),
+            "slcan" if rest.is_empty() || rest.starts_with('?') => {
+                Err(bad("no serial port named (slcan:/dev/ttyACM0)"))
+            }
+            "slcan" => {
                 let (path, query) = rest.split_once('?').unwrap_or((rest, ""));
                 let (mut bitrate, mut baud) = (1_000_000, 921_600);
                 for kv in query.split('&').filter(|kv| !kv.is_empty()) {
@@ -42,6 +49,9 @@ impl FromStr for CanUrl {
                         "baud" => baud = v,
                         _ => return Err(bad(&format!("unknown option `{k}`"))),
                     }
+                }
+                if baud == 0 {
+                    return Err(bad("baud must be positive"));
                 }
                 if Bitrate::from_bps(bitrate).is_none() {
                     return Err(bad(&format!("bitrate {bitrate} is not one of SLCAN's S0-S8")));
@@ -328,6 +338,16 @@ mod tests {
         assert!("slcan:/dev/x?bitrate=123".parse::<CanUrl>().unwrap_err().contains("S0-S8"));
         assert!("slcan:/dev/x?speed=1".parse::<CanUrl>().unwrap_err().contains("unknown option `speed`"));
         assert!("can0".parse::<CanUrl>().unwrap_err().contains("unknown scheme"));
+        for (url, why) in [
+            ("socketcan:", "no interface named"),
+            ("socketcan://can0", "is not an interface name"),
+            ("slcan:", "no serial port named"),
+            ("slcan:?bitrate=1000000", "no serial port named"),
+            ("slcan:/dev/x?baud=0", "baud must be positive"),
+        ] {
+            let err = url.parse::<CanUrl>().unwrap_err();
+            assert!(err.contains(why), "{url}: {err}");
+        }
     }
 
     #[tokio::test]

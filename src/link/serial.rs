@@ -5,7 +5,7 @@ use tokio_serial::SerialPortBuilderExt;
 
 #[derive(Debug, thiserror::Error)]
 pub enum SerialError {
-    #[error("serial port {path} does not exist (is the PSD controller plugged in? is the path right?)")]
+    #[error("serial port {path} does not exist (is the device plugged in? is the path right?)")]
     Missing { path: String },
     #[error("serial port {path} is in use by another program (flowgate opens it exclusively)")]
     Busy { path: String },
