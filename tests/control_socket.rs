@@ -109,6 +109,11 @@ async fn an_operator_session_over_the_control_socket() {
         "{}",
         text(&refused)
     );
+    // Await the first pose and obstacle estimate (the controller's first frames).
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["obstacles"].as_array().is_none_or(Vec::is_empty) {
+        assert!(std::time::Instant::now() < deadline, "no obstacle estimate within 10 s");
+    }
     let inside = ctl(&socket, &["goal", "0.0", "0.02"]);
     assert!(!inside.status.success(), "{}", text(&inside));
     assert!(raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["state"] == "idle");

@@ -21,6 +21,15 @@ pub struct FaultPlan {
     /// Corrupt only between these times `[from_s, to_s]` (default: the whole run).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub serial_corrupt_during: Option<[f64; 2]>,
+    /// Probability that a packet the controller sends goes out twice in a row.
+    #[serde(default)]
+    pub serial_duplicate: f64,
+    /// Probability that, after a packet, one of the eight before it is sent again (a replay).
+    #[serde(default)]
+    pub serial_replay: f64,
+    /// Duplicate and replay only between these times `[from_s, to_s]` (default: the whole run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial_repeat_during: Option<[f64; 2]>,
     /// At these times the controller's line emits a burst of `serial_burst_len` garbage bytes.
     #[serde(default)]
     pub serial_burst_at: Vec<f64>,
@@ -110,6 +119,15 @@ pub struct SerialFaults {
     drop: f64,
     corrupt: f64,
     corrupt_during: Option<[f64; 2]>,
+    duplicate: f64,
+    replay: f64,
+    repeat_during: Option<[f64; 2]>,
+    /// The last packets sent, for replays.
+    history: [Option<flowgate_protocol::psd::Packet>; 8],
+    next: usize,
+    /// Packets sent twice, packets replayed so far.
+    pub duplicated: u64,
+    pub replayed: u64,
     /// Bytes dropped, bytes corrupted so far.
     pub dropped: u64,
     pub corrupted: u64,
@@ -122,9 +140,41 @@ impl SerialFaults {
             drop: plan.serial_drop,
             corrupt: plan.serial_corrupt,
             corrupt_during: plan.serial_corrupt_during,
+            duplicate: plan.serial_duplicate,
+            replay: plan.serial_replay,
+            repeat_during: plan.serial_repeat_during,
+            history: [None; 8],
+            next: 0,
+            duplicated: 0,
+            replayed: 0,
             dropped: 0,
             corrupted: 0,
         }
+    }
+
+    /// The packets that go out for `packet` sent at `t`: itself, maybe twice, maybe followed
+    /// by a replay of an earlier one.
+    pub fn packets(
+        &mut self,
+        t: f64,
+        packet: flowgate_protocol::psd::Packet,
+        out: &mut impl FnMut(flowgate_protocol::psd::Packet),
+    ) {
+        out(packet);
+        let active = !matches!(self.repeat_during, Some([from, to]) if t < from || t >= to);
+        if active && self.duplicate > 0.0 && self.rng.random_bool(self.duplicate.min(1.0)) {
+            self.duplicated += 1;
+            out(packet);
+        }
+        if active && self.replay > 0.0 && self.rng.random_bool(self.replay.min(1.0)) {
+            let k = self.rng.random_range(0..self.history.len());
+            if let Some(old) = self.history[k] {
+                self.replayed += 1;
+                out(old);
+            }
+        }
+        self.history[self.next] = Some(packet);
+        self.next = (self.next + 1) % self.history.len();
     }
     /// Apply drop and corruption to bytes sent at time `t`, in place.
     pub fn apply(&mut self, t: f64, bytes: &mut Vec<u8>) {

@@ -446,9 +446,11 @@ async fn run(
         let mut bytes = Vec::new();
         while pending.front().is_some_and(|o| o.at <= t) {
             let o = pending.pop_front().expect("checked");
-            if let Ok(n) = o.packet.encode(&mut wire) {
-                bytes.extend_from_slice(&wire[..n]);
-            }
+            serial_faults.packets(t, o.packet, &mut |p| {
+                if let Ok(n) = p.encode(&mut wire) {
+                    bytes.extend_from_slice(&wire[..n]);
+                }
+            });
         }
         while bursts.front().is_some_and(|&at| at <= t) {
             bursts.pop_front();

@@ -23,7 +23,7 @@ use flowgate_protocol::CanFrame;
 use num_complex::Complex64 as C;
 
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
-use super::psd_session::{PsdSession, SessionEvent, SetupError};
+use super::psd_session::{PsdSession, Sequence, SessionEvent, SetupError};
 use super::safety::{Action, Safety, State, StopReason};
 use super::telemetry::CycleRecord;
 use super::{Counters, Progress};
@@ -87,6 +87,32 @@ struct RawSample {
     usable: bool,
 }
 
+/// Events counted over a sliding second against a budget (the window never grows past it).
+#[derive(Debug)]
+struct Budget {
+    times: VecDeque<HostTime>,
+    limit: usize,
+}
+
+impl Budget {
+    fn new(per_second: u32) -> Self {
+        let limit = per_second as usize;
+        Self { times: VecDeque::with_capacity((limit + 1).min(4096)), limit }
+    }
+
+    /// Count one at `now`; whether more than the budget fell within the last second.
+    fn exceeded(&mut self, now: HostTime) -> bool {
+        while self.times.front().is_some_and(|&b| now.since(b) > BAD_FRAME_WINDOW) {
+            self.times.pop_front();
+        }
+        if self.times.len() > self.limit.min(4095) {
+            self.times.pop_front();
+        }
+        self.times.push_back(now);
+        self.times.len() > self.limit
+    }
+}
+
 /// What the core knows of the motor board.
 #[derive(Debug, Default)]
 struct BoardView {
@@ -113,8 +139,13 @@ pub struct Core<K: StageClock> {
     progress: Progress,
     last_sample: HostTime,
     armed_at: HostTime,
-    /// Arrival times of bad serial frames within the last window.
-    bad_frames: VecDeque<HostTime>,
+    /// Bad serial frames, and sequence errors, within the last second.
+    bad_frames: Budget,
+    link_errors: Budget,
+    /// The frame whose samples are being collected, and how many came.
+    collecting: Option<(u32, u8)>,
+    /// The last frame that ended.
+    last_frame: Option<u32>,
     next_heartbeat: HostTime,
     stopping_since: Option<HostTime>,
     velocity_seq: u8,
@@ -132,7 +163,6 @@ pub struct Core<K: StageClock> {
 impl<K: StageClock> Core<K> {
     pub fn new(rig: Rig, clock: K) -> Self {
         let radii: Vec<f64> = rig.obstacles.iter().map(|o| o.radius).collect();
-        let budget = rig.safety.bad_frames_per_s as usize + 1;
         Self {
             psd: PsdSession::new(rig.schedule),
             tracker: Tracker::new(rig.tracking, rig.led_geometry, &radii),
@@ -145,7 +175,10 @@ impl<K: StageClock> Core<K> {
             progress: Progress::default(),
             last_sample: HostTime::ZERO,
             armed_at: HostTime::ZERO,
-            bad_frames: VecDeque::with_capacity(budget.min(4096)),
+            bad_frames: Budget::new(rig.safety.bad_frames_per_s),
+            link_errors: Budget::new(rig.safety.bad_frames_per_s),
+            collecting: None,
+            last_frame: None,
             next_heartbeat: HostTime::ZERO,
             stopping_since: None,
             velocity_seq: 0,
@@ -505,19 +538,47 @@ impl<K: StageClock> Core<K> {
             self.counters.serial_dropped_bytes += dropped as u64;
         }
         tracing::debug!("bad serial frame: {e}");
-        while self.bad_frames.front().is_some_and(|&b| now.since(b) > BAD_FRAME_WINDOW) {
-            self.bad_frames.pop_front();
-        }
-        if self.bad_frames.len() == self.bad_frames.capacity() {
-            self.bad_frames.pop_front(); // never grows: the budget is already exceeded
-        }
-        self.bad_frames.push_back(now);
-        if self.bad_frames.len() > self.rig.safety.bad_frames_per_s as usize && is_active(self.state()) {
+        if self.bad_frames.exceeded(now) && is_active(self.state()) {
             self.stop(now, StopReason::SerialGarbled);
         }
     }
 
+    /// A packet discarded for its place in the sequence or the schedule: counted (by the
+    /// caller), and against the budget.
+    fn link_error(&mut self, now: HostTime) {
+        if self.link_errors.exceeded(now) && is_active(self.state()) {
+            self.stop(now, StopReason::PsdSequence);
+        }
+    }
+
+    /// The controller's sequence: duplicates and replays are discarded, gaps counted.
+    fn in_sequence(&mut self, now: HostTime, packet: &Packet) -> bool {
+        if let Message::Fault { code: FaultCode::Reset, .. } = packet.message {
+            self.psd.forget_sequence(); // a rebooted controller counts from zero
+        }
+        match self.psd.sequence(packet.seq) {
+            Sequence::Next => true,
+            Sequence::Gap(n) => {
+                self.counters.psd_packets_lost += u64::from(n);
+                true
+            }
+            Sequence::Repeat => {
+                self.counters.psd_duplicates += 1;
+                self.link_error(now);
+                false
+            }
+            Sequence::Old => {
+                self.counters.psd_out_of_order += 1;
+                self.link_error(now);
+                false
+            }
+        }
+    }
+
     fn packet(&mut self, now: HostTime, packet: Packet) {
+        if !self.in_sequence(now, &packet) {
+            return;
+        }
         let out = &mut self.out;
         match self.psd.on_packet(now, &packet, &mut |p| out.push_back(Output::Psd(p))) {
             SessionEvent::Consumed => return,
@@ -527,6 +588,9 @@ impl<K: StageClock> Core<K> {
             }
             SessionEvent::Streaming => {
                 self.last_sample = now;
+                self.last_frame = None;
+                self.collecting = None;
+                self.clear_frame();
                 if self.streamed {
                     self.counters.serial_reconnects += 1;
                     self.progress.serial_reconnects = self.counters.serial_reconnects;
@@ -544,13 +608,11 @@ impl<K: StageClock> Core<K> {
             return;
         }
         match packet.message {
-            Message::Sample(s) => {
-                self.counters.samples += 1;
-                self.last_sample = now;
-                let at = CtrlTime(s.t_ctrl_us);
-                self.frame[usize::from(s.led)] = Some(RawSample { x: s.x, y: s.y, at, usable: s.flags.is_usable() });
+            Message::Sample(s) => self.sample(now, &s),
+            Message::FrameEnd { frame, t_ctrl_us, samples } if self.frame_end(now, frame, samples) => {
+                self.cycle(now, frame, CtrlTime(t_ctrl_us));
             }
-            Message::FrameEnd { frame, t_ctrl_us, .. } => self.cycle(now, frame, CtrlTime(t_ctrl_us)),
+            Message::FrameEnd { .. } => {} // discarded and counted by frame_end
             Message::Fault { code: FaultCode::Reset, .. } => {
                 // The controller rebooted (or announces its boot while we configure it): its
                 // schedule is gone. Configure it again; any motion was already stopped by
@@ -561,6 +623,68 @@ impl<K: StageClock> Core<K> {
                 }
             }
             _ => {} // heartbeats, other faults (the link checks come with the safety issue)
+        }
+    }
+
+    /// A sample: from a scheduled LED in its slot, into the frame being collected.
+    fn sample(&mut self, now: HostTime, s: &flowgate_protocol::psd::Sample) {
+        let scheduled = self.rig.schedule.slots().get(usize::from(s.slot)).is_some_and(|slot| slot.led == s.led);
+        if !scheduled {
+            self.counters.samples_unscheduled += 1;
+            self.link_error(now);
+            return;
+        }
+        match self.collecting {
+            Some((frame, _)) if frame != s.frame => {
+                // The frame before never ended: its samples go, this frame starts.
+                self.counters.frames_lost += 1;
+                self.clear_frame();
+                self.collecting = Some((s.frame, 0));
+            }
+            None => self.collecting = Some((s.frame, 0)),
+            Some(_) => {}
+        }
+        if let Some((_, n)) = &mut self.collecting {
+            *n = n.saturating_add(1);
+        }
+        self.counters.samples += 1;
+        self.last_sample = now;
+        let at = CtrlTime(s.t_ctrl_us);
+        self.frame[usize::from(s.led)] = Some(RawSample { x: s.x, y: s.y, at, usable: s.flags.is_usable() });
+    }
+
+    /// A frame's end: whether to run its cycle. A frame already done is discarded (no
+    /// second command from it); samples of another frame are dropped; gaps are counted.
+    fn frame_end(&mut self, now: HostTime, frame: u32, samples: u8) -> bool {
+        let behind = self.last_frame.map(|last| frame.wrapping_sub(last));
+        if behind.is_some_and(|d| d == 0 || d >= 0x8000_0000) {
+            self.counters.frames_repeated += 1;
+            self.link_error(now);
+            return false;
+        }
+        if let Some(d) = behind.filter(|&d| d > 1) {
+            self.counters.frames_lost += u64::from(d - 1);
+        }
+        let received = match self.collecting.take() {
+            Some((f, n)) if f == frame => n,
+            Some(_) => {
+                self.counters.frames_lost += 1;
+                self.clear_frame();
+                0
+            }
+            None => 0,
+        };
+        if received != samples {
+            self.counters.frames_incomplete += 1;
+        }
+        self.last_frame = Some(frame);
+        true
+    }
+
+    /// Forget the scheduled LEDs' samples.
+    fn clear_frame(&mut self) {
+        for slot in self.rig.schedule.slots() {
+            self.frame[usize::from(slot.led)] = None;
         }
     }
 
@@ -693,9 +817,7 @@ impl<K: StageClock> Core<K> {
                 self.tracker.observe_obstacle(k, at, p);
             }
         }
-        for slot in self.rig.schedule.slots() {
-            self.frame[usize::from(slot.led)] = None;
-        }
+        self.clear_frame();
     }
 
     fn command(&mut self, now: HostTime, pulses: [i32; 2], record: CycleRecord, position: C) {
@@ -836,9 +958,12 @@ mod tests {
         HostTime::from_nanos(v * 1_000_000)
     }
 
-    fn bytes(message: Message, seq: u16) -> Vec<u8> {
+    /// The controller's packets, numbered in order as its firmware does.
+    fn bytes(message: Message) -> Vec<u8> {
+        use std::sync::atomic::{AtomicU16, Ordering};
+        static SEQ: AtomicU16 = AtomicU16::new(0);
         let mut wire = [0u8; MAX_WIRE_LEN];
-        let n = Packet::new(seq, message).encode(&mut wire).unwrap();
+        let n = Packet::new(SEQ.fetch_add(1, Ordering::Relaxed), message).encode(&mut wire).unwrap();
         wire[..n].to_vec()
     }
 
@@ -863,7 +988,7 @@ mod tests {
                 Message::StopStream => continue,
                 m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
             };
-            core.psd_bytes(now, &bytes(reply, 0));
+            core.psd_bytes(now, &bytes(reply));
         }
         other
     }
@@ -885,9 +1010,9 @@ mod tests {
                 intensity: 3000,
                 flags: SampleFlags(0),
             };
-            out.extend(bytes(Message::Sample(s), 0));
+            out.extend(bytes(Message::Sample(s)));
         }
-        out.extend(bytes(Message::FrameEnd { frame: n, t_ctrl_us: stamp_us, samples: 2 }, 0));
+        out.extend(bytes(Message::FrameEnd { frame: n, t_ctrl_us: stamp_us, samples: 2 }));
         core.psd_bytes(now, &out);
     }
 
@@ -959,5 +1084,94 @@ mod tests {
         // The first to expire: the board's heartbeat (never heard) or the samples.
         assert!(matches!(c.state(), State::Fault(StopReason::SamplesStopped | StopReason::HeartbeatLost)));
         assert!(now <= expected, "{now} vs {expected}");
+    }
+
+    fn commands(c: &mut Core<NoClock>) -> usize {
+        let mut n = 0;
+        while let Some(o) = c.poll() {
+            n += usize::from(matches!(o, Output::Command { .. }));
+        }
+        n
+    }
+
+    /// The same frame twice (same packets, same frame counter, as a line echoing itself):
+    /// one command, the copy discarded and counted.
+    #[test]
+    fn a_duplicated_frame_gives_one_command() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        answer(&mut c, ms(1));
+        c.request(ms(1), &Request::Arm).unwrap();
+        commands(&mut c);
+        let cal = c.rig().calibration;
+        let sample = |slot: u8, led: u8, x: f64| {
+            let (rx, ry) = cal.to_raw(C::new(x, 0.0)).unwrap();
+            Message::Sample(Sample {
+                frame: 7,
+                slot,
+                led,
+                t_ctrl_us: CTRL_EPOCH_US + 19_000,
+                x: rx.round() as i32,
+                y: ry.round() as i32,
+                intensity: 3000,
+                flags: SampleFlags(0),
+            })
+        };
+        let mut wire = Vec::new();
+        for m in [
+            sample(0, 1, 0.035),
+            sample(1, 2, -0.035),
+            Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
+        ] {
+            wire.extend(bytes(m));
+        }
+        c.psd_bytes(ms(20), &wire);
+        c.psd_bytes(ms(20), &wire);
+        assert_eq!(commands(&mut c), 1, "one command for one frame");
+        // The copy of the block: its last packet repeats the last one seen, the two before
+        // it are behind it.
+        assert_eq!((c.counters().psd_duplicates, c.counters().psd_out_of_order), (1, 2));
+        // The same frame again under new sequence numbers (a replayed frame): still no command.
+        for m in [
+            sample(0, 1, 0.035),
+            sample(1, 2, -0.035),
+            Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
+        ] {
+            c.psd_bytes(ms(21), &bytes(m));
+        }
+        assert_eq!(commands(&mut c), 0);
+        assert_eq!(c.counters().frames_repeated, 1);
+    }
+
+    /// Samples from an LED or slot outside the schedule are discarded; a sample of another
+    /// frame is not used for this one; gaps in frames and packets are counted.
+    #[test]
+    fn samples_are_checked_against_the_schedule_and_their_frame() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        answer(&mut c, ms(1));
+        let stray = |frame: u32, slot: u8, led: u8| {
+            Message::Sample(Sample {
+                frame,
+                slot,
+                led,
+                t_ctrl_us: CTRL_EPOCH_US + 1_000,
+                x: 0,
+                y: 0,
+                intensity: 3000,
+                flags: SampleFlags(0),
+            })
+        };
+        c.psd_bytes(ms(2), &bytes(stray(0, 0, 9))); // LED 9 is not scheduled
+        c.psd_bytes(ms(2), &bytes(stray(0, 1, 1))); // LED 1 is slot 0, not 1
+        assert_eq!(c.counters().samples_unscheduled, 2);
+        assert_eq!(c.counters().samples, 0);
+        c.psd_bytes(ms(3), &bytes(stray(4, 0, 1))); // a sample of frame 4 ...
+        c.psd_bytes(ms(3), &bytes(Message::FrameEnd { frame: 5, t_ctrl_us: CTRL_EPOCH_US + 2_000, samples: 2 })); // ... ended as 5
+        assert_eq!(c.counters().frames_lost, 1);
+        assert_eq!(c.counters().frames_incomplete, 1);
+        assert!(c.tracker.pose_time().is_none(), "no pose from another frame's sample");
+        frame(&mut c, ms(40), 9, CTRL_EPOCH_US + 39_000);
+        assert_eq!(c.counters().frames_lost, 1 + 3, "frames 6, 7 and 8 never came");
     }
 }

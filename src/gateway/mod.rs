@@ -69,6 +69,20 @@ pub struct Counters {
     pub samples_unsynced: u64,
     /// Samples stamped in the future by more than a period (discarded).
     pub samples_from_future: u64,
+    /// Controller packets lost (gaps in their sequence numbers).
+    pub psd_packets_lost: u64,
+    /// Controller packets seen twice (discarded).
+    pub psd_duplicates: u64,
+    /// Controller packets behind the sequence: replays, reordering (discarded).
+    pub psd_out_of_order: u64,
+    /// Frames that never ended (gaps in the frame counter, or samples of another frame).
+    pub frames_lost: u64,
+    /// Frame ends for a frame already done (discarded: no second command).
+    pub frames_repeated: u64,
+    /// Frames whose sample count disagrees with their end (run on what came).
+    pub frames_incomplete: u64,
+    /// Samples from an LED or slot that is not in the schedule (discarded).
+    pub samples_unscheduled: u64,
     pub bad_serial_frames: u64,
     pub serial_dropped_bytes: u64,
     pub serial_reconnects: u64,
@@ -155,6 +169,17 @@ impl std::fmt::Display for Report {
             f,
             "                 {} samples before time sync, {} stamped in the future (discarded)",
             c.samples_unsynced, c.samples_from_future
+        )?;
+        writeln!(
+            f,
+            "psd link         {} packets lost, {} duplicated, {} out of order; frames: {} lost, {} repeated, {} incomplete; {} unscheduled samples",
+            c.psd_packets_lost,
+            c.psd_duplicates,
+            c.psd_out_of_order,
+            c.frames_lost,
+            c.frames_repeated,
+            c.frames_incomplete,
+            c.samples_unscheduled
         )?;
         writeln!(
             f,

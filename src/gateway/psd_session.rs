@@ -75,6 +75,19 @@ pub enum SessionEvent {
     Pass,
 }
 
+/// Where a packet's sequence number falls, against the last one accepted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sequence {
+    /// The next one.
+    Next,
+    /// Ahead: this many packets were lost in between (accepted).
+    Gap(u16),
+    /// The same again: a duplicate (discarded).
+    Repeat,
+    /// Behind: a replay or a reordering (discarded).
+    Old,
+}
+
 /// The session.
 #[derive(Debug)]
 pub struct PsdSession {
@@ -85,6 +98,8 @@ pub struct PsdSession {
     phase: Phase,
     offset: ClockOffset,
     info: Option<Info>,
+    /// The controller's last accepted sequence number.
+    last_seq: Option<u16>,
 }
 
 impl PsdSession {
@@ -97,12 +112,14 @@ impl PsdSession {
             phase: Phase::Down,
             offset: ClockOffset::default(),
             info: None,
+            last_seq: None,
         }
     }
 
     /// The line is open: stop any stream left running and start the handshake.
     pub fn connect(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
         self.buf.clear();
+        self.last_seq = None;
         self.codec = PsdCodec::new();
         send(self.packet(Message::StopStream));
         self.request(now, Step::Info, 1, send);
@@ -112,6 +129,7 @@ impl PsdSession {
     /// again from the schedule on.
     /// Returns whether it had been streaming (a reset in the middle of a run).
     pub fn restart(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) -> bool {
+        self.last_seq = None;
         let was_streaming = self.phase == Phase::Streaming;
         if self.phase != Phase::Down {
             self.request(now, Step::Schedule, 1, send);
@@ -137,6 +155,26 @@ impl PsdSession {
     /// Controller stamps to host time, from the last time sync.
     pub fn clock(&self) -> ClockOffset {
         self.offset
+    }
+
+    /// Accept whatever sequence number comes next (a controller that rebooted).
+    pub fn forget_sequence(&mut self) {
+        self.last_seq = None;
+    }
+
+    /// Check a packet's sequence number; the next, or one after a gap, becomes the last.
+    /// Half the number space ahead counts as ahead, the other half as behind.
+    pub fn sequence(&mut self, seq: u16) -> Sequence {
+        let verdict = match self.last_seq.map(|last| seq.wrapping_sub(last)) {
+            None | Some(1) => Sequence::Next,
+            Some(0) => Sequence::Repeat,
+            Some(d) if d < 0x8000 => Sequence::Gap(d - 1),
+            Some(_) => Sequence::Old,
+        };
+        if matches!(verdict, Sequence::Next | Sequence::Gap(_)) {
+            self.last_seq = Some(seq);
+        }
+        verdict
     }
 
     /// Bytes read from the line.

@@ -27,6 +27,8 @@ pub enum StopReason {
     PoseLost,
     SamplesStopped,
     SerialGarbled,
+    /// Duplicated, replayed, reordered or unscheduled PSD packets beyond budget.
+    PsdSequence,
     SerialLost,
     HeartbeatLost,
     BusOff,
@@ -75,6 +77,7 @@ impl std::fmt::Display for StopReason {
             Self::PoseLost => "robot pose lost",
             Self::SamplesStopped => "no samples from the PSD controller",
             Self::SerialGarbled => "garbled serial frames beyond budget",
+            Self::PsdSequence => "PSD packets out of sequence beyond budget",
             Self::SerialLost => "serial device lost",
             Self::HeartbeatLost => "motor board heartbeat lost",
             Self::BusOff => "CAN bus-off",

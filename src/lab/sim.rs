@@ -194,6 +194,9 @@ pub struct Episode {
     pub telemetry: Option<Telemetry>,
     /// The PSD controller could not be configured (the run never started).
     pub setup_error: Option<SetupError>,
+    /// What the simulator injected on the serial line: packets duplicated, packets
+    /// replayed, bytes dropped, bytes corrupted.
+    pub injected: [u64; 4],
 }
 
 /// The stack in virtual time. `K` times the core's stages ([`NoClock`] for determinism).
@@ -477,9 +480,12 @@ impl<K: StageClock> VirtualRig<K> {
         let mut wire = [0u8; psd::MAX_WIRE_LEN];
         while self.pending.front().is_some_and(|o| o.at <= t) {
             let o = self.pending.pop_front().expect("checked");
-            if let Ok(n) = o.packet.encode(&mut wire) {
-                self.scratch.extend_from_slice(&wire[..n]);
-            }
+            let scratch = &mut self.scratch;
+            self.serial_faults.packets(t, o.packet, &mut |p| {
+                if let Ok(n) = p.encode(&mut wire) {
+                    scratch.extend_from_slice(&wire[..n]);
+                }
+            });
         }
         while self.bursts.front().is_some_and(|&at| at <= t) {
             self.bursts.pop_front();
@@ -648,6 +654,12 @@ impl<K: StageClock> VirtualRig<K> {
             at_rest_since: self.at_rest_since,
             telemetry: self.telemetry,
             setup_error: self.setup_error,
+            injected: [
+                self.serial_faults.duplicated,
+                self.serial_faults.replayed,
+                self.serial_faults.dropped,
+                self.serial_faults.corrupted,
+            ],
         }
     }
 }
