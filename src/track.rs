@@ -261,6 +261,16 @@ impl Tracker {
         taken
     }
 
+    /// When obstacle `k` was last measured, s (None: never).
+    pub fn obstacle_time(&self, k: usize) -> Option<f64> {
+        self.filters.get(k).copied().flatten().map(|kf| kf.time())
+    }
+
+    /// How many obstacles it tracks (seen or not).
+    pub fn obstacle_count(&self) -> usize {
+        self.count
+    }
+
     /// When the last pose was valid, s.
     pub fn pose_time(&self) -> Option<f64> {
         self.pose.map(|(t, _)| t)

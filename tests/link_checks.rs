@@ -72,3 +72,54 @@ fn a_line_repeating_itself_beyond_budget_faults_and_stops() {
         (rest - 2.0) * 1e3
     );
 }
+
+/// The fault's time and the wheels' rest, from the report and the world's truth.
+fn fault_and_rest(e: &Episode) -> (f64, f64) {
+    let fault = e.report.transitions.iter().find(|(_, s)| matches!(s, State::Fault(_))).unwrap().0;
+    (fault, e.at_rest_since.expect("at rest"))
+}
+
+/// The board reboots at 2 s (a power glitch): its boot-up heartbeat names it at once.
+#[test]
+fn a_board_reboot_is_named() {
+    let e = e1(&["board_reboot_at=2.0"]);
+    assert_eq!(e.report.final_state, State::Fault(StopReason::BoardReboot), "{}", e.report);
+    let (fault, rest) = fault_and_rest(&e);
+    assert!(fault - 2.0 < 0.001, "{fault}");
+    assert!(rest - 2.0 < 0.001, "the rebooting board stops its axes: {rest}");
+}
+
+/// Another device commands our board from 2 s: the first such frame faults the gateway.
+#[test]
+fn a_second_master_on_our_velocity_id_faults_at_once() {
+    let e = e1(&["second_master_at=2.0"]);
+    assert_eq!(e.report.final_state, State::Fault(StopReason::SecondMaster), "{}", e.report);
+    let (fault, rest) = fault_and_rest(&e);
+    assert!(fault - 2.0 < 0.001, "{fault}");
+    assert!(rest - fault <= 0.017, "wheels at rest {:.1} ms after the fault", (rest - fault) * 1e3);
+}
+
+/// The obstacle's LED occluded from 2 s: its track expires with the pose timeout (300 ms),
+/// and the robot does not drive on a guess of where the obstacle went.
+#[test]
+fn an_unseen_obstacle_expires_and_stops_the_robot() {
+    let e = e1(&["occlusions=[[3, 2.0, 100.0]]"]);
+    assert_eq!(e.report.final_state, State::Fault(StopReason::ObstacleLost), "{}", e.report);
+    let (fault, rest) = fault_and_rest(&e);
+    assert!(fault - 2.0 <= 0.300, "{fault}");
+    assert!(rest - 2.0 <= 0.300 + 0.017, "wheels at rest {:.1} ms after the occlusion", (rest - 2.0) * 1e3);
+    eprintln!(
+        "obstacle unseen: fault {:.1} ms, rest {:.1} ms after the occlusion",
+        (fault - 2.0) * 1e3,
+        (rest - 2.0) * 1e3
+    );
+}
+
+/// Lost CAN frames: the board's own sequence-error counter, as it reports it, is counted.
+#[test]
+fn the_boards_sequence_errors_are_counted() {
+    let e = e1(&["can_loss=0.01"]);
+    assert!(e.report.counters.board_seq_errors > 0, "{}", e.report);
+    let quiet = e1(&[]);
+    assert_eq!(quiet.report.counters.board_seq_errors, 0);
+}

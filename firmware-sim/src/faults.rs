@@ -67,6 +67,13 @@ pub struct FaultPlan {
     /// The motor board's driver faults: axes stop, state Fault.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board_fault_at: Option<f64>,
+    /// The motor board reboots (power glitch): axes stop, boot-up heartbeat, Disabled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board_reboot_at: Option<f64>,
+    /// From this time another device on the bus sends velocity commands to node 1 every
+    /// 20 ms (a second master).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_master_at: Option<f64>,
     /// The motor board goes bus-off at this time for `bus_off_s` seconds.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bus_off_at: Option<f64>,

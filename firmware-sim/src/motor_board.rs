@@ -42,6 +42,7 @@ pub struct MotorBoard {
     next_status: f64,
     plan: FaultPlan,
     board_fault_done: bool,
+    reboot_done: bool,
     pub counters: BoardCounters,
 }
 
@@ -60,6 +61,7 @@ impl MotorBoard {
             next_status: 0.0,
             plan,
             board_fault_done: false,
+            reboot_done: false,
             counters: BoardCounters::default(),
         }
     }
@@ -167,6 +169,9 @@ impl MotorBoard {
     /// When [`MotorBoard::poll`] next has something to do.
     pub fn next_event(&self) -> f64 {
         let mut next = self.next_heartbeat.min(self.next_status);
+        if let (Some(at), false) = (self.plan.board_reboot_at, self.reboot_done) {
+            next = next.min(at);
+        }
         if self.state == BoardState::Enabled {
             next = next.min(self.last_command + f64::from(self.timeout_ms) * 1e-3);
         }
@@ -175,6 +180,12 @@ impl MotorBoard {
 
     /// Timeouts and periodic frames due by `t`.
     pub fn poll(&mut self, t: f64, world: &mut World, out: &mut Vec<CanFrame>) {
+        if let (Some(at), false) = (self.plan.board_reboot_at, self.reboot_done) {
+            if t >= at {
+                self.reboot_done = true;
+                self.boot(t, world, out);
+            }
+        }
         if let (Some(at), false) = (self.plan.board_fault_at, self.board_fault_done) {
             if t >= at {
                 self.board_fault_done = true;

@@ -120,6 +120,8 @@ struct BoardView {
     state: Option<BoardState>,
     faults: FaultBits,
     rates: [i32; 2],
+    /// The board's own count of sequence errors, as last reported.
+    seq_errors: Option<u8>,
 }
 
 /// The gateway core. `K` times the stages of a cycle.
@@ -237,7 +239,7 @@ impl<K: StageClock> Core<K> {
             next = next.min(heard + self.rig.safety.heartbeat_timeout);
         }
         if state == State::Running {
-            next = next.min(self.pose_deadline());
+            next = next.min(self.pose_deadline()).min(self.track_deadline());
         }
         if let Some(since) = self.stopping_since {
             next = next.min(since + STOP_GRACE);
@@ -470,6 +472,10 @@ impl<K: StageClock> Core<K> {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
             StopReason::HeartbeatLost => !heard,
+            StopReason::ObstacleLost => {
+                let t = now.secs() - s.pose_timeout.as_secs_f64();
+                (0..self.tracker.obstacle_count()).any(|k| self.tracker.obstacle_time(k).is_none_or(|seen| seen < t))
+            }
             StopReason::BusOff => !heard || self.board.faults.contains(FaultBits::BUS),
             // The reset clears the board's latched fault; a driver fault that persists
             // faults the gateway again once it runs.
@@ -512,6 +518,15 @@ impl<K: StageClock> Core<K> {
         seen + self.rig.safety.pose_timeout
     }
 
+    /// When the longest-unseen obstacle's track expires (an obstacle never seen counts from
+    /// the arm): a robot must not drive on a guess of where an obstacle went.
+    fn track_deadline(&self) -> HostTime {
+        (0..self.tracker.obstacle_count())
+            .map(|k| self.tracker.obstacle_time(k).map_or(self.armed_at, HostTime::from_secs_f64).max(self.armed_at))
+            .min()
+            .map_or(HostTime::NEVER, |seen| seen + self.rig.safety.pose_timeout)
+    }
+
     /// The first watchdog that has expired, if any.
     fn watchdog(&self, now: HostTime) -> Option<StopReason> {
         let state = self.state();
@@ -525,6 +540,8 @@ impl<K: StageClock> Core<K> {
             Some(StopReason::SamplesStopped)
         } else if state == State::Running && now >= self.pose_deadline() {
             Some(StopReason::PoseLost)
+        } else if state == State::Running && now >= self.track_deadline() {
+            Some(StopReason::ObstacleLost)
         } else if now >= heard + s.heartbeat_timeout {
             Some(StopReason::HeartbeatLost)
         } else {
@@ -845,8 +862,19 @@ impl<K: StageClock> Core<K> {
                 MotorMessage::Heartbeat { state, .. } => {
                     self.board.last_heartbeat = Some(now);
                     self.board.state = Some(state);
+                    if state == BoardState::BootUp && is_active(self.state()) {
+                        self.stop(now, StopReason::BoardReboot);
+                    }
                 }
-                MotorMessage::Status { state, faults, .. } => {
+                MotorMessage::Velocity { .. } => {
+                    // We never hear our own commands: this one is another device's.
+                    self.stop(now, StopReason::SecondMaster);
+                }
+                MotorMessage::Status { state, faults, seq_errors, .. } => {
+                    let before = self.board.seq_errors.replace(seq_errors);
+                    if let Some(before) = before {
+                        self.counters.board_seq_errors += u64::from(seq_errors.wrapping_sub(before));
+                    }
                     self.board.state = Some(state);
                     self.board.faults = faults;
                     if faults.contains(FaultBits::BUS) && is_active(self.state()) {

@@ -92,6 +92,8 @@ pub struct Counters {
     /// Frames that do not decode as motor messages, and garbled adapter lines (ignored).
     pub can_undecodable: u64,
     pub can_error_frames: u64,
+    /// Sequence errors the motor board counted in our velocity commands (lost or foreign).
+    pub board_seq_errors: u64,
     pub planner_invalid: u64,
     pub telemetry_dropped: u64,
 }

@@ -31,6 +31,12 @@ pub enum StopReason {
     PsdSequence,
     SerialLost,
     HeartbeatLost,
+    /// The motor board announced a boot while the gateway drove it.
+    BoardReboot,
+    /// Another device sent velocity commands to our board.
+    SecondMaster,
+    /// An obstacle went unseen for longer than the pose timeout while running.
+    ObstacleLost,
     BusOff,
     BoardFault,
     PlannerInvalid,
@@ -80,6 +86,9 @@ impl std::fmt::Display for StopReason {
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
             Self::SerialLost => "serial device lost",
             Self::HeartbeatLost => "motor board heartbeat lost",
+            Self::BoardReboot => "motor board rebooted",
+            Self::SecondMaster => "another device commands the motor board",
+            Self::ObstacleLost => "an obstacle unseen beyond the pose timeout",
             Self::BusOff => "CAN bus-off",
             Self::BoardFault => "motor board fault",
             Self::PlannerInvalid => "planner refused its input",

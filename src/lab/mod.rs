@@ -32,6 +32,9 @@ pub enum Outcome {
     Stall,
     /// The gateway faulted (full-stack runs only).
     Fault,
+    /// The gateway stopped in order for another reason than the goal or a stall (full-stack
+    /// runs only; e.g. the goal became blocked by an obstacle's planning circle).
+    Stopped,
 }
 
 impl std::fmt::Display for Outcome {
@@ -42,6 +45,7 @@ impl std::fmt::Display for Outcome {
             Outcome::Timeout => "timeout",
             Outcome::Stall => "stall",
             Outcome::Fault => "fault",
+            Outcome::Stopped => "stopped",
         })
     }
 }

@@ -217,6 +217,8 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     psd_gone: bool,
     next_reopen: f64,
     next_foreign: f64,
+    /// When the second master next speaks.
+    next_master: f64,
     psd_out: Vec<Outgoing>,
     pending: VecDeque<Outgoing>,
     to_host: Wire,
@@ -285,6 +287,7 @@ impl<K: StageClock> VirtualRig<K> {
             psd_gone: false,
             next_reopen: f64::INFINITY,
             next_foreign: if plan.foreign_frames { 0.0 } else { f64::INFINITY },
+            next_master: plan.second_master_at.unwrap_or(f64::INFINITY),
             plan,
             world,
             spec,
@@ -415,6 +418,7 @@ impl<K: StageClock> VirtualRig<K> {
         at(self.vanish.map_or(f64::INFINITY, |(gone, back)| if self.psd_gone { back } else { gone }));
         at(self.next_reopen);
         at(self.next_foreign);
+        at(self.next_master);
         for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
             next = next.min(w.next());
         }
@@ -454,6 +458,20 @@ impl<K: StageClock> VirtualRig<K> {
         if t >= self.next_foreign {
             self.next_foreign += 0.1;
             self.can_out.extend(flowgate_sim::rig::foreign_frames(self.board.node()));
+        }
+        if t >= self.next_master {
+            // Another device on the bus commands our board: both the board and the host see it.
+            self.next_master += 0.02;
+            let m = flowgate_protocol::motor::MotorMessage::Velocity {
+                node: self.board.node(),
+                left: 50,
+                right: 50,
+                seq: 0,
+            };
+            if let Ok(frame) = m.to_frame() {
+                self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+                self.can_out.push(frame);
+            }
         }
     }
 
@@ -643,6 +661,7 @@ impl<K: StageClock> VirtualRig<K> {
             State::Stopped(crate::gateway::StopReason::GoalReached) if reached_goal => Outcome::Goal,
             State::Stopped(crate::gateway::StopReason::Stalled) => Outcome::Stall,
             State::Fault(_) => Outcome::Fault,
+            State::Stopped(_) | State::Stopping(_) => Outcome::Stopped,
             _ => Outcome::Timeout,
         };
         Episode {

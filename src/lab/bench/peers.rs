@@ -289,7 +289,9 @@ impl NullGateway {
                     }
                 };
                 let _ = ready_tx.send(Ok(rustix::thread::gettid().as_raw_nonzero().get()));
-                let node = NodeId::new(1).expect("1");
+                // Node 2: on a shared SocketCAN bus the gateway (node 1) must not take the
+                // null gateway's commands for a second master on its own board's id.
+                let node = NodeId::new(2).expect("2");
                 let mut rx = BytesMut::with_capacity(4096);
                 let mut codec = PsdCodec::new();
                 let mut seq = 0u8;

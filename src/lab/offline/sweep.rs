@@ -50,6 +50,8 @@ pub struct SweepReport {
     pub timeout_rate: f64,
     pub stall_rate: f64,
     pub fault_rate: f64,
+    /// Orderly stops other than at the goal (e.g. the goal blocked).
+    pub stopped_rate: f64,
     /// Minimum clearance percentiles over the episodes, m: min, p5, p25, p50.
     pub clearance_min: f64,
     pub clearance_p5: f64,
@@ -166,6 +168,7 @@ fn report(base: &Scenario, seed: u64, mode: Mode, episodes: &[Episode]) -> Sweep
         timeout_rate: rate(Outcome::Timeout),
         stall_rate: rate(Outcome::Stall),
         fault_rate: rate(Outcome::Fault),
+        stopped_rate: rate(Outcome::Stopped),
         clearance_min: pct(0.0),
         clearance_p5: pct(0.05),
         clearance_p25: pct(0.25),
@@ -185,12 +188,13 @@ impl std::fmt::Display for SweepReport {
         )?;
         writeln!(
             f,
-            "  goal {:.1}%  collision {:.1}%  timeout {:.1}%  stall {:.1}%  fault {:.1}%",
+            "  goal {:.1}%  collision {:.1}%  timeout {:.1}%  stall {:.1}%  fault {:.1}%  stopped {:.1}%",
             pc(self.goal_rate),
             pc(self.collision_rate),
             pc(self.timeout_rate),
             pc(self.stall_rate),
-            pc(self.fault_rate)
+            pc(self.fault_rate),
+            pc(self.stopped_rate)
         )?;
         writeln!(
             f,
