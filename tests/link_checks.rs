@@ -123,3 +123,19 @@ fn the_boards_sequence_errors_are_counted() {
     let quiet = e1(&[]);
     assert_eq!(quiet.report.counters.board_seq_errors, 0);
 }
+
+/// The controller's clock runs 1000 ppm fast (1 ms a second): the periodic time sync keeps
+/// the measured sensing delay where it was, where one sync at start would let it drift by
+/// 10 ms over the run.
+#[test]
+fn clock_drift_is_tracked_by_periodic_time_sync() {
+    let e = e1(&["clock_drift_ppm=1000"]);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    let c = e.report.counters;
+    let csv = String::from_utf8(e.telemetry.unwrap().cycles_csv).unwrap();
+    let delays: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(12).unwrap().parse().unwrap()).collect();
+    let (lo, hi) = delays.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &d| (lo.min(d), hi.max(d)));
+    assert!(delays.len() > 500);
+    assert!(hi - lo < 0.0015, "measured delay spans {:.2} ms", (hi - lo) * 1e3);
+    assert!(c.time_syncs >= 9 && c.time_syncs_rejected == 0, "{c:?}");
+}

@@ -35,6 +35,9 @@ pub struct FaultPlan {
     pub serial_burst_at: Vec<f64>,
     #[serde(default = "default_burst")]
     pub serial_burst_len: usize,
+    /// The PSD controller's clock runs fast by this much, parts per million (negative: slow).
+    #[serde(default)]
+    pub clock_drift_ppm: f64,
     /// Extra delay of every sample before it is sent, ms.
     #[serde(default)]
     pub sample_delay_ms: f64,

@@ -117,7 +117,8 @@ impl PsdController {
 
     /// The controller clock at sim time `t`, µs.
     pub fn clock_us(&self, t: f64) -> u64 {
-        (self.clock_origin_us + t * 1e6).round().max(0.0) as u64
+        let rate = 1.0 + self.faults.clock_drift_ppm * 1e-6;
+        (self.clock_origin_us + t * 1e6 * rate).round().max(0.0) as u64
     }
 
     pub fn streaming(&self) -> bool {

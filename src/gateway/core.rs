@@ -616,6 +616,14 @@ impl<K: StageClock> Core<K> {
                 self.out.push_back(Output::Streaming);
                 return;
             }
+            SessionEvent::Resynced { accepted } => {
+                if accepted {
+                    self.counters.time_syncs += 1;
+                } else {
+                    self.counters.time_syncs_rejected += 1;
+                }
+                return;
+            }
             SessionEvent::Pass => {}
         }
         let timed = matches!(packet.message, Message::Sample(_) | Message::FrameEnd { .. });

@@ -69,6 +69,9 @@ pub struct Counters {
     pub samples_unsynced: u64,
     /// Samples stamped in the future by more than a period (discarded).
     pub samples_from_future: u64,
+    /// Periodic time syncs taken, and discarded for a round trip over 10 ms.
+    pub time_syncs: u64,
+    pub time_syncs_rejected: u64,
     /// Controller packets lost (gaps in their sequence numbers).
     pub psd_packets_lost: u64,
     /// Controller packets seen twice (discarded).

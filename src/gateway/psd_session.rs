@@ -16,6 +16,11 @@ use crate::time::{ClockOffset, CtrlTime, HostTime};
 pub const RETRY_AFTER: Duration = Duration::from_millis(350);
 /// How many times a request is sent before the controller counts as silent.
 pub const TRIES: u8 = 3;
+/// How often the controller's clock is synchronised again while it streams.
+pub const RESYNC_EVERY: Duration = Duration::from_secs(1);
+/// The longest round trip a resync is taken from: a longer one says more about the line's
+/// queueing than about the clocks, and is discarded (and counted).
+pub const MAX_RTT: Duration = Duration::from_millis(10);
 /// Bytes held for decoding: a few frames (the shell reads at most 1 KiB at a time).
 const BUFFER: usize = 4096;
 
@@ -73,6 +78,8 @@ pub enum SessionEvent {
     Failed(SetupError),
     /// Not the session's: the core handles it (samples, frame ends, heartbeats, faults).
     Pass,
+    /// A periodic time sync came back: taken, or discarded for its round trip.
+    Resynced { accepted: bool },
 }
 
 /// Where a packet's sequence number falls, against the last one accepted.
@@ -100,6 +107,9 @@ pub struct PsdSession {
     info: Option<Info>,
     /// The controller's last accepted sequence number.
     last_seq: Option<u16>,
+    /// While streaming: when to sync the clock again, and the sync in flight (sent at).
+    next_resync: HostTime,
+    resync: Option<HostTime>,
 }
 
 impl PsdSession {
@@ -113,6 +123,8 @@ impl PsdSession {
             offset: ClockOffset::default(),
             info: None,
             last_seq: None,
+            next_resync: HostTime::NEVER,
+            resync: None,
         }
     }
 
@@ -192,12 +204,21 @@ impl PsdSession {
     pub fn deadline(&self) -> HostTime {
         match self.phase {
             Phase::Setup { sent, .. } => sent + RETRY_AFTER,
-            _ => HostTime::NEVER,
+            Phase::Streaming => self.next_resync,
+            Phase::Down => HostTime::NEVER,
         }
     }
 
     /// Retry or give up on a request that went unanswered.
     pub fn tick(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) -> Option<SetupError> {
+        if self.phase == Phase::Streaming && now >= self.next_resync {
+            // A sync still unanswered a period later is simply replaced.
+            let sent = HostTime::from_nanos(now.as_nanos() / 1000 * 1000);
+            self.resync = Some(sent);
+            self.next_resync = now + RESYNC_EVERY;
+            send(self.packet(Message::TimeSync { host_time_us: sent.as_nanos() / 1000 }));
+            return None;
+        }
         let Phase::Setup { step, tries, .. } = self.phase else { return None };
         if now < self.deadline() {
             return None;
@@ -212,6 +233,16 @@ impl PsdSession {
 
     /// A packet from the controller.
     pub fn on_packet(&mut self, now: HostTime, packet: &Packet, send: &mut impl FnMut(Packet)) -> SessionEvent {
+        if let (Message::TimeSyncReply { host_time_us, t_ctrl_us }, Some(sent)) = (packet.message, self.resync) {
+            if host_time_us == sent.as_nanos() / 1000 {
+                self.resync = None;
+                let accepted = now.since(sent) <= MAX_RTT;
+                if accepted {
+                    self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+                }
+                return SessionEvent::Resynced { accepted };
+            }
+        }
         let Phase::Setup { step, seq, sent, .. } = self.phase else { return SessionEvent::Pass };
         let next = match (step, packet.message) {
             (Step::Info, Message::Info(info)) => {
@@ -227,6 +258,8 @@ impl PsdSession {
             }
             (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {
                 self.phase = Phase::Streaming;
+                self.next_resync = now + RESYNC_EVERY;
+                self.resync = None;
                 return SessionEvent::Streaming;
             }
             (_, Message::Nack { seq: s, reason, .. }) if s == seq => {
