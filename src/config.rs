@@ -543,6 +543,7 @@ impl GatewayConfig {
             led_geometry: LedGeometry { front: l.front_offset, rear: l.rear_offset },
             obstacles: l.obstacles.clone(),
             calibration,
+            psd_counts: self.calibration.counts,
             control,
             board,
             tracking: TrackingSettings {
@@ -650,6 +651,8 @@ pub struct Rig {
     pub led_geometry: LedGeometry,
     pub obstacles: Vec<ObstacleLed>,
     pub calibration: Calibration,
+    /// The PSD's full-scale counts the calibration assumes (the controller must agree).
+    pub psd_counts: u16,
     pub control: ControlConfig,
     pub board: BoardSettings,
     pub tracking: TrackingSettings,

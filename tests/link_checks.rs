@@ -139,3 +139,18 @@ fn clock_drift_is_tracked_by_periodic_time_sync() {
     assert!(hi - lo < 0.0015, "measured delay spans {:.2} ms", (hi - lo) * 1e3);
     assert!(c.time_syncs >= 9 && c.time_syncs_rejected == 0, "{c:?}");
 }
+
+/// The controller reports an LED driver fault (open circuit on LED 3) at 2 s: a fault named
+/// for it, the wheels at rest within a cycle. An overrun (samples lost inside it) is loss:
+/// counted, and the run goes on.
+#[test]
+fn the_controllers_own_faults_are_named_and_overruns_counted() {
+    let e = e1(&["controller_fault=[2.0, 3, 3]"]);
+    assert_eq!(e.report.final_state, State::Fault(StopReason::ControllerFault), "{}", e.report);
+    let (fault, rest) = fault_and_rest(&e);
+    assert!(fault - 2.0 < 0.001, "{fault}");
+    assert!(rest - fault <= 0.017, "wheels at rest {:.1} ms after the fault", (rest - fault) * 1e3);
+    let e = e1(&["controller_fault=[2.0, 2, 0]"]);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert_eq!(e.report.counters.controller_overruns, 1);
+}

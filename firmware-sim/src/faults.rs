@@ -47,6 +47,10 @@ pub struct FaultPlan {
     /// LED occlusions: `[led, from_s, to_s]`; the LED reads as a weak signal meanwhile.
     #[serde(default)]
     pub occlusions: Vec<[f64; 3]>,
+    /// The PSD controller reports a fault `[at_s, code, detail]` (codes 2-5: overrun, LED
+    /// driver, ambient saturation, internal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controller_fault: Option<[f64; 3]>,
     /// The PSD controller resets (schedule lost, streaming stops, Fault::Reset sent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub controller_reset_at: Option<f64>,

@@ -87,6 +87,7 @@ pub struct PsdController {
     samples_in_frame: u8,
     next_heartbeat: f64,
     reset_done: bool,
+    fault_done: bool,
 }
 
 impl PsdController {
@@ -108,6 +109,7 @@ impl PsdController {
             samples_in_frame: 0,
             next_heartbeat: 0.0,
             reset_done: false,
+            fault_done: false,
         }
     }
 
@@ -200,6 +202,9 @@ impl PsdController {
         if let (Some(at), false) = (self.faults.controller_reset_at, self.reset_done) {
             next = next.min(at);
         }
+        if let (Some([at, ..]), false) = (self.faults.controller_fault, self.fault_done) {
+            next = next.min(at);
+        }
         next
     }
 
@@ -212,6 +217,15 @@ impl PsdController {
 
     /// Everything due by time `t`: samples of finished slots, frame ends, heartbeats, faults.
     pub fn poll(&mut self, t: f64, world: &World, out: &mut Vec<Outgoing>) {
+        if let (Some([at, code, detail]), false) = (self.faults.controller_fault, self.fault_done) {
+            if t >= at {
+                self.fault_done = true;
+                if let Some(code) = FaultCode::from_u8(code as u8) {
+                    let p = self.packet(Message::Fault { code, detail: detail as u32 });
+                    out.push(Outgoing { at, packet: p });
+                }
+            }
+        }
         if let (Some(at), false) = (self.faults.controller_reset_at, self.reset_done) {
             if t >= at {
                 self.reset_done = true;

@@ -166,7 +166,7 @@ impl<K: StageClock> Core<K> {
     pub fn new(rig: Rig, clock: K) -> Self {
         let radii: Vec<f64> = rig.obstacles.iter().map(|o| o.radius).collect();
         Self {
-            psd: PsdSession::new(rig.schedule),
+            psd: PsdSession::new(rig.schedule, rig.psd_counts),
             tracker: Tracker::new(rig.tracking, rig.led_geometry, &radii),
             control: ControlStep::new(rig.control),
             safety: Safety::default(),
@@ -647,7 +647,19 @@ impl<K: StageClock> Core<K> {
                     tracing::warn!("PSD controller reset; reconfiguring");
                 }
             }
-            _ => {} // heartbeats, other faults (the link checks come with the safety issue)
+            Message::Fault { code: FaultCode::Overrun, .. } => {
+                // Samples lost inside the controller: loss, counted against the budget.
+                self.counters.controller_overruns += 1;
+                self.link_error(now);
+            }
+            Message::Fault { code, detail } => {
+                self.counters.controller_faults += 1;
+                tracing::error!("PSD controller fault {code:?} (detail {detail})");
+                if is_active(self.state()) {
+                    self.stop(now, StopReason::ControllerFault);
+                }
+            }
+            _ => {} // heartbeats
         }
     }
 
@@ -1209,5 +1221,28 @@ mod tests {
         assert!(c.tracker.pose_time().is_none(), "no pose from another frame's sample");
         frame(&mut c, ms(40), 9, CTRL_EPOCH_US + 39_000);
         assert_eq!(c.counters().frames_lost, 1 + 3, "frames 6, 7 and 8 never came");
+    }
+
+    /// A controller that cannot run the schedule (here: 2 LEDs for a schedule of 4) is not
+    /// the configured one: the handshake fails, naming why.
+    #[test]
+    fn a_controller_of_another_kind_is_refused_at_the_handshake() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        let mut failed = None;
+        while let Some(o) = c.poll() {
+            if let Output::Psd(Packet { message: Message::GetInfo, .. }) = o {
+                let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 2, clock_hz: 1_000_000 };
+                c.psd_bytes(ms(1), &bytes(Message::Info(info)));
+            }
+            if let Output::SetupFailed(e) = o {
+                failed = Some(e);
+            }
+        }
+        let e = failed.expect("refused");
+        assert_eq!(
+            e.to_string(),
+            "PSD controller is not the one configured: it drives fewer LEDs than the schedule has"
+        );
     }
 }

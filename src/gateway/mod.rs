@@ -69,6 +69,9 @@ pub struct Counters {
     pub samples_unsynced: u64,
     /// Samples stamped in the future by more than a period (discarded).
     pub samples_from_future: u64,
+    /// Overruns the controller reported (samples lost inside it), and its other faults.
+    pub controller_overruns: u64,
+    pub controller_faults: u64,
     /// Periodic time syncs taken, and discarded for a round trip over 10 ms.
     pub time_syncs: u64,
     pub time_syncs_rejected: u64,

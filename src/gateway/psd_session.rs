@@ -31,6 +31,8 @@ pub enum SetupError {
     Silent { request: &'static str },
     #[error("PSD controller refused {request}: {reason:?}")]
     Refused { request: &'static str, reason: NackReason },
+    #[error("PSD controller is not the one configured: {0}")]
+    Identity(&'static str),
 }
 
 /// The handshake's steps, in order.
@@ -99,6 +101,8 @@ pub enum Sequence {
 #[derive(Debug)]
 pub struct PsdSession {
     schedule: Schedule,
+    /// The PSD's full-scale counts the calibration assumes.
+    counts: u16,
     codec: PsdCodec,
     buf: BytesMut,
     seq: u16,
@@ -113,9 +117,10 @@ pub struct PsdSession {
 }
 
 impl PsdSession {
-    pub fn new(schedule: Schedule) -> Self {
+    pub fn new(schedule: Schedule, counts: u16) -> Self {
         Self {
             schedule,
+            counts,
             codec: PsdCodec::new(),
             buf: BytesMut::with_capacity(BUFFER),
             seq: 0,
@@ -247,6 +252,21 @@ impl PsdSession {
         let next = match (step, packet.message) {
             (Step::Info, Message::Info(info)) => {
                 self.info = Some(info);
+                // Identity: a controller that cannot run this schedule, or reads another
+                // PSD, or stamps in other units, is not the configured one.
+                let problem = if usize::from(info.max_leds) < self.schedule.slots().len() {
+                    Some("it drives fewer LEDs than the schedule has")
+                } else if info.psd_counts != [self.counts; 2] {
+                    Some("its PSD's counts differ from calibration.counts")
+                } else if info.clock_hz != 1_000_000 {
+                    Some("its timestamps are not in microseconds")
+                } else {
+                    None
+                };
+                if let Some(why) = problem {
+                    self.phase = Phase::Down;
+                    return SessionEvent::Failed(SetupError::Identity(why));
+                }
                 Step::Schedule
             }
             (Step::Schedule, Message::Ack { seq: s, .. }) if s == seq => Step::TimeSync,

@@ -29,6 +29,8 @@ pub enum StopReason {
     SerialGarbled,
     /// Duplicated, replayed, reordered or unscheduled PSD packets beyond budget.
     PsdSequence,
+    /// The PSD controller reported a fault (an LED driver, ambient saturation, internal).
+    ControllerFault,
     SerialLost,
     HeartbeatLost,
     /// The motor board announced a boot while the gateway drove it.
@@ -84,6 +86,7 @@ impl std::fmt::Display for StopReason {
             Self::SamplesStopped => "no samples from the PSD controller",
             Self::SerialGarbled => "garbled serial frames beyond budget",
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
+            Self::ControllerFault => "the PSD controller reports a fault",
             Self::SerialLost => "serial device lost",
             Self::HeartbeatLost => "motor board heartbeat lost",
             Self::BoardReboot => "motor board rebooted",
