@@ -86,7 +86,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
     std::fs::write(out.join("trajectory.svg"), flowgate::lab::report::trajectory_svg(&scenario, &live))?;
     run.truth.write(&out.join("truth.json"))?;
     std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;
-    println!("\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.log,truth.json,report.json}}", out.display());
+    println!(
+        "\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.log,truth.json,report.json}}",
+        out.display()
+    );
     if run.contact || !run.reached_goal {
         anyhow::bail!("the demo run did not reach the goal cleanly");
     }
