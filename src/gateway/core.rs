@@ -160,6 +160,8 @@ pub struct Core<K: StageClock> {
     goals: VecDeque<Goal>,
     /// The operator asked to start: go from Armed to Running once ready.
     start_requested: bool,
+    /// Arm and start towards the rig's goal when the controller first streams (`--arm`).
+    arm_at_start: bool,
 }
 
 impl<K: StageClock> Core<K> {
@@ -190,6 +192,7 @@ impl<K: StageClock> Core<K> {
             streamed: false,
             goals: VecDeque::with_capacity(MAX_GOALS),
             start_requested: false,
+            arm_at_start: false,
             clock,
             rig,
         }
@@ -219,11 +222,6 @@ impl<K: StageClock> Core<K> {
     pub fn finished(&self) -> bool {
         self.shutdown && matches!(self.state(), State::Idle | State::Stopped(_) | State::Fault(_))
     }
-    /// Whether the PSD line is closed (lost, or never opened).
-    pub fn psd_down(&self) -> bool {
-        self.psd.is_down()
-    }
-
     /// The next output, if any.
     pub fn poll(&mut self) -> Option<Output> {
         self.out.pop_front()
@@ -376,8 +374,13 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// Arm, set `goal` and start: what `flowgate run --arm`, the demo and the virtual rig do
-    /// when the controller first streams.
+    /// Arm and start towards the rig's `[goal]` as soon as the controller first streams, with
+    /// no operator (`flowgate run --arm`, the demo, the virtual rig; never a service).
+    pub fn arm_at_start(&mut self) {
+        self.arm_at_start = true;
+    }
+
+    /// Arm, set `goal` and start.
     pub fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
         self.request(now, &Request::Arm)?;
         self.request(now, &Request::Goal { goals: vec![goal] })?;
@@ -613,7 +616,19 @@ impl<K: StageClock> Core<K> {
                     self.progress.serial_reconnects = self.counters.serial_reconnects;
                 }
                 self.streamed = true;
+                if let Some(info) = self.psd.info() {
+                    tracing::info!(firmware = ?info.firmware, max_leds = info.max_leds, "PSD controller streaming");
+                }
                 self.out.push_back(Output::Streaming);
+                if std::mem::take(&mut self.arm_at_start) {
+                    let result = match self.rig.goal {
+                        Some(goal) => self.arm_and_start(now, goal),
+                        None => Err(Refusal::NoGoal),
+                    };
+                    if let Err(e) = result {
+                        tracing::error!("arming at start: {e}");
+                    }
+                }
                 return;
             }
             SessionEvent::Resynced { accepted } => {

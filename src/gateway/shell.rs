@@ -78,8 +78,6 @@ struct Io {
     sample_period: Duration,
     next_reopen: HostTime,
     can_resume: HostTime,
-    /// Arm and start at the first stream (`--arm`); done once.
-    arm_at_start: bool,
 }
 
 impl Io {
@@ -148,17 +146,6 @@ impl Io {
                     if let Some(tx) = &self.progress {
                         let reconnects = core.counters().serial_reconnects;
                         tx.send_if_modified(|p| std::mem::replace(&mut p.serial_reconnects, reconnects) != reconnects);
-                    }
-                    // `--arm`: the operator's arm and start, given on the command line, once.
-                    if std::mem::take(&mut self.arm_at_start) {
-                        match core.rig().goal {
-                            Some(goal) => {
-                                if let Err(e) = core.arm_and_start(self.now(), goal) {
-                                    tracing::error!("--arm: {e}");
-                                }
-                            }
-                            None => tracing::error!("--arm: the config has no [goal] to drive to"),
-                        }
                     }
                 }
                 Output::SetupFailed(source) if !core.has_streamed() => {
@@ -279,9 +266,11 @@ pub async fn run(
         sample_period: rig.sample_period,
         next_reopen: HostTime::NEVER,
         can_resume: HostTime::ZERO,
-        arm_at_start: controls.arm_at_start,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
+    if controls.arm_at_start {
+        core.arm_at_start();
+    }
     core.psd_connected(io.now());
     let mut read_buf = [0u8; 1024];
     let mut shutdown_seen = *controls.shutdown.borrow();

@@ -235,7 +235,6 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     adapter_replies: Vec<flowgate_protocol::slcan::Response>,
     to_bus: Vec<CanFrame>,
     scratch: Vec<u8>,
-    armed: bool,
     setup_error: Option<SetupError>,
     options: Options,
     truth: TruthRecord,
@@ -310,7 +309,6 @@ impl<K: StageClock> VirtualRig<K> {
             adapter_replies: Vec::with_capacity(8),
             to_bus: Vec::with_capacity(8),
             scratch: Vec::with_capacity(1024),
-            armed: false,
             setup_error: None,
             options,
             truth: TruthRecord::default(),
@@ -325,6 +323,9 @@ impl<K: StageClock> VirtualRig<K> {
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
         for cmd in [Command::Close, Command::SetBitrate(Bitrate::M1), Command::Open] {
             rig.host_line(cmd);
+        }
+        if !options.wait_for_operator {
+            rig.core.arm_at_start();
         }
         rig.core.psd_connected(HostTime::ZERO);
         rig.firmware_out();
@@ -599,15 +600,6 @@ impl<K: StageClock> VirtualRig<K> {
                     }
                 }
                 Output::State { .. } => {}
-                Output::Streaming if !self.armed => {
-                    self.armed = true;
-                    if !self.options.wait_for_operator {
-                        if let Some(goal) = self.core.rig().goal {
-                            // A refused start shows in the report: the run stays idle.
-                            let _ = self.core.arm_and_start(now, goal);
-                        }
-                    }
-                }
                 Output::Streaming => {}
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {
