@@ -171,13 +171,14 @@ pub struct DriveSection {
     pub max_wheel_speed: f64,
     /// Wheel acceleration ramp, m/s² (sent to the board).
     pub wheel_accel: f64,
-    /// The board's command timeout, ms.
+    /// The board's command timeout, ms: the board stops by itself after this silence. The
+    /// last line of defence (the gateway's own watchdogs must fire first, checked at load).
     #[serde(default = "default_cmd_timeout")]
     pub command_timeout_ms: u16,
 }
 
 fn default_cmd_timeout() -> u16 {
-    100
+    200
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize)]
@@ -257,10 +258,18 @@ pub struct SafetyConfig {
     /// Stop when no sample arrives for this long, ms (serial line dead).
     #[serde(default = "default_sample_timeout")]
     pub sample_timeout_ms: u32,
+    /// How far a robot pose may be off what the rig allows (the LEDs' mounted spacing, the
+    /// distance the robot can drive since the last pose) before it is discarded, m.
+    #[serde(default = "default_pose_tolerance")]
+    pub pose_tolerance_m: f64,
+}
+
+fn default_pose_tolerance() -> f64 {
+    0.02
 }
 
 fn default_pose_timeout() -> u32 {
-    300
+    150
 }
 fn default_bad_budget() -> u32 {
     20
@@ -269,7 +278,7 @@ fn default_heartbeat_timeout() -> u32 {
     400
 }
 fn default_sample_timeout() -> u32 {
-    250
+    100
 }
 
 impl Default for SafetyConfig {
@@ -279,6 +288,7 @@ impl Default for SafetyConfig {
             bad_frames_per_s: default_bad_budget(),
             heartbeat_timeout_ms: default_heartbeat_timeout(),
             sample_timeout_ms: default_sample_timeout(),
+            pose_tolerance_m: default_pose_tolerance(),
         }
     }
 }
@@ -513,6 +523,29 @@ impl GatewayConfig {
                 return invalid(key, format!("must be 1-{MAX_WATCHDOG_MS} ms, is {v}"));
             }
         }
+        if !(s.pose_tolerance_m.is_finite() && s.pose_tolerance_m > 0.0 && s.pose_tolerance_m <= 1.0) {
+            return invalid("safety.pose_tolerance_m", format!("must be 0-1 m, is {}", s.pose_tolerance_m));
+        }
+        // Without samples or a fresh pose the gateway sends no command, and the board stops
+        // by itself after its command timeout. The gateway's own watchdog must fire first,
+        // with a cycle to spare, so the stop is named by its cause (serial, pose), not as a
+        // board fault.
+        let board_timeout = Duration::from_millis(u64::from(d.command_timeout_ms));
+        for (key, v) in
+            [("safety.sample_timeout_ms", s.sample_timeout_ms), ("safety.pose_timeout_ms", s.pose_timeout_ms)]
+        {
+            if Duration::from_millis(u64::from(v)) + sample_period > board_timeout {
+                return invalid(
+                    key,
+                    format!(
+                        "{v} ms plus the period T = {} µs exceeds drive.command_timeout_ms = {} ms: the board would \
+                         stop the robot before the gateway names the cause",
+                        sample_period.as_micros(),
+                        d.command_timeout_ms
+                    ),
+                );
+            }
+        }
         if self.telemetry.queue == 0 || self.telemetry.queue > MAX_QUEUE {
             return invalid("telemetry.queue", format!("must be 1-{MAX_QUEUE} records, is {}", self.telemetry.queue));
         }
@@ -556,6 +589,7 @@ impl GatewayConfig {
                 bad_frames_per_s: s.bad_frames_per_s,
                 heartbeat_timeout: ms(s.heartbeat_timeout_ms),
                 sample_timeout: ms(s.sample_timeout_ms),
+                pose_tolerance: s.pose_tolerance_m,
             },
             telemetry: self.telemetry.clone(),
             goal: self.goal,
@@ -628,12 +662,13 @@ pub struct BoardSettings {
 }
 
 /// The gateway's watchdogs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SafetySettings {
     pub pose_timeout: Duration,
     pub bad_frames_per_s: u32,
     pub heartbeat_timeout: Duration,
     pub sample_timeout: Duration,
+    pub pose_tolerance: f64,
 }
 
 /// The rig as the gateway runs it: every setting parsed, checked and typed, once.
@@ -695,15 +730,21 @@ mod tests {
             ("k1 = 0.0", "k1 = nan", "calibration.k1"),
             ("counts = 4096", "counts = 0", "calibration.counts"),
             ("queue = 8192", "queue = 9223372036854775807", "telemetry.queue"),
-            ("pose_timeout_ms = 300", "pose_timeout_ms = 4000000000", "safety.pose_timeout_ms"),
-            ("command_timeout_ms = 100", "command_timeout_ms = 10", "drive.command_timeout_ms"),
+            ("pose_timeout_ms = 150", "pose_timeout_ms = 4000000000", "safety.pose_timeout_ms"),
+            ("command_timeout_ms = 200", "command_timeout_ms = 10", "drive.command_timeout_ms"),
+            // The gateway's watchdogs fire a cycle (17 ms) before the board's 200 ms timeout.
+            ("pose_timeout_ms = 150", "pose_timeout_ms = 184", "safety.pose_timeout_ms"),
+            ("sample_timeout_ms = 100", "sample_timeout_ms = 184", "safety.sample_timeout_ms"),
+            ("command_timeout_ms = 200", "command_timeout_ms = 166", "safety.pose_timeout_ms"),
             ("slot_us = 4000", "slot_us = 70000", "schedule.slot_us"),
+            ("pose_tolerance_m = 0.02", "pose_tolerance_m = nan", "safety.pose_tolerance_m"),
         ];
         for (from, to, key) in cases {
             assert!(EXAMPLE.contains(from), "example lacks {from}");
             let err = rig(&EXAMPLE.replace(from, to)).unwrap_err().to_string();
             assert!(err.contains(&format!("`{key}`")), "{to}: {err}");
         }
+        assert!(rig(&EXAMPLE.replace("pose_timeout_ms = 150", "pose_timeout_ms = 183")).is_ok(), "183 + 17 = 200");
         let err = rig(&EXAMPLE.replace("[safety]", "[safety]\nbogus = 1")).unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
     }

@@ -31,6 +31,15 @@ pub struct TrackingSettings {
     pub kalman: KalmanConfig,
 }
 
+/// Why two LED positions cannot be the robot's pose.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum Implausible {
+    #[error("the robot's LEDs are {measured:.3} m apart, mounted {mounted:.3} m")]
+    LedSpacing { measured: f64, mounted: f64 },
+    #[error("the robot moved {moved:.3} m, it can {reach:.3} m")]
+    Jump { moved: f64, reach: f64 },
+}
+
 /// Where the robot's LEDs sit along its heading, measured from its centre (m).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LedGeometry {
@@ -239,6 +248,33 @@ impl Tracker {
             }
             _ => false,
         }
+    }
+
+    /// Whether the robot's two LEDs at `t_valid` can be its pose: they sit their mounted
+    /// distance apart, and the centre moved no further since the last pose than the robot can
+    /// drive at `max_speed`, each within `tolerance` (m). A CRC-valid but wrong sample (a
+    /// reflection, a mixed-up slot) fails one of the two.
+    pub fn plausible(
+        &self,
+        t_valid: f64,
+        front: C,
+        rear: C,
+        max_speed: f64,
+        tolerance: f64,
+    ) -> Result<(), Implausible> {
+        let spacing = (front - rear).norm();
+        let mounted = self.geometry.front + self.geometry.rear;
+        let off = (spacing - mounted).abs();
+        if off.is_nan() || off > tolerance {
+            return Err(Implausible::LedSpacing { measured: spacing, mounted });
+        }
+        let (Some((t0, last)), Some(pose)) = (self.pose, self.geometry.pose(front, rear)) else { return Ok(()) };
+        let moved = (pose.position - last.position).norm();
+        let reach = max_speed * (t_valid - t0).abs() + tolerance;
+        if moved.is_nan() || moved > reach {
+            return Err(Implausible::Jump { moved, reach });
+        }
+        Ok(())
     }
 
     /// Obstacle `k` seen at `p`, valid at `t_valid`. Returns whether its filter took it

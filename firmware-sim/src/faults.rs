@@ -44,9 +44,24 @@ pub struct FaultPlan {
     /// Uniform jitter added to that delay, ± ms.
     #[serde(default)]
     pub sample_jitter_ms: f64,
+    /// A delay that creeps in: `[from_s, to_s, extra_ms]`, growing linearly from nothing at
+    /// `from_s` to `extra_ms` at `to_s` and staying there (a step when `from_s == to_s`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sample_delay_ramp: Option<[f64; 3]>,
+    /// The controller holds its time-sync replies back `[from_s, to_s, ms]`: round trips
+    /// that long.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sync_reply_hold: Option<[f64; 3]>,
+    /// The controller's line goes silent over `[from_s, to_s)`: nothing it sends arrives.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial_silence: Option<[f64; 2]>,
     /// LED occlusions: `[led, from_s, to_s]`; the LED reads as a weak signal meanwhile.
     #[serde(default)]
     pub occlusions: Vec<[f64; 3]>,
+    /// LED reflections: `[led, from_s, to_s, dx_m]`; the LED reads `dx_m` off along the floor's
+    /// x axis meanwhile, a valid sample in the wrong place.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reflections: Vec<[f64; 4]>,
     /// The PSD controller reports a fault `[at_s, code, detail]` (codes 2-5: overrun, LED
     /// driver, ambient saturation, internal).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -81,6 +96,9 @@ pub struct FaultPlan {
     /// 20 ms (a second master).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub second_master_at: Option<f64>,
+    /// The SLCAN adapter's own controller is bus-off over `[from_s, to_s)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adapter_bus_off: Option<[f64; 2]>,
     /// The motor board goes bus-off at this time for `bus_off_s` seconds.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bus_off_at: Option<f64>,
@@ -99,6 +117,98 @@ fn default_vanish() -> f64 {
 }
 
 impl FaultPlan {
+    /// Check every value; on error, the key (under `faults.`) and why. Nothing a scenario or
+    /// a `--fault` setting says may panic the simulator later.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        let err = |key: &str, why: String| Err((format!("faults.{key}"), why));
+        for (key, p) in [
+            ("serial_drop", self.serial_drop),
+            ("serial_corrupt", self.serial_corrupt),
+            ("serial_duplicate", self.serial_duplicate),
+            ("serial_replay", self.serial_replay),
+            ("can_loss", self.can_loss),
+        ] {
+            if !(0.0..=1.0).contains(&p) {
+                return err(key, format!("is a probability, 0-1, is {p}"));
+            }
+        }
+        let times = [
+            ("controller_reset_at", self.controller_reset_at),
+            ("serial_vanish_at", self.serial_vanish_at),
+            ("heartbeat_stop_at", self.heartbeat_stop_at),
+            ("board_fault_at", self.board_fault_at),
+            ("board_reboot_at", self.board_reboot_at),
+            ("second_master_at", self.second_master_at),
+            ("bus_off_at", self.bus_off_at),
+        ];
+        let spans = [
+            ("sample_delay_ms", self.sample_delay_ms),
+            ("sample_jitter_ms", self.sample_jitter_ms),
+            ("serial_vanish_s", self.serial_vanish_s),
+            ("bus_off_s", self.bus_off_s),
+        ];
+        for (key, v) in times.iter().filter_map(|(k, v)| v.map(|v| (*k, v))).chain(spans) {
+            if !(v.is_finite() && v >= 0.0) {
+                return err(key, format!("must be a finite time >= 0, is {v}"));
+            }
+        }
+        for (key, t) in self.serial_burst_at.iter().map(|t| ("serial_burst_at", *t)) {
+            if !(t.is_finite() && t >= 0.0) {
+                return err(key, format!("must be finite times >= 0, has {t}"));
+            }
+        }
+        for (key, w) in [
+            ("serial_corrupt_during", self.serial_corrupt_during),
+            ("serial_repeat_during", self.serial_repeat_during),
+            ("serial_silence", self.serial_silence),
+            ("adapter_bus_off", self.adapter_bus_off),
+        ] {
+            if let Some([from, to]) = w {
+                if !(from.is_finite() && to.is_finite() && from >= 0.0 && from <= to) {
+                    return err(key, format!("must be [from, to] with 0 <= from <= to, is [{from}, {to}]"));
+                }
+            }
+        }
+        if let Some([from, to, ms]) = self.sync_reply_hold {
+            if !([from, to, ms].iter().all(|v| v.is_finite() && *v >= 0.0) && from <= to) {
+                return err(
+                    "sync_reply_hold",
+                    format!("must be [from_s, to_s, ms], 0 <= from <= to, is [{from}, {to}, {ms}]"),
+                );
+            }
+        }
+        if let Some([from, to, ms]) = self.sample_delay_ramp {
+            if !([from, to, ms].iter().all(|v| v.is_finite() && *v >= 0.0) && from <= to) {
+                return err(
+                    "sample_delay_ramp",
+                    format!("must be [from_s, to_s, extra_ms], 0 <= from <= to, is [{from}, {to}, {ms}]"),
+                );
+            }
+        }
+        if !(self.clock_drift_ppm.is_finite() && self.clock_drift_ppm.abs() <= 100_000.0) {
+            return err("clock_drift_ppm", format!("must be within ±100000, is {}", self.clock_drift_ppm));
+        }
+        for o in &self.occlusions {
+            if !(o.iter().all(|v| v.is_finite()) && (1.0..=255.0).contains(&o[0]) && o[1] <= o[2]) {
+                return err("occlusions", format!("each is [led 1-255, from_s, to_s], has {o:?}"));
+            }
+        }
+        for r in &self.reflections {
+            if !(r.iter().all(|v| v.is_finite()) && (1.0..=255.0).contains(&r[0]) && r[1] <= r[2]) {
+                return err("reflections", format!("each is [led 1-255, from_s, to_s, dx_m], has {r:?}"));
+            }
+        }
+        if let Some([at, code, _]) = self.controller_fault {
+            if !(at.is_finite() && at >= 0.0 && (2.0..=5.0).contains(&code)) {
+                return err(
+                    "controller_fault",
+                    format!("must be [at_s, code 2-5, detail], is {:?}", self.controller_fault),
+                );
+            }
+        }
+        Ok(())
+    }
+
     /// Parse `key=value` settings (the command line) over this plan.
     pub fn with_settings(&self, settings: &[String]) -> Result<Self, String> {
         if settings.is_empty() {
@@ -111,12 +221,34 @@ impl FaultPlan {
                 toml::from_str(&format!("v = {value}")).map_err(|e| format!("fault `{s}`: {e}"))?;
             table.insert(key.trim().to_string(), parsed["v"].clone());
         }
-        table.try_into().map_err(|e: toml::de::Error| format!("faults: {e}"))
+        let plan: Self = table.try_into().map_err(|e: toml::de::Error| format!("faults: {e}"))?;
+        plan.validate().map_err(|(key, why)| format!("`{key}` {why}"))?;
+        Ok(plan)
+    }
+
+    /// How far LED `led` reads off at `t` (a reflection), m along x.
+    pub fn reflected(&self, led: u8, t: f64) -> f64 {
+        self.reflections.iter().filter(|r| r[0] as u8 == led && t >= r[1] && t < r[2]).map(|r| r[3]).sum()
     }
 
     /// Whether LED `led` is occluded at `t`.
     pub fn occluded(&self, led: u8, t: f64) -> bool {
         self.occlusions.iter().any(|o| o[0] as u8 == led && t >= o[1] && t < o[2])
+    }
+
+    /// The extra sample delay of `sample_delay_ramp` at `t`, s.
+    pub fn ramp_delay(&self, t: f64) -> f64 {
+        match self.sample_delay_ramp {
+            Some([from, _, _]) if t < from => 0.0,
+            Some([from, to, ms]) if t < to => ms * 1e-3 * (t - from) / (to - from),
+            Some([_, _, ms]) => ms * 1e-3,
+            None => 0.0,
+        }
+    }
+
+    /// Whether the SLCAN adapter is bus-off at `t`.
+    pub fn adapter_bus_off(&self, t: f64) -> bool {
+        matches!(self.adapter_bus_off, Some([from, to]) if t >= from && t < to)
     }
 
     /// Whether the board is bus-off at `t`.
@@ -133,6 +265,7 @@ pub struct SerialFaults {
     drop: f64,
     corrupt: f64,
     corrupt_during: Option<[f64; 2]>,
+    silence: Option<[f64; 2]>,
     duplicate: f64,
     replay: f64,
     repeat_during: Option<[f64; 2]>,
@@ -154,6 +287,7 @@ impl SerialFaults {
             drop: plan.serial_drop,
             corrupt: plan.serial_corrupt,
             corrupt_during: plan.serial_corrupt_during,
+            silence: plan.serial_silence,
             duplicate: plan.serial_duplicate,
             replay: plan.serial_replay,
             repeat_during: plan.serial_repeat_during,
@@ -192,6 +326,11 @@ impl SerialFaults {
     }
     /// Apply drop and corruption to bytes sent at time `t`, in place.
     pub fn apply(&mut self, t: f64, bytes: &mut Vec<u8>) {
+        if matches!(self.silence, Some([from, to]) if t >= from && t < to) {
+            self.dropped += bytes.len() as u64;
+            bytes.clear();
+            return;
+        }
         let corrupt = match self.corrupt_during {
             Some([from, to]) if t < from || t >= to => 0.0,
             _ => self.corrupt,
@@ -255,6 +394,17 @@ mod tests {
         assert_eq!(plan.board_fault_at, Some(4.0));
         assert!(FaultPlan::default().with_settings(&["nonsense=1".into()]).unwrap_err().contains("nonsense"));
         assert!(FaultPlan::default().with_settings(&["serial_drop".into()]).is_err());
+        for (bad, key) in [
+            ("serial_drop=-0.1", "faults.serial_drop"),
+            ("can_loss=2", "faults.can_loss"),
+            ("serial_silence=[2.0, 1.0]", "faults.serial_silence"),
+            ("sample_delay_ramp=[1.0, 2.0, nan]", "faults.sample_delay_ramp"),
+            ("controller_fault=[1.0, 9, 0]", "faults.controller_fault"),
+            ("bus_off_at=inf", "faults.bus_off_at"),
+        ] {
+            let e = FaultPlan::default().with_settings(&[bad.into()]).unwrap_err();
+            assert!(e.contains(&format!("`{key}`")), "{bad}: {e}");
+        }
     }
 
     #[test]

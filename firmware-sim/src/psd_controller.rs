@@ -67,6 +67,58 @@ pub struct Outgoing {
     pub packet: Packet,
 }
 
+/// The controller's serial output in wire order. The sample stream (samples, frame ends)
+/// keeps its order whatever delay each sample was given; replies, heartbeats and faults go
+/// out at their own time, between stream packets still held back by a sensing delay (the
+/// delay is in the controller's pipeline, not on the line).
+///
+/// Packets are numbered as they go on the wire, as a controller's transmit queue does; the
+/// numbering restarts with the boot message, as the controller's does.
+#[derive(Debug, Default)]
+pub struct SerialQueue {
+    pending: std::collections::VecDeque<Outgoing>,
+    stream_at: f64,
+    seq: u16,
+}
+
+impl SerialQueue {
+    pub fn push(&mut self, o: Outgoing) {
+        let at = match o.packet.message {
+            Message::Sample(_) | Message::FrameEnd { .. } => {
+                self.stream_at = self.stream_at.max(o.at);
+                self.stream_at
+            }
+            _ => o.at,
+        };
+        let pos = self.pending.partition_point(|p| p.at <= at);
+        self.pending.insert(pos, Outgoing { at, packet: o.packet });
+    }
+
+    /// The next packet due by `t`.
+    pub fn pop_due(&mut self, t: f64) -> Option<Packet> {
+        if !self.pending.front().is_some_and(|o| o.at <= t) {
+            return None;
+        }
+        let mut packet = self.pending.pop_front()?.packet;
+        if matches!(packet.message, Message::Fault { code: FaultCode::Reset, .. }) {
+            self.seq = packet.seq;
+        }
+        packet.seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        Some(packet)
+    }
+
+    /// When the next packet is due (infinity: none queued).
+    pub fn next_at(&self) -> f64 {
+        self.pending.front().map_or(f64::INFINITY, |o| o.at)
+    }
+
+    /// The line is gone: what was queued is lost.
+    pub fn clear(&mut self) {
+        self.pending.clear();
+    }
+}
+
 /// The controller.
 #[derive(Debug)]
 pub struct PsdController {
@@ -189,8 +241,14 @@ impl PsdController {
                 }
             }
         };
+        // A reply held back by the controller (a busy firmware): it carries the stamp of when
+        // the request came, so the host's round trip grows by the hold.
+        let held = match (reply, self.faults.sync_reply_hold) {
+            (Message::TimeSyncReply { .. }, Some([from, to, ms])) if t >= from && t < to => ms * 1e-3,
+            _ => 0.0,
+        };
         let p = self.packet(reply);
-        out.push(Outgoing { at: t, packet: p });
+        out.push(Outgoing { at: t + held, packet: p });
     }
 
     /// When [`PsdController::poll`] next has something to do.
@@ -246,7 +304,7 @@ impl PsdController {
                 let slot = schedule.slots()[self.slot];
                 let mid = self.slot_start + 0.5 * f64::from(slot.slot_us) * 1e-6;
                 let sample = self.sample(self.slot as u8, slot.led, mid, world, schedule.dark_slot_us > 0);
-                let delay = self.injected_delay();
+                let delay = self.injected_delay(end);
                 let p = self.packet(Message::Sample(sample));
                 out.push(Outgoing { at: end + delay, packet: p });
                 self.samples_in_frame += 1;
@@ -275,18 +333,20 @@ impl PsdController {
         }
     }
 
-    fn injected_delay(&mut self) -> f64 {
+    fn injected_delay(&mut self, t: f64) -> f64 {
         let f = &self.faults;
+        let ramp = f.ramp_delay(t);
         if f.sample_delay_ms <= 0.0 && f.sample_jitter_ms <= 0.0 {
-            return 0.0;
+            return ramp;
         }
         let jitter = f.sample_jitter_ms * rand::Rng::random_range(&mut self.rng, -1.0..1.0);
-        ((f.sample_delay_ms + jitter) * 1e-3).max(0.0)
+        ((f.sample_delay_ms + jitter) * 1e-3).max(0.0) + ramp
     }
 
     fn sample(&mut self, slot: u8, led: u8, t: f64, world: &World, dark: bool) -> Sample {
         let half = f64::from(self.camera.counts) / 2.0;
-        let raw = self.leds.position(led, world, t).and_then(|p| self.camera.project(p));
+        let reflected = self.faults.reflected(led, t);
+        let raw = self.leds.position(led, world, t).and_then(|p| self.camera.project(p + reflected));
         let mut flags = if dark { SampleFlags::AMBIENT_SUBTRACTED } else { 0 };
         let (mut x, mut y, intensity) = match raw {
             Some(r) if self.camera.in_view(r) && !self.faults.occluded(led, t) => {

@@ -37,7 +37,7 @@ use tokio_util::codec::{Encoder, FramedRead};
 use crate::calibration::CameraModel;
 use crate::faults::{CanFaults, FaultPlan, SerialFaults};
 use crate::motor_board::MotorBoard;
-use crate::psd_controller::{LedMap, Outgoing, PsdController};
+use crate::psd_controller::{LedMap, Outgoing, PsdController, SerialQueue};
 use crate::scenario::Scenario;
 use crate::slcan_adapter::SlcanAdapter;
 use crate::truth::{TruthRecord, SAMPLE_PERIOD};
@@ -388,7 +388,7 @@ async fn run(
     let origin = Instant::now();
     let now = || origin.elapsed().as_secs_f64();
     let mut psd_out: Vec<Outgoing> = Vec::new();
-    let mut pending: VecDeque<Outgoing> = VecDeque::new();
+    let mut pending = SerialQueue::default();
     let mut can_out: Vec<CanFrame> = Vec::new();
     let mut to_host: Vec<Response> = Vec::new();
     let mut to_bus: Vec<CanFrame> = Vec::new();
@@ -438,15 +438,12 @@ async fn run(
         }
 
         // Serial out: in order, each message no earlier than its time (injected delay).
-        let mut last_at = pending.back().map_or(0.0, |o| o.at);
         for o in psd_out.drain(..) {
-            last_at = last_at.max(o.at);
-            pending.push_back(Outgoing { at: last_at, packet: o.packet });
+            pending.push(o);
         }
         let mut bytes = Vec::new();
-        while pending.front().is_some_and(|o| o.at <= t) {
-            let o = pending.pop_front().expect("checked");
-            serial_faults.packets(t, o.packet, &mut |p| {
+        while let Some(packet) = pending.pop_due(t) {
+            serial_faults.packets(t, packet, &mut |p| {
                 if let Ok(n) = p.encode(&mut wire) {
                     bytes.extend_from_slice(&wire[..n]);
                 }
@@ -475,6 +472,7 @@ async fn run(
             stats.can_frames_out.fetch_add(1, Ordering::Relaxed);
             match &mut bus {
                 Bus::Slcan { adapter, tx, .. } => {
+                    adapter.bus_off = config.faults.adapter_bus_off(t);
                     if let Some(r) = adapter.from_bus(f, t) {
                         send_line(tx, &r);
                     }
@@ -492,9 +490,7 @@ async fn run(
         }
 
         let mut next = controller.next_event().min(board.next_event()).min(next_truth).min(t + 0.005);
-        if let Some(o) = pending.front() {
-            next = next.min(o.at);
-        }
+        next = next.min(pending.next_at());
         if let Some(&b) = bursts.front() {
             next = next.min(b);
         }
@@ -519,6 +515,7 @@ async fn run(
             }
             Some(line) = async { match slcan_rx { Some(rx) => rx.recv().await, None => std::future::pending().await } } => {
                 if let Bus::Slcan { adapter, tx, .. } = &mut bus {
+                    adapter.bus_off = config.faults.adapter_bus_off(now());
                     adapter.handle(line, &mut to_host, &mut to_bus);
                     for r in to_host.drain(..) {
                         send_line(tx, &r);

@@ -228,7 +228,7 @@ impl Scenario {
         non_negative("sensing.delay", s.delay)?;
         non_negative("sensing.position_noise", s.position_noise)?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
-        Ok(())
+        self.faults.validate()
     }
 
     pub fn robot_start(&self) -> Point {

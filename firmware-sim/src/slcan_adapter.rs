@@ -16,7 +16,13 @@ pub struct SlcanAdapter {
     timestamps: bool,
     /// Lines the adapter refused (BEL).
     pub errors: u64,
+    /// The adapter's own CAN controller is bus-off: it sends nothing, refuses transmits and
+    /// says so in its status flags.
+    pub bus_off: bool,
 }
+
+/// Status flags while bus-off: bus error, error passive, transmit FIFO full.
+pub const BUS_OFF_FLAGS: u8 = 0x80 | 0x20 | 0x02;
 
 impl SlcanAdapter {
     pub fn is_open(&self) -> bool {
@@ -31,7 +37,7 @@ impl SlcanAdapter {
     pub fn handle(&mut self, line: Option<Command>, to_host: &mut Vec<Response>, to_bus: &mut Vec<CanFrame>) {
         let ok = match line {
             None => false,
-            Some(Command::Transmit(frame)) if self.open && !self.listen_only => {
+            Some(Command::Transmit(frame)) if self.open && !self.listen_only && !self.bus_off => {
                 to_bus.push(frame);
                 to_host.push(Response::TxAck { extended: frame.id().is_extended() });
                 return;
@@ -70,7 +76,7 @@ impl SlcanAdapter {
                 return;
             }
             Some(Command::StatusFlags) => {
-                to_host.push(Response::StatusFlags(0));
+                to_host.push(Response::StatusFlags(if self.bus_off { BUS_OFF_FLAGS } else { 0 }));
                 return;
             }
             Some(Command::Empty) => true,
@@ -85,7 +91,7 @@ impl SlcanAdapter {
 
     /// A frame seen on the bus, as the host receives it (only while the channel is open).
     pub fn from_bus(&self, frame: CanFrame, t: f64) -> Option<Response> {
-        self.open.then(|| Response::Frame {
+        (self.open && !self.bus_off).then(|| Response::Frame {
             frame,
             timestamp_ms: self.timestamps.then_some(((t * 1000.0) as u64 % 60_000) as u16),
         })

@@ -32,7 +32,7 @@ use crate::control::{ControlStep, StepStatus};
 use crate::link::CanEvent;
 use crate::planner::{FieldError, Space};
 use crate::time::{CtrlTime, HostTime};
-use crate::track::Tracker;
+use crate::track::{Implausible, Tracker};
 
 /// How often the gateway sends its heartbeat.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
@@ -40,6 +40,9 @@ pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
 pub const STOP_GRACE: Duration = Duration::from_secs(1);
 /// The window over which bad serial frames are counted against the budget.
 const BAD_FRAME_WINDOW: Duration = Duration::from_secs(1);
+/// Transmits an SLCAN adapter may refuse within a second: beyond, the commands are not
+/// reaching the board.
+const TX_REFUSED_PER_S: u32 = 3;
 
 /// Measures how long each stage of a cycle takes. The core reads no clock of its own: the
 /// rig's shell hands it a monotonic one, the deterministic simulation [`NoClock`] (every
@@ -71,6 +74,8 @@ pub enum Output {
     Command { frame: CanFrame, record: CycleRecord },
     /// The safety state changed.
     State { at: HostTime, state: State },
+    /// Ask the CAN link for its controller's state (an SLCAN adapter's status flags).
+    PollCanStatus,
     /// The PSD controller is configured and streaming.
     Streaming,
     /// The PSD controller could not be configured; the caller closes the line (and tries
@@ -141,9 +146,17 @@ pub struct Core<K: StageClock> {
     progress: Progress,
     last_sample: HostTime,
     armed_at: HostTime,
+    /// Why the last robot sample was discarded as implausible, until a plausible one comes.
+    implausible: Option<Implausible>,
+    /// When the last plausible robot pose arrived (host time, whatever its age).
+    robot_arrived: HostTime,
     /// Bad serial frames, and sequence errors, within the last second.
     bad_frames: Budget,
     link_errors: Budget,
+    /// Sequence errors the board counted (lost or foreign velocity commands).
+    board_seq: Budget,
+    /// Transmits the SLCAN adapter refused.
+    tx_refused: Budget,
     /// The frame whose samples are being collected, and how many came.
     collecting: Option<(u32, u8)>,
     /// The last frame that ended.
@@ -179,8 +192,12 @@ impl<K: StageClock> Core<K> {
             progress: Progress::default(),
             last_sample: HostTime::ZERO,
             armed_at: HostTime::ZERO,
+            implausible: None,
+            robot_arrived: HostTime::ZERO,
             bad_frames: Budget::new(rig.safety.bad_frames_per_s),
             link_errors: Budget::new(rig.safety.bad_frames_per_s),
+            board_seq: Budget::new(rig.safety.bad_frames_per_s),
+            tx_refused: Budget::new(TX_REFUSED_PER_S),
             collecting: None,
             last_frame: None,
             next_heartbeat: HostTime::ZERO,
@@ -234,7 +251,7 @@ impl<K: StageClock> Core<K> {
         if is_active(state) {
             next = next.min(self.last_sample + self.rig.safety.sample_timeout);
             let heard = self.board.last_heartbeat.map_or(self.armed_at, |h| h.max(self.armed_at));
-            next = next.min(heard + self.rig.safety.heartbeat_timeout);
+            next = next.min(heard + self.rig.safety.heartbeat_timeout).min(self.psd.sync_deadline());
         }
         if state == State::Running {
             next = next.min(self.pose_deadline()).min(self.track_deadline());
@@ -293,6 +310,23 @@ impl<K: StageClock> Core<K> {
         match event {
             CanEvent::Frame(f) => self.can_frame(now, &f),
             CanEvent::Garbled => self.counters.can_undecodable += 1,
+            CanEvent::TransmitRefused => {
+                self.counters.can_tx_refused += 1;
+                if self.tx_refused.exceeded(now) && is_active(self.state()) {
+                    self.stop(now, StopReason::CanTransmitRefused);
+                }
+            }
+            CanEvent::AdapterStatus { bus_off, error_passive } => {
+                if error_passive {
+                    self.counters.can_error_passive += 1;
+                }
+                if bus_off {
+                    self.counters.can_error_frames += 1;
+                    if is_active(self.state()) {
+                        self.stop(now, StopReason::BusOff);
+                    }
+                }
+            }
             CanEvent::ErrorFrame { bus_off } => {
                 self.counters.can_error_frames += 1;
                 if bus_off {
@@ -304,7 +338,12 @@ impl<K: StageClock> Core<K> {
 
     /// The CAN link failed (a write error or timeout, the interface gone).
     pub fn can_failed(&mut self, now: HostTime) {
-        self.stop(now, StopReason::BusOff);
+        self.stop(now, StopReason::CanLinkLost);
+    }
+
+    /// The CAN link is open again after a loss (the core stays faulted until reset).
+    pub fn can_reopened(&mut self) {
+        self.counters.can_reconnects += 1;
     }
 
     /// An operator's request at `now`. Refusals say exactly why and change nothing.
@@ -500,6 +539,10 @@ impl<K: StageClock> Core<K> {
             let state = self.state().wire();
             self.send(MotorMessage::GatewayHeartbeat { state });
             self.next_heartbeat = now + HEARTBEAT_PERIOD;
+            // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
+            if self.rig.can.polls_status() {
+                self.out.push_back(Output::PollCanStatus);
+            }
         }
         let out = &mut self.out;
         if let Some(e) = self.psd.tick(now, &mut |p| out.push_back(Output::Psd(p))) {
@@ -542,11 +585,21 @@ impl<K: StageClock> Core<K> {
         if now >= self.last_sample + s.sample_timeout {
             Some(StopReason::SamplesStopped)
         } else if state == State::Running && now >= self.pose_deadline() {
-            Some(StopReason::PoseLost)
+            // Named by what the robot's samples were: seen where it cannot be; arriving, but
+            // too old (delay); or not arriving.
+            Some(if self.implausible.is_some() {
+                StopReason::PoseImplausible
+            } else if now.since(self.robot_arrived) < s.sample_timeout {
+                StopReason::PoseDelayed
+            } else {
+                StopReason::PoseLost
+            })
         } else if state == State::Running && now >= self.track_deadline() {
             Some(StopReason::ObstacleLost)
         } else if now >= heard + s.heartbeat_timeout {
             Some(StopReason::HeartbeatLost)
+        } else if now >= self.psd.sync_deadline() {
+            Some(StopReason::ClockUnsynced)
         } else {
             None
         }
@@ -861,7 +914,21 @@ impl<K: StageClock> Core<K> {
         if let (Some(f), Some(r)) = (usable(self.rig.robot_front), usable(self.rig.robot_rear)) {
             if let (Some((fp, _)), Some((rp, _))) = (floor(f), floor(r)) {
                 let at = clock.to_host(f.at.midpoint(r.at)).secs();
-                self.tracker.observe_robot(at, fp, rp);
+                let reach = self.rig.control.drive.max_wheel_speed;
+                match self.tracker.plausible(at, fp, rp, reach, self.rig.safety.pose_tolerance) {
+                    Ok(()) => {
+                        self.implausible = None;
+                        self.robot_arrived = now;
+                        self.tracker.observe_robot(at, fp, rp);
+                    }
+                    Err(e) => {
+                        self.counters.poses_implausible += 1;
+                        if self.implausible.is_none() {
+                            tracing::warn!("robot pose discarded: {e}");
+                        }
+                        self.implausible = Some(e);
+                    }
+                }
             }
         }
         for (k, o) in self.rig.obstacles.iter().enumerate() {
@@ -908,7 +975,13 @@ impl<K: StageClock> Core<K> {
                 MotorMessage::Status { state, faults, seq_errors, .. } => {
                     let before = self.board.seq_errors.replace(seq_errors);
                     if let Some(before) = before {
-                        self.counters.board_seq_errors += u64::from(seq_errors.wrapping_sub(before));
+                        let new = seq_errors.wrapping_sub(before);
+                        self.counters.board_seq_errors += u64::from(new);
+                        // Each counts against the budget: a lossy bus or another sender.
+                        let exceeded = (0..new).fold(false, |over, _| self.board_seq.exceeded(now) | over);
+                        if exceeded && is_active(self.state()) {
+                            self.stop(now, StopReason::BoardSequence);
+                        }
                     }
                     self.board.state = Some(state);
                     self.board.faults = faults;

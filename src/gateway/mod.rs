@@ -89,15 +89,23 @@ pub struct Counters {
     pub frames_incomplete: u64,
     /// Samples from an LED or slot that is not in the schedule (discarded).
     pub samples_unscheduled: u64,
+    /// Robot poses discarded: LEDs off their mounted spacing, or further than the robot can go.
+    pub poses_implausible: u64,
     pub bad_serial_frames: u64,
     pub serial_dropped_bytes: u64,
     pub serial_reconnects: u64,
     pub can_frames_in: u64,
+    /// Times the CAN link was lost and opened again.
+    pub can_reconnects: u64,
     /// Frames from node ids that are not configured (ignored).
     pub can_foreign: u64,
     /// Frames that do not decode as motor messages, and garbled adapter lines (ignored).
     pub can_undecodable: u64,
+    /// Error frames (SocketCAN) and bus-off reports (an SLCAN adapter's status flags).
     pub can_error_frames: u64,
+    /// Transmits the SLCAN adapter refused (BEL), and its error-passive reports.
+    pub can_tx_refused: u64,
+    pub can_error_passive: u64,
     /// Sequence errors the motor board counted in our velocity commands (lost or foreign).
     pub board_seq_errors: u64,
     pub planner_invalid: u64,

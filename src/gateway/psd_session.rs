@@ -21,6 +21,9 @@ pub const RESYNC_EVERY: Duration = Duration::from_secs(1);
 /// The longest round trip a resync is taken from: a longer one says more about the line's
 /// queueing than about the clocks, and is discarded (and counted).
 pub const MAX_RTT: Duration = Duration::from_millis(10);
+/// How long the clock offset may go without a good sync while streaming: five resyncs in a
+/// row rejected (at 1000 ppm the clocks part by 5 ms meanwhile).
+pub const SYNC_STALE: Duration = Duration::from_secs(5);
 /// Bytes held for decoding: a few frames (the shell reads at most 1 KiB at a time).
 const BUFFER: usize = 4096;
 
@@ -114,6 +117,8 @@ pub struct PsdSession {
     /// While streaming: when to sync the clock again, and the sync in flight (sent at).
     next_resync: HostTime,
     resync: Option<HostTime>,
+    /// When the offset was last taken from a good round trip.
+    synced_at: HostTime,
 }
 
 impl PsdSession {
@@ -130,6 +135,7 @@ impl PsdSession {
             last_seq: None,
             next_resync: HostTime::NEVER,
             resync: None,
+            synced_at: HostTime::ZERO,
         }
     }
 
@@ -172,6 +178,14 @@ impl PsdSession {
     /// Controller stamps to host time, from the last time sync.
     pub fn clock(&self) -> ClockOffset {
         self.offset
+    }
+    /// When the clock offset goes stale while streaming (no good sync since `SYNC_STALE`).
+    pub fn sync_deadline(&self) -> HostTime {
+        if self.phase == Phase::Streaming {
+            self.synced_at + SYNC_STALE
+        } else {
+            HostTime::NEVER
+        }
     }
 
     /// Accept whatever sequence number comes next (a controller that rebooted).
@@ -244,6 +258,7 @@ impl PsdSession {
                 let accepted = now.since(sent) <= MAX_RTT;
                 if accepted {
                     self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+                    self.synced_at = now;
                 }
                 return SessionEvent::Resynced { accepted };
             }
@@ -274,6 +289,7 @@ impl PsdSession {
                 if host_time_us == sent.as_nanos() / 1000 =>
             {
                 self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+                self.synced_at = now;
                 Step::Start
             }
             (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {

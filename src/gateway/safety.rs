@@ -25,6 +25,10 @@ pub enum StopReason {
     /// An operator's emergency stop (a fault: latched until reset).
     OperatorEStop,
     PoseLost,
+    /// The robot's samples kept failing the plausibility checks until the pose timed out.
+    PoseImplausible,
+    /// The robot's poses kept arriving, but older than the pose timeout (sensing delay).
+    PoseDelayed,
     SamplesStopped,
     SerialGarbled,
     /// Duplicated, replayed, reordered or unscheduled PSD packets beyond budget.
@@ -32,6 +36,14 @@ pub enum StopReason {
     /// The PSD controller reported a fault (an LED driver, ambient saturation, internal).
     ControllerFault,
     SerialLost,
+    /// No time sync with a round trip within bound for `SYNC_STALE`: stamps cannot be trusted.
+    ClockUnsynced,
+    /// The motor board counted more lost or foreign commands than the budget allows.
+    BoardSequence,
+    /// The SLCAN adapter refused more transmits than the budget allows.
+    CanTransmitRefused,
+    /// The CAN link itself failed: a write error or timeout, the adapter or interface gone.
+    CanLinkLost,
     HeartbeatLost,
     /// The motor board announced a boot while the gateway drove it.
     BoardReboot,
@@ -83,12 +95,18 @@ impl std::fmt::Display for StopReason {
             Self::Operator => "operator stop",
             Self::Shutdown => "shutdown signal",
             Self::PoseLost => "robot pose lost",
+            Self::PoseImplausible => "robot pose implausible (LED spacing or jump)",
+            Self::PoseDelayed => "robot pose delayed beyond the pose timeout",
             Self::SamplesStopped => "no samples from the PSD controller",
             Self::SerialGarbled => "garbled serial frames beyond budget",
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
             Self::ControllerFault => "the PSD controller reports a fault",
             Self::SerialLost => "serial device lost",
             Self::HeartbeatLost => "motor board heartbeat lost",
+            Self::ClockUnsynced => "controller clock unsynchronised (time sync round trips too long)",
+            Self::BoardSequence => "motor board counts lost or foreign commands beyond budget",
+            Self::CanTransmitRefused => "CAN adapter refuses to transmit beyond budget",
+            Self::CanLinkLost => "CAN link lost",
             Self::BoardReboot => "motor board rebooted",
             Self::SecondMaster => "another device commands the motor board",
             Self::ObstacleLost => "an obstacle unseen beyond the pose timeout",

@@ -1,6 +1,6 @@
 //! The tokio shell around the [`Core`] on a rig: it opens the links, reads the PSD serial
 //! line and the CAN bus, writes what the core asks (every write under a deadline), sleeps
-//! until the core's next deadline, and reopens a lost serial line. All decisions are the
+//! until the core's next deadline, and reopens a lost serial line or CAN link. All decisions are the
 //! core's; the shell only moves bytes and reads the clock.
 
 use std::time::Duration;
@@ -27,10 +27,8 @@ const PSD_WRITE_DEADLINE: Duration = Duration::from_millis(50);
 const CAN_WRITE_DEADLINE: Duration = Duration::from_millis(50);
 /// Deadline of opening the CAN link (an SLCAN adapter answers three commands).
 const CAN_OPEN_DEADLINE: Duration = Duration::from_secs(5);
-/// How often a lost serial line is tried again.
+/// How often a lost serial line or CAN link is tried again.
 const REOPEN_EVERY: Duration = Duration::from_millis(200);
-/// How long the CAN side rests after a receive error before it is read again.
-const CAN_ERROR_BACKOFF: Duration = Duration::from_millis(50);
 
 /// What the loop is told from outside.
 #[derive(Debug)]
@@ -71,13 +69,18 @@ struct Io {
     origin: Instant,
     port: String,
     psd: Option<tokio_serial::SerialStream>,
-    can: CanLink,
+    /// The CAN link; `None` while it is lost and being reopened.
+    can: Option<CanLink>,
+    can_url: CanUrl,
+    /// A reopen in flight: opening an SLCAN adapter waits on its answers, so it runs as its
+    /// own task and the loop keeps ticking the core meanwhile.
+    can_opening: Option<tokio::task::JoinHandle<Result<CanLink, CanError>>>,
+    next_can_reopen: HostTime,
     recorder: Recorder,
     timing: Timing,
     progress: Option<watch::Sender<Progress>>,
     sample_period: Duration,
     next_reopen: HostTime,
-    can_resume: HostTime,
 }
 
 impl Io {
@@ -110,7 +113,7 @@ impl Io {
                 }
                 Output::Can(frame) => {
                     if self.send_can(frame).await.is_err() {
-                        core.can_failed(self.now());
+                        self.lose_can(core);
                     }
                 }
                 Output::Command { frame, mut record } => {
@@ -128,7 +131,7 @@ impl Io {
                         });
                     }
                     if sent.is_err() {
-                        core.can_failed(self.now());
+                        self.lose_can(core);
                     }
                 }
                 Output::State { state, at } => {
@@ -140,6 +143,17 @@ impl Io {
                     if let Some(tx) = &self.progress {
                         let p = core.progress();
                         tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
+                    }
+                }
+                Output::PollCanStatus => {
+                    let Some(can) = &mut self.can else { continue };
+                    let polled = match timeout(CAN_WRITE_DEADLINE, can.poll_status()).await {
+                        Ok(r) => r,
+                        Err(_) => Err(CanError::Timeout { what: "status poll" }),
+                    };
+                    if let Err(e) = polled {
+                        tracing::error!("CAN status poll: {e}");
+                        self.lose_can(core);
                     }
                 }
                 Output::Streaming => {
@@ -168,7 +182,8 @@ impl Io {
     }
 
     async fn send_can(&mut self, frame: CanFrame) -> Result<(), CanError> {
-        let result = match timeout(CAN_WRITE_DEADLINE, self.can.send(frame)).await {
+        let Some(can) = &mut self.can else { return Err(CanError::Closed) };
+        let result = match timeout(CAN_WRITE_DEADLINE, can.send(frame)).await {
             Ok(r) => r,
             Err(_) => Err(CanError::Timeout { what: "write" }),
         };
@@ -204,6 +219,39 @@ impl Io {
             Err(e) => Reply { ok: false, error: Some(e.to_string()), status },
         };
         let _ = cmd.reply.send(reply);
+    }
+
+    /// The CAN link failed: fault the core (named for the link), drop the link and reopen
+    /// it every `REOPEN_EVERY`. The core stays faulted: an operator resets and arms again.
+    fn lose_can<K: StageClock>(&mut self, core: &mut Core<K>) {
+        let now = self.now();
+        core.can_failed(now);
+        if self.can.take().is_some() {
+            self.next_can_reopen = now + REOPEN_EVERY;
+        }
+    }
+
+    fn reopen_can(&mut self) {
+        self.next_can_reopen = HostTime::NEVER;
+        let url = self.can_url.clone();
+        self.can_opening = Some(tokio::spawn(async move {
+            timeout(CAN_OPEN_DEADLINE, open_can(&url)).await.unwrap_or(Err(CanError::Timeout { what: "open" }))
+        }));
+    }
+
+    fn can_opened<K: StageClock>(&mut self, core: &mut Core<K>, opened: Result<CanLink, CanError>) {
+        self.can_opening = None;
+        match opened {
+            Ok(link) => {
+                tracing::info!("CAN link reopened");
+                self.can = Some(link);
+                core.can_reopened();
+            }
+            Err(e) => {
+                tracing::debug!("CAN reopen: {e}");
+                self.next_can_reopen = self.now() + REOPEN_EVERY;
+            }
+        }
     }
 
     fn reopen<K: StageClock>(&mut self, core: &mut Core<K>, path: &std::path::Path, baud: u32) {
@@ -259,13 +307,15 @@ pub async fn run(
         origin,
         port: path.display().to_string(),
         psd: Some(psd),
-        can,
+        can: Some(can),
+        can_url: rig.can.clone(),
+        can_opening: None,
+        next_can_reopen: HostTime::NEVER,
         recorder,
         timing: Timing::default(),
         progress,
         sample_period: rig.sample_period,
         next_reopen: HostTime::NEVER,
-        can_resume: HostTime::ZERO,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
     if controls.arm_at_start {
@@ -282,12 +332,7 @@ pub async fn run(
         if core.finished() {
             break;
         }
-        let can_ready = io.now() >= io.can_resume;
-        let wake = io.instant(core.next_deadline().min(io.next_reopen).min(if can_ready {
-            HostTime::NEVER
-        } else {
-            io.can_resume
-        }));
+        let wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen));
         tokio::select! {
             read = async {
                 match io.psd.as_mut() {
@@ -301,7 +346,12 @@ pub async fn run(
                     io.lose_psd(&mut core);
                 }
             },
-            event = io.can.recv(), if can_ready => match event {
+            event = async {
+                match io.can.as_mut() {
+                    Some(can) => can.recv().await,
+                    None => std::future::pending().await,
+                }
+            } => match event {
                 Ok(event) => {
                     if let CanEvent::Frame(frame) = event {
                         io.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: false }));
@@ -309,15 +359,26 @@ pub async fn run(
                     core.can_event(io.now(), event);
                 }
                 Err(e) => {
-                    tracing::error!("CAN: {e}");
-                    io.can_resume = io.now() + CAN_ERROR_BACKOFF;
-                    core.can_failed(io.now());
+                    tracing::error!("CAN link: {e}; reopening");
+                    io.lose_can(&mut core);
                 }
+            },
+            opened = async {
+                match io.can_opening.as_mut() {
+                    Some(task) => task.await,
+                    None => std::future::pending().await,
+                }
+            } => {
+                let opened = opened.unwrap_or(Err(CanError::Closed));
+                io.can_opened(&mut core, opened);
             },
             _ = tokio::time::sleep_until(wake) => {
                 let now = io.now();
                 if io.psd.is_none() && now >= io.next_reopen {
                     io.reopen(&mut core, &path, baud);
+                }
+                if io.can.is_none() && io.can_opening.is_none() && now >= io.next_can_reopen {
+                    io.reopen_can();
                 }
                 core.tick(now);
             }
@@ -332,6 +393,9 @@ pub async fn run(
         }
     }
     if let Some(task) = _socket_task {
+        task.abort();
+    }
+    if let Some(task) = io.can_opening.take() {
         task.abort();
     }
     let dropped = io.recorder.dropped();

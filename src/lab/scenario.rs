@@ -103,8 +103,16 @@ impl Scenario {
         let leds = LedMap::standard(self.robot.radius);
         let cam = CameraModel::default();
         let r = &self.robot;
-        let timeout_ms = (3 * frame_us / 1000 + 1).max(u32::from(SIM_COMMAND_TIMEOUT_MS));
         let delay_ms = (self.sensing.delay * 1e3).ceil().clamp(0.0, 60_000.0) as u32;
+        // A rig with a known sensing delay accepts poses that old (and no older), and its
+        // first samples come that much later.
+        let safety = SafetyConfig::default();
+        let (pose_timeout_ms, sample_timeout_ms) =
+            (safety.pose_timeout_ms + delay_ms, safety.sample_timeout_ms + delay_ms);
+        // The board's timeout must leave the gateway's watchdogs a cycle to fire first.
+        let timeout_ms = (pose_timeout_ms.max(sample_timeout_ms) + 2 * frame_us.div_ceil(1000))
+            .max(3 * frame_us / 1000 + 1)
+            .max(u32::from(SIM_COMMAND_TIMEOUT_MS));
         GatewayConfig {
             serial: SerialConfig { port: psd.to_path_buf(), baud: 921_600 },
             leds: LedConfig {
@@ -143,13 +151,7 @@ impl Scenario {
             goal: Some(Goal { position: self.goal.position, tolerance: self.goal.tolerance }),
             planner: self.planner,
             lane: self.lane.map(|l| LaneSection { half_width: l.half_width }),
-            // A rig with a known sensing delay accepts poses that old (and no older), and its
-            // first samples come that much later.
-            safety: SafetyConfig {
-                pose_timeout_ms: SafetyConfig::default().pose_timeout_ms + delay_ms,
-                sample_timeout_ms: SafetyConfig::default().sample_timeout_ms + delay_ms,
-                ..SafetyConfig::default()
-            },
+            safety: SafetyConfig { pose_timeout_ms, sample_timeout_ms, ..safety },
             telemetry: TelemetryConfig { out_dir, ..TelemetryConfig::default() },
             operator: OperatorConfig::default(),
         }

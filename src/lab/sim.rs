@@ -24,7 +24,7 @@ use flowgate_protocol::CanFrame;
 use flowgate_sim::calibration::CameraModel;
 use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
 use flowgate_sim::motor_board::MotorBoard;
-use flowgate_sim::psd_controller::{LedMap, Outgoing, PsdController};
+use flowgate_sim::psd_controller::{LedMap, Outgoing, PsdController, SerialQueue};
 use flowgate_sim::truth::{TruthRecord, SAMPLE_PERIOD};
 use flowgate_sim::world::World;
 use tokio_util::codec::Decoder as _;
@@ -220,7 +220,7 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     /// When the second master next speaks.
     next_master: f64,
     psd_out: Vec<Outgoing>,
-    pending: VecDeque<Outgoing>,
+    pending: SerialQueue,
     to_host: Wire,
     to_controller: Wire,
     controller_rx: BytesMut,
@@ -294,7 +294,7 @@ impl<K: StageClock> VirtualRig<K> {
             board,
             adapter: Default::default(),
             psd_out,
-            pending: VecDeque::with_capacity(64),
+            pending: SerialQueue::default(),
             to_host: Wire::new(SERIAL_BAUD),
             to_controller: Wire::new(SERIAL_BAUD),
             controller_rx: BytesMut::with_capacity(1024),
@@ -413,7 +413,7 @@ impl<K: StageClock> VirtualRig<K> {
             at(self.controller.next_event());
         }
         at(self.board.next_event());
-        at(self.pending.front().map_or(f64::INFINITY, |o| o.at));
+        at(self.pending.next_at());
         at(self.next_truth);
         at(self.bursts.front().copied().unwrap_or(f64::INFINITY));
         at(self.vanish.map_or(f64::INFINITY, |(gone, back)| if self.psd_gone { back } else { gone }));
@@ -490,17 +490,14 @@ impl<K: StageClock> VirtualRig<K> {
     /// frames through the adapter to the host.
     fn firmware_out(&mut self) {
         let t = self.time();
-        let mut last_at = self.pending.back().map_or(0.0, |o| o.at);
         for o in self.psd_out.drain(..) {
-            last_at = last_at.max(o.at);
-            self.pending.push_back(Outgoing { at: last_at, packet: o.packet });
+            self.pending.push(o);
         }
         self.scratch.clear();
         let mut wire = [0u8; psd::MAX_WIRE_LEN];
-        while self.pending.front().is_some_and(|o| o.at <= t) {
-            let o = self.pending.pop_front().expect("checked");
+        while let Some(packet) = self.pending.pop_due(t) {
             let scratch = &mut self.scratch;
-            self.serial_faults.packets(t, o.packet, &mut |p| {
+            self.serial_faults.packets(t, packet, &mut |p| {
                 if let Ok(n) = p.encode(&mut wire) {
                     scratch.extend_from_slice(&wire[..n]);
                 }
@@ -517,6 +514,7 @@ impl<K: StageClock> VirtualRig<K> {
         }
         let bus_off = self.plan.bus_off(t);
         let mut line = [0u8; MAX_LINE_LEN];
+        self.adapter.bus_off = self.plan.adapter_bus_off(t);
         for f in self.can_out.drain(..) {
             if bus_off || self.can_faults.lose() {
                 continue;
@@ -547,6 +545,7 @@ impl<K: StageClock> VirtualRig<K> {
         while self.can_down.take(self.t, &mut self.scratch) {
             self.adapter_rx.extend_from_slice(&self.scratch);
             while let Ok(Some(line)) = self.adapter_codec.decode(&mut self.adapter_rx) {
+                self.adapter.bus_off = self.plan.adapter_bus_off(t);
                 self.adapter.handle(line.ok(), &mut self.adapter_replies, &mut self.to_bus);
             }
             let mut buf = [0u8; MAX_LINE_LEN];
@@ -598,6 +597,9 @@ impl<K: StageClock> VirtualRig<K> {
                     if let Some(tel) = &mut self.telemetry {
                         let _ = record.csv(&mut tel.cycles_csv);
                     }
+                }
+                Output::PollCanStatus => {
+                    self.host_line(Command::StatusFlags);
                 }
                 Output::State { .. } => {}
                 Output::Streaming => {}

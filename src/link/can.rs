@@ -24,6 +24,13 @@ pub enum CanUrl {
     Memory,
 }
 
+impl CanUrl {
+    /// Whether the link's state must be polled (an SLCAN adapter says nothing unasked).
+    pub fn polls_status(&self) -> bool {
+        matches!(self, Self::Slcan { .. })
+    }
+}
+
 impl FromStr for CanUrl {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -92,13 +99,32 @@ pub enum CanEvent {
     },
     /// A line from an SLCAN adapter that did not parse.
     Garbled,
+    /// An SLCAN adapter refused a line (BEL): after the channel is open, a transmit.
+    TransmitRefused,
+    /// An SLCAN adapter's status flags (`F`). LAWICEL has no bus-off flag: a bus error (bit 7)
+    /// with the transmit FIFO full (bit 1) is the adapter's controller no longer sending,
+    /// which is what bus-off means to the gateway.
+    AdapterStatus {
+        bus_off: bool,
+        error_passive: bool,
+    },
 }
+
+/// LAWICEL status flags (`F` reply): transmit FIFO full, error passive, bus error.
+const SLCAN_TX_FULL: u8 = 0x02;
+const SLCAN_ERROR_PASSIVE: u8 = 0x20;
+const SLCAN_BUS_ERROR: u8 = 0x80;
 
 /// What an SLCAN adapter's line means to the gateway: a frame, a garbled line, or nothing
 /// (transmit acks and OKs carry nothing for the caller).
 pub fn slcan_event(line: Result<Response, StreamError<slcan::SlcanError>>) -> Option<CanEvent> {
     match line {
         Ok(Response::Frame { frame, .. }) => Some(CanEvent::Frame(frame)),
+        Ok(Response::Error) => Some(CanEvent::TransmitRefused),
+        Ok(Response::StatusFlags(f)) => Some(CanEvent::AdapterStatus {
+            bus_off: f & (SLCAN_BUS_ERROR | SLCAN_TX_FULL) == SLCAN_BUS_ERROR | SLCAN_TX_FULL,
+            error_passive: f & SLCAN_ERROR_PASSIVE != 0,
+        }),
         Ok(_) => None,
         Err(StreamError::Frame { .. } | StreamError::Overlong { .. }) => Some(CanEvent::Garbled),
     }
@@ -124,6 +150,15 @@ impl CanLink {
             Self::SocketCan(l) => l.send(frame).await,
             Self::Slcan(l) => l.send(frame).await,
             Self::Memory(l) => l.send(frame),
+        }
+    }
+
+    /// Ask the link for its controller's state. SLCAN answers with its status flags (an
+    /// `AdapterStatus` event); SocketCAN reports state changes as error frames unasked.
+    pub async fn poll_status(&mut self) -> Result<(), CanError> {
+        match self {
+            Self::Slcan(l) => l.write(&Command::StatusFlags).await,
+            Self::SocketCan(_) | Self::Memory(_) => Ok(()),
         }
     }
 
