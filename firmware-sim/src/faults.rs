@@ -96,6 +96,9 @@ pub struct FaultPlan {
     /// 20 ms (a second master).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub second_master_at: Option<f64>,
+    /// `can_loss` applies only over `[from_s, to_s)` (default: always).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub can_loss_during: Option<[f64; 2]>,
     /// The SLCAN adapter's own controller is bus-off over `[from_s, to_s)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub adapter_bus_off: Option<[f64; 2]>,
@@ -162,6 +165,7 @@ impl FaultPlan {
             ("serial_repeat_during", self.serial_repeat_during),
             ("serial_silence", self.serial_silence),
             ("adapter_bus_off", self.adapter_bus_off),
+            ("can_loss_during", self.can_loss_during),
         ] {
             if let Some([from, to]) = w {
                 if !(from.is_finite() && to.is_finite() && from >= 0.0 && from <= to) {
@@ -365,16 +369,23 @@ impl SerialFaults {
 pub struct CanFaults {
     rng: ChaCha8Rng,
     loss: f64,
+    during: Option<[f64; 2]>,
     pub lost: u64,
 }
 
 impl CanFaults {
     pub fn new(plan: &FaultPlan) -> Self {
-        Self { rng: ChaCha8Rng::seed_from_u64(plan.seed ^ 0xca7), loss: plan.can_loss, lost: 0 }
+        Self {
+            rng: ChaCha8Rng::seed_from_u64(plan.seed ^ 0xca7),
+            loss: plan.can_loss,
+            during: plan.can_loss_during,
+            lost: 0,
+        }
     }
-    /// Whether this frame is lost.
-    pub fn lose(&mut self) -> bool {
-        let lost = self.loss > 0.0 && self.rng.random_bool(self.loss.min(1.0));
+    /// Whether a frame sent at `t` is lost.
+    pub fn lose(&mut self, t: f64) -> bool {
+        let active = !matches!(self.during, Some([from, to]) if t < from || t >= to);
+        let lost = active && self.loss > 0.0 && self.rng.random_bool(self.loss.min(1.0));
         self.lost += u64::from(lost);
         lost
     }

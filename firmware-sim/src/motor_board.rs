@@ -144,7 +144,7 @@ impl MotorBoard {
                 self.counters.velocity_commands += 1;
                 if let Some(last) = self.last_seq {
                     if seq != last.wrapping_add(1) {
-                        self.seq_errors = self.seq_errors.saturating_add(1);
+                        self.seq_errors = self.seq_errors.wrapping_add(1);
                     }
                 }
                 self.last_seq = Some(seq);

@@ -466,7 +466,7 @@ async fn run(
         // CAN out: the board's frames onto the bus (unless bus-off or lost).
         let bus_off = config.faults.bus_off(t);
         for f in can_out.drain(..) {
-            if bus_off || can_faults.lose() {
+            if bus_off || can_faults.lose(t) {
                 continue;
             }
             stats.can_frames_out.fetch_add(1, Ordering::Relaxed);
@@ -529,7 +529,7 @@ async fn run(
         let t = now();
         for f in to_bus.drain(..) {
             stats.can_frames_in.fetch_add(1, Ordering::Relaxed);
-            if !config.faults.bus_off(t) && !can_faults.lose() {
+            if !config.faults.bus_off(t) && !can_faults.lose(t) {
                 board.handle(t, &f, &mut world, &mut can_out);
             }
         }

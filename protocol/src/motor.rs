@@ -37,7 +37,7 @@
 //!   board latches `EStop` until a fault reset.
 //! - The velocity command sets both axes in one frame, so the wheels change together. Its
 //!   `seq` increments by one per command; the board counts gaps and repeats in
-//!   `seq errors` (saturating at 255) and reports the last `seq` it applied.
+//!   `seq errors` (wrapping at 256) and reports the last `seq` it applied.
 //! - A board stops both axes by itself when no velocity command arrives for longer than its
 //!   command timeout (config), sets the `CMD_TIMEOUT` fault and latches `Fault`.
 //! - Boards send heartbeat, status, axis rates and position periodically; the gateway sends

@@ -40,9 +40,13 @@ pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
 pub const STOP_GRACE: Duration = Duration::from_secs(1);
 /// The window over which bad serial frames are counted against the budget.
 const BAD_FRAME_WINDOW: Duration = Duration::from_secs(1);
+/// Sequence errors the board may count within a second (1% loss at 1 kHz is 10).
+const BOARD_SEQ_ERRORS_PER_S: u32 = 10;
 /// Transmits an SLCAN adapter may refuse within a second: beyond, the commands are not
 /// reaching the board.
 const TX_REFUSED_PER_S: u32 = 3;
+/// A refused transmit asks for the adapter's status, at most this often.
+const STATUS_REPOLL: Duration = Duration::from_millis(10);
 
 /// Measures how long each stage of a cycle takes. The core reads no clock of its own: the
 /// rig's shell hands it a monotonic one, the deterministic simulation [`NoClock`] (every
@@ -157,6 +161,8 @@ pub struct Core<K: StageClock> {
     board_seq: Budget,
     /// Transmits the SLCAN adapter refused.
     tx_refused: Budget,
+    /// When the SLCAN adapter's status was last asked for.
+    status_polled: HostTime,
     /// The frame whose samples are being collected, and how many came.
     collecting: Option<(u32, u8)>,
     /// The last frame that ended.
@@ -196,8 +202,9 @@ impl<K: StageClock> Core<K> {
             robot_arrived: HostTime::ZERO,
             bad_frames: Budget::new(rig.safety.bad_frames_per_s),
             link_errors: Budget::new(rig.safety.bad_frames_per_s),
-            board_seq: Budget::new(rig.safety.bad_frames_per_s),
+            board_seq: Budget::new(BOARD_SEQ_ERRORS_PER_S),
             tx_refused: Budget::new(TX_REFUSED_PER_S),
+            status_polled: HostTime::ZERO,
             collecting: None,
             last_frame: None,
             next_heartbeat: HostTime::ZERO,
@@ -239,6 +246,19 @@ impl<K: StageClock> Core<K> {
     pub fn finished(&self) -> bool {
         self.shutdown && matches!(self.state(), State::Idle | State::Stopped(_) | State::Fault(_))
     }
+    /// What the core holds in its growable buffers, in elements and bytes of capacity: the
+    /// output queue, the budgets' windows, the PSD receive buffer, the goals. A soak asserts
+    /// it stops growing once warm.
+    pub fn footprint(&self) -> usize {
+        self.out.capacity()
+            + [&self.bad_frames, &self.link_errors, &self.board_seq, &self.tx_refused]
+                .iter()
+                .map(|b| b.times.capacity())
+                .sum::<usize>()
+            + self.psd.buffered_capacity()
+            + self.goals.capacity()
+    }
+
     /// The next output, if any.
     pub fn poll(&mut self) -> Option<Output> {
         self.out.pop_front()
@@ -314,6 +334,10 @@ impl<K: StageClock> Core<K> {
                 self.counters.can_tx_refused += 1;
                 if self.tx_refused.exceeded(now) && is_active(self.state()) {
                     self.stop(now, StopReason::CanTransmitRefused);
+                } else if now.since(self.status_polled) >= STATUS_REPOLL {
+                    // Ask why at once: a bus-off adapter says so in its flags.
+                    self.status_polled = now;
+                    self.out.push_back(Output::PollCanStatus);
                 }
             }
             CanEvent::AdapterStatus { bus_off, error_passive } => {
@@ -541,6 +565,7 @@ impl<K: StageClock> Core<K> {
             self.next_heartbeat = now + HEARTBEAT_PERIOD;
             // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
             if self.rig.can.polls_status() {
+                self.status_polled = now;
                 self.out.push_back(Output::PollCanStatus);
             }
         }
@@ -708,11 +733,15 @@ impl<K: StageClock> Core<K> {
             Message::FrameEnd { .. } => {} // discarded and counted by frame_end
             Message::Fault { code: FaultCode::Reset, .. } => {
                 // The controller rebooted (or announces its boot while we configure it): its
-                // schedule is gone. Configure it again; any motion was already stopped by
-                // the sample watchdog.
+                // schedule and clock are gone. A robot driving on it stops, named for it (a
+                // quick reconfigure must not hide a reboot); the controller is configured
+                // again so an operator can reset and arm.
                 let out = &mut self.out;
                 if self.psd.restart(now, &mut |p| out.push_back(Output::Psd(p))) {
                     tracing::warn!("PSD controller reset; reconfiguring");
+                    if is_active(self.state()) {
+                        self.stop(now, StopReason::ControllerReset);
+                    }
                 }
             }
             Message::Fault { code: FaultCode::Overrun, .. } => {

@@ -176,6 +176,10 @@ impl PsdSession {
         self.info
     }
     /// Controller stamps to host time, from the last time sync.
+    /// The receive buffer's capacity, bytes.
+    pub fn buffered_capacity(&self) -> usize {
+        self.buf.capacity()
+    }
     pub fn clock(&self) -> ClockOffset {
         self.offset
     }

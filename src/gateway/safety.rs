@@ -35,6 +35,8 @@ pub enum StopReason {
     PsdSequence,
     /// The PSD controller reported a fault (an LED driver, ambient saturation, internal).
     ControllerFault,
+    /// The PSD controller rebooted while the gateway was driving on it.
+    ControllerReset,
     SerialLost,
     /// No time sync with a round trip within bound for `SYNC_STALE`: stamps cannot be trusted.
     ClockUnsynced,
@@ -101,6 +103,7 @@ impl std::fmt::Display for StopReason {
             Self::SerialGarbled => "garbled serial frames beyond budget",
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
             Self::ControllerFault => "the PSD controller reports a fault",
+            Self::ControllerReset => "the PSD controller rebooted",
             Self::SerialLost => "serial device lost",
             Self::HeartbeatLost => "motor board heartbeat lost",
             Self::ClockUnsynced => "controller clock unsynchronised (time sync round trips too long)",

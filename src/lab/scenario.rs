@@ -96,7 +96,12 @@ impl Scenario {
 
     /// The typed rig of this scenario (endpoints unused: for the virtual-time tools).
     pub fn rig(&self) -> Rig {
-        self.gateway_config(Path::new("/dev/null"), "slcan:/dev/null", None).validate().expect("checked when loaded")
+        self.rig_on("slcan:/dev/null")
+    }
+
+    /// The typed rig of this scenario with its CAN link at `can` (a valid endpoint URL).
+    pub fn rig_on(&self, can: &str) -> Rig {
+        self.gateway_config(Path::new("/dev/null"), can, None).validate().expect("checked when loaded")
     }
 
     fn config_with(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>, frame_us: u32) -> GatewayConfig {

@@ -59,6 +59,56 @@ pub struct Options {
     /// gateway does without `--arm`. By default the run arms and starts towards the
     /// scenario's goal when the controller first streams.
     pub wait_for_operator: bool,
+    /// How the gateway reaches the CAN bus.
+    pub can: CanTransport,
+}
+
+/// The gateway's CAN link in the virtual rig.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum CanTransport {
+    /// An SLCAN adapter on a serial line (the lines at 921600 baud, the adapter's firmware).
+    #[default]
+    Slcan,
+    /// A SocketCAN interface: frames straight onto the bus at 1 Mbit/s; the host's own
+    /// controller going bus-off arrives as an error frame.
+    SocketCan,
+}
+
+impl CanTransport {
+    /// The interface name candump lines carry.
+    fn interface(self) -> &'static str {
+        match self {
+            Self::Slcan => "slcan0",
+            Self::SocketCan => "vcan0",
+        }
+    }
+}
+
+/// Frames on a CAN bus at 1 Mbit/s, one after another, each after its transmission time.
+#[derive(Debug, Default)]
+struct FrameWire {
+    frames: VecDeque<(u64, CanFrame)>,
+    free_at: u64,
+}
+
+impl FrameWire {
+    /// Send `frame` at `at`; returns when it has crossed the bus.
+    fn send(&mut self, at: u64, frame: CanFrame) -> u64 {
+        // Header, CRC and trailer about 47 bits, 8 a data byte; 1 µs a bit.
+        let bits = 47 + 8 * frame.data().len() as u64;
+        let arrive = at.max(self.free_at) + bits * 1000;
+        self.free_at = arrive;
+        self.frames.push_back((arrive, frame));
+        arrive
+    }
+
+    fn next(&self) -> u64 {
+        self.frames.front().map_or(u64::MAX, |f| f.0)
+    }
+
+    fn take(&mut self, t: u64) -> Option<CanFrame> {
+        self.frames.front().is_some_and(|f| f.0 <= t).then(|| self.frames.pop_front().map(|f| f.1)).flatten()
+    }
 }
 
 /// One direction of a serial line: bytes in order, each chunk arriving after its
@@ -194,6 +244,8 @@ pub struct Episode {
     pub telemetry: Option<Telemetry>,
     /// The PSD controller could not be configured (the run never started).
     pub setup_error: Option<SetupError>,
+    /// Velocity commands that were not zero, given outside Running (the invariant: none).
+    pub motion_outside_running: u64,
     /// What the simulator injected on the serial line: packets duplicated, packets
     /// replayed, bytes dropped, bytes corrupted.
     pub injected: [u64; 4],
@@ -234,6 +286,11 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     can_out: Vec<CanFrame>,
     adapter_replies: Vec<flowgate_protocol::slcan::Response>,
     to_bus: Vec<CanFrame>,
+    /// SocketCAN: frames from the gateway onto the bus, and from the bus to the gateway.
+    host_tx: FrameWire,
+    host_rx_frames: FrameWire,
+    /// SocketCAN: the host controller's bus-off was reported (once a bus-off window).
+    host_bus_off: bool,
     scratch: Vec<u8>,
     setup_error: Option<SetupError>,
     options: Options,
@@ -243,6 +300,10 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     telemetry: Option<Telemetry>,
     /// Latency and period histograms (with telemetry only: they are large to allocate).
     timing: Option<Timing>,
+    /// The state the core last announced, and the motion commands it gave outside Running
+    /// (there must be none: every test's invariant).
+    announced: State,
+    motion_outside_running: u64,
 }
 
 impl VirtualRig<NoClock> {
@@ -278,7 +339,13 @@ impl<K: StageClock> VirtualRig<K> {
         board.boot(0.0, &mut world, &mut can_out);
         let mut rig = Self {
             t: 0,
-            core: Core::new(scenario.rig(), clock),
+            core: Core::new(
+                match options.can {
+                    CanTransport::Slcan => scenario.rig(),
+                    CanTransport::SocketCan => scenario.rig_on("socketcan:vcan0"),
+                },
+                clock,
+            ),
             serial_faults: SerialFaults::new(&plan),
             can_faults: CanFaults::new(&plan),
             bursts: plan.serial_burst_at.iter().copied().collect(),
@@ -308,6 +375,9 @@ impl<K: StageClock> VirtualRig<K> {
             can_out,
             adapter_replies: Vec::with_capacity(8),
             to_bus: Vec::with_capacity(8),
+            host_tx: FrameWire::default(),
+            host_rx_frames: FrameWire::default(),
+            host_bus_off: false,
             scratch: Vec::with_capacity(1024),
             setup_error: None,
             options,
@@ -319,10 +389,14 @@ impl<K: StageClock> VirtualRig<K> {
                 can_log: Vec::new(),
             }),
             timing: options.telemetry.then(Timing::default),
+            announced: State::Idle,
+            motion_outside_running: 0,
         };
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
-        for cmd in [Command::Close, Command::SetBitrate(Bitrate::M1), Command::Open] {
-            rig.host_line(cmd);
+        if options.can == CanTransport::Slcan {
+            for cmd in [Command::Close, Command::SetBitrate(Bitrate::M1), Command::Open] {
+                rig.host_line(cmd);
+            }
         }
         if !options.wait_for_operator {
             rig.core.arm_at_start();
@@ -423,6 +497,17 @@ impl<K: StageClock> VirtualRig<K> {
         for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
             next = next.min(w.next());
         }
+        next = next.min(self.host_tx.next()).min(self.host_rx_frames.next());
+        if let Some([from, to]) = self.plan.adapter_bus_off {
+            let t = self.time();
+            next = next.min(ns(if t < from {
+                from
+            } else if t < to {
+                to
+            } else {
+                f64::INFINITY
+            }));
+        }
         next
     }
 
@@ -514,13 +599,22 @@ impl<K: StageClock> VirtualRig<K> {
         }
         let bus_off = self.plan.bus_off(t);
         let mut line = [0u8; MAX_LINE_LEN];
-        self.adapter.bus_off = self.plan.adapter_bus_off(t);
+        let host_bus_off = self.plan.adapter_bus_off(t);
+        self.adapter.bus_off = host_bus_off;
         for f in self.can_out.drain(..) {
-            if bus_off || self.can_faults.lose() {
+            if bus_off || self.can_faults.lose(t) {
                 continue;
             }
-            if let Some(Ok(n)) = self.adapter.from_bus(f, t).map(|r| r.emit(&mut line)) {
-                self.can_up.send(self.t, &line[..n]);
+            match self.options.can {
+                CanTransport::Slcan => {
+                    if let Some(Ok(n)) = self.adapter.from_bus(f, t).map(|r| r.emit(&mut line)) {
+                        self.can_up.send(self.t, &line[..n]);
+                    }
+                }
+                CanTransport::SocketCan if !host_bus_off => {
+                    self.host_rx_frames.send(self.t, f);
+                }
+                CanTransport::SocketCan => {}
             }
         }
     }
@@ -554,19 +648,35 @@ impl<K: StageClock> VirtualRig<K> {
                     self.can_up.send(self.t, &buf[..n]);
                 }
             }
-            let bus_off = self.plan.bus_off(t);
-            for f in self.to_bus.drain(..) {
-                if !bus_off && !self.can_faults.lose() {
-                    self.board.handle(t, &f, &mut self.world, &mut self.can_out);
-                }
+        }
+        while let Some(f) = self.host_tx.take(self.t) {
+            self.to_bus.push(f);
+        }
+        let bus_off = self.plan.bus_off(t);
+        for f in self.to_bus.drain(..) {
+            if !bus_off && !self.can_faults.lose(t) {
+                self.board.handle(t, &f, &mut self.world, &mut self.can_out);
             }
         }
+        let interface = self.options.can.interface();
+        while let Some(frame) = self.host_rx_frames.take(self.t) {
+            if let Some(tel) = &mut self.telemetry {
+                let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
+            }
+            self.core.can_event(now, CanEvent::Frame(frame));
+        }
+        // SocketCAN tells of its controller going bus-off with an error frame, unasked.
+        let host_bus_off = self.options.can == CanTransport::SocketCan && self.plan.adapter_bus_off(t);
+        if host_bus_off && !self.host_bus_off {
+            self.core.can_event(now, CanEvent::ErrorFrame { bus_off: true });
+        }
+        self.host_bus_off = host_bus_off;
         while self.can_up.take(self.t, &mut self.scratch) {
             self.host_rx.extend_from_slice(&self.scratch);
             while let Ok(Some(line)) = self.host_codec.decode(&mut self.host_rx) {
                 if let Some(event) = slcan_event(line) {
                     if let (CanEvent::Frame(frame), Some(tel)) = (event, &mut self.telemetry) {
-                        let _ = CanRecord { at_s: t, frame, sent: false }.candump("slcan0", &mut tel.can_log);
+                        let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
                     }
                     self.core.can_event(now, event);
                 }
@@ -586,9 +696,11 @@ impl<K: StageClock> VirtualRig<K> {
                     }
                 }
                 Output::Can(frame) => {
+                    self.check_motion(&frame);
                     self.send_can(frame);
                 }
                 Output::Command { frame, mut record } => {
+                    self.check_motion(&frame);
                     let done = self.send_can(frame);
                     record.written(done - self.t, HostTime::from_nanos(done), self.core.rig().sample_period);
                     if let Some(timing) = &mut self.timing {
@@ -599,9 +711,11 @@ impl<K: StageClock> VirtualRig<K> {
                     }
                 }
                 Output::PollCanStatus => {
-                    self.host_line(Command::StatusFlags);
+                    if self.options.can == CanTransport::Slcan {
+                        self.host_line(Command::StatusFlags);
+                    }
                 }
-                Output::State { .. } => {}
+                Output::State { state, .. } => self.announced = state,
                 Output::Streaming => {}
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {
@@ -610,6 +724,23 @@ impl<K: StageClock> VirtualRig<K> {
                 }
             }
         }
+    }
+
+    /// A velocity command that is not zero, outside Running, is counted: motion only in
+    /// Running.
+    fn check_motion(&mut self, frame: &CanFrame) {
+        if let Ok(flowgate_protocol::motor::MotorMessage::Velocity { left, right, .. }) =
+            flowgate_protocol::motor::MotorMessage::parse(frame)
+        {
+            if (left, right) != (0, 0) && self.announced != State::Running {
+                self.motion_outside_running += 1;
+            }
+        }
+    }
+
+    /// Velocity commands that were not zero, given outside Running (the invariant: none).
+    pub fn motion_outside_running(&self) -> u64 {
+        self.motion_outside_running
     }
 
     /// One SLCAN command from the host to the adapter; returns when it has left the line.
@@ -624,9 +755,14 @@ impl<K: StageClock> VirtualRig<K> {
     fn send_can(&mut self, frame: CanFrame) -> u64 {
         let at_s = self.time();
         if let Some(tel) = &mut self.telemetry {
-            let _ = CanRecord { at_s, frame, sent: true }.candump("slcan0", &mut tel.can_log);
+            let _ = CanRecord { at_s, frame, sent: true }.candump(self.options.can.interface(), &mut tel.can_log);
         }
-        self.host_line(Command::Transmit(frame))
+        match self.options.can {
+            CanTransport::Slcan => self.host_line(Command::Transmit(frame)),
+            // A bus-off controller sends nothing.
+            CanTransport::SocketCan if self.plan.adapter_bus_off(at_s) => self.t,
+            CanTransport::SocketCan => self.host_tx.send(self.t, frame),
+        }
     }
 
     /// The world's truth: samples for plots, and since when the wheels stand still.
@@ -667,6 +803,7 @@ impl<K: StageClock> VirtualRig<K> {
             at_rest_since: self.at_rest_since,
             telemetry: self.telemetry,
             setup_error: self.setup_error,
+            motion_outside_running: self.motion_outside_running,
             injected: [
                 self.serial_faults.duplicated,
                 self.serial_faults.replayed,

@@ -175,15 +175,16 @@ fn proc_stat(dir: &str) -> (f64, f64) {
     (cpu / ticks, rss_kb / 1024.0)
 }
 
-/// The gateway's configuration for the bench. Its watchdogs are set long (30 s): it idles
-/// while the null gateway has its turn, and under emulation (vcan in the VM) a turn can
-/// stretch; the watchdogs themselves are tested in tests/full_stack.rs.
+/// The gateway's configuration for the bench. Its watchdogs are set long (30 s, the board's
+/// timeout beyond them as the config requires): it idles while the null gateway has its
+/// turn, and under emulation (vcan in the VM) a turn can stretch; the watchdogs themselves
+/// are tested in tests/fault_table.rs.
 fn rig_toml(psd: &Path, can_endpoint: &str, slot_us: u32) -> String {
     let h = flowgate_sim::calibration::CameraModel::default().homography;
     format!(
         "[serial]\nport = \"{}\"\n[leds]\nrobot_front = 1\nrobot_rear = 2\nfront_offset = 0.035\nrear_offset = 0.035\n\
          [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\n\
-         [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 1000\n\
+         [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n",
         psd.display(),
@@ -235,7 +236,13 @@ impl Tally {
 /// Send `cycles` frames, one per `period`, to one target, and match the k-th command to the
 /// k-th frame (one command per frame, in order). The gateway's board (`board`) says it is
 /// alive at the start and about once a second, whichever target runs.
-async fn block(target: &mut Target, period: Duration, cycles: u64, tally: &mut Tally, board: &ToBus) {
+async fn block(
+    target: &mut Target,
+    period: Duration,
+    cycles: u64,
+    tally: &mut Tally,
+    board: &ToBus,
+) -> std::io::Result<()> {
     target.can.drain();
     board_alive(board);
     let cpu0 = proc_stat(&target.proc_dir).0;
@@ -246,7 +253,7 @@ async fn block(target: &mut Target, period: Duration, cycles: u64, tally: &mut T
     let mut pacer = Pacer::new(period);
     for _ in 0..cycles {
         pacer.wait();
-        target.controller.frame().await;
+        target.controller.frame().await?;
         let now = Instant::now();
         written.push(now);
         if now >= next_second {
@@ -274,6 +281,7 @@ async fn block(target: &mut Target, period: Duration, cycles: u64, tally: &mut T
         tally.late += u64::from(latency > period);
         let _ = tally.latency.record(latency.as_nanos().max(1) as u64);
     }
+    Ok(())
 }
 
 /// Heartbeats and an Enabled status, as a live board sends them.
@@ -337,10 +345,14 @@ pub async fn run(
             let _ = child.kill().await;
             return Err(std::io::Error::other("the gateway did not start commanding within 15 s"));
         }
+        if let Some(status) = child.try_wait()? {
+            let log = std::fs::read_to_string(&gateway_log).unwrap_or_default();
+            return Err(std::io::Error::other(format!("the gateway exited ({status}) while starting: {}", log.trim())));
+        }
         if Instant::now() >= next_frame {
             next_frame += Duration::from_millis(20);
             board_alive(&board);
-            gateway.controller.frame().await;
+            gateway.controller.frame().await?;
         }
         commands += gateway.can.commands.try_iter().count();
         let wait = tokio::time::Instant::from_std(next_frame.min(Instant::now() + Duration::from_millis(5)));
@@ -365,9 +377,9 @@ pub async fn run(
             let n = per_block.min(left);
             left -= n;
             if spec.floor {
-                block(&mut floor, period, n, &mut f, &board).await;
+                block(&mut floor, period, n, &mut f, &board).await?;
             }
-            block(&mut gateway, period, n, &mut g, &board).await;
+            block(&mut gateway, period, n, &mut g, &board).await?;
             floor.can.drain(); // on a shared bus (vcan) it heard the gateway's commands too
         }
         let rss1 = proc_stat(&gateway.proc_dir).1;

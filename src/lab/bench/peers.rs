@@ -89,7 +89,9 @@ impl Controller {
     /// One time-division frame: the robot's two LEDs, then the frame end, written in one
     /// go. Returns when the last byte is in the pty. The robot swings along x (0.2 m,
     /// period 4.2 s) so the planner never sees it stall.
-    pub async fn frame(&mut self) {
+    /// Write one frame; an error if the line does not take it within a second (the gateway
+    /// gone, nobody reading the pty).
+    pub async fn frame(&mut self) -> std::io::Result<()> {
         let t = self.origin.elapsed().as_secs_f64();
         let x = 0.2 * (t * 1.5).sin();
         let stamp = Self::clock_us();
@@ -110,7 +112,9 @@ impl Controller {
         }
         self.push(Message::FrameEnd { frame: self.frame, t_ctrl_us: stamp, samples: 2 });
         self.frame = self.frame.wrapping_add(1);
-        self.port.write_all(&self.out).await.expect("psd write");
+        tokio::time::timeout(std::time::Duration::from_secs(1), self.port.write_all(&self.out))
+            .await
+            .map_err(|_| std::io::Error::other("the PSD pty took no frame for 1 s: is the gateway reading?"))?
     }
 }
 
