@@ -131,6 +131,64 @@ async fn a_second_gateway_on_the_same_port_is_refused() {
     handle.stop().await;
 }
 
+/// Two gateway processes on one serial port, both as an ordinary user (`nobody` when the
+/// tests run as root, who is not bound by TIOCEXCL): the second is refused by name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_gateway_process_is_refused_as_an_ordinary_user() {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let s = scenario("e1-standing-obstacle.toml");
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let root = std::fs::metadata("/proc/self").unwrap().uid() == 0;
+    // The pty itself, open to its user (as the dialout group makes a real port).
+    let device = std::fs::canonicalize(&handle.psd_path).unwrap();
+    std::fs::set_permissions(&device, std::fs::Permissions::from_mode(0o666)).unwrap();
+    let dir = std::env::temp_dir().join(format!("flowgate-exclusive-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let config_path = dir.join("rig.toml");
+    std::fs::write(&config_path, s.gateway_config(&device, "memory", None).to_toml()).unwrap();
+    let gateway = || {
+        let mut c = if root {
+            let mut c = Command::new("setpriv");
+            c.args(["--reuid=65534", "--regid=65534", "--clear-groups", env!("CARGO_BIN_EXE_flowgate")]);
+            c
+        } else {
+            Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        };
+        c.args(["run", "--arm", "--config"]).arg(&config_path);
+        c
+    };
+    let mut first = gateway().stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    // Await the event: the first gateway holds the port once its controller streams and it arms.
+    let stdout = first.stdout.take().unwrap();
+    let (armed_tx, armed_rx) = tokio::sync::oneshot::channel();
+    std::thread::spawn(move || {
+        let mut armed_tx = Some(armed_tx);
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if line.starts_with("state: armed") {
+                if let Some(tx) = armed_tx.take() {
+                    let _ = tx.send(());
+                }
+            }
+        }
+    });
+    if tokio::time::timeout(Duration::from_secs(10), armed_rx).await.is_err() {
+        let _ = first.kill();
+        let out = first.wait_with_output().unwrap();
+        panic!("the first gateway did not arm: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let mut second = gateway();
+    let second = tokio::task::spawn_blocking(move || second.output().unwrap());
+    let second = tokio::time::timeout(Duration::from_secs(10), second).await.expect("the second exits").unwrap();
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert!(!second.status.success());
+    assert!(stderr.contains("is in use by another program"), "{stderr}");
+    let _ = first.kill();
+    let _ = first.wait();
+    handle.stop().await;
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The serial device vanishes at 2 s and comes back 0.6 s later: the robot stops, the gateway
 /// reconnects on its own, stays in fault until the operator resets, arms and starts it, then
 /// carries on.

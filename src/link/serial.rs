@@ -20,8 +20,12 @@ pub fn open_serial(path: &Path, baud: u32) -> Result<tokio_serial::SerialStream,
         return Err(SerialError::Missing { path: name });
     }
     tokio_serial::new(&name, baud).open_native_async().map_err(|source| {
-        // serialport takes an flock on the tty; a held lock reads as "NoDevice".
-        if source.kind == tokio_serial::ErrorKind::NoDevice && source.description.contains("lock") {
+        // serialport sets TIOCEXCL and takes an flock on the tty. Another process holding it
+        // reads as EBUSY at open (for a user without CAP_SYS_ADMIN, which TIOCEXCL does not
+        // bind), or as a held lock ("NoDevice") for root.
+        let busy = source.description.to_ascii_lowercase().contains("busy");
+        let locked = source.kind == tokio_serial::ErrorKind::NoDevice && source.description.contains("lock");
+        if busy || locked {
             SerialError::Busy { path: name }
         } else {
             SerialError::Open { path: name, source }
