@@ -17,6 +17,7 @@ use crate::calibration::CameraModel;
 use crate::faults::FaultPlan;
 use crate::world::World;
 use crate::Point;
+use flowgate_protocol::codec::{PsdCodec, StreamError};
 
 /// Heartbeat period, s.
 pub const HEARTBEAT_PERIOD: f64 = 0.1;
@@ -56,6 +57,23 @@ impl LedMap {
         } else {
             let k = usize::from(led.checked_sub(self.first_obstacle)?);
             (k < world.obstacle_count()).then(|| world.obstacle_position(k, t))
+        }
+    }
+}
+
+/// A frame from the host that did not decode: why, and its header if it could be read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BadRequest {
+    pub error: psd::Error,
+    pub header: Option<psd::Header>,
+}
+
+impl BadRequest {
+    /// From the codec's error, with the header the codec could read of that frame.
+    pub fn from_stream(e: StreamError<psd::Error>, codec: &PsdCodec) -> Self {
+        match e {
+            StreamError::Frame { error, .. } => Self { error, header: codec.rejected_header() },
+            StreamError::Overlong { .. } => Self { error: psd::Error::TooLong, header: None },
         }
     }
 }
@@ -191,27 +209,26 @@ impl PsdController {
         out.push(Outgoing { at: t, packet: p });
     }
 
-    /// Handle one frame from the host: a packet, or the error it decoded to.
-    pub fn handle(&mut self, t: f64, request: Result<Packet, psd::Error>, out: &mut Vec<Outgoing>) {
+    /// Handle one frame from the host: a packet, or why it did not decode.
+    pub fn handle(&mut self, t: f64, request: Result<Packet, BadRequest>, out: &mut Vec<Outgoing>) {
         let reply = match request {
-            // The frame's seq is unknown when it could not be read: nack seq 0, with the
-            // type byte when the header was readable.
-            Err(e) => {
-                let msg_type = match e {
-                    psd::Error::UnknownType(b) => b,
-                    psd::Error::PayloadLength { msg_type, .. } | psd::Error::Field { msg_type, .. } => msg_type as u8,
-                    _ => 0,
-                };
-                Message::Nack { seq: 0, msg_type, reason: e.nack_reason() }
+            // The Nack names the request by the seq and type in its header whenever the
+            // header could be read (a bad CRC, version, type, length or value); seq 0 and
+            // type 0 only when it could not (COBS garbage, fewer than 4 bytes).
+            Err(BadRequest { error, header }) => {
+                let (seq, msg_type) = header.map_or((0, 0), |h| (h.seq, h.msg_type));
+                Message::Nack { seq, msg_type, reason: error.nack_reason() }
             }
             Ok(Packet { seq, message }) => {
                 let msg_type = message.msg_type() as u8;
                 let ack = Message::Ack { seq, msg_type };
                 let nack = |reason| Message::Nack { seq, msg_type, reason };
                 match message {
-                    Message::GetInfo => Message::Info(self.info()),
+                    Message::GetInfo => Message::Info { request_seq: seq, info: self.info() },
                     Message::SetSchedule(_) if self.streaming => nack(NackReason::Busy),
                     Message::SetSchedule(s) if s.slots().len() > usize::from(MAX_LEDS) => nack(NackReason::TooManyLeds),
+                    // An LED id this controller has no driver for.
+                    Message::SetSchedule(s) if s.slots().iter().any(|l| l.led > MAX_LEDS) => nack(NackReason::BadValue),
                     Message::SetSchedule(s) => {
                         self.schedule = Some(s);
                         ack
@@ -232,9 +249,9 @@ impl PsdController {
                         self.streaming = false;
                         ack
                     }
-                    Message::Ping { nonce } => Message::Pong { nonce, t_ctrl_us: self.clock_us(t) },
+                    Message::Ping { nonce } => Message::Pong { request_seq: seq, nonce, t_ctrl_us: self.clock_us(t) },
                     Message::TimeSync { host_time_us } => {
-                        Message::TimeSyncReply { host_time_us, t_ctrl_us: self.clock_us(t) }
+                        Message::TimeSyncReply { request_seq: seq, host_time_us, t_ctrl_us: self.clock_us(t) }
                     }
                     m if !m.msg_type().is_request() => nack(NackReason::WrongDirection),
                     _ => nack(NackReason::UnknownType),

@@ -37,7 +37,7 @@ use tokio_util::codec::{Encoder, FramedRead};
 use crate::calibration::CameraModel;
 use crate::faults::{CanFaults, FaultPlan, SerialFaults};
 use crate::motor_board::MotorBoard;
-use crate::psd_controller::{LedMap, Outgoing, PsdController, SerialQueue};
+use crate::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};
 use crate::scenario::Scenario;
 use crate::slcan_adapter::SlcanAdapter;
 use crate::truth::{TruthRecord, SAMPLE_PERIOD};
@@ -195,7 +195,7 @@ pub fn pty() -> Result<(tokio_serial::SerialStream, std::fs::File, PathBuf), Rig
 fn spawn_serial<S, D, O>(
     port: S,
     codec: D,
-    map: fn(D::Item) -> O,
+    map: fn(D::Item, &D) -> O,
 ) -> (mpsc::Receiver<O>, mpsc::Sender<Vec<u8>>, JoinHandle<()>)
 where
     S: AsyncRead + AsyncWrite + Send + 'static,
@@ -211,7 +211,7 @@ where
         loop {
             tokio::select! {
                 item = frames.next() => match item {
-                    Some(Ok(item)) => { if in_tx.send(map(item)).await.is_err() { break } }
+                    Some(Ok(item)) => { if in_tx.send(map(item, frames.decoder())).await.is_err() { break } }
                     Some(Err(_)) | None => break,
                 },
                 bytes = out_rx.recv() => match bytes {
@@ -225,15 +225,15 @@ where
 }
 
 /// A PSD frame as the controller takes it: the packet, or why it did not decode.
-fn psd_item(item: Result<Packet, StreamError<psd::Error>>) -> Result<Packet, psd::Error> {
-    item.map_err(|e| match e {
-        StreamError::Frame { error, .. } => error,
-        StreamError::Overlong { .. } => psd::Error::TooLong,
-    })
+fn psd_item(item: Result<Packet, StreamError<psd::Error>>, codec: &PsdCodec) -> Result<Packet, BadRequest> {
+    item.map_err(|e| BadRequest::from_stream(e, codec))
 }
 
 /// An SLCAN line as the adapter takes it: `None` for a line that did not parse.
-fn slcan_item(item: Result<Command, StreamError<flowgate_protocol::slcan::SlcanError>>) -> Option<Command> {
+fn slcan_item(
+    item: Result<Command, StreamError<flowgate_protocol::slcan::SlcanError>>,
+    _: &SlcanAdapterCodec,
+) -> Option<Command> {
     item.ok()
 }
 
@@ -324,7 +324,7 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
 
 /// The PSD controller's serial endpoint as the loop holds it (replaceable: it can vanish).
 struct PsdIo {
-    rx: mpsc::Receiver<Result<Packet, psd::Error>>,
+    rx: mpsc::Receiver<Result<Packet, BadRequest>>,
     tx: mpsc::Sender<Vec<u8>>,
     task: JoinHandle<()>,
     /// Our descriptor on the pty's slave, keeping the line up.

@@ -21,7 +21,7 @@ async fn every_request_gets_its_answer() {
     host.until(|m| matches!(m, Message::Fault { code: psd::FaultCode::Reset, .. })).await;
 
     match host.request(Message::GetInfo).await {
-        Message::Info(info) => {
+        Message::Info { info, .. } => {
             assert_eq!(info.psd_counts, [4096, 4096]);
             assert_eq!(info.max_leds, 16);
             assert_eq!(info.clock_hz, 1_000_000);
@@ -30,7 +30,7 @@ async fn every_request_gets_its_answer() {
     }
     assert!(matches!(host.request(Message::Ping { nonce: 0xC0FFEE }).await, Message::Pong { nonce: 0xC0FFEE, .. }));
     match host.request(Message::TimeSync { host_time_us: 42 }).await {
-        Message::TimeSyncReply { host_time_us: 42, t_ctrl_us } => assert!(t_ctrl_us > 0),
+        Message::TimeSyncReply { host_time_us: 42, t_ctrl_us, .. } => assert!(t_ctrl_us > 0),
         other => panic!("{other:?}"),
     }
     // Start before any schedule: refused.
@@ -68,7 +68,7 @@ async fn every_request_gets_its_answer() {
 
     // A message the controller sends, sent to it: wrong direction.
     assert!(matches!(host.request(Message::Ping { nonce: 1 }).await, Message::Pong { .. }));
-    let seq = host.send(Message::Pong { nonce: 1, t_ctrl_us: 0 }).await;
+    let seq = host.send(Message::Pong { request_seq: 0, nonce: 1, t_ctrl_us: 0 }).await;
     let nack = host.until(|m| matches!(m, Message::Nack { .. })).await.message;
     assert_eq!(nack, Message::Nack { seq, msg_type: MessageType::Pong as u8, reason: NackReason::WrongDirection });
 
@@ -81,19 +81,50 @@ async fn every_request_gets_its_answer() {
         host.until(|m| matches!(m, Message::Nack { .. })).await.message,
         Message::Nack { reason: NackReason::BadCrc | NackReason::BadLength, .. }
     ));
-    host.send_raw(&frame_with_crc(&[1, 0x42, 9, 0])).await;
+    // Whenever the header is readable, the nack names the request by its seq (protocol 2).
+    host.send_raw(&frame_with_crc(&[2, 0x42, 9, 0])).await;
     assert_eq!(
         host.until(|m| matches!(m, Message::Nack { .. })).await.message,
-        Message::Nack { seq: 0, msg_type: 0x42, reason: NackReason::UnknownType }
+        Message::Nack { seq: 9, msg_type: 0x42, reason: NackReason::UnknownType }
     );
-    host.send_raw(&frame_with_crc(&[1, 0x05, 9, 0, 1])).await;
-    assert!(matches!(
+    host.send_raw(&frame_with_crc(&[2, 0x05, 10, 0, 1])).await;
+    assert_eq!(
         host.until(|m| matches!(m, Message::Nack { .. })).await.message,
-        Message::Nack { reason: NackReason::BadLength, msg_type: 0x05, .. }
-    ));
+        Message::Nack { seq: 10, msg_type: 0x05, reason: NackReason::BadLength }
+    );
+    host.send_raw(&frame_with_crc(&[1, 0x05, 11, 0, 1, 0, 0, 0])).await;
+    assert_eq!(
+        host.until(|m| matches!(m, Message::Nack { .. })).await.message,
+        Message::Nack { seq: 11, msg_type: 0x05, reason: NackReason::BadVersion }
+    );
+    let mut bad_crc = frame_with_crc(&[2, 0x05, 12, 0, 1, 0, 0, 0]);
+    let crc_at = bad_crc.len() - 2; // the CRC's last byte, before the delimiter (COBS keeps it)
+    bad_crc[crc_at] ^= 0x01;
+    host.send_raw(&bad_crc).await;
+    assert_eq!(
+        host.until(|m| matches!(m, Message::Nack { .. })).await.message,
+        Message::Nack { seq: 12, msg_type: 0x05, reason: NackReason::BadCrc }
+    );
+    // The schedule's rules (protocol/README.md): each broken one is a BadValue naming it.
+    for (seq, led_a, led_b, slot_us) in [(20u8, 1u8, 17u8, 500u16), (21, 1, 1, 500), (22, 1, 2, 99), (23, 0, 2, 500)] {
+        let [lo, hi] = slot_us.to_le_bytes();
+        let body = [2, 0x02, seq, 0, 0, 1, 0, 0, 2, led_a, lo, hi, led_b, lo, hi];
+        host.send_raw(&frame_with_crc(&body)).await;
+        assert_eq!(
+            host.until(|m| matches!(m, Message::Nack { .. })).await.message,
+            Message::Nack { seq: u16::from(seq), msg_type: 0x02, reason: NackReason::BadValue },
+            "LEDs {led_a}, {led_b}, slot {slot_us} µs"
+        );
+    }
+    // Only when the header cannot be read (here, fewer than 4 bytes): seq 0, type 0.
+    host.send_raw(&frame_with_crc(&[2])).await;
+    assert_eq!(
+        host.until(|m| matches!(m, Message::Nack { .. })).await.message,
+        Message::Nack { seq: 0, msg_type: 0, reason: NackReason::BadLength }
+    );
     // And the controller still answers afterwards.
     assert!(matches!(host.request(Message::Ping { nonce: 9 }).await, Message::Pong { nonce: 9, .. }));
-    assert!(rig.stats.psd_bad_requests.load(std::sync::atomic::Ordering::Relaxed) >= 3);
+    assert!(rig.stats.psd_bad_requests.load(std::sync::atomic::Ordering::Relaxed) >= 6);
     rig.stop().await;
 }
 

@@ -104,17 +104,24 @@ impl Splitter {
 #[derive(Debug)]
 pub struct PsdCodec {
     splitter: Splitter,
+    rejected: Option<psd::Header>,
 }
 
 impl Default for PsdCodec {
     fn default() -> Self {
-        Self { splitter: Splitter::new(psd::MAX_WIRE_LEN - 1) }
+        Self { splitter: Splitter::new(psd::MAX_WIRE_LEN - 1), rejected: None }
     }
 }
 
 impl PsdCodec {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The header of the last frame that did not decode, if it could be read: a controller
+    /// names the request in its Nack.
+    pub fn rejected_header(&self) -> Option<psd::Header> {
+        self.rejected
     }
     pub fn stats(&self) -> DecodeStats {
         self.splitter.stats
@@ -133,6 +140,7 @@ impl Decoder for PsdCodec {
                 Some(Chunk::Line { len: 0, terminator }) => buf.advance(terminator), // idle delimiters
                 Some(Chunk::Line { len, terminator }) => {
                     let result = Packet::decode(&buf[..len]);
+                    self.rejected = result.is_err().then(|| psd::Header::of_wire(&buf[..len])).flatten();
                     buf.advance(len + terminator);
                     let stats = &mut self.splitter.stats;
                     return Ok(Some(match result {

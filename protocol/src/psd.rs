@@ -35,11 +35,13 @@
 use crate::{cobs, crc::crc16_ibm3740, wire::Reader, wire::Writer};
 
 /// The protocol version carried in byte 0 of every frame.
-pub const PROTOCOL_VERSION: u8 = 1;
+pub const PROTOCOL_VERSION: u8 = 2;
 /// Bytes before the payload: version, type, seq.
 pub const HEADER_LEN: usize = 4;
 /// The trailing CRC.
 pub const CRC_LEN: usize = 2;
+/// The shortest LED slot, µs: an LED's rise and one PSD conversion.
+pub const MIN_SLOT_US: u16 = 100;
 /// The most LEDs one schedule may hold.
 pub const MAX_SCHEDULE_LEDS: usize = 16;
 /// The largest payload of any message (a full schedule).
@@ -235,7 +237,10 @@ impl Schedule {
             return Err(ScheduleError::ZeroAveraging);
         }
         for (i, s) in slots.iter().enumerate() {
-            if s.slot_us == 0 {
+            if s.led == 0 {
+                return Err(ScheduleError::ZeroLed);
+            }
+            if s.slot_us < MIN_SLOT_US {
                 return Err(ScheduleError::ZeroSlot(s.led));
             }
             if slots[..i].iter().any(|o| o.led == s.led) {
@@ -265,8 +270,10 @@ pub enum ScheduleError {
     Empty,
     #[error("schedule has {0} LEDs, at most {MAX_SCHEDULE_LEDS} allowed")]
     TooManyLeds(usize),
-    #[error("LED {0} has a zero slot time")]
+    #[error("LED {0} has a slot shorter than {MIN_SLOT_US} µs (one PSD conversion)")]
     ZeroSlot(u8),
+    #[error("LED id 0 is not an LED (the driver bus numbers them from 1)")]
+    ZeroLed,
     #[error("LED {0} appears twice in the schedule")]
     DuplicateLed(u8),
     #[error("averaging must be at least 1")]
@@ -319,9 +326,9 @@ pub enum Message {
     Ping { nonce: u32 },
     /// `0x06`: `[0..8] host_time_us`. Answered by [`Message::TimeSyncReply`].
     TimeSync { host_time_us: u64 },
-    /// `0x81`: `[0..3] firmware | [3..5] psd x counts | [5..7] psd y counts | [7] max_leds |
-    /// [8..12] clock_hz`.
-    Info(Info),
+    /// `0x81`: `[0..2] seq of the GetInfo | [2..5] firmware | [5..7] psd x counts |
+    /// [7..9] psd y counts | [9] max_leds | [10..14] clock_hz`.
+    Info { request_seq: u16, info: Info },
     /// `0x82`: `[0..2] seq of the request | [2] its type`.
     Ack { seq: u16, msg_type: u8 },
     /// `0x83`: `[0..2] seq of the request | [2] its type | [3] reason`.
@@ -335,10 +342,11 @@ pub enum Message {
     Fault { code: FaultCode, detail: u32 },
     /// `0x87`: `[0..8] t_ctrl_us | [1] state`. Sent every 100 ms whatever the state.
     Heartbeat { t_ctrl_us: u64, state: ControllerState },
-    /// `0x88`: `[0..4] nonce | [4..12] t_ctrl_us`.
-    Pong { nonce: u32, t_ctrl_us: u64 },
-    /// `0x89`: `[0..8] host_time_us (echoed) | [8..16] t_ctrl_us at receipt`.
-    TimeSyncReply { host_time_us: u64, t_ctrl_us: u64 },
+    /// `0x88`: `[0..2] seq of the Ping | [2..6] nonce | [6..14] t_ctrl_us`.
+    Pong { request_seq: u16, nonce: u32, t_ctrl_us: u64 },
+    /// `0x89`: `[0..2] seq of the TimeSync | [2..10] host_time_us (echoed) |
+    /// [10..18] t_ctrl_us at receipt`.
+    TimeSyncReply { request_seq: u16, host_time_us: u64, t_ctrl_us: u64 },
 }
 
 impl Message {
@@ -350,7 +358,7 @@ impl Message {
             Message::StopStream => MessageType::StopStream,
             Message::Ping { .. } => MessageType::Ping,
             Message::TimeSync { .. } => MessageType::TimeSync,
-            Message::Info(_) => MessageType::Info,
+            Message::Info { .. } => MessageType::Info,
             Message::Ack { .. } => MessageType::Ack,
             Message::Nack { .. } => MessageType::Nack,
             Message::Sample(_) => MessageType::Sample,
@@ -393,12 +401,15 @@ impl Message {
                         Err(_) => return Some(Err(field("slots"))),
                     }
                 }
-                MessageType::Info => Message::Info(Info {
-                    firmware: r.take()?,
-                    psd_counts: [r.u16()?, r.u16()?],
-                    max_leds: r.u8()?,
-                    clock_hz: r.u32()?,
-                }),
+                MessageType::Info => Message::Info {
+                    request_seq: r.u16()?,
+                    info: Info {
+                        firmware: r.take()?,
+                        psd_counts: [r.u16()?, r.u16()?],
+                        max_leds: r.u8()?,
+                        clock_hz: r.u32()?,
+                    },
+                },
                 MessageType::Ack => Message::Ack { seq: r.u16()?, msg_type: r.u8()? },
                 MessageType::Nack => {
                     let (seq, msg_type_byte) = (r.u16()?, r.u8()?);
@@ -435,8 +446,10 @@ impl Message {
                         None => return Some(Err(field("state"))),
                     }
                 }
-                MessageType::Pong => Message::Pong { nonce: r.u32()?, t_ctrl_us: r.u64()? },
-                MessageType::TimeSyncReply => Message::TimeSyncReply { host_time_us: r.u64()?, t_ctrl_us: r.u64()? },
+                MessageType::Pong => Message::Pong { request_seq: r.u16()?, nonce: r.u32()?, t_ctrl_us: r.u64()? },
+                MessageType::TimeSyncReply => {
+                    Message::TimeSyncReply { request_seq: r.u16()?, host_time_us: r.u64()?, t_ctrl_us: r.u64()? }
+                }
             }))
         })();
         match msg {
@@ -461,7 +474,8 @@ impl Message {
                     w.u16(slot.slot_us)
                 })
             }
-            Message::Info(ref i) => {
+            Message::Info { request_seq, info: ref i } => {
+                w.u16(request_seq)?;
                 w.put(&i.firmware)?;
                 w.u16(i.psd_counts[0])?;
                 w.u16(i.psd_counts[1])?;
@@ -500,15 +514,35 @@ impl Message {
                 w.u64(t_ctrl_us)?;
                 w.u8(state as u8)
             }
-            Message::Pong { nonce, t_ctrl_us } => {
+            Message::Pong { request_seq, nonce, t_ctrl_us } => {
+                w.u16(request_seq)?;
                 w.u32(nonce)?;
                 w.u64(t_ctrl_us)
             }
-            Message::TimeSyncReply { host_time_us, t_ctrl_us } => {
+            Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us } => {
+                w.u16(request_seq)?;
                 w.u64(host_time_us)?;
                 w.u64(t_ctrl_us)
             }
         }
+    }
+}
+
+/// The header of a frame that did not decode, when its bytes could be read: the request a
+/// Nack names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Header {
+    pub msg_type: u8,
+    pub seq: u16,
+}
+
+impl Header {
+    /// The header of a wire frame (the bytes between two delimiters), if COBS decodes it and
+    /// it is long enough to hold one, whatever else is wrong with it.
+    pub fn of_wire(wire: &[u8]) -> Option<Self> {
+        let mut frame = [0u8; MAX_FRAME_LEN];
+        let n = cobs::decode(wire, &mut frame).ok()?;
+        (n >= HEADER_LEN).then(|| Header { msg_type: frame[1], seq: u16::from_le_bytes([frame[2], frame[3]]) })
     }
 }
 
@@ -610,7 +644,7 @@ mod tests {
     fn golden_sample_frame() {
         let packet = Packet::new(0x0005, Message::Sample(sample()));
         let frame: [u8; 31] = [
-            0x01, 0x84, 0x05, 0x00, // version, type, seq
+            0x02, 0x84, 0x05, 0x00, // version, type, seq
             0x04, 0x03, 0x02, 0x01, // frame
             0x01, 0x07, // slot, led
             0x66, 0x55, 0x44, 0x33, 0x22, 0x11, 0x00, 0x00, // t_ctrl_us
@@ -618,7 +652,7 @@ mod tests {
             0xD0, 0x07, 0x00, 0x00, // y = 2000
             0xB8, 0x0B, // intensity
             0x08, // flags
-            0xBD, 0x33, // CRC-16/IBM-3740, LE
+            0xB6, 0x32, // CRC-16/IBM-3740, LE
         ];
         let mut buf = [0u8; MAX_FRAME_LEN];
         let n = packet.emit(&mut buf).unwrap();
@@ -626,8 +660,8 @@ mod tests {
         assert_eq!(Packet::parse(&frame).unwrap(), packet);
 
         let wire: [u8; 33] = [
-            0x04, 0x01, 0x84, 0x05, 0x0D, 0x04, 0x03, 0x02, 0x01, 0x01, 0x07, 0x66, 0x55, 0x44, 0x33, 0x22, 0x11, 0x01,
-            0x07, 0x18, 0xFC, 0xFF, 0xFF, 0xD0, 0x07, 0x01, 0x06, 0xB8, 0x0B, 0x08, 0xBD, 0x33, 0x00,
+            0x04, 0x02, 0x84, 0x05, 0x0D, 0x04, 0x03, 0x02, 0x01, 0x01, 0x07, 0x66, 0x55, 0x44, 0x33, 0x22, 0x11, 0x01,
+            0x07, 0x18, 0xFC, 0xFF, 0xFF, 0xD0, 0x07, 0x01, 0x06, 0xB8, 0x0B, 0x08, 0xB6, 0x32, 0x00,
         ];
         let mut out = [0u8; MAX_WIRE_LEN];
         let n = packet.encode(&mut out).unwrap();
@@ -642,11 +676,11 @@ mod tests {
             Schedule::new(&[LedSlot { led: 1, slot_us: 1000 }, LedSlot { led: 2, slot_us: 500 }], 250, 4).unwrap();
         let packet = Packet::new(0x1234, Message::SetSchedule(schedule));
         let frame: [u8; 17] = [
-            0x01, 0x02, 0x34, 0x12, // header
+            0x02, 0x02, 0x34, 0x12, // header
             0x00, 0x04, 0xFA, 0x00, 0x02, // flags, averaging, dark slot 250 us, n
             0x01, 0xE8, 0x03, // LED 1, 1000 us
             0x02, 0xF4, 0x01, // LED 2, 500 us
-            0x08, 0x69, // CRC
+            0x2D, 0x8A, // CRC
         ];
         let mut buf = [0u8; MAX_FRAME_LEN];
         let n = packet.emit(&mut buf).unwrap();
@@ -670,11 +704,11 @@ mod tests {
 
         // A valid CRC over a wrong version, an unknown type, a short payload.
         for (body, want) in [
-            (&[2u8, 0x05, 0, 0, 9, 0, 0, 0][..], Error::Version(2)),
-            (&[1u8, 0x42, 0, 0][..], Error::UnknownType(0x42)),
-            (&[1u8, 0x05, 0, 0, 9, 0][..], Error::PayloadLength { msg_type: MessageType::Ping, len: 2 }),
-            (&[1u8, 0x01, 0, 0, 0][..], Error::PayloadLength { msg_type: MessageType::GetInfo, len: 1 }),
-            (&[1u8, 0x83, 0, 0, 1, 0, 2, 99][..], Error::Field { msg_type: MessageType::Nack, field: "reason" }),
+            (&[1u8, 0x05, 0, 0, 9, 0, 0, 0][..], Error::Version(1)),
+            (&[2u8, 0x42, 0, 0][..], Error::UnknownType(0x42)),
+            (&[2u8, 0x05, 0, 0, 9, 0][..], Error::PayloadLength { msg_type: MessageType::Ping, len: 2 }),
+            (&[2u8, 0x01, 0, 0, 0][..], Error::PayloadLength { msg_type: MessageType::GetInfo, len: 1 }),
+            (&[2u8, 0x83, 0, 0, 1, 0, 2, 99][..], Error::Field { msg_type: MessageType::Nack, field: "reason" }),
         ] {
             let mut f = [0u8; 16];
             f[..body.len()].copy_from_slice(body);
@@ -689,9 +723,12 @@ mod tests {
         let s = |led, slot_us| LedSlot { led, slot_us };
         assert_eq!(Schedule::new(&[], 0, 1), Err(ScheduleError::Empty));
         assert_eq!(Schedule::new(&[s(1, 0)], 0, 1), Err(ScheduleError::ZeroSlot(1)));
-        assert_eq!(Schedule::new(&[s(1, 5), s(1, 5)], 0, 1), Err(ScheduleError::DuplicateLed(1)));
-        assert_eq!(Schedule::new(&[s(1, 5)], 0, 0), Err(ScheduleError::ZeroAveraging));
-        let many: [LedSlot; 17] = core::array::from_fn(|i| s(i as u8, 10));
+        assert_eq!(Schedule::new(&[s(1, 99)], 0, 1), Err(ScheduleError::ZeroSlot(1)));
+        assert!(Schedule::new(&[s(1, 100)], 0, 1).is_ok());
+        assert_eq!(Schedule::new(&[s(0, 500)], 0, 1), Err(ScheduleError::ZeroLed));
+        assert_eq!(Schedule::new(&[s(1, 500), s(1, 500)], 0, 1), Err(ScheduleError::DuplicateLed(1)));
+        assert_eq!(Schedule::new(&[s(1, 500)], 0, 0), Err(ScheduleError::ZeroAveraging));
+        let many: [LedSlot; 17] = core::array::from_fn(|i| s(i as u8 + 1, 500));
         assert_eq!(Schedule::new(&many, 0, 1), Err(ScheduleError::TooManyLeds(17)));
         assert!(Schedule::new(&many[..16], 0, 1).is_ok());
     }

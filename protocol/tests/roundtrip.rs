@@ -8,7 +8,7 @@ use flowgate_protocol::slcan::{self, Bitrate, Command, Line, Response};
 use proptest::prelude::*;
 
 fn schedule() -> impl Strategy<Value = Schedule> {
-    (proptest::collection::btree_map(any::<u8>(), 1u16.., 1..=MAX_SCHEDULE_LEDS), any::<u16>(), 1u8..).prop_map(
+    (proptest::collection::btree_map(1u8.., MIN_SLOT_US.., 1..=MAX_SCHEDULE_LEDS), any::<u16>(), 1u8..).prop_map(
         |(leds, dark, avg)| {
             let slots: Vec<LedSlot> = leds.into_iter().map(|(led, slot_us)| LedSlot { led, slot_us }).collect();
             Schedule::new(&slots, dark, avg).unwrap()
@@ -27,9 +27,9 @@ fn psd_message() -> impl Strategy<Value = Message> {
         Just(Message::StopStream),
         any::<u32>().prop_map(|nonce| Message::Ping { nonce }),
         any::<u64>().prop_map(|host_time_us| Message::TimeSync { host_time_us }),
-        (any::<[u8; 3]>(), any::<[u16; 2]>(), any::<u8>(), any::<u32>()).prop_map(
-            |(firmware, psd_counts, max_leds, clock_hz)| {
-                Message::Info(Info { firmware, psd_counts, max_leds, clock_hz })
+        (any::<u16>(), any::<[u8; 3]>(), any::<[u16; 2]>(), any::<u8>(), any::<u32>()).prop_map(
+            |(request_seq, firmware, psd_counts, max_leds, clock_hz)| {
+                Message::Info { request_seq, info: Info { firmware, psd_counts, max_leds, clock_hz } }
             }
         ),
         (any::<u16>(), any::<u8>()).prop_map(|(seq, msg_type)| Message::Ack { seq, msg_type }),
@@ -52,9 +52,14 @@ fn psd_message() -> impl Strategy<Value = Message> {
         }),
         (fault, any::<u32>()).prop_map(|(code, detail)| Message::Fault { code, detail }),
         (any::<u64>(), state).prop_map(|(t_ctrl_us, state)| Message::Heartbeat { t_ctrl_us, state }),
-        (any::<u32>(), any::<u64>()).prop_map(|(nonce, t_ctrl_us)| Message::Pong { nonce, t_ctrl_us }),
-        (any::<u64>(), any::<u64>())
-            .prop_map(|(host_time_us, t_ctrl_us)| Message::TimeSyncReply { host_time_us, t_ctrl_us }),
+        (any::<u16>(), any::<u32>(), any::<u64>()).prop_map(|(request_seq, nonce, t_ctrl_us)| Message::Pong {
+            request_seq,
+            nonce,
+            t_ctrl_us
+        }),
+        (any::<u16>(), any::<u64>(), any::<u64>()).prop_map(|(request_seq, host_time_us, t_ctrl_us)| {
+            Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us }
+        }),
     ]
 }
 

@@ -1141,15 +1141,15 @@ mod tests {
                 continue;
             };
             let reply = match p.message {
-                Message::GetInfo => Message::Info(Info {
-                    firmware: [1, 0, 0],
-                    psd_counts: [4096; 2],
-                    max_leds: 16,
-                    clock_hz: 1_000_000,
-                }),
-                Message::TimeSync { host_time_us } => {
-                    Message::TimeSyncReply { host_time_us, t_ctrl_us: now.as_nanos() / 1000 + CTRL_EPOCH_US }
-                }
+                Message::GetInfo => Message::Info {
+                    request_seq: p.seq,
+                    info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+                },
+                Message::TimeSync { host_time_us } => Message::TimeSyncReply {
+                    request_seq: p.seq,
+                    host_time_us,
+                    t_ctrl_us: now.as_nanos() / 1000 + CTRL_EPOCH_US,
+                },
                 Message::StopStream => continue,
                 m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
             };
@@ -1197,6 +1197,61 @@ mod tests {
         assert_eq!(c.counters().samples, 2);
         let at = c.tracker.pose_time().unwrap();
         assert!((at - 0.009).abs() < 1e-6, "{at}");
+    }
+
+    /// Protocol 2: an answer names its request. An Info or a TimeSyncReply that names
+    /// another seq (a late answer to an earlier try) is not taken; the matching one is.
+    #[test]
+    fn replies_naming_another_request_are_not_taken() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        let mut streaming = false;
+        let mut stale_replies = 0;
+        for step in 1..20 {
+            let now = ms(step);
+            let requests: Vec<Packet> = std::iter::from_fn(|| c.poll())
+                .filter_map(|o| match o {
+                    Output::Psd(p) => Some(p),
+                    Output::Streaming => {
+                        streaming = true;
+                        None
+                    }
+                    _ => None,
+                })
+                .collect();
+            for p in requests {
+                let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 };
+                let (stale, good) = match p.message {
+                    Message::GetInfo => (
+                        Message::Info { request_seq: p.seq.wrapping_sub(1), info },
+                        Message::Info { request_seq: p.seq, info },
+                    ),
+                    Message::TimeSync { host_time_us } => {
+                        let t_ctrl_us = now.as_nanos() / 1000 + CTRL_EPOCH_US;
+                        (
+                            Message::TimeSyncReply { request_seq: p.seq.wrapping_add(7), host_time_us, t_ctrl_us },
+                            Message::TimeSyncReply { request_seq: p.seq, host_time_us, t_ctrl_us },
+                        )
+                    }
+                    m => {
+                        c.psd_bytes(now, &bytes(Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 }));
+                        continue;
+                    }
+                };
+                // The stale answer alone moves nothing on; the true one does.
+                // The handshake's step and the clock offset, as the session shows them.
+                let phase = |c: &Core<NoClock>| {
+                    let d = format!("{:?}", c.psd);
+                    d[d.find("phase:").unwrap()..d.find(", info:").unwrap()].to_string()
+                };
+                let before = phase(&c);
+                c.psd_bytes(now, &bytes(stale));
+                assert_eq!(before, phase(&c), "a reply naming another request was taken");
+                stale_replies += 1;
+                c.psd_bytes(now, &bytes(good));
+            }
+        }
+        assert!(streaming && stale_replies == 2, "{stale_replies}");
     }
 
     #[test]
@@ -1348,9 +1403,9 @@ mod tests {
         c.psd_connected(ms(0));
         let mut failed = None;
         while let Some(o) = c.poll() {
-            if let Output::Psd(Packet { message: Message::GetInfo, .. }) = o {
+            if let Output::Psd(Packet { seq, message: Message::GetInfo }) = o {
                 let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 2, clock_hz: 1_000_000 };
-                c.psd_bytes(ms(1), &bytes(Message::Info(info)));
+                c.psd_bytes(ms(1), &bytes(Message::Info { request_seq: seq, info }));
             }
             if let Output::SetupFailed(e) = o {
                 failed = Some(e);

@@ -116,7 +116,7 @@ pub struct PsdSession {
     last_seq: Option<u16>,
     /// While streaming: when to sync the clock again, and the sync in flight (sent at).
     next_resync: HostTime,
-    resync: Option<HostTime>,
+    resync: Option<(u16, HostTime)>,
     /// When the offset was last taken from a good round trip.
     synced_at: HostTime,
 }
@@ -237,9 +237,10 @@ impl PsdSession {
         if self.phase == Phase::Streaming && now >= self.next_resync {
             // A sync still unanswered a period later is simply replaced.
             let sent = HostTime::from_nanos(now.as_nanos() / 1000 * 1000);
-            self.resync = Some(sent);
+            let packet = self.packet(Message::TimeSync { host_time_us: sent.as_nanos() / 1000 });
+            self.resync = Some((packet.seq, sent));
             self.next_resync = now + RESYNC_EVERY;
-            send(self.packet(Message::TimeSync { host_time_us: sent.as_nanos() / 1000 }));
+            send(packet);
             return None;
         }
         let Phase::Setup { step, tries, .. } = self.phase else { return None };
@@ -256,8 +257,11 @@ impl PsdSession {
 
     /// A packet from the controller.
     pub fn on_packet(&mut self, now: HostTime, packet: &Packet, send: &mut impl FnMut(Packet)) -> SessionEvent {
-        if let (Message::TimeSyncReply { host_time_us, t_ctrl_us }, Some(sent)) = (packet.message, self.resync) {
-            if host_time_us == sent.as_nanos() / 1000 {
+        // A reply names its request twice: by seq, and by the host time it echoes.
+        if let (Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us }, Some((seq, sent))) =
+            (packet.message, self.resync)
+        {
+            if request_seq == seq && host_time_us == sent.as_nanos() / 1000 {
                 self.resync = None;
                 let accepted = now.since(sent) <= MAX_RTT;
                 if accepted {
@@ -269,7 +273,7 @@ impl PsdSession {
         }
         let Phase::Setup { step, seq, sent, .. } = self.phase else { return SessionEvent::Pass };
         let next = match (step, packet.message) {
-            (Step::Info, Message::Info(info)) => {
+            (Step::Info, Message::Info { request_seq, info }) if request_seq == seq => {
                 self.info = Some(info);
                 // Identity: a controller that cannot run this schedule, or reads another
                 // PSD, or stamps in other units, is not the configured one.
@@ -289,8 +293,8 @@ impl PsdSession {
                 Step::Schedule
             }
             (Step::Schedule, Message::Ack { seq: s, .. }) if s == seq => Step::TimeSync,
-            (Step::TimeSync, Message::TimeSyncReply { host_time_us, t_ctrl_us })
-                if host_time_us == sent.as_nanos() / 1000 =>
+            (Step::TimeSync, Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us })
+                if request_seq == seq && host_time_us == sent.as_nanos() / 1000 =>
             {
                 self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
                 self.synced_at = now;

@@ -17,14 +17,14 @@ use std::collections::VecDeque;
 use std::path::Path;
 
 use bytes::BytesMut;
-use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec, SlcanHostCodec, StreamError};
+use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec, SlcanHostCodec};
 use flowgate_protocol::psd;
 use flowgate_protocol::slcan::{Bitrate, Command, Line as _, MAX_LINE_LEN};
 use flowgate_protocol::CanFrame;
 use flowgate_sim::calibration::CameraModel;
 use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
 use flowgate_sim::motor_board::MotorBoard;
-use flowgate_sim::psd_controller::{LedMap, Outgoing, PsdController, SerialQueue};
+use flowgate_sim::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};
 use flowgate_sim::truth::{TruthRecord, SAMPLE_PERIOD};
 use flowgate_sim::world::World;
 use tokio_util::codec::Decoder as _;
@@ -626,10 +626,7 @@ impl<K: StageClock> VirtualRig<K> {
         while self.to_controller.take(self.t, &mut self.scratch) {
             self.controller_rx.extend_from_slice(&self.scratch);
             while let Ok(Some(item)) = self.controller_codec.decode(&mut self.controller_rx) {
-                let request = item.map_err(|e| match e {
-                    StreamError::Frame { error, .. } => error,
-                    StreamError::Overlong { .. } => psd::Error::TooLong,
-                });
+                let request = item.map_err(|e| BadRequest::from_stream(e, &self.controller_codec));
                 self.controller.handle(t, request, &mut self.psd_out);
             }
         }

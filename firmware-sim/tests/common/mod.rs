@@ -92,7 +92,9 @@ impl Host {
         let seq = self.send(message).await;
         self.until(|m| match m {
             Message::Ack { seq: s, .. } | Message::Nack { seq: s, .. } => *s == seq,
-            Message::Info(_) | Message::Pong { .. } | Message::TimeSyncReply { .. } => true,
+            Message::Info { request_seq: s, .. }
+            | Message::Pong { request_seq: s, .. }
+            | Message::TimeSyncReply { request_seq: s, .. } => *s == seq,
             _ => false,
         })
         .await

@@ -69,14 +69,12 @@ impl Controller {
         while let Ok(Some(item)) = self.codec.decode(&mut self.rx) {
             let Ok(p) = item else { continue };
             let reply = match p.message {
-                Message::GetInfo => Message::Info(Info {
-                    firmware: [0, 9, 0],
-                    psd_counts: [4096; 2],
-                    max_leds: 16,
-                    clock_hz: 1_000_000,
-                }),
+                Message::GetInfo => Message::Info {
+                    request_seq: p.seq,
+                    info: Info { firmware: [0, 9, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+                },
                 Message::TimeSync { host_time_us } => {
-                    Message::TimeSyncReply { host_time_us, t_ctrl_us: Self::clock_us() }
+                    Message::TimeSyncReply { request_seq: p.seq, host_time_us, t_ctrl_us: Self::clock_us() }
                 }
                 m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
             };
