@@ -249,3 +249,93 @@ impl MotorBoard {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! The board's timings and reactions as protocol/README.md states them.
+    use super::*;
+    use flowgate_protocol::motor::{EStopReason, GatewayState, NmtCommand, Target};
+    use flowgate_protocol::CanId;
+
+    const E1: &str = include_str!("../../scenarios/e1-standing-obstacle.toml");
+
+    fn board() -> (MotorBoard, World, Vec<CanFrame>) {
+        let scenario = crate::scenario::Scenario::from_toml(E1, "e1").unwrap();
+        let mut world = World::new(&scenario);
+        let mut board = MotorBoard::new(NodeId::new(1).unwrap(), FaultPlan::default());
+        let mut out = Vec::new();
+        board.boot(0.0, &mut world, &mut out);
+        (board, world, out)
+    }
+
+    fn messages(out: &mut Vec<CanFrame>) -> Vec<MotorMessage> {
+        out.drain(..).filter_map(|f| MotorMessage::parse(&f).ok()).collect()
+    }
+
+    fn send(b: &mut MotorBoard, w: &mut World, t: f64, m: MotorMessage, out: &mut Vec<CanFrame>) {
+        b.handle(t, &m.to_frame().unwrap(), w, out);
+    }
+
+    fn emergency(m: &[MotorMessage], bit: u8) -> bool {
+        m.iter().any(|m| matches!(m, MotorMessage::Emergency { faults, .. } if faults.0 & bit != 0))
+    }
+
+    #[test]
+    fn periods_default_timeout_and_emergencies_are_as_documented() {
+        let (mut b, mut w, mut out) = board();
+        let n = b.node();
+        assert!(matches!(messages(&mut out)[..], [MotorMessage::Heartbeat { state: BoardState::BootUp, .. }, ..]));
+        // One second: a heartbeat every 100 ms, a status every 50 ms.
+        for k in 0..=1000 {
+            b.poll(f64::from(k) * 1e-3, &mut w, &mut out);
+        }
+        let m = messages(&mut out);
+        let count = |f: fn(&MotorMessage) -> bool| m.iter().filter(|m| f(m)).count();
+        assert_eq!(count(|m| matches!(m, MotorMessage::Heartbeat { .. })), 10);
+        assert_eq!(count(|m| matches!(m, MotorMessage::Status { .. })), 20);
+
+        // A config frame with timeout 0 does not decode: ignored whole.
+        let mut raw = [0u8; 8];
+        raw[..3].copy_from_slice(&[0x20, 0x4E, 0]); // accel 20000
+        raw[3..6].copy_from_slice(&[0x40, 0x1F, 0]); // max rate 8000
+        let zero = CanFrame::new(CanId::standard(0x181).unwrap(), &raw).unwrap();
+        b.handle(1.0, &zero, &mut w, &mut out);
+        // The default 100 ms command timeout, from the enable.
+        send(&mut b, &mut w, 1.0, MotorMessage::Nmt { target: Target::Node(n), command: NmtCommand::Enable }, &mut out);
+        b.poll(1.0999, &mut w, &mut out);
+        assert_eq!(b.state(), BoardState::Enabled);
+        b.poll(1.1001, &mut w, &mut out);
+        assert_eq!(b.state(), BoardState::Fault, "the timeout is still 100 ms");
+        assert!(emergency(&messages(&mut out), FaultBits::CMD_TIMEOUT), "an emergency on entering Fault");
+
+        // An e-stop sends the emergency frame too, with its bit.
+        send(&mut b, &mut w, 1.2, MotorMessage::EStop { target: Target::All, reason: EStopReason::Operator }, &mut out);
+        assert_eq!(b.state(), BoardState::EStop);
+        assert!(emergency(&messages(&mut out), FaultBits::ESTOP));
+    }
+
+    #[test]
+    fn the_gateway_heartbeat_is_watched_for_three_command_timeouts() {
+        let (mut b, mut w, mut out) = board();
+        let n = b.node();
+        let config = MotorMessage::Config { node: n, accel: 20_000, max_rate: 8_000, timeout_ms: 200 };
+        send(&mut b, &mut w, 0.0, config, &mut out);
+        send(&mut b, &mut w, 0.0, MotorMessage::Nmt { target: Target::Node(n), command: NmtCommand::Enable }, &mut out);
+        send(&mut b, &mut w, 0.0, MotorMessage::GatewayHeartbeat { state: GatewayState::Armed }, &mut out);
+        // Commands keep coming every 50 ms; the gateway's heartbeat stops after 0.
+        let mut seq = 0u8;
+        let mut faulted_at = None;
+        for k in 1..=40 {
+            let t = f64::from(k) * 0.05;
+            seq = seq.wrapping_add(1);
+            send(&mut b, &mut w, t, MotorMessage::Velocity { node: n, left: 0, right: 0, seq }, &mut out);
+            b.poll(t + 0.01, &mut w, &mut out);
+            if faulted_at.is_none() && b.state() == BoardState::Fault {
+                faulted_at = Some(t + 0.01);
+            }
+        }
+        let at = faulted_at.expect("faulted");
+        assert!((at - 0.61).abs() < 1e-9, "3 x 200 ms after the last gateway heartbeat (first poll past it): {at}");
+        assert!(b.faults().0 & FaultBits::GATEWAY_LOST != 0);
+    }
+}

@@ -119,6 +119,30 @@ mod tests {
         assert!(a.from_bus(f, 1.0).is_some());
     }
 
+    /// As protocol/README.md says: remote frames are answered like data frames (`z`),
+    /// timestamps are set only while the channel is closed, and a bus-off adapter refuses
+    /// transmits and says so in its status flags.
+    #[test]
+    fn answers_as_documented() {
+        let mut a = SlcanAdapter::default();
+        let (mut host, mut bus) = (Vec::new(), Vec::new());
+        for cmd in [Command::Timestamps(true), Command::Open, Command::Timestamps(false)] {
+            a.handle(Some(cmd), &mut host, &mut bus);
+        }
+        assert_eq!(host, vec![Response::Ok, Response::Ok, Response::Error], "Z1 closed: ok; Z0 open: BEL");
+        host.clear();
+        let remote = CanFrame::remote(CanId::Standard(0x201), 4).unwrap();
+        a.handle(Some(Command::Transmit(remote)), &mut host, &mut bus);
+        assert_eq!(host, vec![Response::TxAck { extended: false }], "a remote frame is acked `z`");
+        assert_eq!(bus, vec![remote]);
+        host.clear();
+        a.bus_off = true;
+        a.handle(Some(Command::Transmit(remote)), &mut host, &mut bus);
+        a.handle(Some(Command::StatusFlags), &mut host, &mut bus);
+        assert_eq!(host, vec![Response::Error, Response::StatusFlags(BUS_OFF_FLAGS)]);
+        assert_eq!(bus.len(), 1, "nothing sent while bus-off");
+    }
+
     #[test]
     fn refuses_what_lawicel_refuses() {
         let mut a = SlcanAdapter::default();
