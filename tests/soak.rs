@@ -4,9 +4,10 @@
 //! jitter, CAN frames lost, foreign and undecodable frames. An operator drives the robot
 //! back and forth between two goals, and after each fault resets, arms and starts again.
 //!
-//! Asserted: no motion command outside Running, no panic, and no growth: the core's buffers
-//! in the second half never exceed their largest in the first, and the process's resident
-//! memory grows by less than 4 MiB over the second half.
+//! Asserted: no motion command outside Running, no panic, and no growth: the core's queues
+//! in the second half never exceed their largest in the first, its PSD receive buffer stays
+//! within 8 KiB throughout, and the process's resident memory grows by less than 4 MiB over
+//! the second half.
 
 use std::path::Path;
 
@@ -50,6 +51,7 @@ fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64) {
     let mut next_goal = 1;
     let (mut faults_seen, mut goals) = (0u64, 0u64);
     let mut last_state = State::Idle;
+    let mut armed_for = 0.0;
     let (mut warm_footprint, mut warm_rss, mut late_footprint) = (0, 0, 0);
     let period = rig.core().rig().sample_period.as_secs_f64();
     let mut t = 0.5;
@@ -57,6 +59,9 @@ fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64) {
         t += 0.1;
         rig.run_until(t);
         let state = rig.core().state();
+        // An armed gateway starts within a second, or says why (a fault): never waits mute.
+        armed_for = if state == State::Armed { armed_for + 0.1 } else { 0.0 };
+        assert!(armed_for < 1.05, "armed for {armed_for:.1} s at {t:.1} s without running or a fault");
         if state != last_state {
             match state {
                 State::Fault(_) => faults_seen += 1,
@@ -83,6 +88,8 @@ fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64) {
             State::Running | State::Stopping(_) => {}
         }
         // The first half warms up (the largest buffers it needed); the second must need no more.
+        let buffer = rig.core().psd_buffer_capacity();
+        assert!(buffer <= 8192, "the PSD receive buffer grew to {buffer} bytes");
         let done = rig.core().counters().cycles;
         if done < cycles / 2 {
             warm_footprint = warm_footprint.max(rig.core().footprint());
@@ -104,7 +111,12 @@ fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64) {
     assert!(grown < 4096, "resident memory grew by {grown} KiB after warming up");
     assert!(report.psd_duplicates > 0 && report.psd_out_of_order > 0 && report.bad_serial_frames > 0, "{report:?}");
     assert!(report.can_foreign > 0 && report.can_undecodable > 0, "{report:?}");
-    assert!(goals > 0, "the robot never reached a goal: the soak did not drive ({faults_seen} faults)");
+    // It kept driving throughout: a goal every 2000 cycles (34 s) at least.
+    assert!(
+        goals * 2000 >= cycles,
+        "{goals} goals in {cycles} cycles: the soak did not keep driving ({faults_seen} faults)"
+    );
+    assert!(report.board_enable_retries > 0, "lost enables were sent again: {report:?}");
     eprintln!("{report:?}");
     (report.cycles, faults_seen, goals)
 }

@@ -40,6 +40,10 @@ pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
 pub const STOP_GRACE: Duration = Duration::from_secs(1);
 /// The window over which bad serial frames are counted against the budget.
 const BAD_FRAME_WINDOW: Duration = Duration::from_secs(1);
+/// How long an armed gateway waits for the board to report Enabled before it sends the
+/// enable again (two status periods), and how many times it does.
+const ENABLE_GRACE: Duration = Duration::from_millis(100);
+const ENABLE_RETRIES: u8 = 3;
 /// Sequence errors the board may count within a second (1% loss at 1 kHz is 10).
 const BOARD_SEQ_ERRORS_PER_S: u32 = 10;
 /// Transmits an SLCAN adapter may refuse within a second: beyond, the commands are not
@@ -163,6 +167,9 @@ pub struct Core<K: StageClock> {
     tx_refused: Budget,
     /// When the SLCAN adapter's status was last asked for.
     status_polled: HostTime,
+    /// When the board was last told to enable, and how often again since arming.
+    enable_sent: HostTime,
+    enable_retries: u8,
     /// The frame whose samples are being collected, and how many came.
     collecting: Option<(u32, u8)>,
     /// The last frame that ended.
@@ -205,6 +212,8 @@ impl<K: StageClock> Core<K> {
             board_seq: Budget::new(BOARD_SEQ_ERRORS_PER_S),
             tx_refused: Budget::new(TX_REFUSED_PER_S),
             status_polled: HostTime::ZERO,
+            enable_sent: HostTime::ZERO,
+            enable_retries: 0,
             collecting: None,
             last_frame: None,
             next_heartbeat: HostTime::ZERO,
@@ -246,17 +255,21 @@ impl<K: StageClock> Core<K> {
     pub fn finished(&self) -> bool {
         self.shutdown && matches!(self.state(), State::Idle | State::Stopped(_) | State::Fault(_))
     }
-    /// What the core holds in its growable buffers, in elements and bytes of capacity: the
-    /// output queue, the budgets' windows, the PSD receive buffer, the goals. A soak asserts
-    /// it stops growing once warm.
+    /// What the core holds in its queues, in elements of capacity: the output queue, the
+    /// budgets' windows, the goals. A soak asserts it stops growing once warm.
     pub fn footprint(&self) -> usize {
         self.out.capacity()
             + [&self.bad_frames, &self.link_errors, &self.board_seq, &self.tx_refused]
                 .iter()
                 .map(|b| b.times.capacity())
                 .sum::<usize>()
-            + self.psd.buffered_capacity()
             + self.goals.capacity()
+    }
+
+    /// The PSD receive buffer's capacity, bytes: it rises and falls as frames are taken
+    /// out of it, so a soak holds it to a bound rather than to its warm size.
+    pub fn psd_buffer_capacity(&self) -> usize {
+        self.psd.buffered_capacity()
     }
 
     /// The next output, if any.
@@ -379,6 +392,7 @@ impl<K: StageClock> Core<K> {
                 State::Idle | State::Stopped(_) => {
                     let action = self.safety.arm(now.secs());
                     self.armed_at = now;
+                    self.enable_retries = 0;
                     self.last_sample = now;
                     self.board.last_heartbeat = None;
                     self.start_requested = false;
@@ -1018,6 +1032,13 @@ impl<K: StageClock> Core<K> {
                         self.stop(now, StopReason::BusOff);
                     } else if self.state() == State::Running && matches!(state, BoardState::Fault | BoardState::EStop) {
                         self.stop(now, StopReason::BoardFault);
+                    } else if self.state() == State::Armed && now >= self.enable_sent + ENABLE_GRACE {
+                        // A status older than the enable may still show the board as it was.
+                        match state {
+                            BoardState::Fault | BoardState::EStop => self.stop(now, StopReason::BoardFault),
+                            BoardState::Disabled => self.board_still_disabled(now),
+                            _ => {}
+                        }
                     }
                 }
                 MotorMessage::AxisRates { left, right, .. } => {
@@ -1031,6 +1052,19 @@ impl<K: StageClock> Core<K> {
             Ok(_) => {}
             Err(_) => self.counters.can_undecodable += 1,
         }
+    }
+
+    /// Armed, but the board reports Disabled: the enable (or its config) was lost on the bus.
+    /// Send them again, a status period's grace apart, a few times; then fault, named: an
+    /// armed gateway must not wait silently for a board that never enables.
+    fn board_still_disabled(&mut self, now: HostTime) {
+        if self.enable_retries >= ENABLE_RETRIES {
+            self.stop(now, StopReason::BoardNotEnabled);
+            return;
+        }
+        self.enable_retries += 1;
+        self.counters.board_enable_retries += 1;
+        self.act(now, Action::EnableBoard);
     }
 
     fn check_at_rest(&mut self, now: HostTime) {
@@ -1055,6 +1089,7 @@ impl<K: StageClock> Core<K> {
         match action {
             Action::None => {}
             Action::EnableBoard => {
+                self.enable_sent = now;
                 let b = self.rig.board;
                 self.send(MotorMessage::Nmt { target: Target::Node(node), command: NmtCommand::FaultReset });
                 self.send(MotorMessage::Config {

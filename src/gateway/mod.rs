@@ -108,6 +108,8 @@ pub struct Counters {
     pub can_error_passive: u64,
     /// Sequence errors the motor board counted in our velocity commands (lost or foreign).
     pub board_seq_errors: u64,
+    /// Enables sent again because an armed board still reported Disabled (one was lost).
+    pub board_enable_retries: u64,
     pub planner_invalid: u64,
     pub telemetry_dropped: u64,
 }

@@ -55,6 +55,8 @@ pub enum StopReason {
     ObstacleLost,
     BusOff,
     BoardFault,
+    /// Armed, the board stayed Disabled through every enable sent.
+    BoardNotEnabled,
     PlannerInvalid,
 }
 
@@ -115,6 +117,7 @@ impl std::fmt::Display for StopReason {
             Self::ObstacleLost => "an obstacle unseen beyond the pose timeout",
             Self::BusOff => "CAN bus-off",
             Self::BoardFault => "motor board fault",
+            Self::BoardNotEnabled => "motor board did not enable",
             Self::PlannerInvalid => "planner refused its input",
         })
     }
