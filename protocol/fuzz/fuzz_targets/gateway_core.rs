@@ -5,7 +5,7 @@
 //! come raw or with a correct CRC and COBS framing (so the fuzzer reaches the handshake and
 //! the stream, not only the CRC check); CAN frames are any id and payload.
 #![no_main]
-use flowgate::config::{GatewayConfig, Goal};
+use flowgate::config::{GatewayConfig, Goal, Rig};
 use flowgate::gateway::operator::Request;
 use flowgate::gateway::{Core, NoClock, Output, State};
 use flowgate::link::CanEvent;
@@ -13,6 +13,7 @@ use flowgate::time::HostTime;
 use flowgate_protocol::motor::MotorMessage;
 use flowgate_protocol::{cobs, crc, CanFrame, CanId};
 use libfuzzer_sys::fuzz_target;
+use std::sync::OnceLock;
 use std::time::Duration;
 
 const RIG: &str = include_str!("../../../rig.example.toml");
@@ -136,10 +137,19 @@ fn step(core: &mut Core<NoClock>, now: &mut HostTime, input: &mut Input) -> Opti
     Some(())
 }
 
+/// The example rig, parsed once (parsing it per input would be most of each execution).
+fn rig() -> Rig {
+    static RIG_ONCE: OnceLock<Rig> = OnceLock::new();
+    RIG_ONCE
+        .get_or_init(|| {
+            let config: GatewayConfig = toml::from_str(RIG).expect("the example parses");
+            config.validate().expect("the example is valid")
+        })
+        .clone()
+}
+
 fuzz_target!(|data: &[u8]| {
-    let config: GatewayConfig = toml::from_str(RIG).expect("the example parses");
-    let rig = config.validate().expect("the example is valid");
-    let mut core = Core::new(rig, NoClock);
+    let mut core = Core::new(rig(), NoClock);
     let mut input = Input(data);
     if input.byte().is_some_and(|b| b & 1 == 1) {
         core.arm_at_start();
