@@ -16,7 +16,7 @@ use libfuzzer_sys::fuzz_target;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-const RIG: &str = include_str!("../../../rig.example.toml");
+const RIG: &str = include_str!("../../rig.example.toml");
 
 struct Input<'a>(&'a [u8]);
 
