@@ -49,6 +49,19 @@ pub struct GatewayConfig {
     pub telemetry: TelemetryConfig,
     #[serde(default)]
     pub operator: OperatorConfig,
+    #[serde(default)]
+    pub realtime: RealtimeConfig,
+}
+
+/// How the gateway trades CPU for latency on a rig that gives it a core.
+#[derive(Debug, Clone, Copy, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RealtimeConfig {
+    /// Low-latency mode: poll for the next frame from this long before it is due until this
+    /// long after, instead of sleeping (src/gateway/low_latency.rs); 0 = off (default). Costs
+    /// about (spin_us + 1 ms) / T of a core (`flowgate bench` measures it).
+    #[serde(default)]
+    pub spin_us: u32,
 }
 
 /// The local control interface: the only way to command motion.
@@ -549,6 +562,18 @@ impl GatewayConfig {
         if self.telemetry.queue == 0 || self.telemetry.queue > MAX_QUEUE {
             return invalid("telemetry.queue", format!("must be 1-{MAX_QUEUE} records, is {}", self.telemetry.queue));
         }
+        let spin = Duration::from_micros(u64::from(self.realtime.spin_us));
+        if spin * 2 >= sample_period {
+            return invalid(
+                "realtime.spin_us",
+                format!(
+                    "{} µs: the window (twice it) must be shorter than the control period T = {} µs, or the gateway \
+                     never sleeps",
+                    self.realtime.spin_us,
+                    sample_period.as_micros()
+                ),
+            );
+        }
         let control = self.control_config(sample_period);
         let ppm = control.drive.pulses_per_metre();
         let to_rate = |key: &str, v: f64| {
@@ -594,6 +619,7 @@ impl GatewayConfig {
             telemetry: self.telemetry.clone(),
             goal: self.goal,
             operator: self.operator.clone(),
+            spin: (!spin.is_zero()).then_some(spin),
         })
     }
 
@@ -696,6 +722,8 @@ pub struct Rig {
     /// The goal to drive to when armed at start (`flowgate run --arm`).
     pub goal: Option<Goal>,
     pub operator: OperatorConfig,
+    /// The low-latency mode's polling window either side of the next frame (`None`: off).
+    pub spin: Option<Duration>,
 }
 
 #[cfg(test)]
@@ -738,6 +766,8 @@ mod tests {
             ("command_timeout_ms = 200", "command_timeout_ms = 166", "safety.pose_timeout_ms"),
             ("slot_us = 4000", "slot_us = 70000", "schedule.slot_us"),
             ("pose_tolerance_m = 0.02", "pose_tolerance_m = nan", "safety.pose_tolerance_m"),
+            // The low-latency window, twice over, must fit in T = 17 ms or the loop never sleeps.
+            ("spin_us = 0 ", "spin_us = 8500 ", "realtime.spin_us"),
         ];
         for (from, to, key) in cases {
             assert!(EXAMPLE.contains(from), "example lacks {from}");
@@ -745,6 +775,9 @@ mod tests {
             assert!(err.contains(&format!("`{key}`")), "{to}: {err}");
         }
         assert!(rig(&EXAMPLE.replace("pose_timeout_ms = 150", "pose_timeout_ms = 183")).is_ok(), "183 + 17 = 200");
+        assert_eq!(rig(EXAMPLE).unwrap().spin, None, "off by default");
+        let spin = rig(&EXAMPLE.replace("spin_us = 0 ", "spin_us = 8499 ")).unwrap().spin;
+        assert_eq!(spin, Some(Duration::from_micros(8499)));
         let err = rig(&EXAMPLE.replace("[safety]", "[safety]\nbogus = 1")).unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
     }

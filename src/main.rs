@@ -33,6 +33,10 @@ enum Command {
     /// folder, or a Monte-Carlo sweep.
     #[cfg(feature = "lab")]
     Plan(cli::plan::PlanArgs),
+    /// The bench's floor: a gateway that does no work, as its own process.
+    #[cfg(feature = "lab")]
+    #[command(hide = true)]
+    NullGateway(cli::null_gateway::NullGatewayArgs),
 }
 
 /// An error as one line: each cause once (the library's messages already name theirs).
@@ -76,5 +80,7 @@ fn run() -> Result<()> {
         Command::Ctl(args) => cli::ctl::run(args),
         #[cfg(feature = "lab")]
         Command::Bench(args) => cli::bench::run(args),
+        #[cfg(feature = "lab")]
+        Command::NullGateway(args) => cli::null_gateway::run(args),
     }
 }

@@ -1,5 +1,6 @@
-//! The benchmark harness itself works: a short run of the real gateway process answers every
-//! frame with exactly one command and reports sane figures. No timing is asserted here;
+//! The benchmark harness itself works: a short run of the real gateway process, its null
+//! gateway (its own process) and the low-latency pair answers every frame with exactly one
+//! command and reports sane figures. No timing is asserted here;
 //! performance is measured by `flowgate bench`, not by tests.
 
 use flowgate::lab::bench::{PhaseSpec, Transport};
@@ -8,7 +9,8 @@ use flowgate::lab::bench::{PhaseSpec, Transport};
 async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     let dir = std::env::temp_dir().join(format!("flowgate-bench-smoke-{}", std::process::id()));
     let exe = std::path::Path::new(env!("CARGO_BIN_EXE_flowgate"));
-    let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true }];
+    let phases =
+        [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true, low_latency_us: Some(500) }];
     let report = flowgate::lab::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
     let p = &report.phases[0];
     assert_eq!(p.cycles_sent, 100);
@@ -18,6 +20,24 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     assert!(floor.latency_us.p50 > 0.0);
     assert!(p.latency_us.p50 > 0.0 && p.latency_us.max >= p.latency_us.p99);
     assert!(p.rss_mb[1] > 0.0, "RSS read from /proc");
+    // What flowgate adds is the difference of the two, quantile by quantile.
+    let added = p.added_us.expect("a floor gives a difference");
+    assert_eq!(added.p50, p.latency_us.p50 - floor.latency_us.p50);
+    // The gateway's own stage timings for the phase, from its control socket.
+    let names: Vec<&str> = p.stages.iter().map(|s| s.stage.as_str()).collect();
+    assert_eq!(names, ["decode", "checks", "track", "plan", "encode", "can_write"]);
+    assert!(p.stages.iter().all(|s| s.max_us > 0.0 && s.min_us <= s.p50_us), "{:?}", p.stages);
+    // The low-latency row: a second gateway and null gateway, both answering every frame.
+    let low = &report.phases[1];
+    assert_eq!((low.name.as_str(), low.spin_us), ("smoke, low-latency", Some(500)));
+    assert_eq!((low.cycles_sent, low.commands_received), (100, 100));
+    assert_eq!(low.floor.expect("its own floor").commands_received, 100);
+    assert!(report.gateway_states.iter().all(|s| !s.starts_with("fault")), "{:?}", report.gateway_states);
+    assert!(
+        report.gateway_states_low_latency.iter().all(|s| !s.starts_with("fault")),
+        "{:?}",
+        report.gateway_states_low_latency
+    );
     let json = serde_json::to_string(&report).unwrap();
     assert!(json.contains("late_percent"));
     let _ = std::fs::remove_dir_all(&dir);

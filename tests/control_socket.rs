@@ -160,6 +160,21 @@ async fn an_operator_session_over_the_control_socket() {
     assert!(text(&done).contains("last stop  goal reached"), "{}", text(&done));
     assert!(text(&done).contains("latency    p50 "), "{}", text(&done));
 
+    // Where the time goes: every stage, then a new window that holds no cycle yet (the
+    // robot stands at its goal, no commands are computed).
+    let stats = ctl(&socket, &["stats", "--reset"]);
+    for stage in ["decode", "checks", "track", "plan", "encode", "can_write"] {
+        assert!(text(&stats).lines().any(|l| l.contains(stage)), "{stage}: {}", text(&stats));
+    }
+    let window = raw(&socket, b"{\"cmd\":\"stats\"}\n");
+    assert!(window["status"]["latency_us"].is_null(), "{window}");
+    let stages = window["status"]["stages"].as_array().unwrap();
+    assert_eq!(stages.len(), 6);
+    assert!(stages.iter().all(|s| s["max_us"] == 0.0), "{window}");
+    // `status` carries no stage table, and the run's latency still counts every cycle.
+    let status = raw(&socket, b"{\"cmd\":\"status\"}\n");
+    assert!(status["status"].get("stages").is_none() && !status["status"]["latency_us"].is_null(), "{status}");
+
     let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
     assert!(child.wait().unwrap().success());
     let truth = handle.stop().await;
@@ -170,6 +185,11 @@ async fn an_operator_session_over_the_control_socket() {
     let events = std::fs::read_to_string(dir.join("telemetry/events.log")).unwrap();
     assert!(events.contains("uid 0") || events.contains("uid "), "{events}");
     assert!(events.contains("Start accepted") && events.contains("refused: not armed"), "{events}");
+    // The run's report covers the whole run, whatever windows the operator started.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("telemetry/report.json")).unwrap()).unwrap();
+    assert!(report["counters"]["cycles"].as_u64().unwrap() > 0, "{report}");
+    assert!(report["stages"].as_array().unwrap().iter().all(|s| s["max_us"].as_f64().unwrap() > 0.0), "{report}");
     assert!(!socket.exists(), "the socket is removed at exit");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -28,7 +28,25 @@ fn e2_through_the_demo_command() {
     assert!(stdout.contains("goal reached, no contact"), "{stdout}");
     assert!(stdout.contains("e2e latency"), "{stdout}");
     let cycles = std::fs::read_to_string(out.join("cycles.csv")).unwrap();
-    assert!(cycles.starts_with("cycle,frame,t_ctrl_us,rx_ns,decode_ns,track_ns,plan_ns,can_write_ns"));
+    assert!(
+        cycles.starts_with("cycle,frame,t_ctrl_us,rx_ns,decode_ns,checks_ns,track_ns,plan_ns,encode_ns,can_write_ns,")
+    );
+    // The per-stage summary, printed and in report.json: every stage, timed on this host.
+    assert!(stdout.contains("stages (µs)"), "{stdout}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let stages = report["stages"].as_array().unwrap();
+    let names: Vec<&str> = stages.iter().map(|s| s["stage"].as_str().unwrap()).collect();
+    assert_eq!(names, ["decode", "checks", "track", "plan", "encode", "can_write"]);
+    for s in stages {
+        let (min, p50, p99, max) = (
+            s["min_us"].as_f64().unwrap(),
+            s["p50_us"].as_f64().unwrap(),
+            s["p99_us"].as_f64().unwrap(),
+            s["max_us"].as_f64().unwrap(),
+        );
+        assert!(min <= p50 && p50 <= p99 && p99 <= max && max > 0.0, "{s}");
+    }
     assert!(cycles.lines().count() > 100);
     let trace: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("trace.json")).unwrap()).unwrap();

@@ -19,13 +19,17 @@ pub struct BenchArgs {
     /// twice that with its floor).
     #[arg(long, value_name = "N")]
     paper_cycles: Option<u64>,
+    /// The low-latency window for the paper's rate (`[realtime] spin_us`): that phase also
+    /// runs through a gateway in that mode, in the same seconds (0: not).
+    #[arg(long, value_name = "US", default_value_t = 1000)]
+    spin_us: u32,
     /// Where to write bench.json.
     #[arg(long, value_name = "DIR", default_value = "out/bench")]
     out: PathBuf,
 }
 
 const fn phase(name: &'static str, frame_rate_hz: f64, cycles: u64) -> PhaseSpec {
-    PhaseSpec { name, frame_rate_hz, cycles, floor: true }
+    PhaseSpec { name, frame_rate_hz, cycles, floor: true, low_latency_us: None }
 }
 
 /// Two LEDs a frame, so samples/s = 2 x frames/s. The latency phases above the paper's rate
@@ -38,7 +42,7 @@ const FULL: &[PhaseSpec] = &[
     phase("10 kHz", 10_000.0, 100_000),
     phase("12.5 kHz", 12_500.0, 100_000),
     phase("20 kHz", 20_000.0, 100_000),
-    PhaseSpec { name: "1 hour at T=17ms", frame_rate_hz: 5_000.0, cycles: 211_765, floor: false },
+    PhaseSpec { name: "1 hour at T=17ms", frame_rate_hz: 5_000.0, cycles: 211_765, floor: false, low_latency_us: None },
 ];
 
 const QUICK: &[PhaseSpec] = &[
@@ -63,6 +67,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
         phases[0].cycles = n;
     }
+    // The paper's rate, with the low-latency mode on beside it.
+    phases[0].low_latency_us = (args.spin_us > 0).then_some(args.spin_us);
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let report = runtime.block_on(flowgate::lab::bench::run(&exe, &transport, &phases, &args.out))?;

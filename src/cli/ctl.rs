@@ -12,6 +12,8 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use flowgate::config::GatewayConfig;
 use flowgate::gateway::operator::{Goal, Request};
+use flowgate::gateway::telemetry::{write_stage_table, StageSummary};
+use serde::Deserialize as _;
 
 #[derive(Args, Debug)]
 pub struct CtlArgs {
@@ -56,6 +58,13 @@ enum CtlCommand {
     },
     /// Drop the goals; a running robot stops in order.
     Cancel,
+    /// The cycle latency and each stage's min, p50, p99, max, mean and jitter (σ), since
+    /// the gateway started or the last `stats --reset`.
+    Stats {
+        /// Start a new window after this answer.
+        #[arg(long)]
+        reset: bool,
+    },
 }
 
 fn request(command: &CtlCommand) -> Result<Request> {
@@ -67,6 +76,7 @@ fn request(command: &CtlCommand) -> Result<Request> {
         CtlCommand::Estop => Request::EStop,
         CtlCommand::Reset => Request::Reset,
         CtlCommand::Cancel => Request::Cancel,
+        CtlCommand::Stats { reset } => Request::Stats { reset: *reset },
         CtlCommand::Goal { xy, queue, tolerance } => {
             let goals = if queue.is_empty() {
                 vec![Goal { position: [xy[0], xy[1]], tolerance: *tolerance }]
@@ -160,5 +170,11 @@ fn print_reply(v: &serde_json::Value) {
             l["p99_us"].as_f64().unwrap_or(f64::NAN),
             l["max_us"].as_f64().unwrap_or(f64::NAN)
         );
+    }
+    let stages = s.get("stages").and_then(|v| Vec::<StageSummary>::deserialize(v).ok());
+    if let Some(stages) = stages {
+        let mut table = String::new();
+        let _ = write_stage_table(&mut table, &stages, "stages (µs) ");
+        print!("{table}");
     }
 }

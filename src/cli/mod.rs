@@ -4,5 +4,7 @@ pub mod ctl;
 #[cfg(feature = "lab")]
 pub mod demo;
 #[cfg(feature = "lab")]
+pub mod null_gateway;
+#[cfg(feature = "lab")]
 pub mod plan;
 pub mod run;

@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 use flowgate::config::GatewayConfig;
 use flowgate::gateway::{self, Controls, Progress};
@@ -32,6 +32,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     // The gateway is one loop: a single-threaded runtime keeps its wake-ups on one thread
     // (the telemetry writer has its own blocking thread).
+    let telemetry_dir = rig.telemetry.out_dir.clone();
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async move {
         let mut interrupt = signal(SignalKind::interrupt())?;
@@ -57,8 +58,11 @@ pub fn run(args: RunArgs) -> Result<()> {
             }
         };
         say(&report.to_string());
-        if let Some(csv) = &report.files.cycles_csv {
-            say(&format!("telemetry in {}", csv.parent().map_or_else(String::new, |p| p.display().to_string())));
+        if let Some(dir) = &telemetry_dir {
+            let path = dir.join("report.json");
+            std::fs::write(&path, serde_json::to_string_pretty(&report)?)
+                .with_context(|| format!("writing {}", path.display()))?;
+            say(&format!("telemetry and report.json in {}", dir.display()));
         }
         Ok(())
     })

@@ -178,8 +178,12 @@ pub struct Core<K: StageClock> {
     stopping_since: Option<HostTime>,
     velocity_seq: u8,
     last_command: Option<HostTime>,
-    /// Decode time since the last cycle, ns.
+    /// Decode time, and check time (sequence, time mapping, schedule, frame assembly),
+    /// since the last cycle, ns.
     decode_ns: u64,
+    checks_ns: u64,
+    /// When the packet being handled was decoded (stage clock): its checks run from here.
+    checks_from: Option<u64>,
     shutdown: bool,
     streamed: bool,
     /// The goal being driven to, then the rest of the queue.
@@ -221,6 +225,8 @@ impl<K: StageClock> Core<K> {
             velocity_seq: 0,
             last_command: None,
             decode_ns: 0,
+            checks_ns: 0,
+            checks_from: None,
             shutdown: false,
             streamed: false,
             goals: VecDeque::with_capacity(MAX_GOALS),
@@ -329,11 +335,19 @@ impl<K: StageClock> Core<K> {
         loop {
             let started = self.clock.now_ns();
             let item = self.psd.next_item();
-            self.decode_ns += self.clock.now_ns().saturating_sub(started);
+            let decoded = self.clock.now_ns();
+            self.decode_ns += decoded.saturating_sub(started);
             match item {
                 None => break,
                 Some(Err(e)) => self.bad_frame(now, e),
-                Some(Ok(packet)) => self.packet(now, packet),
+                Some(Ok(packet)) => {
+                    // A frame end's checks end where its cycle starts (`cycle` takes them).
+                    self.checks_from = Some(decoded);
+                    self.packet(now, packet);
+                    if let Some(from) = self.checks_from.take() {
+                        self.checks_ns += self.clock.now_ns().saturating_sub(from);
+                    }
+                }
             }
         }
     }
@@ -387,7 +401,7 @@ impl<K: StageClock> Core<K> {
     pub fn request(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
         let state = self.state();
         match request {
-            Request::Status => Ok(()),
+            Request::Status | Request::Stats { .. } => Ok(()),
             Request::Arm => match state {
                 State::Idle | State::Stopped(_) => {
                     let action = self.safety.arm(now.secs());
@@ -495,6 +509,7 @@ impl<K: StageClock> Core<K> {
             obstacles,
             cycles: self.counters.cycles,
             latency_us: None,
+            stages: None,
         }
     }
 
@@ -839,6 +854,11 @@ impl<K: StageClock> Core<K> {
     /// One time-division frame is complete: track, decide, command.
     fn cycle(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
         let track_start = self.clock.now_ns();
+        if let Some(from) = self.checks_from.take() {
+            self.checks_ns += track_start.saturating_sub(from);
+        }
+        // This frame's decode and checks, whether or not it ends in a command.
+        let (decode_ns, checks_ns) = (std::mem::take(&mut self.decode_ns), std::mem::take(&mut self.checks_ns));
         self.track_frame(now);
         let t = now.secs();
         let period = self.rig.sample_period.as_secs_f64();
@@ -897,18 +917,23 @@ impl<K: StageClock> Core<K> {
             return;
         }
         self.tracker.commanded(t, wheels.0, wheels.1);
-        let record = CycleRecord { track_ns, plan_ns, ..self.record(now, frame_no, end, pulses, delay, pose.position) };
+        let record = CycleRecord {
+            decode_ns,
+            checks_ns,
+            track_ns,
+            plan_ns,
+            ..self.record(now, frame_no, end, pulses, delay, pose.position)
+        };
         self.command(now, pulses, record, pose.position);
     }
 
-    /// A cycle's record, stage timings other than decode left at zero.
+    /// A cycle's record, its stage timings left at zero.
     fn record(&mut self, now: HostTime, frame: u32, end: CtrlTime, pulses: [i32; 2], delay: f64, at: C) -> CycleRecord {
         CycleRecord {
             cycle: self.counters.cycles,
             frame,
             t_ctrl_us: end.0,
             rx_ns: now.as_nanos(),
-            decode_ns: std::mem::take(&mut self.decode_ns),
             period_ns: self.last_command.map_or(0, |lc| now.since(lc).as_nanos() as u64),
             delay_s: delay,
             state: self.state(),
@@ -982,11 +1007,14 @@ impl<K: StageClock> Core<K> {
         self.clear_frame();
     }
 
-    fn command(&mut self, now: HostTime, pulses: [i32; 2], record: CycleRecord, position: C) {
+    fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: C) {
+        let encode_start = self.clock.now_ns();
         let message =
             MotorMessage::Velocity { node: self.rig.node, left: pulses[0], right: pulses[1], seq: self.velocity_seq };
         self.velocity_seq = self.velocity_seq.wrapping_add(1);
-        let Ok(frame) = message.to_frame() else {
+        let frame = message.to_frame();
+        record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
+        let Ok(frame) = frame else {
             // Pulse rates come from the drive model clamped to the wheel limit, which the
             // config keeps in range; a frame that cannot be built is a planner fault.
             self.stop(now, StopReason::PlannerInvalid);

@@ -15,6 +15,7 @@
 
 pub mod control_socket;
 pub mod core;
+pub mod low_latency;
 pub mod operator;
 pub mod psd_session;
 pub mod safety;
@@ -123,6 +124,9 @@ pub struct Report {
     pub e2e: telemetry::Distribution,
     pub period: telemetry::Distribution,
     pub deadline_misses: u64,
+    /// Each stage of a cycle: min, p50, p99, max, mean, jitter (σ), µs (empty in virtual
+    /// time, where the stages take none).
+    pub stages: Vec<telemetry::StageSummary>,
     /// The control period the schedule gives, s.
     pub sample_time: f64,
     pub counters: Counters,
@@ -147,6 +151,7 @@ impl Report {
             e2e: timing.map(telemetry::Timing::e2e).unwrap_or_default(),
             period: timing.map(telemetry::Timing::period).unwrap_or_default(),
             deadline_misses: timing.map_or(0, |t| t.deadline_misses),
+            stages: timing.map(telemetry::Timing::stages).unwrap_or_default(),
             sample_time: core.rig().sample_period.as_secs_f64(),
             counters,
             files,
@@ -178,6 +183,9 @@ impl std::fmt::Display for Report {
             self.period.max_us / 1e3,
             self.period.stdev_us
         )?;
+        if self.stages.iter().any(|s| s.max_us > 0.0) {
+            telemetry::write_stage_table(f, &self.stages, "stages (µs)      ")?;
+        }
         writeln!(
             f,
             "serial           {} samples, {} bad frames, {} bytes dropped, {} reconnects",

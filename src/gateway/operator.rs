@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! {"cmd":"status"}   {"cmd":"arm"}   {"cmd":"start"}   {"cmd":"stop"}   {"cmd":"estop"}
-//! {"cmd":"reset"}    {"cmd":"cancel"}
+//! {"cmd":"reset"}    {"cmd":"cancel"}    {"cmd":"stats"}    {"cmd":"stats","reset":true}
 //! {"cmd":"goal","goals":[{"position":[0.6,0.0],"tolerance":0.02}, ...]}   (one goal, or a queue)
 //! ```
 //!
@@ -40,6 +40,20 @@ pub enum Request {
     Goal { goals: Vec<Goal> },
     /// Drop the goals; a running robot stops in order.
     Cancel,
+    /// The status with the cycle latency and each stage's statistics since the start (or
+    /// the last reset); with `reset`, a new window starts after the answer. Changes nothing
+    /// else: the run's report still covers the whole run.
+    Stats {
+        #[serde(default)]
+        reset: bool,
+    },
+}
+
+impl Request {
+    /// Asks only for information: changes nothing, goes unlogged.
+    pub fn is_query(&self) -> bool {
+        matches!(self, Request::Status | Request::Stats { .. })
+    }
 }
 
 /// Why a request was refused: exactly, so the operator knows what to do.
@@ -89,4 +103,7 @@ pub struct Status {
     /// Cycle latency so far, serial read to CAN write done (filled in by the rig's shell,
     /// which measures it; none in virtual time).
     pub latency_us: Option<super::telemetry::Distribution>,
+    /// Each stage's statistics over the same cycles (`stats` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stages: Option<Vec<super::telemetry::StageSummary>>,
 }

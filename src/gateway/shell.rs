@@ -13,6 +13,7 @@ use tokio::time::{timeout, Instant};
 
 use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
+use super::low_latency::{SpinWindow, Wait};
 use super::operator::Request;
 use super::telemetry::{self, CanRecord, Record, Recorder, Timing};
 use super::{GatewayError, Progress, Report};
@@ -81,6 +82,10 @@ struct Io {
     progress: Option<watch::Sender<Progress>>,
     sample_period: Duration,
     next_reopen: HostTime,
+    /// The low-latency mode's window, when it is on.
+    spin: Option<SpinWindow>,
+    /// Where the operator's stats window starts (`ctl stats --reset`); none: the run's start.
+    stats_from: Option<Timing>,
 }
 
 impl Io {
@@ -117,6 +122,9 @@ impl Io {
                     }
                 }
                 Output::Command { frame, mut record } => {
+                    if let Some(spin) = &mut self.spin {
+                        spin.frame(self.origin.into_std() + Duration::from_nanos(record.rx_ns));
+                    }
                     let started = Instant::now();
                     let sent = self.send_can(frame).await;
                     record.written(started.elapsed().as_nanos() as u64, self.now(), self.sample_period);
@@ -198,16 +206,27 @@ impl Io {
     fn handle<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
         let now = self.now();
         let result = core.request(now, &cmd.request);
-        let status = (cmd.request == Request::Status || result.is_ok()).then(|| {
+        let status = (cmd.request.is_query() || result.is_ok()).then(|| {
             let mut status = core.status(now);
             status.latency_us = (self.timing.cycles > 0).then(|| self.timing.e2e());
+            if let Request::Stats { reset } = cmd.request {
+                let window = match &self.stats_from {
+                    Some(base) => self.timing.since(base),
+                    None => self.timing.clone(),
+                };
+                status.latency_us = (window.cycles > 0).then(|| window.e2e());
+                status.stages = Some(window.stages());
+                if reset {
+                    self.stats_from = Some(self.timing.clone());
+                }
+            }
             status
         });
         let text = match &result {
             Ok(()) => format!("{}: {:?} accepted", cmd.peer, cmd.request),
             Err(e) => format!("{}: {:?} refused: {e}", cmd.peer, cmd.request),
         };
-        if cmd.request != Request::Status {
+        if !cmd.request.is_query() {
             match &result {
                 Ok(()) => tracing::info!("{text}"),
                 Err(_) => tracing::warn!("{text}"),
@@ -316,6 +335,8 @@ pub async fn run(
         progress,
         sample_period: rig.sample_period,
         next_reopen: HostTime::NEVER,
+        spin: rig.spin.map(SpinWindow::new),
+        stats_from: None,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
     if controls.arm_at_start {
@@ -333,6 +354,7 @@ pub async fn run(
             break;
         }
         let wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen));
+        let spin = io.spin.as_ref().map_or(Wait::Sleep, |s| s.wait(std::time::Instant::now()));
         tokio::select! {
             read = async {
                 match io.psd.as_mut() {
@@ -383,6 +405,8 @@ pub async fn run(
                 core.tick(now);
             }
             Some(cmd) = controls.requests.recv() => io.handle(&mut core, cmd),
+            // Low-latency mode: poll for the frame due now instead of sleeping to it.
+            () = spin.pause() => {}
             changed = controls.shutdown.changed(), if !shutdown_seen => {
                 // A dropped sender is a shutdown too: nobody is left to ask for one.
                 if changed.is_err() || *controls.shutdown.borrow() {

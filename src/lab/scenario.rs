@@ -159,6 +159,7 @@ impl Scenario {
             safety: SafetyConfig { pose_timeout_ms, sample_timeout_ms, ..safety },
             telemetry: TelemetryConfig { out_dir, ..TelemetryConfig::default() },
             operator: OperatorConfig::default(),
+            realtime: Default::default(),
         }
     }
 }

@@ -10,6 +10,7 @@
 //! time of the same traffic, so a user can read off whether flowgate, the host or the wire
 //! is the bottleneck.
 
+pub mod null_gateway;
 mod pace;
 mod peers;
 
@@ -20,10 +21,12 @@ use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage, NodeId};
 use flowgate_protocol::psd;
 use hdrhistogram::Histogram;
 use serde::Serialize;
-use tokio::io::AsyncReadExt;
 
+use null_gateway::NullGatewayProcess;
 use pace::Pacer;
-use peers::{CanSide, Controller, NullGateway, Stamped, ToBus};
+use peers::{CanSide, Controller, Stamped, ToBus};
+
+use crate::gateway::telemetry::StageSummary;
 
 /// The PSD line's baud rate and the CAN bitrate the wire times are stated for.
 pub const BAUD: u32 = 921_600;
@@ -33,6 +36,9 @@ pub const CAN_BITRATE: u32 = 1_000_000;
 #[derive(Debug, Clone, Serialize)]
 pub struct Phase {
     pub name: String,
+    /// The gateway's low-latency window (`[realtime] spin_us`) in this phase, if it was on;
+    /// its null gateway then polls the same way.
+    pub spin_us: Option<u32>,
     /// Time-division frames per second the controller sent.
     pub frame_rate_hz: f64,
     pub samples_per_s: f64,
@@ -41,14 +47,19 @@ pub struct Phase {
     /// Cycles whose command came back after the next frame was due (latency > period), %.
     pub late_percent: f64,
     pub latency_us: Percentiles,
-    /// The same rate through the null gateway (same endpoints, no work): what the pty, the
-    /// scheduler and the CAN transport cost on this machine. `None` for phases run for
-    /// memory only.
+    /// The same rate through the null gateway (same endpoints, no work, its own process):
+    /// what the pty, the scheduler and the CAN transport cost on this machine. `None` for
+    /// phases run for memory only.
     pub floor: Option<Floor>,
+    /// The gateway's latency minus the floor's, quantile by quantile: what flowgate adds.
+    pub added_us: Option<Percentiles>,
     /// Gateway CPU over the phase, percent of one core.
     pub cpu_percent: f64,
     /// Gateway resident set size: at the start, peak and at the end of the phase, MB.
     pub rss_mb: [f64; 3],
+    /// Each stage of the gateway's cycles in this phase, as its loop measured them
+    /// (`flowgate ctl stats`).
+    pub stages: Vec<StageSummary>,
 }
 
 /// The null gateway's figures at one rate.
@@ -57,7 +68,7 @@ pub struct Floor {
     pub commands_received: u64,
     pub late_percent: f64,
     pub latency_us: Percentiles,
-    /// The null gateway's thread, percent of one core: the I/O alone.
+    /// The null gateway's process, percent of one core: the I/O alone.
     pub cpu_percent: f64,
 }
 
@@ -67,8 +78,11 @@ pub struct PhaseSpec {
     pub name: &'static str,
     pub frame_rate_hz: f64,
     pub cycles: u64,
-    /// Also run it through the null gateway first.
+    /// Also run it through the null gateway, block by block.
     pub floor: bool,
+    /// Also run it, in the same seconds, through a second gateway in low-latency mode with
+    /// this window (and a null gateway polling the same way): a second row.
+    pub low_latency_us: Option<u32>,
 }
 
 /// Where the gateway's CAN commands go.
@@ -152,8 +166,10 @@ pub struct BenchReport {
     /// The same, but late no more often than the null gateway plus one point: the rates at
     /// which flowgate itself is not the bottleneck.
     pub sustained_vs_floor_samples_per_s: f64,
-    /// The gateway's states over the run, in order (from its output).
+    /// The gateway's states over the run, in order (from its output), and the low-latency
+    /// gateway's over its phase.
     pub gateway_states: Vec<String>,
+    pub gateway_states_low_latency: Vec<String>,
     pub planner_note: &'static str,
 }
 
@@ -178,25 +194,111 @@ fn proc_stat(dir: &str) -> (f64, f64) {
 /// The gateway's configuration for the bench. Its watchdogs are set long (30 s, the board's
 /// timeout beyond them as the config requires): it idles while the null gateway has its
 /// turn, and under emulation (vcan in the VM) a turn can stretch; the watchdogs themselves
-/// are tested in tests/fault_table.rs.
-fn rig_toml(psd: &Path, can_endpoint: &str, slot_us: u32) -> String {
+/// are tested in tests/fault_table.rs. Its control socket answers the bench's `stats`.
+fn rig_toml(psd: &Path, can_endpoint: &str, socket: &Path, spin_us: u32) -> String {
     let h = flowgate_sim::calibration::CameraModel::default().homography;
+    // The schedule's period only bounds the low-latency window (twice it must fit in T);
+    // the bench streams at its own rates.
+    let slot_us = 500.max(spin_us + 100);
     format!(
         "[serial]\nport = \"{}\"\n[leds]\nrobot_front = 1\nrobot_rear = 2\nfront_offset = 0.035\nrear_offset = 0.035\n\
          [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\n\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
-         [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n",
+         [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
+         [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\n",
         psd.display(),
+        socket.display(),
     )
 }
 
-/// One side of the comparison: a PSD pty and a CAN side, and the /proc entry whose CPU
-/// time counts (the gateway process, or the null gateway's thread).
+/// A gateway process (`flowgate run --arm`), as the bench drives it.
+struct GatewayProcess {
+    child: tokio::process::Child,
+    log: std::path::PathBuf,
+    socket: std::path::PathBuf,
+}
+
+impl GatewayProcess {
+    /// Start it on `target`'s endpoints and bring it up: answer its requests, be a live
+    /// board, stream at 50 Hz until it commands.
+    async fn start(exe: &Path, target: &mut Target, workdir: &Path, name: &str, spin_us: u32) -> std::io::Result<Self> {
+        let config = workdir.join(format!("{name}.toml"));
+        let socket = workdir.join(format!("{name}.sock"));
+        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, &socket, spin_us))?;
+        let log = workdir.join(format!("{name}.log"));
+        let mut child = tokio::process::Command::new(exe)
+            .args(["run", "--arm", "--config"])
+            .arg(&config)
+            .stdout(std::fs::File::create(&log)?)
+            .kill_on_drop(true)
+            .spawn()?;
+        target.proc_dir = format!("/proc/{}", child.id().unwrap_or(0));
+        let board = target.can.board();
+        let started = Instant::now();
+        let mut pacer = Pacer::new(Duration::from_millis(20));
+        let mut commands = 0;
+        while commands < 20 {
+            if started.elapsed() > Duration::from_secs(15) {
+                let _ = child.kill().await;
+                return Err(std::io::Error::other(format!("{name} did not start commanding within 15 s")));
+            }
+            if let Some(status) = child.try_wait()? {
+                let said = std::fs::read_to_string(&log).unwrap_or_default();
+                return Err(std::io::Error::other(format!("{name} exited ({status}) while starting: {}", said.trim())));
+            }
+            pacer.wait();
+            board_alive(&board);
+            target.controller.frame()?;
+            commands += target.can.commands.try_iter().count();
+        }
+        Ok(Self { child, log, socket })
+    }
+
+    /// Its stage statistics since the last call (`flowgate ctl stats --reset` over its
+    /// control socket), within 2 s.
+    async fn stages(&self) -> std::io::Result<Vec<StageSummary>> {
+        use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
+        let ask = async {
+            let mut stream = tokio::net::UnixStream::connect(&self.socket).await?;
+            stream.write_all(b"{\"cmd\":\"stats\",\"reset\":true}\n").await?;
+            let mut line = String::new();
+            tokio::io::BufReader::new(stream).read_line(&mut line).await?;
+            let reply: serde_json::Value = serde_json::from_str(&line).map_err(std::io::Error::other)?;
+            let stages = reply["status"]["stages"].clone();
+            serde_json::from_value::<Vec<StageSummary>>(stages)
+                .map_err(|e| std::io::Error::other(format!("stats reply {}: {e}", line.trim())))
+        };
+        tokio::time::timeout(Duration::from_secs(2), ask)
+            .await
+            .map_err(|_| std::io::Error::other(format!("{}: no stats within 2 s", self.socket.display())))?
+    }
+
+    /// Stop it; its state lines ("state: running", ...) say why it stopped commanding, if it did.
+    async fn stop(mut self) -> Vec<String> {
+        let _ = self.child.kill().await;
+        std::fs::read_to_string(&self.log)
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| l.strip_prefix("state: ").map(str::to_string))
+            .collect()
+    }
+}
+
+/// One side of the comparison: a PSD pty and a CAN side, and the /proc entry of the process
+/// whose CPU time counts.
 struct Target {
     controller: Controller,
     can: CanSide,
     proc_dir: String,
+    /// The bench's CAN reader polls during this target's blocks (the low-latency rows).
+    poll_can: bool,
+}
+
+impl Target {
+    fn new(transport: &Transport, poll_can: bool) -> std::io::Result<Self> {
+        Ok(Self { controller: Controller::new()?, can: can_side(transport)?, proc_dir: String::new(), poll_can })
+    }
 }
 
 /// What the blocks of one phase measured on one target.
@@ -231,20 +333,34 @@ impl Tally {
     fn late_percent(&self) -> f64 {
         100.0 * self.late as f64 / self.sent.max(1) as f64
     }
+
+    fn cpu_percent(&self) -> f64 {
+        100.0 * self.cpu_s / self.elapsed_s.max(1e-9)
+    }
+
+    fn floor(&self) -> Floor {
+        Floor {
+            commands_received: self.received,
+            late_percent: self.late_percent(),
+            latency_us: self.percentiles(),
+            cpu_percent: self.cpu_percent(),
+        }
+    }
 }
 
 /// Send `cycles` frames, one per `period`, to one target, and match the k-th command to the
-/// k-th frame (one command per frame, in order). The gateway's board (`board`) says it is
-/// alive at the start and about once a second, whichever target runs.
+/// k-th frame (one command per frame, in order). Every gateway's board (`boards`) says it
+/// is alive at the start and about once a second, whichever target runs.
 async fn block(
     target: &mut Target,
     period: Duration,
     cycles: u64,
     tally: &mut Tally,
-    board: &ToBus,
+    boards: &[ToBus],
 ) -> std::io::Result<()> {
     target.can.drain();
-    board_alive(board);
+    target.can.poll(target.poll_can);
+    boards.iter().for_each(board_alive);
     let cpu0 = proc_stat(&target.proc_dir).0;
     let mut written: Vec<Instant> = Vec::with_capacity(cycles as usize);
     let mut commands: Vec<Stamped> = Vec::with_capacity(cycles as usize);
@@ -253,12 +369,12 @@ async fn block(
     let mut pacer = Pacer::new(period);
     for _ in 0..cycles {
         pacer.wait();
-        target.controller.frame().await?;
+        target.controller.frame()?;
         let now = Instant::now();
         written.push(now);
         if now >= next_second {
             next_second += Duration::from_secs(1);
-            board_alive(board);
+            boards.iter().for_each(board_alive);
         }
         commands.extend(target.can.commands.try_iter());
     }
@@ -269,6 +385,7 @@ async fn block(
             commands.push(c);
         }
     }
+    target.can.poll(false);
     let (cpu1, rss) = proc_stat(&target.proc_dir);
     // Paced time: first deadline to the last frame, plus the period that frame owns.
     tally.elapsed_s += written.last().map_or(0.0, |t| t.duration_since(start).as_secs_f64()) + period.as_secs_f64();
@@ -304,13 +421,87 @@ fn can_side(transport: &Transport) -> std::io::Result<CanSide> {
     }
 }
 
-/// How long each target runs before the other takes over: short enough that both see the
+/// How long each target runs before the next takes over: short enough that all see the
 /// same moments of a noisy host, and far inside the idle gateway's watchdogs.
 const BLOCK: Duration = Duration::from_millis(500);
 
-/// Run the benchmark. The gateway (`gateway_exe run`) and the null gateway each get their
-/// own PSD pty and CAN side; every phase alternates between them in blocks of [`BLOCK`],
-/// so the floor is measured over the same seconds as the gateway.
+/// A gateway and its floor: two processes, each with its own PSD pty and CAN side.
+struct Pair {
+    gateway: Target,
+    process: GatewayProcess,
+    floor: Target,
+    null: NullGatewayProcess,
+}
+
+impl Pair {
+    async fn start(
+        exe: &Path,
+        transport: &Transport,
+        workdir: &Path,
+        name: &str,
+        spin_us: u32,
+    ) -> std::io::Result<Self> {
+        let mut floor = Target::new(transport, spin_us > 0)?;
+        let spin = (spin_us > 0).then(|| Duration::from_micros(u64::from(spin_us)));
+        let null = NullGatewayProcess::start(exe, &floor.controller.path, &floor.can.endpoint, spin).await?;
+        floor.proc_dir = null.proc_dir();
+        let mut gateway = Target::new(transport, spin_us > 0)?;
+        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, spin_us).await?;
+        Ok(Self { gateway, process, floor, null })
+    }
+
+    /// The gateway's states over its run.
+    async fn stop(self) -> Vec<String> {
+        self.null.stop().await;
+        self.process.stop().await
+    }
+}
+
+/// One pair's figures in one phase.
+struct PairTally {
+    gateway: Tally,
+    floor: Tally,
+    rss0: f64,
+}
+
+impl PairTally {
+    fn new(pair: &Pair) -> Self {
+        Self { gateway: Tally::new(), floor: Tally::new(), rss0: proc_stat(&pair.gateway.proc_dir).1 }
+    }
+
+    async fn phase(self, pair: &Pair, spec: &PhaseSpec, name: String, spin_us: Option<u32>) -> std::io::Result<Phase> {
+        let (g, f) = (&self.gateway, &self.floor);
+        let rss1 = proc_stat(&pair.gateway.proc_dir).1;
+        let floor = spec.floor.then(|| f.floor());
+        let (gp, fp) = (g.percentiles(), f.percentiles());
+        Ok(Phase {
+            name,
+            spin_us,
+            frame_rate_hz: g.sent as f64 / g.elapsed_s,
+            samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
+            cycles_sent: g.sent,
+            commands_received: g.received,
+            late_percent: g.late_percent(),
+            latency_us: gp,
+            added_us: floor.map(|_| Percentiles {
+                p50: gp.p50 - fp.p50,
+                p99: gp.p99 - fp.p99,
+                p999: gp.p999 - fp.p999,
+                max: gp.max - fp.max,
+            }),
+            floor,
+            cpu_percent: g.cpu_percent(),
+            rss_mb: [self.rss0, g.rss_peak_mb.max(rss1), rss1],
+            stages: pair.process.stages().await?,
+        })
+    }
+}
+
+/// Run the benchmark. The gateway (`gateway_exe run`) and the null gateway (`gateway_exe
+/// null-gateway`) are each their own process with their own PSD pty and CAN side; every
+/// phase alternates between them in blocks of [`BLOCK`], so the floor is measured over the
+/// same seconds as the gateway. A phase with a low-latency window adds a second pair in
+/// that mode to the rotation, started for that phase only.
 pub async fn run(
     gateway_exe: &Path,
     transport: &Transport,
@@ -318,100 +509,55 @@ pub async fn run(
     workdir: &Path,
 ) -> std::io::Result<BenchReport> {
     std::fs::create_dir_all(workdir)?;
-    let mut gateway = Target { controller: Controller::new(), can: can_side(transport)?, proc_dir: String::new() };
-    let mut floor = Target { controller: Controller::new(), can: can_side(transport)?, proc_dir: String::new() };
-    let null = NullGateway::start(floor.controller.path.clone(), &floor.can.endpoint)?;
-    floor.proc_dir = format!("/proc/self/task/{}", null.tid);
-
-    let config = workdir.join("bench-rig.toml");
-    std::fs::write(&config, rig_toml(&gateway.controller.path, &gateway.can.endpoint, 500))?;
-    let gateway_log = workdir.join("gateway.log");
-    let mut child = tokio::process::Command::new(gateway_exe)
-        .args(["run", "--arm", "--config"])
-        .arg(&config)
-        .stdout(std::fs::File::create(&gateway_log)?)
-        .kill_on_drop(true)
-        .spawn()?;
-    gateway.proc_dir = format!("/proc/{}", child.id().unwrap_or(0));
-    let board = gateway.can.board();
-
-    // Bring-up: answer its requests, be a live board, stream at 50 Hz until it commands.
-    let mut next_frame = Instant::now();
-    let bring_up_end = next_frame + Duration::from_secs(15);
-    let mut commands = 0;
-    let mut psd_in = [0u8; 4096];
-    while commands < 20 {
-        if Instant::now() > bring_up_end {
-            let _ = child.kill().await;
-            return Err(std::io::Error::other("the gateway did not start commanding within 15 s"));
-        }
-        if let Some(status) = child.try_wait()? {
-            let log = std::fs::read_to_string(&gateway_log).unwrap_or_default();
-            return Err(std::io::Error::other(format!("the gateway exited ({status}) while starting: {}", log.trim())));
-        }
-        if Instant::now() >= next_frame {
-            next_frame += Duration::from_millis(20);
-            board_alive(&board);
-            gateway.controller.frame().await?;
-        }
-        commands += gateway.can.commands.try_iter().count();
-        let wait = tokio::time::Instant::from_std(next_frame.min(Instant::now() + Duration::from_millis(5)));
-        tokio::select! {
-            n = gateway.controller.port.read(&mut psd_in) => {
-                let n = n?;
-                let b = psd_in[..n].to_vec();
-                gateway.controller.serve(&b).await;
-            }
-            _ = tokio::time::sleep_until(wait) => {}
-        }
-    }
-
+    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", 0).await?;
     let mut report_phases = Vec::new();
+    let mut states_low_latency = Vec::new();
     for spec in phases {
+        let mut low = match spec.low_latency_us {
+            Some(us) => Some(Pair::start(gateway_exe, transport, workdir, "gateway-low-latency", us).await?),
+            None => None,
+        };
+        let boards: Vec<ToBus> = std::iter::once(&main).chain(low.as_ref()).map(|p| p.gateway.can.board()).collect();
         let period = Duration::from_secs_f64(1.0 / spec.frame_rate_hz);
         let per_block = ((BLOCK.as_secs_f64() * spec.frame_rate_hz) as u64).clamp(1, spec.cycles);
-        let (mut g, mut f) = (Tally::new(), Tally::new());
-        let rss0 = proc_stat(&gateway.proc_dir).1;
+        // The stage statistics start with the phase.
+        main.process.stages().await?;
+        if let Some(l) = &low {
+            l.process.stages().await?;
+        }
+        let mut m = PairTally::new(&main);
+        let mut l = low.as_ref().map(PairTally::new);
         let mut left = spec.cycles;
         while left > 0 {
             let n = per_block.min(left);
             left -= n;
             if spec.floor {
-                block(&mut floor, period, n, &mut f, &board).await?;
+                block(&mut main.floor, period, n, &mut m.floor, &boards).await?;
             }
-            block(&mut gateway, period, n, &mut g, &board).await?;
-            floor.can.drain(); // on a shared bus (vcan) it heard the gateway's commands too
+            block(&mut main.gateway, period, n, &mut m.gateway, &boards).await?;
+            if let (Some(pair), Some(tally)) = (&mut low, &mut l) {
+                block(&mut pair.floor, period, n, &mut tally.floor, &boards).await?;
+                block(&mut pair.gateway, period, n, &mut tally.gateway, &boards).await?;
+            }
+            // On a shared bus (vcan) each side heard the others' commands too.
+            main.floor.can.drain();
+            if let Some(pair) = &low {
+                pair.floor.can.drain();
+                pair.gateway.can.drain();
+            }
         }
-        let rss1 = proc_stat(&gateway.proc_dir).1;
-        report_phases.push(Phase {
-            name: spec.name.to_string(),
-            frame_rate_hz: g.sent as f64 / g.elapsed_s,
-            samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
-            cycles_sent: g.sent,
-            commands_received: g.received,
-            late_percent: g.late_percent(),
-            latency_us: g.percentiles(),
-            floor: spec.floor.then(|| Floor {
-                commands_received: f.received,
-                late_percent: f.late_percent(),
-                latency_us: f.percentiles(),
-                cpu_percent: 100.0 * f.cpu_s / f.elapsed_s.max(1e-9),
-            }),
-            cpu_percent: 100.0 * g.cpu_s / g.elapsed_s.max(1e-9),
-            rss_mb: [rss0, g.rss_peak_mb.max(rss1), rss1],
-        });
+        report_phases.push(m.phase(&main, spec, spec.name.to_string(), None).await?);
+        if let (Some(pair), Some(tally)) = (low.take(), l) {
+            let name = format!("{}, low-latency", spec.name);
+            report_phases.push(tally.phase(&pair, spec, name, spec.low_latency_us).await?);
+            states_low_latency = pair.stop().await;
+        }
     }
-    drop(null);
-    let _ = child.kill().await;
-    // Its state lines ("state: running", ...): a gateway that stopped commanding says why.
-    let gateway_states: Vec<String> = std::fs::read_to_string(&gateway_log)
-        .unwrap_or_default()
-        .lines()
-        .filter_map(|l| l.strip_prefix("state: ").map(str::to_string))
-        .collect();
+    let gateway_states = main.stop().await;
     // Sustained: the highest rate that passes with every slower latency phase passing too.
     let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
-        let mut latency_phases: Vec<&Phase> = report_phases.iter().filter(|p| p.floor.is_some()).collect();
+        let mut latency_phases: Vec<&Phase> =
+            report_phases.iter().filter(|p| p.floor.is_some() && p.spin_us.is_none()).collect();
         latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
         latency_phases
             .iter()
@@ -434,6 +580,7 @@ pub async fn run(
         sustained_samples_per_s: sustained,
         sustained_vs_floor_samples_per_s: sustained_vs_floor,
         gateway_states,
+        gateway_states_low_latency: states_low_latency,
         planner_note: "planner per-evaluation figures: cargo bench --bench planner (README)",
     })
 }
@@ -454,7 +601,7 @@ impl std::fmt::Display for BenchReport {
         )?;
         writeln!(
             f,
-            "{:<17} {:>9} {:>9} {:>7} {:>7} {:>7} {:>7} {:>8} {:>7} {:>6} {:>13} {:>26} {:>5} {:>9}",
+            "{:<30} {:>9} {:>9} {:>7} {:>7} {:>7} {:>7} {:>8} {:>7} {:>6} {:>13} {:>26} {:>5} {:>9}",
             "phase",
             "samples/s",
             "cycles",
@@ -484,7 +631,7 @@ impl std::fmt::Display for BenchReport {
                 p.floor.map_or("-".into(), |fl| (p.cycles_sent - fl.commands_received.min(p.cycles_sent)).to_string());
             writeln!(
                 f,
-                "{:<17} {:>9.0} {:>9} {:>7} {:>7.2} {:>7.0} {:>7.0} {:>8.0} {:>7.0} {:>6.1} {:>4.1}/{:>4.1}/{:>4.1} {:>26} {:>5} {:>9.2}",
+                "{:<30} {:>9.0} {:>9} {:>7} {:>7.2} {:>7.0} {:>7.0} {:>8.0} {:>7.0} {:>6.1} {:>4.1}/{:>4.1}/{:>4.1} {:>26} {:>5} {:>9.2}",
                 p.name,
                 p.samples_per_s,
                 p.cycles_sent,
@@ -503,14 +650,43 @@ impl std::fmt::Display for BenchReport {
                 p.latency_us.p50 / self.wire_per_cycle_us
             )?;
         }
+        writeln!(f, "\nwhat flowgate adds: the gateway's latency minus its floor's, quantile by quantile (µs)")?;
+        writeln!(f, "{:<30} {:>8} {:>8} {:>8}", "phase", "p50", "p99", "p99.9")?;
+        for p in &self.phases {
+            if let Some(a) = &p.added_us {
+                writeln!(f, "{:<30} {:>8.0} {:>8.0} {:>8.0}", p.name, a.p50, a.p99, a.p999)?;
+            }
+        }
+        writeln!(f, "\nthe gateway's stages, as its loop measured them (µs, p50 / p99)")?;
+        write!(f, "{:<30}", "phase")?;
+        for s in self.phases.first().map_or(&[][..], |p| &p.stages[..]) {
+            write!(f, " {:>15}", s.stage)?;
+        }
+        writeln!(f)?;
+        for p in &self.phases {
+            write!(f, "{:<30}", p.name)?;
+            for s in &p.stages {
+                write!(f, " {:>15}", format!("{:.2} / {:.2}", s.p50_us, s.p99_us))?;
+            }
+            writeln!(f)?;
+        }
+        writeln!(f)?;
         writeln!(f, "lost: frames with no command; late: command after the next frame was due")?;
-        writeln!(f, "floor: the same rate through a null gateway (same endpoints, no work): the pty, scheduler and CAN transport alone")?;
+        writeln!(f, "floor: the same rate through a null gateway (its own process, same endpoints, no work): the pty, scheduler and CAN transport alone")?;
         writeln!(
             f,
             "p50/wire: median gateway-added latency over the wire time of one sample frame plus one command ({:.0} µs)",
             self.wire_per_cycle_us
         )?;
         writeln!(f, "gateway states: {}", self.gateway_states.join(" -> "))?;
+        if let Some(p) = self.phases.iter().find(|p| p.spin_us.is_some()) {
+            writeln!(
+                f,
+                "low-latency: a second gateway with [realtime] spin_us = {} (and its null gateway polling the same way), in the same seconds; its states: {}",
+                p.spin_us.unwrap_or(0),
+                self.gateway_states_low_latency.join(" -> ")
+            )?;
+        }
         writeln!(
             f,
             "sustained (with every slower phase): {:.0} samples/s with nothing lost and under 1% late; {:.0} samples/s with nothing lost and late no more than the floor + 1 point",
