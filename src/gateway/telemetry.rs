@@ -345,9 +345,10 @@ pub struct Timing {
     pub cycles: u64,
 }
 
-/// Histogram bounds: 1 ns to 60 s at three significant digits.
-fn histogram() -> Histogram<u64> {
-    Histogram::new_with_bounds(1, 60_000_000_000, 3).expect("bounds")
+/// Histogram bounds: 1 ns to 60 s at three significant digits (0.1%; the latency and the
+/// period) or two (1%, the stages: a sixth of the memory, which `ctl stats` windows copy).
+fn histogram(digits: u8) -> Histogram<u64> {
+    Histogram::new_with_bounds(1, 60_000_000_000, digits).expect("bounds")
 }
 
 /// Percentiles, µs.
@@ -364,9 +365,9 @@ pub struct Distribution {
 impl Default for Timing {
     fn default() -> Self {
         Self {
-            e2e: histogram(),
-            period: histogram(),
-            stages: std::array::from_fn(|_| histogram()),
+            e2e: histogram(3),
+            period: histogram(3),
+            stages: std::array::from_fn(|_| histogram(2)),
             deadline_misses: 0,
             cycles: 0,
         }
@@ -484,6 +485,10 @@ mod tests {
         }
     }
 
+    fn near(value: f64, expected: f64) -> bool {
+        (value - expected).abs() <= 0.01 * expected
+    }
+
     fn stage<'a>(stages: &'a [StageSummary], name: &str) -> &'a StageSummary {
         stages.iter().find(|s| s.stage == name).unwrap()
     }
@@ -498,12 +503,12 @@ mod tests {
         let names: Vec<&str> = stages.iter().map(|s| s.stage.as_str()).collect();
         assert_eq!(names, ["decode", "checks", "track", "plan", "encode", "can_write"]);
         let plan = stage(&stages, "plan");
-        // HDR histograms at three significant digits: values within 0.1%.
-        assert!((plan.min_us - 4.0).abs() < 0.01 && (plan.p50_us - 4.0).abs() < 0.01, "{plan:?}");
-        assert!((plan.max_us - 12.0).abs() < 0.02 && (plan.p99_us - 12.0).abs() < 0.02, "{plan:?}");
-        assert!((plan.mean_us - 6.0).abs() < 0.01, "{plan:?}");
+        // Stage histograms keep two significant digits: values within 1%.
+        assert!(near(plan.min_us, 4.0) && near(plan.p50_us, 4.0), "{plan:?}");
+        assert!(near(plan.max_us, 12.0) && near(plan.p99_us, 12.0), "{plan:?}");
+        assert!(near(plan.mean_us, 6.0), "{plan:?}");
         // σ of 4, 4, 4, 12 µs is sqrt(12) µs.
-        assert!((plan.jitter_us - 12f64.sqrt()).abs() < 0.01, "{plan:?}");
+        assert!(near(plan.jitter_us, 12f64.sqrt()), "{plan:?}");
     }
 
     #[test]
@@ -516,10 +521,11 @@ mod tests {
         let window = t.since(&base);
         assert_eq!(window.cycles, 2);
         let decode = stage(&window.stages(), "decode").clone();
-        assert!((decode.min_us - 1.0).abs() < 0.01 && (decode.max_us - 2.0).abs() < 0.01, "{decode:?}");
-        assert!((window.e2e().max_us - 40.0).abs() < 0.1);
+        assert!(near(decode.min_us, 1.0) && near(decode.max_us, 2.0), "{decode:?}");
+        // The latency keeps three digits: within 0.1%.
+        assert!((window.e2e().max_us - 40.0).abs() < 0.04);
         // The run's own figures keep everything.
         assert_eq!(t.cycles, 3);
-        assert!((stage(&t.stages(), "decode").max_us - 10.0).abs() < 0.02);
+        assert!(near(stage(&t.stages(), "decode").max_us, 10.0));
     }
 }

@@ -224,7 +224,11 @@ impl GatewayProcess {
     /// board, stream at 50 Hz until it commands.
     async fn start(exe: &Path, target: &mut Target, workdir: &Path, name: &str, spin_us: u32) -> std::io::Result<Self> {
         let config = workdir.join(format!("{name}.toml"));
-        let socket = workdir.join(format!("{name}.sock"));
+        // Sockets in the temporary directory: the output folder may be on a file system
+        // without them (the VM's 9p share, where scripts/vcan-vm runs the bench).
+        let sockets = std::env::temp_dir().join(format!("flowgate-bench-{}", std::process::id()));
+        std::fs::create_dir_all(&sockets)?;
+        let socket = sockets.join(format!("{name}.sock"));
         std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, &socket, spin_us))?;
         let log = workdir.join(format!("{name}.log"));
         let mut child = tokio::process::Command::new(exe)
