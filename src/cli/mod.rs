@@ -1,6 +1,7 @@
 #[cfg(feature = "lab")]
 pub mod bench;
 pub mod ctl;
+pub mod logging;
 #[cfg(feature = "lab")]
 pub mod demo;
 #[cfg(feature = "lab")]

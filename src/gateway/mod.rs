@@ -20,6 +20,7 @@ pub mod operator;
 pub mod psd_session;
 pub mod safety;
 pub mod shell;
+pub mod systemd;
 pub mod telemetry;
 
 use serde::Serialize;
@@ -44,6 +45,8 @@ pub enum GatewayError {
     Telemetry { path: String, source: std::io::Error },
     #[error(transparent)]
     ControlSocket(#[from] control_socket::ControlSocketError),
+    #[error("systemd notification: {0}")]
+    Notify(#[from] systemd::NotifyError),
 }
 
 /// What the gateway shows while it runs (for a live display). Receivers are woken when the

@@ -14,6 +14,7 @@ use tokio::time::{timeout, Instant};
 use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
 use super::low_latency::{SpinWindow, Wait};
+use super::systemd::Notifier;
 use super::operator::Request;
 use super::telemetry::{self, CanRecord, Record, Recorder, Timing};
 use super::{GatewayError, Progress, Report};
@@ -86,6 +87,8 @@ struct Io {
     spin: Option<SpinWindow>,
     /// Where the operator's stats window starts (`ctl stats --reset`); none: the run's start.
     stats_from: Option<Timing>,
+    /// systemd's notification socket, when it started the gateway.
+    notifier: Option<Notifier>,
 }
 
 impl Io {
@@ -144,6 +147,9 @@ impl Io {
                 }
                 Output::State { state, at } => {
                     tracing::info!("state: {state}");
+                    if let Some(n) = &mut self.notifier {
+                        n.status(&state.to_string());
+                    }
                     self.recorder.record(Record::Event(telemetry::EventRecord {
                         at_s: at.secs(),
                         text: format!("state: {state}"),
@@ -165,6 +171,9 @@ impl Io {
                     }
                 }
                 Output::Streaming => {
+                    if let Some(n) = &mut self.notifier {
+                        n.ready(&core.state().to_string());
+                    }
                     if let Some(tx) = &self.progress {
                         let reconnects = core.counters().serial_reconnects;
                         tx.send_if_modified(|p| std::mem::replace(&mut p.serial_reconnects, reconnects) != reconnects);
@@ -250,6 +259,13 @@ impl Io {
         }
     }
 
+    /// The service is stopping in order (SIGINT, SIGTERM).
+    fn stopping(&mut self) {
+        if let Some(n) = &mut self.notifier {
+            n.stopping();
+        }
+    }
+
     fn reopen_can(&mut self) {
         self.next_can_reopen = HostTime::NEVER;
         let url = self.can_url.clone();
@@ -296,6 +312,7 @@ pub async fn run(
     progress: Option<watch::Sender<Progress>>,
 ) -> Result<Report, GatewayError> {
     let origin = Instant::now();
+    let notifier = Notifier::from_env()?;
     let can = match timeout(CAN_OPEN_DEADLINE, open_can(&rig.can)).await {
         Ok(link) => link?,
         Err(_) => return Err(CanError::Timeout { what: "open" }.into()),
@@ -337,6 +354,7 @@ pub async fn run(
         next_reopen: HostTime::NEVER,
         spin: rig.spin.map(SpinWindow::new),
         stats_from: None,
+        notifier,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
     if controls.arm_at_start {
@@ -346,6 +364,7 @@ pub async fn run(
     let mut read_buf = [0u8; 1024];
     let mut shutdown_seen = *controls.shutdown.borrow();
     if shutdown_seen {
+        io.stopping();
         core.shutdown(io.now());
     }
     loop {
@@ -353,7 +372,12 @@ pub async fn run(
         if core.finished() {
             break;
         }
-        let wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen));
+        // The watchdog is fed from here, the loop itself: a wedged loop starves it.
+        let mut wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen));
+        if let Some(n) = &mut io.notifier {
+            n.alive(std::time::Instant::now());
+            wake = wake.min(n.next_due().map_or(wake, Instant::from_std));
+        }
         let spin = io.spin.as_ref().map_or(Wait::Sleep, |s| s.wait(std::time::Instant::now()));
         tokio::select! {
             read = async {
@@ -411,6 +435,7 @@ pub async fn run(
                 // A dropped sender is a shutdown too: nobody is left to ask for one.
                 if changed.is_err() || *controls.shutdown.borrow() {
                     shutdown_seen = true;
+                    io.stopping();
                     core.shutdown(io.now());
                 }
             }

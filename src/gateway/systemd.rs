@@ -1,0 +1,195 @@
+//! The systemd service manager's notification protocol (`sd_notify(3)`), spoken directly: one
+//! datagram per message to the unix socket named by `NOTIFY_SOCKET`.
+//!
+//! - `READY=1` once the controller streams: the gateway is up and may be armed.
+//! - `STATUS=...` with the safety state, on every change (`systemctl status` shows it).
+//! - `WATCHDOG=1` from the control loop itself, at a quarter of `WATCHDOG_USEC`: a wedged
+//!   loop stops sending, and systemd kills and restarts the gateway, which comes back Idle
+//!   (no automatic re-arm: an operator arms it again).
+//! - `STOPPING=1` when an orderly stop of the service begins.
+//!
+//! Without `NOTIFY_SOCKET` (not started by systemd) there is nothing to tell, and nothing is
+//! sent. A failed send is counted, never fatal: the watchdog is systemd's to judge.
+
+use std::os::unix::net::UnixDatagram;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// Where the messages go.
+#[derive(Debug)]
+enum Address {
+    Path(PathBuf),
+    /// Linux's abstract namespace (`@name` in `NOTIFY_SOCKET`).
+    Abstract(Vec<u8>),
+}
+
+/// The gateway's line to systemd.
+#[derive(Debug)]
+pub struct Notifier {
+    socket: UnixDatagram,
+    address: Address,
+    /// How often to send `WATCHDOG=1` (a quarter of systemd's interval), if it asked.
+    watchdog_every: Option<Duration>,
+    next_watchdog: Instant,
+    ready: bool,
+    /// Sends that failed (socket gone, buffer full).
+    pub failed: u64,
+}
+
+/// A `NOTIFY_SOCKET` or `WATCHDOG_USEC` that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum NotifyError {
+    #[error("NOTIFY_SOCKET={0}: expected an absolute path or @abstract name")]
+    BadSocket(String),
+    #[error("WATCHDOG_USEC={0}: expected a positive number of microseconds")]
+    BadWatchdog(String),
+    #[error("creating the notification socket: {0}")]
+    Socket(#[from] std::io::Error),
+}
+
+impl Notifier {
+    /// From the environment systemd sets; `None` when not run under systemd (or when the
+    /// watchdog and socket are meant for another process: `WATCHDOG_PID`).
+    pub fn from_env() -> Result<Option<Self>, NotifyError> {
+        let get = |k: &str| std::env::var_os(k).map(|v| v.to_string_lossy().into_owned());
+        Self::new(get("NOTIFY_SOCKET"), get("WATCHDOG_USEC"), get("WATCHDOG_PID"), std::process::id())
+    }
+
+    fn new(
+        socket: Option<String>,
+        watchdog_usec: Option<String>,
+        watchdog_pid: Option<String>,
+        pid: u32,
+    ) -> Result<Option<Self>, NotifyError> {
+        let Some(socket) = socket.filter(|s| !s.is_empty()) else { return Ok(None) };
+        let address = if let Some(name) = socket.strip_prefix('@') {
+            Address::Abstract(name.as_bytes().to_vec())
+        } else if socket.starts_with('/') {
+            Address::Path(PathBuf::from(&socket))
+        } else {
+            return Err(NotifyError::BadSocket(socket));
+        };
+        let for_us = watchdog_pid.is_none_or(|p| p.trim().parse::<u32>() == Ok(pid));
+        let watchdog_every = match watchdog_usec.filter(|_| for_us) {
+            None => None,
+            Some(v) => match v.trim().parse::<u64>() {
+                Ok(us) if us > 0 => Some(Duration::from_micros(us) / 4),
+                _ => return Err(NotifyError::BadWatchdog(v)),
+            },
+        };
+        Ok(Some(Self {
+            socket: UnixDatagram::unbound()?,
+            address,
+            watchdog_every,
+            next_watchdog: Instant::now(),
+            ready: false,
+            failed: 0,
+        }))
+    }
+
+    fn send(&mut self, message: &str) {
+        let sent = match &self.address {
+            Address::Path(p) => self.socket.send_to(message.as_bytes(), p),
+            Address::Abstract(name) => {
+                use std::os::linux::net::SocketAddrExt as _;
+                std::os::unix::net::SocketAddr::from_abstract_name(name)
+                    .and_then(|a| self.socket.send_to_addr(message.as_bytes(), &a))
+            }
+        };
+        if sent.is_err() {
+            self.failed += 1;
+        }
+    }
+
+    /// The controller streams: the gateway is ready (once).
+    pub fn ready(&mut self, state: &str) {
+        if !std::mem::replace(&mut self.ready, true) {
+            self.send(&format!("READY=1\nSTATUS={state}"));
+        }
+    }
+
+    /// The safety state changed.
+    pub fn status(&mut self, state: &str) {
+        self.send(&format!("STATUS={state}"));
+    }
+
+    /// An orderly stop of the service has begun.
+    pub fn stopping(&mut self) {
+        self.send("STOPPING=1");
+    }
+
+    /// The loop went round at `now`: feed the watchdog if it is due. Cheap when it is not
+    /// (one comparison): called on every turn of the loop.
+    pub fn alive(&mut self, now: Instant) {
+        if let Some(every) = self.watchdog_every {
+            if now >= self.next_watchdog {
+                self.next_watchdog = now + every;
+                self.send("WATCHDOG=1");
+            }
+        }
+    }
+
+    /// When the loop must wake to feed the watchdog, if it sleeps that long.
+    pub fn next_due(&self) -> Option<Instant> {
+        self.watchdog_every.map(|_| self.next_watchdog)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn notifier(socket: &str, usec: Option<&str>, pid: Option<&str>) -> Result<Option<Notifier>, NotifyError> {
+        Notifier::new(Some(socket.into()), usec.map(Into::into), pid.map(Into::into), 42)
+    }
+
+    #[test]
+    fn nothing_without_systemd() {
+        assert!(Notifier::new(None, Some("1000000".into()), None, 42).unwrap().is_none());
+        assert!(Notifier::new(Some(String::new()), None, None, 42).unwrap().is_none());
+    }
+
+    #[test]
+    fn the_environment_is_checked() {
+        assert!(matches!(notifier("relative/path", None, None), Err(NotifyError::BadSocket(_))));
+        assert!(matches!(notifier("/run/x", Some("0"), None), Err(NotifyError::BadWatchdog(_))));
+        assert!(matches!(notifier("/run/x", Some("soon"), None), Err(NotifyError::BadWatchdog(_))));
+        let n = notifier("/run/x", Some("2000000"), None).unwrap().unwrap();
+        assert_eq!(n.watchdog_every, Some(Duration::from_millis(500)), "a quarter of the interval");
+        let other = notifier("/run/x", Some("2000000"), Some("7")).unwrap().unwrap();
+        assert_eq!(other.watchdog_every, None, "the watchdog is another process's");
+        assert!(matches!(notifier("@flowgate", None, None).unwrap().unwrap().address, Address::Abstract(_)));
+    }
+
+    #[test]
+    fn messages_arrive_and_the_watchdog_is_paced() {
+        let dir = std::env::temp_dir().join(format!("flowgate-notify-unit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("notify");
+        let _ = std::fs::remove_file(&path);
+        let listener = UnixDatagram::bind(&path).unwrap();
+        listener.set_nonblocking(true).unwrap();
+        let mut n = notifier(path.to_str().unwrap(), Some("400000"), None).unwrap().unwrap();
+        let recv = || {
+            let mut buf = [0u8; 256];
+            let len = listener.recv(&mut buf).unwrap();
+            String::from_utf8(buf[..len].to_vec()).unwrap()
+        };
+        n.ready("idle");
+        n.ready("idle");
+        assert_eq!(recv(), "READY=1\nSTATUS=idle");
+        let t0 = Instant::now();
+        n.alive(t0);
+        n.alive(t0 + Duration::from_millis(99));
+        assert_eq!(recv(), "WATCHDOG=1");
+        assert_eq!(n.next_due(), Some(t0 + Duration::from_millis(100)));
+        n.alive(t0 + Duration::from_millis(100));
+        assert_eq!(recv(), "WATCHDOG=1");
+        n.status("armed");
+        n.stopping();
+        assert_eq!((recv(), recv()), ("STATUS=armed".into(), "STOPPING=1".into()));
+        assert!(listener.recv(&mut [0u8; 16]).is_err(), "nothing else: one READY, two watchdogs");
+        assert_eq!(n.failed, 0);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
