@@ -1,9 +1,9 @@
 #[cfg(feature = "lab")]
 pub mod bench;
 pub mod ctl;
-pub mod logging;
 #[cfg(feature = "lab")]
 pub mod demo;
+pub mod logging;
 #[cfg(feature = "lab")]
 pub mod null_gateway;
 #[cfg(feature = "lab")]

@@ -195,19 +195,20 @@ fn proc_stat(dir: &str) -> (f64, f64) {
 /// timeout beyond them as the config requires): it idles while the null gateway has its
 /// turn, and under emulation (vcan in the VM) a turn can stretch; the watchdogs themselves
 /// are tested in tests/fault_table.rs. Its control socket answers the bench's `stats`.
-fn rig_toml(psd: &Path, can_endpoint: &str, socket: &Path, spin_us: u32) -> String {
+fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, spin_us: u32) -> String {
     let h = flowgate_sim::calibration::CameraModel::default().homography;
     // The schedule's period only bounds the low-latency window (twice it must fit in T);
     // the bench streams at its own rates.
     let slot_us = 500.max(spin_us + 100);
     format!(
         "[serial]\nport = \"{}\"\n[leds]\nrobot_front = 1\nrobot_rear = 2\nfront_offset = 0.035\nrear_offset = 0.035\n\
-         [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\n\
+         [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nnode = {}\n\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
          [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\n",
         psd.display(),
+        node.get(),
         socket.display(),
     )
 }
@@ -222,14 +223,21 @@ struct GatewayProcess {
 impl GatewayProcess {
     /// Start it on `target`'s endpoints and bring it up: answer its requests, be a live
     /// board, stream at 50 Hz until it commands.
-    async fn start(exe: &Path, target: &mut Target, workdir: &Path, name: &str, spin_us: u32) -> std::io::Result<Self> {
+    async fn start(
+        exe: &Path,
+        target: &mut Target,
+        workdir: &Path,
+        name: &str,
+        node: NodeId,
+        spin_us: u32,
+    ) -> std::io::Result<Self> {
         let config = workdir.join(format!("{name}.toml"));
         // Sockets in the temporary directory: the output folder may be on a file system
         // without them (the VM's 9p share, where scripts/vcan-vm runs the bench).
         let sockets = std::env::temp_dir().join(format!("flowgate-bench-{}", std::process::id()));
         std::fs::create_dir_all(&sockets)?;
         let socket = sockets.join(format!("{name}.sock"));
-        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, &socket, spin_us))?;
+        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, node, &socket, spin_us))?;
         let log = workdir.join(format!("{name}.log"));
         let mut child = tokio::process::Command::new(exe)
             .args(["run", "--arm", "--config"])
@@ -238,7 +246,7 @@ impl GatewayProcess {
             .kill_on_drop(true)
             .spawn()?;
         target.proc_dir = format!("/proc/{}", child.id().unwrap_or(0));
-        let board = target.can.board();
+        let board = (target.can.board(), node);
         let started = Instant::now();
         let mut pacer = Pacer::new(Duration::from_millis(20));
         let mut commands = 0;
@@ -360,7 +368,7 @@ async fn block(
     period: Duration,
     cycles: u64,
     tally: &mut Tally,
-    boards: &[ToBus],
+    boards: &[Board],
 ) -> std::io::Result<()> {
     target.can.drain();
     target.can.poll(target.poll_can);
@@ -405,9 +413,12 @@ async fn block(
     Ok(())
 }
 
+/// A gateway's motor board: the bus it is on, and its node id.
+type Board = (ToBus, NodeId);
+
 /// Heartbeats and an Enabled status, as a live board sends them.
-fn board_alive(can: &ToBus) {
-    let node = NodeId::new(1).expect("1");
+fn board_alive((can, node): &Board) {
+    let node = *node;
     can.send(MotorMessage::Heartbeat { node, state: BoardState::Enabled });
     can.send(MotorMessage::Status {
         node,
@@ -433,6 +444,9 @@ const BLOCK: Duration = Duration::from_millis(500);
 struct Pair {
     gateway: Target,
     process: GatewayProcess,
+    /// Its board's node: on a shared bus (vcan) each gateway has its own, or each would
+    /// see the other commanding its board.
+    node: NodeId,
     floor: Target,
     null: NullGatewayProcess,
 }
@@ -443,6 +457,7 @@ impl Pair {
         transport: &Transport,
         workdir: &Path,
         name: &str,
+        node: NodeId,
         spin_us: u32,
     ) -> std::io::Result<Self> {
         let mut floor = Target::new(transport, spin_us > 0)?;
@@ -450,8 +465,8 @@ impl Pair {
         let null = NullGatewayProcess::start(exe, &floor.controller.path, &floor.can.endpoint, spin).await?;
         floor.proc_dir = null.proc_dir();
         let mut gateway = Target::new(transport, spin_us > 0)?;
-        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, spin_us).await?;
-        Ok(Self { gateway, process, floor, null })
+        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, node, spin_us).await?;
+        Ok(Self { gateway, process, node, floor, null })
     }
 
     /// The gateway's states over its run.
@@ -513,15 +528,18 @@ pub async fn run(
     workdir: &Path,
 ) -> std::io::Result<BenchReport> {
     std::fs::create_dir_all(workdir)?;
-    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", 0).await?;
+    // Nodes 1 and 3 for the gateways; the null gateways command node 2.
+    let node = |n| NodeId::new(n).expect("1-15");
+    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", node(1), 0).await?;
     let mut report_phases = Vec::new();
     let mut states_low_latency = Vec::new();
     for spec in phases {
         let mut low = match spec.low_latency_us {
-            Some(us) => Some(Pair::start(gateway_exe, transport, workdir, "gateway-low-latency", us).await?),
+            Some(us) => Some(Pair::start(gateway_exe, transport, workdir, "gateway-low-latency", node(3), us).await?),
             None => None,
         };
-        let boards: Vec<ToBus> = std::iter::once(&main).chain(low.as_ref()).map(|p| p.gateway.can.board()).collect();
+        let boards: Vec<Board> =
+            std::iter::once(&main).chain(low.as_ref()).map(|p| (p.gateway.can.board(), p.node)).collect();
         let period = Duration::from_secs_f64(1.0 / spec.frame_rate_hz);
         let per_block = ((BLOCK.as_secs_f64() * spec.frame_rate_hz) as u64).clamp(1, spec.cycles);
         // The stage statistics start with the phase.
