@@ -12,12 +12,14 @@ use flowgate::lab::Scenario;
 
 /// The simulated rig (E1) and a gateway config for it, idle (no goal), in `dir`.
 async fn rig(dir: &Path) -> (flowgate_sim::rig::RigHandle, PathBuf) {
+    std::fs::create_dir_all(dir).unwrap();
     let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
     let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
     let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
     cfg.goal = None;
-    std::fs::create_dir_all(dir).unwrap();
+    // Its control socket: the gateway logs it at info level on start.
+    cfg.operator.socket = Some(dir.join("control.sock"));
     let config = dir.join("rig.toml");
     std::fs::write(&config, cfg.to_toml()).unwrap();
     (handle, config)
@@ -108,14 +110,25 @@ async fn log_lines_fit_the_journal() {
         }
         let mut child = cmd.stdout(Stdio::null()).stderr(writer).spawn().unwrap();
         drop(cmd); // the parent's copy of the pipe's write end: EOF once the child exits
-        let line = BufReader::new(reader)
-            .lines()
-            .map_while(Result::ok)
-            .find(|l| l.contains("PSD controller streaming"))
-            .expect("the gateway logs that the controller streams");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(reader).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    return;
+                }
+            }
+        });
+        let mut seen = Vec::new();
+        let line = loop {
+            match rx.recv_timeout(Duration::from_secs(10)) {
+                Ok(l) if l.contains("control socket") => break l,
+                Ok(l) => seen.push(l),
+                Err(_) => panic!("no `control socket` line within 10 s: {seen:#?}"),
+            }
+        };
         assert!(!line.contains('\u{1b}'), "no colour codes off a terminal: {line:?}");
         if journal {
-            assert!(line.starts_with("<6>flowgate::gateway::core: "), "{line:?}");
+            assert!(line.starts_with("<6>flowgate::gateway::shell: control socket "), "{line:?}");
         } else {
             assert!(line.contains(" INFO ") && !line.starts_with('<'), "{line:?}");
         }
