@@ -5,6 +5,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use flowgate::gateway::telemetry::CycleRecord;
 use flowgate::gateway::StageClock;
 use flowgate::lab::offline::{sweep, Mode};
 use flowgate::lab::sim::{self, Options, VirtualRig};
@@ -58,9 +59,10 @@ fn main() {
     let csv = String::from_utf8(e.telemetry.expect("telemetry").cycles_csv).expect("utf-8");
     let mut stages = [0f64; 3];
     let mut cycles = 0;
+    let columns = ["decode_ns", "track_ns", "plan_ns"].map(|c| CycleRecord::column(c).expect("a cycles.csv column"));
     for line in csv.lines().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
-        for (k, col) in [4, 5, 6].into_iter().enumerate() {
+        for (k, col) in columns.into_iter().enumerate() {
             stages[k] += f[col].parse::<f64>().expect("ns");
         }
         cycles += 1;

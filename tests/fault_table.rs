@@ -10,6 +10,7 @@
 
 use std::path::Path;
 
+use flowgate::gateway::telemetry::CycleRecord;
 use flowgate::gateway::{State, StopReason};
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, CanTransport, Episode, Options};
@@ -354,7 +355,8 @@ fn overrun(e: &Episode) -> String {
 fn drift(e: &Episode) -> String {
     let c = e.report.counters;
     let csv = String::from_utf8(e.telemetry.clone().unwrap().cycles_csv).unwrap();
-    let delays: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(12).unwrap().parse().unwrap()).collect();
+    let col = CycleRecord::column("delay_s").unwrap();
+    let delays: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
     let (lo, hi) = delays.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &d| (lo.min(d), hi.max(d)));
     assert!(delays.len() > 500);
     assert!(hi - lo < 0.0015, "measured delay spans {:.2} ms", (hi - lo) * 1e3);
@@ -377,7 +379,8 @@ fn foreign(e: &Episode) -> String {
 /// Each frame commanded once, in order: the `frame` column of cycles.csv strictly increases.
 fn one_command_per_frame(e: &Episode) {
     let csv = String::from_utf8(e.telemetry.as_ref().unwrap().cycles_csv.clone()).unwrap();
-    let frames: Vec<u32> = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+    let col = CycleRecord::column("frame").unwrap();
+    let frames: Vec<u32> = csv.lines().skip(1).map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
     assert!(frames.len() > 300);
     assert!(frames.windows(2).all(|w| w[1] > w[0]), "a frame commanded twice or out of order");
 }

@@ -7,6 +7,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use flowgate::gateway::operator::{Refusal, Request};
+use flowgate::gateway::telemetry::CycleRecord;
 use flowgate::gateway::{State, StopReason};
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, Episode, Options, VirtualRig};
@@ -78,7 +79,8 @@ fn the_control_period_is_exact() {
     let e = sim::run(&scenario("e2-lane-head-on.toml"), options());
     assert_eq!(e.report.sample_time, 0.020);
     let csv = String::from_utf8(e.telemetry.unwrap().cycles_csv).unwrap();
-    let periods: Vec<u64> = csv.lines().skip(2).map(|l| l.split(',').nth(10).unwrap().parse().unwrap()).collect();
+    let col = CycleRecord::column("period_ns").unwrap();
+    let periods: Vec<u64> = csv.lines().skip(2).map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
     // Exact to the virtual clock's resolution: firmware times are rounded up to whole ns.
     assert!(periods.iter().all(|&p| p.abs_diff(20_000_000) <= 1), "{:?}", &periods[..5]);
 }

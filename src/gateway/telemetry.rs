@@ -72,6 +72,11 @@ impl CycleRecord {
         self.deadline_miss = u128::from(self.e2e_ns) > sample_period.as_nanos();
     }
 
+    /// Where column `name` of `cycles.csv` is (readers find columns by name, not position).
+    pub fn column(name: &str) -> Option<usize> {
+        Self::CSV_HEADER.split(',').position(|c| c == name)
+    }
+
     /// The stages in their order, named as in [`Stage`], with their durations (ns).
     pub fn stages(&self) -> [(&'static str, u64); Stage::COUNT] {
         Stage::ALL.map(|stage| (stage.name(), self.stage_ns(stage)))

@@ -215,8 +215,9 @@ impl Telemetry {
     /// The planner's compute time per cycle (the `plan_ns` column): p50, p99, max, µs.
     pub fn plan_us(&self) -> [f64; 3] {
         let text = String::from_utf8_lossy(&self.cycles_csv);
+        let plan = CycleRecord::column("plan_ns").expect("a column of cycles.csv");
         let mut ns: Vec<u64> =
-            text.lines().skip(1).filter_map(|l| l.split(',').nth(6).and_then(|v| v.parse().ok())).collect();
+            text.lines().skip(1).filter_map(|l| l.split(',').nth(plan).and_then(|v| v.parse().ok())).collect();
         ns.sort_unstable();
         let q = |p: f64| ns.get(((ns.len().max(1) - 1) as f64 * p).round() as usize).map_or(0.0, |&v| v as f64 / 1e3);
         [q(0.5), q(0.99), q(1.0)]
