@@ -67,6 +67,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
         phases[0].cycles = n;
     }
+    if args.spin_us > 30_000 {
+        bail!("--spin-us {}: at most 30000 µs (the window, twice it, must fit in a frame)", args.spin_us);
+    }
     // The paper's rate, with the low-latency mode on beside it.
     phases[0].low_latency_us = (args.spin_us > 0).then_some(args.spin_us);
     let exe = std::env::current_exe().context("locating the flowgate binary")?;

@@ -96,7 +96,11 @@ impl Notifier {
                     .and_then(|a| self.socket.send_to_addr(message.as_bytes(), &a))
             }
         };
-        if sent.is_err() {
+        if let Err(e) = sent {
+            // Said once, counted always: a watchdog that cannot be fed is systemd's to judge.
+            if self.failed == 0 {
+                tracing::warn!("systemd notification not delivered: {e} (further failures counted)");
+            }
             self.failed += 1;
         }
     }
