@@ -6,7 +6,8 @@
 //! control, safety; and the tokio shell) -> [`calib`] (PSD counts to floor) -> [`track`]
 //! (robot pose and obstacle motion) -> [`control`] and [`planner`] (navigation function,
 //! wheel speeds, pulse rates). [`config`] parses the rig once into a typed [`config::Rig`];
-//! [`time`] keeps host and controller clocks apart. The lab tools ([`lab`]: the simulator
+//! [`time`] keeps host and controller clocks apart. [`setup`] holds the tools of a rig's
+//! first day: the preflight check and the calibration. The lab tools ([`lab`]: the simulator
 //! in virtual and real time, sweeps, plots, the benchmark) are behind the `lab` feature, so
 //! the deployed gateway never contains the simulator.
 
@@ -18,6 +19,7 @@ pub mod gateway;
 pub mod lab;
 pub mod link;
 pub mod planner;
+pub mod setup;
 pub mod time;
 pub mod track;
 

@@ -24,6 +24,9 @@ enum Command {
     Demo(cli::demo::DemoArgs),
     /// Run the gateway on a rig (serial PSD controller, CAN motor boards). Starts idle.
     Run(cli::run::RunArgs),
+    /// Preflight: check the config, the PSD controller and the motor board without moving
+    /// anything. Exits non-zero when any check fails.
+    Check(cli::check::CheckArgs),
     /// Operate a running gateway: status, arm, start, stop, estop, reset, goal, cancel.
     Ctl(cli::ctl::CtlArgs),
     /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.
@@ -54,7 +57,9 @@ fn one_line(e: &anyhow::Error) -> String {
 
 fn main() -> std::process::ExitCode {
     match run() {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        Ok(true) => std::process::ExitCode::SUCCESS,
+        // The command ran and said why (a failed preflight): no error line to add.
+        Ok(false) => std::process::ExitCode::FAILURE,
         Err(e) => {
             eprintln!("Error: {}", one_line(&e));
             std::process::ExitCode::FAILURE
@@ -62,19 +67,22 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn run() -> Result<()> {
+/// `Ok(false)`: the command ran and reported a failure itself.
+fn run() -> Result<bool> {
     cli::logging::init();
     let cli = Cli::parse();
+    let done = |r: Result<()>| r.map(|()| true);
     match cli.command {
+        Command::Check(args) => cli::check::run(args),
         #[cfg(feature = "lab")]
-        Command::Demo(args) => cli::demo::run(args),
+        Command::Demo(args) => done(cli::demo::run(args)),
         #[cfg(feature = "lab")]
-        Command::Plan(args) => cli::plan::run(args),
-        Command::Run(args) => cli::run::run(args),
-        Command::Ctl(args) => cli::ctl::run(args),
+        Command::Plan(args) => done(cli::plan::run(args)),
+        Command::Run(args) => done(cli::run::run(args)),
+        Command::Ctl(args) => done(cli::ctl::run(args)),
         #[cfg(feature = "lab")]
-        Command::Bench(args) => cli::bench::run(args),
+        Command::Bench(args) => done(cli::bench::run(args)),
         #[cfg(feature = "lab")]
-        Command::NullGateway(args) => cli::null_gateway::run(args),
+        Command::NullGateway(args) => done(cli::null_gateway::run(args)),
     }
 }

@@ -81,6 +81,11 @@ impl ClockOffset {
         Self(mid - i128::from(ctrl.0) * 1000)
     }
 
+    /// Host time minus controller time, ns.
+    pub fn as_nanos(self) -> i128 {
+        self.0
+    }
+
     /// A controller stamp as host time (clamped to the host clock's range).
     pub fn to_host(self, t: CtrlTime) -> HostTime {
         let ns = i128::from(t.0) * 1000 + self.0;

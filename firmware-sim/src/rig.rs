@@ -359,6 +359,16 @@ pub fn foreign_frames(node: NodeId) -> [CanFrame; 3] {
     ]
 }
 
+/// A second master's command to our board (the `second_master_at` fault): both the board
+/// and the host see it.
+pub fn second_master_command(node: NodeId) -> CanFrame {
+    use flowgate_protocol::motor::MotorMessage;
+    MotorMessage::Velocity { node, left: 50, right: 50, seq: 0 }.to_frame().expect("in range")
+}
+
+/// Period of the second master's commands, s.
+pub const SECOND_MASTER_PERIOD: f64 = 0.02;
+
 async fn run(
     config: RigConfig,
     mut psd: PsdIo,
@@ -384,6 +394,7 @@ async fn run(
     let mut vanish = config.faults.serial_vanish_at.map(|at| (at, at + config.faults.serial_vanish_s));
     let mut psd_gone = false;
     let mut next_foreign = if config.faults.foreign_frames { 0.0 } else { f64::INFINITY };
+    let mut next_master = config.faults.second_master_at.unwrap_or(f64::INFINITY);
 
     let origin = Instant::now();
     let now = || origin.elapsed().as_secs_f64();
@@ -435,6 +446,12 @@ async fn run(
         if t >= next_foreign {
             next_foreign = t + 0.1;
             can_out.extend(foreign_frames(config.node));
+        }
+        if t >= next_master {
+            next_master = t + SECOND_MASTER_PERIOD;
+            let frame = second_master_command(config.node);
+            board.handle(t, &frame, &mut world, &mut can_out);
+            can_out.push(frame);
         }
 
         // Serial out: in order, each message no earlier than its time (injected delay).
@@ -497,7 +514,7 @@ async fn run(
         if let Some((gone_at, back_at)) = vanish {
             next = next.min(if psd_gone { back_at } else { gone_at });
         }
-        next = next.min(next_foreign);
+        next = next.min(next_foreign).min(next_master);
         let deadline = origin + Duration::from_secs_f64(next.max(t));
         let (slcan_rx, socket_rx) = match &mut bus {
             Bus::Slcan { rx, .. } => (Some(rx), None),

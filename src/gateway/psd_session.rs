@@ -119,6 +119,8 @@ pub struct PsdSession {
     resync: Option<(u16, HostTime)>,
     /// When the offset was last taken from a good round trip.
     synced_at: HostTime,
+    /// The last time sync's round trip (taken or not).
+    round_trip: Option<Duration>,
 }
 
 impl PsdSession {
@@ -136,6 +138,7 @@ impl PsdSession {
             next_resync: HostTime::NEVER,
             resync: None,
             synced_at: HostTime::ZERO,
+            round_trip: None,
         }
     }
 
@@ -160,6 +163,12 @@ impl PsdSession {
         was_streaming
     }
 
+    /// Stop the stream and end the session (the setup tools, when done).
+    pub fn stop(&mut self, send: &mut impl FnMut(Packet)) {
+        send(self.packet(Message::StopStream));
+        self.down();
+    }
+
     /// The line is gone.
     pub fn down(&mut self) {
         self.phase = Phase::Down;
@@ -182,6 +191,19 @@ impl PsdSession {
     }
     pub fn clock(&self) -> ClockOffset {
         self.offset
+    }
+    /// The last time sync's round trip, taken or discarded.
+    pub fn round_trip(&self) -> Option<Duration> {
+        self.round_trip
+    }
+
+    /// While streaming, synchronise the clock now instead of at the next resync (the
+    /// preflight measures the round trip this way). Its reply is a `Resynced` event.
+    pub fn sync_now(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
+        if self.phase == Phase::Streaming {
+            self.next_resync = now;
+            self.tick(now, send);
+        }
     }
     /// When the clock offset goes stale while streaming (no good sync since `SYNC_STALE`).
     pub fn sync_deadline(&self) -> HostTime {
@@ -263,6 +285,7 @@ impl PsdSession {
         {
             if request_seq == seq && host_time_us == sent.as_nanos() / 1000 {
                 self.resync = None;
+                self.round_trip = Some(now.since(sent));
                 let accepted = now.since(sent) <= MAX_RTT;
                 if accepted {
                     self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
@@ -298,6 +321,7 @@ impl PsdSession {
             {
                 self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
                 self.synced_at = now;
+                self.round_trip = Some(now.since(sent));
                 Step::Start
             }
             (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {

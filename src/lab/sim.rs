@@ -548,17 +548,10 @@ impl<K: StageClock> VirtualRig<K> {
         }
         if t >= self.next_master {
             // Another device on the bus commands our board: both the board and the host see it.
-            self.next_master += 0.02;
-            let m = flowgate_protocol::motor::MotorMessage::Velocity {
-                node: self.board.node(),
-                left: 50,
-                right: 50,
-                seq: 0,
-            };
-            if let Ok(frame) = m.to_frame() {
-                self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
-                self.can_out.push(frame);
-            }
+            self.next_master += flowgate_sim::rig::SECOND_MASTER_PERIOD;
+            let frame = flowgate_sim::rig::second_master_command(self.board.node());
+            self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+            self.can_out.push(frame);
         }
     }
 

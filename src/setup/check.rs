@@ -1,0 +1,659 @@
+//! `flowgate check`: a preflight that moves nothing.
+//!
+//! It goes through the rig in the order the gateway meets it (the config and its
+//! cross-checks, the serial port, the PSD controller's identity, schedule, clock and
+//! stream, the CAN interface, the motor board's heartbeat and config) and says of each
+//! PASS, WARN or FAIL, naming the device or the config key. A step that cannot be reached
+//! because an earlier one failed is SKIP, with the reason. It never enables a board: the
+//! only frame it sends to one is the config the gateway sends before every enable.
+
+use std::fmt;
+use std::path::Path;
+use std::time::Duration;
+
+use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage, NodeId};
+use tokio::time::{timeout_at, Instant};
+
+use super::psd_client::{PsdClient, PsdClientError};
+use crate::config::{ConfigError, GatewayConfig, Rig};
+use crate::gateway::psd_session::MAX_RTT;
+use crate::gateway::SetupError;
+use crate::link::{open_can, CanError, CanEvent, CanLink, CanUrl, SerialError};
+
+/// Verdict of one line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    Pass,
+    /// Works, but something deserves a look (the run would go on).
+    Warn,
+    Fail,
+    /// Not reached: an earlier step failed.
+    Skip,
+}
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Verdict::Pass => "PASS",
+            Verdict::Warn => "WARN",
+            Verdict::Fail => "FAIL",
+            Verdict::Skip => "SKIP",
+        })
+    }
+}
+
+/// One line of the report: what was checked, on what (a device or a config key), the
+/// verdict and why.
+#[derive(Debug, Clone)]
+pub struct Line {
+    pub item: &'static str,
+    pub subject: String,
+    pub verdict: Verdict,
+    pub detail: String,
+}
+
+/// The preflight's findings, in order.
+#[derive(Debug, Default)]
+pub struct Report {
+    pub lines: Vec<Line>,
+}
+
+impl Report {
+    fn add(&mut self, item: &'static str, subject: impl Into<String>, verdict: Verdict, detail: impl Into<String>) {
+        self.lines.push(Line { item, subject: subject.into(), verdict, detail: detail.into() });
+    }
+    fn pass(&mut self, item: &'static str, subject: impl Into<String>, detail: impl Into<String>) {
+        self.add(item, subject, Verdict::Pass, detail);
+    }
+    fn fail(&mut self, item: &'static str, subject: impl Into<String>, detail: impl Into<String>) {
+        self.add(item, subject, Verdict::Fail, detail);
+    }
+    fn skip(&mut self, items: &[&'static str], subject: &str, why: &str) {
+        for item in items {
+            self.add(item, subject, Verdict::Skip, why);
+        }
+    }
+    /// How many lines failed.
+    pub fn failures(&self) -> usize {
+        self.lines.iter().filter(|l| l.verdict == Verdict::Fail).count()
+    }
+    pub fn line(&self, item: &str) -> Option<&Line> {
+        self.lines.iter().find(|l| l.item == item)
+    }
+}
+
+impl fmt::Display for Report {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let w_item = self.lines.iter().map(|l| l.item.len()).max().unwrap_or(0);
+        let w_subject = self.lines.iter().map(|l| l.subject.chars().count()).max().unwrap_or(0);
+        for l in &self.lines {
+            writeln!(f, "{}  {:w_item$}  {:w_subject$}  {}", l.verdict, l.item, l.subject, l.detail)?;
+        }
+        let (fail, warn) = (self.failures(), self.lines.iter().filter(|l| l.verdict == Verdict::Warn).count());
+        match fail {
+            0 => write!(f, "all {} checks passed ({warn} warnings): the rig is ready to arm", self.lines.len()),
+            n => write!(f, "{n} of {} checks failed ({warn} warnings): fix them before arming", self.lines.len()),
+        }
+    }
+}
+
+// The report's items, in order.
+const CONFIG: &str = "config";
+const WATCHDOGS: &str = "watchdogs vs board timeout";
+const SCHEDULE: &str = "LED schedule";
+const SERIAL: &str = "serial port";
+const ANSWERS: &str = "controller answers";
+const IDENTITY: &str = "controller identity";
+const ACCEPTED: &str = "schedule accepted";
+const TIME_SYNC: &str = "time sync";
+const STREAM: &str = "sample stream";
+const LEDS: &str = "LEDs in view";
+const CAN_IF: &str = "CAN interface";
+const HEARTBEAT: &str = "board heartbeat";
+const OTHERS: &str = "no other master";
+const BOARD_CONFIG: &str = "board config";
+
+const PSD_ITEMS: [&str; 6] = [ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC, STREAM, LEDS];
+const BOARD_ITEMS: [&str; 3] = [HEARTBEAT, OTHERS, BOARD_CONFIG];
+
+/// How long the stream is watched.
+const STREAM_WATCH: Duration = Duration::from_millis(600);
+/// Time syncs measured.
+const SYNCS: usize = 8;
+/// How long the bus is listened to for the board (its heartbeat comes every 100 ms).
+const LISTEN: Duration = Duration::from_millis(1000);
+/// How long a status after the config may take (the board reports every 50 ms).
+const STATUS_WAIT: Duration = Duration::from_millis(500);
+/// How long opening the CAN endpoint may take (an SLCAN adapter answers three commands).
+const CAN_OPEN: Duration = Duration::from_secs(5);
+
+/// Check the rig `config` describes. Never fails itself: every problem is a line.
+pub async fn check(config: &Path) -> Report {
+    let mut report = Report::default();
+    let origin = config.display().to_string();
+    let rig = match load(config) {
+        Ok(rig) => rig,
+        Err((subject, why)) => {
+            report.fail(CONFIG, subject, why);
+            report.skip(&[SERIAL], "-", "the config failed");
+            report.skip(&PSD_ITEMS, "-", "the config failed");
+            report.skip(&[CAN_IF], "-", "the config failed");
+            report.skip(&BOARD_ITEMS, "-", "the config failed");
+            return report;
+        }
+    };
+    report.pass(CONFIG, origin, "parsed; every key in range");
+    config_cross_checks(&rig, &mut report);
+    check_psd(&rig, &mut report).await;
+    check_can(&rig, &mut report).await;
+    report
+}
+
+/// The config, or (the key or file, why).
+fn load(path: &Path) -> Result<Rig, (String, String)> {
+    GatewayConfig::load(path).map_err(|e| match e {
+        ConfigError::Invalid { invalid, .. } => (invalid.key.clone(), invalid.why.clone()),
+        other => (path.display().to_string(), other.to_string()),
+    })
+}
+
+fn config_cross_checks(rig: &Rig, report: &mut Report) {
+    // Loading refused a config whose watchdogs would let the board's own timeout fire
+    // first; these lines show the figures that rule was checked with.
+    let s = &rig.safety;
+    let t_us = rig.sample_period.as_micros();
+    report.pass(
+        WATCHDOGS,
+        "safety.*",
+        format!(
+            "sample {} ms and pose {} ms (+ T = {:.3} ms) fire before drive.command_timeout_ms = {} ms; heartbeat {} ms",
+            s.sample_timeout.as_millis(),
+            s.pose_timeout.as_millis(),
+            t_us as f64 / 1000.0,
+            rig.board.command_timeout_ms,
+            s.heartbeat_timeout.as_millis()
+        ),
+    );
+    report.pass(
+        SCHEDULE,
+        "schedule",
+        format!(
+            "{} LEDs, frame T = {:.3} ms ({:.1} Hz)",
+            rig.schedule.slots().len(),
+            t_us as f64 / 1000.0,
+            1e6 / t_us as f64
+        ),
+    );
+}
+
+async fn check_psd(rig: &Rig, report: &mut Report) {
+    let port = rig.serial.port.display().to_string();
+    let mut client = match PsdClient::open(&rig.serial, rig.schedule, rig.psd_counts) {
+        Ok(c) => c,
+        Err(e) => {
+            report.fail(SERIAL, &port, e.to_string());
+            report.skip(&PSD_ITEMS, &port, "the serial port failed");
+            return;
+        }
+    };
+    report.pass(SERIAL, &port, format!("exists and opened exclusively at {} baud", rig.serial.baud));
+    let handshake = match client.configure().await {
+        Ok(h) => h,
+        Err(e) => {
+            // The handshake's steps in order: which one failed says which lines passed.
+            let (failed, passed): (&str, &[&'static str]) = match &e {
+                PsdClientError::Setup(SetupError::Silent { request: "GetInfo" }) => (ANSWERS, &[]),
+                PsdClientError::Setup(SetupError::Identity(_)) => (IDENTITY, &[ANSWERS]),
+                PsdClientError::Setup(SetupError::Refused { request: "SetSchedule", .. })
+                | PsdClientError::Setup(SetupError::Silent { request: "SetSchedule" }) => {
+                    (ACCEPTED, &[ANSWERS, IDENTITY])
+                }
+                PsdClientError::Setup(SetupError::Silent { request: "TimeSync" }) => {
+                    (TIME_SYNC, &[ANSWERS, IDENTITY, ACCEPTED])
+                }
+                PsdClientError::Setup(_) => (STREAM, &[ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC]),
+                _ => (ANSWERS, &[]),
+            };
+            for item in passed {
+                report.pass(item, &port, "yes");
+            }
+            let subject = if failed == IDENTITY { format!("{port}, calibration.counts") } else { port.clone() };
+            report.fail(failed, subject, e.to_string());
+            let rest: Vec<&'static str> = PSD_ITEMS.iter().copied().skip_while(|i| *i != failed).skip(1).collect();
+            report.skip(&rest, &port, "the controller's setup failed");
+            client.stop().await;
+            return;
+        }
+    };
+    let i = handshake.info;
+    report.pass(ANSWERS, &port, "answers GetInfo");
+    report.pass(
+        IDENTITY,
+        &port,
+        format!(
+            "firmware {}.{}.{}, drives up to {} LEDs, PSD {}x{} counts, µs timestamps",
+            i.firmware[0], i.firmware[1], i.firmware[2], i.max_leds, i.psd_counts[0], i.psd_counts[1]
+        ),
+    );
+    report.pass(
+        ACCEPTED,
+        &port,
+        format!("{} slots, T = {} µs", rig.schedule.slots().len(), rig.sample_period.as_micros()),
+    );
+    match client.round_trips(SYNCS).await {
+        Ok(mut trips) => {
+            trips.push(handshake.round_trip);
+            trips.sort();
+            let median = trips[trips.len() / 2];
+            let detail = format!(
+                "{} round trips: min {} µs, median {} µs, max {} µs",
+                trips.len(),
+                trips[0].as_micros(),
+                median.as_micros(),
+                trips[trips.len() - 1].as_micros()
+            );
+            if median > MAX_RTT {
+                report.fail(
+                    TIME_SYNC,
+                    &port,
+                    format!("{detail}: over {} ms, the gateway would discard its resyncs", MAX_RTT.as_millis()),
+                );
+            } else {
+                report.pass(TIME_SYNC, &port, detail);
+            }
+        }
+        Err(e) => report.fail(TIME_SYNC, &port, e.to_string()),
+    }
+    watch_stream(rig, &mut client, &port, report).await;
+    client.stop().await;
+}
+
+async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mut Report) {
+    let leds: Vec<u8> = rig.schedule.slots().iter().map(|s| s.led).collect();
+    let mut seen = vec![0u64; leds.len()];
+    let mut weak = vec![0u64; leds.len()];
+    let mut saturated = vec![0u64; leds.len()];
+    let before = client.tally;
+    let start = Instant::now();
+    let end = start + STREAM_WATCH;
+    loop {
+        match client.next_sample(end).await {
+            Ok(Some(s)) => {
+                if let Some(k) = leds.iter().position(|&l| l == s.led) {
+                    seen[k] += 1;
+                    weak[k] += u64::from(s.flags.contains(flowgate_protocol::psd::SampleFlags::WEAK_SIGNAL));
+                    saturated[k] += u64::from(s.flags.contains(flowgate_protocol::psd::SampleFlags::SATURATED));
+                }
+            }
+            Ok(None) => break,
+            Err(e) => {
+                report.fail(STREAM, port, e.to_string());
+                report.skip(&[LEDS], port, "the stream failed");
+                return;
+            }
+        }
+    }
+    let t = client.tally;
+    let frames = t.frame_ends - before.frame_ends;
+    let expected = STREAM_WATCH.as_secs_f64() / rig.sample_period.as_secs_f64();
+    let rate = frames as f64 / STREAM_WATCH.as_secs_f64();
+    let (bad, lost, discarded, faults) = (
+        t.bad_frames - before.bad_frames,
+        t.lost - before.lost,
+        t.discarded - before.discarded,
+        t.faults - before.faults,
+    );
+    let detail = format!(
+        "{frames} frames in {} ms ({rate:.1} Hz of {:.1}); {bad} bad, {lost} lost, {discarded} duplicate or old, {faults} controller faults",
+        STREAM_WATCH.as_millis(),
+        1.0 / rig.sample_period.as_secs_f64()
+    );
+    report.add(STREAM, port, stream_verdict(frames, expected, faults, bad + lost + discarded), detail);
+    // The robot's two LEDs must be seen to arm; an obstacle out of view is worth a warning.
+    let mut problems = Vec::new();
+    let mut fail = false;
+    for (k, &led) in leds.iter().enumerate() {
+        let robot = led == rig.robot_front || led == rig.robot_rear;
+        if seen[k] == 0 {
+            problems.push(format!("LED {led}: no samples"));
+            fail |= robot;
+        } else if weak[k] * 2 > seen[k] || saturated[k] * 2 > seen[k] {
+            problems.push(format!(
+                "LED {led}{}: {} of {} samples weak, {} saturated (out of view, occluded or dead?)",
+                if robot { " (robot)" } else { "" },
+                weak[k],
+                seen[k],
+                saturated[k]
+            ));
+            fail |= robot;
+        }
+    }
+    let leds_key = "leds";
+    match (problems.is_empty(), fail) {
+        (true, _) => report.pass(LEDS, leds_key, format!("all {} LEDs seen, none weak or saturated", leds.len())),
+        (false, true) => report.fail(LEDS, leds_key, problems.join("; ")),
+        (false, false) => report.add(LEDS, leds_key, Verdict::Warn, problems.join("; ")),
+    }
+}
+
+/// A stream delivering under 80% of its frames, or reporting faults, fails; one that
+/// delivers them with bad, lost or repeated packets is a warning.
+fn stream_verdict(frames: u64, expected: f64, faults: u64, anomalies: u64) -> Verdict {
+    if (frames as f64) < 0.8 * expected || faults > 0 {
+        Verdict::Fail
+    } else if anomalies > 0 {
+        Verdict::Warn
+    } else {
+        Verdict::Pass
+    }
+}
+
+async fn check_can(rig: &Rig, report: &mut Report) {
+    let endpoint = match &rig.can {
+        CanUrl::SocketCan { interface } => interface.clone(),
+        CanUrl::Slcan { path, .. } => path.display().to_string(),
+        CanUrl::Memory => "memory".to_string(),
+    };
+    if let CanUrl::SocketCan { interface } = &rig.can {
+        if let Err(why) = socketcan_state(interface) {
+            report.fail(CAN_IF, &endpoint, why);
+            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
+            return;
+        }
+    }
+    let mut link = match tokio::time::timeout(CAN_OPEN, open_can(&rig.can)).await {
+        Ok(Ok(link)) => link,
+        Ok(Err(e)) => {
+            report.fail(CAN_IF, &endpoint, can_open_error(e));
+            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
+            return;
+        }
+        Err(_) => {
+            report.fail(CAN_IF, &endpoint, format!("did not open within {} s", CAN_OPEN.as_secs()));
+            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
+            return;
+        }
+    };
+    let node = rig.node;
+    let board = format!("{endpoint}, node {}", node.get());
+    let heard = match listen(&mut link, node, rig.can.polls_status()).await {
+        Ok(h) => h,
+        Err(e) => {
+            report.fail(CAN_IF, &endpoint, e.to_string());
+            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
+            return;
+        }
+    };
+    match (&rig.can, heard.adapter) {
+        (_, _) if heard.error_frames > 0 => report.fail(
+            CAN_IF,
+            &endpoint,
+            format!("{} error frames in {} ms (bus-off: {})", heard.error_frames, LISTEN.as_millis(), heard.bus_off),
+        ),
+        (CanUrl::Slcan { .. }, None) => {
+            report.fail(CAN_IF, &endpoint, "the SLCAN adapter did not report its status flags (F)")
+        }
+        (CanUrl::Slcan { .. }, Some((bus_off, passive))) if bus_off || passive => report.fail(
+            CAN_IF,
+            &endpoint,
+            format!("the adapter's controller is {}", if bus_off { "bus-off" } else { "error-passive" }),
+        ),
+        (CanUrl::Slcan { bitrate, .. }, Some(_)) => {
+            report.pass(CAN_IF, &endpoint, format!("SLCAN adapter open at {bitrate} bit/s, status flags clear"))
+        }
+        _ => report.pass(CAN_IF, &endpoint, format!("up, no error frames in {} ms", LISTEN.as_millis())),
+    }
+
+    // The board's heartbeat and state.
+    let others = if heard.other_nodes.is_empty() {
+        "no other node heard".to_string()
+    } else {
+        format!("nodes heard: {:?}", heard.other_nodes)
+    };
+    let healthy = match (heard.heartbeats, heard.state) {
+        (0, _) => {
+            report.fail(
+                HEARTBEAT,
+                &board,
+                format!("no heartbeat in {} ms (powered? node id = can.node? bitrate?); {others}", LISTEN.as_millis()),
+            );
+            false
+        }
+        (_, Some(BoardState::Fault | BoardState::EStop)) => {
+            report.fail(
+                HEARTBEAT,
+                &board,
+                format!(
+                    "in {:?} (faults: {}): clear the cause, then reset it",
+                    heard.state.unwrap_or(BoardState::Fault),
+                    fault_names(heard.faults)
+                ),
+            );
+            false
+        }
+        (_, Some(BoardState::Enabled)) => {
+            report.fail(HEARTBEAT, &board, "already Enabled: is another gateway driving it?");
+            false
+        }
+        (n, state) => {
+            report.pass(
+                HEARTBEAT,
+                &board,
+                format!("{n} heartbeats in {} ms, {:?}", LISTEN.as_millis(), state.unwrap_or(BoardState::Disabled)),
+            );
+            true
+        }
+    };
+    if heard.foreign_commands > 0 || heard.gateway_heartbeats > 0 {
+        report.fail(
+            OTHERS,
+            &endpoint,
+            format!(
+                "{} velocity commands and {} gateway heartbeats from elsewhere on the bus: another gateway is running",
+                heard.foreign_commands, heard.gateway_heartbeats
+            ),
+        );
+    } else {
+        report.pass(OTHERS, &endpoint, "no velocity commands or gateway heartbeats on the bus");
+    }
+    if !healthy {
+        report.skip(&[BOARD_CONFIG], &board, "the board is not ready");
+        return;
+    }
+    match configure_board(&mut link, rig).await {
+        Ok(detail) => report.pass(BOARD_CONFIG, &board, detail),
+        Err(why) => report.fail(BOARD_CONFIG, &board, why),
+    }
+}
+
+fn can_open_error(e: CanError) -> String {
+    match e {
+        CanError::Serial(SerialError::Missing { path }) => format!("SLCAN adapter {path} does not exist (plugged in?)"),
+        other => other.to_string(),
+    }
+}
+
+/// A SocketCAN interface's state from sysfs (and `ip`'s view of a real controller).
+fn socketcan_state(interface: &str) -> Result<(), String> {
+    let dir = Path::new("/sys/class/net").join(interface);
+    if !dir.exists() {
+        return Err(format!("no such interface (ip link show {interface})"));
+    }
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).map(|s| s.trim().to_string()).unwrap_or_default();
+    let flags = u32::from_str_radix(read("flags").trim_start_matches("0x"), 16).unwrap_or(0);
+    if flags & 1 == 0 {
+        return Err(format!("is down (ip link set up {interface})"));
+    }
+    let errors: u64 =
+        ["statistics/rx_errors", "statistics/tx_errors"].iter().filter_map(|n| read(n).parse::<u64>().ok()).sum();
+    if errors > 0 {
+        return Err(format!(
+            "{errors} rx/tx errors counted since it came up (ip -details -statistics link show {interface})"
+        ));
+    }
+    // A real controller has a state (vcan has none): anything but ERROR-ACTIVE is a fault.
+    if let Ok(out) =
+        std::process::Command::new("ip").args(["-details", "-json", "link", "show", "dev", interface]).output()
+    {
+        if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&out.stdout) {
+            if let Some(state) = v[0]["linkinfo"]["info_data"]["state"].as_str() {
+                if state != "ERROR-ACTIVE" {
+                    return Err(format!("controller state {state} (not ERROR-ACTIVE)"));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What the bus said while the check listened.
+#[derive(Debug, Default)]
+struct Heard {
+    heartbeats: u32,
+    state: Option<BoardState>,
+    faults: FaultBits,
+    other_nodes: Vec<u8>,
+    foreign_commands: u32,
+    gateway_heartbeats: u32,
+    error_frames: u32,
+    bus_off: bool,
+    /// An SLCAN adapter's flags: (bus-off, error-passive).
+    adapter: Option<(bool, bool)>,
+}
+
+async fn listen(link: &mut CanLink, node: NodeId, poll_status: bool) -> Result<Heard, CanError> {
+    let mut heard = Heard::default();
+    if poll_status {
+        tokio::time::timeout(STATUS_WAIT, link.poll_status())
+            .await
+            .map_err(|_| CanError::Timeout { what: "status poll" })??;
+    }
+    let end = Instant::now() + LISTEN;
+    while let Ok(event) = timeout_at(end, link.recv()).await {
+        match event? {
+            CanEvent::Frame(frame) => match MotorMessage::parse(&frame) {
+                Ok(MotorMessage::Heartbeat { node: n, state }) if n == node => {
+                    heard.heartbeats += 1;
+                    heard.state = Some(state);
+                }
+                Ok(MotorMessage::Status { node: n, state, faults, .. }) if n == node => {
+                    heard.state = Some(state);
+                    heard.faults = faults;
+                }
+                Ok(MotorMessage::Velocity { .. }) => heard.foreign_commands += 1,
+                Ok(MotorMessage::GatewayHeartbeat { .. }) => heard.gateway_heartbeats += 1,
+                Ok(m) => {
+                    if let Some(n) = m.node().filter(|n| *n != node) {
+                        if !heard.other_nodes.contains(&n.get()) {
+                            heard.other_nodes.push(n.get());
+                        }
+                    }
+                }
+                Err(_) => {}
+            },
+            CanEvent::ErrorFrame { bus_off } => {
+                heard.error_frames += 1;
+                heard.bus_off |= bus_off;
+            }
+            CanEvent::AdapterStatus { bus_off, error_passive } => heard.adapter = Some((bus_off, error_passive)),
+            CanEvent::Garbled | CanEvent::TransmitRefused => heard.error_frames += 1,
+        }
+    }
+    heard.other_nodes.sort_unstable();
+    Ok(heard)
+}
+
+/// Send the config the gateway sends before every enable (never the enable), and read the
+/// board's next status: the motor protocol has no acknowledgement of a config, so
+/// "accepted" is the board's status after it still Disabled, fault-free and at rest.
+async fn configure_board(link: &mut CanLink, rig: &Rig) -> Result<String, String> {
+    let b = rig.board;
+    let node = rig.node;
+    let frame = MotorMessage::Config { node, accel: b.accel, max_rate: b.max_rate, timeout_ms: b.command_timeout_ms }
+        .to_frame()
+        .map_err(|e| format!("the config does not encode: {e}"))?;
+    tokio::time::timeout(STATUS_WAIT, link.send(frame))
+        .await
+        .map_err(|_| "the config frame was not taken within its deadline".to_string())?
+        .map_err(|e| e.to_string())?;
+    let end = Instant::now() + STATUS_WAIT;
+    let mut status = None;
+    let mut rates = None;
+    while status.is_none() || rates.is_none() {
+        match timeout_at(end, link.recv()).await {
+            Err(_) => break,
+            Ok(Err(e)) => return Err(e.to_string()),
+            Ok(Ok(CanEvent::Frame(f))) => match MotorMessage::parse(&f) {
+                Ok(MotorMessage::Status { node: n, state, faults, .. }) if n == node => status = Some((state, faults)),
+                Ok(MotorMessage::AxisRates { node: n, left, right }) if n == node && status.is_some() => {
+                    rates = Some((left, right))
+                }
+                _ => {}
+            },
+            Ok(Ok(_)) => {}
+        }
+    }
+    let Some((state, faults)) = status else {
+        return Err(format!("no status within {} ms of the config", STATUS_WAIT.as_millis()));
+    };
+    if state != BoardState::Disabled || !faults.is_empty() {
+        return Err(format!("after the config: {state:?}, faults {}", fault_names(faults)));
+    }
+    if let Some((l, r)) = rates.filter(|&(l, r)| l != 0 || r != 0) {
+        return Err(format!("its axes are moving ({l}, {r} pulses/s) while Disabled"));
+    }
+    Ok(format!(
+        "accel {} pulses/s², max rate {} pulses/s, timeout {} ms sent; then Disabled, no faults, at rest",
+        b.accel, b.max_rate, b.command_timeout_ms
+    ))
+}
+
+/// A board's fault bits by name.
+pub fn fault_names(f: FaultBits) -> String {
+    const NAMES: [(u8, &str); 6] = [
+        (FaultBits::CMD_TIMEOUT, "command timeout"),
+        (FaultBits::ESTOP, "e-stop"),
+        (FaultBits::RATE_LIMIT, "rate limit"),
+        (FaultBits::BUS, "bus"),
+        (FaultBits::DRIVER, "driver"),
+        (FaultBits::GATEWAY_LOST, "gateway lost"),
+    ];
+    let names: Vec<&str> = NAMES.iter().filter(|(bit, _)| f.contains(*bit)).map(|(_, n)| *n).collect();
+    if names.is_empty() {
+        "none".into()
+    } else {
+        names.join(", ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fault_bits_are_named() {
+        assert_eq!(fault_names(FaultBits::default()), "none");
+        assert_eq!(fault_names(FaultBits(FaultBits::DRIVER | FaultBits::ESTOP)), "e-stop, driver");
+    }
+
+    #[test]
+    fn a_thin_or_faulty_stream_fails() {
+        assert_eq!(stream_verdict(35, 35.3, 0, 0), Verdict::Pass);
+        assert_eq!(stream_verdict(35, 35.3, 0, 2), Verdict::Warn);
+        assert_eq!(stream_verdict(27, 35.3, 0, 0), Verdict::Fail, "under 80% of the frames");
+        assert_eq!(stream_verdict(0, 35.3, 0, 0), Verdict::Fail, "a silent stream");
+        assert_eq!(stream_verdict(35, 35.3, 1, 0), Verdict::Fail, "a controller fault");
+    }
+
+    #[test]
+    fn the_table_counts_failures() {
+        let mut r = Report::default();
+        r.pass(CONFIG, "rig.toml", "ok");
+        r.fail(SERIAL, "/dev/x", "missing");
+        r.skip(&[ANSWERS], "/dev/x", "the serial port failed");
+        assert_eq!(r.failures(), 1);
+        let text = r.to_string();
+        assert!(text.contains("FAIL  serial port"), "{text}");
+        assert!(text.ends_with("1 of 3 checks failed (0 warnings): fix them before arming"), "{text}");
+    }
+}

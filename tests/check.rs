@@ -1,0 +1,252 @@
+//! `flowgate check` against the simulator over real ptys: a healthy rig passes every line
+//! and exits 0; each failure it knows is provoked (a bad key, a missing or busy port, a
+//! silent or foreign controller, a refused schedule, slow clock syncs, a hidden robot LED,
+//! a missing or bus-off CAN adapter, a board that is absent, faulted or silent, a second
+//! master) and must come out as FAIL on its own line, naming the device or key, with a
+//! non-zero exit.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use flowgate::config::GatewayConfig;
+use flowgate::lab::Scenario;
+use flowgate_sim::rig::{RigConfig, RigHandle};
+
+/// What `flowgate check` printed and how it exited.
+struct Outcome {
+    ok: bool,
+    stdout: String,
+}
+
+impl Outcome {
+    /// The line for `item`: its verdict and the rest.
+    fn line(&self, item: &str) -> &str {
+        self.stdout
+            .lines()
+            .find(|l| l.get(6..).is_some_and(|rest| rest.starts_with(item)))
+            .unwrap_or_else(|| panic!("no line for {item}:\n{}", self.stdout))
+    }
+    fn verdict(&self, item: &str) -> &str {
+        &self.line(item)[..4]
+    }
+    /// Only `item` failed.
+    fn fails_only(&self, item: &str, says: &[&str]) {
+        assert!(!self.ok, "exit status 0 with a failure:\n{}", self.stdout);
+        assert_eq!(self.verdict(item), "FAIL", "{}", self.stdout);
+        for s in says {
+            assert!(self.line(item).contains(s), "{item} does not say `{s}`:\n{}", self.stdout);
+        }
+        let fails = self.stdout.lines().filter(|l| l.starts_with("FAIL")).count();
+        assert_eq!(fails, 1, "exactly one failure expected:\n{}", self.stdout);
+    }
+}
+
+fn e1() -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap()
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("flowgate-check-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The simulator with `faults` (key=value), and the gateway config for it.
+async fn sim(faults: &[&str]) -> (RigHandle, GatewayConfig) {
+    let s = e1();
+    let mut rig = RigConfig::new(s.sim.clone());
+    let settings: Vec<String> = faults.iter().map(|f| f.to_string()).collect();
+    rig.faults = rig.faults.with_settings(&settings).unwrap();
+    let handle = flowgate_sim::rig::start(rig).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let cfg = s.gateway_config(&handle.psd_path, &can, None);
+    (handle, cfg)
+}
+
+fn check_file(name: &str, text: &str) -> Outcome {
+    let path = dir(name).join("rig.toml");
+    std::fs::write(&path, text).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_flowgate")).args(["check", "--config"]).arg(&path).output().unwrap();
+    let stdout = String::from_utf8(out.stdout).unwrap();
+    Outcome { ok: out.status.success(), stdout }
+}
+
+fn check(name: &str, cfg: &GatewayConfig) -> Outcome {
+    check_file(name, &cfg.to_toml())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_healthy_rig_passes_every_line() {
+    let (handle, cfg) = sim(&[]).await;
+    let out = check("healthy", &cfg);
+    handle.stop().await;
+    assert!(out.ok, "{}", out.stdout);
+    for item in [
+        "config",
+        "watchdogs vs board timeout",
+        "LED schedule",
+        "serial port",
+        "controller answers",
+        "controller identity",
+        "schedule accepted",
+        "time sync",
+        "sample stream",
+        "LEDs in view",
+        "CAN interface",
+        "board heartbeat",
+        "no other master",
+        "board config",
+    ] {
+        assert_eq!(out.verdict(item), "PASS", "{item}:\n{}", out.stdout);
+    }
+    assert!(out.line("controller identity").contains("firmware 1.0.0, drives up to 16 LEDs, PSD 4096x4096"));
+    assert!(out.line("board heartbeat").contains("node 1"), "{}", out.stdout);
+    assert!(out.line("board config").contains("then Disabled, no faults, at rest"), "{}", out.stdout);
+    assert!(out.stdout.contains("all 14 checks passed"), "{}", out.stdout);
+}
+
+#[test]
+fn a_bad_key_is_named_and_nothing_is_opened() {
+    let s = e1();
+    let mut cfg = s.gateway_config(Path::new("/dev/null"), "slcan:/dev/null", None);
+    cfg.safety.pose_timeout_ms = 0;
+    let out = check("bad-key", &cfg);
+    out.fails_only("config", &["safety.pose_timeout_ms", "must be 1-60000 ms, is 0"]);
+    assert_eq!(out.verdict("serial port"), "SKIP");
+    assert_eq!(out.verdict("board config"), "SKIP");
+
+    let out = check_file("unparsable", "[serial]\nport = 3\n");
+    out.fails_only("config", &["rig.toml"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serial_port_missing_or_busy() {
+    let (handle, mut cfg) = sim(&[]).await;
+    let real = cfg.serial.port.clone();
+    cfg.serial.port = "/dev/flowgate-no-such-port".into();
+    let out = check("missing-port", &cfg);
+    out.fails_only("serial port", &["/dev/flowgate-no-such-port", "does not exist"]);
+    assert_eq!(out.verdict("controller answers"), "SKIP");
+    // The CAN side is still checked.
+    assert_eq!(out.verdict("board config"), "PASS", "{}", out.stdout);
+
+    cfg.serial.port = real.clone();
+    let held = flowgate::link::open_serial(&real, 921_600).unwrap();
+    let out = check("busy-port", &cfg);
+    drop(held);
+    handle.stop().await;
+    out.fails_only("serial port", &[&real.display().to_string(), "in use"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_controller() {
+    let (handle, mut cfg) = sim(&[]).await;
+    // A line nobody answers on.
+    let (_master, _keep, path) = flowgate_sim::rig::pty().unwrap();
+    cfg.serial.port = path.clone();
+    let out = check("silent", &cfg);
+    handle.stop().await;
+    out.fails_only("controller answers", &[&path.display().to_string(), "did not answer GetInfo"]);
+    assert_eq!(out.verdict("time sync"), "SKIP");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_controller_that_is_not_the_configured_one() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.calibration.counts = 2048;
+    // A fitted calibration must still load at these counts: points in range.
+    let out = check("identity", &cfg);
+    handle.stop().await;
+    out.fails_only("controller identity", &["calibration.counts", "counts differ"]);
+    assert_eq!(out.verdict("controller answers"), "PASS");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_schedule() {
+    let (handle, mut cfg) = sim(&[]).await;
+    // The simulated controller drives LEDs 1-16.
+    cfg.leds.obstacles[0].led = 20;
+    let out = check("schedule", &cfg);
+    handle.stop().await;
+    out.fails_only("schedule accepted", &["refused SetSchedule", "BadValue"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_clock_syncs() {
+    // Every sync reply held 30 ms: round trips the gateway would discard.
+    let (handle, cfg) = sim(&["sync_reply_hold=[0.0, 1000.0, 30.0]"]).await;
+    let out = check("sync", &cfg);
+    handle.stop().await;
+    out.fails_only("time sync", &["median 3", "over 10 ms"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hidden_robot_led() {
+    let (handle, cfg) = sim(&["occlusions=[[1.0, 0.0, 1000.0]]"]).await;
+    let out = check("led", &cfg);
+    handle.stop().await;
+    out.fails_only("LEDs in view", &["LED 1 (robot)", "weak"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn duplicates_on_the_line_are_a_warning() {
+    let (handle, cfg) = sim(&["serial_duplicate=0.05"]).await;
+    let out = check("duplicates", &cfg);
+    handle.stop().await;
+    assert!(out.ok, "{}", out.stdout);
+    assert_eq!(out.verdict("sample stream"), "WARN", "{}", out.stdout);
+    assert!(!out.line("sample stream").contains(" 0 duplicate"), "{}", out.stdout);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn can_adapter_missing_or_bus_off() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.can.endpoint = "slcan:/dev/flowgate-no-such-adapter?bitrate=1000000".into();
+    let out = check("no-adapter", &cfg);
+    handle.stop().await;
+    out.fails_only("CAN interface", &["/dev/flowgate-no-such-adapter", "does not exist"]);
+    assert_eq!(out.verdict("board heartbeat"), "SKIP");
+
+    let (handle, cfg) = sim(&["adapter_bus_off=[0.0, 1000.0]"]).await;
+    let out = check("bus-off", &cfg);
+    handle.stop().await;
+    assert_eq!(out.verdict("CAN interface"), "FAIL", "{}", out.stdout);
+    assert!(out.line("CAN interface").contains("bus-off"), "{}", out.stdout);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_board_at_another_node() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.can.node = 5;
+    let out = check("node", &cfg);
+    handle.stop().await;
+    out.fails_only("board heartbeat", &["node 5", "no heartbeat", "nodes heard: [1]"]);
+    assert_eq!(out.verdict("board config"), "SKIP");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_faulted_board() {
+    let (handle, cfg) = sim(&["board_fault_at=0.0"]).await;
+    let out = check("board-fault", &cfg);
+    handle.stop().await;
+    out.fails_only("board heartbeat", &["Fault", "driver"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_board_without_heartbeat() {
+    let (handle, cfg) = sim(&["heartbeat_stop_at=0.0"]).await;
+    let out = check("no-heartbeat", &cfg);
+    handle.stop().await;
+    out.fails_only("board heartbeat", &["no heartbeat in 1000 ms"]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_master_on_the_bus() {
+    let (handle, cfg) = sim(&["second_master_at=0.0"]).await;
+    let out = check("master", &cfg);
+    handle.stop().await;
+    assert_eq!(out.verdict("no other master"), "FAIL", "{}", out.stdout);
+    assert!(out.line("no other master").contains("another gateway is running"), "{}", out.stdout);
+    assert!(!out.ok);
+}
