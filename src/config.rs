@@ -438,6 +438,12 @@ impl GatewayConfig {
         toml::to_string(self).expect("a config always serialises")
     }
 
+    /// The time-division schedule this config gives `leds` (in firing order): the
+    /// calibration streams its one LED with the rig's own slot settings.
+    pub fn schedule_for(&self, leds: &[u8]) -> Result<Schedule, Invalid> {
+        self.schedule.build(leds)
+    }
+
     /// Check every value and build the rig; `origin` names the config in errors.
     pub fn rig(&self, origin: &str) -> Result<Rig, ConfigError> {
         self.validate().map_err(|invalid| ConfigError::Invalid { path: origin.into(), invalid })

@@ -20,6 +20,7 @@ pub mod lab;
 pub mod link;
 pub mod planner;
 pub mod setup;
+pub mod svg;
 pub mod time;
 pub mod track;
 

@@ -24,6 +24,8 @@ enum Command {
     Demo(cli::demo::DemoArgs),
     /// Run the gateway on a rig (serial PSD controller, CAN motor boards). Starts idle.
     Run(cli::run::RunArgs),
+    /// Calibrate the camera: an LED at known floor points, the fit written into rig.toml.
+    Calibrate(cli::calibrate::CalibrateArgs),
     /// Preflight: check the config, the PSD controller and the motor board without moving
     /// anything. Exits non-zero when any check fails.
     Check(cli::check::CheckArgs),
@@ -74,6 +76,7 @@ fn run() -> Result<bool> {
     let done = |r: Result<()>| r.map(|()| true);
     match cli.command {
         Command::Check(args) => cli::check::run(args),
+        Command::Calibrate(args) => done(cli::calibrate::run(args)),
         #[cfg(feature = "lab")]
         Command::Demo(args) => done(cli::demo::run(args)),
         #[cfg(feature = "lab")]

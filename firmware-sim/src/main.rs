@@ -51,6 +51,10 @@ struct Args {
     /// One fault setting, `key=value` (repeatable), e.g. `--fault serial_drop=0.01`.
     #[arg(long = "fault", value_name = "KEY=VALUE")]
     fault: Vec<String>,
+    /// Hold this LED as a calibration wand: each line on stdin, `X Y` (floor metres), puts it
+    /// there; `off` takes it out of sight (for `flowgate calibrate`).
+    #[arg(long, value_name = "LED")]
+    wand: Option<u8>,
     /// Write the world's truth here at exit (`.json`, or CSV otherwise).
     #[arg(long, value_name = "FILE")]
     truth: Option<PathBuf>,
@@ -95,9 +99,33 @@ fn main() -> Result<()> {
         if let Some(can) = &handle.can_path {
             println!("can: slcan {}", can.display());
         }
-        tokio::select! {
-            _ = interrupt.recv() => {}
-            _ = term.recv() => {}
+        let (wand_tx, mut wand_rx) = tokio::sync::mpsc::channel::<Option<flowgate_sim::Point>>(4);
+        if let Some(led) = args.wand {
+            handle.place_wand(led, None);
+            std::thread::spawn(move || {
+                for line in std::io::stdin().lines().map_while(Result::ok) {
+                    match parse_wand(&line) {
+                        Ok(at) => {
+                            if wand_tx.blocking_send(at).is_err() {
+                                break;
+                            }
+                        }
+                        Err(why) => eprintln!("wand: {why}"),
+                    }
+                }
+            });
+        }
+        loop {
+            tokio::select! {
+                _ = interrupt.recv() => break,
+                _ = term.recv() => break,
+                Some(at) = wand_rx.recv() => {
+                    if let Some(led) = args.wand {
+                        handle.place_wand(led, at);
+                        println!("wand: LED {led} at {}", at.map_or("off".into(), |p| format!("{} {}", p.re, p.im)));
+                    }
+                }
+            }
         }
         let truth = handle.stop().await;
         if let Some(path) = args.truth {
@@ -106,4 +134,18 @@ fn main() -> Result<()> {
         }
         Ok(())
     })
+}
+
+/// A wand line: `X Y` in metres, or `off`.
+fn parse_wand(line: &str) -> Result<Option<flowgate_sim::Point>, String> {
+    let line = line.trim();
+    if line == "off" {
+        return Ok(None);
+    }
+    let v: Vec<f64> =
+        line.split_whitespace().map(str::parse).collect::<Result<_, _>>().map_err(|e| format!("`{line}`: {e}"))?;
+    match v[..] {
+        [x, y] if x.is_finite() && y.is_finite() => Ok(Some(flowgate_sim::Point::new(x, y))),
+        _ => Err(format!("`{line}`: expected `X Y` (metres) or `off`")),
+    }
 }

@@ -46,8 +46,12 @@ impl LedMap {
         Self { robot_front: 1, robot_rear: 2, first_obstacle: 3, robot_led_offset: 0.5 * robot_radius }
     }
 
-    /// Where LED `led` is at time `t`, if it exists.
+    /// Where LED `led` is at time `t`, if it exists. A calibration wand takes precedence:
+    /// the person holding it has taken that LED in hand.
     pub fn position(&self, led: u8, world: &World, t: f64) -> Option<Point> {
+        if let Some((_, at)) = world.wand().filter(|(wand, _)| *wand == led) {
+            return at;
+        }
         let pose = world.pose();
         let u = Point::from_polar(1.0, pose.heading);
         if led == self.robot_front {

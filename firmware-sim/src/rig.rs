@@ -142,12 +142,19 @@ pub struct RigHandle {
     /// The SLCAN adapter's path (with `slcan-pty`).
     pub can_path: Option<PathBuf>,
     pub stats: Arc<RigStats>,
+    wand: tokio::sync::watch::Sender<Option<(u8, Option<crate::Point>)>>,
     stop: Option<oneshot::Sender<()>>,
     task: JoinHandle<TruthRecord>,
     links: Vec<PathBuf>,
 }
 
 impl RigHandle {
+    /// Hold LED `led` as a calibration wand at floor point `at` (`None`: out of sight). The
+    /// controller reports that LED there from its next slot on.
+    pub fn place_wand(&self, led: u8, at: Option<crate::Point>) {
+        self.wand.send_replace(Some((led, at)));
+    }
+
     /// Stop the rig; returns the world's truth. Removes the links it made.
     pub async fn stop(mut self) -> TruthRecord {
         if let Some(stop) = self.stop.take() {
@@ -311,15 +318,16 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
 
     let stats = Arc::new(RigStats::default());
     let (stop_tx, stop_rx) = oneshot::channel();
+    let (wand, wand_rx) = tokio::sync::watch::channel(None);
     let loop_stats = stats.clone();
     let task = tokio::spawn(async move {
-        let (truth, psd) = run(config, psd, bus, stop_rx, loop_stats).await;
+        let (truth, psd) = run(config, psd, bus, stop_rx, wand_rx, loop_stats).await;
         psd.task.abort();
         can_task.abort();
         drop(keep_alive);
         truth
     });
-    Ok(RigHandle { psd_path, can_path, stats, stop: Some(stop_tx), task, links })
+    Ok(RigHandle { psd_path, can_path, stats, wand, stop: Some(stop_tx), task, links })
 }
 
 /// The PSD controller's serial endpoint as the loop holds it (replaceable: it can vanish).
@@ -374,6 +382,7 @@ async fn run(
     mut psd: PsdIo,
     mut bus: Bus,
     mut stop: oneshot::Receiver<()>,
+    wand: tokio::sync::watch::Receiver<Option<(u8, Option<crate::Point>)>>,
     stats: Arc<RigStats>,
 ) -> (TruthRecord, PsdIo) {
     let mut world = World::new(&config.scenario);
@@ -412,6 +421,9 @@ async fn run(
         let t = now();
         if t > world.time() {
             world.step(t - world.time());
+        }
+        if let Some((led, at)) = *wand.borrow() {
+            world.place_wand(led, at);
         }
         controller.poll(t, &world, &mut psd_out);
         board.poll(t, &mut world, &mut can_out);

@@ -1,5 +1,6 @@
 #[cfg(feature = "lab")]
 pub mod bench;
+pub mod calibrate;
 pub mod check;
 pub mod ctl;
 #[cfg(feature = "lab")]

@@ -233,6 +233,14 @@ impl PsdClient {
         Ok(trips)
     }
 
+    /// Stop the stream and keep the line: `configure` starts it again (the calibration
+    /// pauses while the user moves the LED, so no stale samples wait in the line).
+    pub async fn pause(&mut self) -> Result<(), PsdClientError> {
+        let out = &mut self.outgoing;
+        self.session.stop(&mut |p| out.push(p));
+        self.flush().await
+    }
+
     /// Stop the stream (best effort: the controller may already be gone).
     pub async fn stop(mut self) {
         let out = &mut self.outgoing;

@@ -30,6 +30,9 @@ pub struct World {
     obstacles: Vec<(ObstaclePath, f64)>,
     lane_half_width: Option<f64>,
     truth: Truth,
+    /// A calibration wand: an LED someone holds on the floor (its id and where it stands;
+    /// `None` = held out of sight).
+    wand: Option<(u8, Option<Point>)>,
 }
 
 /// What really happened, judged against the true radii.
@@ -72,9 +75,20 @@ impl World {
                 path_length: 0.0,
                 peak_wheel_speed: [0.0; 2],
             },
+            wand: None,
         };
         world.judge();
         world
+    }
+
+    /// Put the wand LED `led` at `at` on the floor (`None`: out of sight).
+    pub fn place_wand(&mut self, led: u8, at: Option<Point>) {
+        self.wand = Some((led, at));
+    }
+
+    /// The wand, if one is in use: its LED and where it stands.
+    pub fn wand(&self) -> Option<(u8, Option<Point>)> {
+        self.wand
     }
 
     pub fn time(&self) -> f64 {

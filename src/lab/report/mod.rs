@@ -1,7 +1,5 @@
 //! Reports a person reads: the trajectory and history plots of a run (SVG).
 
-mod svg;
-
 use std::fmt::Write as _;
 
 use num_complex::Complex64 as C;
@@ -9,7 +7,7 @@ use num_complex::Complex64 as C;
 use crate::lab::offline::Run;
 use crate::lab::Scenario;
 use crate::planner::{Field, ObstacleEstimate, PlanInput, Planner};
-use svg::{Axes, Svg};
+use crate::svg::{Axes, Svg};
 
 const ROBOT: &str = "#1f77b4";
 const OBSTACLE: &str = "#d62728";

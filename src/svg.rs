@@ -1,8 +1,10 @@
-//! A few SVG primitives: enough for line plots in data coordinates.
+//! A few SVG primitives: enough for line plots in data coordinates (the lab's reports, the
+//! calibration's residual plot).
 
 use num_complex::Complex64 as C;
 use std::fmt::Write as _;
 
+#[derive(Debug)]
 pub struct Svg {
     pub width: f64,
     pub height: f64,
@@ -34,6 +36,7 @@ impl Svg {
 }
 
 /// A plot area: data rectangle `lo..hi` mapped into the SVG minus margins (left, top, bottom, right).
+#[derive(Debug)]
 pub struct Axes {
     lo: C,
     hi: C,
