@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
 use crate::control::{ControlConfig, StallConfig};
+use crate::gateway::realtime::RealtimeSettings;
 use crate::link::CanUrl;
 use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
@@ -54,7 +55,7 @@ pub struct GatewayConfig {
 }
 
 /// How the gateway trades CPU for latency on a rig that gives it a core.
-#[derive(Debug, Clone, Copy, Default, Deserialize, Serialize)]
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RealtimeConfig {
     /// Low-latency mode: poll for the next frame from this long before it is due until this
@@ -62,6 +63,18 @@ pub struct RealtimeConfig {
     /// about (spin_us + 1 ms) / T of a core (`flowgate bench` measures it).
     #[serde(default)]
     pub spin_us: u32,
+    /// Run the control loop on these CPUs only (e.g. `[3]`, a core kept free with
+    /// `isolcpus=`); empty = anywhere (default).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cpus: Vec<usize>,
+    /// `SCHED_FIFO` priority of the control loop, 1-99; 0 = the normal policy (default).
+    /// Needs CAP_SYS_NICE or `LimitRTPRIO=` in the unit.
+    #[serde(default)]
+    pub fifo_priority: u8,
+    /// Lock the gateway's memory (`mlockall`): no page faults on the rig path. Needs
+    /// CAP_IPC_LOCK or `LimitMEMLOCK=infinity` in the unit.
+    #[serde(default)]
+    pub lock_memory: bool,
 }
 
 /// The local control interface: the only way to command motion.
@@ -580,6 +593,18 @@ impl GatewayConfig {
                 ),
             );
         }
+        let rt = &self.realtime;
+        if rt.fifo_priority > 99 {
+            return invalid("realtime.fifo_priority", format!("must be 1-99 (0: off), is {}", rt.fifo_priority));
+        }
+        for (i, &cpu) in rt.cpus.iter().enumerate() {
+            if cpu >= rustix::thread::CpuSet::MAX_CPU {
+                return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is beyond what Linux numbers"));
+            }
+            if rt.cpus[..i].contains(&cpu) {
+                return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is listed twice"));
+            }
+        }
         let control = self.control_config(sample_period);
         let ppm = control.drive.pulses_per_metre();
         let to_rate = |key: &str, v: f64| {
@@ -626,6 +651,11 @@ impl GatewayConfig {
             goal: self.goal,
             operator: self.operator.clone(),
             spin: (!spin.is_zero()).then_some(spin),
+            realtime: RealtimeSettings {
+                cpus: rt.cpus.clone(),
+                fifo_priority: (rt.fifo_priority > 0).then_some(rt.fifo_priority),
+                lock_memory: rt.lock_memory,
+            },
         })
     }
 
@@ -730,6 +760,8 @@ pub struct Rig {
     pub operator: OperatorConfig,
     /// The low-latency mode's polling window either side of the next frame (`None`: off).
     pub spin: Option<Duration>,
+    /// CPU affinity, `SCHED_FIFO` and locked memory, applied at start.
+    pub realtime: RealtimeSettings,
 }
 
 #[cfg(test)]
@@ -774,6 +806,9 @@ mod tests {
             ("pose_tolerance_m = 0.02", "pose_tolerance_m = nan", "safety.pose_tolerance_m"),
             // The low-latency window, twice over, must fit in T = 17 ms or the loop never sleeps.
             ("spin_us = 0 ", "spin_us = 8500 ", "realtime.spin_us"),
+            ("fifo_priority = 0 ", "fifo_priority = 100 ", "realtime.fifo_priority"),
+            ("cpus = [] ", "cpus = [1, 1] ", "realtime.cpus[1]"),
+            ("cpus = [] ", "cpus = [5000] ", "realtime.cpus[0]"),
         ];
         for (from, to, key) in cases {
             assert!(EXAMPLE.contains(from), "example lacks {from}");
@@ -784,6 +819,11 @@ mod tests {
         assert_eq!(rig(EXAMPLE).unwrap().spin, None, "off by default");
         let spin = rig(&EXAMPLE.replace("spin_us = 0 ", "spin_us = 8499 ")).unwrap().spin;
         assert_eq!(spin, Some(Duration::from_micros(8499)));
+        assert!(rig(EXAMPLE).unwrap().realtime.is_empty(), "no real-time settings by default");
+        let rt = rig(&EXAMPLE.replace("fifo_priority = 0 ", "fifo_priority = 60 ").replace("cpus = [] ", "cpus = [3] "))
+            .unwrap()
+            .realtime;
+        assert_eq!((rt.cpus, rt.fifo_priority, rt.lock_memory), (vec![3], Some(60), false));
         let err = rig(&EXAMPLE.replace("[safety]", "[safety]\nbogus = 1")).unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
     }

@@ -3,14 +3,19 @@
 //! command and reports sane figures. No timing is asserted here;
 //! performance is measured by `flowgate bench`, not by tests.
 
-use flowgate::lab::bench::{PhaseSpec, Transport};
+use flowgate::gateway::realtime::RealtimeSettings;
+use flowgate::lab::bench::{Mode, PhaseSpec, Transport};
 
 #[tokio::test(flavor = "current_thread")]
 async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     let dir = std::env::temp_dir().join(format!("flowgate-bench-smoke-{}", std::process::id()));
     let exe = std::path::Path::new(env!("CARGO_BIN_EXE_flowgate"));
-    let phases =
-        [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true, low_latency_us: Some(500) }];
+    // The real-time row asks only for what any process may: a CPU of its own.
+    let also = vec![
+        Mode { spin_us: 500, realtime: RealtimeSettings::default() },
+        Mode { spin_us: 0, realtime: RealtimeSettings { cpus: vec![0], ..RealtimeSettings::default() } },
+    ];
+    let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true, also }];
     let report = flowgate::lab::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
     let p = &report.phases[0];
     assert_eq!(p.cycles_sent, 100);
@@ -32,12 +37,16 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     assert_eq!((low.name.as_str(), low.spin_us), ("smoke, low-latency", Some(500)));
     assert_eq!((low.cycles_sent, low.commands_received), (100, 100));
     assert_eq!(low.floor.expect("its own floor").commands_received, 100);
+    // The real-time row: a third pair, with the settings named.
+    let rt = &report.phases[2];
+    assert_eq!((rt.name.as_str(), rt.realtime.as_deref()), ("smoke, real-time", Some("CPUs [0]")));
+    assert_eq!((rt.cycles_sent, rt.commands_received), (100, 100));
+    assert_eq!(rt.floor.expect("its own floor").commands_received, 100);
     assert!(report.gateway_states.iter().all(|s| !s.starts_with("fault")), "{:?}", report.gateway_states);
-    assert!(
-        report.gateway_states_low_latency.iter().all(|s| !s.starts_with("fault")),
-        "{:?}",
-        report.gateway_states_low_latency
-    );
+    assert_eq!(report.other_states.len(), 2);
+    for (name, states) in &report.other_states {
+        assert!(states.iter().all(|s| !s.starts_with("fault")) && !states.is_empty(), "{name}: {states:?}");
+    }
     let json = serde_json::to_string(&report).unwrap();
     assert!(json.contains("late_percent"));
     let _ = std::fs::remove_dir_all(&dir);

@@ -86,6 +86,7 @@ async fn a_healthy_rig_passes_every_line() {
         "config",
         "watchdogs vs board timeout",
         "LED schedule",
+        "real-time settings",
         "serial port",
         "controller answers",
         "controller identity",
@@ -103,7 +104,7 @@ async fn a_healthy_rig_passes_every_line() {
     assert!(out.line("controller identity").contains("firmware 1.0.0, drives up to 16 LEDs, PSD 4096x4096"));
     assert!(out.line("board heartbeat").contains("node 1"), "{}", out.stdout);
     assert!(out.line("board config").contains("then Disabled, no faults, at rest"), "{}", out.stdout);
-    assert!(out.stdout.contains("all 14 checks passed"), "{}", out.stdout);
+    assert!(out.stdout.contains("all 15 checks passed"), "{}", out.stdout);
 }
 
 #[test]
@@ -249,4 +250,83 @@ async fn a_second_master_on_the_bus() {
     assert_eq!(out.verdict("no other master"), "FAIL", "{}", out.stdout);
     assert!(out.line("no other master").contains("another gateway is running"), "{}", out.stdout);
     assert!(!out.ok);
+}
+
+/// Whether this host grants SCHED_FIFO and mlockall to a process like the test's.
+fn realtime_granted() -> bool {
+    Command::new("chrt").args(["-f", "10", "true"]).status().is_ok_and(|s| s.success())
+}
+
+/// `flowgate check` under `setpriv`/`prlimit` without CAP_SYS_NICE and CAP_IPC_LOCK, and
+/// with RLIMIT_RTPRIO 0 and RLIMIT_MEMLOCK 64 KiB: what an unprivileged service meets.
+fn check_unprivileged(name: &str, cfg: &GatewayConfig) -> Outcome {
+    let path = dir(name).join("rig.toml");
+    std::fs::write(&path, cfg.to_toml()).unwrap();
+    let out = Command::new("setpriv")
+        .args(["--bounding-set=-sys_nice,-ipc_lock", "prlimit", "--rtprio=0", "--memlock=65536"])
+        .arg(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["check", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    Outcome { ok: out.status.success(), stdout: String::from_utf8(out.stdout).unwrap() }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn real_time_settings_granted_or_refused_by_name() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.realtime.cpus = vec![0];
+    cfg.realtime.fifo_priority = 50;
+    cfg.realtime.lock_memory = true;
+    let out = check("realtime", &cfg);
+    if realtime_granted() {
+        assert!(out.ok, "{}", out.stdout);
+        assert!(
+            out.line("real-time settings").contains("CPUs [0], SCHED_FIFO 50, memory locked: granted"),
+            "{}",
+            out.stdout
+        );
+    } else {
+        assert_eq!(out.verdict("real-time settings"), "FAIL", "{}", out.stdout);
+    }
+
+    cfg.realtime.lock_memory = false;
+    let out = check_unprivileged("realtime-fifo", &cfg);
+    out.fails_only(
+        "real-time settings",
+        &["realtime.fifo_priority = 50", "CAP_SYS_NICE", "it has 0", "LimitRTPRIO=50"],
+    );
+
+    cfg.realtime.fifo_priority = 0;
+    cfg.realtime.lock_memory = true;
+    let out = check_unprivileged("realtime-lock", &cfg);
+    handle.stop().await;
+    out.fails_only(
+        "real-time settings",
+        &["realtime.lock_memory", "CAP_IPC_LOCK", "it has 64 KiB", "LimitMEMLOCK=infinity"],
+    );
+}
+
+/// `flowgate run` meets the same refusal at start, and does not start.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_gateway_does_not_start_without_its_real_time_settings() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.realtime.fifo_priority = 40;
+    cfg.goal = None;
+    let path = dir("realtime-run").join("rig.toml");
+    std::fs::write(&path, cfg.to_toml()).unwrap();
+    let out = Command::new("setpriv")
+        .args(["--bounding-set=-sys_nice", "prlimit", "--rtprio=0"])
+        .arg(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["run", "--config"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    handle.stop().await;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("Error: realtime.fifo_priority = 40: SCHED_FIFO refused") && stderr.contains("LimitRTPRIO=40"),
+        "{stderr}"
+    );
 }

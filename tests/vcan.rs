@@ -188,7 +188,7 @@ async fn the_bench_runs_over_socketcan() {
     use flowgate::lab::bench::{PhaseSpec, Transport};
     let dir = temp("bench");
     let exe = Path::new(env!("CARGO_BIN_EXE_flowgate"));
-    let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 50.0, cycles: 100, floor: true, low_latency_us: None }];
+    let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 50.0, cycles: 100, floor: true, also: Vec::new() }];
     let report = flowgate::lab::bench::run(exe, &Transport::SocketCan { interface: iface }, &phases, &dir)
         .await
         .expect("bench runs over SocketCAN");

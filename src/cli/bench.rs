@@ -4,7 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use flowgate::lab::bench::{PhaseSpec, Transport};
+use flowgate::gateway::realtime::RealtimeSettings;
+use flowgate::lab::bench::{Mode, PhaseSpec, Transport};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -23,34 +24,45 @@ pub struct BenchArgs {
     /// runs through a gateway in that mode, in the same seconds (0: not).
     #[arg(long, value_name = "US", default_value_t = 1000)]
     spin_us: u32,
+    /// The real-time row at the paper's rate: a gateway (and its null gateway) on this CPU
+    /// with SCHED_FIFO at --fifo-priority and locked memory, in the same seconds.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    rt_cpu: usize,
+    /// SCHED_FIFO priority of the real-time row (0: no real-time row).
+    #[arg(long, value_name = "0-99", default_value_t = 50, value_parser = clap::value_parser!(u8).range(0..=99))]
+    fifo_priority: u8,
     /// Where to write bench.json.
     #[arg(long, value_name = "DIR", default_value = "out/bench")]
     out: PathBuf,
 }
 
-const fn phase(name: &'static str, frame_rate_hz: f64, cycles: u64) -> PhaseSpec {
-    PhaseSpec { name, frame_rate_hz, cycles, floor: true, low_latency_us: None }
+fn phase(name: &'static str, frame_rate_hz: f64, cycles: u64) -> PhaseSpec {
+    PhaseSpec { name, frame_rate_hz, cycles, floor: true, also: Vec::new() }
 }
 
 /// Two LEDs a frame, so samples/s = 2 x frames/s. The latency phases above the paper's rate
 /// have 10^5 cycles; the last phase is one hour's worth of the paper's T = 17 ms cycles (211,765),
 /// played at 5 kHz, for memory.
-const FULL: &[PhaseSpec] = &[
-    phase("T=17ms (paper)", 1000.0 / 17.0, 3_000),
-    phase("1 kHz", 1_000.0, 100_000),
-    phase("5 kHz", 5_000.0, 100_000),
-    phase("10 kHz", 10_000.0, 100_000),
-    phase("12.5 kHz", 12_500.0, 100_000),
-    phase("20 kHz", 20_000.0, 100_000),
-    PhaseSpec { name: "1 hour at T=17ms", frame_rate_hz: 5_000.0, cycles: 211_765, floor: false, low_latency_us: None },
-];
+fn full() -> Vec<PhaseSpec> {
+    vec![
+        phase("T=17ms (paper)", 1000.0 / 17.0, 3_000),
+        phase("1 kHz", 1_000.0, 100_000),
+        phase("5 kHz", 5_000.0, 100_000),
+        phase("10 kHz", 10_000.0, 100_000),
+        phase("12.5 kHz", 12_500.0, 100_000),
+        phase("20 kHz", 20_000.0, 100_000),
+        PhaseSpec { floor: false, ..phase("1 hour at T=17ms", 5_000.0, 211_765) },
+    ]
+}
 
-const QUICK: &[PhaseSpec] = &[
-    phase("T=17ms (paper)", 1000.0 / 17.0, 300),
-    phase("1 kHz", 1_000.0, 10_000),
-    phase("5 kHz", 5_000.0, 10_000),
-    phase("10 kHz", 10_000.0, 10_000),
-];
+fn quick() -> Vec<PhaseSpec> {
+    vec![
+        phase("T=17ms (paper)", 1000.0 / 17.0, 300),
+        phase("1 kHz", 1_000.0, 10_000),
+        phase("5 kHz", 5_000.0, 10_000),
+        phase("10 kHz", 10_000.0, 10_000),
+    ]
+}
 
 pub fn run(args: BenchArgs) -> Result<()> {
     let transport = match args.can.as_str() {
@@ -60,7 +72,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             _ => bail!("--can {other}: expected slcan-pty or socketcan:IFACE"),
         },
     };
-    let mut phases = if args.quick { QUICK } else { FULL }.to_vec();
+    let mut phases = if args.quick { quick() } else { full() };
     if let Some(n) = args.paper_cycles {
         if n == 0 {
             bail!("--paper-cycles must be positive");
@@ -70,8 +82,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if args.spin_us > 30_000 {
         bail!("--spin-us {}: at most 30000 µs (the window, twice it, must fit in a frame)", args.spin_us);
     }
-    // The paper's rate, with the low-latency mode on beside it.
-    phases[0].low_latency_us = (args.spin_us > 0).then_some(args.spin_us);
+    // The paper's rate, with the low-latency mode and the real-time settings beside it.
+    if args.spin_us > 0 {
+        phases[0].also.push(Mode { spin_us: args.spin_us, realtime: RealtimeSettings::default() });
+    }
+    if args.fifo_priority > 0 {
+        let realtime =
+            RealtimeSettings { cpus: vec![args.rt_cpu], fifo_priority: Some(args.fifo_priority), lock_memory: true };
+        phases[0].also.push(Mode { spin_us: 0, realtime });
+    }
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let report = runtime.block_on(flowgate::lab::bench::run(&exe, &transport, &phases, &args.out))?;

@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::{anyhow, Result};
 use clap::Args;
 use flowgate::lab::bench::null_gateway::{serve, READY};
+use flowgate::gateway::realtime::{self, RealtimeSettings};
 use flowgate::link::CanUrl;
 
 #[derive(Args, Debug)]
@@ -22,12 +23,24 @@ pub struct NullGatewayArgs {
     /// low-latency mode does (0: sleep between frames).
     #[arg(long, value_name = "US", default_value_t = 0)]
     spin_us: u64,
+    /// Run on this CPU (repeatable), as the gateway's `[realtime] cpus`.
+    #[arg(long = "cpu", value_name = "N")]
+    cpus: Vec<usize>,
+    /// SCHED_FIFO at this priority, as the gateway's `[realtime] fifo_priority`.
+    #[arg(long, value_name = "1-99", value_parser = clap::value_parser!(u8).range(1..=99))]
+    fifo_priority: Option<u8>,
+    /// Lock memory, as the gateway's `[realtime] lock_memory`.
+    #[arg(long)]
+    lock_memory: bool,
 }
 
 pub fn run(args: NullGatewayArgs) -> Result<()> {
     let can: CanUrl = args.can.parse().map_err(|e: String| anyhow!("--can {}: {e}", args.can))?;
     let spin = (args.spin_us > 0).then(|| Duration::from_micros(args.spin_us));
+    let realtime = RealtimeSettings { cpus: args.cpus, fifo_priority: args.fifo_priority, lock_memory: args.lock_memory };
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    // On the thread that runs the loop, before it starts, as the gateway does.
+    realtime::apply(&realtime)?;
     runtime.block_on(serve(&args.psd, &can, spin, || {
         let mut out = std::io::stdout().lock();
         let _ = writeln!(out, "{READY}");

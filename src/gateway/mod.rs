@@ -18,6 +18,7 @@ pub mod core;
 pub mod low_latency;
 pub mod operator;
 pub mod psd_session;
+pub mod realtime;
 pub mod safety;
 pub mod shell;
 pub mod systemd;
@@ -47,6 +48,8 @@ pub enum GatewayError {
     ControlSocket(#[from] control_socket::ControlSocketError),
     #[error("systemd notification: {0}")]
     Notify(#[from] systemd::NotifyError),
+    #[error(transparent)]
+    Realtime(#[from] realtime::RealtimeError),
 }
 
 /// What the gateway shows while it runs (for a live display). Receivers are woken when the

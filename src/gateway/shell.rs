@@ -15,6 +15,7 @@ use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
 use super::low_latency::{SpinWindow, Wait};
 use super::operator::Request;
+use super::realtime;
 use super::systemd::Notifier;
 use super::telemetry::{self, CanRecord, Record, Recorder, Timing};
 use super::{GatewayError, Progress, Report};
@@ -338,6 +339,12 @@ pub async fn run(
         }
         None => (Recorder::disabled(), None),
     };
+    // On the loop's thread, once everything is open (the writer thread keeps the normal
+    // policy) and before the first cycle.
+    if !rig.realtime.is_empty() {
+        realtime::apply(&rig.realtime)?;
+        tracing::info!("real-time settings: {}", rig.realtime);
+    }
     let (path, baud) = (rig.serial.port.clone(), rig.serial.baud);
     let mut io = Io {
         origin,

@@ -101,6 +101,7 @@ impl fmt::Display for Report {
 const CONFIG: &str = "config";
 const WATCHDOGS: &str = "watchdogs vs board timeout";
 const SCHEDULE: &str = "LED schedule";
+const REALTIME: &str = "real-time settings";
 const SERIAL: &str = "serial port";
 const ANSWERS: &str = "controller answers";
 const IDENTITY: &str = "controller identity";
@@ -144,6 +145,13 @@ pub async fn check(config: &Path) -> Report {
     };
     report.pass(CONFIG, origin, "parsed; every key in range");
     config_cross_checks(&rig, &mut report);
+    // Applied to this process as the gateway applies them to its own: a refusal here is the
+    // refusal `flowgate run` would meet, with the same message.
+    match crate::gateway::realtime::apply(&rig.realtime) {
+        Ok(()) if rig.realtime.is_empty() => report.pass(REALTIME, "realtime", "none asked for"),
+        Ok(()) => report.pass(REALTIME, "realtime", format!("{}: granted", rig.realtime)),
+        Err(e) => report.fail(REALTIME, "realtime", e.to_string()),
+    }
     check_psd(&rig, &mut report).await;
     check_can(&rig, &mut report).await;
     report

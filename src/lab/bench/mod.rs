@@ -26,6 +26,7 @@ use null_gateway::NullGatewayProcess;
 use pace::Pacer;
 use peers::{CanSide, Controller, Stamped, ToBus};
 
+use crate::gateway::realtime::RealtimeSettings;
 use crate::gateway::telemetry::StageSummary;
 
 /// The PSD line's baud rate and the CAN bitrate the wire times are stated for.
@@ -39,6 +40,9 @@ pub struct Phase {
     /// The gateway's low-latency window (`[realtime] spin_us`) in this phase, if it was on;
     /// its null gateway then polls the same way.
     pub spin_us: Option<u32>,
+    /// The gateway's real-time settings in this phase (CPU affinity, SCHED_FIFO, locked
+    /// memory), if any; its null gateway then runs with them too.
+    pub realtime: Option<String>,
     /// Time-division frames per second the controller sent.
     pub frame_rate_hz: f64,
     pub samples_per_s: f64,
@@ -72,17 +76,37 @@ pub struct Floor {
     pub cpu_percent: f64,
 }
 
+/// How a row's gateway and its null gateway run: the low-latency window and the real-time
+/// settings (both off: the gateway as installed).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Mode {
+    pub spin_us: u32,
+    pub realtime: RealtimeSettings,
+}
+
+impl Mode {
+    /// The row's suffix: `None` for the plain gateway.
+    fn label(&self) -> Option<String> {
+        match (self.spin_us > 0, self.realtime.is_empty()) {
+            (false, true) => None,
+            (true, true) => Some("low-latency".into()),
+            (false, false) => Some("real-time".into()),
+            (true, false) => Some("low-latency + real-time".into()),
+        }
+    }
+}
+
 /// One phase to run: a frame rate (two LEDs a frame) for a number of cycles.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct PhaseSpec {
     pub name: &'static str,
     pub frame_rate_hz: f64,
     pub cycles: u64,
     /// Also run it through the null gateway, block by block.
     pub floor: bool,
-    /// Also run it, in the same seconds, through a second gateway in low-latency mode with
-    /// this window (and a null gateway polling the same way): a second row.
-    pub low_latency_us: Option<u32>,
+    /// Also run it, in the same seconds, through a gateway (and a null gateway) in each of
+    /// these modes: a row each.
+    pub also: Vec<Mode>,
 }
 
 /// Where the gateway's CAN commands go.
@@ -166,10 +190,10 @@ pub struct BenchReport {
     /// The same, but late no more often than the null gateway plus one point: the rates at
     /// which flowgate itself is not the bottleneck.
     pub sustained_vs_floor_samples_per_s: f64,
-    /// The gateway's states over the run, in order (from its output), and the low-latency
-    /// gateway's over its phase.
+    /// The gateway's states over the run, in order (from its output), and each other mode's
+    /// gateway's over its phase (by row name).
     pub gateway_states: Vec<String>,
-    pub gateway_states_low_latency: Vec<String>,
+    pub other_states: Vec<(String, Vec<String>)>,
     pub planner_note: &'static str,
 }
 
@@ -195,21 +219,26 @@ fn proc_stat(dir: &str) -> (f64, f64) {
 /// timeout beyond them as the config requires): it idles while the null gateway has its
 /// turn, and under emulation (vcan in the VM) a turn can stretch; the watchdogs themselves
 /// are tested in tests/fault_table.rs. Its control socket answers the bench's `stats`.
-fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, spin_us: u32) -> String {
+fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &Mode) -> String {
     let h = flowgate_sim::calibration::CameraModel::default().homography;
     // The schedule's period only bounds the low-latency window (twice it must fit in T);
     // the bench streams at its own rates.
+    let spin_us = mode.spin_us;
     let slot_us = 500.max(spin_us + 100);
+    let rt = &mode.realtime;
     format!(
         "[serial]\nport = \"{}\"\n[leds]\nrobot_front = 1\nrobot_rear = 2\nfront_offset = 0.035\nrear_offset = 0.035\n\
          [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nnode = {}\n\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
-         [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\n",
+         [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n",
         psd.display(),
         node.get(),
         socket.display(),
+        rt.cpus,
+        rt.fifo_priority.unwrap_or(0),
+        rt.lock_memory,
     )
 }
 
@@ -229,7 +258,7 @@ impl GatewayProcess {
         workdir: &Path,
         name: &str,
         node: NodeId,
-        spin_us: u32,
+        mode: &Mode,
     ) -> std::io::Result<Self> {
         let config = workdir.join(format!("{name}.toml"));
         // Sockets in the temporary directory: the output folder may be on a file system
@@ -237,7 +266,7 @@ impl GatewayProcess {
         let sockets = std::env::temp_dir().join(format!("flowgate-bench-{}", std::process::id()));
         std::fs::create_dir_all(&sockets)?;
         let socket = sockets.join(format!("{name}.sock"));
-        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, node, &socket, spin_us))?;
+        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, node, &socket, mode))?;
         let log = workdir.join(format!("{name}.log"));
         let mut child = tokio::process::Command::new(exe)
             .args(["run", "--arm", "--config"])
@@ -458,14 +487,16 @@ impl Pair {
         workdir: &Path,
         name: &str,
         node: NodeId,
-        spin_us: u32,
+        mode: &Mode,
     ) -> std::io::Result<Self> {
-        let mut floor = Target::new(transport, spin_us > 0)?;
-        let spin = (spin_us > 0).then(|| Duration::from_micros(u64::from(spin_us)));
-        let null = NullGatewayProcess::start(exe, &floor.controller.path, &floor.can.endpoint, spin).await?;
+        let polls = mode.spin_us > 0;
+        let mut floor = Target::new(transport, polls)?;
+        let spin = polls.then(|| Duration::from_micros(u64::from(mode.spin_us)));
+        let null =
+            NullGatewayProcess::start(exe, &floor.controller.path, &floor.can.endpoint, spin, &mode.realtime).await?;
         floor.proc_dir = null.proc_dir();
-        let mut gateway = Target::new(transport, spin_us > 0)?;
-        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, node, spin_us).await?;
+        let mut gateway = Target::new(transport, polls)?;
+        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, node, mode).await?;
         Ok(Self { gateway, process, node, floor, null })
     }
 
@@ -488,14 +519,15 @@ impl PairTally {
         Self { gateway: Tally::new(), floor: Tally::new(), rss0: proc_stat(&pair.gateway.proc_dir).1 }
     }
 
-    async fn phase(self, pair: &Pair, spec: &PhaseSpec, name: String, spin_us: Option<u32>) -> std::io::Result<Phase> {
+    async fn phase(self, pair: &Pair, spec: &PhaseSpec, name: String, mode: &Mode) -> std::io::Result<Phase> {
         let (g, f) = (&self.gateway, &self.floor);
         let rss1 = proc_stat(&pair.gateway.proc_dir).1;
         let floor = spec.floor.then(|| f.floor());
         let (gp, fp) = (g.percentiles(), f.percentiles());
         Ok(Phase {
             name,
-            spin_us,
+            spin_us: (mode.spin_us > 0).then_some(mode.spin_us),
+            realtime: (!mode.realtime.is_empty()).then(|| mode.realtime.to_string()),
             frame_rate_hz: g.sent as f64 / g.elapsed_s,
             samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
             cycles_sent: g.sent,
@@ -530,25 +562,32 @@ pub async fn run(
     std::fs::create_dir_all(workdir)?;
     // Nodes 1 and 3 for the gateways; the null gateways command node 2.
     let node = |n| NodeId::new(n).expect("1-15");
-    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", node(1), 0).await?;
+    let plain = Mode::default();
+    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", node(1), &plain).await?;
     let mut report_phases = Vec::new();
-    let mut states_low_latency = Vec::new();
+    let mut other_states = Vec::new();
     for spec in phases {
-        let mut low = match spec.low_latency_us {
-            Some(us) => Some(Pair::start(gateway_exe, transport, workdir, "gateway-low-latency", node(3), us).await?),
-            None => None,
-        };
-        let boards: Vec<Board> =
-            std::iter::once(&main).chain(low.as_ref()).map(|p| (p.gateway.can.board(), p.node)).collect();
+        // Each other mode's pair, started for this phase only, on its own board's node.
+        let mut others: Vec<(Pair, &Mode, String)> = Vec::new();
+        for (k, mode) in spec.also.iter().enumerate() {
+            let label = mode.label().unwrap_or_else(|| "again".into());
+            let file = format!("gateway-{}", label.replace([' ', '+'], "-"));
+            let pair = Pair::start(gateway_exe, transport, workdir, &file, node(3 + k as u8), mode).await?;
+            others.push((pair, mode, format!("{}, {label}", spec.name)));
+        }
+        let boards: Vec<Board> = std::iter::once(&main)
+            .chain(others.iter().map(|(p, ..)| p))
+            .map(|p| (p.gateway.can.board(), p.node))
+            .collect();
         let period = Duration::from_secs_f64(1.0 / spec.frame_rate_hz);
         let per_block = ((BLOCK.as_secs_f64() * spec.frame_rate_hz) as u64).clamp(1, spec.cycles);
         // The stage statistics start with the phase.
         main.process.stages().await?;
-        if let Some(l) = &low {
-            l.process.stages().await?;
+        for (pair, ..) in &others {
+            pair.process.stages().await?;
         }
         let mut m = PairTally::new(&main);
-        let mut l = low.as_ref().map(PairTally::new);
+        let mut tallies: Vec<PairTally> = others.iter().map(|(p, ..)| PairTally::new(p)).collect();
         let mut left = spec.cycles;
         while left > 0 {
             let n = per_block.min(left);
@@ -557,29 +596,28 @@ pub async fn run(
                 block(&mut main.floor, period, n, &mut m.floor, &boards).await?;
             }
             block(&mut main.gateway, period, n, &mut m.gateway, &boards).await?;
-            if let (Some(pair), Some(tally)) = (&mut low, &mut l) {
+            for ((pair, ..), tally) in others.iter_mut().zip(&mut tallies) {
                 block(&mut pair.floor, period, n, &mut tally.floor, &boards).await?;
                 block(&mut pair.gateway, period, n, &mut tally.gateway, &boards).await?;
             }
             // On a shared bus (vcan) each side heard the others' commands too.
             main.floor.can.drain();
-            if let Some(pair) = &low {
+            for (pair, ..) in &others {
                 pair.floor.can.drain();
                 pair.gateway.can.drain();
             }
         }
-        report_phases.push(m.phase(&main, spec, spec.name.to_string(), None).await?);
-        if let (Some(pair), Some(tally)) = (low.take(), l) {
-            let name = format!("{}, low-latency", spec.name);
-            report_phases.push(tally.phase(&pair, spec, name, spec.low_latency_us).await?);
-            states_low_latency = pair.stop().await;
+        report_phases.push(m.phase(&main, spec, spec.name.to_string(), &plain).await?);
+        for ((pair, mode, name), tally) in others.into_iter().zip(tallies) {
+            report_phases.push(tally.phase(&pair, spec, name.clone(), mode).await?);
+            other_states.push((name, pair.stop().await));
         }
     }
     let gateway_states = main.stop().await;
     // Sustained: the highest rate that passes with every slower latency phase passing too.
     let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
         let mut latency_phases: Vec<&Phase> =
-            report_phases.iter().filter(|p| p.floor.is_some() && p.spin_us.is_none()).collect();
+            report_phases.iter().filter(|p| p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none()).collect();
         latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
         latency_phases
             .iter()
@@ -602,7 +640,7 @@ pub async fn run(
         sustained_samples_per_s: sustained,
         sustained_vs_floor_samples_per_s: sustained_vs_floor,
         gateway_states,
-        gateway_states_low_latency: states_low_latency,
+        other_states,
         planner_note: "planner per-evaluation figures: cargo bench --bench planner (README)",
     })
 }
@@ -701,13 +739,16 @@ impl std::fmt::Display for BenchReport {
             self.wire_per_cycle_us
         )?;
         writeln!(f, "gateway states: {}", self.gateway_states.join(" -> "))?;
-        if let Some(p) = self.phases.iter().find(|p| p.spin_us.is_some()) {
-            writeln!(
-                f,
-                "low-latency: a second gateway with [realtime] spin_us = {} (and its null gateway polling the same way), in the same seconds; its states: {}",
-                p.spin_us.unwrap_or(0),
-                self.gateway_states_low_latency.join(" -> ")
-            )?;
+        for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some()) {
+            let mut how = Vec::new();
+            if let Some(us) = p.spin_us {
+                how.push(format!("[realtime] spin_us = {us} (its null gateway polling the same way)"));
+            }
+            if let Some(rt) = &p.realtime {
+                how.push(format!("real-time settings {rt} (its null gateway with them too)"));
+            }
+            let states = self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));
+            writeln!(f, "{}: another gateway with {}, in the same seconds; its states: {states}", p.name, how.join(" and "))?;
         }
         writeln!(
             f,

@@ -6,7 +6,8 @@
 //! runtime, and answers every frame end with a fixed velocity command at once. What it
 //! measures is the pty, the scheduler and the CAN transport on this machine, with
 //! flowgate's work taken out. With `spin` it polls for frames as the gateway's low-latency
-//! mode does ([`SpinWindow`]), so that mode has a floor too.
+//! mode does ([`SpinWindow`]), so that mode has a floor too; with real-time settings it
+//! applies them as the gateway does, so those have one as well.
 
 use std::path::Path;
 use std::process::Stdio;
@@ -20,6 +21,7 @@ use tokio::io::{AsyncBufReadExt, AsyncReadExt as _};
 use tokio_util::codec::Decoder;
 
 use crate::gateway::low_latency::{SpinWindow, Wait};
+use crate::gateway::realtime::RealtimeSettings;
 use crate::link::{open_can, open_serial, CanUrl};
 
 /// What the process prints once both endpoints are open.
@@ -79,11 +81,21 @@ impl NullGatewayProcess {
         psd_path: &Path,
         can_endpoint: &str,
         spin: Option<Duration>,
+        realtime: &RealtimeSettings,
     ) -> std::io::Result<Self> {
         let mut cmd = tokio::process::Command::new(exe);
         cmd.arg("null-gateway").arg("--psd").arg(psd_path).args(["--can", can_endpoint]);
         if let Some(s) = spin {
             cmd.args(["--spin-us", &s.as_micros().to_string()]);
+        }
+        for cpu in &realtime.cpus {
+            cmd.args(["--cpu", &cpu.to_string()]);
+        }
+        if let Some(p) = realtime.fifo_priority {
+            cmd.args(["--fifo-priority", &p.to_string()]);
+        }
+        if realtime.lock_memory {
+            cmd.arg("--lock-memory");
         }
         // Its errors go to the bench's stderr, where the user sees them.
         let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).kill_on_drop(true).spawn()?;
