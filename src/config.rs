@@ -777,7 +777,7 @@ mod tests {
     #[test]
     fn the_example_is_valid() {
         let r = rig(EXAMPLE).unwrap();
-        assert_eq!(r.can, CanUrl::Slcan { path: "/dev/ttyACM0".into(), bitrate: 1_000_000, baud: 921_600 });
+        assert_eq!(r.can, CanUrl::Slcan { path: "/dev/flowgate-can".into(), bitrate: 1_000_000, baud: 921_600 });
         assert_eq!(r.obstacles.len(), 2);
         assert_eq!(r.schedule.slots().len(), 4);
         assert_eq!(r.sample_period, Duration::from_micros(4 * 4000 + 1000));
@@ -787,7 +787,7 @@ mod tests {
     fn bad_values_are_refused_naming_the_key() {
         let cases = [
             ("node = 1", "node = 16", "can.node"),
-            ("endpoint = \"slcan:/dev/ttyACM0?bitrate=1000000\"", "endpoint = \"can0\"", "can.endpoint"),
+            ("endpoint = \"slcan:/dev/flowgate-can?bitrate=1000000\"", "endpoint = \"can0\"", "can.endpoint"),
             ("wheel_radius = 0.025", "wheel_radius = -0.025", "drive.wheel_radius"),
             ("robot_rear = 2", "robot_rear = 1", "leds.robot_rear"),
             ("factor = 1.1", "factor = 0.9", "planner.margin.factor"),
@@ -820,9 +820,10 @@ mod tests {
         let spin = rig(&EXAMPLE.replace("spin_us = 0 ", "spin_us = 8499 ")).unwrap().spin;
         assert_eq!(spin, Some(Duration::from_micros(8499)));
         assert!(rig(EXAMPLE).unwrap().realtime.is_empty(), "no real-time settings by default");
-        let rt = rig(&EXAMPLE.replace("fifo_priority = 0 ", "fifo_priority = 60 ").replace("cpus = [] ", "cpus = [3] "))
-            .unwrap()
-            .realtime;
+        let rt =
+            rig(&EXAMPLE.replace("fifo_priority = 0 ", "fifo_priority = 60 ").replace("cpus = [] ", "cpus = [3] "))
+                .unwrap()
+                .realtime;
         assert_eq!((rt.cpus, rt.fifo_priority, rt.lock_memory), (vec![3], Some(60), false));
         let err = rig(&EXAMPLE.replace("[safety]", "[safety]\nbogus = 1")).unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");

@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 #[derive(Parser, Debug)]
 #[command(
     name = "flowgate",
-    version,
+    version = concat!(env!("CARGO_PKG_VERSION"), " (", env!("FLOWGATE_COMMIT"), ")"),
     about = "Steers a mobile robot around moving obstacles: PSD serial in, motor CAN out"
 )]
 struct Cli {
@@ -22,13 +22,13 @@ enum Command {
     /// Run the simulator and the gateway together over real ptys (no hardware needed).
     #[cfg(feature = "lab")]
     Demo(cli::demo::DemoArgs),
-    /// Run the gateway on a rig (serial PSD controller, CAN motor boards). Starts idle.
-    Run(cli::run::RunArgs),
-    /// Calibrate the camera: an LED at known floor points, the fit written into rig.toml.
-    Calibrate(cli::calibrate::CalibrateArgs),
     /// Preflight: check the config, the PSD controller and the motor board without moving
     /// anything. Exits non-zero when any check fails.
     Check(cli::check::CheckArgs),
+    /// Calibrate the camera: an LED at known floor points, the fit written into rig.toml.
+    Calibrate(cli::calibrate::CalibrateArgs),
+    /// Run the gateway on a rig (serial PSD controller, CAN motor boards). Starts idle.
+    Run(cli::run::RunArgs),
     /// Operate a running gateway: status, arm, start, stop, estop, reset, goal, cancel.
     Ctl(cli::ctl::CtlArgs),
     /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Result};
 use clap::Args;
-use flowgate::lab::bench::null_gateway::{serve, READY};
 use flowgate::gateway::realtime::{self, RealtimeSettings};
+use flowgate::lab::bench::null_gateway::{serve, READY};
 use flowgate::link::CanUrl;
 
 #[derive(Args, Debug)]
@@ -37,7 +37,8 @@ pub struct NullGatewayArgs {
 pub fn run(args: NullGatewayArgs) -> Result<()> {
     let can: CanUrl = args.can.parse().map_err(|e: String| anyhow!("--can {}: {e}", args.can))?;
     let spin = (args.spin_us > 0).then(|| Duration::from_micros(args.spin_us));
-    let realtime = RealtimeSettings { cpus: args.cpus, fifo_priority: args.fifo_priority, lock_memory: args.lock_memory };
+    let realtime =
+        RealtimeSettings { cpus: args.cpus, fifo_priority: args.fifo_priority, lock_memory: args.lock_memory };
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     // On the thread that runs the loop, before it starts, as the gateway does.
     realtime::apply(&realtime)?;

@@ -90,9 +90,10 @@ impl fmt::Display for Report {
             writeln!(f, "{}  {:w_item$}  {:w_subject$}  {}", l.verdict, l.item, l.subject, l.detail)?;
         }
         let (fail, warn) = (self.failures(), self.lines.iter().filter(|l| l.verdict == Verdict::Warn).count());
+        let warnings = if warn == 1 { "1 warning".to_string() } else { format!("{warn} warnings") };
         match fail {
-            0 => write!(f, "all {} checks passed ({warn} warnings): the rig is ready to arm", self.lines.len()),
-            n => write!(f, "{n} of {} checks failed ({warn} warnings): fix them before arming", self.lines.len()),
+            0 => write!(f, "all {} checks passed ({warnings}): the rig is ready to arm", self.lines.len()),
+            n => write!(f, "{n} of {} checks failed ({warnings}): fix them before arming", self.lines.len()),
         }
     }
 }

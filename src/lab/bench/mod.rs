@@ -747,8 +747,14 @@ impl std::fmt::Display for BenchReport {
             if let Some(rt) = &p.realtime {
                 how.push(format!("real-time settings {rt} (its null gateway with them too)"));
             }
-            let states = self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));
-            writeln!(f, "{}: another gateway with {}, in the same seconds; its states: {states}", p.name, how.join(" and "))?;
+            let states =
+                self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));
+            writeln!(
+                f,
+                "{}: another gateway with {}, in the same seconds; its states: {states}",
+                p.name,
+                how.join(" and ")
+            )?;
         }
         writeln!(
             f,
