@@ -21,9 +21,7 @@ fn main() {
     println!("cargo:rustc-env=FLOWGATE_COMMIT={commit}");
     // Again when HEAD moves (a commit, a checkout).
     if let Some(dir) = git(&["rev-parse", "--git-dir"]) {
-        for f in ["HEAD"] {
-            println!("cargo:rerun-if-changed={dir}/{f}");
-        }
+        println!("cargo:rerun-if-changed={dir}/HEAD");
         if let Some(head) = git(&["symbolic-ref", "-q", "HEAD"]) {
             println!("cargo:rerun-if-changed={dir}/{head}");
         }
