@@ -203,3 +203,39 @@ async fn the_bench_runs_over_socketcan() {
     assert!(report.transport.contains("SocketCAN"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `flowgate check` on SocketCAN: the interface is up and error-free, the board heartbeats
+/// and takes its config; an interface that does not exist fails by name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_preflight_checks_a_socketcan_interface() {
+    let Some(iface) = vcan("the_preflight_checks_a_socketcan_interface") else { return };
+    let dir = temp("check");
+    let s = scenario("e1-standing-obstacle.toml");
+    let mut rig = flowgate_sim::rig::RigConfig::new(s.sim.clone());
+    rig.can = flowgate_sim::rig::CanEndpoint::SocketCan { interface: iface.clone() };
+    let handle = flowgate_sim::rig::start(rig).await.unwrap();
+    let check = |endpoint: &str, name: &str| {
+        let cfg = s.gateway_config(&handle.psd_path, endpoint, None);
+        let path = dir.join(format!("{name}.toml"));
+        std::fs::write(&path, cfg.to_toml()).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_flowgate")).args(["check", "--config"]).arg(&path).output().unwrap();
+        (out.status.success(), String::from_utf8(out.stdout).unwrap())
+    };
+    let (ok, out) = check(&format!("socketcan:{iface}"), "up");
+    let line = |item: &str| {
+        out.lines().find(|l| l.get(6..).is_some_and(|r| r.starts_with(item))).unwrap_or_default().to_string()
+    };
+    assert!(ok, "{out}");
+    assert!(
+        line("CAN interface").starts_with("PASS") && line("CAN interface").contains("up, no error frames"),
+        "{out}"
+    );
+    assert!(line("board heartbeat").starts_with("PASS") && line("board config").starts_with("PASS"), "{out}");
+
+    let (ok, out) = check("socketcan:fgnone0", "missing");
+    handle.stop().await;
+    assert!(!ok, "{out}");
+    let can = out.lines().find(|l| l.get(6..).is_some_and(|r| r.starts_with("CAN interface"))).unwrap();
+    assert!(can.starts_with("FAIL") && can.contains("fgnone0") && can.contains("no such interface"), "{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
