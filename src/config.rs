@@ -9,6 +9,7 @@
 //! scenario file, so rig configs and scenarios share one set of rules and one
 //! constructor of the control settings.
 
+use std::fmt;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -19,7 +20,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
 use crate::control::{ControlConfig, StallConfig};
-use crate::gateway::realtime::RealtimeSettings;
 use crate::link::CanUrl;
 use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
@@ -709,6 +709,44 @@ impl GatewayConfig {
             goal_tolerance: self.goal.map_or(default_tolerance(), |g| g.tolerance),
             robot_radius: robot,
             stall: StallConfig::default(),
+        }
+    }
+}
+
+/// The real-time settings of `[realtime]`, as checked at load (applied by
+/// `gateway::realtime`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RealtimeSettings {
+    /// Run the control loop on these CPUs only (empty: wherever the scheduler likes).
+    pub cpus: Vec<usize>,
+    /// `SCHED_FIFO` at this priority (1-99) for the control loop.
+    pub fifo_priority: Option<u8>,
+    /// `mlockall(MCL_CURRENT | MCL_FUTURE)`: no page fault on the rig path.
+    pub lock_memory: bool,
+}
+
+impl RealtimeSettings {
+    pub fn is_empty(&self) -> bool {
+        self.cpus.is_empty() && self.fifo_priority.is_none() && !self.lock_memory
+    }
+}
+
+impl fmt::Display for RealtimeSettings {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut parts = Vec::new();
+        if !self.cpus.is_empty() {
+            parts.push(format!("CPUs {:?}", self.cpus));
+        }
+        if let Some(p) = self.fifo_priority {
+            parts.push(format!("SCHED_FIFO {p}"));
+        }
+        if self.lock_memory {
+            parts.push("memory locked".to_string());
+        }
+        if parts.is_empty() {
+            f.write_str("none")
+        } else {
+            f.write_str(&parts.join(", "))
         }
     }
 }

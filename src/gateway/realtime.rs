@@ -7,50 +7,13 @@
 //! loop) and, for `mlockall`, to the whole process. The telemetry writer thread, started
 //! before them, keeps the normal policy: its file writes must never compete with the loop.
 
-use std::fmt;
-
 use rustix::process::{getrlimit, Resource};
+
+pub use crate::config::RealtimeSettings;
 use thread_priority::{
     set_thread_priority_and_policy, thread_native_id, RealtimeThreadSchedulePolicy, ThreadPriority,
     ThreadPriorityValue, ThreadSchedulePolicy,
 };
-
-/// The settings, as checked at load.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct RealtimeSettings {
-    /// Run the control loop on these CPUs only (empty: wherever the scheduler likes).
-    pub cpus: Vec<usize>,
-    /// `SCHED_FIFO` at this priority (1-99) for the control loop.
-    pub fifo_priority: Option<u8>,
-    /// `mlockall(MCL_CURRENT | MCL_FUTURE)`: no page fault on the rig path.
-    pub lock_memory: bool,
-}
-
-impl RealtimeSettings {
-    pub fn is_empty(&self) -> bool {
-        self.cpus.is_empty() && self.fifo_priority.is_none() && !self.lock_memory
-    }
-}
-
-impl fmt::Display for RealtimeSettings {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let mut parts = Vec::new();
-        if !self.cpus.is_empty() {
-            parts.push(format!("CPUs {:?}", self.cpus));
-        }
-        if let Some(p) = self.fifo_priority {
-            parts.push(format!("SCHED_FIFO {p}"));
-        }
-        if self.lock_memory {
-            parts.push("memory locked".to_string());
-        }
-        if parts.is_empty() {
-            f.write_str("none")
-        } else {
-            f.write_str(&parts.join(", "))
-        }
-    }
-}
 
 /// A setting the host refused.
 #[derive(Debug, thiserror::Error)]
