@@ -319,6 +319,10 @@ impl Default for SafetyConfig {
     }
 }
 
+/// The finest microstepping of a stepper driver, and the most full steps per revolution.
+const MAX_MICROSTEPS: u32 = 256;
+const MAX_STEPS_PER_REV: u32 = 10_000;
+
 /// Longest watchdog accepted, ms: a minute. Longer is a typo, not a rig.
 const MAX_WATCHDOG_MS: u32 = 60_000;
 /// Largest telemetry queue accepted, records.
@@ -511,6 +515,15 @@ impl GatewayConfig {
         if d.steps_per_rev == 0 || d.microsteps == 0 {
             return invalid("drive.steps_per_rev", "steps_per_rev and microsteps must be at least 1");
         }
+        if d.microsteps > MAX_MICROSTEPS {
+            return invalid(
+                "drive.microsteps",
+                format!("must be 1-{MAX_MICROSTEPS} (what stepper drivers do), is {}", d.microsteps),
+            );
+        }
+        if d.steps_per_rev > MAX_STEPS_PER_REV {
+            return invalid("drive.steps_per_rev", format!("must be 1-{MAX_STEPS_PER_REV}, is {}", d.steps_per_rev));
+        }
         if d.command_timeout_ms == 0 {
             return invalid("drive.command_timeout_ms", "must be positive");
         }
@@ -526,6 +539,16 @@ impl GatewayConfig {
         }
         positive("robot.radius", self.robot.radius)?;
         positive("robot.max_speed", self.robot.max_speed)?;
+        // The centre moves at the mean of the wheels' rim speeds: never faster than they go.
+        if self.robot.max_speed > d.max_wheel_speed {
+            return invalid(
+                "robot.max_speed",
+                format!(
+                    "{} m/s is above drive.max_wheel_speed = {} m/s: the wheels cannot carry the robot that fast",
+                    self.robot.max_speed, d.max_wheel_speed
+                ),
+            );
+        }
         if let Some(g) = &self.goal {
             if !g.position.iter().all(|v| v.is_finite()) {
                 return invalid("goal.position", "must be finite");
@@ -845,6 +868,8 @@ mod tests {
             // The low-latency window, twice over, must fit in T = 17 ms or the loop never sleeps.
             ("spin_us = 0 ", "spin_us = 8500 ", "realtime.spin_us"),
             ("fifo_priority = 0 ", "fifo_priority = 100 ", "realtime.fifo_priority"),
+            ("max_speed = 0.15 ", "max_speed = 0.26 ", "robot.max_speed"),
+            ("microsteps = 8", "microsteps = 4000000000", "drive.microsteps"),
             ("cpus = [] ", "cpus = [1, 1] ", "realtime.cpus[1]"),
             ("cpus = [] ", "cpus = [5000] ", "realtime.cpus[0]"),
         ];

@@ -175,6 +175,36 @@ fn plan_command_refuses_a_bad_scenario_naming_the_key() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// What no run could start from or end in is refused at load, naming the key, instead of
+/// showing up as a collision at t = 0, a timeout, or a buffer the size of the delay.
+#[test]
+fn impossible_scenarios_are_refused_naming_the_key() {
+    let e1 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml"))
+        .unwrap();
+    let lane = |t: &str| t.replace("time_limit = 30", "time_limit = 30\n[lane]\nhalf_width = 0.2");
+    let obstacles: String = (0..15)
+        .map(|i| format!("\n[[obstacles]]\nradius = 0.02\nstart = [{}, 0.5]\n", 0.1 * f64::from(i) - 0.8))
+        .collect();
+    let cases: Vec<(String, &str, &str)> = vec![
+        (e1.replace("start = [-0.35, -0.06]", "start = [-0.05, 0.0]"), "robot.start", "overlaps obstacles[0]"),
+        (e1.replace("position = [0.35, 0.05]", "position = [0.01, 0.0]"), "goal.position", "standing obstacles[0]"),
+        (lane(&e1).replace("start = [-0.35, -0.06]", "start = [-0.35, -0.3]"), "robot.start", "outside the lane"),
+        (lane(&e1).replace("position = [0.35, 0.05]", "position = [0.35, 0.3]"), "goal.position", "outside the lane"),
+        (lane(&e1).replace("start = [0.0, 0.0]", "start = [0.0, 0.5]"), "obstacles[0].start", "outside the lane"),
+        (e1.replace("delay = 0.0", "delay = 1000.0"), "sensing.delay", "must be 0-10 s"),
+        (e1.replace("time_limit = 30", "time_limit = 1e9"), "time_limit", "at most 3600 s"),
+        (e1.replace("max_speed = 0.15", "max_speed = 0.30"), "robot.max_speed", "wheels cannot carry"),
+        (format!("{e1}{obstacles}"), "leds.obstacles", "16 obstacles (18 LEDs in all): at most 14 obstacles"),
+        (e1.replace("sample_time = 0.017", "sample_time = 0.000003"), "schedule.frame_us", "shorter than 100 µs"),
+        (e1.replace("microsteps = 8", "microsteps = 4000000000"), "robot.microsteps", "must be 1-256"),
+    ];
+    for (text, key, says) in cases {
+        let err = Scenario::from_toml(&text, "s.toml").err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(err.contains(&format!("`{key}`")) && err.contains(says), "{key}: {err}");
+    }
+    assert!(Scenario::from_toml(&lane(&e1), "s.toml").is_ok(), "the unchanged scenario in a lane loads");
+}
+
 /// A command-line error is one line naming its cause once.
 #[test]
 fn errors_name_their_cause_once() {

@@ -96,6 +96,16 @@ pub struct ObstacleSpec {
     pub motion: Motion,
 }
 
+/// The finest microstepping of a stepper driver, and the most full steps a motor has per
+/// revolution (a 0.036° stepper): beyond them a board could not be configured.
+pub const MAX_MICROSTEPS: u32 = 256;
+pub const MAX_STEPS_PER_REV: u32 = 10_000;
+
+/// The longest sensing delay a scenario may model, s.
+pub const MAX_DELAY_S: f64 = 10.0;
+/// The longest episode, s (an hour of virtual time).
+pub const MAX_TIME_LIMIT_S: f64 = 3600.0;
+
 /// How an obstacle moves. Positions are analytic in time, so the truth at any past
 /// moment (for a delayed sensor) is exact.
 #[derive(Debug, Clone, Default, Deserialize, PartialEq)]
@@ -190,6 +200,9 @@ impl Scenario {
             }
         };
         positive("time_limit", self.time_limit)?;
+        if self.time_limit > MAX_TIME_LIMIT_S {
+            return Err(("time_limit".into(), format!("must be at most {MAX_TIME_LIMIT_S} s, is {}", self.time_limit)));
+        }
         if let Some(lane) = self.lane {
             positive("lane.half_width", lane.half_width)?;
         }
@@ -203,6 +216,16 @@ impl Scenario {
         positive("robot.max_speed", r.max_speed)?;
         if r.steps_per_rev == 0 || r.microsteps == 0 {
             return Err(("robot.steps_per_rev".into(), "steps_per_rev and microsteps must be at least 1".into()));
+        }
+        // What stepper drivers do: 1/256 is the finest microstep any common driver offers.
+        if r.microsteps > MAX_MICROSTEPS {
+            return Err(("robot.microsteps".into(), format!("must be 1-{MAX_MICROSTEPS}, is {}", r.microsteps)));
+        }
+        if r.steps_per_rev > MAX_STEPS_PER_REV {
+            return Err((
+                "robot.steps_per_rev".into(),
+                format!("must be 1-{MAX_STEPS_PER_REV}, is {}", r.steps_per_rev),
+            ));
         }
         finite("goal.position", self.goal.position)?;
         positive("goal.tolerance", self.goal.tolerance)?;
@@ -223,12 +246,90 @@ impl Scenario {
                 }
             }
         }
+        self.validate_geometry()?;
         let s = &self.sensing;
         positive("sensing.sample_time", s.sample_time)?;
         non_negative("sensing.delay", s.delay)?;
+        // The delay line holds delay / sample_time frames: a delay beyond any rig's (the
+        // paper's is 0.6 s) would only make the simulator buffer for nothing.
+        if s.delay > MAX_DELAY_S {
+            return Err(("sensing.delay".into(), format!("must be 0-{MAX_DELAY_S} s, is {}", s.delay)));
+        }
         non_negative("sensing.position_noise", s.position_noise)?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
         self.faults.validate()
+    }
+
+    /// Where things stand at the start: what no run could begin from, or ever end in, is
+    /// refused here rather than reported as a collision at t = 0 or a timeout.
+    fn validate_geometry(&self) -> Result<(), (String, String)> {
+        let r = &self.robot;
+        let start = point(r.start);
+        let goal = point(self.goal.position);
+        if let Some(lane) = self.lane {
+            // The lane bounds the robot's centre, and each obstacle's.
+            let inside = |p: [f64; 2]| p[1].abs() < lane.half_width;
+            if !inside(r.start) {
+                return Err((
+                    "robot.start".into(),
+                    format!("{:?} lies outside the lane (|y| >= lane.half_width = {})", r.start, lane.half_width),
+                ));
+            }
+            if !inside(self.goal.position) {
+                return Err((
+                    "goal.position".into(),
+                    format!(
+                        "{:?} lies outside the lane (|y| >= lane.half_width = {})",
+                        self.goal.position, lane.half_width
+                    ),
+                ));
+            }
+            for (i, o) in self.obstacles.iter().enumerate() {
+                if !inside(o.start) {
+                    return Err((
+                        format!("obstacles[{i}].start"),
+                        format!("{:?} lies outside the lane (|y| >= lane.half_width = {})", o.start, lane.half_width),
+                    ));
+                }
+                if let Motion::Waypoints { points, .. } = &o.motion {
+                    if let Some(p) = points.iter().find(|p| !inside(**p)) {
+                        return Err((
+                            format!("obstacles[{i}].motion.points"),
+                            format!("{p:?} lies outside the lane (|y| >= lane.half_width = {})", lane.half_width),
+                        ));
+                    }
+                }
+            }
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            let reach = r.radius + o.radius;
+            let gap = (start - point(o.start)).norm();
+            if gap < reach {
+                return Err((
+                    "robot.start".into(),
+                    format!(
+                        "overlaps obstacles[{i}]: centres {:.1} cm apart, radii {:.1} cm together",
+                        gap * 100.0,
+                        reach * 100.0
+                    ),
+                ));
+            }
+            // A standing obstacle's footprint is never reachable: a goal there would run
+            // to the time limit.
+            let to_goal = (goal - point(o.start)).norm();
+            if o.motion == Motion::Stationary && to_goal < reach {
+                return Err((
+                    "goal.position".into(),
+                    format!(
+                        "is within reach of the standing obstacles[{i}]: {:.1} cm from its centre, the robot's and its \
+                         radii are {:.1} cm together",
+                        to_goal * 100.0,
+                        reach * 100.0
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     pub fn robot_start(&self) -> Point {
