@@ -16,6 +16,7 @@
 pub mod control_socket;
 pub mod core;
 pub mod low_latency;
+pub mod metrics;
 pub mod operator;
 pub mod psd_session;
 pub mod realtime;
@@ -50,6 +51,8 @@ pub enum GatewayError {
     Notify(#[from] systemd::NotifyError),
     #[error(transparent)]
     Realtime(#[from] realtime::RealtimeError),
+    #[error("operator.metrics = \"{addr}\": cannot listen there: {source}")]
+    Metrics { addr: std::net::SocketAddr, source: std::io::Error },
 }
 
 /// What the gateway shows while it runs (for a live display). Receivers are woken when the

@@ -3,6 +3,7 @@
 //! until the core's next deadline, and reopens a lost serial line or CAN link. All decisions are the
 //! core's; the shell only moves bytes and reads the clock.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use flowgate_protocol::psd::{self, Packet};
@@ -14,6 +15,7 @@ use tokio::time::{timeout, Instant};
 use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
 use super::low_latency::{SpinWindow, Wait};
+use super::metrics;
 use super::operator::Request;
 use super::realtime;
 use super::systemd::Notifier;
@@ -90,6 +92,8 @@ struct Io {
     stats_from: Option<Timing>,
     /// systemd's notification socket, when it started the gateway.
     notifier: Option<Notifier>,
+    /// `/metrics`: where the loop publishes its snapshot, and when it next does.
+    metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
 }
 
 impl Io {
@@ -250,6 +254,26 @@ impl Io {
         let _ = cmd.reply.send(reply);
     }
 
+    /// Publish a metrics snapshot when one is due (about once a second: a copy of the
+    /// counters and the latency histogram, never per cycle). Returns when the next is due.
+    fn publish_metrics<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
+        let now = self.now();
+        let Some((tx, next)) = &mut self.metrics else { return HostTime::NEVER };
+        if now >= *next {
+            let mut counters = core.counters();
+            counters.telemetry_dropped = self.recorder.dropped();
+            tx.send_replace(Arc::new(metrics::Snapshot {
+                state: core.state(),
+                counters,
+                e2e_ns: self.timing.e2e_histogram().clone(),
+                deadline_misses: self.timing.deadline_misses,
+                uptime_s: now.secs(),
+            }));
+            *next = now + metrics::PUBLISH_EVERY;
+        }
+        *next
+    }
+
     /// The CAN link failed: fault the core (named for the link), drop the link and reopen
     /// it every `REOPEN_EVERY`. The core stays faulted: an operator resets and arms again.
     fn lose_can<K: StageClock>(&mut self, core: &mut Core<K>) {
@@ -339,6 +363,25 @@ pub async fn run(
         }
         None => (Recorder::disabled(), None),
     };
+    let metrics = match rig.operator.metrics {
+        Some(addr) => {
+            let listener = std::net::TcpListener::bind(addr)
+                .and_then(|l| l.set_nonblocking(true).map(|()| l))
+                .and_then(tokio::net::TcpListener::from_std)
+                .map_err(|source| GatewayError::Metrics { addr, source })?;
+            tracing::info!("metrics on http://{addr}/metrics");
+            let (tx, rx) = watch::channel(Arc::new(metrics::Snapshot {
+                state: crate::gateway::State::Idle,
+                counters: crate::gateway::Counters::default(),
+                e2e_ns: Timing::default().e2e_histogram().clone(),
+                deadline_misses: 0,
+                uptime_s: 0.0,
+            }));
+            tokio::spawn(metrics::serve(listener, rx));
+            Some((tx, HostTime::ZERO))
+        }
+        None => None,
+    };
     // On the loop's thread, once everything is open (the writer thread keeps the normal
     // policy) and before the first cycle.
     if !rig.realtime.is_empty() {
@@ -362,6 +405,7 @@ pub async fn run(
         spin: rig.spin.map(SpinWindow::new),
         stats_from: None,
         notifier,
+        metrics,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
     if controls.arm_at_start {
@@ -379,8 +423,9 @@ pub async fn run(
         if core.finished() {
             break;
         }
+        let publish_at = io.publish_metrics(&core);
         // The watchdog is fed from here, the loop itself: a wedged loop starves it.
-        let mut wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen));
+        let mut wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen).min(publish_at));
         if let Some(n) = &mut io.notifier {
             n.alive(std::time::Instant::now());
             wake = wake.min(n.next_due().map_or(wake, Instant::from_std));

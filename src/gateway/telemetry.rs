@@ -445,6 +445,11 @@ impl Timing {
         }
     }
 
+    /// The end-to-end latency histogram itself, ns (for `/metrics`).
+    pub fn e2e_histogram(&self) -> &Histogram<u64> {
+        &self.e2e
+    }
+
     pub fn e2e(&self) -> Distribution {
         Self::dist(&self.e2e)
     }

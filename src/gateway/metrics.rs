@@ -1,0 +1,209 @@
+//! `/metrics`: the gateway's counters and cycle latency in the Prometheus text format
+//! (version 0.0.4), for the monitoring a lab already runs.
+//!
+//! The loop never serves a scrape itself. About once a second it publishes a [`Snapshot`]
+//! (its counters, its state and a copy of its latency histogram: one allocation a second,
+//! none per cycle) into a `watch` channel; the HTTP task renders the latest one for each
+//! request. A slow or stuck client costs the loop nothing, and a scrape is at most a second
+//! old.
+
+use std::fmt::Write as _;
+use std::sync::Arc;
+use std::time::Duration;
+
+use hdrhistogram::Histogram;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::watch;
+
+use super::{Counters, State};
+
+/// How often the loop publishes a snapshot.
+pub const PUBLISH_EVERY: Duration = Duration::from_secs(1);
+/// How long a client may take to send its request, and to take the answer.
+const CLIENT_DEADLINE: Duration = Duration::from_secs(2);
+/// The longest request head read.
+const MAX_HEAD: usize = 8192;
+/// The latency histogram's bucket bounds, s: 10 µs to 100 ms.
+const BUCKETS_S: [f64; 14] = [1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1, 1.0];
+
+/// What the loop publishes.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    pub state: State,
+    pub counters: Counters,
+    /// End-to-end cycle latency, ns (serial frame read to CAN write done).
+    pub e2e_ns: Histogram<u64>,
+    pub deadline_misses: u64,
+    pub uptime_s: f64,
+}
+
+/// Every state the gateway has, for the one-hot state gauge.
+const STATES: [&str; 6] = ["idle", "armed", "running", "stopping", "stopped", "fault"];
+
+fn state_name(s: State) -> &'static str {
+    match s {
+        State::Idle => "idle",
+        State::Armed => "armed",
+        State::Running => "running",
+        State::Stopping(_) => "stopping",
+        State::Stopped(_) => "stopped",
+        State::Fault(_) => "fault",
+    }
+}
+
+/// The snapshot in the Prometheus text format.
+pub fn render(s: &Snapshot) -> String {
+    let mut out = String::with_capacity(4096);
+    let c = &s.counters;
+    let mut counter = |name: &str, help: &str, samples: &[(&str, u64)]| {
+        let _ = writeln!(out, "# HELP flowgate_{name}_total {help}");
+        let _ = writeln!(out, "# TYPE flowgate_{name}_total counter");
+        for (labels, v) in samples {
+            let _ = writeln!(out, "flowgate_{name}_total{labels} {v}");
+        }
+    };
+    counter("cycles", "Control cycles run (commands computed).", &[("", c.cycles)]);
+    counter("samples", "PSD samples received.", &[("", c.samples)]);
+    counter(
+        "deadline_misses",
+        "Cycles whose end-to-end latency exceeded the control period.",
+        &[("", s.deadline_misses)],
+    );
+    counter(
+        "psd_discarded",
+        "Controller packets and samples discarded, by why.",
+        &[
+            ("{why=\"bad_frame\"}", c.bad_serial_frames),
+            ("{why=\"duplicate\"}", c.psd_duplicates),
+            ("{why=\"out_of_order\"}", c.psd_out_of_order),
+            ("{why=\"unsynced\"}", c.samples_unsynced),
+            ("{why=\"from_future\"}", c.samples_from_future),
+            ("{why=\"unscheduled\"}", c.samples_unscheduled),
+            ("{why=\"frame_repeated\"}", c.frames_repeated),
+        ],
+    );
+    counter("psd_packets_lost", "Controller packets lost (sequence gaps).", &[("", c.psd_packets_lost)]);
+    counter("frames_lost", "Time-division frames that never ended.", &[("", c.frames_lost)]);
+    counter("serial_dropped_bytes", "Serial bytes dropped while resynchronising.", &[("", c.serial_dropped_bytes)]);
+    counter(
+        "reconnects",
+        "Links lost and opened again.",
+        &[("{link=\"serial\"}", c.serial_reconnects), ("{link=\"can\"}", c.can_reconnects)],
+    );
+    counter(
+        "can_ignored",
+        "CAN frames and events ignored, by why.",
+        &[
+            ("{why=\"foreign\"}", c.can_foreign),
+            ("{why=\"undecodable\"}", c.can_undecodable),
+            ("{why=\"error_frame\"}", c.can_error_frames),
+            ("{why=\"tx_refused\"}", c.can_tx_refused),
+            ("{why=\"error_passive\"}", c.can_error_passive),
+        ],
+    );
+    counter(
+        "board_seq_errors",
+        "Sequence errors the motor board counted in our commands.",
+        &[("", c.board_seq_errors)],
+    );
+    counter("poses_implausible", "Robot poses discarded as implausible.", &[("", c.poses_implausible)]);
+    counter("planner_invalid", "Cycles the planner could not command.", &[("", c.planner_invalid)]);
+    counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
+
+    let _ = writeln!(out, "# HELP flowgate_state The safety state (1 for the current one).");
+    let _ = writeln!(out, "# TYPE flowgate_state gauge");
+    let now = state_name(s.state);
+    for st in STATES {
+        let _ = writeln!(out, "flowgate_state{{state=\"{st}\"}} {}", u8::from(st == now));
+    }
+    let _ = writeln!(out, "# HELP flowgate_uptime_seconds Seconds since the gateway started.");
+    let _ = writeln!(out, "# TYPE flowgate_uptime_seconds gauge");
+    let _ = writeln!(out, "flowgate_uptime_seconds {:.3}", s.uptime_s);
+
+    let h = &s.e2e_ns;
+    let _ = writeln!(
+        out,
+        "# HELP flowgate_cycle_latency_seconds End-to-end cycle latency: serial frame read to CAN write done."
+    );
+    let _ = writeln!(out, "# TYPE flowgate_cycle_latency_seconds histogram");
+    for le in BUCKETS_S {
+        let bound_ns = (le * 1e9) as u64;
+        let count: u64 =
+            h.iter_recorded().filter(|v| v.value_iterated_to() <= bound_ns).map(|v| v.count_at_value()).sum();
+        let _ = writeln!(out, "flowgate_cycle_latency_seconds_bucket{{le=\"{le}\"}} {count}");
+    }
+    let _ = writeln!(out, "flowgate_cycle_latency_seconds_bucket{{le=\"+Inf\"}} {}", h.len());
+    let sum_s: f64 =
+        h.iter_recorded().map(|v| v.value_iterated_to() as f64 * v.count_at_value() as f64).sum::<f64>() / 1e9;
+    let _ = writeln!(out, "flowgate_cycle_latency_seconds_sum {sum_s}");
+    let _ = writeln!(out, "flowgate_cycle_latency_seconds_count {}", h.len());
+    out
+}
+
+/// Serve `/metrics` on `listener` from the latest snapshot, until the channel closes.
+pub async fn serve(listener: TcpListener, snapshots: watch::Receiver<Arc<Snapshot>>) {
+    loop {
+        let Ok((stream, _)) = listener.accept().await else { continue };
+        let latest = snapshots.borrow().clone();
+        tokio::spawn(async move {
+            if let Err(e) = tokio::time::timeout(CLIENT_DEADLINE, answer(stream, &latest)).await {
+                tracing::debug!("metrics client: {e}");
+            }
+        });
+    }
+}
+
+async fn answer(mut stream: TcpStream, snapshot: &Snapshot) -> std::io::Result<()> {
+    let mut head = Vec::with_capacity(512);
+    let mut buf = [0u8; 512];
+    while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+        let n = stream.read(&mut buf).await?;
+        if n == 0 || head.len() + n > MAX_HEAD {
+            return Ok(());
+        }
+        head.extend_from_slice(&buf[..n]);
+    }
+    let line = head.split(|&b| b == b'\r').next().unwrap_or_default();
+    let (status, kind, body) = if line.starts_with(b"GET /metrics ") {
+        ("200 OK", "text/plain; version=0.0.4; charset=utf-8", render(snapshot))
+    } else if line.starts_with(b"GET ") {
+        ("404 Not Found", "text/plain", "only /metrics is served here\n".to_string())
+    } else {
+        ("405 Method Not Allowed", "text/plain", "GET only\n".to_string())
+    };
+    let reply = format!(
+        "HTTP/1.1 {status}\r\nContent-Type: {kind}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    stream.write_all(reply.as_bytes()).await?;
+    stream.shutdown().await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn renders_counters_state_and_a_cumulative_histogram() {
+        let mut e2e = Histogram::new_with_bounds(1, 60_000_000_000, 3).unwrap();
+        for ns in [15_000u64, 40_000, 40_000, 3_000_000] {
+            e2e.record(ns).unwrap();
+        }
+        let s = Snapshot {
+            state: State::Running,
+            counters: Counters { cycles: 4, psd_duplicates: 2, ..Counters::default() },
+            e2e_ns: e2e,
+            deadline_misses: 0,
+            uptime_s: 12.5,
+        };
+        let text = render(&s);
+        assert!(text.contains("flowgate_cycles_total 4\n"), "{text}");
+        assert!(text.contains("flowgate_psd_discarded_total{why=\"duplicate\"} 2\n"), "{text}");
+        assert!(text.contains("flowgate_state{state=\"running\"} 1\nflowgate_state{state=\"stopping\"} 0\n"), "{text}");
+        assert!(text.contains("flowgate_cycle_latency_seconds_bucket{le=\"0.00002\"} 1\n"), "{text}");
+        assert!(text.contains("flowgate_cycle_latency_seconds_bucket{le=\"0.00005\"} 3\n"), "{text}");
+        assert!(text.contains("flowgate_cycle_latency_seconds_bucket{le=\"+Inf\"} 4\n"), "{text}");
+        assert!(text.contains("flowgate_cycle_latency_seconds_count 4\n"), "{text}");
+    }
+}

@@ -1,0 +1,113 @@
+//! `/metrics` of a real `flowgate run` driving the simulator over ptys, scraped over HTTP
+//! and parsed by Prometheus's own Python client (`prometheus_client`, an independent
+//! parser): the families are there with their types, the counters count, the state gauge
+//! is one-hot, the latency histogram is cumulative and counts every cycle.
+
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use flowgate::lab::Scenario;
+
+/// One HTTP GET, whole reply; `None` while nothing listens yet.
+fn scrape(addr: std::net::SocketAddr, path: &str) -> Option<String> {
+    let mut s = std::net::TcpStream::connect(addr).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: localhost\r\n\r\n").unwrap();
+    let mut out = String::new();
+    s.read_to_string(&mut out).unwrap();
+    Some(out)
+}
+
+fn parse(body: &str) -> serde_json::Value {
+    let python = std::env::var("FLOWGATE_PYTHON")
+        .expect("FLOWGATE_PYTHON: run through scripts/test (it installs prometheus_client)");
+    let mut child = Command::new(python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/parse_metrics.py"))
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(body.as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "prometheus_client could not parse:\n{body}");
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+fn value(families: &serde_json::Value, family: &str, sample: &str, label: Option<(&str, &str)>) -> f64 {
+    families[family]["samples"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no family {family}"))
+        .iter()
+        .find(|s| s[0] == sample && label.is_none_or(|(k, v)| s[1][k] == v))
+        .unwrap_or_else(|| panic!("no sample {sample} {label:?} in {family}"))[2]
+        .as_f64()
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_scraped_and_parsed_by_prometheus_client() {
+    let dir = std::env::temp_dir().join(format!("flowgate-metrics-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
+    // A free loopback port.
+    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    cfg.operator.metrics = Some(addr);
+    let config = dir.join("rig.toml");
+    std::fs::write(&config, cfg.to_toml()).unwrap();
+    let mut gateway = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["run", "--arm", "--config"])
+        .arg(&config)
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Scrape until the gateway has run a hundred cycles (it publishes once a second).
+    let mut families = serde_json::Value::Null;
+    for _ in 0..40 {
+        tokio::time::sleep(Duration::from_millis(250)).await; // polling the endpoint for progress
+        let Some(reply) = scrape(addr, "/metrics") else { continue };
+        let (head, body) = reply.split_once("\r\n\r\n").unwrap();
+        assert!(head.starts_with("HTTP/1.1 200 OK") && head.contains("text/plain; version=0.0.4"), "{head}");
+        families = parse(body);
+        if value(&families, "flowgate_cycles", "flowgate_cycles_total", None) >= 100.0 {
+            break;
+        }
+    }
+    let not_found = scrape(addr, "/other").unwrap();
+    let _ = gateway.kill();
+    let _ = gateway.wait();
+    handle.stop().await;
+    assert!(not_found.starts_with("HTTP/1.1 404"), "{not_found}");
+
+    let cycles = value(&families, "flowgate_cycles", "flowgate_cycles_total", None);
+    assert!(cycles >= 100.0, "{families}");
+    assert_eq!(families["flowgate_cycles"]["type"], "counter");
+    assert!(value(&families, "flowgate_samples", "flowgate_samples_total", None) >= 2.0 * cycles);
+    // One state at a time.
+    let states: f64 =
+        families["flowgate_state"]["samples"].as_array().unwrap().iter().map(|s| s[2].as_f64().unwrap()).sum();
+    assert_eq!(states, 1.0, "{families}");
+    assert_eq!(value(&families, "flowgate_state", "flowgate_state", Some(("state", "running"))), 1.0);
+    // The histogram: cumulative buckets, +Inf = count = every timed cycle.
+    let h = &families["flowgate_cycle_latency_seconds"];
+    assert_eq!(h["type"], "histogram");
+    let buckets: Vec<f64> = h["samples"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|s| s[0] == "flowgate_cycle_latency_seconds_bucket")
+        .map(|s| s[2].as_f64().unwrap())
+        .collect();
+    assert!(buckets.windows(2).all(|w| w[0] <= w[1]), "{buckets:?}");
+    let count = value(&families, "flowgate_cycle_latency_seconds", "flowgate_cycle_latency_seconds_count", None);
+    assert_eq!(*buckets.last().unwrap(), count);
+    assert!(count >= 100.0, "{count}");
+    for why in ["duplicate", "bad_frame", "out_of_order"] {
+        assert_eq!(value(&families, "flowgate_psd_discarded", "flowgate_psd_discarded_total", Some(("why", why))), 0.0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
