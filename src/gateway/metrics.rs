@@ -38,19 +38,8 @@ pub struct Snapshot {
     pub uptime_s: f64,
 }
 
-/// Every state the gateway has, for the one-hot state gauge.
+/// Every state's name ([`State::name`]), for the one-hot state gauge.
 const STATES: [&str; 6] = ["idle", "armed", "running", "stopping", "stopped", "fault"];
-
-fn state_name(s: State) -> &'static str {
-    match s {
-        State::Idle => "idle",
-        State::Armed => "armed",
-        State::Running => "running",
-        State::Stopping(_) => "stopping",
-        State::Stopped(_) => "stopped",
-        State::Fault(_) => "fault",
-    }
-}
 
 /// The snapshot in the Prometheus text format.
 pub fn render(s: &Snapshot) -> String {
@@ -113,7 +102,7 @@ pub fn render(s: &Snapshot) -> String {
 
     let _ = writeln!(out, "# HELP flowgate_state The safety state (1 for the current one).");
     let _ = writeln!(out, "# TYPE flowgate_state gauge");
-    let now = state_name(s.state);
+    let now = s.state.name();
     for st in STATES {
         let _ = writeln!(out, "flowgate_state{{state=\"{st}\"}} {}", u8::from(st == now));
     }
