@@ -338,6 +338,10 @@ pub struct TelemetryConfig {
     /// Where trace.json, cycles.csv and can.log go; none = no files.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_dir: Option<PathBuf>,
+    /// An MCAP recording of the run (`flowgate run --record`): every input the core took,
+    /// what it sent, each cycle's scene; `flowgate replay` plays it back.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub record: Option<PathBuf>,
     /// Capacity of the queue to the writer task (records beyond it are dropped and counted).
     #[serde(default = "default_queue")]
     pub queue: usize,
@@ -349,7 +353,7 @@ fn default_queue() -> usize {
 
 impl Default for TelemetryConfig {
     fn default() -> Self {
-        Self { out_dir: None, queue: default_queue() }
+        Self { out_dir: None, record: None, queue: default_queue() }
     }
 }
 
@@ -444,9 +448,14 @@ impl ScheduleConfig {
 impl GatewayConfig {
     /// Read, parse and check a rig config, into the typed rig.
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
+        Self::read(path)?.rig(&path.display().to_string())
+    }
+
+    /// Read and parse (not yet check) a config file.
+    pub fn read(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path)
             .map_err(|source| ConfigError::Read { path: path.display().to_string(), source })?;
-        Self::from_toml(&text, &path.display().to_string())?.rig(&path.display().to_string())
+        Self::from_toml(&text, &path.display().to_string())
     }
 
     /// Parse (not yet check) config text; `origin` names it in errors.
@@ -683,6 +692,7 @@ impl GatewayConfig {
                 fifo_priority: (rt.fifo_priority > 0).then_some(rt.fifo_priority),
                 lock_memory: rt.lock_memory,
             },
+            config_toml: self.to_toml(),
         })
     }
 
@@ -827,6 +837,9 @@ pub struct Rig {
     pub spin: Option<Duration>,
     /// CPU affinity, `SCHED_FIFO` and locked memory, applied at start.
     pub realtime: RealtimeSettings,
+    /// The configuration this rig was built from, as TOML (a recording keeps it, so a
+    /// replay rebuilds the same rig).
+    pub config_toml: String,
 }
 
 #[cfg(test)]

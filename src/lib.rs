@@ -19,6 +19,7 @@ pub mod gateway;
 pub mod lab;
 pub mod link;
 pub mod planner;
+pub mod replay;
 pub mod setup;
 pub mod svg;
 pub mod time;

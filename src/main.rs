@@ -29,6 +29,9 @@ enum Command {
     Calibrate(cli::calibrate::CalibrateArgs),
     /// Run the gateway on a rig (serial PSD controller, CAN motor boards). Starts idle.
     Run(cli::run::RunArgs),
+    /// Play a recording back through the gateway core: the same CAN frames, byte for byte;
+    /// or a what-if with another configuration (--config, --set KEY=VALUE).
+    Replay(cli::replay::ReplayArgs),
     /// Operate a running gateway: status, arm, start, stop, estop, reset, goal, cancel.
     Ctl(cli::ctl::CtlArgs),
     /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.
@@ -77,6 +80,7 @@ fn run() -> Result<bool> {
     match cli.command {
         Command::Check(args) => cli::check::run(args),
         Command::Calibrate(args) => done(cli::calibrate::run(args)),
+        Command::Replay(args) => cli::replay::run(args),
         #[cfg(feature = "lab")]
         Command::Demo(args) => done(cli::demo::run(args)),
         #[cfg(feature = "lab")]

@@ -145,6 +145,15 @@ impl ConstantVelocityKf {
     pub fn time(&self) -> f64 {
         self.t
     }
+
+    /// The position's covariance `[xx, xy, yy]` (m²) predicted to `t`: how far the planner
+    /// may trust the predicted centre.
+    pub fn position_covariance(&self, t: f64) -> [f64; 3] {
+        let dt = (t - self.t).max(0.0);
+        let f = Self::transition(dt);
+        let p = f * self.p * f.transpose() + self.process(dt);
+        [p[(0, 0)], p[(0, 1)], p[(1, 1)]]
+    }
 }
 
 /// Dead reckoning from the robot's own recent commands, to bring a delayed pose up to now.
@@ -219,6 +228,19 @@ pub struct Tracked<'a> {
 }
 
 impl Tracker {
+    /// Each tracked obstacle as the planner sees it at `t` (predicted, when prediction is
+    /// on), with its position covariance; reads only, for recordings and displays.
+    pub fn obstacles_at(&self, t: f64) -> impl Iterator<Item = (ObstacleEstimate, [f64; 3])> + '_ {
+        let predict = self.settings.predict_obstacles;
+        self.filters[..self.count].iter().enumerate().filter_map(move |(k, kf)| {
+            let kf = kf.as_ref()?;
+            let at = if predict { t } else { kf.time() };
+            let (center, velocity) = kf.predict(at);
+            let center = if predict { center } else { self.measured[k] };
+            Some((ObstacleEstimate { center, velocity, radius: self.radii[k] }, kf.position_covariance(at)))
+        })
+    }
+
     /// A tracker for obstacles of these radii (at most [`MAX_OBSTACLES`]; more are ignored,
     /// which the config refuses at load).
     pub fn new(settings: TrackingSettings, geometry: LedGeometry, radii: &[f64]) -> Self {

@@ -12,8 +12,9 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     let exe = std::path::Path::new(env!("CARGO_BIN_EXE_flowgate"));
     // The real-time row asks only for what any process may: a CPU of its own.
     let also = vec![
-        Mode { spin_us: 500, realtime: RealtimeSettings::default() },
-        Mode { spin_us: 0, realtime: RealtimeSettings { cpus: vec![0], ..RealtimeSettings::default() } },
+        Mode { spin_us: 500, ..Mode::default() },
+        Mode { realtime: RealtimeSettings { cpus: vec![0], ..RealtimeSettings::default() }, ..Mode::default() },
+        Mode { record: true, ..Mode::default() },
     ];
     let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true, also }];
     let report = flowgate::lab::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
@@ -42,8 +43,21 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     assert_eq!((rt.name.as_str(), rt.realtime.as_deref()), ("smoke, real-time", Some("CPUs [0]")));
     assert_eq!((rt.cycles_sent, rt.commands_received), (100, 100));
     assert_eq!(rt.floor.expect("its own floor").commands_received, 100);
+    // The recording row: a fourth pair, its gateway writing an MCAP recording that replays
+    // to the frames it sent.
+    let rec = &report.phases[3];
+    assert_eq!((rec.name.as_str(), rec.recording), ("smoke, recording", true));
+    assert_eq!((rec.cycles_sent, rec.commands_received), (100, 100));
+    let sockets = std::env::temp_dir().join(format!("flowgate-bench-{}", std::process::id()));
+    let recording = flowgate::replay::Recording::read(&sockets.join("gateway-recording.mcap")).expect("a recording");
+    let rig = recording.config().unwrap().rig("recorded").unwrap();
+    let replayed = flowgate::replay::run(rig, &recording.inputs);
+    assert!(replayed.commands.len() >= 100, "{} commands replayed", replayed.commands.len());
+    let n = recording.can_sent.len().min(replayed.can.len());
+    assert!(n > 100);
+    assert_eq!(flowgate::replay::first_difference(&recording.can_sent[..n], &replayed.can[..n]), None);
     assert!(report.gateway_states.iter().all(|s| !s.starts_with("fault")), "{:?}", report.gateway_states);
-    assert_eq!(report.other_states.len(), 2);
+    assert_eq!(report.other_states.len(), 3);
     for (name, states) in &report.other_states {
         assert!(states.iter().all(|s| !s.starts_with("fault")) && !states.is_empty(), "{name}: {states:?}");
     }

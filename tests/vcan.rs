@@ -105,9 +105,10 @@ async fn e2_over_socketcan_agrees_with_candump_and_cantools() {
     let dir = temp("e2");
     let capture = dir.join("candump.log");
     let dump = candump(&iface, &capture).await;
-    let run = demo::run(&scenario("e2-lane-head-on.toml"), &format!("socketcan:{iface}"), Some(dir.clone()), |_| {})
-        .await
-        .expect("demo over vcan");
+    let run =
+        demo::run(&scenario("e2-lane-head-on.toml"), &format!("socketcan:{iface}"), Some(dir.clone()), None, |_| {})
+            .await
+            .expect("demo over vcan");
     stop(dump);
     assert!(run.reached_goal && !run.contact, "{}\n{:?}", run.report, run.truth.summary);
 
@@ -137,7 +138,7 @@ async fn e1_running_for(iface: &str, t: f64) -> tokio::task::JoinHandle<Result<d
     let url = format!("socketcan:{iface}");
     let run = tokio::spawn(async move {
         let mut sent = false;
-        demo::run(&s, &url, None, move |p| {
+        demo::run(&s, &url, None, None, move |p| {
             if !sent && p.state == flowgate::gateway::State::Running && p.t > t {
                 sent = true;
                 let _ = tx.send(());

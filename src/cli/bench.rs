@@ -31,6 +31,9 @@ pub struct BenchArgs {
     /// SCHED_FIFO priority of the real-time row (0: no real-time row).
     #[arg(long, value_name = "0-99", default_value_t = 50, value_parser = clap::value_parser!(u8).range(0..=99))]
     fifo_priority: u8,
+    /// Leave out the row at the paper's rate with an MCAP recording on (`--record`).
+    #[arg(long)]
+    no_recording_row: bool,
     /// Where to write bench.json.
     #[arg(long, value_name = "DIR", default_value = "out/bench")]
     out: PathBuf,
@@ -84,12 +87,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
     // The paper's rate, with the low-latency mode and the real-time settings beside it.
     if args.spin_us > 0 {
-        phases[0].also.push(Mode { spin_us: args.spin_us, realtime: RealtimeSettings::default() });
+        phases[0].also.push(Mode { spin_us: args.spin_us, ..Mode::default() });
     }
     if args.fifo_priority > 0 {
         let realtime =
             RealtimeSettings { cpus: vec![args.rt_cpu], fifo_priority: Some(args.fifo_priority), lock_memory: true };
-        phases[0].also.push(Mode { spin_us: 0, realtime });
+        phases[0].also.push(Mode { realtime, ..Mode::default() });
+    }
+    if !args.no_recording_row {
+        phases[0].also.push(Mode { record: true, ..Mode::default() });
     }
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;

@@ -18,6 +18,9 @@ pub struct DemoArgs {
     /// Where to write trajectory.svg, trace.json, cycles.csv, can.log, truth.json.
     #[arg(long, value_name = "DIR", default_value = "out/demo")]
     out: PathBuf,
+    /// Record the run to this MCAP file (`flowgate replay FILE` plays it back).
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
@@ -29,7 +32,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let out = std::fs::canonicalize(&args.out)?;
     println!("flowgate demo: {} (simulator + gateway over ptys, CAN {})", scenario.name, args.can);
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
-    let run = runtime.block_on(demo::run(&scenario, &args.can, Some(out.clone()), |p| {
+    let run = runtime.block_on(demo::run(&scenario, &args.can, Some(out.clone()), args.record.clone(), |p| {
         println!(
             "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
             p.t,

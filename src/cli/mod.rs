@@ -10,4 +10,5 @@ pub mod logging;
 pub mod null_gateway;
 #[cfg(feature = "lab")]
 pub mod plan;
+pub mod replay;
 pub mod run;

@@ -23,16 +23,26 @@ pub struct RunArgs {
     /// without an operator. For the demo and tests only: a service never uses it.
     #[arg(long)]
     arm: bool,
+    /// Record the run to this MCAP file (every input the core takes, what it sends, each
+    /// cycle's scene and timing; `flowgate replay FILE` plays it back). Overrides the
+    /// config's `telemetry.record`.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
-    let rig = GatewayConfig::load(&args.config)?;
+    let mut config = GatewayConfig::read(&args.config)?;
+    if let Some(path) = &args.record {
+        config.telemetry.record = Some(path.clone());
+    }
+    let rig = config.rig(&args.config.display().to_string())?;
     if args.arm && rig.goal.is_none() {
         anyhow::bail!("--arm needs a [goal] in {}", args.config.display());
     }
     // The gateway is one loop: a single-threaded runtime keeps its wake-ups on one thread
     // (the telemetry writer has its own blocking thread).
     let telemetry_dir = rig.telemetry.out_dir.clone();
+    let recording = rig.telemetry.record.clone();
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async move {
         let mut interrupt = signal(SignalKind::interrupt())?;
@@ -63,6 +73,9 @@ pub fn run(args: RunArgs) -> Result<()> {
             std::fs::write(&path, serde_json::to_string_pretty(&report)?)
                 .with_context(|| format!("writing {}", path.display()))?;
             say(&format!("telemetry and report.json in {}", dir.display()));
+        }
+        if let Some(path) = &recording {
+            say(&format!("recording in {} (flowgate replay {} plays it back)", path.display(), path.display()));
         }
         Ok(())
     })

@@ -22,8 +22,10 @@ use flowgate_protocol::psd::{FaultCode, Message, Packet};
 use flowgate_protocol::CanFrame;
 use num_complex::Complex64 as C;
 
+use super::input::{Answer, Input};
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
 use super::psd_session::{PsdSession, Sequence, SessionEvent, SetupError};
+use super::recording::{ObstacleView, SceneRecord};
 use super::safety::{Action, Safety, State, StopReason};
 use super::telemetry::CycleRecord;
 use super::{Counters, Progress};
@@ -32,7 +34,7 @@ use crate::control::{ControlStep, StepStatus};
 use crate::link::CanEvent;
 use crate::planner::{FieldError, Space};
 use crate::time::{CtrlTime, HostTime};
-use crate::track::{Implausible, Tracker};
+use crate::track::{Implausible, Pose, Tracker};
 
 /// How often the gateway sends its heartbeat.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
@@ -192,6 +194,8 @@ pub struct Core<K: StageClock> {
     start_requested: bool,
     /// Arm and start towards the rig's goal when the controller first streams (`--arm`).
     arm_at_start: bool,
+    /// The last cycle's pose estimate and sensing delay (for [`Core::scene`]).
+    last_estimate: Option<(Pose, f64)>,
 }
 
 impl<K: StageClock> Core<K> {
@@ -232,6 +236,7 @@ impl<K: StageClock> Core<K> {
             goals: VecDeque::with_capacity(MAX_GOALS),
             start_requested: false,
             arm_at_start: false,
+            last_estimate: None,
             clock,
             rig,
         }
@@ -312,6 +317,33 @@ impl<K: StageClock> Core<K> {
         let idle_enabled = matches!(self.state(), State::Armed | State::Stopping(_));
         let half = Duration::from_millis(u64::from(self.rig.board.command_timeout_ms)) / 2;
         self.last_command.filter(|_| idle_enabled).map(|last| last + half)
+    }
+
+    /// One input at `now`: every input the core takes goes through here on the rig, so a
+    /// recording of them replays the run (see [`super::input`]). An operator's request gets
+    /// its answer back.
+    pub fn handle(&mut self, now: HostTime, input: Input<'_>) -> Option<Answer> {
+        match input {
+            Input::PsdConnected => self.psd_connected(now),
+            Input::PsdLost => self.psd_lost(now),
+            Input::PsdBytes(bytes) => self.psd_bytes(now, bytes),
+            Input::Can(event) => self.can_event(now, event),
+            Input::CanFailed => self.can_failed(now),
+            Input::CanReopened => self.can_reopened(),
+            Input::Request(request) => return Some(self.answer(now, request)),
+            Input::ArmAtStart => self.arm_at_start(),
+            Input::Shutdown => self.shutdown(now),
+            Input::Tick => self.tick(now),
+        }
+        None
+    }
+
+    /// An operator's request and its answer: the status comes with a query or an accepted
+    /// request.
+    pub fn answer(&mut self, now: HostTime, request: &Request) -> Answer {
+        let result = self.request(now, request);
+        let status = (request.is_query() || result.is_ok()).then(|| self.status(now));
+        Answer { result, status }
     }
 
     /// The PSD line opened: configure the controller.
@@ -511,6 +543,27 @@ impl<K: StageClock> Core<K> {
             latency_us: None,
             stages: None,
         }
+    }
+
+    /// What the last cycle believed: the robot's pose, the goal, each obstacle with its
+    /// covariance and planning radius. Reads only (a recording takes one per command).
+    pub fn scene(&self, now: HostTime) -> SceneRecord {
+        let mut scene = SceneRecord { cycle: self.counters.cycles, at: now, ..SceneRecord::default() };
+        let Some((pose, delay)) = self.last_estimate else { return scene };
+        let goal = self.control.config().goal;
+        scene.pose = [pose.position.re, pose.position.im, pose.heading];
+        scene.goal = [goal.re, goal.im];
+        let (robot, margin) = (self.rig.control.robot_radius, self.rig.control.planner.margin);
+        for (view, (o, cov)) in scene.obstacles.iter_mut().zip(self.tracker.obstacles_at(now.secs())) {
+            *view = ObstacleView {
+                position: [o.center.re as f32, o.center.im as f32],
+                velocity: [o.velocity.re as f32, o.velocity.im as f32],
+                covariance: cov.map(|c| c as f32),
+                planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay) as f32,
+            };
+            scene.count += 1;
+        }
+        scene
     }
 
     /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,
@@ -888,6 +941,7 @@ impl<K: StageClock> Core<K> {
         if ready {
             self.state_changed(now);
         }
+        self.last_estimate = Some((pose, delay));
         self.progress.clearance = clearance.map(|c| c - robot_radius);
         let mut pulses = [0i32; 2];
         let mut wheels = (0.0, 0.0);

@@ -15,11 +15,13 @@
 
 pub mod control_socket;
 pub mod core;
+pub mod input;
 pub mod low_latency;
 pub mod metrics;
 pub mod operator;
 pub mod psd_session;
 pub mod realtime;
+pub mod recording;
 pub mod safety;
 pub mod shell;
 pub mod systemd;
@@ -28,6 +30,7 @@ pub mod telemetry;
 use serde::Serialize;
 
 pub use self::core::{Core, NoClock, Output, StageClock};
+pub use input::{Answer, Input};
 pub use psd_session::SetupError;
 pub use safety::{State, StopReason};
 pub use shell::{run, Controls};

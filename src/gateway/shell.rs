@@ -3,6 +3,7 @@
 //! until the core's next deadline, and reopens a lost serial line or CAN link. All decisions are the
 //! core's; the shell only moves bytes and reads the clock.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -14,12 +15,14 @@ use tokio::time::{timeout, Instant};
 
 use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
+use super::input::{Answer, Input};
 use super::low_latency::{SpinWindow, Wait};
 use super::metrics;
 use super::operator::Request;
 use super::realtime;
+use super::recording::{InputRecord, McapSink, RecordedInput, RecordingSetup, PSD_CHUNK};
 use super::systemd::Notifier;
-use super::telemetry::{self, CanRecord, Record, Recorder, Timing};
+use super::telemetry::{self, CanRecord, Record, Recorder, Sinks, Timing};
 use super::{GatewayError, Progress, Report};
 use crate::config::Rig;
 use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl};
@@ -94,6 +97,8 @@ struct Io {
     notifier: Option<Notifier>,
     /// `/metrics`: where the loop publishes its snapshot, and when it next does.
     metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
+    /// Inputs handed to the core while recording (each record's `seq`).
+    inputs_taken: Arc<AtomicU64>,
 }
 
 impl Io {
@@ -107,11 +112,20 @@ impl Io {
         self.origin + Duration::from_nanos(t.as_nanos()).min(far)
     }
 
+    /// Hand the core an input, recording it first when a recording is on.
+    fn feed<K: StageClock>(&mut self, core: &mut Core<K>, now: HostTime, input: Input<'_>) -> Option<Answer> {
+        if self.recorder.recording() {
+            let seq = self.inputs_taken.fetch_add(1, Ordering::Relaxed);
+            self.recorder.record(Record::Input(InputRecord { seq, at: now, input: RecordedInput::of(input) }));
+        }
+        core.handle(now, input)
+    }
+
     fn lose_psd<K: StageClock>(&mut self, core: &mut Core<K>) {
         self.psd = None;
         let now = self.now();
         self.next_reopen = now + REOPEN_EVERY;
-        core.psd_lost(now);
+        self.feed(core, now, Input::PsdLost);
     }
 
     /// Carry out everything the core has asked for. A startup failure ends the run.
@@ -119,6 +133,9 @@ impl Io {
         while let Some(output) = core.poll() {
             match output {
                 Output::Psd(packet) => {
+                    if self.recorder.recording() {
+                        self.recorder.record(Record::PsdSent { at: self.now(), packet });
+                    }
                     if self.write_psd(packet).await.is_err() {
                         tracing::error!("serial write failed or timed out; reconnecting");
                         self.lose_psd(core);
@@ -138,6 +155,9 @@ impl Io {
                     record.written(started.elapsed().as_nanos() as u64, self.now(), self.sample_period);
                     self.timing.add(&record);
                     self.recorder.record(Record::Cycle(record));
+                    if self.recorder.recording() {
+                        self.recorder.record(Record::Scene(core.scene(HostTime::from_nanos(record.rx_ns))));
+                    }
                     if let Some(tx) = &self.progress {
                         // Sampled by displays at their own pace: no wake-up per cycle.
                         tx.send_if_modified(|p| {
@@ -204,7 +224,12 @@ impl Io {
     }
 
     async fn send_can(&mut self, frame: CanFrame) -> Result<(), CanError> {
-        let Some(can) = &mut self.can else { return Err(CanError::Closed) };
+        let Some(can) = &mut self.can else {
+            if self.recorder.recording() {
+                self.recorder.record(Record::CanUnwritten { at: self.now(), frame });
+            }
+            return Err(CanError::Closed);
+        };
         let result = match timeout(CAN_WRITE_DEADLINE, can.send(frame)).await {
             Ok(r) => r,
             Err(_) => Err(CanError::Timeout { what: "write" }),
@@ -219,9 +244,8 @@ impl Io {
     /// An operator's request: the core decides, the peer gets the answer and the state.
     fn handle<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
         let now = self.now();
-        let result = core.request(now, &cmd.request);
-        let status = (cmd.request.is_query() || result.is_ok()).then(|| {
-            let mut status = core.status(now);
+        let Some(Answer { result, status }) = self.feed(core, now, Input::Request(&cmd.request)) else { return };
+        let status = status.map(|mut status| {
             status.latency_us = (self.timing.cycles > 0).then(|| self.timing.e2e());
             if let Request::Stats { reset } = cmd.request {
                 let window = match &self.stats_from {
@@ -278,7 +302,7 @@ impl Io {
     /// it every `REOPEN_EVERY`. The core stays faulted: an operator resets and arms again.
     fn lose_can<K: StageClock>(&mut self, core: &mut Core<K>) {
         let now = self.now();
-        core.can_failed(now);
+        self.feed(core, now, Input::CanFailed);
         if self.can.take().is_some() {
             self.next_can_reopen = now + REOPEN_EVERY;
         }
@@ -305,7 +329,7 @@ impl Io {
             Ok(link) => {
                 tracing::info!("CAN link reopened");
                 self.can = Some(link);
-                core.can_reopened();
+                self.feed(core, self.now(), Input::CanReopened);
             }
             Err(e) => {
                 tracing::debug!("CAN reopen: {e}");
@@ -320,9 +344,51 @@ impl Io {
         if let Ok(port) = open_serial(path, baud) {
             self.psd = Some(port);
             self.next_reopen = HostTime::NEVER;
-            core.psd_connected(now);
+            self.feed(core, now, Input::PsdConnected);
         }
     }
+}
+
+/// The telemetry writer, when the rig asks for a directory of files or a recording.
+#[allow(clippy::type_complexity)]
+fn start_telemetry(
+    rig: &Rig,
+    origin: Instant,
+    inputs_taken: Arc<AtomicU64>,
+) -> Result<(Recorder, Option<tokio::task::JoinHandle<std::io::Result<telemetry::WrittenFiles>>>), GatewayError> {
+    let interface = match &rig.can {
+        CanUrl::SocketCan { interface } => interface.clone(),
+        _ => "slcan0".to_string(),
+    };
+    let failed = |path: &std::path::Path| {
+        let path = path.display().to_string();
+        move |source| GatewayError::Telemetry { path, source }
+    };
+    let mcap = match &rig.telemetry.record {
+        Some(path) => {
+            // The host clock's zero on the Unix clock: MCAP log times are absolute.
+            let origin_unix_ns = ((unix_now() * 1e9) as u64).saturating_sub(origin.elapsed().as_nanos() as u64);
+            let setup = RecordingSetup {
+                config_toml: rig.config_toml.clone(),
+                lane_half_width: match rig.control.planner.space {
+                    crate::planner::Space::Lane { half_width } => Some(half_width),
+                    crate::planner::Space::Free => None,
+                },
+                robot_radius: rig.control.robot_radius,
+                origin_unix_ns,
+            };
+            Some(McapSink::create(path, setup).map_err(failed(path))?)
+        }
+        None => None,
+    };
+    let sinks = Sinks { dir: rig.telemetry.out_dir.clone().map(|d| (d, interface)), mcap };
+    if sinks.is_empty() {
+        return Ok((Recorder::disabled(), None));
+    }
+    let where_ = rig.telemetry.out_dir.clone().or(rig.telemetry.record.clone()).unwrap_or_default();
+    let (recorder, writer) =
+        telemetry::start_writer(sinks, rig.telemetry.queue, inputs_taken).map_err(failed(&where_))?;
+    Ok((recorder, Some(writer)))
 }
 
 fn unix_now() -> f64 {
@@ -351,18 +417,8 @@ pub async fn run(
         }
         None => None,
     };
-    let (recorder, writer) = match &rig.telemetry.out_dir {
-        Some(dir) => {
-            let interface = match &rig.can {
-                CanUrl::SocketCan { interface } => interface.clone(),
-                _ => "slcan0".to_string(),
-            };
-            let (r, w) = telemetry::start_writer(dir, rig.telemetry.queue, interface)
-                .map_err(|source| GatewayError::Telemetry { path: dir.display().to_string(), source })?;
-            (r, Some(w))
-        }
-        None => (Recorder::disabled(), None),
-    };
+    let inputs_taken = Arc::new(AtomicU64::new(0));
+    let (recorder, writer) = start_telemetry(&rig, origin, inputs_taken.clone())?;
     let metrics = match rig.operator.metrics {
         Some(addr) => {
             let listener = std::net::TcpListener::bind(addr)
@@ -406,17 +462,19 @@ pub async fn run(
         stats_from: None,
         notifier,
         metrics,
+        inputs_taken,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
     if controls.arm_at_start {
-        core.arm_at_start();
+        io.feed(&mut core, io.now(), Input::ArmAtStart);
     }
-    core.psd_connected(io.now());
-    let mut read_buf = [0u8; 1024];
+    io.feed(&mut core, io.now(), Input::PsdConnected);
+    // One read is one input (a recording holds it whole).
+    let mut read_buf = [0u8; PSD_CHUNK];
     let mut shutdown_seen = *controls.shutdown.borrow();
     if shutdown_seen {
         io.stopping();
-        core.shutdown(io.now());
+        io.feed(&mut core, io.now(), Input::Shutdown);
     }
     loop {
         io.drain(&mut core).await?;
@@ -438,7 +496,9 @@ pub async fn run(
                     None => std::future::pending().await,
                 }
             } => match read {
-                Ok(n) if n > 0 => core.psd_bytes(io.now(), &read_buf[..n]),
+                Ok(n) if n > 0 => {
+                    io.feed(&mut core, io.now(), Input::PsdBytes(&read_buf[..n]));
+                }
                 _ => {
                     tracing::error!("serial line lost; reconnecting");
                     io.lose_psd(&mut core);
@@ -454,7 +514,7 @@ pub async fn run(
                     if let CanEvent::Frame(frame) = event {
                         io.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: false }));
                     }
-                    core.can_event(io.now(), event);
+                    io.feed(&mut core, io.now(), Input::Can(event));
                 }
                 Err(e) => {
                     tracing::error!("CAN link: {e}; reopening");
@@ -478,7 +538,7 @@ pub async fn run(
                 if io.can.is_none() && io.can_opening.is_none() && now >= io.next_can_reopen {
                     io.reopen_can();
                 }
-                core.tick(now);
+                io.feed(&mut core, now, Input::Tick);
             }
             Some(cmd) = controls.requests.recv() => io.handle(&mut core, cmd),
             // Low-latency mode: poll for the frame due now instead of sleeping to it.
@@ -488,7 +548,7 @@ pub async fn run(
                 if changed.is_err() || *controls.shutdown.borrow() {
                     shutdown_seen = true;
                     io.stopping();
-                    core.shutdown(io.now());
+                    io.feed(&mut core, io.now(), Input::Shutdown);
                 }
             }
         }

@@ -23,8 +23,10 @@ use hdrhistogram::Histogram;
 use serde::Serialize;
 use tokio::sync::mpsc;
 
+use super::recording::{InputRecord, McapSink, RecordingSummary, SceneRecord};
 use super::safety::State;
 use crate::time::HostTime;
+use flowgate_protocol::psd::Packet;
 
 /// One control cycle's timing. Times are ns since the gateway started (host monotonic clock;
 /// virtual time in the deterministic simulation).
@@ -159,12 +161,27 @@ pub struct EventRecord {
     pub text: String,
 }
 
+// Large by design: a record is copied into the queue, never boxed (no allocation per cycle).
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum Record {
     Cycle(CycleRecord),
     Can(CanRecord),
     /// Events (rare: they may allocate).
     Event(EventRecord),
+    /// For a recording only: an input the core took, a packet sent to the PSD controller,
+    /// a cycle's scene.
+    Input(InputRecord),
+    PsdSent {
+        at: HostTime,
+        packet: Packet,
+    },
+    Scene(SceneRecord),
+    /// A frame the core asked for while the CAN link was down (not written, not in can.log).
+    CanUnwritten {
+        at: HostTime,
+        frame: CanFrame,
+    },
 }
 
 /// The loop's end of the telemetry queue.
@@ -172,12 +189,14 @@ pub enum Record {
 pub struct Recorder {
     tx: Option<mpsc::Sender<Record>>,
     dropped: Arc<AtomicU64>,
+    /// An MCAP recording is being written: inputs and scenes are wanted.
+    recording: bool,
 }
 
 impl Recorder {
     /// A recorder that writes nothing.
     pub fn disabled() -> Self {
-        Self { tx: None, dropped: Arc::new(AtomicU64::new(0)) }
+        Self { tx: None, dropped: Arc::new(AtomicU64::new(0)), recording: false }
     }
 
     /// Queue a record; never waits. A full queue drops it and counts the drop.
@@ -187,6 +206,11 @@ impl Recorder {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
             }
         }
+    }
+
+    /// Whether an MCAP recording wants the core's inputs and each cycle's scene.
+    pub fn recording(&self) -> bool {
+        self.recording
     }
 
     pub fn dropped(&self) -> u64 {
@@ -202,6 +226,101 @@ pub struct WrittenFiles {
     pub can_log: Option<PathBuf>,
     pub cycles: u64,
     pub can_frames: u64,
+    /// The MCAP recording, when one was asked for.
+    pub recording: Option<RecordingSummary>,
+}
+
+/// The text files of a telemetry directory.
+struct TextFiles {
+    events: std::io::BufWriter<std::fs::File>,
+    cycles: std::io::BufWriter<std::fs::File>,
+    trace: std::io::BufWriter<std::fs::File>,
+    can: std::io::BufWriter<std::fs::File>,
+    interface: String,
+    first: bool,
+}
+
+impl TextFiles {
+    fn create(dir: &Path, interface: String, written: &mut WrittenFiles) -> std::io::Result<Self> {
+        std::fs::create_dir_all(dir)?;
+        let paths = (dir.join("cycles.csv"), dir.join("trace.json"), dir.join("can.log"));
+        let create = |p: &Path| std::fs::File::create(p).map(std::io::BufWriter::new);
+        let mut files = Self {
+            events: create(&dir.join("events.log"))?,
+            cycles: create(&paths.0)?,
+            trace: create(&paths.1)?,
+            can: create(&paths.2)?,
+            interface,
+            first: true,
+        };
+        writeln!(files.cycles, "{}", CycleRecord::CSV_HEADER)?;
+        write!(files.trace, "{{\"traceEvents\":[")?;
+        (written.cycles_csv, written.trace_json, written.can_log) = (Some(paths.0), Some(paths.1), Some(paths.2));
+        Ok(files)
+    }
+
+    fn write(&mut self, r: &Record) -> std::io::Result<()> {
+        match r {
+            Record::Cycle(c) => {
+                c.csv(&mut self.cycles)?;
+                // Stages laid end to end, ending at the CAN write.
+                let us = |ns: u64| ns as f64 / 1e3;
+                let stages = c.stages();
+                let mut start = c.can_done_ns.saturating_sub(stages.iter().map(|(_, ns)| ns).sum());
+                for (name, dur) in stages {
+                    if !self.first {
+                        write!(self.trace, ",")?;
+                    }
+                    self.first = false;
+                    write!(
+                        self.trace,
+                        "{{\"name\":\"{name}\",\"cat\":\"cycle\",\"ph\":\"X\",\"ts\":{:.3},\"dur\":{:.3},\"pid\":1,\"tid\":1,\"args\":{{\"cycle\":{},\"frame\":{}}}}}",
+                        us(start),
+                        us(dur),
+                        c.cycle,
+                        c.frame
+                    )?;
+                    start += dur;
+                }
+                write!(
+                    self.trace,
+                    ",{{\"name\":\"e2e\",\"cat\":\"cycle\",\"ph\":\"X\",\"ts\":{:.3},\"dur\":{:.3},\"pid\":1,\"tid\":2,\"args\":{{\"cycle\":{},\"miss\":{}}}}}",
+                    us(c.rx_ns),
+                    us(c.e2e_ns),
+                    c.cycle,
+                    c.deadline_miss
+                )?;
+            }
+            Record::Can(f) => f.candump(&self.interface, &mut self.can)?,
+            Record::Event(e) => writeln!(self.events, "({:.6}) {}", e.at_s, e.text)?,
+            Record::Input(_) | Record::PsdSent { .. } | Record::Scene(_) | Record::CanUnwritten { .. } => {}
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> std::io::Result<()> {
+        write!(self.trace, "],\"displayTimeUnit\":\"ms\"}}")?;
+        self.cycles.flush()?;
+        self.events.flush()?;
+        self.trace.flush()?;
+        self.can.flush()
+    }
+}
+
+/// Where the writer puts the records.
+#[derive(Debug, Default)]
+pub struct Sinks {
+    /// A telemetry directory (cycles.csv, trace.json, can.log, events.log) and the CAN
+    /// interface's name for can.log.
+    pub dir: Option<(PathBuf, String)>,
+    /// An MCAP recording.
+    pub mcap: Option<McapSink>,
+}
+
+impl Sinks {
+    pub fn is_empty(&self) -> bool {
+        self.dir.is_none() && self.mcap.is_none()
+    }
 }
 
 /// How often the writer drains the queue. The queue must hold this long's records: the
@@ -209,85 +328,67 @@ pub struct WrittenFiles {
 /// a CAN frame or two each).
 pub const DRAIN_EVERY: std::time::Duration = std::time::Duration::from_millis(25);
 
-/// Start the writer task on `dir` with a queue of `capacity` records.
+/// Start the writer task with a queue of `capacity` records. `inputs_taken` is the loop's
+/// count of inputs, read when the recording closes (its end record compares it with what was
+/// written).
 pub fn start_writer(
-    dir: &Path,
+    sinks: Sinks,
     capacity: usize,
-    interface: String,
+    inputs_taken: Arc<AtomicU64>,
 ) -> std::io::Result<(Recorder, tokio::task::JoinHandle<std::io::Result<WrittenFiles>>)> {
-    std::fs::create_dir_all(dir)?;
     let (tx, mut rx) = mpsc::channel::<Record>(capacity);
-    let paths = (dir.join("cycles.csv"), dir.join("trace.json"), dir.join("can.log"));
-    let mut events = std::io::BufWriter::new(std::fs::File::create(dir.join("events.log"))?);
-    let mut cycles = std::io::BufWriter::new(std::fs::File::create(&paths.0)?);
-    let mut trace = std::io::BufWriter::new(std::fs::File::create(&paths.1)?);
-    let mut can = std::io::BufWriter::new(std::fs::File::create(&paths.2)?);
+    let mut written = WrittenFiles::default();
+    let mut files = match sinks.dir {
+        Some((dir, interface)) => Some(TextFiles::create(&dir, interface, &mut written)?),
+        None => None,
+    };
+    let recording = sinks.mcap.is_some();
+    let mut mcap = sinks.mcap;
+    let dropped = Arc::new(AtomicU64::new(0));
+    let dropped_seen = dropped.clone();
     let task = tokio::task::spawn_blocking(move || {
-        writeln!(cycles, "{}", CycleRecord::CSV_HEADER)?;
-        write!(trace, "{{\"traceEvents\":[")?;
-        let mut first = true;
-        let mut written = WrittenFiles {
-            cycles_csv: Some(paths.0),
-            trace_json: Some(paths.1),
-            can_log: Some(paths.2),
-            ..WrittenFiles::default()
-        };
         loop {
             let r = match rx.try_recv() {
                 Ok(r) => r,
                 Err(mpsc::error::TryRecvError::Empty) => {
+                    if let Some(m) = &mut mcap {
+                        m.flush_if_due()?;
+                    }
                     std::thread::sleep(DRAIN_EVERY);
                     continue;
                 }
                 Err(mpsc::error::TryRecvError::Disconnected) => break,
             };
-            match r {
-                Record::Cycle(c) => {
-                    c.csv(&mut cycles)?;
-                    written.cycles += 1;
-                    // Stages laid end to end, ending at the CAN write.
-                    let us = |ns: u64| ns as f64 / 1e3;
-                    let stages = c.stages();
-                    let mut start = c.can_done_ns.saturating_sub(stages.iter().map(|(_, ns)| ns).sum());
-                    for (name, dur) in stages {
-                        if !first {
-                            write!(trace, ",")?;
-                        }
-                        first = false;
-                        write!(
-                            trace,
-                            "{{\"name\":\"{name}\",\"cat\":\"cycle\",\"ph\":\"X\",\"ts\":{:.3},\"dur\":{:.3},\"pid\":1,\"tid\":1,\"args\":{{\"cycle\":{},\"frame\":{}}}}}",
-                            us(start),
-                            us(dur),
-                            c.cycle,
-                            c.frame
-                        )?;
-                        start += dur;
-                    }
-                    write!(
-                        trace,
-                        ",{{\"name\":\"e2e\",\"cat\":\"cycle\",\"ph\":\"X\",\"ts\":{:.3},\"dur\":{:.3},\"pid\":1,\"tid\":2,\"args\":{{\"cycle\":{},\"miss\":{}}}}}",
-                        us(c.rx_ns),
-                        us(c.e2e_ns),
-                        c.cycle,
-                        c.deadline_miss
-                    )?;
+            match &r {
+                Record::Cycle(_) => written.cycles += 1,
+                Record::Can(_) => written.can_frames += 1,
+                _ => {}
+            }
+            if let Some(files) = &mut files {
+                files.write(&r)?;
+            }
+            if let Some(m) = &mut mcap {
+                match &r {
+                    Record::Cycle(c) => m.cycle(c)?,
+                    Record::Can(f) => m.can(f)?,
+                    Record::Event(e) => m.event(e)?,
+                    Record::Input(i) => m.input(i)?,
+                    Record::PsdSent { at, packet } => m.psd_sent(*at, packet)?,
+                    Record::Scene(s) => m.scene(s)?,
+                    Record::CanUnwritten { at, frame } => m.can_unwritten(*at, frame)?,
                 }
-                Record::Can(f) => {
-                    f.candump(&interface, &mut can)?;
-                    written.can_frames += 1;
-                }
-                Record::Event(e) => writeln!(events, "({:.6}) {}", e.at_s, e.text)?,
             }
         }
-        write!(trace, "],\"displayTimeUnit\":\"ms\"}}")?;
-        cycles.flush()?;
-        events.flush()?;
-        trace.flush()?;
-        can.flush()?;
+        if let Some(files) = files {
+            files.finish()?;
+        }
+        if let Some(m) = mcap {
+            let taken = inputs_taken.load(Ordering::Relaxed);
+            written.recording = Some(m.finish(taken, dropped_seen.load(Ordering::Relaxed))?);
+        }
         Ok(written)
     });
-    Ok((Recorder { tx: Some(tx), dropped: Arc::new(AtomicU64::new(0)) }, task))
+    Ok((Recorder { tx: Some(tx), dropped, recording }, task))
 }
 
 /// A stage of a cycle, in the order they run.
@@ -501,6 +602,13 @@ mod tests {
 
     fn stage<'a>(stages: &'a [StageSummary], name: &str) -> &'a StageSummary {
         stages.iter().find(|s| s.stage == name).unwrap()
+    }
+
+    #[test]
+    fn a_record_stays_small_enough_to_queue_by_value() {
+        // The queue holds records by value (no allocation per cycle): 8192 of the largest,
+        // a cycle's scene, are under 5 MB.
+        assert!(std::mem::size_of::<Record>() <= 600, "{} bytes", std::mem::size_of::<Record>());
     }
 
     #[test]

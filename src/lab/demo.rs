@@ -49,6 +49,7 @@ pub async fn run(
     scenario: &Scenario,
     can: &str,
     out_dir: Option<PathBuf>,
+    record: Option<PathBuf>,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<DemoRun, DemoError> {
     let mut rig_cfg = RigConfig::new(scenario.sim.clone());
@@ -65,7 +66,9 @@ pub async fn run(
     } else {
         can_url
     };
-    let rig = scenario.gateway_config(&handle.psd_path, &can_url, out_dir).rig("the demo's rig")?;
+    let mut config = scenario.gateway_config(&handle.psd_path, &can_url, out_dir);
+    config.telemetry.record = record;
+    let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
     let gw = tokio::spawn(gateway::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));

@@ -43,6 +43,9 @@ pub struct Phase {
     /// The gateway's real-time settings in this phase (CPU affinity, SCHED_FIFO, locked
     /// memory), if any; its null gateway then runs with them too.
     pub realtime: Option<String>,
+    /// The gateway recorded the run to MCAP in this phase (its null gateway records nothing).
+    #[serde(default)]
+    pub recording: bool,
     /// Time-division frames per second the controller sent.
     pub frame_rate_hz: f64,
     pub samples_per_s: f64,
@@ -82,17 +85,19 @@ pub struct Floor {
 pub struct Mode {
     pub spin_us: u32,
     pub realtime: RealtimeSettings,
+    /// Record the run to MCAP (`[telemetry] record`): what recording costs the loop.
+    pub record: bool,
 }
 
 impl Mode {
     /// The row's suffix: `None` for the plain gateway.
     fn label(&self) -> Option<String> {
-        match (self.spin_us > 0, self.realtime.is_empty()) {
-            (false, true) => None,
-            (true, true) => Some("low-latency".into()),
-            (false, false) => Some("real-time".into()),
-            (true, false) => Some("low-latency + real-time".into()),
-        }
+        let parts: Vec<&str> =
+            [(self.spin_us > 0, "low-latency"), (!self.realtime.is_empty(), "real-time"), (self.record, "recording")]
+                .into_iter()
+                .filter_map(|(on, name)| on.then_some(name))
+                .collect();
+        (!parts.is_empty()).then(|| parts.join(" + "))
     }
 }
 
@@ -226,13 +231,18 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
     let spin_us = mode.spin_us;
     let slot_us = 500.max(spin_us + 100);
     let rt = &mode.realtime;
+    let record = if mode.record {
+        format!("[telemetry]\nrecord = \"{}\"\n", socket.with_extension("mcap").display())
+    } else {
+        String::new()
+    };
     format!(
         "[serial]\nport = \"{}\"\n[leds]\nrobot_front = 1\nrobot_rear = 2\nfront_offset = 0.035\nrear_offset = 0.035\n\
          [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nnode = {}\n\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
-         [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n",
+         [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
         psd.display(),
         node.get(),
         socket.display(),
@@ -317,7 +327,17 @@ impl GatewayProcess {
 
     /// Stop it; its state lines ("state: running", ...) say why it stopped commanding, if it did.
     async fn stop(mut self) -> Vec<String> {
-        let _ = self.child.kill().await;
+        // In order (SIGTERM: a recording is closed), killed if it takes over 5 s.
+        let term = self
+            .child
+            .id()
+            .and_then(|id| rustix::process::Pid::from_raw(id as i32))
+            .map(|pid| rustix::process::kill_process(pid, rustix::process::Signal::TERM));
+        let ended = matches!(term, Some(Ok(())))
+            && tokio::time::timeout(Duration::from_secs(5), self.child.wait()).await.is_ok();
+        if !ended {
+            let _ = self.child.kill().await;
+        }
         std::fs::read_to_string(&self.log)
             .unwrap_or_default()
             .lines()
@@ -528,6 +548,7 @@ impl PairTally {
             name,
             spin_us: (mode.spin_us > 0).then_some(mode.spin_us),
             realtime: (!mode.realtime.is_empty()).then(|| mode.realtime.to_string()),
+            recording: mode.record,
             frame_rate_hz: g.sent as f64 / g.elapsed_s,
             samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
             cycles_sent: g.sent,
@@ -616,8 +637,10 @@ pub async fn run(
     let gateway_states = main.stop().await;
     // Sustained: the highest rate that passes with every slower latency phase passing too.
     let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
-        let mut latency_phases: Vec<&Phase> =
-            report_phases.iter().filter(|p| p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none()).collect();
+        let mut latency_phases: Vec<&Phase> = report_phases
+            .iter()
+            .filter(|p| p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording)
+            .collect();
         latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
         latency_phases
             .iter()
@@ -739,13 +762,16 @@ impl std::fmt::Display for BenchReport {
             self.wire_per_cycle_us
         )?;
         writeln!(f, "gateway states: {}", self.gateway_states.join(" -> "))?;
-        for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some()) {
+        for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording) {
             let mut how = Vec::new();
             if let Some(us) = p.spin_us {
                 how.push(format!("[realtime] spin_us = {us} (its null gateway polling the same way)"));
             }
             if let Some(rt) = &p.realtime {
                 how.push(format!("real-time settings {rt} (its null gateway with them too)"));
+            }
+            if p.recording {
+                how.push("an MCAP recording of every input, output and cycle (`--record`)".to_string());
             }
             let states =
                 self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));

@@ -1,0 +1,618 @@
+//! MCAP recordings of a run (`flowgate run --record FILE.mcap`).
+//!
+//! The loop queues records (the same bounded queue as the other telemetry: a full queue
+//! drops and counts, never waits); the writer thread encodes them here. Channels:
+//! - inputs to the core, in the order it took them, each with its host time in ns: `/psd/rx`
+//!   (raw bytes as read), `/can/rx` (CAN events), `/gateway/input` (links opening and
+//!   failing, operator requests, ticks, shutdown). The MCAP `sequence` of an input is its
+//!   index over all three, so a replay merges them back and sees any gap;
+//! - what the gateway sent: `/psd/tx` (packets to the controller), `/can/tx` (frames);
+//! - per cycle: `/cycle` (the timing record: every stage, the command, the state),
+//!   `/obstacles` (position, velocity, covariance, planning radius), `/robot/pose`
+//!   (`foxglove.PoseInFrame`), `/arena` (`foxglove.SceneUpdate`: lane walls, goal,
+//!   obstacles with their planning circles, the robot), and `/log` (`foxglove.Log`: state
+//!   changes, operator requests and answers);
+//! - metadata `flowgate`: the configuration the run used (TOML), the version, the clock's
+//!   origin; `flowgate.end`: how many inputs and records were written and dropped.
+//!
+//! JSON everywhere (`jsonschema` schemas), so Foxglove draws the arena and plots any field
+//! without set-up, and any MCAP reader can check it.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use flowgate_protocol::psd::{self, Packet};
+use flowgate_protocol::{CanFrame, CanId};
+use serde_json::{json, Value};
+
+use super::operator::Request;
+use super::telemetry::{CanRecord, CycleRecord, EventRecord};
+use super::Input;
+use crate::link::CanEvent;
+use crate::planner::MAX_OBSTACLES;
+use crate::time::HostTime;
+
+/// The most bytes one PSD read hands the core, and one input record holds.
+pub const PSD_CHUNK: usize = 256;
+
+/// The metadata record holding the configuration.
+pub const METADATA: &str = "flowgate";
+/// The metadata record written at the end.
+pub const METADATA_END: &str = "flowgate.end";
+/// Input channels.
+pub const PSD_RX: &str = "/psd/rx";
+pub const CAN_RX: &str = "/can/rx";
+pub const GATEWAY_INPUT: &str = "/gateway/input";
+/// Output channels.
+pub const PSD_TX: &str = "/psd/tx";
+pub const CAN_TX: &str = "/can/tx";
+pub const CYCLE: &str = "/cycle";
+
+/// One input to the core as recorded: it owns its bytes (a fixed chunk: queueing it does
+/// not allocate; requests are rare and boxed).
+// Large by design: a record is copied into the queue, never boxed (no allocation per cycle).
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum RecordedInput {
+    PsdConnected,
+    PsdLost,
+    PsdBytes { len: u16, bytes: [u8; PSD_CHUNK] },
+    Can(CanEvent),
+    CanFailed,
+    CanReopened,
+    Request(Box<Request>),
+    ArmAtStart,
+    Shutdown,
+    Tick,
+}
+
+impl RecordedInput {
+    /// A copy of `input`. PSD reads longer than [`PSD_CHUNK`] are cut there (the shell never
+    /// reads more at once).
+    pub fn of(input: Input<'_>) -> Self {
+        match input {
+            Input::PsdConnected => Self::PsdConnected,
+            Input::PsdLost => Self::PsdLost,
+            Input::PsdBytes(b) => {
+                let len = b.len().min(PSD_CHUNK);
+                let mut bytes = [0; PSD_CHUNK];
+                bytes[..len].copy_from_slice(&b[..len]);
+                Self::PsdBytes { len: len as u16, bytes }
+            }
+            Input::Can(e) => Self::Can(e),
+            Input::CanFailed => Self::CanFailed,
+            Input::CanReopened => Self::CanReopened,
+            Input::Request(r) => Self::Request(Box::new(r.clone())),
+            Input::ArmAtStart => Self::ArmAtStart,
+            Input::Shutdown => Self::Shutdown,
+            Input::Tick => Self::Tick,
+        }
+    }
+
+    /// The input to hand the core.
+    pub fn as_input(&self) -> Input<'_> {
+        match self {
+            Self::PsdConnected => Input::PsdConnected,
+            Self::PsdLost => Input::PsdLost,
+            Self::PsdBytes { len, bytes } => Input::PsdBytes(&bytes[..usize::from(*len)]),
+            Self::Can(e) => Input::Can(*e),
+            Self::CanFailed => Input::CanFailed,
+            Self::CanReopened => Input::CanReopened,
+            Self::Request(r) => Input::Request(r),
+            Self::ArmAtStart => Input::ArmAtStart,
+            Self::Shutdown => Input::Shutdown,
+            Self::Tick => Input::Tick,
+        }
+    }
+}
+
+/// An input with its place in the run: `seq` counts every input the loop took (a dropped
+/// record leaves a gap), `at` is when.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputRecord {
+    pub seq: u64,
+    pub at: HostTime,
+    pub input: RecordedInput,
+}
+
+/// One tracked obstacle in a cycle's scene. `f32`: a micrometre over tens of metres, and
+/// half the queue's memory.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ObstacleView {
+    pub position: [f32; 2],
+    pub velocity: [f32; 2],
+    /// Position covariance `[xx, xy, yy]`, m².
+    pub covariance: [f32; 3],
+    pub planning_radius: f32,
+}
+
+/// What the gateway believed in one cycle: the robot's pose and goal, each obstacle.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SceneRecord {
+    pub cycle: u64,
+    pub at: HostTime,
+    /// x, y (m), heading (rad).
+    pub pose: [f64; 3],
+    pub goal: [f64; 2],
+    pub count: u8,
+    pub obstacles: [ObstacleView; MAX_OBSTACLES],
+}
+
+impl SceneRecord {
+    pub fn obstacles(&self) -> &[ObstacleView] {
+        &self.obstacles[..usize::from(self.count).min(MAX_OBSTACLES)]
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    use std::fmt::Write as _;
+    bytes.iter().fold(String::with_capacity(2 * bytes.len()), |mut s, b| {
+        let _ = write!(s, "{b:02x}");
+        s
+    })
+}
+
+fn unhex(text: &str) -> Option<Vec<u8>> {
+    if !text.len().is_multiple_of(2) {
+        return None;
+    }
+    (0..text.len()).step_by(2).map(|i| u8::from_str_radix(text.get(i..i + 2)?, 16).ok()).collect()
+}
+
+/// A CAN frame as JSON: id, whether extended or remote, data in hex, and candump's text.
+pub fn frame_json(frame: &CanFrame) -> Value {
+    let (id, extended) = match frame.id() {
+        CanId::Standard(id) => (u32::from(id), false),
+        CanId::Extended(id) => (id, true),
+    };
+    json!({
+        "id": id,
+        "extended": extended,
+        "remote": frame.is_remote(),
+        "dlc": frame.dlc(),
+        "data": hex(frame.data()),
+        "candump": format!("{frame:?}"),
+    })
+}
+
+/// A frame back from [`frame_json`].
+pub fn frame_from_json(v: &Value) -> Option<CanFrame> {
+    let id = u32::try_from(v.get("id")?.as_u64()?).ok()?;
+    let id = if v.get("extended")?.as_bool()? { CanId::Extended(id) } else { CanId::Standard(u16::try_from(id).ok()?) };
+    if v.get("remote")?.as_bool()? {
+        CanFrame::remote(id, u8::try_from(v.get("dlc")?.as_u64()?).ok()?).ok()
+    } else {
+        CanFrame::new(id, &unhex(v.get("data")?.as_str()?)?).ok()
+    }
+}
+
+/// An input record as JSON (its channel comes from [`input_channel`]).
+pub fn input_json(r: &InputRecord) -> Value {
+    let mut v = json!({ "seq": r.seq, "t_ns": r.at.as_nanos(), "kind": r.input.as_input().kind() });
+    let extra = match &r.input {
+        RecordedInput::PsdBytes { len, bytes } => json!({ "bytes": hex(&bytes[..usize::from(*len)]) }),
+        RecordedInput::Can(event) => match event {
+            CanEvent::Frame(f) => json!({ "event": "frame", "frame": frame_json(f) }),
+            CanEvent::ErrorFrame { bus_off } => json!({ "event": "error_frame", "bus_off": bus_off }),
+            CanEvent::Garbled => json!({ "event": "garbled" }),
+            CanEvent::TransmitRefused => json!({ "event": "transmit_refused" }),
+            CanEvent::AdapterStatus { bus_off, error_passive } => {
+                json!({ "event": "adapter_status", "bus_off": bus_off, "error_passive": error_passive })
+            }
+        },
+        RecordedInput::Request(request) => json!({ "request": request }),
+        _ => return v,
+    };
+    if let (Some(v), Value::Object(extra)) = (v.as_object_mut(), extra) {
+        v.extend(extra);
+    }
+    v
+}
+
+/// The channel an input goes on.
+pub fn input_channel(input: &RecordedInput) -> &'static str {
+    match input {
+        RecordedInput::PsdBytes { .. } => PSD_RX,
+        RecordedInput::Can(_) => CAN_RX,
+        _ => GATEWAY_INPUT,
+    }
+}
+
+/// An input record back from its JSON; the error says what is wrong with it.
+pub fn input_from_json(v: &Value) -> Result<InputRecord, String> {
+    let field = |name: &str| v.get(name).ok_or_else(|| format!("no `{name}`"));
+    let seq = field("seq")?.as_u64().ok_or("`seq` is not a count")?;
+    let at = HostTime::from_nanos(field("t_ns")?.as_u64().ok_or("`t_ns` is not a count")?);
+    let kind = field("kind")?.as_str().ok_or("`kind` is not text")?;
+    let flag = |name: &str| field(name).and_then(|f| f.as_bool().ok_or_else(|| format!("`{name}` is not a boolean")));
+    let input = match kind {
+        "psd_connected" => RecordedInput::PsdConnected,
+        "psd_lost" => RecordedInput::PsdLost,
+        "psd_bytes" => {
+            let data = unhex(field("bytes")?.as_str().unwrap_or("?")).ok_or("`bytes` is not hex")?;
+            if data.len() > PSD_CHUNK {
+                return Err(format!("{} bytes in one read: at most {PSD_CHUNK}", data.len()));
+            }
+            let mut bytes = [0; PSD_CHUNK];
+            bytes[..data.len()].copy_from_slice(&data);
+            RecordedInput::PsdBytes { len: data.len() as u16, bytes }
+        }
+        "can" => RecordedInput::Can(match field("event")?.as_str().unwrap_or("?") {
+            "frame" => CanEvent::Frame(frame_from_json(field("frame")?).ok_or("`frame` is not a CAN frame")?),
+            "error_frame" => CanEvent::ErrorFrame { bus_off: flag("bus_off")? },
+            "garbled" => CanEvent::Garbled,
+            "transmit_refused" => CanEvent::TransmitRefused,
+            "adapter_status" => {
+                CanEvent::AdapterStatus { bus_off: flag("bus_off")?, error_passive: flag("error_passive")? }
+            }
+            other => return Err(format!("unknown CAN event `{other}`")),
+        }),
+        "can_failed" => RecordedInput::CanFailed,
+        "can_reopened" => RecordedInput::CanReopened,
+        "request" => RecordedInput::Request(Box::new(
+            serde_json::from_value(field("request")?.clone()).map_err(|e| format!("`request`: {e}"))?,
+        )),
+        "arm_at_start" => RecordedInput::ArmAtStart,
+        "shutdown" => RecordedInput::Shutdown,
+        "tick" => RecordedInput::Tick,
+        other => return Err(format!("unknown input `{other}`")),
+    };
+    Ok(InputRecord { seq, at, input })
+}
+
+/// What the recording holds about the rig itself (drawn in every `/arena` update).
+#[derive(Debug, Clone)]
+pub struct RecordingSetup {
+    /// The configuration the run used, as TOML (replay rebuilds the rig from it).
+    pub config_toml: String,
+    /// The lane's half-width, when the robot drives in a lane.
+    pub lane_half_width: Option<f64>,
+    pub robot_radius: f64,
+    /// Where the host clock's zero is, ns since the Unix epoch (MCAP log times are absolute).
+    pub origin_unix_ns: u64,
+}
+
+/// Everything the writer thread writes into the MCAP file.
+pub struct McapSink {
+    path: PathBuf,
+    writer: mcap::Writer<BufWriter<File>>,
+    channels: BTreeMap<&'static str, u16>,
+    setup: RecordingSetup,
+    inputs: u64,
+    messages: u64,
+    cycles: u64,
+    /// When `/arena` was last drawn (host ns): at most [`ARENA_EVERY_NS`] apart.
+    arena_at: Option<u64>,
+    flushed: std::time::Instant,
+}
+
+/// The MCAP chunk size, bytes.
+const CHUNK_BYTES: u64 = 256 * 1024;
+/// How often the writer closes the current chunk, so a reader sees it even if the gateway
+/// is killed later.
+const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// `/arena` is for the eye: 20 updates a second at most (each is kilobytes of JSON; the
+/// per-cycle channels keep every cycle).
+pub const ARENA_EVERY_NS: u64 = 50_000_000;
+
+impl std::fmt::Debug for McapSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("McapSink").field("path", &self.path).field("messages", &self.messages).finish_non_exhaustive()
+    }
+}
+
+/// What a recording holds, once written.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct RecordingSummary {
+    pub path: Option<PathBuf>,
+    pub inputs: u64,
+    pub messages: u64,
+    pub cycles: u64,
+}
+
+/// A minimal JSON Schema for an object with these properties (Foxglove takes the schema's
+/// name for the well-known ones and the properties for plots).
+fn object_schema(title: &str, properties: &[(&str, &str)]) -> Vec<u8> {
+    let props: serde_json::Map<String, Value> =
+        properties.iter().map(|(name, ty)| (name.to_string(), json!({ "type": ty }))).collect();
+    serde_json::to_vec(&json!({ "title": title, "type": "object", "properties": props })).unwrap_or_default()
+}
+
+fn io_error(e: mcap::McapError) -> std::io::Error {
+    std::io::Error::other(e)
+}
+
+impl McapSink {
+    /// Create the file and write its channels and the configuration.
+    pub fn create(path: &Path, setup: RecordingSetup) -> std::io::Result<Self> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)?;
+        }
+        let file = BufWriter::new(File::create(path)?);
+        // Small chunks, and a flush each second (`flush_if_due`): a gateway killed outright
+        // loses at most about the last second of its recording.
+        let options = mcap::WriteOptions::new().compression(None).profile("flowgate").chunk_size(Some(CHUNK_BYTES));
+        let mut writer = options.create(file).map_err(io_error)?;
+        let input_schema = object_schema(
+            "flowgate.Input",
+            &[("seq", "integer"), ("t_ns", "integer"), ("kind", "string"), ("bytes", "string"), ("event", "string")],
+        );
+        let frame_schema = object_schema(
+            "flowgate.CanFrame",
+            &[("id", "integer"), ("extended", "boolean"), ("remote", "boolean"), ("data", "string")],
+        );
+        let cycle_props: Vec<(&str, &str)> =
+            CycleRecord::CSV_HEADER.split(',').map(|c| (c, if c == "state" { "string" } else { "number" })).collect();
+        let table: [(&'static str, &str, Vec<u8>); 10] = [
+            (PSD_RX, "flowgate.Input", input_schema.clone()),
+            (CAN_RX, "flowgate.Input", input_schema.clone()),
+            (GATEWAY_INPUT, "flowgate.Input", input_schema),
+            (
+                PSD_TX,
+                "flowgate.PsdPacket",
+                object_schema("flowgate.PsdPacket", &[("seq", "integer"), ("wire", "string")]),
+            ),
+            (CAN_TX, "flowgate.CanFrame", frame_schema),
+            (CYCLE, "flowgate.Cycle", object_schema("flowgate.Cycle", &cycle_props)),
+            ("/obstacles", "flowgate.Obstacles", object_schema("flowgate.Obstacles", &[("obstacles", "array")])),
+            ("/robot/pose", "foxglove.PoseInFrame", object_schema("foxglove.PoseInFrame", &[("pose", "object")])),
+            ("/arena", "foxglove.SceneUpdate", object_schema("foxglove.SceneUpdate", &[("entities", "array")])),
+            ("/log", "foxglove.Log", object_schema("foxglove.Log", &[("message", "string"), ("level", "integer")])),
+        ];
+        let mut channels = BTreeMap::new();
+        for (topic, schema, data) in table {
+            let schema_id = writer.add_schema(schema, "jsonschema", &data).map_err(io_error)?;
+            let id = writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(io_error)?;
+            channels.insert(topic, id);
+        }
+        let metadata = BTreeMap::from([
+            ("config".to_string(), setup.config_toml.clone()),
+            ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+            ("origin_unix_ns".to_string(), setup.origin_unix_ns.to_string()),
+            ("psd_chunk".to_string(), PSD_CHUNK.to_string()),
+        ]);
+        writer.write_metadata(&mcap::records::Metadata { name: METADATA.into(), metadata }).map_err(io_error)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            writer,
+            channels,
+            setup,
+            inputs: 0,
+            messages: 0,
+            cycles: 0,
+            arena_at: None,
+            flushed: std::time::Instant::now(),
+        })
+    }
+
+    fn put(&mut self, topic: &str, sequence: u32, host_ns: u64, value: &Value) -> std::io::Result<()> {
+        let Some(&channel_id) = self.channels.get(topic) else { return Ok(()) };
+        let data = serde_json::to_vec(value).map_err(std::io::Error::other)?;
+        let log_time = self.setup.origin_unix_ns.saturating_add(host_ns);
+        let header = mcap::records::MessageHeader { channel_id, sequence, log_time, publish_time: log_time };
+        self.writer.write_to_known_channel(&header, &data).map_err(io_error)?;
+        self.messages += 1;
+        Ok(())
+    }
+
+    /// Close the current chunk if the last flush was a second ago (the writer calls this
+    /// when its queue is empty).
+    pub fn flush_if_due(&mut self) -> std::io::Result<()> {
+        if self.flushed.elapsed() >= FLUSH_EVERY {
+            self.flushed = std::time::Instant::now();
+            self.writer.flush().map_err(io_error)?;
+        }
+        Ok(())
+    }
+
+    pub fn input(&mut self, r: &InputRecord) -> std::io::Result<()> {
+        self.inputs += 1;
+        // MCAP's sequence is 32 bits: a run at 1 kHz takes weeks to wrap it; `seq` in the
+        // message is the full count.
+        self.put(input_channel(&r.input), r.seq as u32, r.at.as_nanos(), &input_json(r))
+    }
+
+    pub fn psd_sent(&mut self, at: HostTime, packet: &Packet) -> std::io::Result<()> {
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        let n = packet.encode(&mut wire).unwrap_or(0);
+        let v = json!({ "t_ns": at.as_nanos(), "seq": packet.seq, "message": format!("{:?}", packet.message), "wire": hex(&wire[..n]) });
+        self.put(PSD_TX, u32::from(packet.seq), at.as_nanos(), &v)
+    }
+
+    pub fn can(&mut self, r: &CanRecord) -> std::io::Result<()> {
+        if !r.sent {
+            // Received frames are inputs (`/can/rx`).
+            return Ok(());
+        }
+        let host_ns = ((r.at_s * 1e9) as u64).saturating_sub(self.setup.origin_unix_ns);
+        let mut v = frame_json(&r.frame);
+        v["written"] = json!(true);
+        self.put(CAN_TX, 0, host_ns, &v)
+    }
+
+    /// A frame the core asked for while the link was down: in `/can/tx` with `written`
+    /// false, so a replay compares everything the core decided.
+    pub fn can_unwritten(&mut self, at: HostTime, frame: &CanFrame) -> std::io::Result<()> {
+        let mut v = frame_json(frame);
+        v["written"] = json!(false);
+        self.put(CAN_TX, 0, at.as_nanos(), &v)
+    }
+
+    pub fn cycle(&mut self, c: &CycleRecord) -> std::io::Result<()> {
+        self.cycles += 1;
+        let mut row = Vec::with_capacity(160);
+        c.csv(&mut row)?;
+        let text = String::from_utf8_lossy(&row);
+        let fields: serde_json::Map<String, Value> = CycleRecord::CSV_HEADER
+            .split(',')
+            .zip(text.trim_end().split(','))
+            .map(|(name, value)| {
+                let v = value.parse::<f64>().map_or_else(|_| json!(value), |x| json!(x));
+                (name.to_string(), v)
+            })
+            .collect();
+        self.put(CYCLE, c.cycle as u32, c.rx_ns, &Value::Object(fields))
+    }
+
+    pub fn event(&mut self, e: &EventRecord) -> std::io::Result<()> {
+        let at_ns = (e.at_s * 1e9) as u64;
+        let stamp = self.stamp(at_ns);
+        // foxglove.Log: level 2 is INFO.
+        let v = json!({ "timestamp": stamp, "level": 2, "message": e.text, "name": "flowgate", "file": "", "line": 0 });
+        self.put("/log", 0, at_ns, &v)
+    }
+
+    fn stamp(&self, host_ns: u64) -> Value {
+        let t = self.setup.origin_unix_ns.saturating_add(host_ns);
+        json!({ "sec": t / 1_000_000_000, "nsec": t % 1_000_000_000 })
+    }
+
+    pub fn scene(&mut self, s: &SceneRecord) -> std::io::Result<()> {
+        let at = s.at.as_nanos();
+        let stamp = self.stamp(at);
+        let obstacles: Vec<Value> = s
+            .obstacles()
+            .iter()
+            .map(|o| {
+                json!({ "position": o.position, "velocity": o.velocity, "covariance": o.covariance, "planning_radius": o.planning_radius })
+            })
+            .collect();
+        self.put("/obstacles", s.cycle as u32, at, &json!({ "timestamp": stamp, "obstacles": obstacles }))?;
+        let [x, y, heading] = s.pose;
+        let orientation = json!({ "x": 0.0, "y": 0.0, "z": (heading / 2.0).sin(), "w": (heading / 2.0).cos() });
+        let pose = json!({ "timestamp": stamp, "frame_id": "floor", "pose": { "position": { "x": x, "y": y, "z": 0.0 }, "orientation": orientation } });
+        self.put("/robot/pose", s.cycle as u32, at, &pose)?;
+        if self.arena_at.is_some_and(|last| at < last + ARENA_EVERY_NS) {
+            return Ok(());
+        }
+        self.arena_at = Some(at);
+        self.put("/arena", s.cycle as u32, at, &self.arena(s, &stamp))
+    }
+
+    /// The arena as one Foxglove scene entity: walls, goal, obstacles (body and planning
+    /// circle, velocity arrow), the robot.
+    fn arena(&self, s: &SceneRecord, stamp: &Value) -> Value {
+        let identity = json!({ "x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0 });
+        let disc = |x: f64, y: f64, r: f64, h: f64, rgba: [f64; 4]| {
+            json!({
+                "pose": { "position": { "x": x, "y": y, "z": h / 2.0 }, "orientation": identity },
+                "size": { "x": 2.0 * r, "y": 2.0 * r, "z": h },
+                "bottom_scale": 1.0, "top_scale": 1.0,
+                "color": { "r": rgba[0], "g": rgba[1], "b": rgba[2], "a": rgba[3] }
+            })
+        };
+        let mut cylinders = vec![disc(s.pose[0], s.pose[1], self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
+        let mut arrows = Vec::new();
+        for o in s.obstacles() {
+            let (x, y) = (f64::from(o.position[0]), f64::from(o.position[1]));
+            cylinders.push(disc(x, y, f64::from(o.planning_radius), 0.01, [0.9, 0.5, 0.1, 0.25]));
+            let (vx, vy) = (f64::from(o.velocity[0]), f64::from(o.velocity[1]));
+            let speed = vx.hypot(vy);
+            if speed > 1e-3 {
+                let yaw = vy.atan2(vx);
+                arrows.push(json!({
+                    "pose": { "position": { "x": x, "y": y, "z": 0.06 }, "orientation": { "x": 0.0, "y": 0.0, "z": (yaw / 2.0).sin(), "w": (yaw / 2.0).cos() } },
+                    "shaft_length": speed, "shaft_diameter": 0.01, "head_length": 0.03, "head_diameter": 0.03,
+                    "color": { "r": 0.9, "g": 0.2, "b": 0.1, "a": 1.0 }
+                }));
+            }
+        }
+        let mut lines = Vec::new();
+        if let Some(h) = self.setup.lane_half_width {
+            for wall in [-h, h] {
+                lines.push(json!({
+                    "type": 0, "pose": { "position": { "x": 0.0, "y": 0.0, "z": 0.0 }, "orientation": identity },
+                    "thickness": 0.01, "scale_invariant": false,
+                    "points": [{ "x": -10.0, "y": wall, "z": 0.0 }, { "x": 10.0, "y": wall, "z": 0.0 }],
+                    "color": { "r": 0.2, "g": 0.2, "b": 0.2, "a": 1.0 }, "colors": [], "indices": []
+                }));
+            }
+        }
+        let goal = disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0]);
+        json!({ "deletions": [], "entities": [{
+            "timestamp": stamp, "frame_id": "floor", "id": "arena", "lifetime": { "sec": 0, "nsec": 0 },
+            "frame_locked": false, "metadata": [],
+            "arrows": arrows, "cubes": [], "spheres": [], "cylinders": cylinders, "lines": lines,
+            "triangles": [], "texts": [], "models": [],
+        }, {
+            "timestamp": stamp, "frame_id": "floor", "id": "goal", "lifetime": { "sec": 0, "nsec": 0 },
+            "frame_locked": false, "metadata": [],
+            "arrows": [], "cubes": [], "spheres": [], "cylinders": [goal], "lines": [],
+            "triangles": [], "texts": [], "models": [],
+        }] })
+    }
+
+    /// Close the file: the end record says how many inputs the loop took (`taken`) and how
+    /// many records the queue dropped, so a reader knows whether the recording is whole.
+    pub fn finish(mut self, taken: u64, dropped: u64) -> std::io::Result<RecordingSummary> {
+        let metadata = BTreeMap::from([
+            ("inputs_taken".to_string(), taken.to_string()),
+            ("inputs_written".to_string(), self.inputs.to_string()),
+            ("records_dropped".to_string(), dropped.to_string()),
+        ]);
+        self.writer
+            .write_metadata(&mcap::records::Metadata { name: METADATA_END.into(), metadata })
+            .map_err(io_error)?;
+        self.writer.finish().map_err(io_error)?;
+        Ok(RecordingSummary {
+            path: Some(self.path),
+            inputs: self.inputs,
+            messages: self.messages,
+            cycles: self.cycles,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gateway::operator::Goal;
+
+    #[test]
+    fn every_kind_of_input_survives_its_json() {
+        let frame = CanFrame::new(CanId::Standard(0x181), &[1, 2, 3]).unwrap();
+        let goal = Goal { position: [1.0, -0.25], tolerance: 0.05 };
+        let inputs = [
+            Input::PsdConnected,
+            Input::PsdLost,
+            Input::PsdBytes(&[0, 1, 0xfe, 0xff]),
+            Input::Can(CanEvent::Frame(frame)),
+            Input::Can(CanEvent::Frame(CanFrame::remote(CanId::Extended(0x1234567), 4).unwrap())),
+            Input::Can(CanEvent::ErrorFrame { bus_off: true }),
+            Input::Can(CanEvent::Garbled),
+            Input::Can(CanEvent::TransmitRefused),
+            Input::Can(CanEvent::AdapterStatus { bus_off: false, error_passive: true }),
+            Input::CanFailed,
+            Input::CanReopened,
+            Input::Request(&Request::Goal { goals: vec![goal] }),
+            Input::Request(&Request::Stats { reset: true }),
+            Input::ArmAtStart,
+            Input::Shutdown,
+            Input::Tick,
+        ];
+        for (k, input) in inputs.into_iter().enumerate() {
+            let record = InputRecord {
+                seq: k as u64,
+                at: HostTime::from_nanos(123_456_789_012),
+                input: RecordedInput::of(input),
+            };
+            let text = serde_json::to_string(&input_json(&record)).unwrap();
+            let back = input_from_json(&serde_json::from_str(&text).unwrap()).unwrap();
+            assert_eq!(back, record, "{text}");
+            assert_eq!(back.input.as_input(), input);
+        }
+    }
+
+    #[test]
+    fn a_damaged_input_is_refused_saying_what_is_wrong() {
+        let bad = |text: &str| input_from_json(&serde_json::from_str(text).unwrap()).unwrap_err();
+        assert_eq!(bad(r#"{"seq":1,"kind":"tick"}"#), "no `t_ns`");
+        assert_eq!(bad(r#"{"seq":1,"t_ns":5,"kind":"psd_bytes","bytes":"0g"}"#), "`bytes` is not hex");
+        assert_eq!(bad(r#"{"seq":1,"t_ns":5,"kind":"warp"}"#), "unknown input `warp`");
+        let long = format!(r#"{{"seq":1,"t_ns":5,"kind":"psd_bytes","bytes":"{}"}}"#, "00".repeat(PSD_CHUNK + 1));
+        assert_eq!(bad(&long), format!("{} bytes in one read: at most {PSD_CHUNK}", PSD_CHUNK + 1));
+    }
+}

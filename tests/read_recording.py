@@ -1,0 +1,114 @@
+"""Read a flowgate MCAP recording with the `mcap` package (an independent reader) and check it
+against the run's text telemetry: cycles.csv, can.log (candump -L), and protocol/motor.dbc.
+
+Usage: read_recording.py RECORDING.mcap TELEMETRY_DIR MOTOR_DBC
+Prints a JSON summary; exits 1 naming the first check that failed.
+"""
+import csv
+import json
+import sys
+from collections import Counter
+
+import can
+import cantools
+from mcap.reader import make_reader
+
+path, telemetry, dbc_path = sys.argv[1], sys.argv[2], sys.argv[3]
+failures = []
+
+
+def check(ok, what):
+    if not ok:
+        failures.append(what)
+
+
+with open(path, "rb") as f:
+    reader = make_reader(f)
+    summary = reader.get_summary()
+    channels = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    messages = {}
+    for schema, channel, message in reader.iter_messages(log_time_order=False):
+        messages.setdefault(channel.topic, []).append((message.sequence, message.log_time, json.loads(message.data)))
+
+expected = {
+    "/psd/rx": "flowgate.Input",
+    "/can/rx": "flowgate.Input",
+    "/gateway/input": "flowgate.Input",
+    "/psd/tx": "flowgate.PsdPacket",
+    "/can/tx": "flowgate.CanFrame",
+    "/cycle": "flowgate.Cycle",
+    "/obstacles": "flowgate.Obstacles",
+    "/robot/pose": "foxglove.PoseInFrame",
+    "/arena": "foxglove.SceneUpdate",
+    "/log": "foxglove.Log",
+}
+for topic, schema in expected.items():
+    check(channels.get(topic) == schema, f"channel {topic} with schema {schema} (have {channels.get(topic)})")
+
+# The configuration and the end record.
+check("[planner]" in metadata.get("flowgate", {}).get("config", ""), "the configuration in metadata `flowgate`")
+end = metadata.get("flowgate.end", {})
+inputs = sorted(m[2]["seq"] for t in ("/psd/rx", "/can/rx", "/gateway/input") for m in messages.get(t, []))
+check(inputs == list(range(len(inputs))), "input sequence numbers 0..n without a gap")
+check(end.get("inputs_taken") == str(len(inputs)), f"inputs_taken {end.get('inputs_taken')} == {len(inputs)} inputs")
+check(end.get("records_dropped") == "0", f"no records dropped (end record says {end.get('records_dropped')})")
+
+# Every cycle of cycles.csv, with the same values.
+with open(f"{telemetry}/cycles.csv") as f:
+    rows = list(csv.DictReader(f))
+cycles = [m[2] for m in messages.get("/cycle", [])]
+check(len(cycles) == len(rows) > 0, f"{len(cycles)} /cycle messages == {len(rows)} rows of cycles.csv")
+for row, c in zip(rows, cycles):
+    same = (
+        int(row["cycle"]) == c["cycle"]
+        and row["state"] == c["state"]
+        and int(row["pulses_left"]) == c["pulses_left"]
+        and int(row["pulses_right"]) == c["pulses_right"]
+        and abs(float(row["x"]) - c["x"]) < 1e-9
+        and abs(float(row["y"]) - c["y"]) < 1e-9
+        and int(row["e2e_ns"]) == c["e2e_ns"]
+    )
+    if not same:
+        check(False, f"cycle {row['cycle']}: cycles.csv {row} != /cycle {c}")
+        break
+check(len(messages.get("/robot/pose", [])) == len(cycles), "one /robot/pose per cycle")
+# The arena is drawn at most 20 times a second (every cycle when slower).
+arena = [m[1] for m in messages.get("/arena", [])]
+check(len(arena) > 0 and all(b - a >= 50_000_000 for a, b in zip(arena, arena[1:])), "/arena at most every 50 ms")
+check(len(arena) >= min(len(cycles), (cycles[-1]["rx_ns"] - cycles[0]["rx_ns"]) / 100e6), "/arena at least every 100 ms")
+
+# CAN: what went out and came in is exactly can.log's frames.
+def key(frame):
+    return (frame["id"], frame["data"].upper())
+
+sent = [m[2] for m in messages.get("/can/tx", []) if m[2]["written"]]
+received = [m[2]["frame"] for m in messages.get("/can/rx", []) if m[2].get("event") == "frame"]
+logged = Counter((msg.arbitration_id, msg.data.hex().upper()) for msg in can.CanutilsLogReader(f"{telemetry}/can.log"))
+check(Counter(map(key, sent)) + Counter(map(key, received)) == logged, "/can/tx and /can/rx frames == can.log's")
+
+# The velocity commands, decoded from the recording's bytes with motor.dbc, carry the
+# cycles' pulses (keep-alive zeros aside).
+db = cantools.database.load_file(dbc_path)
+velocity = db.get_message_by_name("VELOCITY_N1")
+decoded = [velocity.decode(bytes.fromhex(f["data"]), decode_choices=False) for f in sent if f["id"] == velocity.frame_id]
+commanded = [(d["left"], d["right"]) for d in decoded if (d["left"], d["right"]) != (0, 0)]
+cycle_pulses = [(c["pulses_left"], c["pulses_right"]) for c in cycles if (c["pulses_left"], c["pulses_right"]) != (0, 0)]
+check(commanded == cycle_pulses and len(commanded) > 0, f"{len(commanded)} velocity frames' pulses == {len(cycle_pulses)} cycles' pulses")
+
+# The scene: obstacles with a covariance and a planning radius bigger than their own.
+obstacles = [o for m in messages.get("/obstacles", []) for o in m[2]["obstacles"]]
+check(len(obstacles) > 0 and all(o["planning_radius"] > 0 and o["covariance"][0] > 0 for o in obstacles), "obstacles with covariance and planning radius")
+
+out = {
+    "channels": sorted(channels),
+    "inputs": len(inputs),
+    "cycles": len(cycles),
+    "can_sent": len(sent),
+    "can_received": len(received),
+    "velocity_commands": len(commanded),
+    "psd_bytes": sum(len(m[2]["bytes"]) // 2 for m in messages.get("/psd/rx", [])),
+    "failures": failures,
+}
+print(json.dumps(out))
+sys.exit(1 if failures else 0)
