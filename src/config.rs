@@ -91,6 +91,10 @@ pub struct OperatorConfig {
     /// Read-only; keep it on loopback unless the network is the lab's own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metrics: Option<std::net::SocketAddr>,
+    /// Serve the live view (a page drawing the arena, updated live) here, e.g.
+    /// `127.0.0.1:8080`; none = not served. Read-only, like `metrics`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<std::net::SocketAddr>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -105,10 +105,14 @@ async fn e2_over_socketcan_agrees_with_candump_and_cantools() {
     let dir = temp("e2");
     let capture = dir.join("candump.log");
     let dump = candump(&iface, &capture).await;
-    let run =
-        demo::run(&scenario("e2-lane-head-on.toml"), &format!("socketcan:{iface}"), Some(dir.clone()), None, |_| {})
-            .await
-            .expect("demo over vcan");
+    let run = demo::run(
+        &scenario("e2-lane-head-on.toml"),
+        &format!("socketcan:{iface}"),
+        demo::Outputs { dir: Some(dir.clone()), ..demo::Outputs::default() },
+        |_| {},
+    )
+    .await
+    .expect("demo over vcan");
     stop(dump);
     assert!(run.reached_goal && !run.contact, "{}\n{:?}", run.report, run.truth.summary);
 
@@ -138,7 +142,7 @@ async fn e1_running_for(iface: &str, t: f64) -> tokio::task::JoinHandle<Result<d
     let url = format!("socketcan:{iface}");
     let run = tokio::spawn(async move {
         let mut sent = false;
-        demo::run(&s, &url, None, None, move |p| {
+        demo::run(&s, &url, demo::Outputs::default(), move |p| {
             if !sent && p.state == flowgate::gateway::State::Running && p.t > t {
                 sent = true;
                 let _ = tx.send(());

@@ -21,6 +21,9 @@ pub struct DemoArgs {
     /// Record the run to this MCAP file (`flowgate replay FILE` plays it back).
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Serve the live view here while the demo runs (`--view` alone: 127.0.0.1:8080).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
+    view: Option<std::net::SocketAddr>,
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
@@ -31,18 +34,26 @@ pub fn run(args: DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = std::fs::canonicalize(&args.out)?;
     println!("flowgate demo: {} (simulator + gateway over ptys, CAN {})", scenario.name, args.can);
+    if let Some(addr) = args.view {
+        println!("live view      http://{addr}/ (read-only; it ends with the run)");
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
-    let run = runtime.block_on(demo::run(&scenario, &args.can, Some(out.clone()), args.record.clone(), |p| {
-        println!(
-            "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
-            p.t,
-            p.state.name(),
-            p.goal_distance,
-            p.clearance.map_or("-".into(), |c| format!("{:.3} m", c)),
-            p.e2e_us,
-            p.cycles
-        );
-    }))?;
+    let run = runtime.block_on(demo::run(
+        &scenario,
+        &args.can,
+        demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view },
+        |p| {
+            println!(
+                "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
+                p.t,
+                p.state.name(),
+                p.goal_distance,
+                p.clearance.map_or("-".into(), |c| format!("{:.3} m", c)),
+                p.e2e_us,
+                p.cycles
+            );
+        },
+    ))?;
     let t = &run.truth.summary;
     println!();
     println!(
@@ -93,6 +104,15 @@ pub fn run(args: DemoArgs) -> Result<()> {
         "\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.log,truth.json,report.json}}",
         out.display()
     );
+    if let Some(rec) = &run.report.files.recording {
+        println!(
+            "recorded {} ({} inputs, {} cycles): flowgate replay {} plays it back",
+            args.record.as_ref().map_or(String::new(), |p| p.display().to_string()),
+            rec.inputs,
+            rec.cycles,
+            args.record.as_ref().map_or(String::new(), |p| p.display().to_string())
+        );
+    }
     if run.contact || !run.reached_goal {
         anyhow::bail!("the demo run did not reach the goal cleanly");
     }

@@ -28,12 +28,19 @@ pub struct RunArgs {
     /// config's `telemetry.record`.
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Serve the live view here (read-only; `--view` alone: 127.0.0.1:8080). Overrides the
+    /// config's `operator.view`.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
+    view: Option<std::net::SocketAddr>,
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
     let mut config = GatewayConfig::read(&args.config)?;
     if let Some(path) = &args.record {
         config.telemetry.record = Some(path.clone());
+    }
+    if let Some(addr) = args.view {
+        config.operator.view = Some(addr);
     }
     let rig = config.rig(&args.config.display().to_string())?;
     if args.arm && rig.goal.is_none() {

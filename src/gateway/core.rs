@@ -560,6 +560,7 @@ impl<K: StageClock> Core<K> {
                 velocity: [o.velocity.re as f32, o.velocity.im as f32],
                 covariance: cov.map(|c| c as f32),
                 planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay) as f32,
+                radius: o.radius as f32,
             };
             scene.count += 1;
         }

@@ -12,20 +12,18 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use hdrhistogram::Histogram;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 
+use super::http::{self, Asked};
 use super::{Counters, State};
 
 /// How often the loop publishes a snapshot.
 pub const PUBLISH_EVERY: Duration = Duration::from_secs(1);
 /// How long a client may take to send its request, and to take the answer.
 const CLIENT_DEADLINE: Duration = Duration::from_secs(2);
-/// The longest request head read.
-const MAX_HEAD: usize = 8192;
 /// The latency histogram's bucket bounds, s: 10 µs to 100 ms.
-const BUCKETS_S: [f64; 14] = [1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1, 1.0];
+pub const BUCKETS_S: [f64; 14] = [1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1, 1.0];
 
 /// What the loop publishes.
 #[derive(Debug, Clone)]
@@ -36,6 +34,25 @@ pub struct Snapshot {
     pub e2e_ns: Histogram<u64>,
     pub deadline_misses: u64,
     pub uptime_s: f64,
+    /// Stops and faults so far, by reason (`snake_case`), with whether it is a fault.
+    pub stops: Vec<(String, bool, u64)>,
+    /// Frames the live view's clients skipped.
+    pub view_frames_dropped: u64,
+}
+
+impl Snapshot {
+    /// Before the loop's first publication.
+    pub fn empty() -> Self {
+        Self {
+            state: State::Idle,
+            counters: Counters::default(),
+            e2e_ns: super::telemetry::Timing::default().e2e_histogram().clone(),
+            deadline_misses: 0,
+            uptime_s: 0.0,
+            stops: Vec::new(),
+            view_frames_dropped: 0,
+        }
+    }
 }
 
 /// Every state's name ([`State::name`]), for the one-hot state gauge.
@@ -100,6 +117,16 @@ pub fn render(s: &Snapshot) -> String {
     counter("planner_invalid", "Cycles the planner could not command.", &[("", c.planner_invalid)]);
     counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
 
+    counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);
+    for (family, help, faults) in
+        [("faults", "Faults (latched until reset), by reason.", true), ("stops", "Orderly stops, by reason.", false)]
+    {
+        let _ = writeln!(out, "# HELP flowgate_{family}_total {help}");
+        let _ = writeln!(out, "# TYPE flowgate_{family}_total counter");
+        for (reason, _, n) in s.stops.iter().filter(|(_, fault, _)| *fault == faults) {
+            let _ = writeln!(out, "flowgate_{family}_total{{reason=\"{reason}\"}} {n}");
+        }
+    }
     let _ = writeln!(out, "# HELP flowgate_state The safety state (1 for the current one).");
     let _ = writeln!(out, "# TYPE flowgate_state gauge");
     let now = s.state.name();
@@ -144,29 +171,17 @@ pub async fn serve(listener: TcpListener, snapshots: watch::Receiver<Arc<Snapsho
 }
 
 async fn answer(mut stream: TcpStream, snapshot: &Snapshot) -> std::io::Result<()> {
-    let mut head = Vec::with_capacity(512);
-    let mut buf = [0u8; 512];
-    while !head.windows(4).any(|w| w == b"\r\n\r\n") {
-        let n = stream.read(&mut buf).await?;
-        if n == 0 || head.len() + n > MAX_HEAD {
-            return Ok(());
+    match http::read_request(&mut stream).await? {
+        None => Ok(()),
+        Some(Asked::Get(path)) if path == "/metrics" => {
+            let body = render(snapshot);
+            http::reply(&mut stream, "200 OK", "text/plain; version=0.0.4; charset=utf-8", body.as_bytes()).await
         }
-        head.extend_from_slice(&buf[..n]);
+        Some(Asked::Get(_)) => {
+            http::reply(&mut stream, "404 Not Found", "text/plain", b"only /metrics is served here\n").await
+        }
+        Some(Asked::Other) => http::method_not_allowed(&mut stream).await,
     }
-    let line = head.split(|&b| b == b'\r').next().unwrap_or_default();
-    let (status, kind, body) = if line.starts_with(b"GET /metrics ") {
-        ("200 OK", "text/plain; version=0.0.4; charset=utf-8", render(snapshot))
-    } else if line.starts_with(b"GET ") {
-        ("404 Not Found", "text/plain", "only /metrics is served here\n".to_string())
-    } else {
-        ("405 Method Not Allowed", "text/plain", "GET only\n".to_string())
-    };
-    let reply = format!(
-        "HTTP/1.1 {status}\r\nContent-Type: {kind}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-        body.len()
-    );
-    stream.write_all(reply.as_bytes()).await?;
-    stream.shutdown().await
 }
 
 #[cfg(test)]
@@ -185,9 +200,14 @@ mod tests {
             e2e_ns: e2e,
             deadline_misses: 0,
             uptime_s: 12.5,
+            stops: vec![("pose_lost".into(), true, 2), ("goal_reached".into(), false, 1)],
+            view_frames_dropped: 3,
         };
         let text = render(&s);
         assert!(text.contains("flowgate_cycles_total 4\n"), "{text}");
+        assert!(text.contains("flowgate_faults_total{reason=\"pose_lost\"} 2\n"), "{text}");
+        assert!(text.contains("flowgate_stops_total{reason=\"goal_reached\"} 1\n"), "{text}");
+        assert!(text.contains("flowgate_view_frames_dropped_total 3\n"), "{text}");
         assert!(text.contains("flowgate_psd_discarded_total{why=\"duplicate\"} 2\n"), "{text}");
         assert!(text.contains("flowgate_state{state=\"running\"} 1\nflowgate_state{state=\"stopping\"} 0\n"), "{text}");
         assert!(text.contains("flowgate_cycle_latency_seconds_bucket{le=\"0.00002\"} 1\n"), "{text}");

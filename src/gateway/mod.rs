@@ -15,6 +15,7 @@
 
 pub mod control_socket;
 pub mod core;
+pub mod http;
 pub mod input;
 pub mod low_latency;
 pub mod metrics;
@@ -26,6 +27,7 @@ pub mod safety;
 pub mod shell;
 pub mod systemd;
 pub mod telemetry;
+pub mod view;
 
 use serde::Serialize;
 
@@ -56,6 +58,8 @@ pub enum GatewayError {
     Realtime(#[from] realtime::RealtimeError),
     #[error("operator.metrics = \"{addr}\": cannot listen there: {source}")]
     Metrics { addr: std::net::SocketAddr, source: std::io::Error },
+    #[error("operator.view = \"{addr}\": cannot listen there: {source}")]
+    View { addr: std::net::SocketAddr, source: std::io::Error },
 }
 
 /// What the gateway shows while it runs (for a live display). Receivers are woken when the

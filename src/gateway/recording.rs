@@ -126,6 +126,8 @@ pub struct ObstacleView {
     /// Position covariance `[xx, xy, yy]`, m².
     pub covariance: [f32; 3],
     pub planning_radius: f32,
+    /// The obstacle's own radius, m.
+    pub radius: f32,
 }
 
 /// What the gateway believed in one cycle: the robot's pose and goal, each obstacle.
@@ -477,7 +479,7 @@ impl McapSink {
             .obstacles()
             .iter()
             .map(|o| {
-                json!({ "position": o.position, "velocity": o.velocity, "covariance": o.covariance, "planning_radius": o.planning_radius })
+                json!({ "position": o.position, "velocity": o.velocity, "covariance": o.covariance, "planning_radius": o.planning_radius, "radius": o.radius })
             })
             .collect();
         self.put("/obstacles", s.cycle as u32, at, &json!({ "timestamp": stamp, "obstacles": obstacles }))?;

@@ -62,6 +62,19 @@ pub enum StopReason {
 
 impl StopReason {
     /// Whether this is a fault (stop at once, latch) rather than an orderly stop.
+    /// The reason's name in `snake_case` (a metrics label): `PoseLost` is `pose_lost`.
+    pub fn snake_name(self) -> String {
+        let debug = format!("{self:?}");
+        let mut out = String::with_capacity(debug.len() + 4);
+        for (i, c) in debug.chars().enumerate() {
+            if c.is_ascii_uppercase() && i > 0 {
+                out.push('_');
+            }
+            out.push(c.to_ascii_lowercase());
+        }
+        out
+    }
+
     pub fn is_fault(self) -> bool {
         !matches!(self, Self::GoalReached | Self::Stalled | Self::Operator | Self::Shutdown | Self::GoalBlocked)
     }

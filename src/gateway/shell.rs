@@ -17,13 +17,13 @@ use super::control_socket::{self, Command, ControlSocket, Reply};
 use super::core::{Core, Output, StageClock};
 use super::input::{Answer, Input};
 use super::low_latency::{SpinWindow, Wait};
-use super::metrics;
 use super::operator::Request;
 use super::realtime;
 use super::recording::{InputRecord, McapSink, RecordedInput, RecordingSetup, PSD_CHUNK};
 use super::systemd::Notifier;
 use super::telemetry::{self, CanRecord, Record, Recorder, Sinks, Timing};
-use super::{GatewayError, Progress, Report};
+use super::{metrics, view};
+use super::{GatewayError, Progress, Report, State};
 use crate::config::Rig;
 use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl};
 use crate::time::HostTime;
@@ -95,8 +95,11 @@ struct Io {
     stats_from: Option<Timing>,
     /// systemd's notification socket, when it started the gateway.
     notifier: Option<Notifier>,
-    /// `/metrics`: where the loop publishes its snapshot, and when it next does.
+    /// `/metrics` and the view's statistics: where the loop publishes its snapshot, and
+    /// when it next does.
     metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
+    /// The live view: where the loop publishes its scene, and when it next does.
+    view: Option<(view::ViewPublisher, HostTime)>,
     /// Inputs handed to the core while recording (each record's `seq`).
     inputs_taken: Arc<AtomicU64>,
 }
@@ -292,8 +295,23 @@ impl Io {
                 e2e_ns: self.timing.e2e_histogram().clone(),
                 deadline_misses: self.timing.deadline_misses,
                 uptime_s: now.secs(),
+                stops: stops_by_reason(core),
+                view_frames_dropped: self.view.as_ref().map_or(0, |(v, _)| v.dropped.load(Ordering::Relaxed)),
             }));
             *next = now + metrics::PUBLISH_EVERY;
+        }
+        *next
+    }
+
+    /// Publish the scene to the live view when due (20 times a second: a copy, no
+    /// allocation). Returns when the next is due.
+    fn publish_view<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
+        let now = self.now();
+        let Some((publisher, next)) = &mut self.view else { return HostTime::NEVER };
+        if now >= *next {
+            let scene = core.scene(now);
+            publisher.publish(view::ViewSnapshot { scene, state: core.state(), cycles: core.counters().cycles });
+            *next = now + view::PUBLISH_EVERY;
         }
         *next
     }
@@ -347,6 +365,26 @@ impl Io {
             self.feed(core, now, Input::PsdConnected);
         }
     }
+}
+
+/// Every stop and fault so far, by reason (`snake_case`), with whether it was a fault.
+fn stops_by_reason<K: StageClock>(core: &Core<K>) -> Vec<(String, bool, u64)> {
+    let mut out: Vec<(String, bool, u64)> = Vec::new();
+    // An orderly stop usually passes Stopping then Stopped: count it once, as it begins.
+    let began = core.safety().history.windows(2).filter_map(|w| match (w[0].1, w[1].1) {
+        (_, State::Stopping(r) | State::Fault(r)) => Some(r),
+        (State::Stopping(_), State::Stopped(_)) => None,
+        (_, State::Stopped(r)) => Some(r),
+        _ => None,
+    });
+    for reason in began {
+        let name = reason.snake_name();
+        match out.iter_mut().find(|(n, ..)| *n == name) {
+            Some((.., count)) => *count += 1,
+            None => out.push((name, reason.is_fault(), 1)),
+        }
+    }
+    out
 }
 
 /// The telemetry writer, when the rig asks for a directory of files or a recording.
@@ -419,25 +457,38 @@ pub async fn run(
     };
     let inputs_taken = Arc::new(AtomicU64::new(0));
     let (recorder, writer) = start_telemetry(&rig, origin, inputs_taken.clone())?;
-    let metrics = match rig.operator.metrics {
-        Some(addr) => {
-            let listener = std::net::TcpListener::bind(addr)
-                .and_then(|l| l.set_nonblocking(true).map(|()| l))
-                .and_then(tokio::net::TcpListener::from_std)
-                .map_err(|source| GatewayError::Metrics { addr, source })?;
-            tracing::info!("metrics on http://{addr}/metrics");
-            let (tx, rx) = watch::channel(Arc::new(metrics::Snapshot {
-                state: crate::gateway::State::Idle,
-                counters: crate::gateway::Counters::default(),
-                e2e_ns: Timing::default().e2e_histogram().clone(),
-                deadline_misses: 0,
-                uptime_s: 0.0,
-            }));
-            tokio::spawn(metrics::serve(listener, rx));
-            Some((tx, HostTime::ZERO))
+    // The statistics snapshot feeds `/metrics` and the view's latency histogram.
+    let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some())
+        .then(|| watch::channel(Arc::new(metrics::Snapshot::empty())));
+    if let (Some(addr), Some((_, rx))) = (rig.operator.metrics, &stats) {
+        let listener = std::net::TcpListener::bind(addr)
+            .and_then(|l| l.set_nonblocking(true).map(|()| l))
+            .and_then(tokio::net::TcpListener::from_std)
+            .map_err(|source| GatewayError::Metrics { addr, source })?;
+        tracing::info!("metrics on http://{addr}/metrics");
+        tokio::spawn(metrics::serve(listener, rx.clone()));
+    }
+    let view = match (rig.operator.view, &stats) {
+        (Some(addr), Some((_, rx))) => {
+            let setup = view::ViewSetup {
+                planner: rig.control.planner,
+                robot_radius: rig.control.robot_radius,
+                lane_half_width: match rig.control.planner.space {
+                    crate::planner::Space::Lane { half_width } => Some(half_width),
+                    crate::planner::Space::Free => None,
+                },
+            };
+            let publisher =
+                view::start(addr, setup, rx.clone()).map_err(|source| GatewayError::View { addr, source })?;
+            if !addr.ip().is_loopback() {
+                tracing::warn!("the live view on {addr} is visible beyond this host (read-only)");
+            }
+            tracing::info!("live view on http://{addr}/");
+            Some((publisher, HostTime::ZERO))
         }
-        None => None,
+        _ => None,
     };
+    let metrics = stats.map(|(tx, _)| (tx, HostTime::ZERO));
     // On the loop's thread, once everything is open (the writer thread keeps the normal
     // policy) and before the first cycle.
     if !rig.realtime.is_empty() {
@@ -462,6 +513,7 @@ pub async fn run(
         stats_from: None,
         notifier,
         metrics,
+        view,
         inputs_taken,
     };
     let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
@@ -481,7 +533,7 @@ pub async fn run(
         if core.finished() {
             break;
         }
-        let publish_at = io.publish_metrics(&core);
+        let publish_at = io.publish_metrics(&core).min(io.publish_view(&core));
         // The watchdog is fed from here, the loop itself: a wedged loop starves it.
         let mut wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen).min(publish_at));
         if let Some(n) = &mut io.notifier {

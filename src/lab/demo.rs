@@ -43,13 +43,23 @@ pub enum DemoError {
     Join(#[from] tokio::task::JoinError),
 }
 
+/// What the demo's gateway writes and serves besides driving.
+#[derive(Debug, Clone, Default)]
+pub struct Outputs {
+    /// The telemetry directory (cycles.csv, trace.json, can.log, events.log).
+    pub dir: Option<PathBuf>,
+    /// An MCAP recording.
+    pub record: Option<PathBuf>,
+    /// The live view's address.
+    pub view: Option<std::net::SocketAddr>,
+}
+
 /// Run `scenario` with the simulator and the gateway until the gateway stops (goal, fault)
 /// or the scenario's time limit. `on_progress` is called about twice a second.
 pub async fn run(
     scenario: &Scenario,
     can: &str,
-    out_dir: Option<PathBuf>,
-    record: Option<PathBuf>,
+    outputs: Outputs,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<DemoRun, DemoError> {
     let mut rig_cfg = RigConfig::new(scenario.sim.clone());
@@ -66,8 +76,9 @@ pub async fn run(
     } else {
         can_url
     };
-    let mut config = scenario.gateway_config(&handle.psd_path, &can_url, out_dir);
-    config.telemetry.record = record;
+    let mut config = scenario.gateway_config(&handle.psd_path, &can_url, outputs.dir);
+    config.telemetry.record = outputs.record;
+    config.operator.view = outputs.view;
     let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());

@@ -336,3 +336,27 @@ impl Field {
         self.eval(z).map(|f| f.conj())
     }
 }
+
+/// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
+/// leave `bounds`, reach the goal, or meet an obstacle.
+pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, bounds: (C, C)) -> Vec<Vec<C>> {
+    let dir = |z: C| field.velocity(z).ok().filter(|v| v.norm() > 1e-12).map(|v| v / v.norm());
+    let inside = |z: C| z.re >= bounds.0.re && z.re <= bounds.1.re && z.im >= bounds.0.im && z.im <= bounds.1.im;
+    seeds
+        .iter()
+        .map(|&seed| {
+            let mut line = vec![seed];
+            let mut z = seed;
+            for _ in 0..max_steps {
+                let Some(d1) = dir(z) else { break };
+                let Some(d2) = dir(z + d1 * (0.5 * step)) else { break };
+                z += d2 * step;
+                if !inside(z) || (z - field.sink().goal).norm() < step {
+                    break;
+                }
+                line.push(z);
+            }
+            line
+        })
+        .collect()
+}

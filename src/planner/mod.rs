@@ -25,7 +25,7 @@
 pub mod drive;
 pub mod field;
 
-pub use field::{Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
+pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
 use num_complex::Complex64 as C;
 
 /// How the planning radius grows from `R_0 = a_0 + a_r`. The one margin type: the rig

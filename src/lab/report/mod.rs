@@ -6,37 +6,13 @@ use num_complex::Complex64 as C;
 
 use crate::lab::offline::Run;
 use crate::lab::Scenario;
-use crate::planner::{Field, ObstacleEstimate, PlanInput, Planner};
+use crate::planner::{streamlines, Field, ObstacleEstimate, PlanInput, Planner};
 use crate::svg::{Axes, Svg};
 
 const ROBOT: &str = "#1f77b4";
 const OBSTACLE: &str = "#d62728";
 const STREAM: &str = "#9ecae1";
 const COMMAND: &str = "#ff7f0e";
-
-/// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
-/// leave `bounds`, reach the goal, or meet an obstacle.
-pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, bounds: (C, C)) -> Vec<Vec<C>> {
-    let dir = |z: C| field.velocity(z).ok().filter(|v| v.norm() > 1e-12).map(|v| v / v.norm());
-    let inside = |z: C| z.re >= bounds.0.re && z.re <= bounds.1.re && z.im >= bounds.0.im && z.im <= bounds.1.im;
-    seeds
-        .iter()
-        .map(|&seed| {
-            let mut line = vec![seed];
-            let mut z = seed;
-            for _ in 0..max_steps {
-                let Some(d1) = dir(z) else { break };
-                let Some(d2) = dir(z + d1 * (0.5 * step)) else { break };
-                z += d2 * step;
-                if !inside(z) || (z - field.sink().goal).norm() < step {
-                    break;
-                }
-                line.push(z);
-            }
-            line
-        })
-        .collect()
-}
 
 /// The field at the start of a scenario, as the planner would see it with perfect sensing.
 pub fn start_field(s: &Scenario) -> Option<Field> {

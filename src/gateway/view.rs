@@ -1,0 +1,337 @@
+//! The live view (`[operator] view = ADDR`, `flowgate run --view ADDR`): a page that draws
+//! the arena as the gateway sees it, updated by server-sent events.
+//!
+//! The loop only publishes: about 20 times a second it puts a copy of its scene (a
+//! [`SceneRecord`], no allocation) into a `watch` channel. Everything else runs on a thread
+//! of its own, with its own runtime: a renderer turns the latest scene into a frame (JSON:
+//! walls, goal, obstacles with planning circles and velocities, the robot and its path,
+//! streamlines of the field, the state, the latency histogram) ten times a second, and the
+//! server hands the latest frame to each client. A client too slow for every frame skips to
+//! the latest; the frames it skipped are counted (`dropped` in each frame, and in
+//! `/metrics`). A client that takes a write over two seconds is dropped. Nothing a client
+//! does reaches the loop, and the page has no way to command anything.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use num_complex::Complex64 as C;
+use serde_json::json;
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::watch;
+
+use super::http::{self, Asked};
+use super::metrics;
+use super::recording::SceneRecord;
+use super::State;
+use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
+
+/// How often the loop publishes its scene.
+pub const PUBLISH_EVERY: Duration = Duration::from_millis(50);
+/// How often the renderer makes a frame.
+const RENDER_EVERY: Duration = Duration::from_millis(100);
+/// The longest a client may take to take one frame (or to send its request).
+const CLIENT_DEADLINE: Duration = Duration::from_secs(2);
+/// Clients served at once; more are told to come back later.
+const MAX_CLIENTS: usize = 8;
+/// Path points kept (a point every 5 mm of travel; the oldest go first).
+const MAX_PATH: usize = 4000;
+
+const PAGE: &str = include_str!("view.html");
+
+/// What the loop publishes.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ViewSnapshot {
+    pub scene: SceneRecord,
+    pub state: State,
+    pub cycles: u64,
+}
+
+/// What the renderer needs of the rig.
+#[derive(Debug, Clone)]
+pub struct ViewSetup {
+    pub planner: PlannerConfig,
+    pub robot_radius: f64,
+    pub lane_half_width: Option<f64>,
+}
+
+/// One frame for the page.
+#[derive(Debug, Clone, Default)]
+struct Frame {
+    seq: u64,
+    json: Arc<str>,
+}
+
+/// The loop's end: publish a scene when one is due.
+#[derive(Debug)]
+pub struct ViewPublisher {
+    tx: watch::Sender<ViewSnapshot>,
+    /// Frames the view's clients skipped (for `/metrics`).
+    pub dropped: Arc<AtomicU64>,
+}
+
+impl ViewPublisher {
+    pub fn publish(&self, snapshot: ViewSnapshot) {
+        self.tx.send_replace(snapshot);
+    }
+}
+
+/// Bind `addr` and start the view's thread. It ends when the publisher is dropped.
+pub fn start(
+    addr: std::net::SocketAddr,
+    setup: ViewSetup,
+    stats: watch::Receiver<Arc<metrics::Snapshot>>,
+) -> std::io::Result<ViewPublisher> {
+    let listener = std::net::TcpListener::bind(addr)?;
+    listener.set_nonblocking(true)?;
+    let (tx, rx) = watch::channel(ViewSnapshot::default());
+    let dropped = Arc::new(AtomicU64::new(0));
+    let counted = dropped.clone();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    std::thread::Builder::new().name("flowgate-view".into()).spawn(move || {
+        runtime.block_on(async move {
+            let Ok(listener) = TcpListener::from_std(listener) else { return };
+            let (frames_tx, frames_rx) = watch::channel(Frame::default());
+            tokio::select! {
+                () = render(rx, stats, setup, frames_tx) => {}
+                () = serve(listener, frames_rx, counted) => {}
+            }
+        });
+    })?;
+    Ok(ViewPublisher { tx, dropped })
+}
+
+/// Make a frame from each new scene, at most every [`RENDER_EVERY`]; ends when the loop's
+/// publisher is gone.
+async fn render(
+    mut scenes: watch::Receiver<ViewSnapshot>,
+    stats: watch::Receiver<Arc<metrics::Snapshot>>,
+    setup: ViewSetup,
+    frames: watch::Sender<Frame>,
+) {
+    let mut path: Vec<[f64; 2]> = Vec::with_capacity(MAX_PATH);
+    let mut seq = 0;
+    loop {
+        if scenes.changed().await.is_err() {
+            return;
+        }
+        let snapshot = *scenes.borrow_and_update();
+        let [x, y, _] = snapshot.scene.pose;
+        if snapshot.scene.count > 0 || snapshot.cycles > 0 {
+            let moved = path.last().is_none_or(|&[px, py]| (x - px).hypot(y - py) >= 0.005);
+            if moved {
+                if path.len() == MAX_PATH {
+                    path.remove(0);
+                }
+                path.push([x, y]);
+            }
+        }
+        seq += 1;
+        let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq);
+        frames.send_replace(Frame { seq, json: json.into() });
+        tokio::time::sleep(RENDER_EVERY).await;
+    }
+}
+
+/// The planner's field for the scene (planning circles as the loop last grew them), for
+/// streamlines. `None` before a pose, or when the planner could not make one.
+fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
+    let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+    let n = s.obstacles().len();
+    for (slot, o) in planned.iter_mut().zip(s.obstacles()) {
+        *slot = PlanObstacle {
+            center: C::new(f64::from(o.position[0]), f64::from(o.position[1])),
+            velocity: C::new(f64::from(o.velocity[0]), f64::from(o.velocity[1])),
+            radius: f64::from(o.planning_radius),
+        };
+    }
+    let goal = C::new(s.goal[0], s.goal[1]);
+    Field::new(setup.planner.space, Planner::new(setup.planner).sink(goal), &planned[..n]).ok()
+}
+
+fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &metrics::Snapshot, seq: u64) -> String {
+    let s = &v.scene;
+    let robot = C::new(s.pose[0], s.pose[1]);
+    let goal = C::new(s.goal[0], s.goal[1]);
+    // The drawing's extent: the robot, the goal, the obstacles and the path, with a margin.
+    let mut lo = robot;
+    let mut hi = robot;
+    let mut grow = |p: C, r: f64| {
+        lo = C::new(lo.re.min(p.re - r), lo.im.min(p.im - r));
+        hi = C::new(hi.re.max(p.re + r), hi.im.max(p.im + r));
+    };
+    grow(goal, 0.05);
+    for o in s.obstacles() {
+        grow(C::new(f64::from(o.position[0]), f64::from(o.position[1])), f64::from(o.planning_radius));
+    }
+    for p in path {
+        grow(C::new(p[0], p[1]), setup.robot_radius);
+    }
+    if let Some(h) = setup.lane_half_width {
+        grow(C::new(robot.re, 0.0), h);
+    }
+    let pad = C::new(0.15, 0.15);
+    let bounds = (lo - pad, hi + pad);
+    let lines: Vec<Vec<[f64; 2]>> = match (s.count > 0 || path.len() > 1).then(|| field(s, setup)).flatten() {
+        Some(field) => {
+            let to_goal = goal - robot;
+            let across = C::i() * to_goal / to_goal.norm().max(1e-9);
+            let span = (bounds.1 - bounds.0).norm() * 0.5;
+            let seeds: Vec<C> = (-8..=8).map(|k| robot + across * (span * f64::from(k) / 8.0)).collect();
+            streamlines(&field, &seeds, 0.01, 400, bounds)
+                .into_iter()
+                .map(|l| l.into_iter().map(|z| [round(z.re), round(z.im)]).collect())
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    let obstacles: Vec<_> = s
+        .obstacles()
+        .iter()
+        .map(|o| json!({ "p": o.position, "v": o.velocity, "planning_radius": o.planning_radius, "radius": o.radius }))
+        .collect();
+    let h = &stats.e2e_ns;
+    let mut below = 0;
+    let histogram: Vec<_> = metrics::BUCKETS_S
+        .iter()
+        .map(|&le| {
+            let bound = (le * 1e9) as u64;
+            let n: u64 = h.iter_recorded().filter(|x| x.value_iterated_to() <= bound).map(|x| x.count_at_value()).sum();
+            let in_bucket = n - below;
+            below = n;
+            json!({ "le_s": le, "count": in_bucket })
+        })
+        .collect();
+    json!({
+        "seq": seq,
+        "state": v.state.to_string(),
+        "state_name": v.state.name(),
+        "cycles": v.cycles,
+        "t": s.at.secs(),
+        "robot": { "p": [s.pose[0], s.pose[1]], "heading": s.pose[2], "radius": setup.robot_radius },
+        "goal": s.goal,
+        "lane_half_width": setup.lane_half_width,
+        "obstacles": obstacles,
+        "path": path,
+        "streamlines": lines,
+        "bounds": [[bounds.0.re, bounds.0.im], [bounds.1.re, bounds.1.im]],
+        "latency": { "histogram": histogram, "cycles": h.len(), "deadline_misses": stats.deadline_misses },
+    })
+    .to_string()
+}
+
+fn round(x: f64) -> f64 {
+    (x * 1e4).round() / 1e4
+}
+
+async fn serve(listener: TcpListener, frames: watch::Receiver<Frame>, dropped: Arc<AtomicU64>) {
+    let clients = Arc::new(tokio::sync::Semaphore::new(MAX_CLIENTS));
+    loop {
+        let Ok((stream, _)) = listener.accept().await else { continue };
+        let (frames, dropped, clients) = (frames.clone(), dropped.clone(), clients.clone());
+        tokio::spawn(async move {
+            if let Err(e) = client(stream, frames, dropped, clients).await {
+                tracing::debug!("view client: {e}");
+            }
+        });
+    }
+}
+
+async fn client(
+    mut stream: TcpStream,
+    mut frames: watch::Receiver<Frame>,
+    dropped: Arc<AtomicU64>,
+    clients: Arc<tokio::sync::Semaphore>,
+) -> std::io::Result<()> {
+    let timed_out = || std::io::Error::from(std::io::ErrorKind::TimedOut);
+    let asked =
+        tokio::time::timeout(CLIENT_DEADLINE, http::read_request(&mut stream)).await.map_err(|_| timed_out())??;
+    let path = match asked {
+        None => return Ok(()),
+        Some(Asked::Other) => return http::method_not_allowed(&mut stream).await,
+        Some(Asked::Get(path)) => path,
+    };
+    let Ok(_permit) = clients.try_acquire() else {
+        return http::reply(&mut stream, "503 Service Unavailable", "text/plain", b"too many viewers\n").await;
+    };
+    if path != "/events" {
+        let frame = frames.borrow().clone();
+        let answer = async {
+            match path.as_str() {
+                "/" | "/index.html" => {
+                    http::reply(&mut stream, "200 OK", "text/html; charset=utf-8", PAGE.as_bytes()).await
+                }
+                "/frame.json" => http::reply(&mut stream, "200 OK", "application/json", frame.json.as_bytes()).await,
+                _ => {
+                    let text = b"/, /events and /frame.json are served here\n";
+                    http::reply(&mut stream, "404 Not Found", "text/plain", text).await
+                }
+            }
+        };
+        return tokio::time::timeout(CLIENT_DEADLINE, answer).await.map_err(|_| timed_out())?;
+    }
+    let head = "HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\nConnection: keep-alive\r\n\r\n";
+    tokio::time::timeout(CLIENT_DEADLINE, stream.write_all(head.as_bytes())).await.map_err(|_| timed_out())??;
+    let mut last = frames.borrow().seq;
+    loop {
+        if frames.changed().await.is_err() {
+            return Ok(());
+        }
+        let frame = frames.borrow_and_update().clone();
+        // Frames made while this client was still taking an earlier one: skipped, counted.
+        dropped.fetch_add(frame.seq.saturating_sub(last + 1), Ordering::Relaxed);
+        last = frame.seq;
+        let event = format!("data: {}\n\n", frame.json);
+        tokio::time::timeout(CLIENT_DEADLINE, stream.write_all(event.as_bytes())).await.map_err(|_| timed_out())??;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gateway::recording::ObstacleView;
+    use crate::planner::Space;
+
+    fn setup() -> ViewSetup {
+        let planner = PlannerConfig {
+            space: Space::Lane { half_width: 0.3 },
+            cruise_speed: 0.1,
+            c1: 20.0,
+            reference_radius: 0.1,
+            max_speed: 0.15,
+            margin: crate::planner::Margin::None,
+            tie_break: None,
+        };
+        ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3) }
+    }
+
+    #[test]
+    fn a_frame_draws_the_scene_with_streamlines_around_the_obstacle() {
+        let mut scene = SceneRecord { pose: [-0.5, 0.0, 0.0], goal: [0.6, 0.0], count: 1, ..SceneRecord::default() };
+        scene.obstacles[0] = ObstacleView {
+            position: [0.0, 0.02],
+            velocity: [-0.05, 0.0],
+            planning_radius: 0.12,
+            radius: 0.05,
+            ..ObstacleView::default()
+        };
+        let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
+        let stats = metrics::Snapshot::empty();
+        let text = frame_json(&v, &setup(), &[[-0.6, 0.0], [-0.5, 0.0]], &stats, 7);
+        let f: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(f["seq"], 7);
+        assert_eq!(f["state_name"], "running");
+        assert_eq!(f["obstacles"][0]["planning_radius"].as_f64().unwrap() as f32, 0.12);
+        let lines = f["streamlines"].as_array().unwrap();
+        assert_eq!(lines.len(), 17);
+        // No streamline enters the planning circle.
+        for line in lines {
+            for p in line.as_array().unwrap() {
+                let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap() - 0.02);
+                assert!(x.hypot(y) > 0.12 - 0.011, "a streamline at ({x}, {y}) inside the circle");
+            }
+        }
+        assert_eq!(f["latency"]["histogram"].as_array().unwrap().len(), metrics::BUCKETS_S.len());
+    }
+}

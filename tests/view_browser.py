@@ -1,0 +1,70 @@
+"""Open the gateway's live view in headless Chromium (Debian's, through chromedriver) while a
+run drives, and check the page as a person would see it.
+
+Usage: view_browser.py URL SCREENSHOT.png
+Waits for the page to draw the robot, then for the robot marker to move; checks the state,
+the obstacles with their planning circles, the streamlines and the latency bars; saves a
+screenshot. Prints a JSON summary; exits 1 naming what failed.
+"""
+import json
+import sys
+import tempfile
+import time
+
+from selenium import webdriver
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import WebDriverWait
+
+url, shot = sys.argv[1], sys.argv[2]
+options = webdriver.ChromeOptions()
+options.binary_location = "/usr/bin/chromium"
+for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             "--window-size=1420,700", f"--user-data-dir={tempfile.mkdtemp()}"]:
+    options.add_argument(flag)
+driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+failures = []
+out = {}
+try:
+    driver.get(url)
+    wait = WebDriverWait(driver, 20, poll_frequency=0.1)
+    robot = lambda: driver.find_element(By.ID, "robot")
+    wait.until(lambda d: robot().get_attribute("data-x") not in (None, ""))
+    first = (float(robot().get_attribute("data-x")), float(robot().get_attribute("data-y")))
+    # The robot marker moves as the run drives (positions in metres, from the page's DOM).
+    try:
+        wait.until(lambda d: abs(float(robot().get_attribute("data-x")) - first[0]) > 0.02)
+    except Exception:
+        failures.append(f"the robot marker stayed at {first}")
+    # One read of the DOM as drawn (the page redraws ten times a second).
+    dom = driver.execute_script("""
+        const r = document.getElementById('robot');
+        return {
+          second: [parseFloat(r.dataset.x), parseFloat(r.dataset.y)],
+          state: document.getElementById('state').dataset.state,
+          obstacles: document.querySelectorAll('#obstacles g.obstacle').length,
+          streamlines: document.querySelectorAll('#streamlines polyline').length,
+          counted: [...document.querySelectorAll('#latency rect.bin')].reduce((s, b) => s + parseInt(b.dataset.count), 0),
+          path: (document.getElementById('path').getAttribute('points') || '').split(' ').filter(p => p).length,
+        };""")
+    second, state, counted = tuple(dom["second"]), dom["state"], dom["counted"]
+    obstacles, streamlines, path = dom["obstacles"], dom["streamlines"], dom["path"]
+    if state not in ("running", "stopping", "stopped"):
+        failures.append(f"state {state}")
+    if obstacles < 1:
+        failures.append("no obstacle drawn")
+    if streamlines < 5:
+        failures.append(f"{streamlines} streamlines")
+    if counted <= 0:
+        failures.append("an empty latency histogram")
+    if path < 2:
+        failures.append("no path drawn")
+    driver.save_screenshot(shot)
+    out = {"first": first, "second": second, "state": state, "obstacles": obstacles,
+           "streamlines": streamlines, "latency_cycles": counted, "path_points": path}
+finally:
+    driver.quit()
+out["failures"] = failures
+print(json.dumps(out))
+sys.exit(1 if failures else 0)
