@@ -31,7 +31,8 @@ pub struct BenchArgs {
     /// SCHED_FIFO priority of the real-time row (0: no real-time row).
     #[arg(long, value_name = "0-99", default_value_t = 50, value_parser = clap::value_parser!(u8).range(0..=99))]
     fifo_priority: u8,
-    /// Leave out the row at the paper's rate with an MCAP recording on (`--record`).
+    /// Leave out the rows at the paper's rate with an MCAP recording on (`--record`), and
+    /// with the live view served too (`--view`).
     #[arg(long)]
     no_recording_row: bool,
     /// Where to write bench.json.
@@ -96,6 +97,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
     if !args.no_recording_row {
         phases[0].also.push(Mode { record: true, ..Mode::default() });
+        phases[0].also.push(Mode { record: true, view: true, ..Mode::default() });
     }
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;

@@ -38,6 +38,9 @@ const MAX_CLIENTS: usize = 8;
 /// Path points kept (a point every 5 mm of travel; the oldest go first).
 const MAX_PATH: usize = 4000;
 
+/// The view thread's nice value (the loop keeps the process's, 0 or SCHED_FIFO).
+const VIEW_NICE: i32 = 10;
+
 const PAGE: &str = include_str!("view.html");
 
 /// What the loop publishes.
@@ -90,6 +93,11 @@ pub fn start(
     let counted = dropped.clone();
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     std::thread::Builder::new().name("flowgate-view".into()).spawn(move || {
+        // Below the loop's priority (on Linux this sets the calling thread's nice value):
+        // where the loop shares a core with it, the view waits, not the loop.
+        if let Err(e) = rustix::process::setpriority_process(None, VIEW_NICE) {
+            tracing::debug!("view thread priority: {e}");
+        }
         runtime.block_on(async move {
             let Ok(listener) = TcpListener::from_std(listener) else { return };
             let (frames_tx, frames_rx) = watch::channel(Frame::default());

@@ -46,6 +46,9 @@ pub struct Phase {
     /// The gateway recorded the run to MCAP in this phase (its null gateway records nothing).
     #[serde(default)]
     pub recording: bool,
+    /// The gateway served the live view in this phase.
+    #[serde(default)]
+    pub view: bool,
     /// Time-division frames per second the controller sent.
     pub frame_rate_hz: f64,
     pub samples_per_s: f64,
@@ -87,16 +90,22 @@ pub struct Mode {
     pub realtime: RealtimeSettings,
     /// Record the run to MCAP (`[telemetry] record`): what recording costs the loop.
     pub record: bool,
+    /// Serve the live view (`[operator] view`, a free loopback port): what it costs the loop.
+    pub view: bool,
 }
 
 impl Mode {
     /// The row's suffix: `None` for the plain gateway.
     fn label(&self) -> Option<String> {
-        let parts: Vec<&str> =
-            [(self.spin_us > 0, "low-latency"), (!self.realtime.is_empty(), "real-time"), (self.record, "recording")]
-                .into_iter()
-                .filter_map(|(on, name)| on.then_some(name))
-                .collect();
+        let parts: Vec<&str> = [
+            (self.spin_us > 0, "low-latency"),
+            (!self.realtime.is_empty(), "real-time"),
+            (self.record, "recording"),
+            (self.view, "view"),
+        ]
+        .into_iter()
+        .filter_map(|(on, name)| on.then_some(name))
+        .collect();
         (!parts.is_empty()).then(|| parts.join(" + "))
     }
 }
@@ -231,6 +240,7 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
     let spin_us = mode.spin_us;
     let slot_us = 500.max(spin_us + 100);
     let rt = &mode.realtime;
+    let view = if mode.view { "view = \"127.0.0.1:0\"\n" } else { "" };
     let record = if mode.record {
         format!("[telemetry]\nrecord = \"{}\"\n", socket.with_extension("mcap").display())
     } else {
@@ -242,7 +252,7 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
-         [operator]\nsocket = \"{}\"\n[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
+         [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
         psd.display(),
         node.get(),
         socket.display(),
@@ -549,6 +559,7 @@ impl PairTally {
             spin_us: (mode.spin_us > 0).then_some(mode.spin_us),
             realtime: (!mode.realtime.is_empty()).then(|| mode.realtime.to_string()),
             recording: mode.record,
+            view: mode.view,
             frame_rate_hz: g.sent as f64 / g.elapsed_s,
             samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
             cycles_sent: g.sent,
@@ -639,7 +650,7 @@ pub async fn run(
     let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
         let mut latency_phases: Vec<&Phase> = report_phases
             .iter()
-            .filter(|p| p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording)
+            .filter(|p| p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording && !p.view)
             .collect();
         latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
         latency_phases
@@ -762,7 +773,7 @@ impl std::fmt::Display for BenchReport {
             self.wire_per_cycle_us
         )?;
         writeln!(f, "gateway states: {}", self.gateway_states.join(" -> "))?;
-        for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording) {
+        for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording || p.view) {
             let mut how = Vec::new();
             if let Some(us) = p.spin_us {
                 how.push(format!("[realtime] spin_us = {us} (its null gateway polling the same way)"));
@@ -772,6 +783,9 @@ impl std::fmt::Display for BenchReport {
             }
             if p.recording {
                 how.push("an MCAP recording of every input, output and cycle (`--record`)".to_string());
+            }
+            if p.view {
+                how.push("the live view served (`--view`)".to_string());
             }
             let states =
                 self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));
