@@ -46,7 +46,7 @@ impl Snapshot {
         Self {
             state: State::Idle,
             counters: Counters::default(),
-            e2e_ns: super::telemetry::Timing::default().e2e_histogram().clone(),
+            e2e_ns: super::timing::Timing::default().e2e_histogram().clone(),
             deadline_misses: 0,
             uptime_s: 0.0,
             stops: Vec::new(),

@@ -27,6 +27,7 @@ pub mod safety;
 pub mod shell;
 pub mod systemd;
 pub mod telemetry;
+pub mod timing;
 pub mod view;
 
 use serde::Serialize;

@@ -102,8 +102,8 @@ pub struct Status {
     pub cycles: u64,
     /// Cycle latency so far, serial read to CAN write done (filled in by the rig's shell,
     /// which measures it; none in virtual time).
-    pub latency_us: Option<super::telemetry::Distribution>,
+    pub latency_us: Option<super::timing::Distribution>,
     /// Each stage's statistics over the same cycles (`stats` only).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub stages: Option<Vec<super::telemetry::StageSummary>>,
+    pub stages: Option<Vec<super::timing::StageSummary>>,
 }

@@ -15,6 +15,8 @@
 //! - metadata `flowgate`: the configuration the run used (TOML), the version, the clock's
 //!   origin; `flowgate.end`: how many inputs and records were written and dropped.
 //!
+//! The CAN-frame and event records the text telemetry writes too live here.
+//!
 //! JSON everywhere (`jsonschema` schemas), so Foxglove draws the arena and plots any field
 //! without set-up, and any MCAP reader can check it.
 
@@ -28,7 +30,7 @@ use flowgate_protocol::{CanFrame, CanId};
 use serde_json::{json, Value};
 
 use super::operator::Request;
-use super::telemetry::{CanRecord, CycleRecord, EventRecord};
+use super::timing::CycleRecord;
 use super::Input;
 use crate::link::CanEvent;
 use crate::planner::MAX_OBSTACLES;
@@ -566,6 +568,42 @@ impl McapSink {
             cycles: self.cycles,
         })
     }
+}
+
+/// A CAN frame seen by the gateway, for `can.log`.
+#[derive(Debug, Clone, Copy)]
+pub struct CanRecord {
+    /// When, s: since the Unix epoch on the rig (candump's format), virtual time in
+    /// simulation.
+    pub at_s: f64,
+    pub frame: CanFrame,
+    pub sent: bool,
+}
+
+impl CanRecord {
+    /// One `can.log` line, candump `-L` format: `(1700000000.000123) can0 101#0102`.
+    pub fn candump(&self, interface: &str, out: &mut impl std::io::Write) -> std::io::Result<()> {
+        write!(out, "({:.6}) {interface} ", self.at_s)?;
+        match self.frame.id() {
+            flowgate_protocol::CanId::Standard(id) => write!(out, "{id:03X}#")?,
+            flowgate_protocol::CanId::Extended(id) => write!(out, "{id:08X}#")?,
+        }
+        if self.frame.is_remote() {
+            write!(out, "R{}", self.frame.dlc())?;
+        } else {
+            for b in self.frame.data() {
+                write!(out, "{b:02X}")?;
+            }
+        }
+        writeln!(out)
+    }
+}
+
+/// Something that happened, in words: a state change, an operator's request and its answer.
+#[derive(Debug, Clone)]
+pub struct EventRecord {
+    pub at_s: f64,
+    pub text: String,
 }
 
 #[cfg(test)]
