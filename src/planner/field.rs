@@ -23,6 +23,8 @@
 
 use num_complex::Complex64 as C;
 
+use super::multipole::{self, Fitted, Series, ORDERS, POINTS};
+
 /// The most obstacles one field holds (fixed arrays: evaluation never allocates).
 pub const MAX_OBSTACLES: usize = 16;
 
@@ -50,44 +52,6 @@ impl Space {
                 -w * (coth(w * (z - a)) + tanh(w * (z - a.conj())))
             }
         }
-    }
-
-    /// `sink(z, a) - (-1/(z - a))`: the wall images' part of a unit sink, regular at `a`
-    /// (zero in free space). At `z = a` its limit is `-ϖ tanh(ϖ (a - conj a))`.
-    pub fn sink_wall_part(self, z: C, a: C) -> C {
-        match self {
-            Space::Free => C::default(),
-            Space::Lane { half_width } => {
-                let w = Self::varpi(half_width);
-                let x = w * (z - a);
-                // coth(x) - 1/x, by its series near 0 where the difference cancels.
-                let coth_minus = if x.norm() < 1e-3 { x / 3.0 - x * x * x / 45.0 } else { coth(x) - x.inv() };
-                -w * (coth_minus + tanh(w * (z - a.conj())))
-            }
-        }
-    }
-
-    /// The uniform flow (`u - i v`) that a lane doublet's wall images induce at its own
-    /// position: `W(μ) = α μ + β conj(μ)` with real `α = -ϖ²/3`, `β = -ϖ² / cos²(2ϖ y)`
-    /// (from `csch²x - 1/x² -> -1/3`). Zero in free space.
-    fn doublet_self_flow(self, at: C) -> (f64, f64) {
-        match self {
-            Space::Free => (0.0, 0.0),
-            Space::Lane { half_width } => {
-                let w = Self::varpi(half_width);
-                (-w * w / 3.0, -w * w / (2.0 * w * at.im).cos().powi(2))
-            }
-        }
-    }
-
-    /// The moment `μ` of a doublet at the centre of a circle of radius `r` at `at` that
-    /// cancels, on the circle, a uniform flow `c` (as `u - i v`) together with the uniform
-    /// flow of the doublet's own wall images: `μ = -r² conj(c + W(μ))`, solved exactly
-    /// (a 2x2 real system, since `W` is real-linear). In free space `μ = -r² conj(c)`.
-    pub fn cancelling_moment(self, at: C, r: f64, c: C) -> C {
-        let (alpha, beta) = self.doublet_self_flow(at);
-        let r2 = r * r;
-        C::new(-r2 * c.re / (1.0 + r2 * (beta + alpha)), r2 * c.im / (1.0 + r2 * (beta - alpha)))
     }
 
     /// A doublet of moment `mu` at `a`: `mu/(z - a)²`, plus its wall images in a lane:
@@ -197,11 +161,12 @@ pub struct Field {
     moments: [C; MAX_OBSTACLES],
     /// Image of the goal sink in circle k.
     sink_images: [C; MAX_OBSTACLES],
-    /// Lane only (zero in free space): moments of the doublets at obstacle k's centre that
-    /// cancel, on its circle, the uniform part of the wall images' flow: of the sink terms
-    /// (scaled by K like them), and of the obstacle's own motion doublet.
-    lane_corrections: [C; MAX_OBSTACLES],
-    motion_corrections: [C; MAX_OBSTACLES],
+    /// Lane only: the multipole series at each obstacle's centre that makes its circle
+    /// exactly a streamline (see [`super::multipole`]), and its coefficients for the sink
+    /// terms (scaled by K like them) and for the obstacles' motion.
+    series: [Series; MAX_OBSTACLES],
+    sink_fit: [Fitted; MAX_OBSTACLES],
+    motion_fit: [Fitted; MAX_OBSTACLES],
 }
 
 fn finite(z: C) -> bool {
@@ -233,8 +198,9 @@ impl Field {
             obstacles: [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES],
             moments: [C::default(); MAX_OBSTACLES],
             sink_images: [C::default(); MAX_OBSTACLES],
-            lane_corrections: [C::default(); MAX_OBSTACLES],
-            motion_corrections: [C::default(); MAX_OBSTACLES],
+            series: [Series::new(1.0, C::default(), 1.0); MAX_OBSTACLES],
+            sink_fit: [Fitted::default(); MAX_OBSTACLES],
+            motion_fit: [Fitted::default(); MAX_OBSTACLES],
         };
         for (k, o) in obstacles.iter().enumerate() {
             if !finite(o.center) || !finite(o.velocity) || !o.radius.is_finite() {
@@ -243,28 +209,70 @@ impl Field {
             if o.radius <= 0.0 {
                 return Err(FieldError::BadRadius { index: k });
             }
+            let o = match space {
+                Space::Free => *o,
+                Space::Lane { half_width } => in_lane(*o, half_width),
+            };
             let to_goal = sink.goal - o.center;
             if to_goal.norm() <= o.radius {
                 return Err(FieldError::GoalInsideObstacle { index: k });
             }
             let r2 = o.radius * o.radius;
-            field.obstacles[k] = *o;
+            field.obstacles[k] = o;
             field.moments[k] = o.velocity * r2;
             field.sink_images[k] = o.center + r2 / to_goal.conj();
-            // In a lane the wall images of the sink, its image and the centre source flow
-            // nearly uniformly past the circle with u - i v = c (the channel's flow is much
-            // faster than a free sink's m/d). Cancel it with the circle theorem's image of a
-            // uniform flow: a doublet at the centre, itself in lane form so the walls stay
-            // exact, its moment solved together with its own wall images' flow. Likewise for
-            // the uniform flow that the motion doublet's wall images induce.
-            let c = space.sink_wall_part(o.center, sink.goal) + space.sink_wall_part(o.center, field.sink_images[k])
-                - space.sink_wall_part(o.center, o.center);
-            field.lane_corrections[k] = space.cancelling_moment(o.center, o.radius, c);
-            let (alpha, beta) = space.doublet_self_flow(o.center);
-            let motion_flow = alpha * field.moments[k] + beta * field.moments[k].conj();
-            field.motion_corrections[k] = space.cancelling_moment(o.center, o.radius, motion_flow);
+        }
+        if let Space::Lane { half_width } = space {
+            for k in 0..field.n {
+                field.fit_lane_series(k, half_width);
+            }
         }
         Ok(field)
+    }
+
+    /// Fit obstacle `k`'s multipole series: on its circle the normal flow of the sink terms
+    /// becomes zero, and that of the motion terms (every obstacle's doublet, the other
+    /// doublets' images in this circle) becomes the obstacle's own normal speed.
+    fn fit_lane_series(&mut self, k: usize, half_width: f64) {
+        let space = self.space;
+        let o = self.obstacles[k];
+        let series = Series::new(half_width, o.center, o.radius);
+        let others = self.obstacles[..self.n].iter().enumerate().filter(|&(i, _)| i != k).map(|(_, p)| p.center);
+        let orders = multipole::orders_for(half_width, o.center, o.radius, others.chain([self.sink.goal]));
+        let mut points = [(C::default(), C::default()); POINTS];
+        let m = multipole::collocation(half_width, o.center, o.radius, orders, &mut points);
+        let (mut sink_target, mut motion_target, mut source_flow) = ([0.0; POINTS], [0.0; POINTS], [0.0; POINTS]);
+        for (j, &(z, normal)) in points[..m].iter().enumerate() {
+            let sink_flow =
+                space.sink(z, self.sink.goal) + space.sink(z, self.sink_images[k]) - space.sink(z, o.center);
+            let mut motion_flow = C::default();
+            for (i, other) in self.obstacles[..self.n].iter().enumerate() {
+                motion_flow += space.doublet(z, other.center, self.moments[i]);
+                if i != k {
+                    if let Some((at, moment)) = self.doublet_image(k, i) {
+                        motion_flow += space.doublet(z, at, moment);
+                    }
+                }
+            }
+            sink_target[j] = -(sink_flow * normal).re;
+            source_flow[j] = -(space.sink(z, o.center) * normal).re;
+            motion_target[j] = (o.velocity * normal.conj()).re - (motion_flow * normal).re;
+        }
+        let [sink_fit, motion_fit] =
+            multipole::fit(&series, orders, &points, m, &source_flow, [&sink_target, &motion_target]);
+        self.series[k] = series;
+        self.sink_fit[k] = sink_fit;
+        self.motion_fit[k] = motion_fit;
+    }
+
+    /// The image of obstacle `j`'s doublet in circle `k` (circle theorem): at
+    /// `z_k + R_k²/conj(z_j - z_k)`, moment `-conj(μ_j) R_k² / conj(z_j - z_k)²`.
+    #[inline]
+    fn doublet_image(&self, k: usize, j: usize) -> Option<(C, C)> {
+        let o = &self.obstacles[k];
+        let d = (self.obstacles[j].center - o.center).conj();
+        let r2 = o.radius * o.radius;
+        (d.norm() > 0.0).then(|| (o.center + r2 / d, -self.moments[j].conj() * r2 / (d * d)))
     }
 
     pub fn space(&self) -> Space {
@@ -310,21 +318,24 @@ impl Field {
         }
         for (k, (o, inv)) in self.obstacles[..self.n].iter().zip(inv_gap).enumerate() {
             let w = inv / total;
-            // Three doublets sit at the centre: the obstacle's own motion (weight 1), and its
-            // two lane corrections (weight w_k, the sink's scaled by K). Doublets are linear
-            // in their moment, so one evaluation serves all three.
-            let centre_moment = self.moments[k] + w * (km * self.lane_corrections[k] + self.motion_corrections[k]);
-            f += space.doublet(z, o.center, centre_moment);
-            let mut fk = km * (space.sink(z, self.sink_images[k]) - space.sink(z, o.center));
-            // Images of the other obstacles' doublets in circle k (circle theorem):
-            // at z_k + R_k²/conj(z_j - z_k), moment -conj(μ_j) R_k² / conj(z_j - z_k)².
-            let r2 = o.radius * o.radius;
+            f += space.doublet(z, o.center, self.moments[k]);
+            // The circle theorem's source at the centre (scaled by K like the sink), with
+            // the lane fit's sources (zero clear of the walls).
+            let (sink_fit, motion_fit) = (&self.sink_fit[k], &self.motion_fit[k]);
+            let source = km * (1.0 + sink_fit.source) + motion_fit.source;
+            let mut fk = km * space.sink(z, self.sink_images[k]) - source * space.sink(z, o.center);
             for j in (0..self.n).filter(|&j| j != k) {
-                let d = (self.obstacles[j].center - o.center).conj();
-                if d.norm() > 0.0 {
-                    let at = o.center + r2 / d;
-                    fk += space.doublet(z, at, -self.moments[j].conj() * r2 / (d * d));
+                if let Some((at, moment)) = self.doublet_image(k, j) {
+                    fk += space.doublet(z, at, moment);
                 }
+            }
+            if let Space::Lane { .. } = space {
+                // The series is real-linear in its coefficients: one evaluation for both.
+                let mut c = [C::default(); ORDERS];
+                for ((c, a), b) in c.iter_mut().zip(&sink_fit.coeffs).zip(&motion_fit.coeffs) {
+                    *c = a * km + b;
+                }
+                fk += self.series[k].eval(z, &c);
             }
             f += fk * w;
         }
@@ -336,6 +347,32 @@ impl Field {
         self.eval(z).map(|f| f.conj())
     }
 }
+
+/// How an obstacle meets the lane's walls in the field. A circle that nearly touches a wall
+/// leaves a passage the robot could not take anyway, and a cusp of nearly still flow that
+/// no series at the centre converges in: it is moved toward that wall and grown by as much
+/// (so it still covers the true circle) until it crosses the wall by [`WALL_OVERLAP`] of
+/// its radius. A centre beyond a wall (a noisy estimate) is brought inside in the same way.
+fn in_lane(o: PlanObstacle, half_width: f64) -> PlanObstacle {
+    let side = if o.center.im >= 0.0 { 1.0 } else { -1.0 };
+    let d = half_width - o.center.im.abs(); // to the nearer wall, negative beyond it
+    let gap = d - o.radius;
+    let toward_wall = if gap < WALL_CLOSE * o.radius {
+        // Centre moved by δ, radius grown by δ: the overlap -gap grows by 2δ, to W (R + δ).
+        ((WALL_OVERLAP * o.radius + gap) / (2.0 - WALL_OVERLAP)).max(0.0)
+    } else {
+        0.0
+    };
+    // Keep the centre inside the lane, well clear of its mirror image.
+    let y = (o.center.im.abs() + toward_wall).min(0.9 * half_width);
+    let shift = y - o.center.im.abs();
+    PlanObstacle { center: C::new(o.center.re, side * y), radius: o.radius + shift.abs(), ..o }
+}
+
+/// A gap to a wall below this fraction of the radius is closed (see [`in_lane`]).
+pub const WALL_CLOSE: f64 = 0.1;
+/// How far a closed circle crosses the wall, as a fraction of its radius.
+pub const WALL_OVERLAP: f64 = 0.25;
 
 /// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
 /// leave `bounds`, reach the goal, or meet an obstacle.

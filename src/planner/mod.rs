@@ -24,6 +24,7 @@
 
 pub mod drive;
 pub mod field;
+pub mod multipole;
 
 pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
 use num_complex::Complex64 as C;

@@ -181,28 +181,42 @@ fn invalid_inputs_are_typed_errors() {
     assert_eq!(Field::new(Space::Free, sink(goal), &too_many).unwrap_err(), FieldError::TooManyObstacles);
 }
 
-/// The lane's image pair comes from free space, so an obstacle's circle is only nearly a
-/// streamline. Far from the goal the lane's flow is the channel's uniform flow, much faster
-/// than a free sink's `m/d`; the field cancels the uniform part of the wall images at each
-/// obstacle with a self-consistent lane doublet (see `field.rs`), which leaves a residual
-/// of higher order in R/h.
-/// Measured here against the local speed of the lane flow and bounded, so a change that
-/// worsens it shows: 0.6% for R = 3 cm and 21% for R = 14 cm in h = 20 cm (a 70% blockage).
+/// The worst normal-flow residual on obstacle `o`'s circle (its part inside the lane),
+/// over 720 points, relative to the largest flow speed met on the circle.
+fn worst_residual(field: &Field, o: &PlanObstacle) -> f64 {
+    let h = match field.space() {
+        Space::Lane { half_width } => half_width,
+        Space::Free => f64::INFINITY,
+    };
+    let (mut worst, mut scale) = (0.0f64, 0.0f64);
+    for d in 0..720 {
+        let theta = f64::from(d) * PI / 360.0;
+        let z = o.center + C::from_polar(o.radius * (1.0 + 1e-11), theta);
+        if z.im.abs() < h * (1.0 - 1e-9) {
+            worst = worst.max(boundary_residual(field, o, theta).abs());
+            scale = scale.max(field.velocity(z).unwrap().norm());
+        }
+    }
+    worst / scale.max(o.velocity.norm()).max(1e-12)
+}
+
+/// The lane's exact boundaries: E2's geometry (R = 14 cm in h = 20 cm, a 70% blockage)
+/// and a centred 90% blockage, standing and moving: the residual is at the fit's level.
 #[test]
-fn lane_circle_residual_is_measured_and_bounded() {
-    let s = Sink { goal: C::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
+fn lane_circle_residual_is_at_the_fit_level() {
     let lane = Space::Lane { half_width: 0.2 };
-    let local = Field::new(lane, s, &[]).unwrap().velocity(C::new(0.0, 0.0)).unwrap().norm();
-    for (radius, bound) in [(0.03, 0.01), (0.05, 0.02), (0.14, 0.25)] {
-        let obs = PlanObstacle { center: C::new(0.0, 0.0), velocity: C::new(-0.056, 0.0), radius };
+    for (centre, radius, velocity) in [
+        (C::new(0.0, 0.0), 0.14, C::new(-0.056, 0.0)),
+        (C::new(0.2, 0.0), 0.18, C::default()),
+        (C::new(0.2, 0.0), 0.18, C::new(-0.05, 0.03)),
+        (C::new(0.0, 0.03), 0.03, C::new(0.1, 0.0)),
+    ] {
+        let s = Sink { goal: C::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
+        let obs = PlanObstacle { center: centre, velocity, radius };
         let field = Field::new(lane, s, &[obs]).unwrap();
-        let worst =
-            (0..360).map(|d| boundary_residual(&field, &obs, f64::from(d).to_radians()).abs()).fold(0.0, f64::max);
-        eprintln!(
-            "lane circle residual, R = {radius} m, h = 0.2 m: {:.1}% of the local lane speed",
-            100.0 * worst / local
-        );
-        assert!(worst < bound * local, "R = {radius}: {worst} vs local {local}");
+        let worst = worst_residual(&field, &obs);
+        eprintln!("lane circle residual, R = {radius} m at {centre}, h = 0.2 m: {worst:.1e} of the local speed");
+        assert!(worst < 1e-6, "R = {radius} at {centre}: {worst:.2e}");
     }
 }
 
@@ -265,4 +279,89 @@ fn saturation_keeps_direction_and_flags_fast_obstacles() {
     assert!(p.flags.saturated && p.flags.obstacle_faster_than_robot);
     assert!((p.velocity.norm() - 0.15).abs() < 1e-12);
     assert!((p.velocity.arg() - p.field.arg()).abs() < 1e-12);
+}
+
+/// A circle in a lane of half-width `h`: (centre, radius) with the centre anywhere inside
+/// the lane and `R` up to 90% of `h`.
+fn lane_circle(h: f64) -> impl Strategy<Value = (C, f64)> {
+    (-3.0..3.0f64, -1.0..1.0f64, 0.02..0.9f64).prop_map(move |(x, y, r)| (C::new(x, y * h * 0.999), r * h))
+}
+
+/// Wall clearance over radius: at least 1/0.9 is the band where the series converges to
+/// the fit's aim (a 90% blockage of the nearer half-lane at worst).
+fn clear_of_walls(h: f64, centre: C, r: f64) -> bool {
+    h - centre.im.abs() >= r / 0.9
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    /// Point 2 of the planner issue: clear of the walls, every circle is a streamline of
+    /// the lane field to 1e-6 of the flow's speed, standing or moving, with the goal
+    /// anywhere in the lane outside it, alone or with a second obstacle.
+    #[test]
+    fn lane_circles_are_exact_clear_of_the_walls(
+        h in 0.1..1.0f64,
+        (a, b) in (lane_circle(1.0), lane_circle(1.0)),
+        (va, vb) in (vel(), vel()),
+        goal in pt(),
+        two in any::<bool>(),
+    ) {
+        let (a, b) = ((a.0 * h, a.1 * h), (b.0 * h, b.1 * h));
+        prop_assume!(clear_of_walls(h, a.0, a.1) && (!two || clear_of_walls(h, b.0, b.1)));
+        let goal = C::new(goal.re * 3.0 * h, goal.im * h * 0.99);
+        let mut obs = vec![PlanObstacle { center: a.0, velocity: va, radius: a.1 }];
+        if two {
+            obs.push(PlanObstacle { center: b.0, velocity: vb, radius: b.1 });
+            prop_assume!((a.0 - b.0).norm() > 1.05 * (a.1 + b.1));
+        }
+        prop_assume!(obs.iter().all(|o| (goal - o.center).norm() > 1.05 * o.radius));
+        let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
+        for o in field.obstacles() {
+            let worst = worst_residual(&field, o);
+            prop_assert!(worst < 1e-6, "residual {worst:.2e} on {o:?} (h = {h})");
+        }
+    }
+
+    /// Point 1: near a wall (a gap under R/9, touching, or across it) the circle is closed
+    /// against the wall and the fit leaves a residual of at most 1% of the flow's speed,
+    /// where the circle meets the wall (the old field pointed into the obstacle there).
+    #[test]
+    fn lane_circles_near_a_wall_hold_to_a_percent(h in 0.1..1.0f64, (a, r) in lane_circle(1.0), v in vel()) {
+        let (a, r) = (a * h, r * h);
+        prop_assume!(!clear_of_walls(h, a, r));
+        let goal = C::new(a.re + 3.0 * h, 0.0);
+        prop_assume!((goal - a).norm() > 1.3 * r);
+        let obs = [PlanObstacle { center: a, velocity: v, radius: r }];
+        let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
+        let planned = field.obstacles()[0];
+        prop_assert!((planned.center - a).norm() + r <= planned.radius + 1e-12, "the planned circle covers the true one");
+        let worst = worst_residual(&field, &planned);
+        prop_assert!(worst < 1e-2, "residual {worst:.2e} on {planned:?} (h = {h})");
+    }
+
+    /// Point 1: a standing obstacle anywhere in the lane is never entered by a robot that
+    /// follows the field (at up to 15 cm/s, 20 ms steps) from anywhere upstream.
+    #[test]
+    fn standing_obstacles_are_never_entered(h in 0.1..0.5f64, (a, r) in lane_circle(1.0), y0 in -1.0..1.0f64) {
+        let (a, r) = (C::new(0.0, a.im * h), r * h);
+        let goal = C::new(a.re + 3.0 * h + r, 0.0);
+        let obs = [PlanObstacle { center: a, velocity: C::default(), radius: r }];
+        let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
+        let planned = field.obstacles()[0];
+        let mut z = C::new(a.re - r - 2.0 * h, y0 * h * 0.95);
+        prop_assume!((z - planned.center).norm() > planned.radius);
+        for _ in 0..3000 {
+            let v = match field.velocity(z) {
+                Ok(v) => v,
+                Err(e) => return Err(TestCaseError::fail(format!("{e} at {z} (planned {planned:?}, h = {h})"))),
+            };
+            let v = if v.norm() > 0.15 { v * (0.15 / v.norm()) } else { v };
+            z += v * 0.02;
+            prop_assert!((z - a).norm() > r, "entered the obstacle at {z}");
+            if (z - goal).norm() < 0.01 {
+                break;
+            }
+        }
+    }
 }

@@ -1,0 +1,240 @@
+//! Exact obstacle boundaries in a lane: a multipole series at each obstacle's centre,
+//! fitted by least squares on its circle.
+//!
+//! The lane's closed-form images (see [`super::field`]) keep the walls exact, but the
+//! circle theorem's images are free-space ones, so in a lane a circle is only nearly a
+//! streamline. What is left over is a flow that is regular outside the circle and has the
+//! walls as streamlines; it is cancelled by lane multipoles of orders 1..=[`ORDERS`] at the
+//! centre, whose coefficients are fitted by least squares on [`POINTS`] points of the
+//! circle's part inside the lane.
+//!
+//! The lane multipoles are rational in `s = e^{2ϖ(z - x_0)}` (`ϖ = π/4h`), which maps the
+//! lane onto the half-plane `Re s > 0` and the walls onto the imaginary axis. A potential
+//! `c (σ/(s - s_a))^n` plus its mirror `conj(c) (-conj σ/(s + conj s_a))^n` is real on
+//! the walls (so they stay streamlines exactly), vanishes at both ends of the lane, and near
+//! the centre is `c (R/(z - a))^n`: the free-space multipole. `x_0` is the centre's `x`, so
+//! `s` stays moderate near the circle wherever the obstacle is.
+//!
+//! The fit is a dense QR on fixed arrays: no allocation, about `POINTS · (2 ORDERS)²`
+//! flops per obstacle and geometry, shared by the two right-hand sides (the goal sink's
+//! flow and the obstacles' motion).
+
+use num_complex::Complex64 as C;
+
+/// The most multipole orders an obstacle gets.
+pub const ORDERS: usize = 32;
+/// Collocation points per order (twice the unknowns: a well over-determined fit).
+const POINTS_PER_ORDER: usize = 4;
+/// The most collocation points on a circle (the ones outside the lane are left out).
+pub const POINTS: usize = POINTS_PER_ORDER * ORDERS;
+/// The fit's aim: the series' truncation error, relative to the flow on the circle.
+const AIM: f64 = 1e-8;
+const UNKNOWNS: usize = 2 * ORDERS + 1;
+
+/// Beyond this `|2ϖ (x - x_0)|` a multipole's flow is below `e^-600` of its size at the
+/// circle: zero (and `s` would overflow).
+const FAR: f64 = 600.0;
+
+/// A multipole series at one obstacle's centre, in the lane's coordinates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Series {
+    /// `2ϖ`.
+    two_varpi: f64,
+    /// `x_0`: the origin of `s` (the centre's `x`).
+    x0: f64,
+    /// The centre in `s`.
+    sa: C,
+    /// The scale `σ = 2ϖ s_a R`: `σ/(s - s_a) ≈ R/(z - a)` near the centre.
+    sigma: C,
+}
+
+impl Series {
+    /// The series frame for a circle of radius `r` at `a` in a lane of half-width `h`.
+    pub fn new(h: f64, a: C, r: f64) -> Self {
+        let two_varpi = std::f64::consts::PI / (2.0 * h);
+        let sa = C::from_polar(1.0, two_varpi * a.im);
+        Self { two_varpi, x0: a.re, sa, sigma: sa * (two_varpi * r) }
+    }
+
+    /// `s` at `z`, or None where every multipole is negligible.
+    #[inline]
+    fn s(&self, z: C) -> Option<C> {
+        let x = self.two_varpi * (z.re - self.x0);
+        (x.abs() < FAR).then(|| C::from_polar(x.exp(), self.two_varpi * z.im))
+    }
+
+    /// The flow `u - i v` of the series with coefficients `c` at `z`.
+    #[inline]
+    pub fn eval(&self, z: C, c: &[C; ORDERS]) -> C {
+        let Some(s) = self.s(z) else { return C::default() };
+        let (d, m) = (s - self.sa, s + self.sa.conj());
+        let t = self.sigma / d;
+        let u = -self.sigma.conj() / m;
+        // Σ n c_n t^n and Σ n conj(c_n) u^n by Horner.
+        let (mut direct, mut mirror) = (C::default(), C::default());
+        for (n, cn) in c.iter().enumerate().rev() {
+            let order = (n + 1) as f64;
+            direct = (direct + cn * order) * t;
+            mirror = (mirror + cn.conj() * order) * u;
+        }
+        -self.two_varpi * s * (direct / d + mirror / m)
+    }
+
+    /// The flows of the terms of orders `1..=orders` at `z` for the coefficients 1 and `i`.
+    fn terms(&self, z: C, orders: usize, out: &mut [(C, C); ORDERS]) {
+        let Some(s) = self.s(z) else {
+            out.fill((C::default(), C::default()));
+            return;
+        };
+        let (d, m) = (s - self.sa, s + self.sa.conj());
+        let (t, u) = (self.sigma / d, -self.sigma.conj() / m);
+        let scale = -self.two_varpi * s;
+        let (mut tn, mut un) = (C::new(1.0, 0.0), C::new(1.0, 0.0));
+        for (n, slot) in out[..orders].iter_mut().enumerate() {
+            tn *= t;
+            un *= u;
+            let order = (n + 1) as f64;
+            let (direct, mirror) = (tn / d * (scale * order), un / m * (scale * order));
+            *slot = (direct + mirror, C::i() * (direct - mirror));
+        }
+    }
+}
+
+/// A fitted series: multipole coefficients and the strength of the centre source.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Fitted {
+    pub coeffs: [C; ORDERS],
+    pub source: f64,
+}
+
+/// How many orders a circle of radius `r` at `a` in a lane of half-width `h` needs, with
+/// the flow's other singularities (the goal, the other obstacles' centres) at `others`.
+///
+/// The series converges like `ρ^n`, `ρR` the distance from the centre to the farthest
+/// singularity of the continued flow inside the circle; `n = ln(AIM)/ln(ρ)`, capped at
+/// [`ORDERS`]. Two kinds matter: the circle's own wall images reflected back into it, which
+/// sit at its limiting point with the nearer wall, `ρR = d - sqrt(d² - R²)` for a wall `d`
+/// away; and the reflection in the circle of another singularity's wall image at distance
+/// `D`, `ρ = R/D`. A circle that reaches a wall (`d <= R`) has `ρ = 1` and gets them all:
+/// its residual is what the fit achieves, not a truncation error.
+pub fn orders_for(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> usize {
+    let d = (h - a.im.abs()).max(0.0);
+    if d <= r {
+        return ORDERS;
+    }
+    let mut rho = (d - (d * d - r * r).sqrt()) / r;
+    for p in others {
+        for wall in [h, -h] {
+            let mirror = C::new(p.re, 2.0 * wall - p.im);
+            rho = rho.max(r / (mirror - a).norm());
+        }
+    }
+    if !(rho > 0.0) {
+        return 1;
+    }
+    if rho >= 1.0 {
+        return ORDERS;
+    }
+    ((AIM.ln() / rho.ln()).ceil() as usize).clamp(1, ORDERS)
+}
+
+/// The collocation points for `orders` on a circle of radius `r` at `a` that lie inside the
+/// lane: `(z, unit normal)` into `out`; returns how many.
+pub fn collocation(h: f64, a: C, r: f64, orders: usize, out: &mut [(C, C); POINTS]) -> usize {
+    let points = POINTS_PER_ORDER * orders.clamp(1, ORDERS);
+    let mut m = 0;
+    for j in 0..points {
+        let n = C::from_polar(1.0, std::f64::consts::TAU * (j as f64 + 0.5) / points as f64);
+        let z = a + n * r;
+        if z.im.abs() < h * (1.0 - 1e-9) {
+            out[m] = (z, n);
+            m += 1;
+        }
+    }
+    m
+}
+
+/// Fit the series' coefficients so that, at the `m` collocation points, the normal flow of
+/// the series plus a source at the centre (whose unit normal flow there is `source_flow`)
+/// equals `targets` (two right-hand sides), by least squares. The source carries the net
+/// flux a circle across a wall sweeps through its part in the lane as it moves (zero for
+/// a circle clear of the walls, where the fit finds it so). Orders beyond
+/// what the points can determine stay zero.
+pub fn fit(
+    series: &Series,
+    orders: usize,
+    points: &[(C, C); POINTS],
+    m: usize,
+    source_flow: &[f64; POINTS],
+    targets: [&[f64; POINTS]; 2],
+) -> [Fitted; 2] {
+    let mut out = [Fitted::default(); 2];
+    // Keep the system over-determined (at least 1.5 rows an unknown): a circle mostly
+    // beyond a wall has few points in the lane.
+    let orders = orders.min(m / 3).min(ORDERS);
+    if orders == 0 {
+        return out;
+    }
+    let p = 2 * orders + 1;
+    // Column-major: a[col][row]. Column 2(n-1) is Re c_n, 2(n-1)+1 is Im c_n.
+    let mut a = [[0.0; POINTS]; UNKNOWNS];
+    let mut flows = [(C::default(), C::default()); ORDERS];
+    for (row, &(z, normal)) in points[..m].iter().enumerate() {
+        series.terms(z, orders, &mut flows);
+        for (n, (re, im)) in flows[..orders].iter().enumerate() {
+            a[2 * n][row] = (re * normal).re;
+            a[2 * n + 1][row] = (im * normal).re;
+        }
+    }
+    a[p - 1][..m].copy_from_slice(&source_flow[..m]);
+    let mut b = [*targets[0], *targets[1]];
+    // Householder QR, applied to both right-hand sides as it goes.
+    let mut diag = [0.0; UNKNOWNS];
+    for k in 0..p {
+        let norm = a[k][k..m].iter().map(|v| v * v).sum::<f64>().sqrt();
+        if norm == 0.0 {
+            continue;
+        }
+        let alpha = if a[k][k] > 0.0 { -norm } else { norm };
+        // v = x - alpha e_1, stored in place of column k.
+        a[k][k] -= alpha;
+        let vnorm2 = a[k][k..m].iter().map(|v| v * v).sum::<f64>();
+        diag[k] = alpha;
+        if vnorm2 == 0.0 {
+            continue;
+        }
+        let (head, tail) = a.split_at_mut(k + 1);
+        let v = &head[k][..m];
+        for col in tail[..p - k - 1].iter_mut() {
+            let dot: f64 = (k..m).map(|i| v[i] * col[i]).sum();
+            let f = 2.0 * dot / vnorm2;
+            for i in k..m {
+                col[i] -= f * v[i];
+            }
+        }
+        for rhs in &mut b {
+            let dot: f64 = (k..m).map(|i| v[i] * rhs[i]).sum();
+            let f = 2.0 * dot / vnorm2;
+            for i in k..m {
+                rhs[i] -= f * v[i];
+            }
+        }
+    }
+    // Back substitution R x = Qᵀ b; a column the points cannot see stays zero.
+    let scale = diag[..p].iter().fold(0.0f64, |acc, d| acc.max(d.abs()));
+    for (rhs, fitted) in b.iter().zip(&mut out) {
+        let mut x = [0.0; UNKNOWNS];
+        for k in (0..p).rev() {
+            if diag[k].abs() <= 1e-12 * scale {
+                continue;
+            }
+            let sum: f64 = (k + 1..p).map(|j| a[j][k] * x[j]).sum();
+            x[k] = (rhs[k] - sum) / diag[k];
+        }
+        for n in 0..orders {
+            fitted.coeffs[n] = C::new(x[2 * n], x[2 * n + 1]);
+        }
+        fitted.source = x[p - 1];
+    }
+    out
+}
