@@ -198,7 +198,13 @@ impl Planner {
 
     /// The velocity command at the robot's position.
     pub fn plan(&self, input: &PlanInput<'_>) -> Result<Plan, PlannerError> {
-        let (field, mut flags) = self.field(input)?;
+        // Built here rather than through `field`: the field is large (its lane series), and
+        // returning it in a tuple would copy it.
+        let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+        let (n, mut flags) = self.plan_obstacles(input, &mut planned)?;
+        let sink = self.sink(input.goal);
+        let mut field = Field::empty(self.config.space, sink);
+        field.rebuild(self.config.space, sink, &planned[..n])?;
         let v = field.velocity(input.position)?;
         let speed = v.norm();
         let velocity = if speed > self.config.max_speed {

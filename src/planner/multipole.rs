@@ -15,9 +15,16 @@
 //! the centre is `c (R/(z - a))^n`: the free-space multipole. `x_0` is the centre's `x`, so
 //! `s` stays moderate near the circle wherever the obstacle is.
 //!
-//! The fit is a dense QR on fixed arrays: no allocation, about `POINTS · (2 ORDERS)²`
-//! flops per obstacle and geometry, shared by the two right-hand sides (the goal sink's
-//! flow and the obstacles' motion).
+//! A circle that reaches a wall is fitted on its arc inside the lane, where no series at
+//! the centre converges geometrically (there is a corner where circle meets wall): it gets
+//! [`WALL_ORDERS`] orders, where its residual levels off, and a light Tikhonov
+//! regularisation, without which the arc's nearly dependent orders take huge cancelling
+//! coefficients whose rounding shows on the walls.
+//!
+//! The fit is a dense Householder QR on fixed arrays: no allocation, about
+//! `4 orders · (2 orders)²` flops per obstacle each time the field is built (20 to 360 µs
+//! here), shared by the two right-hand sides (the goal sink's flow and the obstacles'
+//! motion).
 
 use num_complex::Complex64 as C;
 
@@ -30,6 +37,14 @@ pub const POINTS: usize = POINTS_PER_ORDER * ORDERS;
 /// The fit's aim: the series' truncation error, relative to the flow on the circle.
 const AIM: f64 = 1e-8;
 const UNKNOWNS: usize = 2 * ORDERS + 1;
+/// Rows of the fit: the collocation points and one Tikhonov row per unknown.
+const ROWS: usize = POINTS + UNKNOWNS;
+/// The Tikhonov weight for a circle that reaches a wall, relative to each column's norm
+/// (see [`fit`]; a circle clear of the walls is fitted on its whole circumference, where the
+/// orders are well separated, and needs none).
+pub const WALL_REGULARISATION: f64 = 1e-5;
+/// The orders a circle that reaches a wall gets (see [`orders_for`]).
+pub const WALL_ORDERS: usize = 16;
 
 /// Beyond this `|2ϖ (x - x_0)|` a multipole's flow is below `e^-600` of its size at the
 /// circle: zero (and `s` would overflow).
@@ -63,41 +78,55 @@ impl Series {
         (x.abs() < FAR).then(|| C::from_polar(x.exp(), self.two_varpi * z.im))
     }
 
+    /// What every term at `z` is made of: `s`, `d = s - s_a`, `m = s + conj s_a`, and the
+    /// ratios `t = σ/d`, `u = -conj σ/m` (`u = conj t` on the walls, which keeps them exact);
+    /// None where every multipole is negligible.
+    #[inline]
+    fn at(&self, z: C) -> Option<Point> {
+        let s = self.s(z)?;
+        let (d, m) = (s - self.sa, s + self.sa.conj());
+        Some(Point { s, d, m, t: self.sigma / d, u: -self.sigma.conj() / m })
+    }
+
     /// The flow `u - i v` of the series with coefficients `c` at `z`.
     #[inline]
     pub fn eval(&self, z: C, c: &[C; ORDERS]) -> C {
-        let Some(s) = self.s(z) else { return C::default() };
-        let (d, m) = (s - self.sa, s + self.sa.conj());
-        let t = self.sigma / d;
-        let u = -self.sigma.conj() / m;
+        let Some(p) = self.at(z) else { return C::default() };
         // Σ n c_n t^n and Σ n conj(c_n) u^n by Horner.
         let (mut direct, mut mirror) = (C::default(), C::default());
         for (n, cn) in c.iter().enumerate().rev() {
             let order = (n + 1) as f64;
-            direct = (direct + cn * order) * t;
-            mirror = (mirror + cn.conj() * order) * u;
+            direct = (direct + cn * order) * p.t;
+            mirror = (mirror + cn.conj() * order) * p.u;
         }
-        -self.two_varpi * s * (direct / d + mirror / m)
+        -self.two_varpi * p.s * (direct / p.d + mirror / p.m)
     }
 
     /// The flows of the terms of orders `1..=orders` at `z` for the coefficients 1 and `i`.
     fn terms(&self, z: C, orders: usize, out: &mut [(C, C); ORDERS]) {
-        let Some(s) = self.s(z) else {
+        let Some(p) = self.at(z) else {
             out.fill((C::default(), C::default()));
             return;
         };
-        let (d, m) = (s - self.sa, s + self.sa.conj());
-        let (t, u) = (self.sigma / d, -self.sigma.conj() / m);
-        let scale = -self.two_varpi * s;
+        let scale = -self.two_varpi * p.s;
         let (mut tn, mut un) = (C::new(1.0, 0.0), C::new(1.0, 0.0));
         for (n, slot) in out[..orders].iter_mut().enumerate() {
-            tn *= t;
-            un *= u;
+            tn *= p.t;
+            un *= p.u;
             let order = (n + 1) as f64;
-            let (direct, mirror) = (tn / d * (scale * order), un / m * (scale * order));
+            let (direct, mirror) = (tn / p.d * (scale * order), un / p.m * (scale * order));
             *slot = (direct + mirror, C::i() * (direct - mirror));
         }
     }
+}
+
+/// A point in a series' frame (see [`Series::at`]).
+struct Point {
+    s: C,
+    d: C,
+    m: C,
+    t: C,
+    u: C,
 }
 
 /// A fitted series: multipole coefficients and the strength of the centre source.
@@ -107,20 +136,18 @@ pub struct Fitted {
     pub source: f64,
 }
 
-/// How many orders a circle of radius `r` at `a` in a lane of half-width `h` needs, with
-/// the flow's other singularities (the goal, the other obstacles' centres) at `others`.
-///
-/// The series converges like `ρ^n`, `ρR` the distance from the centre to the farthest
-/// singularity of the continued flow inside the circle; `n = ln(AIM)/ln(ρ)`, capped at
-/// [`ORDERS`]. Two kinds matter: the circle's own wall images reflected back into it, which
-/// sit at its limiting point with the nearer wall, `ρR = d - sqrt(d² - R²)` for a wall `d`
-/// away; and the reflection in the circle of another singularity's wall image at distance
-/// `D`, `ρ = R/D`. A circle that reaches a wall (`d <= R`) has `ρ = 1` and gets them all:
-/// its residual is what the fit achieves, not a truncation error.
-pub fn orders_for(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> usize {
+/// The series' convergence rate `ρ` for a circle of radius `r` at `a` in a lane of
+/// half-width `h`, with the flow's other singularities (the goal, the other obstacles'
+/// centres) at `others`: the coefficients fall like `ρ^n`, `ρR` the distance from the
+/// centre to the farthest singularity of the continued flow inside the circle. Two kinds
+/// matter: the circle's own wall images reflected back into it, which sit at its limiting
+/// point with the nearer wall, `ρR = d - sqrt(d² - R²)` for a wall `d` away; and the
+/// reflection in the circle of another singularity's wall image at distance `D`, `ρ = R/D`.
+/// A circle that reaches a wall (`d <= R`) has `ρ = 1`.
+pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> f64 {
     let d = (h - a.im.abs()).max(0.0);
     if d <= r {
-        return ORDERS;
+        return 1.0;
     }
     let mut rho = (d - (d * d - r * r).sqrt()) / r;
     for p in others {
@@ -129,11 +156,20 @@ pub fn orders_for(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> usiz
             rho = rho.max(r / (mirror - a).norm());
         }
     }
+    rho.min(1.0)
+}
+
+/// How many orders a circle of convergence rate `rho` (see [`convergence_rate`]) needs:
+/// `n = ln(AIM)/ln(ρ)`, capped at [`ORDERS`]. A circle that reaches a wall (`ρ = 1`) has a
+/// corner where it meets the wall, around which no series at the centre converges
+/// geometrically: its residual levels off near 1e-5 of the flow's speed from
+/// [`WALL_ORDERS`] on (measured in `planner::tests`), so it gets those.
+pub fn orders_for(rho: f64) -> usize {
     if !(rho > 0.0) {
         return 1;
     }
     if rho >= 1.0 {
-        return ORDERS;
+        return WALL_ORDERS;
     }
     ((AIM.ln() / rho.ln()).ceil() as usize).clamp(1, ORDERS)
 }
@@ -167,6 +203,7 @@ pub fn fit(
     m: usize,
     source_flow: &[f64; POINTS],
     targets: [&[f64; POINTS]; 2],
+    regularisation: f64,
 ) -> [Fitted; 2] {
     let mut out = [Fitted::default(); 2];
     // Keep the system over-determined (at least 1.5 rows an unknown): a circle mostly
@@ -177,7 +214,7 @@ pub fn fit(
     }
     let p = 2 * orders + 1;
     // Column-major: a[col][row]. Column 2(n-1) is Re c_n, 2(n-1)+1 is Im c_n.
-    let mut a = [[0.0; POINTS]; UNKNOWNS];
+    let mut a = [[0.0; ROWS]; UNKNOWNS];
     let mut flows = [(C::default(), C::default()); ORDERS];
     for (row, &(z, normal)) in points[..m].iter().enumerate() {
         series.terms(z, orders, &mut flows);
@@ -187,7 +224,23 @@ pub fn fit(
         }
     }
     a[p - 1][..m].copy_from_slice(&source_flow[..m]);
-    let mut b = [*targets[0], *targets[1]];
+    // Tikhonov rows (target zero): `regularisation` times each column's norm. On an arc (a
+    // circle across a wall) the high orders are nearly dependent, and an unregularised fit
+    // buys the last digits of the residual with huge cancelling coefficients, whose
+    // rounding then shows everywhere else (the walls drift from exact by 1e-5).
+    let mut b = [[0.0; ROWS]; 2];
+    for (b, t) in b.iter_mut().zip(targets) {
+        b[..m].copy_from_slice(&t[..m]);
+    }
+    let m = if regularisation > 0.0 {
+        for (j, col) in a[..p].iter_mut().enumerate() {
+            let norm = col[..m].iter().map(|v| v * v).sum::<f64>().sqrt();
+            col[m + j] = regularisation * norm;
+        }
+        m + p
+    } else {
+        m
+    };
     // Householder QR, applied to both right-hand sides as it goes.
     let mut diag = [0.0; UNKNOWNS];
     for k in 0..p {
