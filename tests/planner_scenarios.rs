@@ -217,3 +217,85 @@ fn errors_name_their_cause_once() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("socketcna:vcan0"), "{err}");
 }
+
+/// A sweep in shards (what a batch system runs) merges into exactly the report of the sweep
+/// run in one piece; shards of another sweep, an episode twice or a shard missing are
+/// refused, naming what is wrong.
+#[test]
+fn sweep_shards_merge_into_the_whole_sweep() {
+    let base = scenario("e1-standing-obstacle.toml");
+    let whole = sweep::sweep(&base, 24, 3, 2, Mode::PlannerOnly);
+    let shard = |i: u64, seed: u64| {
+        let shard = sweep::Shard { index: i, count: 3 };
+        sweep::ShardFile {
+            scenario: base.name.clone(),
+            mode: Mode::PlannerOnly,
+            seed,
+            sweep_episodes: 24,
+            shard,
+            episodes: sweep::run_shard(&base, 24, seed, 1, Mode::PlannerOnly, shard),
+        }
+    };
+    let shards = [shard(2, 3), shard(0, 3), shard(1, 3)];
+    assert_eq!(shards.iter().map(|s| s.episodes.len()).sum::<usize>(), 24);
+    let merged = sweep::merge(&shards).unwrap();
+    assert_eq!(serde_json::to_value(&merged).unwrap(), serde_json::to_value(&whole).unwrap());
+
+    let err = |shards: &[sweep::ShardFile]| sweep::merge(shards).unwrap_err().to_string();
+    let e = err(&shards[..2]);
+    assert!(e.contains("8 of the sweep's 24 episodes are missing") && e.contains("shard 1/3"), "{e}");
+    let e = err(&[shards[0].clone(), shards[1].clone(), shards[0].clone()]);
+    assert!(e.contains("in more than one shard") && e.contains("2/3"), "{e}");
+    let e = err(&[shards[0].clone(), shard(0, 4)]);
+    assert!(e.contains("seed is 4") && e.contains("first shard's is 3"), "{e}");
+    assert_eq!("1/3".parse::<sweep::Shard>().unwrap(), sweep::Shard { index: 1, count: 3 });
+    for bad in ["3/3", "1/0", "1", "a/b", "-1/2"] {
+        assert!(bad.parse::<sweep::Shard>().is_err(), "{bad}");
+    }
+}
+
+/// The same through the command line: `--shard i/n` writes shard.json, `--merge` reads
+/// them into sweep.json, equal to the unsharded sweep's; a bad shard or a missing one is
+/// refused.
+#[test]
+fn plan_command_shards_and_merges_a_sweep() {
+    let dir = temp_dir("shards");
+    let e1 = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml");
+    let run = |args: &[&str]| {
+        let out = flowgate().arg("plan").args(args).output().unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr),
+        )
+    };
+    let e1s = e1.to_str().unwrap();
+    let d = |name: &str| dir.join(name).to_str().unwrap().to_owned();
+    let (ok, text) = run(&["--planner-only", "--sweep", "10", "--seed", "5", e1s, "--out", &d("whole")]);
+    assert!(ok, "{text}");
+    for i in 0..2 {
+        let (ok, text) = run(&[
+            "--planner-only",
+            "--sweep",
+            "10",
+            "--seed",
+            "5",
+            "--shard",
+            &format!("{i}/2"),
+            e1s,
+            "--out",
+            &d(&format!("s{i}")),
+        ]);
+        assert!(ok && text.contains(&format!("shard {i}/2 of the sweep of 10")), "{text}");
+    }
+    let (ok, text) = run(&["--merge", &d("s0"), &d("s1"), "--out", &d("merged")]);
+    assert!(ok && text.contains("merged from 2 shards"), "{text}");
+    let read = |p: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join(p)).unwrap()).unwrap()
+    };
+    assert_eq!(read("merged/sweep.json"), read("whole/sweep.json"));
+    let (ok, text) = run(&["--merge", &d("s0"), "--out", &d("merged")]);
+    assert!(!ok && text.contains("5 of the sweep's 10 episodes are missing") && text.contains("shard 1/2"), "{text}");
+    let (ok, text) = run(&["--planner-only", "--sweep", "10", "--shard", "2/2", e1s]);
+    assert!(!ok && text.contains("expected i/n with 0 <= i < n"), "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -37,6 +37,13 @@ pub struct PlanArgs {
     /// Seed of the sweep.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Run only this shard of the sweep, `i/n`: the episodes whose index is i modulo n
+    /// (writes shard.json for `--merge`; a batch system runs i = 0..n-1 anywhere).
+    #[arg(long, value_name = "I/N", requires = "sweep")]
+    shard: Option<sweep::Shard>,
+    /// Merge sweep shards (each DIR holding a shard.json) into one report: sweep.json in --out.
+    #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["all", "scenario", "file", "sweep"])]
+    merge: Vec<PathBuf>,
     /// Worker threads for the sweep.
     #[arg(long, default_value_t = 2)]
     threads: usize,
@@ -51,6 +58,9 @@ pub struct PlanArgs {
 
 pub fn run(args: PlanArgs) -> Result<()> {
     let mode = if args.planner_only { Mode::PlannerOnly } else { Mode::FullStack };
+    if !args.merge.is_empty() {
+        return merge(&args.merge, args.out.as_deref());
+    }
     if let Some(dir) = &args.all {
         return run_all(dir, args.out.as_deref(), mode);
     }
@@ -63,13 +73,39 @@ pub fn run(args: PlanArgs) -> Result<()> {
         if n == 0 {
             bail!("--sweep needs at least one episode");
         }
+        if n as u64 > sweep::MAX_EPISODES {
+            bail!(
+                "--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)",
+                sweep::MAX_EPISODES
+            );
+        }
         let started = std::time::Instant::now();
-        let report = sweep::sweep(&scenario, n, args.seed, args.threads, mode);
-        say!("{report}");
-        say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
         std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-        let path = out.join("sweep.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+        let path = if let Some(shard) = args.shard {
+            let episodes = sweep::run_shard(&scenario, n as u64, args.seed, args.threads, mode, shard);
+            let report = sweep::report(&scenario.name, args.seed, mode, &episodes);
+            say!("shard {shard} of the sweep of {n}:");
+            say!("{report}");
+            say!("  ({} episodes in {:.1} s)", episodes.len(), started.elapsed().as_secs_f64());
+            let file = sweep::ShardFile {
+                scenario: scenario.name.clone(),
+                mode,
+                seed: args.seed,
+                sweep_episodes: n as u64,
+                shard,
+                episodes,
+            };
+            let path = out.join("shard.json");
+            std::fs::write(&path, serde_json::to_string(&file)?)?;
+            path
+        } else {
+            let report = sweep::sweep(&scenario, n, args.seed, args.threads, mode);
+            say!("{report}");
+            say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
+            let path = out.join("sweep.json");
+            std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+            path
+        };
         say!("  wrote {}", path.display());
         return Ok(());
     }
@@ -78,6 +114,27 @@ pub fn run(args: PlanArgs) -> Result<()> {
     write_outputs(&scenario, &run, &out)?;
     let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
     say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
+    Ok(())
+}
+
+/// `--merge`: the shards' reports as one sweep.
+fn merge(dirs: &[PathBuf], out: Option<&Path>) -> Result<()> {
+    let mut shards = Vec::with_capacity(dirs.len());
+    for dir in dirs {
+        let path = dir.join("shard.json");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let shard: sweep::ShardFile =
+            serde_json::from_str(&text).with_context(|| format!("{}: not a sweep shard", path.display()))?;
+        shards.push(shard);
+    }
+    let report = sweep::merge(&shards)?;
+    say!("{report}");
+    say!("  (merged from {} shards)", shards.len());
+    let out = out.map_or_else(|| Path::new("out/plan").join("merged"), Path::to_path_buf);
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let path = out.join("sweep.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+    say!("  wrote {}", path.display());
     Ok(())
 }
 

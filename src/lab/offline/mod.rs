@@ -27,7 +27,7 @@ use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
 
 /// Which runner: the whole stack (the gateway core through the firmware and the wire
 /// protocols, [`super::sim`]) or the planner alone against a modelled sensing chain.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Mode {
     FullStack,

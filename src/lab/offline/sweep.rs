@@ -8,18 +8,25 @@
 //!
 //! The report gives outcome rates, the distribution of minimum clearance, and success
 //! against obstacle speed / robot speed limit and against delay.
+//!
+//! A sweep splits into shards (`--shard i/n`: the episodes whose index is `i` modulo `n`)
+//! that run anywhere, each writing its episodes with their indices ([`ShardFile`]);
+//! [`merge`] checks that the shards belong to one sweep and hold every episode exactly
+//! once, and gives the same report as the sweep run in one piece.
 
 use flowgate_sim::scenario::Motion;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{Mode, Outcome};
 use crate::lab::Scenario;
 
 /// One episode's perturbation and result.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Episode {
+    /// Its index in the sweep (its perturbation is drawn from the seed and this).
+    pub index: u64,
     pub outcome: Outcome,
     pub min_clearance: Option<f64>,
     /// Fastest obstacle speed over the robot's speed limit.
@@ -101,19 +108,79 @@ fn fastest_obstacle(s: &Scenario) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// Which part of a sweep to run: the episodes whose index is `index` modulo `count`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    pub index: u64,
+    pub count: u64,
+}
+
+impl Shard {
+    /// The whole sweep.
+    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
+}
+
+/// A `--shard` that is not `i/n` with `0 <= i < n`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("shard {0:?}: expected i/n with 0 <= i < n (e.g. 0/4 .. 3/4)")]
+pub struct BadShard(pub String);
+
+impl std::str::FromStr for Shard {
+    type Err = BadShard;
+    fn from_str(text: &str) -> Result<Self, BadShard> {
+        let bad = || BadShard(text.to_owned());
+        let (i, n) = text.split_once('/').ok_or_else(bad)?;
+        let (index, count) = (i.trim().parse().map_err(|_| bad())?, n.trim().parse().map_err(|_| bad())?);
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// What one shard of a sweep writes (`shard.json`): enough to check it belongs with the
+/// others and to rebuild the whole sweep's report exactly.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShardFile {
+    pub scenario: String,
+    pub mode: Mode,
+    pub seed: u64,
+    /// Episodes in the whole sweep.
+    pub sweep_episodes: u64,
+    pub shard: Shard,
+    pub episodes: Vec<Episode>,
+}
+
 /// Run `n` episodes around `base` on `threads` threads.
 pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -> SweepReport {
-    let threads = threads.max(1);
-    let episodes: Vec<Episode> = std::thread::scope(|scope| {
+    let episodes = run_shard(base, n as u64, seed, threads, mode, Shard::WHOLE);
+    report(&base.name, seed, mode, &episodes)
+}
+
+/// Run one shard of an `n`-episode sweep around `base` on `threads` threads: its episodes,
+/// in index order.
+pub fn run_shard(base: &Scenario, n: u64, seed: u64, threads: usize, mode: Mode, shard: Shard) -> Vec<Episode> {
+    let threads = threads.max(1) as u64;
+    let mine: Vec<u64> = (shard.index..n).step_by(shard.count as usize).collect();
+    let mut episodes: Vec<Episode> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads)
             .map(|w| {
+                let mine = &mine;
                 scope.spawn(move || {
-                    (w..n)
-                        .step_by(threads)
-                        .map(|i| {
-                            let s = perturb(base, seed, i as u64);
+                    mine.iter()
+                        .skip(w as usize)
+                        .step_by(threads as usize)
+                        .map(|&i| {
+                            let s = perturb(base, seed, i);
                             let (outcome, min_clearance) = mode.episode(&s);
                             Episode {
+                                index: i,
                                 outcome,
                                 min_clearance,
                                 speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
@@ -126,10 +193,88 @@ pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -
             .collect();
         handles.into_iter().flat_map(|h| h.join().expect("sweep worker panicked")).collect()
     });
-    report(base, seed, mode, &episodes)
+    episodes.sort_by_key(|e| e.index);
+    episodes
 }
 
-fn report(base: &Scenario, seed: u64, mode: Mode, episodes: &[Episode]) -> SweepReport {
+/// The most episodes a sweep may have (10^9: a merge holds one flag per episode).
+pub const MAX_EPISODES: u64 = 1_000_000_000;
+
+/// Why shards cannot be merged into one sweep.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MergeError {
+    #[error("no shards to merge")]
+    Empty,
+    #[error("shard {shard} says the sweep has {total} episodes: more than {MAX_EPISODES}")]
+    TooLarge { shard: String, total: u64 },
+    #[error("shard {shard} is of another sweep: {key} is {theirs}, the first shard's is {ours}")]
+    Mismatch { shard: String, key: &'static str, ours: String, theirs: String },
+    #[error("episode {index} is in more than one shard (shard {shard} given twice?)")]
+    Duplicate { index: u64, shard: String },
+    #[error("shard {shard} holds episode {index}, which is not its own")]
+    Foreign { index: u64, shard: String },
+    #[error("{missing} of the sweep's {total} episodes are missing (the first is {first}: shard {first_shard} not given or incomplete)")]
+    Missing { missing: u64, total: u64, first: u64, first_shard: String },
+}
+
+/// Merge the shards of one sweep into its report, refusing shards of different sweeps, an
+/// episode twice, or any episode missing.
+pub fn merge(shards: &[ShardFile]) -> Result<SweepReport, MergeError> {
+    let first = shards.first().ok_or(MergeError::Empty)?;
+    let total = first.sweep_episodes;
+    if total > MAX_EPISODES {
+        return Err(MergeError::TooLarge { shard: first.shard.to_string(), total });
+    }
+    let mut seen = vec![false; total as usize];
+    let mut episodes = Vec::with_capacity(total as usize);
+    for s in shards {
+        let mismatch = |key: &'static str, ours: String, theirs: String| MergeError::Mismatch {
+            shard: s.shard.to_string(),
+            key,
+            ours,
+            theirs,
+        };
+        if s.scenario != first.scenario {
+            return Err(mismatch("scenario", first.scenario.clone(), s.scenario.clone()));
+        }
+        if s.mode != first.mode {
+            return Err(mismatch("mode", first.mode.to_string(), s.mode.to_string()));
+        }
+        if s.seed != first.seed {
+            return Err(mismatch("seed", first.seed.to_string(), s.seed.to_string()));
+        }
+        if s.sweep_episodes != total {
+            return Err(mismatch("sweep_episodes", total.to_string(), s.sweep_episodes.to_string()));
+        }
+        if s.shard.count != first.shard.count {
+            return Err(mismatch("shard count", first.shard.count.to_string(), s.shard.count.to_string()));
+        }
+        for e in &s.episodes {
+            if e.index >= total || e.index % s.shard.count != s.shard.index {
+                return Err(MergeError::Foreign { index: e.index, shard: s.shard.to_string() });
+            }
+            if std::mem::replace(&mut seen[e.index as usize], true) {
+                return Err(MergeError::Duplicate { index: e.index, shard: s.shard.to_string() });
+            }
+            episodes.push(*e);
+        }
+    }
+    let missing = seen.iter().filter(|&&s| !s).count() as u64;
+    if let Some(first_missing) = seen.iter().position(|&s| !s) {
+        let count = first.shard.count;
+        return Err(MergeError::Missing {
+            missing,
+            total,
+            first: first_missing as u64,
+            first_shard: Shard { index: first_missing as u64 % count, count }.to_string(),
+        });
+    }
+    episodes.sort_by_key(|e| e.index);
+    Ok(report(&first.scenario, first.seed, first.mode, &episodes))
+}
+
+/// The report over `episodes` (of a whole sweep, or of one shard).
+pub fn report(scenario: &str, seed: u64, mode: Mode, episodes: &[Episode]) -> SweepReport {
     let n = episodes.len().max(1) as f64;
     let rate = |o: Outcome| episodes.iter().filter(|e| e.outcome == o).count() as f64 / n;
     let mut clearances: Vec<f64> = episodes.iter().filter_map(|e| e.min_clearance).collect();
@@ -159,7 +304,7 @@ fn report(base: &Scenario, seed: u64, mode: Mode, episodes: &[Episode]) -> Sweep
             .collect()
     };
     SweepReport {
-        scenario: base.name.clone(),
+        scenario: scenario.to_owned(),
         mode,
         episodes: episodes.len(),
         seed,
