@@ -28,8 +28,8 @@
 //! flux a circle across a wall sweeps), fitted by least squares on the circle each time the
 //! field is built ([`super::multipole`]). It leaves the walls exact and each circle a
 //! streamline to the fit's residual: below 1e-6 of the flow's speed clear of the walls up
-//! to a 90% blockage, about 1e-5 (at worst 1.1e-2, moving across a wall) for a circle that
-//! reaches a wall, which [`in_lane`] first closes against it.
+//! to a 90% blockage, 1e-5 to 1e-3 (at worst 1.4e-2, moving across a wall) for a circle
+//! that reaches a wall, which [`in_lane`] first closes against it.
 
 use arrayvec::ArrayVec;
 use num_complex::Complex64 as C;
@@ -278,7 +278,7 @@ impl Field {
         let orders = multipole::orders_for(rho);
         let regularisation = if rho >= 1.0 { multipole::WALL_REGULARISATION } else { 0.0 };
         let mut points = [(C::default(), C::default()); POINTS];
-        let m = multipole::collocation(half_width, o.center, o.radius, orders, &mut points);
+        let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, &mut points);
         let (mut sink_target, mut motion_target, mut source_flow) = ([0.0; POINTS], [0.0; POINTS], [0.0; POINTS]);
         for (j, &(z, normal)) in points[..m].iter().enumerate() {
             let sink_flow =

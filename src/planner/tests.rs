@@ -228,6 +228,10 @@ fn lane_circle_residual_is_at_the_fit_level() {
         let worst = worst_residual(&field, &obs);
         eprintln!("lane circle residual, R = {radius} m at {centre}, h = 0.2 m: {worst:.1e} of the local speed");
         assert!(worst < 1e-6, "R = {radius} at {centre}: {worst:.2e}");
+        // The field's own measure (what `examples/lane_residuals.rs` prints) agrees.
+        let own = field.circle_residual(0, 720).unwrap();
+        assert!(own < 1e-6 && own > 0.1 * worst, "circle_residual {own:.2e} vs {worst:.2e}");
+        assert!(field.circle_residual(1, 720).is_none());
     }
 }
 
