@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use flowgate::gateway::telemetry::CycleRecord;
 use flowgate::gateway::StageClock;
-use flowgate::lab::offline::{sweep, Mode};
+use flowgate::lab::offline::{self, sweep, Mode};
 use flowgate::lab::sim::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
 use rustix::time::{clock_gettime, ClockId};
@@ -95,6 +95,32 @@ fn main() {
             "sweep around E2, {mode}: {n} episodes in {:.2} s = {rate:.0} episodes/s (2 threads); goal {:.1}%",
             started.elapsed().as_secs_f64(),
             100.0 * report.goal_rate
+        );
+    }
+
+    // The bound the planner sets on a planner-only sweep: two threads over (one command's
+    // cost × the commands an episode takes), both from a sample of the sweep's own episodes
+    // on one thread; then how close the sweep itself comes to it.
+    for (name, base, n) in [("E2 (lane)", &e2, 2000), ("E3b (free space)", &scenario("e3b-delay-margin.toml"), 20000)] {
+        let sample = 200;
+        let (mut plan_ns, mut commands) = (0.0, 0u64);
+        for i in 0..sample {
+            let s = sweep::perturb(base, 1, i);
+            let summary = offline::run(&s, false).summary;
+            plan_ns += summary.planner_compute.p50_us * 1e3 * summary.cycles as f64;
+            commands += summary.cycles;
+        }
+        let per_command_ns = plan_ns / commands as f64;
+        let per_episode = commands as f64 / sample as f64;
+        let bound = 2.0 / (per_command_ns * 1e-9 * per_episode);
+        let started = Instant::now();
+        sweep::sweep(base, n, 1, 2, Mode::PlannerOnly);
+        let rate = n as f64 / started.elapsed().as_secs_f64();
+        println!(
+            "planner-only sweep around {name}: one command {:.2} µs (p50) x {per_episode:.0} commands an episode \
+             bounds it at {bound:.0} episodes/s on 2 threads; the sweep runs {rate:.0} ({:.0}% of the bound)",
+            per_command_ns / 1e3,
+            100.0 * rate / bound
         );
     }
 }
