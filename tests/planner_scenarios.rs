@@ -248,6 +248,10 @@ fn sweep_shards_merge_into_the_whole_sweep() {
     assert!(e.contains("in more than one shard") && e.contains("2/3"), "{e}");
     let e = err(&[shards[0].clone(), shard(0, 4)]);
     assert!(e.contains("seed is 4") && e.contains("first shard's is 3"), "{e}");
+    let mut broken = shards[0].clone();
+    broken.shard = sweep::Shard { index: 0, count: 0 }; // a hand-edited shard.json
+    let e = err(&[broken]);
+    assert!(e.contains("shard 0/0 is not i/n"), "{e}");
     assert_eq!("1/3".parse::<sweep::Shard>().unwrap(), sweep::Shard { index: 1, count: 3 });
     for bad in ["3/3", "1/0", "1", "a/b", "-1/2"] {
         assert!(bad.parse::<sweep::Shard>().is_err(), "{bad}");

@@ -166,17 +166,17 @@ pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -
 /// Run one shard of an `n`-episode sweep around `base` on `threads` threads: its episodes,
 /// in index order.
 pub fn run_shard(base: &Scenario, n: u64, seed: u64, threads: usize, mode: Mode, shard: Shard) -> Vec<Episode> {
-    let threads = threads.max(1) as u64;
-    let mine: Vec<u64> = (shard.index..n).step_by(shard.count as usize).collect();
+    let threads = threads.max(1);
+    let count = usize::try_from(shard.count.max(1)).unwrap_or(usize::MAX);
     let mut episodes: Vec<Episode> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..threads)
             .map(|w| {
-                let mine = &mine;
                 scope.spawn(move || {
-                    mine.iter()
-                        .skip(w as usize)
-                        .step_by(threads as usize)
-                        .map(|&i| {
+                    (shard.index..n)
+                        .step_by(count)
+                        .skip(w)
+                        .step_by(threads)
+                        .map(|i| {
                             let s = perturb(base, seed, i);
                             let (outcome, min_clearance) = mode.episode(&s);
                             Episode {
@@ -209,6 +209,8 @@ pub enum MergeError {
     TooLarge { shard: String, total: u64 },
     #[error("shard {shard} is of another sweep: {key} is {theirs}, the first shard's is {ours}")]
     Mismatch { shard: String, key: &'static str, ours: String, theirs: String },
+    #[error("shard {shard} is not i/n with 0 <= i < n")]
+    BadShard { shard: String },
     #[error("episode {index} is in more than one shard (shard {shard} given twice?)")]
     Duplicate { index: u64, shard: String },
     #[error("shard {shard} holds episode {index}, which is not its own")]
@@ -245,6 +247,9 @@ pub fn merge(shards: &[ShardFile]) -> Result<SweepReport, MergeError> {
         }
         if s.sweep_episodes != total {
             return Err(mismatch("sweep_episodes", total.to_string(), s.sweep_episodes.to_string()));
+        }
+        if s.shard.count == 0 || s.shard.index >= s.shard.count {
+            return Err(MergeError::BadShard { shard: s.shard.to_string() });
         }
         if s.shard.count != first.shard.count {
             return Err(mismatch("shard count", first.shard.count.to_string(), s.shard.count.to_string()));
