@@ -23,6 +23,26 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     let dir = std::env::temp_dir().join(format!("flowgate-view-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    // The browser first: Chromium takes seconds to start on a loaded machine, and the demo
+    // lasts nine. The script says "ready" with its browser up, then waits for the view.
+    let python =
+        std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test (it installs selenium)");
+    let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
+    let mut browser = Command::new(python)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/view_browser.py"))
+        .args([&format!("http://{addr}/"), &shot])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut browser_out = std::io::BufReader::new(browser.stdout.take().unwrap());
+    let mut ready = String::new();
+    std::io::BufRead::read_line(&mut browser_out, &mut ready).unwrap();
+    if ready.trim() != "ready" {
+        let mut err = String::new();
+        browser.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+        panic!("the browser did not start: {ready}{err}");
+    }
     let mut demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
         .args(["demo", "--out", dir.to_str().unwrap(), "--view", &addr.to_string()])
         .stdout(Stdio::piped())
@@ -43,17 +63,14 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     assert!(get(addr, "POST / HTTP/1.1").unwrap().starts_with("HTTP/1.1 405"), "the view takes no commands");
     assert!(get(addr, "GET /arm HTTP/1.1").unwrap().starts_with("HTTP/1.1 404"));
 
-    let python =
-        std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test (it installs selenium)");
-    let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
-    let out = Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/view_browser.py"))
-        .args([&format!("http://{addr}/"), &shot])
-        .output()
-        .unwrap();
-    let seen: serde_json::Value = serde_json::from_slice(&out.stdout)
-        .unwrap_or_else(|_| panic!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)));
-    assert!(out.status.success() && seen["failures"].as_array().unwrap().is_empty(), "{seen}");
+    let mut stdout = Vec::new();
+    browser_out.read_to_end(&mut stdout).unwrap();
+    let mut stderr = String::new();
+    browser.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = browser.wait().unwrap();
+    let seen: serde_json::Value =
+        serde_json::from_slice(&stdout).unwrap_or_else(|_| panic!("{}{stderr}", String::from_utf8_lossy(&stdout)));
+    assert!(status.success() && seen["failures"].as_array().unwrap().is_empty(), "{seen}");
     let (x0, x1) = (seen["first"][0].as_f64().unwrap(), seen["second"][0].as_f64().unwrap());
     assert!(x1 - x0 > 0.02, "the robot marker moved {x0} -> {x1}: {seen}");
     assert_eq!(seen["obstacles"], 1);

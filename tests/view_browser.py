@@ -2,7 +2,8 @@
 run drives, and check the page as a person would see it.
 
 Usage: view_browser.py URL SCREENSHOT.png
-Waits for the page to draw the robot, then for the robot marker to move; checks the state,
+Starts Chromium first and prints "ready" (the caller starts the run then, so a slow browser
+start never misses it), waits for the view to answer, waits for the page to draw the robot, then for the robot marker to move; checks the state,
 the obstacles with their planning circles, the streamlines and the latency bars; saves a
 screenshot. Prints a JSON summary; exits 1 naming what failed.
 """
@@ -10,6 +11,7 @@ import json
 import sys
 import tempfile
 import time
+import urllib.request
 
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
@@ -26,7 +28,18 @@ for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "-
 driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
 failures = []
 out = {}
+print("ready", flush=True)
 try:
+    # The run starts after "ready": poll until its view answers (connection refused until then).
+    deadline = time.monotonic() + 60
+    while True:
+        try:
+            urllib.request.urlopen(url + "frame.json", timeout=2).read()
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
     driver.get(url)
     wait = WebDriverWait(driver, 20, poll_frequency=0.1)
     robot = lambda: driver.find_element(By.ID, "robot")
@@ -37,6 +50,12 @@ try:
         wait.until(lambda d: abs(float(robot().get_attribute("data-x")) - first[0]) > 0.02)
     except Exception:
         failures.append(f"the robot marker stayed at {first}")
+    # The latency histogram follows the metrics, which the view takes once a second.
+    counted_js = "return [...document.querySelectorAll('#latency rect.bin')].reduce((s, b) => s + parseInt(b.dataset.count), 0)"
+    try:
+        wait.until(lambda d: d.execute_script(counted_js) > 0)
+    except Exception:
+        pass  # reported below as an empty histogram
     # One read of the DOM as drawn (the page redraws ten times a second).
     dom = driver.execute_script("""
         const r = document.getElementById('robot');
