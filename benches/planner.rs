@@ -12,11 +12,7 @@ fn obstacles(n: usize) -> Vec<ObstacleEstimate> {
     (0..n)
         .map(|k| {
             let a = k as f64 * 2.399; // golden-angle spiral, well apart
-            ObstacleEstimate {
-                center: C::from_polar(0.25 + 0.12 * k as f64, a),
-                velocity: C::from_polar(0.05, -a),
-                radius: 0.03,
-            }
+            ObstacleEstimate::exact(C::from_polar(0.25 + 0.12 * k as f64, a), C::from_polar(0.05, -a), 0.03)
         })
         .collect()
 }
@@ -29,6 +25,8 @@ fn planner(space: Space) -> Planner {
         reference_radius: 0.14,
         max_speed: 0.15,
         margin: Margin::Factor { factor: 1.1 },
+        uncertainty_sigmas: 1.0,
+        clearance: 0.006,
         tie_break: Some(TieBreak::default()),
     })
 }

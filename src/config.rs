@@ -19,7 +19,7 @@ use num_complex::Complex64 as C;
 use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
-use crate::control::{ControlConfig, StallConfig};
+use crate::control::{ControlConfig, StallConfig, SupervisorConfig};
 use crate::link::CanUrl;
 use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
@@ -253,6 +253,16 @@ pub struct PlannerSettings {
     /// Safety margin rule for the planning radius.
     #[serde(default)]
     pub margin: Margin,
+    /// Standard deviations of each obstacle's predicted centre (its Kalman covariance at
+    /// the moment the command acts) added to the planning radius; 0 plans on the estimate
+    /// as if it were exact.
+    #[serde(default = "default_uncertainty_sigmas")]
+    pub uncertainty_sigmas: f64,
+    /// Added to every planning radius, m: room for the safety supervisor, which keeps
+    /// 3 mm beyond the radii and one standard deviation (the default is twice that, so the
+    /// field steers the robot round the supervisor's zone rather than into it).
+    #[serde(default = "default_clearance")]
+    pub clearance: f64,
     /// The deterministic keep-right tie-break for symmetric configurations.
     #[serde(default = "default_true")]
     pub tie_break: bool,
@@ -269,6 +279,14 @@ pub struct PlannerSettings {
 
 fn default_true() -> bool {
     true
+}
+
+fn default_uncertainty_sigmas() -> f64 {
+    1.0
+}
+
+fn default_clearance() -> f64 {
+    0.006
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize)]
@@ -406,6 +424,15 @@ impl PlannerSettings {
         positive("planner.cruise_speed", self.cruise_speed)?;
         positive("planner.c1", self.c1)?;
         positive("planner.kc", self.kc)?;
+        if !(self.uncertainty_sigmas.is_finite() && (0.0..=10.0).contains(&self.uncertainty_sigmas)) {
+            return invalid(
+                "planner.uncertainty_sigmas",
+                format!("must be from 0 to 10 standard deviations, is {}", self.uncertainty_sigmas),
+            );
+        }
+        if !(self.clearance.is_finite() && (0.0..=0.1).contains(&self.clearance)) {
+            return invalid("planner.clearance", format!("must be from 0 to 0.1 m, is {}", self.clearance));
+        }
         match self.margin {
             Margin::None => Ok(()),
             Margin::Fixed { metres } => non_negative("planner.margin.metres", metres),
@@ -678,6 +705,7 @@ impl GatewayConfig {
             tracking: TrackingSettings {
                 predict_robot: self.planner.predict_robot,
                 predict_obstacles: self.planner.predict_obstacles,
+                wheel_accel: d.wheel_accel,
                 kalman: KalmanConfig::default(),
             },
             safety: SafetySettings {
@@ -727,6 +755,13 @@ impl GatewayConfig {
         let reference_radius = robot + self.leds.obstacles.iter().map(|o| o.radius).fold(robot, f64::max);
         let p = &self.planner;
         let d = &self.drive;
+        let supervisor = SupervisorConfig::new(
+            d.wheel_accel,
+            d.wheel_base,
+            robot,
+            sample_period.as_secs_f64(),
+            self.lane.map(|l| l.half_width),
+        );
         ControlConfig {
             planner: PlannerConfig {
                 space: self.lane.map_or(Space::Free, |l| Space::Lane { half_width: l.half_width }),
@@ -735,6 +770,8 @@ impl GatewayConfig {
                 reference_radius,
                 max_speed: self.robot.max_speed,
                 margin: p.margin,
+                uncertainty_sigmas: p.uncertainty_sigmas,
+                clearance: p.clearance,
                 tie_break: p.tie_break.then(TieBreak::default),
             },
             drive: DriveConfig {
@@ -750,6 +787,7 @@ impl GatewayConfig {
             goal_tolerance: self.goal.map_or(default_tolerance(), |g| g.tolerance),
             robot_radius: robot,
             stall: StallConfig::default(),
+            supervisor: Some(supervisor),
         }
     }
 }
@@ -854,6 +892,15 @@ mod tests {
 
     fn rig(text: &str) -> Result<Rig, ConfigError> {
         GatewayConfig::from_toml(text, "rig.toml")?.rig("rig.toml")
+    }
+
+    /// The planner's default room is twice what the supervisor keeps beyond its uncertainty
+    /// allowance, so the field steers round the supervisor's zone.
+    #[test]
+    fn the_planner_leaves_the_supervisor_room() {
+        let supervisor = SupervisorConfig::new(1.0, 0.1, 0.07, 0.02, None);
+        assert!((default_clearance() - 2.0 * supervisor.keep_out()).abs() < 1e-12);
+        assert!(default_uncertainty_sigmas() >= supervisor.sigmas);
     }
 
     #[test]

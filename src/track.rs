@@ -18,7 +18,13 @@ pub struct Pose {
 #[derive(Debug, Clone, Copy)]
 pub struct Estimate<'a> {
     pub pose: Pose,
+    /// The wheels' rim speeds now, as the ramps have brought them toward the commands, m/s:
+    /// left, right.
+    pub wheels: [f64; 2],
+    /// The obstacles as the planner plans on them (predicted to now, or as last measured).
     pub obstacles: &'a [ObstacleEstimate],
+    /// The obstacles predicted to now whatever the planner plans on: the supervisor's.
+    pub predicted: &'a [ObstacleEstimate],
     /// Measured sensing-to-actuation delay, s.
     pub delay: f64,
 }
@@ -27,6 +33,8 @@ pub struct Estimate<'a> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrackingSettings {
     pub predict_robot: bool,
+    /// The wheels' acceleration ramp (the boards'), m/s²: dead reckoning follows it.
+    pub wheel_accel: f64,
     pub predict_obstacles: bool,
     pub kalman: KalmanConfig,
 }
@@ -149,34 +157,94 @@ impl ConstantVelocityKf {
     /// The position's covariance `[xx, xy, yy]` (m²) predicted to `t`: how far the planner
     /// may trust the predicted centre.
     pub fn position_covariance(&self, t: f64) -> [f64; 3] {
+        let p = self.covariance_at(t);
+        [p[(0, 0)], p[(0, 1)], p[(1, 1)]]
+    }
+
+    /// One standard deviation of the position (m) and of the velocity (m/s) predicted to
+    /// `t`, each along its worst direction (the larger eigenvalue's root).
+    pub fn uncertainty(&self, t: f64) -> (f64, f64) {
+        let p = self.covariance_at(t);
+        let worst = |a: f64, b: f64, c: f64| (0.5 * (a + c) + (0.25 * (a - c).powi(2) + b * b).sqrt()).max(0.0).sqrt();
+        (worst(p[(0, 0)], p[(0, 1)], p[(1, 1)]), worst(p[(2, 2)], p[(2, 3)], p[(3, 3)]))
+    }
+
+    fn covariance_at(&self, t: f64) -> Matrix4<f64> {
         let dt = (t - self.t).max(0.0);
         let f = Self::transition(dt);
-        let p = f * self.p * f.transpose() + self.process(dt);
-        [p[(0, 0)], p[(0, 1)], p[(1, 1)]]
+        f * self.p * f.transpose() + self.process(dt)
     }
 }
 
 /// Dead reckoning from the robot's own recent commands, to bring a delayed pose up to now.
+/// The wheels follow each command along the boards' ramp (both axes ramp at `accel`, as the
+/// gateway configures them), so a pose is advanced by what the wheels did, not by what they
+/// were told; and the wheels' speeds now are known for the supervisor.
 #[derive(Debug, Clone, Default)]
 pub struct DeadReckoning {
-    /// (time issued, left and right wheel speeds m/s), oldest first.
-    commands: std::collections::VecDeque<(f64, f64, f64)>,
+    /// The wheels' ramp, m/s² (0: they take a command at once).
+    accel: f64,
+    /// The commands, oldest first.
+    commands: std::collections::VecDeque<WheelCommand>,
 }
 
+/// One command to the wheels: when, what, and where the wheels were when it came.
+#[derive(Debug, Clone, Copy)]
+struct WheelCommand {
+    t: f64,
+    target: [f64; 2],
+    from: [f64; 2],
+}
+
+impl WheelCommand {
+    /// The wheels' rim speeds `dt` after this command, m/s.
+    fn speeds_after(&self, dt: f64, accel: f64) -> [f64; 2] {
+        if accel <= 0.0 {
+            return self.target;
+        }
+        let step = accel * dt.max(0.0);
+        [0, 1].map(|w| self.from[w] + (self.target[w] - self.from[w]).clamp(-step, step))
+    }
+    /// How long after it the wheels reach this command's speeds, s.
+    fn ramp_time(&self, accel: f64) -> f64 {
+        if accel <= 0.0 {
+            return 0.0;
+        }
+        (self.target[0] - self.from[0]).abs().max((self.target[1] - self.from[1]).abs()) / accel
+    }
+}
+
+/// The longest step of dead reckoning through a ramp, s (the wheel speeds change linearly
+/// within; each step is taken at its mean speeds).
+const RAMP_STEP: f64 = 0.002;
+
 impl DeadReckoning {
-    /// Room for `n` commands before it allocates (the delay over the period, plus some).
-    pub fn with_capacity(n: usize) -> Self {
-        Self { commands: std::collections::VecDeque::with_capacity(n) }
+    /// Room for `n` commands before it allocates (the delay over the period, plus some);
+    /// wheels that ramp at `accel` m/s² (0: at once).
+    pub fn with_capacity(n: usize, accel: f64) -> Self {
+        Self { accel, commands: std::collections::VecDeque::with_capacity(n) }
     }
 
     /// Record the wheel speeds commanded at `t`.
     pub fn command(&mut self, t: f64, left: f64, right: f64) {
-        self.commands.push_back((t, left, right));
+        let from = self.wheels_at(t);
+        self.commands.push_back(WheelCommand { t, target: [left, right], from });
+    }
+
+    /// The wheels' rim speeds at `t` as the ramps have brought them (at rest before any
+    /// command), m/s: left, right.
+    pub fn wheels_at(&self, t: f64) -> [f64; 2] {
+        self.commands.iter().rev().find(|c| c.t <= t).map_or([0.0; 2], |c| c.speeds_after(t - c.t, self.accel))
+    }
+
+    /// The wheels stopped at once (an emergency stop): forget every command.
+    pub fn halt(&mut self) {
+        self.commands.clear();
     }
 
     /// Forget commands that ended before `t` (keeps the one in force at `t`).
     pub fn forget_before(&mut self, t: f64) {
-        while self.commands.len() > 1 && self.commands[1].0 <= t {
+        while self.commands.len() > 1 && self.commands[1].t <= t {
             self.commands.pop_front();
         }
     }
@@ -184,14 +252,31 @@ impl DeadReckoning {
     /// The pose measured at `t_valid`, advanced to `t` with the commands in force meanwhile.
     pub fn predict(&self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
         let mut pose = measured;
-        for (i, &(t0, left, right)) in self.commands.iter().enumerate() {
-            let t1 = self.commands.get(i + 1).map_or(t, |c| c.0);
-            let span = (t1.min(t) - t0.max(t_valid)).max(0.0);
-            if span > 0.0 {
-                let v = 0.5 * (left + right);
-                let omega = (right - left) / wheel_base;
-                pose.position += C::from_polar(v * span, pose.heading + 0.5 * omega * span);
-                pose.heading += omega * span;
+        let advance = |pose: &mut Pose, [left, right]: [f64; 2], span: f64| {
+            let v = 0.5 * (left + right);
+            let omega = (right - left) / wheel_base;
+            pose.position += C::from_polar(v * span, pose.heading + 0.5 * omega * span);
+            pose.heading += omega * span;
+        };
+        for (i, c) in self.commands.iter().enumerate() {
+            let t1 = self.commands.get(i + 1).map_or(t, |next| next.t).min(t);
+            let mut from = c.t.max(t_valid);
+            if t1 <= from {
+                continue;
+            }
+            // Through the ramp in short steps at their mean speeds, then on at the command's.
+            let ramp_end = (c.t + c.ramp_time(self.accel)).min(t1);
+            if ramp_end > from {
+                let n = ((ramp_end - from) / RAMP_STEP).ceil().max(1.0);
+                let h = (ramp_end - from) / n;
+                for k in 0..n as usize {
+                    let mid = from + (k as f64 + 0.5) * h - c.t;
+                    advance(&mut pose, c.speeds_after(mid, self.accel), h);
+                }
+                from = ramp_end;
+            }
+            if t1 > from {
+                advance(&mut pose, c.target, t1 - from);
             }
         }
         pose
@@ -215,6 +300,8 @@ pub struct Tracker {
     pose: Option<(f64, Pose)>,
     dead_reckoning: DeadReckoning,
     estimates: [ObstacleEstimate; MAX_OBSTACLES],
+    /// The same obstacles, always predicted to the estimate's time.
+    predicted: [ObstacleEstimate; MAX_OBSTACLES],
 }
 
 /// The state a command will act on, with the time its pose was measured.
@@ -237,7 +324,9 @@ impl Tracker {
             let at = if predict { t } else { kf.time() };
             let (center, velocity) = kf.predict(at);
             let center = if predict { center } else { self.measured[k] };
-            Some((ObstacleEstimate { center, velocity, radius: self.radii[k] }, kf.position_covariance(at)))
+            let (position_sd, velocity_sd) = kf.uncertainty(at);
+            let estimate = ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd };
+            Some((estimate, kf.position_covariance(at)))
         })
     }
 
@@ -255,8 +344,9 @@ impl Tracker {
             filters: [None; MAX_OBSTACLES],
             measured: [C::default(); MAX_OBSTACLES],
             pose: None,
-            dead_reckoning: DeadReckoning::with_capacity(64),
-            estimates: [ObstacleEstimate { center: C::default(), velocity: C::default(), radius: 0.0 }; MAX_OBSTACLES],
+            dead_reckoning: DeadReckoning::with_capacity(64, settings.wheel_accel),
+            estimates: [ObstacleEstimate::exact(C::default(), C::default(), 0.0); MAX_OBSTACLES],
+            predicted: [ObstacleEstimate::exact(C::default(), C::default(), 0.0); MAX_OBSTACLES],
         }
     }
 
@@ -339,6 +429,12 @@ impl Tracker {
         self.pose = None;
     }
 
+    /// The wheels were stopped at once (an emergency stop): they are at rest, whatever
+    /// was commanded before.
+    pub fn halted(&mut self) {
+        self.dead_reckoning.halt();
+    }
+
     /// The robot was commanded these wheel speeds at `t` (for dead reckoning).
     pub fn commanded(&mut self, t: f64, left: f64, right: f64) {
         self.dead_reckoning.command(t, left, right);
@@ -357,18 +453,30 @@ impl Tracker {
         };
         let mut n = 0;
         let mut clearance: Option<f64> = None;
+        let predict = self.settings.predict_obstacles;
         for k in 0..self.count {
             let Some(kf) = &self.filters[k] else { continue };
-            let predict = self.settings.predict_obstacles;
-            let (center, velocity) = kf.predict(if predict { t } else { kf.time() });
-            let center = if predict { center } else { self.measured[k] };
-            self.estimates[n] = ObstacleEstimate { center, velocity, radius: self.radii[k] };
+            let (center, velocity) = kf.predict(t);
+            let (position_sd, velocity_sd) = kf.uncertainty(t);
+            let now = ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd };
+            self.predicted[n] = now;
+            // Without prediction the planner takes the last measurement as it stands (the
+            // paper's E3); the supervisor always judges the predicted one.
+            // Its uncertainty is the predicted one either way: where the obstacle is now is
+            // that uncertain, whatever centre the planner takes.
+            self.estimates[n] = if predict { now } else { ObstacleEstimate { center: self.measured[k], ..now } };
             n += 1;
-            let gap = (center - pose.position).norm() - self.radii[k];
+            let gap = (self.estimates[n - 1].center - pose.position).norm() - self.radii[k];
             clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
         }
         Some(Tracked {
-            estimate: Estimate { pose, obstacles: &self.estimates[..n], delay: t - t_valid + sample_time },
+            estimate: Estimate {
+                pose,
+                wheels: self.dead_reckoning.wheels_at(t),
+                obstacles: &self.estimates[..n],
+                predicted: &self.predicted[..n],
+                delay: t - t_valid + sample_time,
+            },
             pose_valid_at: t_valid,
             clearance,
         })

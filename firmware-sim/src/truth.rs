@@ -33,6 +33,8 @@ pub struct TruthSummary {
     pub min_obstacle_clearance: Option<f64>,
     pub min_wall_clearance: Option<f64>,
     pub first_contact: Option<f64>,
+    /// The first contact: what, and whether the robot drove into it (active) or was hit.
+    pub contact: Option<crate::world::Contact>,
     pub path_length: f64,
     pub final_position: [f64; 2],
     pub peak_wheel_speed: [f64; 2],
@@ -72,6 +74,7 @@ impl TruthRecord {
             min_obstacle_clearance: t.min_obstacle_clearance.is_finite().then_some(t.min_obstacle_clearance),
             min_wall_clearance: t.min_wall_clearance.is_finite().then_some(t.min_wall_clearance),
             first_contact: t.first_contact,
+            contact: t.contact,
             path_length: t.path_length,
             final_position: [pose.position.re, pose.position.im],
             peak_wheel_speed: t.peak_wheel_speed,

@@ -51,6 +51,10 @@ pub struct PlanArgs {
     /// stack (the gateway core, the firmware and the wire protocols) in virtual time.
     #[arg(long)]
     planner_only: bool,
+    /// Let the planner drive without the safety supervisor (for before-and-after
+    /// comparisons; the gateway always runs it).
+    #[arg(long)]
+    unsupervised: bool,
     /// Where to write summary.json and the plots (default: out/plan/<scenario>).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -62,12 +66,13 @@ pub fn run(args: PlanArgs) -> Result<()> {
         return merge(&args.merge, args.out.as_deref());
     }
     if let Some(dir) = &args.all {
-        return run_all(dir, args.out.as_deref(), mode);
+        return run_all(dir, args.out.as_deref(), mode, !args.unsupervised);
     }
     let Some(file) = args.scenario.as_ref().or(args.file.as_ref()) else {
         bail!("name a scenario: --scenario FILE, or --all DIR");
     };
-    let scenario = Scenario::load(file)?;
+    let mut scenario = Scenario::load(file)?;
+    scenario.supervised = !args.unsupervised;
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
     if let Some(n) = args.sweep {
         if n == 0 {
@@ -83,13 +88,14 @@ pub fn run(args: PlanArgs) -> Result<()> {
         std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
         let path = if let Some(shard) = args.shard {
             let episodes = sweep::run_shard(&scenario, n as u64, args.seed, args.threads, mode, shard);
-            let report = sweep::report(&scenario.name, args.seed, mode, &episodes);
+            let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
             say!("shard {shard} of the sweep of {n}:");
             say!("{report}");
             say!("  ({} episodes in {:.1} s)", episodes.len(), started.elapsed().as_secs_f64());
             let file = sweep::ShardFile {
                 scenario: scenario.name.clone(),
                 mode,
+                supervised: scenario.supervised,
                 seed: args.seed,
                 sweep_episodes: n as u64,
                 shard,
@@ -173,7 +179,7 @@ fn write_outputs(scenario: &Scenario, run: &offline::Run, out: &Path) -> Result<
     Ok(())
 }
 
-fn run_all(dir: &Path, out: Option<&Path>, mode: Mode) -> Result<()> {
+fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Result<()> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -183,11 +189,12 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode) -> Result<()> {
     if files.is_empty() {
         bail!("no *.toml scenarios in {}", dir.display());
     }
-    say!("{mode}");
+    say!("{mode}{}", if supervised { "" } else { ", unsupervised" });
     say!(
-        "{:<26} {:<9} {:>7} {:>11} {:>9} {:>6} {:>10} {:>10}",
+        "{:<26} {:<9} {:<8} {:>7} {:>11} {:>9} {:>6} {:>10} {:>10}",
         "scenario",
         "outcome",
+        "contact",
         "time s",
         "clear. mm",
         "wall mm",
@@ -196,14 +203,16 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode) -> Result<()> {
         "plan p99µs"
     );
     for file in files {
-        let scenario = Scenario::load(&file)?;
+        let mut scenario = Scenario::load(&file)?;
+        scenario.supervised = supervised;
         let dir = out.map(|o| o.join(stem(&file)));
         let run = one(&scenario, mode, dir.as_deref())?;
         let s = &run.summary;
         say!(
-            "{:<26} {:<9} {:>7.1} {:>11} {:>9} {:>6.2} {:>10.0} {:>10}",
+            "{:<26} {:<9} {:<8} {:>7.1} {:>11} {:>9} {:>6.2} {:>10.0} {:>10}",
             stem(&file),
             s.outcome.to_string(),
+            s.contact.map_or("-", |c| if c.active { "active" } else { "passive" }),
             s.time_to_goal.unwrap_or(s.end_time),
             s.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),
             s.min_wall_clearance.map_or("-".into(), |c| format!("{:.1}", c * 1e3)),

@@ -1,7 +1,10 @@
-//! Control: the per-cycle step (estimate in, pulse rates out). Pure in time: `t` is an
-//! argument, so the same step runs live, offline, in replay and in benchmarks.
+//! Control: the per-cycle step (estimate in, pulse rates out) and the safety supervisor
+//! between the planner and the wheels. Pure in time: `t` is an argument, so the same step
+//! runs live, offline, in replay and in benchmarks.
 
 mod step;
+pub mod supervisor;
 
 pub use crate::track::Estimate;
-pub use step::{ControlConfig, ControlStep, StallConfig, StepOutput, StepStatus};
+pub use step::{ControlConfig, ControlStep, Envelope, StallConfig, StepOutput, StepStatus};
+pub use supervisor::{supervise, Supervision, SupervisorConfig};

@@ -1,5 +1,6 @@
+use super::supervisor::{supervise, Supervision, SupervisorConfig};
 use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
-use crate::planner::{Plan, PlanInput, Planner, PlannerConfig, PlannerError};
+use crate::planner::{ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
 use crate::track::Estimate;
 use num_complex::Complex64 as C;
 
@@ -27,6 +28,9 @@ pub struct ControlConfig {
     pub goal_tolerance: f64,
     pub robot_radius: f64,
     pub stall: StallConfig,
+    /// The safety supervisor between the planner and the wheels (always on a rig; `None`
+    /// only in the lab's unsupervised comparisons).
+    pub supervisor: Option<SupervisorConfig>,
 }
 
 /// What the step decided.
@@ -43,6 +47,11 @@ pub enum StepStatus {
 pub struct StepOutput {
     pub status: StepStatus,
     pub plan: Option<Plan>,
+    /// What the safety supervisor did to the planner's command.
+    pub supervision: Supervision,
+    /// Some obstacle outruns what the robot can deliver: avoidance is not guaranteed
+    /// (judged with hysteresis, see [`Envelope`]).
+    pub outrun: bool,
     pub wheels: WheelSpeeds,
     /// Left and right pulse rates, pulses/s.
     pub pulses: [i32; 2],
@@ -50,22 +59,63 @@ pub struct StepOutput {
 
 impl StepOutput {
     fn stop(status: StepStatus, plan: Option<Plan>) -> Self {
-        Self { status, plan, wheels: WheelSpeeds::default(), pulses: [0, 0] }
+        Self {
+            status,
+            plan,
+            supervision: Supervision::Passed,
+            outrun: false,
+            wheels: WheelSpeeds::default(),
+            pulses: [0, 0],
+        }
     }
 }
 
-/// The control step with the little state it keeps (stall detection).
+/// Whether each obstacle outruns the robot: its tracked speed against the fastest the
+/// robot can go (its speed limit, which the wheels' limit bounds: a config that asks more is
+/// refused at load). An obstacle is flagged once its speed less one standard deviation
+/// reaches that, and cleared once its speed plus one falls below it. So a noisy estimate of
+/// a slower obstacle never raises it and one of a faster obstacle never drops it: it changes
+/// only when the estimate says so with confidence.
+#[derive(Debug, Clone, Copy)]
+pub struct Envelope {
+    outrun: [bool; MAX_OBSTACLES],
+}
+
+impl Default for Envelope {
+    fn default() -> Self {
+        Self { outrun: [false; MAX_OBSTACLES] }
+    }
+}
+
+impl Envelope {
+    /// Judge this cycle's estimates against the robot's `limit` (m/s): whether any obstacle
+    /// now outruns it.
+    pub fn update(&mut self, obstacles: &[ObstacleEstimate], limit: f64) -> bool {
+        for (outrun, o) in self.outrun.iter_mut().zip(obstacles) {
+            let speed = o.velocity.norm();
+            if speed - o.velocity_sd >= limit {
+                *outrun = true;
+            } else if speed + o.velocity_sd < limit {
+                *outrun = false;
+            }
+        }
+        self.outrun.iter().take(obstacles.len()).any(|&o| o)
+    }
+}
+
+/// The control step with the little state it keeps (stall detection, the envelope flag).
 #[derive(Debug, Clone)]
 pub struct ControlStep {
     config: ControlConfig,
     planner: Planner,
     /// Where and when the robot last made progress.
     progress_anchor: Option<(f64, C)>,
+    envelope: Envelope,
 }
 
 impl ControlStep {
     pub fn new(config: ControlConfig) -> Self {
-        Self { config, planner: Planner::new(config.planner), progress_anchor: None }
+        Self { config, planner: Planner::new(config.planner), progress_anchor: None, envelope: Envelope::default() }
     }
     /// Drive to a new goal from the next step (progress is judged afresh).
     pub fn set_goal(&mut self, goal: C, tolerance: f64) {
@@ -83,6 +133,12 @@ impl ControlStep {
 
     /// One control cycle at time `t`.
     pub fn step(&mut self, t: f64, estimate: &Estimate<'_>) -> StepOutput {
+        let limit = self.config.planner.max_speed.min(self.config.drive.max_wheel_speed);
+        let outrun = self.envelope.update(estimate.predicted, limit);
+        StepOutput { outrun, ..self.decide(t, estimate) }
+    }
+
+    fn decide(&mut self, t: f64, estimate: &Estimate<'_>) -> StepOutput {
         let position = estimate.pose.position;
         if (position - self.config.goal).norm() <= self.config.goal_tolerance {
             return StepOutput::stop(StepStatus::AtGoal, None);
@@ -101,9 +157,13 @@ impl ControlStep {
         if self.stalled(t, position) {
             return StepOutput::stop(StepStatus::Stalled, Some(plan));
         }
-        let wheels = wheel_speeds(plan.velocity, estimate.pose.heading, &self.config.drive);
+        let proposed = wheel_speeds(plan.velocity, estimate.pose.heading, &self.config.drive);
+        let (wheels, supervision) = match &self.config.supervisor {
+            Some(cfg) => supervise(cfg, estimate, proposed),
+            None => (proposed, Supervision::Passed),
+        };
         let pulses = pulse_rates(wheels, &self.config.drive);
-        StepOutput { status: StepStatus::Driving, plan: Some(plan), wheels, pulses }
+        StepOutput { status: StepStatus::Driving, plan: Some(plan), supervision, outrun: false, wheels, pulses }
     }
 
     fn stalled(&mut self, t: f64, position: C) -> bool {
@@ -116,5 +176,41 @@ impl ControlStep {
                 false
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn obstacle(speed: f64, sd: f64) -> ObstacleEstimate {
+        ObstacleEstimate { velocity_sd: sd, ..ObstacleEstimate::exact(C::default(), C::new(speed, 0.0), 0.07) }
+    }
+
+    /// The envelope flag follows the estimate's confidence, not its noise: an obstacle at
+    /// 6-7 cm/s whose estimate wanders by its 3.7 cm/s deviation never raises it against a
+    /// 15 cm/s robot; a 20 cm/s one raises it once and keeps it through the same noise;
+    /// it drops only once the obstacle is slower with confidence.
+    #[test]
+    fn the_envelope_flag_has_hysteresis() {
+        let limit = 0.15;
+        let mut e = Envelope::default();
+        let wander = [0.0, 0.03, -0.03, 0.037, -0.02, 0.036];
+        assert!(wander.iter().all(|w| !e.update(&[obstacle(0.065 + w, 0.037)], limit)));
+        // The old rule (the speed alone against the limit) fires on it.
+        assert!(wander.iter().any(|w| 0.065 + w + 0.05 >= limit), "a noisier estimate would have crossed");
+        let mut e = Envelope::default();
+        let flags: Vec<bool> =
+            [0.20, 0.17, 0.14, 0.16, 0.13, 0.19].iter().map(|&v| e.update(&[obstacle(v, 0.037)], limit)).collect();
+        // Raised at 0.20 (0.20 - 0.037 >= 0.15), held while 0.13 + 0.037 is not below 0.15.
+        assert_eq!(flags, [true; 6]);
+        assert!(!e.update(&[obstacle(0.10, 0.037)], limit), "cleared: 0.10 + 0.037 < 0.15");
+        // An uncertain estimate (a filter just started, 0.5 m/s) decides nothing either way.
+        assert!(!Envelope::default().update(&[obstacle(0.3, 0.5)], limit));
+        let mut held = Envelope::default();
+        assert!(held.update(&[obstacle(0.3, 0.01)], limit));
+        assert!(held.update(&[obstacle(0.0, 0.5)], limit));
+        // Which obstacle: the second of two.
+        assert!(Envelope::default().update(&[obstacle(0.05, 0.01), obstacle(0.2, 0.01)], limit));
     }
 }

@@ -30,7 +30,7 @@ use super::safety::{Action, Safety, State, StopReason};
 use super::telemetry::CycleRecord;
 use super::{Counters, Progress};
 use crate::config::Rig;
-use crate::control::{ControlStep, StepStatus};
+use crate::control::{ControlStep, StepStatus, Supervision};
 use crate::link::CanEvent;
 use crate::planner::{FieldError, Space};
 use crate::time::{CtrlTime, HostTime};
@@ -951,6 +951,11 @@ impl<K: StageClock> Core<K> {
                 StepStatus::Driving => {
                     pulses = out.pulses;
                     wheels = (out.wheels.left, out.wheels.right);
+                    match out.supervision {
+                        Supervision::Passed => {}
+                        Supervision::Slowed { .. } => self.counters.supervisor_slowed += 1,
+                        Supervision::Braking { .. } => self.counters.supervisor_braking += 1,
+                    }
                 }
                 StepStatus::AtGoal => self.goal_reached(now),
                 StepStatus::Stalled => self.stop(now, StopReason::Stalled),
@@ -1194,6 +1199,7 @@ impl<K: StageClock> Core<K> {
                 self.send(MotorMessage::EStop { target: Target::Node(node), reason });
                 self.stopping_since = None;
                 self.tracker.forget_pose();
+                self.tracker.halted(); // the boards stop at once: dead reckoning starts from rest
                 tracing::warn!("emergency stop: {}", self.state());
             }
         }

@@ -115,6 +115,11 @@ pub fn render(s: &Snapshot) -> String {
     );
     counter("poses_implausible", "Robot poses discarded as implausible.", &[("", c.poses_implausible)]);
     counter("planner_invalid", "Cycles the planner could not command.", &[("", c.planner_invalid)]);
+    counter(
+        "supervisor_interventions",
+        "Cycles whose command the safety supervisor changed, by how.",
+        &[("{how=\"slowed\"}", c.supervisor_slowed), ("{how=\"braking\"}", c.supervisor_braking)],
+    );
     counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
 
     counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);

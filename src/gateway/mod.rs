@@ -129,6 +129,12 @@ pub struct Counters {
     /// Enables sent again because an armed board still reported Disabled (one was lost).
     pub board_enable_retries: u64,
     pub planner_invalid: u64,
+    /// Cycles whose command the safety supervisor slowed (a hazard within the robot's
+    /// stopping path).
+    pub supervisor_slowed: u64,
+    /// Cycles in which the supervisor braked because no slower command could keep its
+    /// promise (the estimate moved faster than a reaction time allows for).
+    pub supervisor_braking: u64,
     pub telemetry_dropped: u64,
 }
 

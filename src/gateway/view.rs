@@ -309,6 +309,8 @@ mod tests {
             reference_radius: 0.1,
             max_speed: 0.15,
             margin: crate::planner::Margin::None,
+            uncertainty_sigmas: 0.0,
+            clearance: 0.0,
             tie_break: None,
         };
         ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3) }

@@ -18,6 +18,10 @@ use crate::config::*;
 pub struct Scenario {
     pub sim: flowgate_sim::scenario::Scenario,
     pub planner: PlannerSettings,
+    /// The safety supervisor checks every command (the default). `false` lets the planner
+    /// drive alone, for before-and-after comparisons (`flowgate plan --unsupervised`); a rig
+    /// config has no such switch.
+    pub supervised: bool,
 }
 
 /// A scenario reads like the simulator's (`s.robot`, `s.obstacles`, `s.sensing`, ...), with
@@ -66,7 +70,7 @@ impl Scenario {
     pub fn new(sim: flowgate_sim::scenario::Scenario, origin: &str) -> Result<Self, ScenarioError> {
         let planner = PlannerSettings::deserialize(toml::Value::Table(sim.planner.clone()))
             .map_err(|e| ScenarioError::Planner { path: origin.into(), source: Box::new(e) })?;
-        let s = Self { sim, planner };
+        let s = Self { sim, planner, supervised: true };
         let frame_us = s.frame_us().map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         s.config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us)
             .validate()
@@ -101,7 +105,11 @@ impl Scenario {
 
     /// The typed rig of this scenario with its CAN link at `can` (a valid endpoint URL).
     pub fn rig_on(&self, can: &str) -> Rig {
-        self.gateway_config(Path::new("/dev/null"), can, None).validate().expect("checked when loaded")
+        let mut rig = self.gateway_config(Path::new("/dev/null"), can, None).validate().expect("checked when loaded");
+        if !self.supervised {
+            rig.control.supervisor = None;
+        }
+        rig
     }
 
     fn config_with(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>, frame_us: u32) -> GatewayConfig {

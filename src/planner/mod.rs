@@ -18,9 +18,17 @@
 //!   shift fades linearly to zero at the edge of the cone and never exceeds half the
 //!   robot's current gap, so the field stays continuous and the robot is never placed
 //!   inside a planning circle.
+//! - **Uncertainty**: the planning radius grows further by
+//!   [`PlannerConfig::uncertainty_sigmas`] standard deviations of the obstacle's predicted
+//!   centre (the tracker's Kalman covariance at the moment the command acts), and by
+//!   [`PlannerConfig::clearance`], the supervisor's room.
+//! - **No freeze inside a margin**: a robot that finds itself inside a planning circle but
+//!   outside the true one gets that circle shrunk to just short of it (never below what
+//!   covers the true circle), so the field keeps steering it instead of stopping it while
+//!   an obstacle slides past.
 //! - **Saturation** to the robot's speed limit, keeping the direction.
-//! - **Flags**: speed limit below an obstacle's speed (avoidance not guaranteed), tie-break
-//!   active, command saturated.
+//! - **Flags**: tie-break active, margin shrunk, command saturated. (Whether an obstacle
+//!   outruns the robot is judged over time, with hysteresis, in the control step.)
 
 pub mod drive;
 pub mod field;
@@ -60,6 +68,10 @@ impl Margin {
     }
 }
 
+/// How far inside a shrunk planning circle's edge the robot stays, m (at most half its
+/// gap to the true circle).
+pub const SHRUNK_GAP: f64 = 0.001;
+
 /// The symmetric-configuration tie-break (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TieBreak {
@@ -88,6 +100,13 @@ pub struct PlannerConfig {
     /// The robot's largest speed; commands are saturated to it, m/s.
     pub max_speed: f64,
     pub margin: Margin,
+    /// Standard deviations of each obstacle's predicted centre added to its planning
+    /// radius (the prediction's uncertainty, from the tracker's Kalman covariance).
+    pub uncertainty_sigmas: f64,
+    /// Added to every planning radius, m: the room the safety supervisor keeps beyond its
+    /// own uncertainty allowance, and as much again, so the field steers the robot round
+    /// the zone the supervisor guards instead of into it (where it would be slowed).
+    pub clearance: f64,
     pub tie_break: Option<TieBreak>,
 }
 
@@ -98,6 +117,18 @@ pub struct ObstacleEstimate {
     pub velocity: C,
     /// The obstacle's own radius `a_0`, m.
     pub radius: f64,
+    /// One standard deviation of `center` along its worst direction, m (the tracker's
+    /// Kalman covariance, predicted as far as the centre is).
+    pub position_sd: f64,
+    /// One standard deviation of `velocity` along its worst direction, m/s.
+    pub velocity_sd: f64,
+}
+
+impl ObstacleEstimate {
+    /// An obstacle known exactly (a scripted one, a test's).
+    pub const fn exact(center: C, velocity: C, radius: f64) -> Self {
+        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0 }
+    }
 }
 
 /// Everything the planner needs for one command.
@@ -117,10 +148,11 @@ pub struct PlanInput<'a> {
 pub struct PlanFlags {
     /// The field's speed exceeded the limit and was scaled down.
     pub saturated: bool,
-    /// An obstacle is at least as fast as the robot's limit: avoidance is not guaranteed.
-    pub obstacle_faster_than_robot: bool,
     /// The tie-break shifted at least one planning circle.
     pub tie_break: bool,
+    /// The robot stood inside a planning circle's margin, which was shrunk toward the true
+    /// circle so the robot is just outside it (rather than stopping there).
+    pub margin_shrunk: bool,
 }
 
 /// One planner result.
@@ -170,11 +202,13 @@ impl Planner {
         let left = if to_goal.norm() > 0.0 { C::i() * to_goal / to_goal.norm() } else { C::default() };
         for (slot, o) in out.iter_mut().zip(input.obstacles) {
             let speed = o.velocity.norm();
-            flags.obstacle_faster_than_robot |= speed >= self.config.max_speed;
+            let r0 = o.radius + input.robot_radius;
             let mut p = PlanObstacle {
                 center: o.center,
                 velocity: o.velocity,
-                radius: self.config.margin.radius(o.radius + input.robot_radius, speed, input.delay),
+                radius: self.config.margin.radius(r0, speed, input.delay)
+                    + self.config.uncertainty_sigmas * o.position_sd
+                    + self.config.clearance,
             };
             if let Some(tb) = self.config.tie_break {
                 let shift = tie_break_shift(&tb, input.position, input.goal, &p);
@@ -183,6 +217,16 @@ impl Planner {
                     p.radius += shift;
                     flags.tie_break = true;
                 }
+            }
+            // Never freeze inside a margin: a robot inside the planning circle but outside
+            // the true one (the sum of the radii) gets the circle shrunk to just short of
+            // it, never below what covers the true circle. Inside the true circle it
+            // stays invalid: that is a contact.
+            let cover = r0 + (p.center - o.center).norm();
+            let distance = (input.position - p.center).norm();
+            if distance <= p.radius && distance > cover {
+                p.radius = cover.max(distance - SHRUNK_GAP.min(0.5 * (distance - cover)));
+                flags.margin_shrunk = true;
             }
             *slot = p;
         }

@@ -243,6 +243,8 @@ fn planner(tie_break: Option<TieBreak>) -> Planner {
         reference_radius: 0.14,
         max_speed: 0.15,
         margin: Margin::None,
+        uncertainty_sigmas: 1.0,
+        clearance: 0.0,
         tie_break,
     })
 }
@@ -252,7 +254,7 @@ fn planner(tie_break: Option<TieBreak>) -> Planner {
 /// (keep right), deterministically.
 #[test]
 fn tie_break_breaks_the_symmetric_case() {
-    let obstacles = [ObstacleEstimate { center: C::new(0.0, 0.0), velocity: C::new(-0.05, 0.0), radius: 0.07 }];
+    let obstacles = [ObstacleEstimate::exact(C::new(0.0, 0.0), C::new(-0.05, 0.0), 0.07)];
     let input = PlanInput {
         position: C::new(-0.4, 0.0),
         goal: C::new(0.6, 0.0),
@@ -281,8 +283,8 @@ fn margins() {
 }
 
 #[test]
-fn saturation_keeps_direction_and_flags_fast_obstacles() {
-    let obstacles = [ObstacleEstimate { center: C::new(0.3, 0.3), velocity: C::new(0.0, -0.2), radius: 0.07 }];
+fn saturation_keeps_direction() {
+    let obstacles = [ObstacleEstimate::exact(C::new(0.3, 0.3), C::new(0.0, -0.2), 0.07)];
     let input = PlanInput {
         position: C::new(-2.0, 0.0),
         goal: C::new(2.0, 0.0),
@@ -291,7 +293,7 @@ fn saturation_keeps_direction_and_flags_fast_obstacles() {
         delay: 0.0,
     };
     let p = Planner::new(PlannerConfig { cruise_speed: 0.5, ..*planner(None).config() }).plan(&input).unwrap();
-    assert!(p.flags.saturated && p.flags.obstacle_faster_than_robot);
+    assert!(p.flags.saturated);
     assert!((p.velocity.norm() - 0.15).abs() < 1e-12);
     assert!((p.velocity.arg() - p.field.arg()).abs() < 1e-12);
 }
@@ -414,4 +416,54 @@ proptest! {
             }
         }
     }
+}
+
+/// Never freeze inside a margin: a robot inside an obstacle's planning circle but outside
+/// the true one gets the circle shrunk to just short of it and a command (no inward flow);
+/// one inside the true circle (a contact) is still refused.
+#[test]
+fn a_robot_inside_a_margin_is_steered_not_frozen() {
+    let planner = Planner::new(PlannerConfig { margin: Margin::Factor { factor: 1.5 }, ..*planner(None).config() });
+    let obstacles = [ObstacleEstimate::exact(C::new(0.0, 0.0), C::new(0.0, 0.05), 0.07)];
+    // R_0 = 0.14, planned at 0.21; the robot at 0.17 from the centre, off the axis.
+    let at = C::from_polar(0.17, 2.5);
+    let input =
+        PlanInput { position: at, goal: C::new(1.0, 0.0), robot_radius: 0.07, obstacles: &obstacles, delay: 0.0 };
+    let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+    let (_, flags) = planner.plan_obstacles(&input, &mut planned).unwrap();
+    assert!(flags.margin_shrunk);
+    assert!((planned[0].radius - (0.17 - SHRUNK_GAP)).abs() < 1e-12, "{}", planned[0].radius);
+    let plan = planner.plan(&input).unwrap();
+    assert!(plan.flags.margin_shrunk && plan.velocity.norm() > 0.0);
+    // Relative to the obstacle the flow slides round the circle a millimetre away: its
+    // normal part is under a tenth of it (it is zero on the circle itself).
+    let relative = plan.field - obstacles[0].velocity;
+    let normal = (relative * at.conj()).re / at.norm();
+    assert!(normal.abs() < 0.1 * relative.norm(), "normal {normal} of {relative}");
+    // Inside the true circle: refused.
+    let inside = PlanInput { position: C::from_polar(0.13, 2.5), ..input };
+    assert_eq!(planner.plan(&inside).unwrap_err(), FieldError::InsideObstacle { index: 0 });
+    // Outside the margin: untouched.
+    let outside = PlanInput { position: C::from_polar(0.3, 2.5), ..input };
+    planner.plan_obstacles(&outside, &mut planned).unwrap();
+    assert!((planned[0].radius - 0.21).abs() < 1e-12);
+}
+
+/// The planning radius grows by the configured standard deviations of the predicted
+/// centre, and by the supervisor's room.
+#[test]
+fn the_margin_includes_the_prediction_uncertainty() {
+    let planner = Planner::new(PlannerConfig { uncertainty_sigmas: 2.0, clearance: 0.006, ..*planner(None).config() });
+    let obstacles =
+        [ObstacleEstimate { position_sd: 0.01, ..ObstacleEstimate::exact(C::new(0.0, 0.0), C::default(), 0.07) }];
+    let input = PlanInput {
+        position: C::new(-1.0, 0.0),
+        goal: C::new(1.0, 0.0),
+        robot_radius: 0.07,
+        obstacles: &obstacles,
+        delay: 0.0,
+    };
+    let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+    planner.plan_obstacles(&input, &mut planned).unwrap();
+    assert!((planned[0].radius - (0.14 + 0.02 + 0.006)).abs() < 1e-12, "{}", planned[0].radius);
 }

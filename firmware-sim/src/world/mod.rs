@@ -35,6 +35,32 @@ pub struct World {
     wand: Option<(u8, Option<Point>)>,
 }
 
+/// Above this speed toward what it touches (m/s), the robot drove into it: an *active*
+/// contact. At or below it the robot was stopped or moving away, and was hit: *passive*.
+pub const ACTIVE_CONTACT_SPEED: f64 = 0.01;
+
+/// What the robot touched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Touched {
+    /// Obstacle `k` (its index in the scenario).
+    Obstacle(usize),
+    /// A lane line (the lines bound the robot's centre).
+    Wall,
+}
+
+/// The first contact of a run, judged at the millisecond it happened.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Contact {
+    /// When, s.
+    pub at: f64,
+    pub with: Touched,
+    /// The robot's velocity component toward what it touched, m/s (negative: away).
+    pub approach_speed: f64,
+    /// The robot drove into it: `approach_speed` above [`ACTIVE_CONTACT_SPEED`].
+    pub active: bool,
+}
+
 /// What really happened, judged against the true radii.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Truth {
@@ -45,6 +71,8 @@ pub struct Truth {
     pub min_wall_clearance: f64,
     /// When the robot first touched an obstacle or a wall, s.
     pub first_contact: Option<f64>,
+    /// That first contact: what was touched, and how the robot was moving.
+    pub contact: Option<Contact>,
     /// Path length travelled by the robot's centre, m.
     pub path_length: f64,
     /// Largest wheel rim speed reached, m/s: left, right.
@@ -72,6 +100,7 @@ impl World {
                 min_obstacle_clearance: f64::INFINITY,
                 min_wall_clearance: f64::INFINITY,
                 first_contact: None,
+                contact: None,
                 path_length: 0.0,
                 peak_wheel_speed: [0.0; 2],
             },
@@ -185,7 +214,24 @@ impl World {
         t.min_wall_clearance = t.min_wall_clearance.min(wall);
         if t.first_contact.is_none() && (obstacle < 0.0 || wall < 0.0) {
             t.first_contact = Some(self.time);
+            self.truth.contact = Some(self.contact(obstacle, wall));
         }
+    }
+
+    /// The contact happening now: the deeper overlap is what was touched.
+    fn contact(&self, obstacle: f64, wall: f64) -> Contact {
+        let [left, right] = self.wheel_speeds();
+        let velocity = Point::from_polar(0.5 * (left + right), self.pose.heading);
+        let (with, normal) = if obstacle <= wall {
+            let k =
+                self.clearances().enumerate().fold((0, f64::INFINITY), |m, (k, c)| if c < m.1 { (k, c) } else { m }).0;
+            let d = self.obstacles[k].0.position(self.time) - self.pose.position;
+            (Touched::Obstacle(k), d / d.norm())
+        } else {
+            (Touched::Wall, Point::new(0.0, self.pose.position.im.signum()))
+        };
+        let approach_speed = velocity.re * normal.re + velocity.im * normal.im;
+        Contact { at: self.time, with, approach_speed, active: approach_speed > ACTIVE_CONTACT_SPEED }
     }
 }
 

@@ -10,7 +10,7 @@ pub mod sweep;
 use std::collections::VecDeque;
 use std::time::Instant;
 
-use flowgate_sim::world::World;
+use flowgate_sim::world::{Contact, World};
 use hdrhistogram::Histogram;
 use num_complex::Complex64 as C;
 use rand::SeedableRng;
@@ -20,7 +20,7 @@ use serde::Serialize;
 
 pub use super::Outcome;
 use super::Scenario;
-use crate::control::{ControlStep, StepStatus};
+use crate::control::{ControlStep, StepStatus, Supervision};
 use crate::gateway::{State, StopReason};
 use crate::planner::MAX_OBSTACLES;
 use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
@@ -44,17 +44,17 @@ impl std::fmt::Display for Mode {
 }
 
 impl Mode {
-    /// One episode's outcome and smallest true clearance to an obstacle.
-    pub fn episode(self, s: &Scenario) -> (Outcome, Option<f64>) {
+    /// One episode's outcome, smallest true clearance to an obstacle, and first contact.
+    pub fn episode(self, s: &Scenario) -> (Outcome, Option<f64>, Option<Contact>) {
         match self {
             Mode::PlannerOnly => {
                 let r = run(s, false).summary;
-                (r.outcome, r.min_obstacle_clearance)
+                (r.outcome, r.min_obstacle_clearance, r.contact)
             }
             Mode::FullStack => {
                 let options = super::sim::Options { stop_at_contact: true, ..Default::default() };
                 let e = super::sim::run(s, options);
-                (e.outcome, e.truth.summary.min_obstacle_clearance)
+                (e.outcome, e.truth.summary.min_obstacle_clearance, e.truth.summary.contact)
             }
         }
     }
@@ -91,12 +91,15 @@ impl Run {
             min_obstacle_clearance: t.min_obstacle_clearance,
             min_wall_clearance: t.min_wall_clearance,
             first_contact: t.first_contact,
+            contact: t.contact,
             path_length: t.path_length,
             path_length_ratio: if straight > 0.0 { t.path_length / straight } else { 0.0 },
             peak_wheel_speed: t.peak_wheel_speed,
             planner_compute: ComputeTime { p50_us: 0.0, p99_us: 0.0, max_us: 0.0 },
             cycles: e.report.counters.cycles,
             invalid_cycles: e.report.counters.planner_invalid,
+            supervisor_slowed_cycles: e.report.counters.supervisor_slowed,
+            supervisor_braking_cycles: e.report.counters.supervisor_braking,
             saturated_cycles: 0,
             tie_break_cycles: 0,
             obstacle_faster_than_robot: false,
@@ -126,6 +129,9 @@ pub struct Summary {
     /// Smallest gap between the robot's footprint and a wall, m (None: free space).
     pub min_wall_clearance: Option<f64>,
     pub first_contact: Option<f64>,
+    /// The first contact: what was touched, the robot's speed toward it, and whether it drove
+    /// into it (`active`: above 1 cm/s toward it) or was hit (stopped or moving away).
+    pub contact: Option<Contact>,
     pub path_length: f64,
     /// Path length over the straight start-goal distance.
     pub path_length_ratio: f64,
@@ -135,9 +141,14 @@ pub struct Summary {
     pub cycles: u64,
     /// Cycles in which the planner refused its input and the robot was stopped.
     pub invalid_cycles: u64,
+    /// Cycles whose command the safety supervisor slowed.
+    pub supervisor_slowed_cycles: u64,
+    /// Cycles in which the supervisor braked, no slower command keeping its promise.
+    pub supervisor_braking_cycles: u64,
     pub saturated_cycles: u64,
     pub tie_break_cycles: u64,
-    /// Some obstacle was at least as fast as the robot's speed limit: no guarantee.
+    /// Some obstacle outran what the robot can deliver at some point of the run (judged
+    /// with hysteresis on its tracked speed): no guarantee.
     pub obstacle_faster_than_robot: bool,
 }
 
@@ -242,6 +253,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
+    let (mut slowed, mut braking) = (0, 0);
 
     let outcome = loop {
         let t = world.time();
@@ -259,7 +271,12 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         if let Some(plan) = out.plan {
             saturated += u64::from(plan.flags.saturated);
             tie_break += u64::from(plan.flags.tie_break);
-            faster |= plan.flags.obstacle_faster_than_robot;
+        }
+        faster |= out.outrun;
+        match out.supervision {
+            Supervision::Passed => {}
+            Supervision::Slowed { .. } => slowed += 1,
+            Supervision::Braking { .. } => braking += 1,
         }
         match out.status {
             StepStatus::AtGoal => break Outcome::Goal,
@@ -299,12 +316,15 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         min_obstacle_clearance: (n > 0).then_some(truth.min_obstacle_clearance),
         min_wall_clearance: s.lane.map(|_| truth.min_wall_clearance),
         first_contact: truth.first_contact,
+        contact: truth.contact,
         path_length: truth.path_length,
         path_length_ratio: if straight > 0.0 { truth.path_length / straight } else { 0.0 },
         peak_wheel_speed: truth.peak_wheel_speed,
         planner_compute: ComputeTime { p50_us: us(0.5), p99_us: us(0.99), max_us: compute.max() as f64 / 1e3 },
         cycles,
         invalid_cycles: invalid,
+        supervisor_slowed_cycles: slowed,
+        supervisor_braking_cycles: braking,
         saturated_cycles: saturated,
         tie_break_cycles: tie_break,
         obstacle_faster_than_robot: faster,

@@ -32,6 +32,16 @@ pub struct Episode {
     /// Fastest obstacle speed over the robot's speed limit.
     pub speed_ratio: f64,
     pub delay: f64,
+    /// A collision in which the robot drove into what it touched (above 1 cm/s toward it);
+    /// a collision without it was passive (the robot stopped or moving away, and hit).
+    #[serde(default)]
+    pub active_contact: bool,
+}
+
+impl Episode {
+    fn passive_contact(&self) -> bool {
+        self.outcome == Outcome::Collision && !self.active_contact
+    }
 }
 
 /// Success rate in one bin of a parameter.
@@ -42,6 +52,7 @@ pub struct Bin {
     pub episodes: usize,
     pub goal_rate: f64,
     pub collision_rate: f64,
+    pub active_contact_rate: f64,
 }
 
 /// The sweep's report (printed as a table, written as JSON).
@@ -50,10 +61,22 @@ pub struct SweepReport {
     pub scenario: String,
     /// Which runner made it: the full stack or the planner alone.
     pub mode: Mode,
+    /// Whether the safety supervisor checked the commands (`--unsupervised`: not).
+    pub supervised: bool,
     pub episodes: usize,
     pub seed: u64,
     pub goal_rate: f64,
+    /// Every collision, active and passive.
     pub collision_rate: f64,
+    /// Collisions in which the robot drove into what it touched.
+    pub active_contact_rate: f64,
+    /// Collisions in which the robot was stopped or moving away.
+    pub passive_contact_rate: f64,
+    /// Active contacts in episodes whose obstacles are all slower than the robot's limit
+    /// (where the supervisor promises none).
+    pub active_contacts_slower_obstacles: usize,
+    /// Episodes whose obstacles are all slower than the robot's limit.
+    pub slower_obstacle_episodes: usize,
     pub timeout_rate: f64,
     pub stall_rate: f64,
     pub fault_rate: f64,
@@ -150,6 +173,9 @@ impl std::fmt::Display for Shard {
 pub struct ShardFile {
     pub scenario: String,
     pub mode: Mode,
+    /// Whether the safety supervisor checked the commands.
+    #[serde(default = "supervised_by_default")]
+    pub supervised: bool,
     pub seed: u64,
     /// Episodes in the whole sweep.
     pub sweep_episodes: u64,
@@ -157,10 +183,14 @@ pub struct ShardFile {
     pub episodes: Vec<Episode>,
 }
 
+fn supervised_by_default() -> bool {
+    true
+}
+
 /// Run `n` episodes around `base` on `threads` threads.
 pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -> SweepReport {
     let episodes = run_shard(base, n as u64, seed, threads, mode, Shard::WHOLE);
-    report(&base.name, seed, mode, &episodes)
+    report(&base.name, seed, mode, base.supervised, &episodes)
 }
 
 /// Run one shard of an `n`-episode sweep around `base` on `threads` threads: its episodes,
@@ -178,13 +208,14 @@ pub fn run_shard(base: &Scenario, n: u64, seed: u64, threads: usize, mode: Mode,
                         .step_by(threads)
                         .map(|i| {
                             let s = perturb(base, seed, i);
-                            let (outcome, min_clearance) = mode.episode(&s);
+                            let (outcome, min_clearance, contact) = mode.episode(&s);
                             Episode {
                                 index: i,
                                 outcome,
                                 min_clearance,
                                 speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
                                 delay: s.sensing.delay,
+                                active_contact: outcome == Outcome::Collision && contact.is_some_and(|c| c.active),
                             }
                         })
                         .collect::<Vec<_>>()
@@ -242,6 +273,9 @@ pub fn merge(shards: &[ShardFile]) -> Result<SweepReport, MergeError> {
         if s.mode != first.mode {
             return Err(mismatch("mode", first.mode.to_string(), s.mode.to_string()));
         }
+        if s.supervised != first.supervised {
+            return Err(mismatch("supervised", first.supervised.to_string(), s.supervised.to_string()));
+        }
         if s.seed != first.seed {
             return Err(mismatch("seed", first.seed.to_string(), s.seed.to_string()));
         }
@@ -275,11 +309,11 @@ pub fn merge(shards: &[ShardFile]) -> Result<SweepReport, MergeError> {
         });
     }
     episodes.sort_by_key(|e| e.index);
-    Ok(report(&first.scenario, first.seed, first.mode, &episodes))
+    Ok(report(&first.scenario, first.seed, first.mode, first.supervised, &episodes))
 }
 
 /// The report over `episodes` (of a whole sweep, or of one shard).
-pub fn report(scenario: &str, seed: u64, mode: Mode, episodes: &[Episode]) -> SweepReport {
+pub fn report(scenario: &str, seed: u64, mode: Mode, supervised: bool, episodes: &[Episode]) -> SweepReport {
     let n = episodes.len().max(1) as f64;
     let rate = |o: Outcome| episodes.iter().filter(|e| e.outcome == o).count() as f64 / n;
     let mut clearances: Vec<f64> = episodes.iter().filter_map(|e| e.min_clearance).collect();
@@ -303,6 +337,7 @@ pub fn report(scenario: &str, seed: u64, mode: Mode, episodes: &[Episode]) -> Sw
                     episodes: inside.len(),
                     goal_rate: inside.iter().filter(|e| e.outcome == Outcome::Goal).count() as f64 / m,
                     collision_rate: inside.iter().filter(|e| e.outcome == Outcome::Collision).count() as f64 / m,
+                    active_contact_rate: inside.iter().filter(|e| e.active_contact).count() as f64 / m,
                 }
             })
             .filter(|b| b.episodes > 0)
@@ -311,10 +346,15 @@ pub fn report(scenario: &str, seed: u64, mode: Mode, episodes: &[Episode]) -> Sw
     SweepReport {
         scenario: scenario.to_owned(),
         mode,
+        supervised,
         episodes: episodes.len(),
         seed,
         goal_rate: rate(Outcome::Goal),
         collision_rate: rate(Outcome::Collision),
+        active_contact_rate: episodes.iter().filter(|e| e.active_contact).count() as f64 / n,
+        passive_contact_rate: episodes.iter().filter(|e| e.passive_contact()).count() as f64 / n,
+        active_contacts_slower_obstacles: episodes.iter().filter(|e| e.active_contact && e.speed_ratio < 1.0).count(),
+        slower_obstacle_episodes: episodes.iter().filter(|e| e.speed_ratio < 1.0).count(),
         timeout_rate: rate(Outcome::Timeout),
         stall_rate: rate(Outcome::Stall),
         fault_rate: rate(Outcome::Fault),
@@ -333,18 +373,29 @@ impl std::fmt::Display for SweepReport {
         let pc = |x: f64| 100.0 * x;
         writeln!(
             f,
-            "sweep of {} episodes around {} (seed {}, {})",
-            self.episodes, self.scenario, self.seed, self.mode
+            "sweep of {} episodes around {} (seed {}, {}{})",
+            self.episodes,
+            self.scenario,
+            self.seed,
+            self.mode,
+            if self.supervised { "" } else { ", unsupervised" }
         )?;
         writeln!(
             f,
-            "  goal {:.1}%  collision {:.1}%  timeout {:.1}%  stall {:.1}%  fault {:.1}%  stopped {:.1}%",
+            "  goal {:.1}%  collision {:.1}% (active {:.1}%, passive {:.1}%)  timeout {:.1}%  stall {:.1}%  fault {:.1}%  stopped {:.1}%",
             pc(self.goal_rate),
             pc(self.collision_rate),
+            pc(self.active_contact_rate),
+            pc(self.passive_contact_rate),
             pc(self.timeout_rate),
             pc(self.stall_rate),
             pc(self.fault_rate),
             pc(self.stopped_rate)
+        )?;
+        writeln!(
+            f,
+            "  active contacts with every obstacle slower than the robot: {} of {} episodes",
+            self.active_contacts_slower_obstacles, self.slower_obstacle_episodes
         )?;
         writeln!(
             f,
@@ -354,16 +405,17 @@ impl std::fmt::Display for SweepReport {
         for (title, bins) in
             [("obstacle speed / robot limit", &self.by_speed_ratio), ("sensing delay (s)", &self.by_delay)]
         {
-            writeln!(f, "  {title:<30} {:>9} {:>8} {:>10}", "episodes", "goal", "collision")?;
+            writeln!(f, "  {title:<30} {:>9} {:>8} {:>10} {:>8}", "episodes", "goal", "collision", "active")?;
             for b in bins {
                 let range =
                     if b.to.is_finite() { format!("{:.2} - {:.2}", b.from, b.to) } else { format!(">= {:.2}", b.from) };
                 writeln!(
                     f,
-                    "  {range:<30} {:>9} {:>7.1}% {:>9.1}%",
+                    "  {range:<30} {:>9} {:>7.1}% {:>9.1}% {:>7.1}%",
                     b.episodes,
                     pc(b.goal_rate),
-                    pc(b.collision_rate)
+                    pc(b.collision_rate),
+                    pc(b.active_contact_rate)
                 )?;
             }
         }

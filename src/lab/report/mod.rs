@@ -22,7 +22,7 @@ pub fn start_field(s: &Scenario) -> Option<Field> {
         .iter()
         .map(|o| {
             let path = flowgate_sim::world::ObstaclePath::new(o);
-            ObstacleEstimate { center: path.position(0.0), velocity: path.velocity(0.0), radius: o.radius }
+            ObstacleEstimate::exact(path.position(0.0), path.velocity(0.0), o.radius)
         })
         .collect();
     let input = PlanInput {

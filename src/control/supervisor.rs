@@ -1,0 +1,257 @@
+//! The safety supervisor: the last word on every wheel command, independent of the field.
+//!
+//! **Its promise:** the robot is never driving toward an obstacle or a lane line when it
+//! touches it. A contact can still happen, when an obstacle runs into a robot that has
+//! stopped or is moving away (a *passive* contact); the field and the margins are what
+//! avoid those.
+//!
+//! **Its rule.** A command passes when the path the robot would take, holding it for one
+//! reaction time `τ` and then braking, never brings it against a hazard while it moves
+//! toward it:
+//!
+//! - the path: each wheel ramps at the boards' acceleration `a` from its present speed (the
+//!   tracker's ramp model) toward the command for `τ`, which is exact for the boards; then
+//!   the brake holds the turn and lowers both wheels together, so the centre slows at `a`
+//!   until it stops (the wheels may go on turning the robot on the spot). The pose is
+//!   integrated along it in steps of [`STEP`];
+//! - an obstacle: its predicted centre moves on at its estimated velocity; the robot must
+//!   keep the sum of the radii, `sigmas` standard deviations of the centre, `sigmas`
+//!   standard deviations of the velocity times the time ahead, a fixed `clearance` and one
+//!   step's travel from it, or else be moving away from it;
+//! - a lane line: the robot's centre keeps `clearance` and a step's travel from it, or
+//!   moves away from it.
+//!
+//! A command that fails is slowed: the largest forward speed that passes with the command's
+//! turn (bisection), else with the turn the wheels hold now (the brake above), else the
+//! brake itself, which is then reported as [`Supervision::Braking`]: the estimate changed
+//! faster than one reaction time allows for. A robot at rest, turning on the spot or
+//! moving away from every hazard always passes: the supervisor never traps it.
+//!
+//! The supervisor keeps no state: the estimate carries the wheels' present speeds. So the
+//! gateway, the offline runner, replay and the benchmarks apply the same rule.
+
+use num_complex::Complex64 as C;
+
+use arrayvec::ArrayVec;
+
+use crate::planner::drive::WheelSpeeds;
+use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
+use crate::track::Estimate;
+
+/// What the supervisor is configured with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SupervisorConfig {
+    /// The boards' acceleration ramp on each wheel, m/s².
+    pub wheel_accel: f64,
+    /// `l_w`, m.
+    pub wheel_base: f64,
+    pub robot_radius: f64,
+    /// From a decision to the next decision taking effect, s: the control period and the
+    /// command's way to the wheels.
+    pub reaction_time: f64,
+    /// The lane's half-width `h` (the lines bound the robot's centre); `None`: free space.
+    pub lane_half_width: Option<f64>,
+    /// Standard deviations of an obstacle's estimate kept clear.
+    pub sigmas: f64,
+    /// Gap kept beyond the uncertainty, m.
+    pub clearance: f64,
+}
+
+impl SupervisorConfig {
+    /// Three standard deviations and 2 mm beyond them; reaction time one period and a half
+    /// (the command's way to the wheels and the period's jitter, well within half a period).
+    pub fn new(wheel_accel: f64, wheel_base: f64, robot_radius: f64, period: f64, lane: Option<f64>) -> Self {
+        Self {
+            wheel_accel,
+            wheel_base,
+            robot_radius,
+            reaction_time: 1.5 * period,
+            lane_half_width: lane,
+            sigmas: 1.0,
+            clearance: 0.002,
+        }
+    }
+}
+
+impl SupervisorConfig {
+    /// What it keeps from an obstacle beyond the radii and the uncertainty allowance when
+    /// it certifies a command, m.
+    pub fn keep_out(&self) -> f64 {
+        self.clearance + ROBUSTNESS
+    }
+}
+
+/// What the supervisor did to a command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Supervision {
+    /// It passed unchanged.
+    Passed,
+    /// It was slowed (`hazard`: the obstacle's index, `None` for a lane line).
+    Slowed { hazard: Option<usize> },
+    /// Even braking cannot keep the promise under the estimate: the robot brakes.
+    Braking { hazard: Option<usize> },
+}
+
+impl Supervision {
+    pub fn intervened(self) -> bool {
+        self != Supervision::Passed
+    }
+}
+
+/// Something the robot must not drive into.
+#[derive(Debug, Clone, Copy)]
+enum Hazard {
+    /// An obstacle: where it is predicted now, its velocity, the distance to keep from its
+    /// centre now, and how fast that distance grows with the time ahead (its velocity's
+    /// uncertainty).
+    Obstacle { index: usize, center: C, velocity: C, keep: f64, growth: f64 },
+    /// A lane line at `y = side · h`: the centre keeps `keep` from it.
+    Wall { side: f64, keep: f64 },
+}
+
+impl Hazard {
+    fn with_slack(self, slack: f64) -> Self {
+        match self {
+            Hazard::Obstacle { index, center, velocity, keep, growth } => {
+                Hazard::Obstacle { index, center, velocity, keep: keep + slack, growth }
+            }
+            Hazard::Wall { side, keep } => Hazard::Wall { side, keep: keep + slack },
+        }
+    }
+
+    fn index(&self) -> Option<usize> {
+        match self {
+            Hazard::Obstacle { index, .. } => Some(*index),
+            Hazard::Wall { .. } => None,
+        }
+    }
+
+    /// Whether a robot at `position` moving at `velocity`, `s` seconds ahead, drives into it.
+    fn driven_into(&self, s: f64, position: C, velocity: C, half_width: f64) -> bool {
+        match *self {
+            Hazard::Obstacle { center, velocity: v, keep, growth, .. } => {
+                let d = center + v * s - position;
+                let reach = keep + growth * s;
+                d.norm_sqr() < reach * reach && d.re * velocity.re + d.im * velocity.im > 0.0
+            }
+            Hazard::Wall { side, keep } => half_width - side * position.im < keep && side * velocity.im > 0.0,
+        }
+    }
+}
+
+/// The longest step along the predicted path, s.
+pub const STEP: f64 = 0.005;
+
+/// Bisection steps for the allowed speed: 2^-16 of the command, below 3 µm/s.
+const BISECTIONS: usize = 16;
+
+/// The supervisor's verdict on the command `proposed` in the state `estimate` (judged on
+/// its obstacles predicted to now, whatever the planner plans on).
+pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: WheelSpeeds) -> (WheelSpeeds, Supervision) {
+    let ctx = Context::new(cfg, estimate, estimate.predicted);
+    let Some(hazard) = ctx.first_driven_into(proposed, ROBUSTNESS) else { return (proposed, Supervision::Passed) };
+    let forward = 0.5 * (proposed.left + proposed.right);
+    let turn = 0.5 * (proposed.right - proposed.left);
+    let held_turn = 0.5 * (ctx.wheels[1] - ctx.wheels[0]);
+    let with = |turn: f64| move |v: f64| WheelSpeeds { left: v - turn, right: v + turn };
+    // Slow down keeping the command's turn, else keeping the wheels' present one. A stop
+    // that keeps the promise as it stands is taken; a speed above it must keep it with
+    // [`ROBUSTNESS`] to spare.
+    for command in [with(turn), with(held_turn)] {
+        if ctx.first_driven_into(command(0.0), 0.0).is_none() {
+            let (mut lo, mut hi) = (0.0, forward.max(0.0));
+            for _ in 0..BISECTIONS {
+                let mid = 0.5 * (lo + hi);
+                if ctx.first_driven_into(command(mid), ROBUSTNESS).is_none() {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            return (command(lo), Supervision::Slowed { hazard: hazard.index() });
+        }
+    }
+    (with(held_turn)(0.0), Supervision::Braking { hazard: hazard.index() })
+}
+
+/// What a command is certified with beyond the promise, m: the next cycle judges the brake
+/// it relied on from a state a little off the model's (whole pulses, the cycle's jitter),
+/// and must still find it safe.
+const ROBUSTNESS: f64 = 0.001;
+
+/// The state one verdict is judged in.
+struct Context<'a> {
+    cfg: &'a SupervisorConfig,
+    position: C,
+    heading: f64,
+    wheels: [f64; 2],
+    hazards: ArrayVec<Hazard, { MAX_OBSTACLES + 2 }>,
+}
+
+impl<'a> Context<'a> {
+    fn new(cfg: &'a SupervisorConfig, e: &Estimate<'_>, obstacles: &[ObstacleEstimate]) -> Self {
+        let mut hazards = ArrayVec::new();
+        for (index, o) in obstacles.iter().enumerate().take(MAX_OBSTACLES) {
+            hazards.push(Hazard::Obstacle {
+                index,
+                center: o.center,
+                velocity: o.velocity,
+                keep: o.radius + cfg.robot_radius + cfg.sigmas * o.position_sd + cfg.clearance,
+                growth: cfg.sigmas * o.velocity_sd,
+            });
+        }
+        if cfg.lane_half_width.is_some() {
+            for side in [1.0, -1.0] {
+                hazards.push(Hazard::Wall { side, keep: cfg.clearance });
+            }
+        }
+        Self { cfg, position: e.pose.position, heading: e.pose.heading, wheels: e.wheels, hazards }
+    }
+
+    /// The first hazard `command` drives into along its path (see the module docs).
+    fn first_driven_into(&self, command: WheelSpeeds, spare: f64) -> Option<Hazard> {
+        let (a, tau, base) = (self.cfg.wheel_accel, self.cfg.reaction_time, self.cfg.wheel_base);
+        let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
+        let target = [command.left, command.right];
+        let (mut position, mut heading, mut wheels) = (self.position, self.heading, self.wheels);
+        let mut s = 0.0;
+        loop {
+            // The wheels over the next step: toward the command until τ, then braking.
+            let h = STEP;
+            let next = if s < tau {
+                [0, 1].map(|w| wheels[w] + (target[w] - wheels[w]).clamp(-a * h, a * h))
+            } else {
+                let mean = 0.5 * (wheels[0] + wheels[1]);
+                let drop = (a * h).min(mean.max(0.0));
+                [wheels[0] - drop, wheels[1] - drop]
+            };
+            let (v, omega) = (
+                0.25 * (wheels[0] + next[0] + wheels[1] + next[1]),
+                0.5 * (next[1] - next[0] + wheels[1] - wheels[0]) / base,
+            );
+            // One step's travel is kept beside the radii: the check runs at the step's ends.
+            let slack = v.abs() * h + spare;
+            let velocity = C::from_polar(v, heading);
+            if v > 0.0 {
+                let hit =
+                    self.hazards.iter().find(|hz| hz.with_slack(slack).driven_into(s, position, velocity, half_width));
+                if hit.is_some() {
+                    return hit.copied();
+                }
+            }
+            position += C::from_polar(v * h, heading + 0.5 * omega * h);
+            heading += omega * h;
+            wheels = next;
+            s += h;
+            if s >= tau && 0.5 * (wheels[0] + wheels[1]) <= 0.0 {
+                // Stopped: one last look where it came to rest, still moving until now.
+                let last = C::from_polar(v, heading);
+                return self
+                    .hazards
+                    .iter()
+                    .find(|hz| hz.with_slack(slack).driven_into(s, position, last, half_width))
+                    .copied();
+            }
+        }
+    }
+}
