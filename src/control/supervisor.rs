@@ -212,6 +212,22 @@ impl<'a> Context<'a> {
     fn first_driven_into(&self, command: WheelSpeeds, spare: f64) -> Option<Hazard> {
         let (a, tau, base) = (self.cfg.wheel_accel, self.cfg.reaction_time, self.cfg.wheel_base);
         let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
+        // Most cycles nothing is within reach: no wheel goes faster than the fastest of its
+        // speed now and its command, so the centre travels at most that for `τ` and its
+        // braking (plus a step), while each obstacle comes at most its speed and growth.
+        let fastest =
+            [self.wheels[0], self.wheels[1], command.left, command.right].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let stop = tau + fastest / a + STEP;
+        let reach = fastest * stop + spare + fastest * STEP;
+        let near = |hz: &Hazard| match *hz {
+            Hazard::Obstacle { center, velocity, keep, growth, .. } => {
+                (center - self.position).norm() <= keep + reach + (velocity.norm() + growth) * stop
+            }
+            Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
+        };
+        if !self.hazards.iter().any(near) {
+            return None;
+        }
         let target = [command.left, command.right];
         let (mut position, mut heading, mut wheels) = (self.position, self.heading, self.wheels);
         let mut s = 0.0;
