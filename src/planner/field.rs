@@ -216,6 +216,18 @@ impl Field {
     /// (its series: about 17 kB), so a control cycle builds into one rather than copying a
     /// new one out. On an error the field is left without obstacles: do not use it.
     pub fn rebuild(&mut self, space: Space, sink: Sink, obstacles: &[PlanObstacle]) -> Result<(), FieldError> {
+        self.rebuild_clear_of(space, sink, obstacles, None)
+    }
+
+    /// [`rebuild`](Self::rebuild), leaving `robot` (where the robot is) outside any circle
+    /// that [`in_lane`] would close over it, as it leaves the goal.
+    pub fn rebuild_clear_of(
+        &mut self,
+        space: Space,
+        sink: Sink,
+        obstacles: &[PlanObstacle],
+        robot: Option<C>,
+    ) -> Result<(), FieldError> {
         self.n = 0;
         self.lane_series.clear();
         if obstacles.len() > MAX_OBSTACLES {
@@ -244,7 +256,7 @@ impl Field {
             }
             let o = match space {
                 Space::Free => *o,
-                Space::Lane { half_width } => in_lane(*o, half_width),
+                Space::Lane { half_width } => in_lane(*o, half_width, [Some(sink.goal), robot]),
             };
             let to_goal = sink.goal - o.center;
             if to_goal.norm() <= o.radius {
@@ -409,7 +421,21 @@ impl Field {
 /// no series at the centre converges in: it is moved toward that wall and grown by as much
 /// (so it still covers the true circle) until it crosses the wall by [`WALL_OVERLAP`] of
 /// its radius. A centre beyond a wall (a noisy estimate) is brought inside in the same way.
-fn in_lane(o: PlanObstacle, half_width: f64) -> PlanObstacle {
+///
+/// A closure is not made where it would take in a point that the circle leaves out (the
+/// goal, the robot): the robot would be stopped, or the goal blocked, by a circle grown for
+/// the series' sake. That circle stays as planned, its series converging less well.
+fn in_lane(o: PlanObstacle, half_width: f64, keep_clear: [Option<C>; 2]) -> PlanObstacle {
+    let closed = closed_against_the_wall(o, half_width);
+    let takes_in = |p: C| (p - closed.center).norm() <= closed.radius && (p - o.center).norm() > o.radius;
+    if keep_clear.into_iter().flatten().any(takes_in) {
+        o
+    } else {
+        closed
+    }
+}
+
+fn closed_against_the_wall(o: PlanObstacle, half_width: f64) -> PlanObstacle {
     let side = if o.center.im >= 0.0 { 1.0 } else { -1.0 };
     let d = half_width - o.center.im.abs(); // to the nearer wall, negative beyond it
     let gap = d - o.radius;

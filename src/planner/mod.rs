@@ -25,7 +25,9 @@
 //! - **No freeze inside a margin**: a robot that finds itself inside a planning circle but
 //!   outside the true one gets that circle shrunk to just short of it (never below what
 //!   covers the true circle), so the field keeps steering it instead of stopping it while
-//!   an obstacle slides past.
+//!   an obstacle slides past; a goal inside a margin likewise, so a margin never makes a
+//!   goal beside an obstacle unreachable. The safety supervisor guards what a shrunk
+//!   margin gives up.
 //! - **Saturation** to the robot's speed limit, keeping the direction.
 //! - **Flags**: tie-break active, margin shrunk, command saturated. (Whether an obstacle
 //!   outruns the robot is judged over time, with hysteresis, in the control step.)
@@ -150,8 +152,8 @@ pub struct PlanFlags {
     pub saturated: bool,
     /// The tie-break shifted at least one planning circle.
     pub tie_break: bool,
-    /// The robot stood inside a planning circle's margin, which was shrunk toward the true
-    /// circle so the robot is just outside it (rather than stopping there).
+    /// The robot or the goal stood inside a planning circle's margin, which was shrunk
+    /// toward the true circle to leave it just outside (rather than stopping there).
     pub margin_shrunk: bool,
 }
 
@@ -218,15 +220,18 @@ impl Planner {
                     flags.tie_break = true;
                 }
             }
-            // Never freeze inside a margin: a robot inside the planning circle but outside
-            // the true one (the sum of the radii) gets the circle shrunk to just short of
-            // it, never below what covers the true circle. Inside the true circle it
-            // stays invalid: that is a contact.
+            // A margin never freezes the robot nor blocks the goal: a robot or a goal inside
+            // the planning circle but outside the true one (the sum of the radii) gets the
+            // circle shrunk to just short of it, never below what covers the true circle
+            // (the supervisor guards what the margin gives up). Inside the true circle they
+            // stay invalid: a robot there is in contact, a goal there cannot be reached.
             let cover = r0 + (p.center - o.center).norm();
-            let distance = (input.position - p.center).norm();
-            if distance <= p.radius && distance > cover {
-                p.radius = cover.max(distance - SHRUNK_GAP.min(0.5 * (distance - cover)));
-                flags.margin_shrunk = true;
+            for point in [input.position, input.goal] {
+                let distance = (point - p.center).norm();
+                if distance <= p.radius && distance > cover {
+                    p.radius = cover.max(distance - SHRUNK_GAP.min(0.5 * (distance - cover)));
+                    flags.margin_shrunk = true;
+                }
             }
             *slot = p;
         }
@@ -248,7 +253,7 @@ impl Planner {
         let (n, mut flags) = self.plan_obstacles(input, &mut planned)?;
         let sink = self.sink(input.goal);
         let mut field = Field::empty(self.config.space, sink);
-        field.rebuild(self.config.space, sink, &planned[..n])?;
+        field.rebuild_clear_of(self.config.space, sink, &planned[..n], Some(input.position))?;
         let v = field.velocity(input.position)?;
         let speed = v.norm();
         let velocity = if speed > self.config.max_speed {

@@ -419,8 +419,8 @@ proptest! {
 }
 
 /// Never freeze inside a margin: a robot inside an obstacle's planning circle but outside
-/// the true one gets the circle shrunk to just short of it and a command (no inward flow);
-/// one inside the true circle (a contact) is still refused.
+/// the true one gets the circle shrunk to just short of it and a command; one inside the
+/// true circle (a contact) is still refused. A goal inside a margin likewise.
 #[test]
 fn a_robot_inside_a_margin_is_steered_not_frozen() {
     let planner = Planner::new(PlannerConfig { margin: Margin::Factor { factor: 1.5 }, ..*planner(None).config() });
@@ -443,6 +443,13 @@ fn a_robot_inside_a_margin_is_steered_not_frozen() {
     // Inside the true circle: refused.
     let inside = PlanInput { position: C::from_polar(0.13, 2.5), ..input };
     assert_eq!(planner.plan(&inside).unwrap_err(), FieldError::InsideObstacle { index: 0 });
+    // A goal inside the margin: shrunk likewise; inside the true circle: refused.
+    let near_goal = PlanInput { position: C::new(-1.0, 0.0), goal: C::from_polar(0.18, 0.5), ..input };
+    planner.plan_obstacles(&near_goal, &mut planned).unwrap();
+    assert!((planned[0].radius - (0.18 - SHRUNK_GAP)).abs() < 1e-12, "{}", planned[0].radius);
+    assert!(planner.plan(&near_goal).is_ok());
+    let blocked = PlanInput { goal: C::from_polar(0.12, 0.5), ..near_goal };
+    assert_eq!(planner.plan(&blocked).unwrap_err(), FieldError::GoalInsideObstacle { index: 0 });
     // Outside the margin: untouched.
     let outside = PlanInput { position: C::from_polar(0.3, 2.5), ..input };
     planner.plan_obstacles(&outside, &mut planned).unwrap();
