@@ -947,6 +947,7 @@ impl<K: StageClock> Core<K> {
         let mut pulses = [0i32; 2];
         let mut wheels = (0.0, 0.0);
         if let Some(out) = step {
+            self.counters.obstacle_outran_robot += u64::from(out.outrun);
             match out.status {
                 StepStatus::Driving => {
                     pulses = out.pulses;

@@ -120,6 +120,11 @@ pub fn render(s: &Snapshot) -> String {
         "Cycles whose command the safety supervisor changed, by how.",
         &[("{how=\"slowed\"}", c.supervisor_slowed), ("{how=\"braking\"}", c.supervisor_braking)],
     );
+    counter(
+        "obstacle_outran_robot",
+        "Cycles in which an obstacle outran what the robot can deliver.",
+        &[("", c.obstacle_outran_robot)],
+    );
     counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
 
     counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);

@@ -102,7 +102,7 @@ impl Run {
             supervisor_braking_cycles: e.report.counters.supervisor_braking,
             saturated_cycles: 0,
             tie_break_cycles: 0,
-            obstacle_faster_than_robot: false,
+            obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
         };
         Run { summary, trace }
     }
