@@ -249,3 +249,17 @@ fn sweeps_have_no_active_contact_where_obstacles_are_slower() {
         }
     }
 }
+
+/// A board ramp far too slow to stop in time (1 mm/s²: 11 m to stop from 15 cm/s) is
+/// judged like any other, in a bounded number of steps: the robot brakes, and the verdict
+/// says it could not be made safe.
+#[test]
+fn a_ramp_too_slow_to_stop_brakes_and_says_so() {
+    let cfg = SupervisorConfig::new(0.001, 0.108, ROBOT_RADIUS, 0.02, None);
+    let obstacle = [ObstacleEstimate::exact(C::new(0.5, 0.0), C::default(), 0.07)];
+    let pose = Pose { position: C::new(0.0, 0.0), heading: 0.0 };
+    let moving = Estimate { pose, wheels: [0.15; 2], obstacles: &obstacle, predicted: &obstacle, delay: 0.0 };
+    let (wheels, verdict) = supervise(&cfg, &moving, WheelSpeeds { left: 0.15, right: 0.15 });
+    assert_eq!(verdict, Supervision::Braking { hazard: Some(0) });
+    assert_eq!(wheels, WheelSpeeds { left: 0.0, right: 0.0 });
+}

@@ -139,8 +139,12 @@ impl Hazard {
     }
 }
 
-/// The longest step along the predicted path, s.
+/// The step along the predicted path, s.
 pub const STEP: f64 = 0.005;
+
+/// The most steps a predicted path takes (a board ramp so slow that its stop would need
+/// more gets longer steps: the verdict's cost stays bounded whatever the config).
+const MAX_PATH_STEPS: f64 = 128.0;
 
 /// Bisection steps for the allowed speed: 2^-16 of the command, below 3 µm/s.
 const BISECTIONS: usize = 16;
@@ -217,8 +221,11 @@ impl<'a> Context<'a> {
         // braking (plus a step), while each obstacle comes at most its speed and growth.
         let fastest =
             [self.wheels[0], self.wheels[1], command.left, command.right].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let stop = tau + fastest / a + STEP;
-        let reach = fastest * stop + spare + fastest * STEP;
+        // The path's step: [`STEP`], longer where a slow ramp makes the stop long (its
+        // travel is kept as slack, so a longer step is only more cautious).
+        let h = STEP.max((tau + fastest / a) / MAX_PATH_STEPS);
+        let stop = tau + fastest / a + h;
+        let reach = fastest * stop + spare + fastest * h;
         let near = |hz: &Hazard| match *hz {
             Hazard::Obstacle { center, velocity, keep, growth, .. } => {
                 (center - self.position).norm() <= keep + reach + (velocity.norm() + growth) * stop
@@ -233,7 +240,6 @@ impl<'a> Context<'a> {
         let mut s = 0.0;
         loop {
             // The wheels over the next step: toward the command until τ, then braking.
-            let h = STEP;
             let next = if s < tau {
                 [0, 1].map(|w| wheels[w] + (target[w] - wheels[w]).clamp(-a * h, a * h))
             } else {
