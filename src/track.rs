@@ -202,8 +202,7 @@ impl WheelCommand {
         if accel <= 0.0 {
             return self.target;
         }
-        let step = accel * dt.max(0.0);
-        [0, 1].map(|w| self.from[w] + (self.target[w] - self.from[w]).clamp(-step, step))
+        [0, 1].map(|w| ramp(self.from[w], self.target[w], accel * dt.max(0.0)))
     }
     /// How long after it the wheels reach this command's speeds, s.
     fn ramp_time(&self, accel: f64) -> f64 {
@@ -212,6 +211,12 @@ impl WheelCommand {
         }
         (self.target[0] - self.from[0]).abs().max((self.target[1] - self.from[1]).abs()) / accel
     }
+}
+
+/// A wheel's speed after its ramp has moved it at most `step` (m/s) from `from` toward
+/// `to`: how the boards' axes follow a command.
+pub fn ramp(from: f64, to: f64, step: f64) -> f64 {
+    from + (to - from).clamp(-step, step)
 }
 
 /// The longest step of dead reckoning through a ramp, s: one control period. The wheel

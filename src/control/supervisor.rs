@@ -36,7 +36,7 @@ use arrayvec::ArrayVec;
 
 use crate::planner::drive::WheelSpeeds;
 use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
-use crate::track::Estimate;
+use crate::track::{ramp, Estimate};
 
 /// What the supervisor is configured with.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -241,7 +241,7 @@ impl<'a> Context<'a> {
         loop {
             // The wheels over the next step: toward the command until τ, then braking.
             let next = if s < tau {
-                [0, 1].map(|w| wheels[w] + (target[w] - wheels[w]).clamp(-a * h, a * h))
+                [0, 1].map(|w| ramp(wheels[w], target[w], a * h))
             } else {
                 let mean = 0.5 * (wheels[0] + wheels[1]);
                 let drop = (a * h).min(mean.max(0.0));
