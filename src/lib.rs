@@ -5,7 +5,7 @@
 //! [`link`] (serial and CAN transports) -> [`gateway`] (the core: PSD session, tracking,
 //! control, safety; and the tokio shell) -> [`calib`] (PSD counts to floor) -> [`track`]
 //! (robot pose and obstacle motion) -> [`control`] and [`planner`] (navigation function,
-//! wheel speeds, pulse rates). [`config`] parses the rig once into a typed [`config::Rig`];
+//! wheel speeds, pulse rates), on [`geometry`]'s lengths and rotations. [`config`] parses the rig once into a typed [`config::Rig`];
 //! [`time`] keeps host and controller clocks apart. [`setup`] holds the tools of a rig's
 //! first day: the preflight check and the calibration. The lab tools ([`lab`]: the simulator
 //! in virtual and real time, sweeps, plots, the benchmark) are behind the `lab` feature, so
@@ -15,6 +15,7 @@ pub mod calib;
 pub mod config;
 pub mod control;
 pub mod gateway;
+pub mod geometry;
 #[cfg(feature = "lab")]
 pub mod lab;
 pub mod link;

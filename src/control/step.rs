@@ -1,4 +1,5 @@
 use super::supervisor::{supervise, Supervision, SupervisorConfig};
+use crate::geometry::Length;
 use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::planner::{ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
 use crate::track::Estimate;
@@ -92,7 +93,7 @@ impl Envelope {
     /// now outruns it.
     pub fn update(&mut self, obstacles: &[ObstacleEstimate], limit: f64) -> bool {
         for (outrun, o) in self.outrun.iter_mut().zip(obstacles) {
-            let speed = o.velocity.norm();
+            let speed = o.velocity.length();
             if speed - o.velocity_sd >= limit {
                 *outrun = true;
             } else if speed + o.velocity_sd < limit {
@@ -140,7 +141,7 @@ impl ControlStep {
 
     fn decide(&mut self, t: f64, estimate: &Estimate<'_>) -> StepOutput {
         let position = estimate.pose.position;
-        if (position - self.config.goal).norm() <= self.config.goal_tolerance {
+        if (position - self.config.goal).length() <= self.config.goal_tolerance {
             return StepOutput::stop(StepStatus::AtGoal, None);
         }
         let input = PlanInput {
@@ -168,7 +169,7 @@ impl ControlStep {
 
     fn stalled(&mut self, t: f64, position: C) -> bool {
         match self.progress_anchor {
-            Some((t0, p0)) if (position - p0).norm() < self.config.stall.min_progress => {
+            Some((t0, p0)) if (position - p0).length() < self.config.stall.min_progress => {
                 t - t0 > self.config.stall.window
             }
             _ => {

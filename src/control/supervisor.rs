@@ -34,6 +34,7 @@ use num_complex::Complex64 as C;
 
 use arrayvec::ArrayVec;
 
+use crate::geometry::{rotation, Length};
 use crate::planner::drive::WheelSpeeds;
 use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
 use crate::track::{ramp, Estimate};
@@ -228,7 +229,7 @@ impl<'a> Context<'a> {
         let reach = fastest * stop + spare + fastest * h;
         let near = |hz: &Hazard| match *hz {
             Hazard::Obstacle { center, velocity, keep, growth, .. } => {
-                (center - self.position).norm() <= keep + reach + (velocity.norm() + growth) * stop
+                (center - self.position).length() <= keep + reach + (velocity.length() + growth) * stop
             }
             Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
         };
@@ -236,7 +237,10 @@ impl<'a> Context<'a> {
             return None;
         }
         let target = [command.left, command.right];
-        let (mut position, mut heading, mut wheels) = (self.position, self.heading, self.wheels);
+        let (mut position, mut wheels) = (self.position, self.wheels);
+        // The heading as a unit complex number, turned by each step's small rotation: no
+        // sine or cosine a step (a verdict can take a hundred steps).
+        let mut facing = C::from_polar(1.0, self.heading);
         let mut s = 0.0;
         loop {
             // The wheels over the next step: toward the command until τ, then braking.
@@ -253,7 +257,7 @@ impl<'a> Context<'a> {
             );
             // One step's travel is kept beside the radii: the check runs at the step's ends.
             let slack = v.abs() * h + spare;
-            let velocity = C::from_polar(v, heading);
+            let velocity = facing * v;
             if v > 0.0 {
                 let hit =
                     self.hazards.iter().find(|hz| hz.with_slack(slack).driven_into(s, position, velocity, half_width));
@@ -261,13 +265,13 @@ impl<'a> Context<'a> {
                     return hit.copied();
                 }
             }
-            position += C::from_polar(v * h, heading + 0.5 * omega * h);
-            heading += omega * h;
+            position += facing * rotation(0.5 * omega * h) * (v * h);
+            facing *= rotation(omega * h);
             wheels = next;
             s += h;
             if s >= tau && 0.5 * (wheels[0] + wheels[1]) <= 0.0 {
                 // Stopped: one last look where it came to rest, still moving until now.
-                let last = C::from_polar(v, heading);
+                let last = facing * v;
                 return self
                     .hazards
                     .iter()

@@ -8,6 +8,8 @@
 
 use num_complex::Complex64 as C;
 
+use crate::geometry::Length;
+
 /// The drive's geometry and the steering gain.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriveConfig {
@@ -40,7 +42,7 @@ pub struct WheelSpeeds {
 
 /// Eq. 30 with the heading gate and wheel limits described in the module docs.
 pub fn wheel_speeds(command: C, heading: f64, cfg: &DriveConfig) -> WheelSpeeds {
-    let speed = command.norm();
+    let speed = command.length();
     if speed.is_nan() || speed <= 0.0 || !heading.is_finite() {
         return WheelSpeeds::default();
     }

@@ -34,6 +34,8 @@
 use arrayvec::ArrayVec;
 use num_complex::Complex64 as C;
 
+use crate::geometry::Length;
+
 use super::multipole::{self, Fitted, Series, ORDERS, POINTS};
 
 /// The most obstacles one field holds (fixed arrays: evaluation never allocates).
@@ -259,7 +261,7 @@ impl Field {
                 Space::Lane { half_width } => in_lane(*o, half_width, [Some(sink.goal), robot]),
             };
             let to_goal = sink.goal - o.center;
-            if to_goal.norm() <= o.radius {
+            if to_goal.length() <= o.radius {
                 return Err(FieldError::GoalInsideObstacle { index: k });
             }
             let r2 = o.radius * o.radius;
@@ -320,7 +322,7 @@ impl Field {
         let o = &self.obstacles[k];
         let d = (self.obstacles[j].center - o.center).conj();
         let r2 = o.radius * o.radius;
-        (d.norm() > 0.0).then(|| (o.center + r2 / d, -self.moments[j].conj() * r2 / (d * d)))
+        (d.length() > 0.0).then(|| (o.center + r2 / d, -self.moments[j].conj() * r2 / (d * d)))
     }
 
     pub fn space(&self) -> Space {
@@ -340,13 +342,13 @@ impl Field {
     /// None if there is no obstacle `k`.
     pub fn circle_residual(&self, k: usize, samples: usize) -> Option<f64> {
         let o = self.obstacles().get(k)?;
-        let (mut worst, mut scale) = (0.0f64, o.velocity.norm());
+        let (mut worst, mut scale) = (0.0f64, o.velocity.length());
         for j in 0..samples {
             let normal = C::from_polar(1.0, std::f64::consts::TAU * j as f64 / samples as f64);
             let z = o.center + normal * (o.radius * (1.0 + 1e-11));
             if let Ok(v) = self.velocity(z) {
                 worst = worst.max(((v - o.velocity) * normal.conj()).re.abs());
-                scale = scale.max(v.norm());
+                scale = scale.max(v.length());
             }
         }
         Some(worst / scale.max(1e-300))
@@ -363,7 +365,7 @@ impl Field {
             }
         }
         let space = self.space;
-        let r = (z - self.sink.goal).norm();
+        let r = (z - self.sink.goal).length();
         if r == 0.0 {
             return Ok(C::default()); // K(0) = 0: at rest on the goal
         }
@@ -376,7 +378,7 @@ impl Field {
         let mut inv_gap = [0.0; MAX_OBSTACLES];
         let mut total = 0.0;
         for (k, (o, inv)) in self.obstacles[..self.n].iter().zip(&mut inv_gap).enumerate() {
-            let gap = (z - o.center).norm() - o.radius;
+            let gap = (z - o.center).length() - o.radius;
             if gap <= 0.0 {
                 return Err(FieldError::InsideObstacle { index: k });
             }
@@ -427,7 +429,7 @@ impl Field {
 /// the series' sake. That circle stays as planned, its series converging less well.
 fn in_lane(o: PlanObstacle, half_width: f64, keep_clear: [Option<C>; 2]) -> PlanObstacle {
     let closed = closed_against_the_wall(o, half_width);
-    let takes_in = |p: C| (p - closed.center).norm() <= closed.radius && (p - o.center).norm() > o.radius;
+    let takes_in = |p: C| (p - closed.center).length() <= closed.radius && (p - o.center).length() > o.radius;
     if keep_clear.into_iter().flatten().any(takes_in) {
         o
     } else {
@@ -464,7 +466,7 @@ pub const WALL_OVERLAP: f64 = 0.25;
 /// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
 /// leave `bounds`, reach the goal, or meet an obstacle.
 pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, bounds: (C, C)) -> Vec<Vec<C>> {
-    let dir = |z: C| field.velocity(z).ok().filter(|v| v.norm() > 1e-12).map(|v| v / v.norm());
+    let dir = |z: C| field.velocity(z).ok().filter(|v| v.length() > 1e-12).map(|v| v / v.length());
     let inside = |z: C| z.re >= bounds.0.re && z.re <= bounds.1.re && z.im >= bounds.0.im && z.im <= bounds.1.im;
     seeds
         .iter()
@@ -475,7 +477,7 @@ pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, boun
                 let Some(d1) = dir(z) else { break };
                 let Some(d2) = dir(z + d1 * (0.5 * step)) else { break };
                 z += d2 * step;
-                if !inside(z) || (z - field.sink().goal).norm() < step {
+                if !inside(z) || (z - field.sink().goal).length() < step {
                     break;
                 }
                 line.push(z);

@@ -39,6 +39,8 @@ pub mod multipole;
 pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
 use num_complex::Complex64 as C;
 
+use crate::geometry::Length;
+
 /// How the planning radius grows from `R_0 = a_0 + a_r`. The one margin type: the rig
 /// config and scenario files deserialise into it (`margin = { rule = "factor", factor = 1.1 }`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -201,9 +203,9 @@ impl Planner {
         }
         let mut flags = PlanFlags::default();
         let to_goal = input.goal - input.position;
-        let left = if to_goal.norm() > 0.0 { C::i() * to_goal / to_goal.norm() } else { C::default() };
+        let left = if to_goal.length() > 0.0 { C::i() * to_goal / to_goal.length() } else { C::default() };
         for (slot, o) in out.iter_mut().zip(input.obstacles) {
-            let speed = o.velocity.norm();
+            let speed = o.velocity.length();
             let r0 = o.radius + input.robot_radius;
             let mut p = PlanObstacle {
                 center: o.center,
@@ -225,9 +227,9 @@ impl Planner {
             // circle shrunk to just short of it, never below what covers the true circle
             // (the supervisor guards what the margin gives up). Inside the true circle they
             // stay invalid: a robot there is in contact, a goal there cannot be reached.
-            let cover = r0 + (p.center - o.center).norm();
+            let cover = r0 + (p.center - o.center).length();
             for point in [input.position, input.goal] {
-                let distance = (point - p.center).norm();
+                let distance = (point - p.center).length();
                 if distance <= p.radius && distance > cover {
                     p.radius = cover.max(distance - SHRUNK_GAP.min(0.5 * (distance - cover)));
                     flags.margin_shrunk = true;
@@ -255,7 +257,7 @@ impl Planner {
         let mut field = Field::empty(self.config.space, sink);
         field.rebuild_clear_of(self.config.space, sink, &planned[..n], Some(input.position))?;
         let v = field.velocity(input.position)?;
-        let speed = v.norm();
+        let speed = v.length();
         let velocity = if speed > self.config.max_speed {
             flags.saturated = true;
             v * (self.config.max_speed / speed)
@@ -270,7 +272,7 @@ impl Planner {
 fn tie_break_shift(tb: &TieBreak, z: C, goal: C, o: &PlanObstacle) -> f64 {
     let p = z - o.center; // robot, seen from the obstacle
     let g = goal - o.center; // goal, seen from the obstacle
-    let (np, ng) = (p.norm(), g.norm());
+    let (np, ng) = (p.length(), g.length());
     if np == 0.0 || ng == 0.0 {
         return 0.0;
     }

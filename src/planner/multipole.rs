@@ -28,6 +28,8 @@
 
 use num_complex::Complex64 as C;
 
+use crate::geometry::Length;
+
 /// The most multipole orders an obstacle gets.
 pub const ORDERS: usize = 32;
 /// Collocation points per order on a circle clear of the walls: 1.5 a real unknown, enough
@@ -158,7 +160,7 @@ pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -
     for p in others {
         for wall in [h, -h] {
             let mirror = C::new(p.re, 2.0 * wall - p.im);
-            rho = rho.max(r / (mirror - a).norm());
+            rho = rho.max(r / (mirror - a).length());
         }
     }
     rho.min(1.0)
@@ -220,52 +222,58 @@ pub fn fit(
         return out;
     }
     let p = 2 * orders + 1;
-    // Column-major: a[col][row]. Column 2(n-1) is Re c_n, 2(n-1)+1 is Im c_n.
-    let mut a = [[0.0; ROWS]; UNKNOWNS];
+    // Rows: the points, and one Tikhonov row an unknown if regularised.
+    let rows = if regularisation > 0.0 { m + p } else { m };
+    // Column-major with a stride of the rows in use: a[col * rows + row]. Column 2(n-1) is
+    // Re c_n, 2(n-1)+1 is Im c_n, the last the source. Only the part in use is written
+    // (a wall circle's fit uses a fifth of the buffer, which would otherwise be cleared).
+    let mut buffer = [0.0; ROWS * UNKNOWNS];
+    let a = &mut buffer[..rows * p];
     let mut flows = [(C::default(), C::default()); ORDERS];
     for (row, &(z, normal)) in points[..m].iter().enumerate() {
         series.terms(z, orders, &mut flows);
         for (n, (re, im)) in flows[..orders].iter().enumerate() {
-            a[2 * n][row] = (re * normal).re;
-            a[2 * n + 1][row] = (im * normal).re;
+            a[2 * n * rows + row] = (re * normal).re;
+            a[(2 * n + 1) * rows + row] = (im * normal).re;
         }
     }
-    a[p - 1][..m].copy_from_slice(&source_flow[..m]);
-    // Tikhonov rows (target zero): `regularisation` times each column's norm. On an arc (a
-    // circle across a wall) the high orders are nearly dependent, and an unregularised fit
-    // buys the last digits of the residual with huge cancelling coefficients, whose
-    // rounding then shows everywhere else (the walls drift from exact by 1e-5).
+    a[(p - 1) * rows..(p - 1) * rows + m].copy_from_slice(&source_flow[..m]);
     let mut b = [[0.0; ROWS]; 2];
     for (b, t) in b.iter_mut().zip(targets) {
         b[..m].copy_from_slice(&t[..m]);
     }
-    let m = if regularisation > 0.0 {
-        for (j, col) in a[..p].iter_mut().enumerate() {
-            let norm = col[..m].iter().map(|v| v * v).sum::<f64>().sqrt();
-            col[m + j] = regularisation * norm;
+    // Tikhonov rows (target zero): `regularisation` times each column's norm. On an arc (a
+    // circle across a wall) the high orders are nearly dependent, and an unregularised fit
+    // buys the last digits of the residual with huge cancelling coefficients, whose
+    // rounding then shows everywhere else (the walls drift from exact by 1e-5).
+    if regularisation > 0.0 {
+        for (j, col) in a.chunks_exact_mut(rows).enumerate() {
+            let (fitted, tikhonov) = col.split_at_mut(m);
+            let norm = fitted.iter().map(|v| v * v).sum::<f64>().sqrt();
+            tikhonov.fill(0.0);
+            tikhonov[j] = regularisation * norm;
         }
-        m + p
-    } else {
-        m
-    };
+    }
+    let m = rows;
     // Householder QR, applied to both right-hand sides as it goes.
     let mut diag = [0.0; UNKNOWNS];
     for k in 0..p {
-        let norm = a[k][k..m].iter().map(|v| v * v).sum::<f64>().sqrt();
+        let (head, tail) = a.split_at_mut((k + 1) * rows);
+        let v = &mut head[k * rows + k..];
+        let norm = v.iter().map(|v| v * v).sum::<f64>().sqrt();
         if norm == 0.0 {
             continue;
         }
-        let alpha = if a[k][k] > 0.0 { -norm } else { norm };
+        let alpha = if v[0] > 0.0 { -norm } else { norm };
         // v = x - alpha e_1, stored in place of column k.
-        a[k][k] -= alpha;
-        let vnorm2 = a[k][k..m].iter().map(|v| v * v).sum::<f64>();
+        v[0] -= alpha;
+        let vnorm2 = v.iter().map(|v| v * v).sum::<f64>();
         diag[k] = alpha;
         if vnorm2 == 0.0 {
             continue;
         }
-        let (head, tail) = a.split_at_mut(k + 1);
-        let v = &head[k][k..m];
-        for col in tail[..p - k - 1].iter_mut() {
+        let v = &*v;
+        for col in tail.chunks_exact_mut(rows) {
             reflect(v, vnorm2, &mut col[k..m]);
         }
         for rhs in &mut b {
@@ -280,7 +288,7 @@ pub fn fit(
             if diag[k].abs() <= 1e-12 * scale {
                 continue;
             }
-            let sum: f64 = (k + 1..p).map(|j| a[j][k] * x[j]).sum();
+            let sum: f64 = (k + 1..p).map(|j| a[j * rows + k] * x[j]).sum();
             x[k] = (rhs[k] - sum) / diag[k];
         }
         for n in 0..orders {

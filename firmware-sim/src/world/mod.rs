@@ -33,6 +33,8 @@ pub struct World {
     /// A calibration wand: an LED someone holds on the floor (its id and where it stands;
     /// `None` = held out of sight).
     wand: Option<(u8, Option<Point>)>,
+    /// The last step's wheel pulses and the arc they drove (see [`robot::Arc`]).
+    arc: ([f64; 2], robot::Arc),
 }
 
 /// Above this speed toward what it touches (m/s), the robot drove into it: an *active*
@@ -105,6 +107,7 @@ impl World {
                 peak_wheel_speed: [0.0; 2],
             },
             wand: None,
+            arc: ([0.0; 2], robot::Arc::REST),
         };
         world.judge();
         world
@@ -180,10 +183,16 @@ impl World {
     pub fn step(&mut self, dt: f64) {
         let n = (dt / 1e-3).ceil().max(1.0) as usize;
         let h = dt / n as f64;
+        // The heading's direction, carried through the sub-steps and taken afresh from the
+        // heading each call, so rounding cannot build up over a run.
+        let mut facing = Point::from_polar(1.0, self.pose.heading);
         for _ in 0..n {
             let before = self.pose.position;
             let pulses = [self.axes[LEFT].step(h), self.axes[RIGHT].step(h)];
-            self.pose = self.drive.advance(self.pose, pulses);
+            if self.arc.0 != pulses {
+                self.arc = (pulses, self.drive.motion(pulses));
+            }
+            (self.pose, facing) = self.arc.1.apply(self.pose, facing);
             self.time += h;
             self.truth.path_length += distance(self.pose.position, before);
             let speeds = self.wheel_speeds();

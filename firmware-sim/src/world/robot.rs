@@ -21,17 +21,49 @@ impl DiffDrive {
     /// The pose after the wheels emitted `pulses` (left, right) from `pose`. Exact for
     /// constant wheel speeds over the step (the centre moves on an arc).
     pub fn advance(&self, pose: Pose, pulses: [f64; 2]) -> Pose {
+        self.motion(pulses).apply(pose, Point::from_polar(1.0, pose.heading)).0
+    }
+
+    /// The robot's motion in its own frame while the wheels emit `pulses` (left, right).
+    pub fn motion(&self, pulses: [f64; 2]) -> Arc {
         if pulses == [0.0, 0.0] {
-            return pose; // at rest (most of a stopped or waiting run): no trigonometry
+            return Arc::REST;
         }
         let [dl, dr] = pulses.map(|p| p / self.pulses_per_metre);
         let ds = 0.5 * (dl + dr);
-        let dtheta = (dr - dl) / self.wheel_base;
+        let turned = (dr - dl) / self.wheel_base;
         // Chord of the arc: ds · sinc(dθ/2) along the mean heading.
-        let half = 0.5 * dtheta;
-        let chord = if half.abs() < 1e-9 { ds } else { ds * half.sin() / half };
-        let mean = pose.heading + half;
-        Pose { position: pose.position + Point::from_polar(chord, mean), heading: wrap_angle(pose.heading + dtheta) }
+        let half = 0.5 * turned;
+        let (sin, cos) = half.sin_cos();
+        let chord = if half.abs() < 1e-9 { ds } else { ds * sin / half };
+        let half_turn = Point::new(cos, sin);
+        Arc { chord: half_turn * chord, rotation: half_turn * half_turn, turned }
+    }
+}
+
+/// A step of the robot along an arc, in its own frame at the start: the chord, the
+/// rotation (a unit complex number) and the angle turned. The world's wheels hold one
+/// speed for most of a run, so most of its 1 ms steps are the same arc: it keeps the last
+/// one, and a step costs no trigonometry.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arc {
+    pub chord: Point,
+    pub rotation: Point,
+    pub turned: f64,
+}
+
+impl Arc {
+    /// No motion.
+    pub const REST: Arc = Arc { chord: Point::new(0.0, 0.0), rotation: Point::new(1.0, 0.0), turned: 0.0 };
+
+    /// `pose` moved along this arc, given the unit vector `facing` along its heading; and
+    /// the new one.
+    pub fn apply(&self, pose: Pose, facing: Point) -> (Pose, Point) {
+        if self.turned == 0.0 && self.chord == Point::new(0.0, 0.0) {
+            return (pose, facing);
+        }
+        let position = pose.position + facing * self.chord;
+        (Pose { position, heading: wrap_angle(pose.heading + self.turned) }, facing * self.rotation)
     }
 }
 
