@@ -263,6 +263,11 @@ pub struct PlannerSettings {
     /// field steers the robot round the supervisor's zone rather than into it).
     #[serde(default = "default_clearance")]
     pub clearance: f64,
+    /// How long the robot holds still while the goal is inside an obstacle's planning
+    /// circle (an obstacle passing over it) before the run stops with `goal blocked`, s;
+    /// 0 stops at once.
+    #[serde(default = "default_goal_wait")]
+    pub goal_wait: f64,
     /// The deterministic keep-right tie-break for symmetric configurations.
     #[serde(default = "default_true")]
     pub tie_break: bool,
@@ -287,6 +292,10 @@ fn default_uncertainty_sigmas() -> f64 {
 
 fn default_clearance() -> f64 {
     0.006
+}
+
+fn default_goal_wait() -> f64 {
+    10.0
 }
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize)]
@@ -432,6 +441,9 @@ impl PlannerSettings {
         }
         if !(self.clearance.is_finite() && (0.0..=0.1).contains(&self.clearance)) {
             return invalid("planner.clearance", format!("must be from 0 to 0.1 m, is {}", self.clearance));
+        }
+        if !(self.goal_wait.is_finite() && (0.0..=3600.0).contains(&self.goal_wait)) {
+            return invalid("planner.goal_wait", format!("must be from 0 to 3600 s, is {}", self.goal_wait));
         }
         match self.margin {
             Margin::None => Ok(()),
@@ -788,6 +800,7 @@ impl GatewayConfig {
             robot_radius: robot,
             stall: StallConfig::default(),
             supervisor: Some(supervisor),
+            goal_wait: p.goal_wait,
         }
     }
 }
@@ -924,6 +937,8 @@ mod tests {
             ("uncertainty_sigmas = 1.0", "uncertainty_sigmas = nan", "planner.uncertainty_sigmas"),
             ("clearance = 0.006", "clearance = 0.5", "planner.clearance"),
             ("clearance = 0.006", "clearance = -0.001", "planner.clearance"),
+            ("goal_wait = 10.0", "goal_wait = -1.0", "planner.goal_wait"),
+            ("goal_wait = 10.0", "goal_wait = inf", "planner.goal_wait"),
             ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = nan", "planner.margin.extra_speed"),
             ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = -1", "planner.margin.extra_speed"),
             ("k1 = 0.0", "k1 = nan", "calibration.k1"),

@@ -163,8 +163,9 @@ fn goals_inside_an_obstacle_outside_the_lane_or_the_arena_are_refused() {
     assert!(out.contains("outside the lane"), "{out}");
 }
 
-/// An obstacle that comes to rest on the goal while the robot drives: an orderly stop,
-/// with that reason.
+/// An obstacle that comes to rest on the goal while the robot drives: the robot holds still
+/// for `planner.goal_wait` (10 s by default) in case it passes, then an orderly stop, with
+/// that reason.
 #[test]
 fn a_goal_that_becomes_blocked_stops_the_robot_in_order() {
     let mut s = scenario("e1-standing-obstacle.toml");
@@ -177,6 +178,9 @@ fn a_goal_that_becomes_blocked_stops_the_robot_in_order() {
     );
     assert_eq!(e.report.final_state, State::Stopped(StopReason::GoalBlocked), "{}", e.report);
     assert!(!e.contact);
+    // Held still for the wait: 10 s of 17 ms cycles, to the cycle.
+    let waited = e.report.counters.goal_occupied as f64 * 0.017;
+    assert!((waited - 10.0).abs() <= 0.017, "waited {waited:.3} s\n{}", e.report);
 }
 
 /// A fault's reset is refused while its cause persists (the board's heartbeat stays away).

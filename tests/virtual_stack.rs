@@ -157,3 +157,72 @@ fn a_silent_controller_is_a_startup_failure() {
     assert!(err.contains("did not answer GetInfo"), "{err}");
     let _ = Duration::ZERO;
 }
+
+/// An obstacle crossing the goal from 2 s to about 5 s (its planning circle over it) while
+/// the robot is still half a metre away.
+fn obstacle_crossing_the_goal(goal_wait: f64) -> Scenario {
+    let text = format!(
+        r#"
+name = "obstacle crossing the goal"
+time_limit = 30
+[robot]
+start = [-0.45, 0.0]
+heading_deg = 0
+radius = 0.07
+wheel_base = 0.108
+wheel_radius = 0.025
+steps_per_rev = 200
+microsteps = 8
+max_wheel_speed = 0.25
+wheel_accel = 1.0
+max_speed = 0.15
+[goal]
+position = [0.45, 0.0]
+[[obstacles]]
+radius = 0.07
+start = [0.45, -0.4]
+motion = {{ kind = "constant", velocity = [0.0, 0.1] }}
+[sensing]
+sample_time = 0.02
+delay = 0.0
+position_noise = 0.001
+lowpass_hz = 0.0
+seed = 1
+[planner]
+cruise_speed = 0.1
+c1 = 20
+kc = 0.06
+goal_wait = {goal_wait}
+"#
+    );
+    Scenario::from_toml(&text, "obstacle crossing the goal").unwrap()
+}
+
+/// An obstacle passing over the goal: the gateway holds the robot still (zero commands, in
+/// Running) while the goal is inside its planning circle, then drives on to the goal by
+/// itself; with no wait allowed it stops in order, saying why. The planner-only runner
+/// does the same.
+#[test]
+fn the_robot_waits_for_an_obstacle_to_leave_the_goal() {
+    let e = sim::run(&obstacle_crossing_the_goal(10.0), options());
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached));
+    assert!(!e.contact && e.motion_outside_running == 0);
+    // 140 cycles of 17 ms (2.38 s, exact for the seed): the obstacle's planning circle
+    // (its radius and the robot's, 14 cm, with the margins) crossing the goal at 10 cm/s.
+    assert_eq!(e.report.counters.goal_occupied, 140, "{}", e.report);
+    // The robot stood still while it waited: its truth shows a stop between 2 and 6 s.
+    let still = e.truth.samples.iter().filter(|s| s.t > 2.0 && s.t < 6.0 && s.wheel_speeds == [0.0; 2]).count();
+    assert!(still as f64 * 0.02 > 0.5, "stood still for {} samples", still);
+
+    let e = sim::run(&obstacle_crossing_the_goal(0.0), options());
+    assert_eq!(e.outcome, Outcome::Stopped, "{}", e.report);
+    assert_eq!(e.report.stop_reason, Some(StopReason::GoalBlocked));
+    assert!(!e.reached_goal);
+
+    let run = flowgate::lab::offline::run(&obstacle_crossing_the_goal(10.0), false).summary;
+    assert_eq!(run.outcome, Outcome::Goal);
+    assert!(run.goal_occupied_cycles > 0);
+    let run = flowgate::lab::offline::run(&obstacle_crossing_the_goal(0.0), false).summary;
+    assert_eq!(run.outcome, Outcome::Stopped);
+}

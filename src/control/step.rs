@@ -32,6 +32,9 @@ pub struct ControlConfig {
     /// The safety supervisor between the planner and the wheels (always on a rig; `None`
     /// only in the lab's unsupervised comparisons).
     pub supervisor: Option<SupervisorConfig>,
+    /// How long the robot holds still while the goal is inside an obstacle's planning
+    /// circle before the run gives up on that goal, s (0: at once).
+    pub goal_wait: f64,
 }
 
 /// What the step decided.
@@ -40,6 +43,16 @@ pub enum StepStatus {
     Driving,
     AtGoal,
     Stalled,
+    /// The goal is inside obstacle `index`'s planning circle (since `since`): there is no
+    /// field to follow, and the robot is commanded to stop and wait for it to pass.
+    GoalOccupied {
+        index: usize,
+        since: f64,
+    },
+    /// The goal has been occupied for longer than [`ControlConfig::goal_wait`]: give it up.
+    GoalBlocked {
+        index: usize,
+    },
     /// The planner refused the input: the robot is commanded to stop.
     Invalid(PlannerError),
 }
@@ -111,18 +124,27 @@ pub struct ControlStep {
     planner: Planner,
     /// Where and when the robot last made progress.
     progress_anchor: Option<(f64, C)>,
+    /// Since when the goal has been inside an obstacle's planning circle.
+    goal_occupied_since: Option<f64>,
     envelope: Envelope,
 }
 
 impl ControlStep {
     pub fn new(config: ControlConfig) -> Self {
-        Self { config, planner: Planner::new(config.planner), progress_anchor: None, envelope: Envelope::default() }
+        Self {
+            config,
+            planner: Planner::new(config.planner),
+            progress_anchor: None,
+            goal_occupied_since: None,
+            envelope: Envelope::default(),
+        }
     }
     /// Drive to a new goal from the next step (progress is judged afresh).
     pub fn set_goal(&mut self, goal: C, tolerance: f64) {
         self.config.goal = goal;
         self.config.goal_tolerance = tolerance;
         self.progress_anchor = None;
+        self.goal_occupied_since = None;
     }
 
     pub fn config(&self) -> &ControlConfig {
@@ -153,8 +175,21 @@ impl ControlStep {
         };
         let plan = match self.planner.plan(&input) {
             Ok(plan) => plan,
+            Err(PlannerError::GoalInsideObstacle { index }) => {
+                // A passing obstacle over the goal: hold still until it has gone, rather
+                // than end the run. Waiting is not a stall: progress is judged afresh after.
+                self.progress_anchor = None;
+                let since = *self.goal_occupied_since.get_or_insert(t);
+                let status = if t - since >= self.config.goal_wait {
+                    StepStatus::GoalBlocked { index }
+                } else {
+                    StepStatus::GoalOccupied { index, since }
+                };
+                return StepOutput::stop(status, None);
+            }
             Err(e) => return StepOutput::stop(StepStatus::Invalid(e), None),
         };
+        self.goal_occupied_since = None;
         if self.stalled(t, position) {
             return StepOutput::stop(StepStatus::Stalled, Some(plan));
         }

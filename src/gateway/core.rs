@@ -32,7 +32,7 @@ use super::{Counters, Progress};
 use crate::config::Rig;
 use crate::control::{ControlStep, StepStatus, Supervision};
 use crate::link::CanEvent;
-use crate::planner::{FieldError, Space};
+use crate::planner::Space;
 use crate::time::{CtrlTime, HostTime};
 use crate::track::{Implausible, Pose, Tracker};
 
@@ -960,8 +960,15 @@ impl<K: StageClock> Core<K> {
                 }
                 StepStatus::AtGoal => self.goal_reached(now),
                 StepStatus::Stalled => self.stop(now, StopReason::Stalled),
-                StepStatus::Invalid(FieldError::GoalInsideObstacle { index }) => {
-                    tracing::warn!("goal inside obstacle {index}'s planning circle: stopping");
+                StepStatus::GoalOccupied { index, since } => {
+                    self.counters.goal_occupied += 1;
+                    if since == t {
+                        tracing::warn!("goal inside obstacle {index}'s planning circle: holding still until it passes");
+                    }
+                }
+                StepStatus::GoalBlocked { index } => {
+                    let wait = self.control.config().goal_wait;
+                    tracing::warn!("goal inside obstacle {index}'s planning circle for {wait} s: stopping");
                     self.stop(now, StopReason::GoalBlocked);
                 }
                 StepStatus::Invalid(e) => {

@@ -125,6 +125,11 @@ pub fn render(s: &Snapshot) -> String {
         "Cycles in which an obstacle outran what the robot can deliver.",
         &[("", c.obstacle_outran_robot)],
     );
+    counter(
+        "goal_occupied",
+        "Cycles the robot held still while the goal was inside an obstacle's planning circle.",
+        &[("", c.goal_occupied)],
+    );
     counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
 
     counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);

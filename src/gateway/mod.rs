@@ -138,6 +138,9 @@ pub struct Counters {
     /// Cycles in which some obstacle outran what the robot can deliver (judged with
     /// hysteresis on its tracked speed): avoidance is not guaranteed then.
     pub obstacle_outran_robot: u64,
+    /// Cycles the robot held still because the goal was inside an obstacle's planning
+    /// circle (it waits up to `planner.goal_wait` for the obstacle to pass).
+    pub goal_occupied: u64,
     pub telemetry_dropped: u64,
 }
 

@@ -20,7 +20,8 @@ pub enum StopReason {
     Stalled,
     Operator,
     Shutdown,
-    /// The goal came to lie inside an obstacle's planning circle (orderly stop).
+    /// The goal lay inside an obstacle's planning circle for longer than the robot waits
+    /// for it to pass (`planner.goal_wait`; orderly stop).
     GoalBlocked,
     /// An operator's emergency stop (a fault: latched until reset).
     OperatorEStop,
@@ -106,7 +107,7 @@ impl std::fmt::Display for StopReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
             Self::GoalReached => "goal reached",
-            Self::GoalBlocked => "goal inside an obstacle's planning circle",
+            Self::GoalBlocked => "goal inside an obstacle's planning circle for longer than planner.goal_wait",
             Self::OperatorEStop => "operator emergency stop",
             Self::Stalled => "stalled (no progress)",
             Self::Operator => "operator stop",

@@ -32,8 +32,8 @@ pub enum Outcome {
     Stall,
     /// The gateway faulted (full-stack runs only).
     Fault,
-    /// The gateway stopped in order for another reason than the goal or a stall (full-stack
-    /// runs only; e.g. the goal became blocked by an obstacle's planning circle).
+    /// The run stopped in order for another reason than the goal or a stall (e.g. the goal
+    /// stayed inside an obstacle's planning circle for longer than `planner.goal_wait`).
     Stopped,
 }
 

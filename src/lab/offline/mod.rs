@@ -100,6 +100,7 @@ impl Run {
             invalid_cycles: e.report.counters.planner_invalid,
             supervisor_slowed_cycles: e.report.counters.supervisor_slowed,
             supervisor_braking_cycles: e.report.counters.supervisor_braking,
+            goal_occupied_cycles: e.report.counters.goal_occupied,
             saturated_cycles: 0,
             tie_break_cycles: 0,
             obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
@@ -145,6 +146,8 @@ pub struct Summary {
     pub supervisor_slowed_cycles: u64,
     /// Cycles in which the supervisor braked, no slower command keeping its promise.
     pub supervisor_braking_cycles: u64,
+    /// Cycles the robot held still while the goal was inside an obstacle's planning circle.
+    pub goal_occupied_cycles: u64,
     pub saturated_cycles: u64,
     pub tie_break_cycles: u64,
     /// Some obstacle outran what the robot can deliver at some point of the run (judged
@@ -253,7 +256,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
-    let (mut slowed, mut braking) = (0, 0);
+    let (mut slowed, mut braking, mut goal_occupied) = (0, 0, 0);
 
     let outcome = loop {
         let t = world.time();
@@ -281,6 +284,8 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         match out.status {
             StepStatus::AtGoal => break Outcome::Goal,
             StepStatus::Stalled => break Outcome::Stall,
+            StepStatus::GoalOccupied { .. } => goal_occupied += 1,
+            StepStatus::GoalBlocked { .. } => break Outcome::Stopped,
             StepStatus::Invalid(_) => invalid += 1,
             StepStatus::Driving => {}
         }
@@ -325,6 +330,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         invalid_cycles: invalid,
         supervisor_slowed_cycles: slowed,
         supervisor_braking_cycles: braking,
+        goal_occupied_cycles: goal_occupied,
         saturated_cycles: saturated,
         tie_break_cycles: tie_break,
         obstacle_faster_than_robot: faster,
