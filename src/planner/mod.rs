@@ -240,22 +240,27 @@ impl Planner {
         Ok((input.obstacles.len(), flags))
     }
 
-    /// The field for this input (margins and tie-break applied).
+    /// The field for this input, as [`plan`](Self::plan) builds it (margins and tie-break
+    /// applied, no circle closed over the robot); for plots and reports.
     pub fn field(&self, input: &PlanInput<'_>) -> Result<(Field, PlanFlags), PlannerError> {
+        let mut field = Field::empty(self.config.space, self.sink(input.goal));
+        let flags = self.build(input, &mut field)?;
+        Ok((field, flags))
+    }
+
+    /// Build the field for this input into `field` (it is large in a lane: a control cycle
+    /// builds into one rather than copying a new one out).
+    fn build(&self, input: &PlanInput<'_>, field: &mut Field) -> Result<PlanFlags, PlannerError> {
         let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
         let (n, flags) = self.plan_obstacles(input, &mut planned)?;
-        Ok((Field::new(self.config.space, self.sink(input.goal), &planned[..n])?, flags))
+        field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned[..n], Some(input.position))?;
+        Ok(flags)
     }
 
     /// The velocity command at the robot's position.
     pub fn plan(&self, input: &PlanInput<'_>) -> Result<Plan, PlannerError> {
-        // Built here rather than through `field`: the field is large (its lane series), and
-        // returning it in a tuple would copy it.
-        let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
-        let (n, mut flags) = self.plan_obstacles(input, &mut planned)?;
-        let sink = self.sink(input.goal);
-        let mut field = Field::empty(self.config.space, sink);
-        field.rebuild_clear_of(self.config.space, sink, &planned[..n], Some(input.position))?;
+        let mut field = Field::empty(self.config.space, self.sink(input.goal));
+        let mut flags = self.build(input, &mut field)?;
         let v = field.velocity(input.position)?;
         let speed = v.length();
         let velocity = if speed > self.config.max_speed {

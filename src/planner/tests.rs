@@ -474,3 +474,34 @@ fn the_margin_includes_the_prediction_uncertainty() {
     planner.plan_obstacles(&input, &mut planned).unwrap();
     assert!((planned[0].radius - (0.14 + 0.02 + 0.006)).abs() < 1e-12, "{}", planned[0].radius);
 }
+
+/// The field a report draws is the one the robot follows: a robot between an obstacle and
+/// the wall it nearly touches keeps the circle unclosed in both (closing it against the
+/// wall would take the robot in).
+#[test]
+fn the_drawn_field_is_the_planned_one() {
+    let planner = Planner::new(PlannerConfig {
+        space: Space::Lane { half_width: 0.2 },
+        uncertainty_sigmas: 0.0,
+        ..*planner(None).config()
+    });
+    // R_0 = 0.08 at y = 0.115: 5 mm from the wall, which closes the circle against it
+    // unless that would take in the robot, 2 mm outside the circle by the wall.
+    let obstacles = [ObstacleEstimate::exact(C::new(0.0, 0.115), C::default(), 0.05)];
+    let input = PlanInput {
+        position: C::new(0.0, 0.197),
+        goal: C::new(1.0, 0.0),
+        robot_radius: 0.03,
+        obstacles: &obstacles,
+        delay: 0.0,
+    };
+    let plan = planner.plan(&input).unwrap();
+    let (field, _) = planner.field(&input).unwrap();
+    assert_eq!(field.velocity(input.position).unwrap(), plan.field);
+    assert!((field.obstacles()[0].radius - 0.08).abs() < 1e-12, "left as planned");
+    // Elsewhere the same circle is closed against the wall, in both.
+    let away = PlanInput { position: C::new(-0.6, 0.0), ..input };
+    let (field, _) = planner.field(&away).unwrap();
+    assert!(field.obstacles()[0].radius > 0.08, "closed");
+    assert_eq!(field.velocity(away.position).unwrap(), planner.plan(&away).unwrap().field);
+}
