@@ -2,7 +2,6 @@
 //! from a constant-velocity Kalman filter, predicted to the moment a command acts (delay
 //! compensation). Time is an argument everywhere.
 
-use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
 use num_complex::Complex64 as C;
 
 use crate::geometry::{rotation, Length};
@@ -92,33 +91,47 @@ impl Default for KalmanConfig {
 }
 
 /// A constant-velocity Kalman filter on one point: state `[x, y, vx, vy]`.
+///
+/// The model, its noise and the measurements treat `x` and `y` alike and apart, and the
+/// filter starts them alike, so the 4×4 covariance is the same 2×2 one (position and
+/// velocity along one axis) on each axis, with nothing between the axes: it is kept as
+/// that one [`AxisCovariance`], and an update is a few scalar operations.
 #[derive(Debug, Clone, Copy)]
 pub struct ConstantVelocityKf {
     config: KalmanConfig,
     t: f64,
-    x: Vector4<f64>,
-    p: Matrix4<f64>,
+    position: C,
+    velocity: C,
+    p: AxisCovariance,
+}
+
+/// The covariance of one axis's position and velocity (m², m²/s, m²/s²), the same for
+/// both axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct AxisCovariance {
+    pp: f64,
+    pv: f64,
+    vv: f64,
+}
+
+impl AxisCovariance {
+    /// Carried `dt` ahead through the constant-velocity model, with the process noise of
+    /// spectral density `q` (white acceleration) over it.
+    fn predicted(self, dt: f64, q: f64) -> Self {
+        let Self { pp, pv, vv } = self;
+        Self {
+            pp: pp + dt * (2.0 * pv + dt * vv) + dt * dt * dt / 3.0 * q,
+            pv: pv + dt * vv + dt * dt / 2.0 * q,
+            vv: vv + dt * q,
+        }
+    }
 }
 
 impl ConstantVelocityKf {
     /// A filter started at a first measurement `z` taken at `t`, velocity unknown.
     pub fn new(config: KalmanConfig, t: f64, z: C) -> Self {
         let r = config.measurement_noise.powi(2);
-        let p = Matrix4::from_diagonal(&Vector4::new(r, r, 0.25, 0.25));
-        Self { config, t, x: Vector4::new(z.re, z.im, 0.0, 0.0), p }
-    }
-
-    fn transition(dt: f64) -> Matrix4<f64> {
-        let mut f = Matrix4::identity();
-        f[(0, 2)] = dt;
-        f[(1, 3)] = dt;
-        f
-    }
-
-    fn process(&self, dt: f64) -> Matrix4<f64> {
-        let q = self.config.process_noise;
-        let (a, b, c) = (dt.powi(3) / 3.0 * q, dt.powi(2) / 2.0 * q, dt * q);
-        Matrix4::new(a, 0.0, b, 0.0, 0.0, a, 0.0, b, b, 0.0, c, 0.0, 0.0, b, 0.0, c)
+        Self { config, t, position: z, velocity: C::default(), p: AxisCovariance { pp: r, pv: 0.0, vv: 0.25 } }
     }
 
     /// Fold in a measurement `z` taken at `t` (measurements must come in time order; an
@@ -128,26 +141,26 @@ impl ConstantVelocityKf {
         if dt < 0.0 || !z.re.is_finite() || !z.im.is_finite() {
             return false;
         }
-        let f = Self::transition(dt);
-        self.x = f * self.x;
-        self.p = f * self.p * f.transpose() + self.process(dt);
+        let p = self.p.predicted(dt, self.config.process_noise);
+        // The innovation's variance, and the gains for position and velocity.
+        let s = p.pp + self.config.measurement_noise.powi(2);
+        if !(s > 0.0 && s.is_finite()) {
+            return false;
+        }
+        let (kp, kv) = (p.pp / s, p.pv / s);
+        self.position += self.velocity * dt;
         self.t = t;
-        let h = Matrix2x4::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0);
-        let r = Matrix2::identity() * self.config.measurement_noise.powi(2);
-        let s = h * self.p * h.transpose() + r;
-        let Some(s_inv) = s.try_inverse() else { return false };
-        let k = self.p * h.transpose() * s_inv;
-        let innovation = Vector2::new(z.re, z.im) - h * self.x;
-        self.x += k * innovation;
-        self.p = (Matrix4::identity() - k * h) * self.p;
+        let innovation = z - self.position;
+        self.position += innovation * kp;
+        self.velocity += innovation * kv;
+        self.p = AxisCovariance { pp: (1.0 - kp) * p.pp, pv: (1.0 - kp) * p.pv, vv: p.vv - kv * p.pv };
         true
     }
 
     /// Position and velocity predicted to time `t` (no state change).
     pub fn predict(&self, t: f64) -> (C, C) {
         let dt = t - self.t;
-        let v = C::new(self.x[2], self.x[3]);
-        (C::new(self.x[0], self.x[1]) + v * dt, v)
+        (self.position + self.velocity * dt, self.velocity)
     }
 
     /// Time of the last measurement.
@@ -158,22 +171,19 @@ impl ConstantVelocityKf {
     /// The position's covariance `[xx, xy, yy]` (m²) predicted to `t`: how far the planner
     /// may trust the predicted centre.
     pub fn position_covariance(&self, t: f64) -> [f64; 3] {
-        let p = self.covariance_at(t);
-        [p[(0, 0)], p[(0, 1)], p[(1, 1)]]
+        let pp = self.covariance_at(t).pp;
+        [pp, 0.0, pp]
     }
 
     /// One standard deviation of the position (m) and of the velocity (m/s) predicted to
-    /// `t`, each along its worst direction (the larger eigenvalue's root).
+    /// `t` (the same along every direction).
     pub fn uncertainty(&self, t: f64) -> (f64, f64) {
         let p = self.covariance_at(t);
-        let worst = |a: f64, b: f64, c: f64| (0.5 * (a + c) + (0.25 * (a - c).powi(2) + b * b).sqrt()).max(0.0).sqrt();
-        (worst(p[(0, 0)], p[(0, 1)], p[(1, 1)]), worst(p[(2, 2)], p[(2, 3)], p[(3, 3)]))
+        (p.pp.max(0.0).sqrt(), p.vv.max(0.0).sqrt())
     }
 
-    fn covariance_at(&self, t: f64) -> Matrix4<f64> {
-        let dt = (t - self.t).max(0.0);
-        let f = Self::transition(dt);
-        f * self.p * f.transpose() + self.process(dt)
+    fn covariance_at(&self, t: f64) -> AxisCovariance {
+        self.p.predicted((t - self.t).max(0.0), self.config.process_noise)
     }
 }
 
@@ -638,6 +648,47 @@ mod tests {
         assert!((est_v - v).length() < 2e-3, "{est_v}");
         assert!((p - at(2.6)).length() < 2e-3, "{p}");
         assert!(!kf.update(1.0, at(1.0)), "an older measurement is refused");
+    }
+
+    /// The per-axis filter is the textbook 4×4 one: run side by side on noisy, unevenly
+    /// timed measurements of a manoeuvring point, state and covariance agree to rounding.
+    #[test]
+    fn the_per_axis_filter_is_the_full_one() {
+        use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
+        let config = KalmanConfig::default();
+        let (q, r) = (config.process_noise, config.measurement_noise.powi(2));
+        let at = |t: f64| C::new(0.3 * (0.7 * t).sin() - 0.1 * t, 0.2 * (1.1 * t).cos());
+        let mut kf = ConstantVelocityKf::new(config, 0.0, at(0.0));
+        let mut x = Vector4::new(at(0.0).re, at(0.0).im, 0.0, 0.0);
+        let mut p = Matrix4::from_diagonal(&Vector4::new(r, r, 0.25, 0.25));
+        let h = Matrix2x4::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0);
+        let mut t = 0.0;
+        for k in 1..=300 {
+            let dt = 0.017 + 0.004 * f64::from(k % 5);
+            t += dt;
+            let wobble = 0.002 * (f64::from(k) * 2.3).sin();
+            let z = at(t) + C::new(wobble, -wobble);
+            assert!(kf.update(t, z));
+            let mut f = Matrix4::identity();
+            f[(0, 2)] = dt;
+            f[(1, 3)] = dt;
+            let (a, b, c) = (dt.powi(3) / 3.0 * q, dt.powi(2) / 2.0 * q, dt * q);
+            let process = Matrix4::new(a, 0.0, b, 0.0, 0.0, a, 0.0, b, b, 0.0, c, 0.0, 0.0, b, 0.0, c);
+            x = f * x;
+            p = f * p * f.transpose() + process;
+            let s = h * p * h.transpose() + Matrix2::identity() * r;
+            let gain = p * h.transpose() * s.try_inverse().unwrap();
+            x += gain * (Vector2::new(z.re, z.im) - h * x);
+            p = (Matrix4::identity() - gain * h) * p;
+            let (position, velocity) = kf.predict(t);
+            assert!((position - C::new(x[0], x[1])).norm() < 1e-12, "{k}");
+            assert!((velocity - C::new(x[2], x[3])).norm() < 1e-10, "{k}");
+            let cov = kf.position_covariance(t);
+            assert!((cov[0] - p[(0, 0)]).abs() < 1e-12 * p[(0, 0)] && (cov[2] - p[(1, 1)]).abs() < 1e-12 * p[(1, 1)]);
+            assert!(p[(0, 1)].abs() < 1e-18 && p[(0, 3)].abs() < 1e-18, "nothing between the axes");
+            let (_, velocity_sd) = kf.uncertainty(t);
+            assert!((velocity_sd - p[(2, 2)].sqrt()).abs() < 1e-12 * p[(2, 2)].sqrt(), "{k}");
+        }
     }
 
     #[test]
