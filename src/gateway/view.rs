@@ -154,8 +154,11 @@ fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
             radius: f64::from(o.planning_radius),
         };
     }
-    let goal = C::new(s.goal[0], s.goal[1]);
-    Field::new(setup.planner.space, Planner::new(setup.planner).sink(goal), &planned[..n]).ok()
+    // Built as the control step builds it: no circle closed against a wall over the robot.
+    let (space, sink) = (setup.planner.space, Planner::new(setup.planner).sink(C::new(s.goal[0], s.goal[1])));
+    let mut field = Field::empty(space, sink);
+    field.rebuild_clear_of(space, sink, &planned[..n], Some(C::new(s.pose[0], s.pose[1]))).ok()?;
+    Some(field)
 }
 
 fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &metrics::Snapshot, seq: u64) -> String {
@@ -343,5 +346,19 @@ mod tests {
             }
         }
         assert_eq!(f["latency"]["histogram"].as_array().unwrap().len(), metrics::BUCKETS_S.len());
+    }
+
+    /// The drawn field is the one the robot follows: with the robot between an obstacle and
+    /// the wall it nearly touches, the circle is not closed over the robot, so the field is
+    /// defined where the robot stands (closed, the robot would be inside it).
+    #[test]
+    fn the_view_draws_the_field_the_robot_follows() {
+        // h = 0.3; R = 0.12 at y = 0.175: 5 mm from the wall; the robot 2 mm outside it.
+        let mut scene = SceneRecord { pose: [0.0, 0.297, 0.0], goal: [0.6, 0.0], count: 1, ..SceneRecord::default() };
+        scene.obstacles[0] =
+            ObstacleView { position: [0.0, 0.175], planning_radius: 0.12, radius: 0.05, ..ObstacleView::default() };
+        let f = field(&scene, &setup()).unwrap();
+        assert!(f.velocity(C::new(0.0, 0.297)).is_ok());
+        assert!((f.obstacles()[0].radius - 0.12).abs() < 1e-6, "left as planned");
     }
 }

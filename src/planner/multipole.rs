@@ -225,8 +225,9 @@ pub fn fit(
     // Rows: the points, and one Tikhonov row an unknown if regularised.
     let rows = if regularisation > 0.0 { m + p } else { m };
     // Column-major with a stride of the rows in use: a[col * rows + row]. Column 2(n-1) is
-    // Re c_n, 2(n-1)+1 is Im c_n, the last the source. Only the part in use is written
-    // (a wall circle's fit uses a fifth of the buffer, which would otherwise be cleared).
+    // Re c_n, 2(n-1)+1 is Im c_n, the last the source. The QR sweeps only the part in use
+    // (a wall circle's fit uses a fifth of the buffer), but the buffer is still cleared
+    // whole each fit: a workspace kept across cycles would spare that.
     let mut buffer = [0.0; ROWS * UNKNOWNS];
     let a = &mut buffer[..rows * p];
     let mut flows = [(C::default(), C::default()); ORDERS];
