@@ -70,7 +70,8 @@ fn main() {
         for ir in 0..40 {
             let y = (-0.999 + 1.998 * f64::from(iy) / 99.0) * h;
             let r = (0.02 + 0.88 * f64::from(ir) / 39.0) * h;
-            let is_clear = h - y.abs() >= r / 0.9;
+            // Closed against the wall below a gap of R/10.
+            let is_clear = h - y.abs() - r >= flowgate::planner::field::WALL_CLOSE * r;
             for v in [C::default(), C::new(0.15, 0.0), C::new(-0.15, 0.0), C::new(0.0, 0.15), C::new(0.0, -0.15)] {
                 let field =
                     Field::new(Space::Lane { half_width: h }, sink(C::new(3.0 * h, 0.0)), &one(C::new(0.0, y), r, v))
@@ -94,7 +95,7 @@ fn main() {
         "circles", "≥1e-1", "≥1e-2", "≥1e-3", "≥1e-4", "≥1e-5", "≥1e-6", "≥1e-7", "<1e-7", "worst"
     );
     for (name, hist, worst) in
-        [("clear of the walls (gap >= R/9)", clear, worst_clear), ("near or across a wall (closed)", near, worst_near)]
+        [("clear of the walls (gap >= R/10)", clear, worst_clear), ("near or across a wall (closed)", near, worst_near)]
     {
         print!("{name:<40}");
         for count in &hist {

