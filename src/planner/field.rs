@@ -176,6 +176,9 @@ pub struct Field {
     /// Lane only (empty in free space, which so never pays for it): each obstacle's
     /// multipole series that makes its circle a streamline (see [`super::multipole`]).
     lane_series: ArrayVec<LaneSeries, MAX_OBSTACLES>,
+    /// Some circle reaching a wall was left unclosed, its closure taking in the robot or the
+    /// goal (see [`in_lane`]): its series is the less exact arc fit.
+    unclosed_at_a_wall: bool,
 }
 
 /// One obstacle's lane series: its frame, and its coefficients for the sink terms (scaled
@@ -210,6 +213,7 @@ impl Field {
             moments: [C::default(); MAX_OBSTACLES],
             sink_images: [C::default(); MAX_OBSTACLES],
             lane_series: ArrayVec::new(),
+            unclosed_at_a_wall: false,
         }
     }
 
@@ -231,6 +235,7 @@ impl Field {
     ) -> Result<(), FieldError> {
         self.n = 0;
         self.lane_series.clear();
+        self.unclosed_at_a_wall = false;
         if obstacles.len() > MAX_OBSTACLES {
             return Err(FieldError::TooManyObstacles);
         }
@@ -257,7 +262,11 @@ impl Field {
             }
             let o = match space {
                 Space::Free => *o,
-                Space::Lane { half_width } => in_lane(*o, half_width, [Some(sink.goal), robot]),
+                Space::Lane { half_width } => {
+                    let (o, unclosed) = in_lane(*o, half_width, [Some(sink.goal), robot]);
+                    self.unclosed_at_a_wall |= unclosed;
+                    o
+                }
             };
             let to_goal = sink.goal - o.center;
             if to_goal.length() <= o.radius {
@@ -326,6 +335,12 @@ impl Field {
 
     pub fn space(&self) -> Space {
         self.space
+    }
+    /// Whether a circle reaching a wall was left unclosed in this build, because closing it
+    /// would take in the robot or the goal: its residual is the arc fit's (1e-5 to 1e-2),
+    /// not the closed circles' 1e-6.
+    pub fn unclosed_at_a_wall(&self) -> bool {
+        self.unclosed_at_a_wall
     }
     pub fn sink(&self) -> &Sink {
         &self.sink
@@ -435,13 +450,14 @@ impl Field {
 /// A closure is not made where it would take in a point that the circle leaves out (the
 /// goal, the robot): the robot would be stopped, or the goal blocked, by a circle grown for
 /// the series' sake. That circle stays as planned, its series converging less well.
-fn in_lane(o: PlanObstacle, half_width: f64, keep_clear: [Option<C>; 2]) -> PlanObstacle {
+/// Returns the circle as planned, and whether it reaches a wall but was left unclosed.
+fn in_lane(o: PlanObstacle, half_width: f64, keep_clear: [Option<C>; 2]) -> (PlanObstacle, bool) {
     let closed = closed_against_the_wall(o, half_width);
     let takes_in = |p: C| (p - closed.center).length() <= closed.radius && (p - o.center).length() > o.radius;
-    if keep_clear.into_iter().flatten().any(takes_in) {
-        o
+    if closed != o && keep_clear.into_iter().flatten().any(takes_in) {
+        (o, true)
     } else {
-        closed
+        (closed, false)
     }
 }
 

@@ -157,6 +157,9 @@ pub struct PlanFlags {
     /// The robot or the goal stood inside a planning circle's margin, which was shrunk
     /// toward the true circle to leave it just outside (rather than stopping there).
     pub margin_shrunk: bool,
+    /// A circle reaching a lane wall was left unclosed (closing it would take in the robot
+    /// or the goal), and its boundary is met less exactly (see [`Field::unclosed_at_a_wall`]).
+    pub unclosed_at_a_wall: bool,
 }
 
 /// One planner result.
@@ -252,8 +255,9 @@ impl Planner {
     /// builds into one rather than copying a new one out).
     fn build(&self, input: &PlanInput<'_>, field: &mut Field) -> Result<PlanFlags, PlannerError> {
         let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
-        let (n, flags) = self.plan_obstacles(input, &mut planned)?;
+        let (n, mut flags) = self.plan_obstacles(input, &mut planned)?;
         field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned[..n], Some(input.position))?;
+        flags.unclosed_at_a_wall = field.unclosed_at_a_wall();
         Ok(flags)
     }
 

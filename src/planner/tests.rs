@@ -506,9 +506,11 @@ fn the_drawn_field_is_the_planned_one() {
     let (field, _) = planner.field(&input).unwrap();
     assert_eq!(field.velocity(input.position).unwrap(), plan.field);
     assert!((field.obstacles()[0].radius - 0.08).abs() < 1e-12, "left as planned");
+    assert!(plan.flags.unclosed_at_a_wall && field.unclosed_at_a_wall(), "and said so");
     // Elsewhere the same circle is closed against the wall, in both.
     let away = PlanInput { position: C::new(-0.6, 0.0), ..input };
     let (field, _) = planner.field(&away).unwrap();
     assert!(field.obstacles()[0].radius > 0.08, "closed");
+    assert!(!field.unclosed_at_a_wall() && !planner.plan(&away).unwrap().flags.unclosed_at_a_wall);
     assert_eq!(field.velocity(away.position).unwrap(), planner.plan(&away).unwrap().field);
 }

@@ -103,6 +103,7 @@ impl Run {
             goal_occupied_cycles: e.report.counters.goal_occupied,
             saturated_cycles: 0,
             tie_break_cycles: 0,
+            unclosed_at_a_wall_cycles: 0,
             obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
         };
         Run { summary, trace }
@@ -150,6 +151,9 @@ pub struct Summary {
     pub goal_occupied_cycles: u64,
     pub saturated_cycles: u64,
     pub tie_break_cycles: u64,
+    /// Cycles whose field left a circle reaching a lane wall unclosed (closing it would
+    /// take in the robot or the goal), meeting its boundary less exactly.
+    pub unclosed_at_a_wall_cycles: u64,
     /// Some obstacle outran what the robot can deliver at some point of the run (judged
     /// with hysteresis on its tracked speed): no guarantee.
     pub obstacle_faster_than_robot: bool,
@@ -256,7 +260,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
-    let (mut slowed, mut braking, mut goal_occupied) = (0, 0, 0);
+    let (mut slowed, mut braking, mut goal_occupied, mut unclosed) = (0, 0, 0, 0);
 
     let outcome = loop {
         let t = world.time();
@@ -274,6 +278,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         if let Some(plan) = out.plan {
             saturated += u64::from(plan.flags.saturated);
             tie_break += u64::from(plan.flags.tie_break);
+            unclosed += u64::from(plan.flags.unclosed_at_a_wall);
         }
         faster |= out.outrun;
         match out.supervision {
@@ -333,6 +338,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         goal_occupied_cycles: goal_occupied,
         saturated_cycles: saturated,
         tie_break_cycles: tie_break,
+        unclosed_at_a_wall_cycles: unclosed,
         obstacle_faster_than_robot: faster,
     };
     Run { summary, trace }
