@@ -28,7 +28,7 @@
 //! coefficients whose rounding shows on the walls.
 //!
 //! The fit is a dense Householder QR on fixed arrays: no allocation, about
-//! `3 orders · (2 orders)²` flops per obstacle each time the field is built (10 to 220 µs
+//! `3 orders · (2 orders)²` flops per obstacle each time the field is built (10 to 130 µs
 //! here), shared by the two right-hand sides (the goal sink's flow and the obstacles'
 //! motion).
 
@@ -191,16 +191,25 @@ impl Default for Fitted {
 /// point with the nearer wall, `ρR = d - sqrt(d² - R²)` for a wall `d` away; and the
 /// reflection in the circle of another singularity's wall image at distance `D`, `ρ = R/D`.
 /// A circle that reaches a wall (`d <= R`) has `ρ = 1`.
+///
+/// A circle centred on a wall meets it at right angles: reflected in that wall it is a
+/// whole circle, whose nearer wall is the far one, `2h` away. Everything reflected in the
+/// wall it sits on is already in the flow the series corrects (the lane's images of a sink
+/// or a doublet, and of their images in this circle, which the circle's symmetry maps onto
+/// one another), so only images in the far wall count.
 pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> f64 {
-    // A circle centred on a wall meets it at right angles: reflected in that wall it is a
-    // whole circle, whose nearer wall is the far one.
-    let d = if a.im.abs() == h { 2.0 * h } else { (h - a.im.abs()).max(0.0) };
+    let on_a_wall = a.im.abs() == h;
+    let d = if on_a_wall { 2.0 * h } else { (h - a.im.abs()).max(0.0) };
     if d <= r {
         return 1.0;
     }
     let mut rho = (d - (d * d - r * r).sqrt()) / r;
+    let far_wall = -a.im.signum() * h;
     for p in others {
         for wall in [h, -h] {
+            if on_a_wall && wall != far_wall {
+                continue;
+            }
             let mirror = C::new(p.re, 2.0 * wall - p.im);
             rho = rho.max(r / (mirror - a).length());
         }

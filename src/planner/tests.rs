@@ -82,8 +82,8 @@ proptest! {
 
     /// Check 2 on the whole lane field with two obstacles anywhere in the lane (near or across
     /// a wall too, with their series): the walls are streamlines to rounding, asserted at
-    /// 2e-12 of the speed (1.1e-12 is the worst seen in 20,000 cases, beside circles across a
-    /// wall, whose series have the largest terms).
+    /// 2e-12 of the speed (2.7e-13 is the worst seen in 20,000 cases; 1.1e-12 before stop 27,
+    /// beside circles across a wall, whose regularised arc fits had the largest terms).
     #[test]
     fn lane_field_walls((a, r) in lane_circle(0.4), (b, rb) in lane_circle(0.4), (va, vb) in (vel(), vel()), x in -4.0..5.0f64) {
         let h = 0.4;
@@ -364,25 +364,39 @@ proptest! {
         }
     }
 
-    /// Points 1 and 2: near a wall (a gap under R/9, touching, or across it) the circle is
+    /// Points 1 and 2: near a wall (a gap under R/10, touching, or across it) the circle is
     /// closed against the wall: centred on it, covering the true circle, sliding along it
-    /// with the obstacle. It meets the wall at right angles, so the corner is no singularity:
-    /// reflected in the wall the circle is whole, in a lane twice as wide, where its series
-    /// converges as a circle's clear of the walls does. Every such circle, up to a true
-    /// blockage of 90% right at a wall (a closed one of 95%), is a streamline to 1e-6 (the
-    /// worst seen in 20,000 cases is 7e-8). Until issue 13 the field pointed into such an
-    /// obstacle at 9.6 m/s; until stop 27 the closure crossed the wall at an angle, leaving
-    /// a corner no series converged at, and residuals up to 2e-2.
+    /// with the obstacle. It meets the wall at right angles, so the corner is no
+    /// singularity: reflected in the wall the circle is whole, in a lane twice as wide,
+    /// where its series converges as a circle's clear of the walls does. Every such circle,
+    /// up to a true blockage of 90% right at a wall (a closed one of 95%), with the goal far
+    /// downstream or near it in the band of [`CONVERGENT`], is a streamline to 1e-6 (the
+    /// worst seen in 20,000 cases is 6.4e-8; 3.7e-7 across the README's grid). Until issue
+    /// 13 the field pointed into such an obstacle at 9.6 m/s; until stop 27 the closure
+    /// crossed the wall at an angle, leaving a corner no series converged at, and residuals
+    /// up to 2e-2.
     #[test]
-    fn lane_circles_near_a_wall_are_exact(h in 0.1..1.0f64, (a, r) in near_wall_circle(1.0), v in vel()) {
+    fn lane_circles_near_a_wall_are_exact(
+        h in 0.1..1.0f64,
+        (a, r) in near_wall_circle(1.0),
+        v in vel(),
+        goal in pt(),
+        far in any::<bool>(),
+    ) {
         let (a, r) = (a * h, r * h);
         prop_assume!(h - a.im.abs() - r < CLOSED_BELOW * r); // what is closed
-        let goal = C::new(a.re + 3.0 * h, 0.0);
+        // The goal anywhere in the lane near the circle (or downstream, far from it).
+        let goal = if far { C::new(a.re + 3.0 * h, 0.0) } else { C::new(a.re + goal.re * 3.0 * h, goal.im * h * 0.99) };
         prop_assume!((goal - a).norm() > 1.3 * r);
         let obs = [PlanObstacle { center: a, velocity: v, radius: r }];
         let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
         let planned = field.obstacles()[0];
-        prop_assume!((goal - planned.center).norm() > planned.radius); // else left unclosed
+        prop_assume!(!field.unclosed_at_a_wall()); // the closure would take in the goal
+        // A goal near the circle: within the band where the series is held to 1e-6 (its
+        // image in the far wall beyond 1.54 R; its image in this wall is in the flow the
+        // series corrects). Far from it, every closed circle, up to a 95% closed blockage.
+        let rate = multipole::convergence_rate(h, planned.center, planned.radius, [goal].into_iter());
+        prop_assume!(far || rate <= CONVERGENT);
         prop_assert!((planned.center - a).norm() + r <= planned.radius + 1e-12, "the planned circle covers the true one");
         prop_assert_eq!(planned.center.im.abs(), h, "centred on the wall");
         prop_assert_eq!(planned.velocity, C::new(v.re, 0.0), "sliding along it");
