@@ -44,12 +44,12 @@ const COMPLEX_ORDERS: usize = 32;
 /// Collocation points per order on a circle clear of the walls: 1.5 a real unknown, enough
 /// where the orders are well separated around the whole circle.
 const POINTS_PER_ORDER: usize = 3;
-/// On a circle that reaches a wall, twice the unknowns: the fit sees only an arc (with 3,
-/// E2's residual is 2.6e-3 instead of 9.4e-6).
+/// On a circle that reaches a wall but was left unclosed, twice the unknowns: the fit sees
+/// only an arc (with 3, E2's residual was 2.6e-3 instead of 9.4e-6 when it was fitted so).
 const POINTS_PER_ORDER_AT_A_WALL: usize = 4;
 /// On a circle centred on a wall (whose coefficients are real), 4 an order round the
 /// circle: half lie in the lane, 2 a real unknown (with 1.5, as clear of the walls, the
-/// worst residual across the lane is 1.0e-6 instead of 2.0e-7).
+/// worst residual across the README's grid is 1.0e-6 instead of 3.7e-7).
 const POINTS_PER_ORDER_ON_A_WALL: usize = 4;
 /// The most collocation points on a circle (the ones outside the lane are left out).
 pub const POINTS: usize = POINTS_PER_ORDER * ORDERS;
