@@ -51,8 +51,17 @@ const POINTS_PER_ORDER_AT_A_WALL: usize = 4;
 /// circle: half lie in the lane, 2 a real unknown (with 1.5, as clear of the walls, the
 /// worst residual across the README's grid is 1.0e-6 instead of 3.7e-7).
 const POINTS_PER_ORDER_ON_A_WALL: usize = 4;
-/// The most collocation points on a circle (the ones outside the lane are left out).
-pub const POINTS: usize = POINTS_PER_ORDER * ORDERS;
+/// The most collocation points in the lane on one circle: a circle clear of the walls at
+/// its most orders, or a circle centred on a wall at its (half its points are in the lane).
+pub const POINTS: usize = POINTS_PER_ORDER * COMPLEX_ORDERS;
+const _: () = assert!(POINTS_PER_ORDER_ON_A_WALL * ORDERS / 2 <= POINTS);
+const _: () = assert!(POINTS_PER_ORDER_AT_A_WALL * WALL_ORDERS <= POINTS);
+
+/// Whether a circle at `a` is centred on a wall of the lane of half-width `h`: a circle
+/// closed against it (`field::in_lane` puts the centre exactly there).
+fn centred_on_a_wall(h: f64, a: C) -> bool {
+    a.im.abs() == h
+}
 /// The fit's aim: the series' truncation error, relative to the flow on the circle.
 const AIM: f64 = 1e-8;
 const UNKNOWNS: usize = 2 * COMPLEX_ORDERS + 1;
@@ -97,7 +106,7 @@ impl Series {
     /// would in the lane (the circle is up to twice the half-width across), which keeps
     /// the fit well conditioned.
     pub fn new(h: f64, a: C, r: f64) -> Self {
-        let real = a.im.abs() == h;
+        let real = centred_on_a_wall(h, a);
         let (h, y0) = if real { (2.0 * h, a.im) } else { (h, 0.0) };
         let two_varpi = std::f64::consts::PI / (2.0 * h);
         let sa = if real { C::new(1.0, 0.0) } else { C::from_polar(1.0, two_varpi * a.im) };
@@ -198,7 +207,7 @@ impl Default for Fitted {
 /// or a doublet, and of their images in this circle, which the circle's symmetry maps onto
 /// one another), so only images in the far wall count.
 pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> f64 {
-    let on_a_wall = a.im.abs() == h;
+    let on_a_wall = centred_on_a_wall(h, a);
     let d = if on_a_wall { 2.0 * h } else { (h - a.im.abs()).max(0.0) };
     if d <= r {
         return 1.0;
@@ -238,7 +247,7 @@ pub fn orders_for(rho: f64, real: bool) -> usize {
 /// lane (`at_a_wall`: the circle reaches a wall, and gets denser points): `(z, unit
 /// normal)` into `out`; returns how many.
 pub fn collocation(h: f64, a: C, r: f64, orders: usize, at_a_wall: bool, out: &mut [(C, C); POINTS]) -> usize {
-    let per_order = if a.im.abs() == h {
+    let per_order = if centred_on_a_wall(h, a) {
         POINTS_PER_ORDER_ON_A_WALL
     } else if at_a_wall {
         POINTS_PER_ORDER_AT_A_WALL
