@@ -736,7 +736,7 @@ impl GatewayConfig {
                 fifo_priority: (rt.fifo_priority > 0).then_some(rt.fifo_priority),
                 lock_memory: rt.lock_memory,
             },
-            config_toml: self.to_toml(),
+            config: self.clone(),
         })
     }
 
@@ -892,9 +892,10 @@ pub struct Rig {
     pub spin: Option<Duration>,
     /// CPU affinity, `SCHED_FIFO` and locked memory, applied at start.
     pub realtime: RealtimeSettings,
-    /// The configuration this rig was built from, as TOML (a recording keeps it, so a
-    /// replay rebuilds the same rig).
-    pub config_toml: String,
+    /// The configuration this rig was built from (a recording keeps it as TOML, so a
+    /// replay rebuilds the same rig). Kept as it is, not as text: the offline runner builds
+    /// a rig every episode, and writing TOML was a twentieth of a sweep.
+    pub config: GatewayConfig,
 }
 
 #[cfg(test)]

@@ -407,7 +407,7 @@ fn start_telemetry(
             // The host clock's zero on the Unix clock: MCAP log times are absolute.
             let origin_unix_ns = ((unix_now() * 1e9) as u64).saturating_sub(origin.elapsed().as_nanos() as u64);
             let setup = RecordingSetup {
-                config_toml: rig.config_toml.clone(),
+                config_toml: rig.config.to_toml(),
                 lane_half_width: match rig.control.planner.space {
                     crate::planner::Space::Lane { half_width } => Some(half_width),
                     crate::planner::Space::Free => None,

@@ -424,7 +424,7 @@ impl<K: StageClock> VirtualRig<K> {
         let mut end = time_limit;
         while self.time() < end && self.setup_error.is_none() {
             self.step();
-            if self.options.stop_at_contact && self.world.truth().first_contact.is_some() {
+            if self.options.stop_at_contact && self.world.first_contact().is_some() {
                 break;
             }
             if self.core.state().is_terminal() && end == time_limit {

@@ -37,7 +37,7 @@ impl DiffDrive {
         let (sin, cos) = half.sin_cos();
         let chord = if half.abs() < 1e-9 { ds } else { ds * sin / half };
         let half_turn = Point::new(cos, sin);
-        Arc { chord: half_turn * chord, rotation: half_turn * half_turn, turned }
+        Arc { chord: half_turn * chord, rotation: half_turn * half_turn, turned, length: chord.abs() }
     }
 }
 
@@ -50,11 +50,13 @@ pub struct Arc {
     pub chord: Point,
     pub rotation: Point,
     pub turned: f64,
+    /// The chord's length, m: what the step adds to the path travelled.
+    pub length: f64,
 }
 
 impl Arc {
     /// No motion.
-    pub const REST: Arc = Arc { chord: Point::new(0.0, 0.0), rotation: Point::new(1.0, 0.0), turned: 0.0 };
+    pub const REST: Arc = Arc { chord: Point::new(0.0, 0.0), rotation: Point::new(1.0, 0.0), turned: 0.0, length: 0.0 };
 
     /// `pose` moved along this arc, given the unit vector `facing` along its heading; and
     /// the new one.

@@ -48,7 +48,7 @@ impl Mode {
     pub fn episode(self, s: &Scenario) -> (Outcome, Option<f64>, Option<Contact>) {
         match self {
             Mode::PlannerOnly => {
-                let r = run(s, false).summary;
+                let r = run_with(s, Keep::Outcome).summary;
                 (r.outcome, r.min_obstacle_clearance, r.contact)
             }
             Mode::FullStack => {
@@ -246,6 +246,24 @@ impl Sensor {
 
 /// Run a scenario to its end. With `record`, keep a trace row per cycle for the plots.
 pub fn run(s: &Scenario, record: bool) -> Run {
+    run_with(s, if record { Keep::Trace } else { Keep::Timing })
+}
+
+/// What a run keeps besides its outcome.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Keep {
+    /// The outcome only, as a sweep's episode needs (its summary's compute times are 0):
+    /// two clock reads a cycle were a thirtieth of a sweep.
+    Outcome,
+    /// The planner's compute time per cycle too.
+    Timing,
+    /// And a trace row per cycle for the plots.
+    Trace,
+}
+
+fn run_with(s: &Scenario, keep: Keep) -> Run {
+    let record = keep == Keep::Trace;
+    let timed = keep != Keep::Outcome;
     let mut rig = s.rig();
     rig.tracking.kalman = KalmanConfig { measurement_noise: s.sensing.position_noise.max(1e-3), ..rig.tracking.kalman };
     let config = rig.control;
@@ -271,9 +289,11 @@ pub fn run(s: &Scenario, record: bool) -> Run {
         // A lost pose (coincident LEDs) keeps the last one; the gateway would stop instead.
         tracker.observe_robot(t_valid, front, rear);
         let Some(tracked) = tracker.estimate(t, t_step, config.drive.wheel_base) else { break Outcome::Timeout };
-        let started = Instant::now();
+        let started = timed.then(Instant::now);
         let out = control.step(t, &tracked.estimate);
-        let _ = compute.record(started.elapsed().as_nanos() as u64);
+        if let Some(started) = started {
+            let _ = compute.record(started.elapsed().as_nanos() as u64);
+        }
         cycles += 1;
         if let Some(plan) = out.plan {
             saturated += u64::from(plan.flags.saturated);
@@ -307,7 +327,7 @@ pub fn run(s: &Scenario, record: bool) -> Run {
             });
         }
         world.step(t_step);
-        if world.truth().first_contact.is_some() {
+        if world.first_contact().is_some() {
             break Outcome::Collision;
         }
         if world.time() >= s.time_limit {
