@@ -23,8 +23,8 @@ fn rss_kib() -> u64 {
     line.split_whitespace().nth(1).unwrap().parse().unwrap()
 }
 
-/// Soak one link; returns (cycles, faults, goals reached).
-fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64) {
+/// Soak one link; returns (cycles, faults, goals reached, enables sent again).
+fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64, u64) {
     let mut s =
         Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
     let faults = [
@@ -116,9 +116,8 @@ fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64) {
         goals * 2000 >= cycles,
         "{goals} goals in {cycles} cycles: the soak did not keep driving ({faults_seen} faults)"
     );
-    assert!(report.board_enable_retries > 0, "lost enables were sent again: {report:?}");
     eprintln!("{report:?}");
-    (report.cycles, faults_seen, goals)
+    (report.cycles, faults_seen, goals, report.board_enable_retries)
 }
 
 fn cycles() -> u64 {
@@ -128,8 +127,14 @@ fn cycles() -> u64 {
 /// One test, both links in turn: the resident-memory check wants no other test beside it.
 #[test]
 fn soak_with_mixed_faults_on_both_links() {
+    let mut retries = 0;
     for (can, seed) in [(CanTransport::Slcan, 1), (CanTransport::SocketCan, 2)] {
-        let (cycles, faults, goals) = soak(can, cycles(), seed);
+        let (cycles, faults, goals, enables) = soak(can, cycles(), seed);
         eprintln!("{can:?}: {cycles} cycles, {faults} faults reset and re-armed, {goals} goals reached");
+        retries += enables;
     }
+    // Lost enables were sent again. Some 250 arms a link at 1% CAN loss lose about 2.5
+    // enables each; one link alone loses none about one time in twelve (the SocketCAN
+    // soak's seed did, once the world's ramps became exact), both together one in 150.
+    assert!(retries > 0, "no lost enable was sent again in either soak");
 }

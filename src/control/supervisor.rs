@@ -111,15 +111,6 @@ enum Hazard {
 }
 
 impl Hazard {
-    fn with_slack(self, slack: f64) -> Self {
-        match self {
-            Hazard::Obstacle { index, center, velocity, keep, growth } => {
-                Hazard::Obstacle { index, center, velocity, keep: keep + slack, growth }
-            }
-            Hazard::Wall { side, keep } => Hazard::Wall { side, keep: keep + slack },
-        }
-    }
-
     fn index(&self) -> Option<usize> {
         match self {
             Hazard::Obstacle { index, .. } => Some(*index),
@@ -127,15 +118,16 @@ impl Hazard {
         }
     }
 
-    /// Whether a robot at `position` moving at `velocity`, `s` seconds ahead, drives into it.
-    fn driven_into(&self, s: f64, position: C, velocity: C, half_width: f64) -> bool {
+    /// Whether a robot at `position` moving at `velocity`, `s` seconds ahead, drives into
+    /// it, keeping `slack` more than it must.
+    fn driven_into(&self, s: f64, position: C, velocity: C, half_width: f64, slack: f64) -> bool {
         match *self {
             Hazard::Obstacle { center, velocity: v, keep, growth, .. } => {
                 let d = center + v * s - position;
-                let reach = keep + growth * s;
+                let reach = keep + slack + growth * s;
                 d.norm_sqr() < reach * reach && d.re * velocity.re + d.im * velocity.im > 0.0
             }
-            Hazard::Wall { side, keep } => half_width - side * position.im < keep && side * velocity.im > 0.0,
+            Hazard::Wall { side, keep } => half_width - side * position.im < keep + slack && side * velocity.im > 0.0,
         }
     }
 }
@@ -213,20 +205,42 @@ impl<'a> Context<'a> {
         Self { cfg, position: e.pose.position, heading: e.pose.heading, wheels: e.wheels, hazards }
     }
 
+    /// Whether a path braking from `position`, `s` seconds ahead, at centre speed `mean`
+    /// in steps of `h`, can no longer come within any hazard's reach: it travels at most
+    /// `mean²/2a` and a step more, each check keeps a step's travel and `spare` more, it
+    /// ends within `mean/a` and two steps (the last drop can leave a rounding's worth of
+    /// speed for one more), and each obstacle comes at most its speed and growth
+    /// meanwhile. Most braking tails end here, long before the robot stops.
+    fn out_of_reach(&self, s: f64, position: C, mean: f64, h: f64, spare: f64, half_width: f64) -> bool {
+        let a = self.cfg.wheel_accel;
+        let left = mean / a + 2.0 * h;
+        let margin = mean * mean / (2.0 * a) + 2.0 * mean * h + spare;
+        self.hazards.iter().all(|hz| match *hz {
+            Hazard::Obstacle { center, velocity, keep, growth, .. } => {
+                let reach = keep + margin + growth * (s + left) + velocity.length() * left;
+                (center + velocity * s - position).norm_sqr() > reach * reach
+            }
+            Hazard::Wall { side, keep } => half_width - side * position.im > keep + margin,
+        })
+    }
+
     /// The first hazard `command` drives into along its path (see the module docs).
     fn first_driven_into(&self, command: WheelSpeeds, spare: f64) -> Option<Hazard> {
         let (a, tau, base) = (self.cfg.wheel_accel, self.cfg.reaction_time, self.cfg.wheel_base);
         let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
-        // Most cycles nothing is within reach: no wheel goes faster than the fastest of its
-        // speed now and its command, so the centre travels at most that for `τ` and its
-        // braking (plus a step), while each obstacle comes at most its speed and growth.
+        // Most cycles nothing is within reach. No wheel goes faster than the fastest of its
+        // speed now and its command (`u`), so the centre travels at most `u` for `τ` (and
+        // the step that crosses it), then `u²/2a` braking; a check keeps a step's travel
+        // more. The path ends by `τ + u/a` and three steps (the one crossing `τ`, the
+        // brake's last, part-filled one, and one more where that leaves a rounding's worth
+        // of speed), and each obstacle comes at most its speed and growth meanwhile.
         let fastest =
             [self.wheels[0], self.wheels[1], command.left, command.right].iter().fold(0.0f64, |m, v| m.max(v.abs()));
         // The path's step: [`STEP`], longer where a slow ramp makes the stop long (its
         // travel is kept as slack, so a longer step is only more cautious).
         let h = STEP.max((tau + fastest / a) / MAX_PATH_STEPS);
-        let stop = tau + fastest / a + h;
-        let reach = fastest * stop + spare + fastest * h;
+        let stop = tau + fastest / a + 3.0 * h;
+        let reach = fastest * (tau + 2.0 * h) + fastest * fastest / (2.0 * a) + spare + fastest * h;
         let near = |hz: &Hazard| match *hz {
             Hazard::Obstacle { center, velocity, keep, growth, .. } => {
                 (center - self.position).length() <= keep + reach + (velocity.length() + growth) * stop
@@ -241,8 +255,14 @@ impl<'a> Context<'a> {
         // The heading as a unit complex number, turned by each step's small rotation: no
         // sine or cosine a step (a verdict can take a hundred steps).
         let mut facing = C::from_polar(1.0, self.heading);
+        // The last turn rate's step and half-step rotations: once the wheels reach the
+        // command, and all through the brake, the turn rate holds, and so do they.
+        let mut turning = (0.0, C::new(1.0, 0.0), C::new(1.0, 0.0));
         let mut s = 0.0;
         loop {
+            if s >= tau && self.out_of_reach(s, position, 0.5 * (wheels[0] + wheels[1]), h, spare, half_width) {
+                return None;
+            }
             // The wheels over the next step: toward the command until τ, then braking.
             let next = if s < tau {
                 [0, 1].map(|w| ramp(wheels[w], target[w], a * h))
@@ -259,24 +279,22 @@ impl<'a> Context<'a> {
             let slack = v.abs() * h + spare;
             let velocity = facing * v;
             if v > 0.0 {
-                let hit =
-                    self.hazards.iter().find(|hz| hz.with_slack(slack).driven_into(s, position, velocity, half_width));
+                let hit = self.hazards.iter().find(|hz| hz.driven_into(s, position, velocity, half_width, slack));
                 if hit.is_some() {
                     return hit.copied();
                 }
             }
-            position += facing * rotation(0.5 * omega * h) * (v * h);
-            facing *= rotation(omega * h);
+            if omega != turning.0 {
+                turning = (omega, rotation(0.5 * omega * h), rotation(omega * h));
+            }
+            position += facing * turning.1 * (v * h);
+            facing *= turning.2;
             wheels = next;
             s += h;
             if s >= tau && 0.5 * (wheels[0] + wheels[1]) <= 0.0 {
                 // Stopped: one last look where it came to rest, still moving until now.
                 let last = facing * v;
-                return self
-                    .hazards
-                    .iter()
-                    .find(|hz| hz.with_slack(slack).driven_into(s, position, last, half_width))
-                    .copied();
+                return self.hazards.iter().find(|hz| hz.driven_into(s, position, last, half_width, slack)).copied();
             }
         }
     }

@@ -53,13 +53,32 @@ impl Axis {
     pub fn position(&self) -> i64 {
         self.position.floor() as i64
     }
-    /// Advance by `dt`; returns the pulses emitted (fractional).
+    /// How long until the ramp reaches the target, s (0: there; `+inf`: no ramp set).
+    pub fn ramp_left(&self) -> f64 {
+        let gap = (self.target - self.rate).abs();
+        if gap == 0.0 {
+            0.0
+        } else if self.config.accel > 0.0 {
+            gap / self.config.accel
+        } else {
+            f64::INFINITY
+        }
+    }
+    /// The rate `dt` from now along the ramp, pulses/s (the state is left as it is).
+    pub fn rate_after(&self, dt: f64) -> f64 {
+        if dt >= self.ramp_left() {
+            return self.target;
+        }
+        let change = self.config.accel * dt;
+        self.rate + (self.target - self.rate).clamp(-change, change)
+    }
+    /// Advance by `dt`; returns the pulses emitted (fractional). Exact: the rate moves
+    /// linearly at the ramp's acceleration until it reaches the target, then holds.
     pub fn step(&mut self, dt: f64) -> f64 {
-        let before = self.rate;
-        let max_change = self.config.accel * dt;
-        self.rate += (self.target - self.rate).clamp(-max_change, max_change);
-        // Trapezoidal integration of the ramp.
-        let pulses = 0.5 * (before + self.rate) * dt;
+        let ramp = self.ramp_left().min(dt);
+        let reached = self.rate_after(ramp);
+        let pulses = 0.5 * (self.rate + reached) * ramp + reached * (dt - ramp);
+        self.rate = self.rate_after(dt);
         self.position += pulses;
         pulses
     }
@@ -81,6 +100,14 @@ mod tests {
         // 1 s ramp (500 pulses) then 1 s at 1000/s.
         assert!((pulses - 1500.0).abs() < 1e-6, "{pulses}");
         assert_eq!(a.position(), 1500);
+        // The same in one step, and a ramp that ends inside a step: exact either way.
+        let mut b = Axis::new(AxisConfig { accel: 1000.0, max_rate: 5000.0 });
+        b.set_target(1000);
+        assert!((b.step(2.0) - 1500.0).abs() < 1e-9);
+        b.set_target(0);
+        assert!((b.step(0.25) - (0.5 * (1000.0 + 750.0) * 0.25)).abs() < 1e-9);
+        assert!((b.step(1.0) - 0.5 * 750.0 * 0.75).abs() < 1e-9, "ramps down to rest in 0.75 s");
+        assert_eq!(b.rate(), 0.0);
         assert!(a.set_target(-9000));
         assert_eq!(a.target(), -5000.0);
         a.stop_now();

@@ -10,7 +10,7 @@ mod robot;
 
 pub use axis::{Axis, AxisConfig};
 pub use obstacle::ObstaclePath;
-pub use robot::{DiffDrive, Pose};
+pub use robot::{DiffDrive, Motion, Pose};
 
 use crate::scenario::Scenario;
 use crate::Point;
@@ -35,8 +35,6 @@ pub struct World {
     /// A calibration wand: an LED someone holds on the floor (its id and where it stands;
     /// `None` = held out of sight).
     wand: Option<(u8, Option<Point>)>,
-    /// The last step's wheel pulses and the arc they drove (see [`robot::Arc`]).
-    arc: ([f64; 2], robot::Arc),
 }
 
 /// What the world judges every millisecond, as squares and pulse rates: the truth's
@@ -138,9 +136,8 @@ impl World {
                 peak_rate: [0.0; 2],
             },
             wand: None,
-            arc: ([0.0; 2], robot::Arc::REST),
         };
-        world.judge();
+        world.judge(world.pose, world.time);
         world
     }
 
@@ -226,76 +223,196 @@ impl World {
         self.axes.iter_mut().for_each(Axis::stop_now);
     }
 
-    /// Advance the world by `dt` seconds, in sub-steps of at most 1 ms so the kinematics
-    /// and the contact check stay accurate whatever the control period.
+    /// Advance the world by `dt` seconds. The wheels follow the boards' ramps exactly and
+    /// the pose is integrated along them (see [`DiffDrive::motion`]), in one piece between
+    /// the ramps' ends however long `dt` is. The truth is judged on a grid of at most
+    /// 1 ms (`dt` split evenly): at its end always, and at every point of it only where a
+    /// contact or a new closest approach could fall between ([`World::quiet`]), which
+    /// leaves the truth exactly as judging every point would. A control period of a sweep
+    /// is then one integration and one judgement, except near a closest approach.
     pub fn step(&mut self, dt: f64) {
-        let n = (dt / 1e-3).ceil().max(1.0) as usize;
-        let h = dt / n as f64;
-        // The heading's direction, carried through the sub-steps and taken afresh from the
-        // heading each call, so rounding cannot build up over a run.
-        let mut facing = Point::from_polar(1.0, self.pose.heading);
-        for _ in 0..n {
-            let pulses = [self.axes[LEFT].step(h), self.axes[RIGHT].step(h)];
-            if self.arc.0 != pulses {
-                self.arc = (pulses, self.drive.motion(pulses));
-            }
-            (self.pose, facing) = self.arc.1.apply(self.pose, facing);
-            self.time += h;
-            self.truth.path_length += self.arc.1.length;
-            for (peak, axis) in self.judge.peak_rate.iter_mut().zip(&self.axes) {
-                *peak = peak.max(axis.rate().abs());
-            }
-            self.judge();
+        if dt.is_nan() || dt <= 0.0 {
+            return;
         }
+        let n = (dt / 1e-3).ceil().max(1.0) as usize;
+        let (start, axes, t0) = (self.pose, self.axes, self.time);
+        let (pose, axes_after, travelled, pieces) = self.advanced(start, axes, dt);
+        (self.pose, self.axes) = (pose, axes_after);
+        self.time = t0 + dt;
+        self.truth.path_length += travelled;
+        for (peak, axis) in self.judge.peak_rate.iter_mut().zip(&self.axes) {
+            // A ramp is monotone: the step's fastest rate is at one of its ends.
+            *peak = peak.max(axis.rate().abs());
+        }
+        if n > 1 && !self.quiet(start, t0, &pieces, n) {
+            let h = dt / n as f64;
+            let (mut pose, mut axes) = (start, axes);
+            for k in 1..n {
+                (pose, axes, _, _) = self.advanced(pose, axes, h);
+                self.judge(pose, t0 + k as f64 * h);
+            }
+        }
+        self.judge(self.pose, self.time);
+    }
+
+    /// The pose and the axes `span` seconds on from `pose` and `axes`, the distance
+    /// travelled, and the pieces of the way (between the ramps' ends, at most three).
+    fn advanced(&self, pose: Pose, mut axes: [Axis; 2], span: f64) -> (Pose, [Axis; 2], f64, Pieces) {
+        let speeds = |axes: &[Axis; 2]| axes.map(|a| a.rate() / self.drive.pulses_per_metre);
+        let mut ends = axes.map(|a| a.ramp_left().min(span));
+        ends.sort_by(f64::total_cmp);
+        let (mut pose, mut facing) = (pose, Point::from_polar(1.0, pose.heading));
+        let (mut at, mut travelled) = (0.0, 0.0);
+        let mut pieces = Pieces::new();
+        for end in ends.into_iter().chain([span]) {
+            if end <= at {
+                continue;
+            }
+            let (from, length) = (speeds(&axes), end - at);
+            axes.iter_mut().for_each(|a| {
+                a.step(length);
+            });
+            let to = speeds(&axes);
+            let m = self.drive.motion(from, to, length);
+            (pose, facing) = m.apply(pose, facing);
+            travelled += m.length;
+            pieces.push(Piece { end, pose, bow: self.drive.bow(from, to, length) });
+            at = end;
+        }
+        (pose, axes, travelled, pieces)
+    }
+
+    /// Whether no point of the judging grid strictly inside the step just taken (from
+    /// `start` at `t0` to the present pose, `n` points, along `pieces`) can hold a contact
+    /// or a new smallest clearance.
+    ///
+    /// On each piece the robot's centre strays at most the piece's `bow` from its chord
+    /// traversed at constant speed ([`DiffDrive::bow`]), and each obstacle keeps one
+    /// velocity over the step (checked). So each gap is at least that of the straight-line
+    /// relative motion between the piece's ends, less its bow; and that straight-line gap's
+    /// smallest value over the grid points on the piece is exact (its distance is convex
+    /// in time).
+    fn quiet(&self, start: Pose, t0: f64, pieces: &Pieces, n: usize) -> bool {
+        let t1 = self.time;
+        let h = (t1 - t0) / n as f64;
+        // The grid points on each piece, as fractions of it (None: none of them).
+        let mut spans = [None; 3];
+        let mut from = 0.0;
+        for (span, piece) in spans.iter_mut().zip(pieces) {
+            let length = piece.end - from;
+            // Points within a hair of a piece's end are taken on both sides.
+            let first = ((from / h - 1e-9).ceil() as usize).max(1);
+            let last = ((piece.end / h + 1e-9).floor() as usize).min(n - 1);
+            if first <= last {
+                let fraction = |k: usize| ((k as f64 * h - from) / length).clamp(0.0, 1.0);
+                *span = Some((fraction(first), fraction(last)));
+            }
+            from = piece.end;
+        }
+        // Rounding is some 1e-16 m here; a nanometre is far above it.
+        const FUZZ: f64 = 1e-9;
+        for ((path, _), (min, touch)) in
+            self.obstacles.iter().zip(self.judge.min_distance_sqr.iter().zip(&self.judge.touch_sqr))
+        {
+            if !path.one_velocity_between(t0, t1) {
+                return false;
+            }
+            let at_end = path.position(t1) - self.pose.position;
+            let floor = min.min(at_end.norm_sqr()).max(*touch);
+            let (mut t_a, mut pose_a) = (t0, start);
+            for (piece, span) in pieces.iter().zip(spans) {
+                if let Some((lo, hi)) = span {
+                    let r0 = path.position(t_a) - pose_a.position;
+                    let r1 = path.position(t0 + piece.end) - piece.pose.position;
+                    let change = r1 - r0;
+                    let along = change.norm_sqr();
+                    let tau =
+                        if along > 0.0 { (-(r0.re * change.re + r0.im * change.im) / along).clamp(lo, hi) } else { lo };
+                    let gap = (r0 + change * tau).norm_sqr().sqrt() - piece.bow - FUZZ;
+                    if gap <= 0.0 || gap * gap <= floor {
+                        return false;
+                    }
+                }
+                (t_a, pose_a) = (t0 + piece.end, piece.pose);
+            }
+        }
+        if let Some(half_width) = self.lane_half_width {
+            let floor = self.truth.min_wall_clearance.min(half_width - self.pose.position.im.abs()).max(0.0);
+            let mut y0 = start.position.im;
+            for (piece, span) in pieces.iter().zip(spans) {
+                let y1 = piece.pose.position.im;
+                if let Some((lo, hi)) = span {
+                    // |y| is convex along the chord: its largest value is at an end.
+                    let at = |tau: f64| (y0 + (y1 - y0) * tau).abs();
+                    if half_width - at(lo).max(at(hi)) - piece.bow - FUZZ <= floor {
+                        return false;
+                    }
+                }
+                y0 = y1;
+            }
+        }
+        true
     }
 
     /// Clearances now: to each obstacle (footprints), and to the nearest wall.
     pub fn clearances(&self) -> impl Iterator<Item = f64> + '_ {
-        self.obstacles.iter().map(move |(path, radius)| {
-            distance(self.pose.position, path.position(self.time)) - radius - self.robot_radius
-        })
+        self.clearances_at(self.pose, self.time)
+    }
+
+    fn clearances_at(&self, pose: Pose, t: f64) -> impl Iterator<Item = f64> + '_ {
+        self.obstacles
+            .iter()
+            .map(move |(path, radius)| distance(pose.position, path.position(t)) - radius - self.robot_radius)
     }
 
     /// Gap between the robot's centre and the nearest lane line now (`+inf` in free space).
     pub fn wall_clearance(&self) -> f64 {
-        self.lane_half_width.map_or(f64::INFINITY, |h| h - self.pose.position.im.abs())
+        self.wall_clearance_at(self.pose)
     }
 
-    fn judge(&mut self) {
+    fn wall_clearance_at(&self, pose: Pose) -> f64 {
+        self.lane_half_width.map_or(f64::INFINITY, |h| h - pose.position.im.abs())
+    }
+
+    /// Judge the robot at `pose` at time `t`, a sub-step of the grid.
+    fn judge(&mut self, pose: Pose, t: f64) {
         let mut may_touch = false;
         for (((path, _), min), touch) in
             self.obstacles.iter().zip(&mut self.judge.min_distance_sqr).zip(&self.judge.touch_sqr)
         {
-            let d = path.position(self.time) - self.pose.position;
+            let d = path.position(t) - pose.position;
             let d2 = d.re * d.re + d.im * d.im;
             *min = min.min(d2);
             may_touch |= d2 < *touch;
         }
-        let wall = self.wall_clearance();
+        let wall = self.wall_clearance_at(pose);
         self.truth.min_wall_clearance = self.truth.min_wall_clearance.min(wall);
         if self.truth.first_contact.is_none() && (may_touch || wall < 0.0) {
-            let obstacle = self.clearances().fold(f64::INFINITY, f64::min);
+            let obstacle = self.clearances_at(pose, t).fold(f64::INFINITY, f64::min);
             if obstacle < 0.0 || wall < 0.0 {
-                self.truth.first_contact = Some(self.time);
-                self.truth.contact = Some(self.contact(obstacle, wall));
+                self.truth.first_contact = Some(t);
+                self.truth.contact = Some(self.contact(pose, t, obstacle, wall));
             }
         }
     }
 
-    /// The contact happening now: the deeper overlap is what was touched.
-    fn contact(&self, obstacle: f64, wall: f64) -> Contact {
+    /// The contact happening at `pose` at `t`: the deeper overlap is what was touched.
+    fn contact(&self, pose: Pose, t: f64, obstacle: f64, wall: f64) -> Contact {
         let [left, right] = self.wheel_speeds();
-        let velocity = Point::from_polar(0.5 * (left + right), self.pose.heading);
+        let velocity = Point::from_polar(0.5 * (left + right), pose.heading);
         let (with, normal) = if obstacle <= wall {
-            let k =
-                self.clearances().enumerate().fold((0, f64::INFINITY), |m, (k, c)| if c < m.1 { (k, c) } else { m }).0;
-            let d = self.obstacles[k].0.position(self.time) - self.pose.position;
+            let k = self
+                .clearances_at(pose, t)
+                .enumerate()
+                .fold((0, f64::INFINITY), |m, (k, c)| if c < m.1 { (k, c) } else { m })
+                .0;
+            let d = self.obstacles[k].0.position(t) - pose.position;
             (Touched::Obstacle(k), d / d.norm())
         } else {
-            (Touched::Wall, Point::new(0.0, self.pose.position.im.signum()))
+            (Touched::Wall, Point::new(0.0, pose.position.im.signum()))
         };
         let approach_speed = velocity.re * normal.re + velocity.im * normal.im;
-        Contact { at: self.time, with, approach_speed, active: approach_speed > ACTIVE_CONTACT_SPEED }
+        Contact { at: t, with, approach_speed, active: approach_speed > ACTIVE_CONTACT_SPEED }
     }
 }
 
@@ -305,3 +422,15 @@ fn distance(a: Point, b: Point) -> f64 {
     let d = a - b;
     (d.re * d.re + d.im * d.im).sqrt()
 }
+
+/// A piece of a step: where it ends (s from the step's start), the pose there, and how far
+/// the centre may stray on it from its chord traversed at constant speed, m.
+#[derive(Debug, Clone, Copy)]
+struct Piece {
+    end: f64,
+    pose: Pose,
+    bow: f64,
+}
+
+/// A step's pieces: up to the two ramps' ends, then on to the step's end.
+type Pieces = arrayvec::ArrayVec<Piece, 3>;

@@ -46,6 +46,30 @@ impl ObstaclePath {
         self.legs.iter().rev().find(|l| l.0 <= t).map(|&(t0, p0, v)| (t - t0, p0, v))
     }
 
+    /// Whether the obstacle keeps one velocity from `t0` to `t1` (no turn at a waypoint,
+    /// no stop, no restart of a repeating schedule between them).
+    pub fn one_velocity_between(&self, t0: f64, t1: f64) -> bool {
+        if self.legs.is_empty() {
+            return true; // stationary
+        }
+        if self.repeat {
+            // Which lap, and which leg of it.
+            let lap = |t: f64| (t.max(0.0) / self.end).floor();
+            return lap(t0) == lap(t1) && self.leg_index(t0) == self.leg_index(t1);
+        }
+        self.leg_index(t0) == self.leg_index(t1)
+    }
+
+    /// The leg in force at `t` (`legs.len()`: resting after the last).
+    fn leg_index(&self, t: f64) -> usize {
+        let t = t.max(0.0);
+        let t = if self.repeat { t.rem_euclid(self.end) } else { t };
+        if t >= self.end {
+            return self.legs.len();
+        }
+        self.legs.iter().rposition(|l| l.0 <= t).unwrap_or(0)
+    }
+
     pub fn position(&self, t: f64) -> Point {
         match self.leg_at(t.max(0.0)) {
             Some((dt, p0, v)) => p0 + v * dt,
