@@ -264,7 +264,8 @@ impl WheelCommand {
         if accel <= 0.0 {
             return self.target;
         }
-        [0, 1].map(|w| ramp(self.from[w], self.target[w], accel * dt.max(0.0)))
+        let step = accel * dt.max(0.0);
+        [ramp(self.from[0], self.target[0], step), ramp(self.from[1], self.target[1], step)]
     }
     /// How long after it the wheels reach this command's speeds, s.
     fn ramp_time(&self, accel: f64) -> f64 {
@@ -302,7 +303,14 @@ impl DeadReckoning {
     /// The wheels' rim speeds at `t` as the ramps have brought them (at rest before any
     /// command), m/s: left, right.
     pub fn wheels_at(&self, t: f64) -> [f64; 2] {
-        self.commands.iter().rev().find(|c| c.t <= t).map_or([0.0; 2], |c| c.speeds_after(t - c.t, self.accel))
+        // The commands are in time order: a binary search, not a scan of the delay window.
+        match self.commands.partition_point(|c| c.t <= t) {
+            0 => [0.0; 2],
+            k => {
+                let c = &self.commands[k - 1];
+                c.speeds_after(t - c.t, self.accel)
+            }
+        }
     }
 
     /// The wheels stopped at once (an emergency stop): forget every command.
@@ -322,8 +330,9 @@ impl DeadReckoning {
     /// the odometry (see [`Odometry`]), so a prediction costs the same whatever the delay.
     pub fn predict(&mut self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
         // The commands in force at the window's ends (none before the first command: at rest).
-        let Some(last) = self.commands.iter().rposition(|c| c.t < t) else { return measured };
-        let first = self.commands.iter().rposition(|c| c.t <= t_valid).unwrap_or(0).min(last);
+        // The commands are in time order: binary searches, not scans of the delay window.
+        let Some(last) = self.commands.partition_point(|c| c.t < t).checked_sub(1) else { return measured };
+        let first = self.commands.partition_point(|c| c.t <= t_valid).saturating_sub(1).min(last);
         // Heading counted from the measured one, so the turn adds to it exactly as measured.
         let mut pose =
             Odometry { position: measured.position, facing: C::from_polar(1.0, measured.heading), heading: 0.0 };
@@ -371,13 +380,15 @@ impl WheelCommand {
         let mut advance = |[left, right]: [f64; 2], span: f64| {
             let v = 0.5 * (left + right);
             let angle = (right - left) / wheel_base * span;
-            m.displacement += m.facing * rotation(0.5 * angle) * (v * span);
-            m.facing *= rotation(angle);
+            let half = rotation(0.5 * angle);
+            m.displacement += m.facing * half * (v * span);
+            m.facing *= half * half;
             m.turned += angle;
         };
         let ramp_end = (self.t + self.ramp_time(accel)).min(to);
         if ramp_end > from {
-            let n = ((ramp_end - from) / RAMP_STEP).ceil().max(1.0);
+            // Most ramps fit in one step (a command changes the speeds a little).
+            let n = if ramp_end - from <= RAMP_STEP { 1.0 } else { ((ramp_end - from) / RAMP_STEP).ceil() };
             let h = (ramp_end - from) / n;
             for k in 0..n as usize {
                 let mid = from + (k as f64 + 0.5) * h - self.t;

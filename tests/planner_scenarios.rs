@@ -339,11 +339,12 @@ fn plan_command_shards_and_merges_a_sweep() {
 /// Beside a standing obstacle with 1 mm of noise and 0.3 s of delay, 40 seeds: the
 /// paper's planner alone (no allowance for the prediction's uncertainty, no supervisor)
 /// grazes it in some; with the defaults (one standard deviation of the predicted centre in
-/// the margin, room for the supervisor, the supervisor on) none does, and all but one
-/// reach the goal: that one stalls beside the obstacle, held by its margins (E1's sweep
-/// stalls in 0.9% of its episodes; with the world's exact ramps since stop 28 one of
-/// these 40 seeds is among them). (The issue measured 22 of 40 grazing before the dead
-/// reckoning followed the boards' ramp.)
+/// the margin, room for the supervisor, the supervisor on) none does, and all reach the
+/// goal but at most one, which may stall beside the obstacle, held by its margins: E1's
+/// sweep stalls in 0.9% of its episodes, and whether a run that skirts the margin for
+/// seconds stalls turns on rounding (one of these seeds did at one commit while the
+/// world's integration changed, none before or after). (The issue measured 22 of 40
+/// grazing before the dead reckoning followed the boards' ramp.)
 #[test]
 fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
     let base = scenario("e1-standing-obstacle.toml");
@@ -362,7 +363,7 @@ fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
     assert_eq!(grazed, 1, "the paper's planner");
     let after: Vec<_> = runs(false).collect();
     assert!(after.iter().all(|s| s.first_contact.is_none()), "{after:?}");
-    let stalled = after.iter().filter(|s| s.outcome == Outcome::Stall).count();
     let goals = after.iter().filter(|s| s.outcome == Outcome::Goal).count();
-    assert_eq!((goals, stalled), (39, 1), "{after:?}");
+    assert!(after.iter().all(|s| matches!(s.outcome, Outcome::Goal | Outcome::Stall)), "{after:?}");
+    assert!(goals >= 39, "{goals} of 40 reached the goal: {after:?}");
 }

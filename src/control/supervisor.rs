@@ -105,7 +105,7 @@ enum Hazard {
     /// An obstacle: where it is predicted now, its velocity, the distance to keep from its
     /// centre now, and how fast that distance grows with the time ahead (its velocity's
     /// uncertainty).
-    Obstacle { index: usize, center: C, velocity: C, keep: f64, growth: f64 },
+    Obstacle { index: usize, center: C, velocity: C, speed: f64, keep: f64, growth: f64 },
     /// A lane line at `y = side · h`: the centre keeps `keep` from it.
     Wall { side: f64, keep: f64 },
 }
@@ -193,6 +193,7 @@ impl<'a> Context<'a> {
                 index,
                 center: o.center,
                 velocity: o.velocity,
+                speed: o.velocity.length(),
                 keep: o.radius + cfg.robot_radius + cfg.sigmas * o.position_sd + cfg.clearance,
                 growth: cfg.sigmas * o.velocity_sd,
             });
@@ -216,8 +217,8 @@ impl<'a> Context<'a> {
         let left = mean / a + 2.0 * h;
         let margin = mean * mean / (2.0 * a) + 2.0 * mean * h + spare;
         self.hazards.iter().all(|hz| match *hz {
-            Hazard::Obstacle { center, velocity, keep, growth, .. } => {
-                let reach = keep + margin + growth * (s + left) + velocity.length() * left;
+            Hazard::Obstacle { center, velocity, speed, keep, growth, .. } => {
+                let reach = keep + margin + growth * (s + left) + speed * left;
                 (center + velocity * s - position).norm_sqr() > reach * reach
             }
             Hazard::Wall { side, keep } => half_width - side * position.im > keep + margin,
@@ -242,8 +243,8 @@ impl<'a> Context<'a> {
         let stop = tau + fastest / a + 3.0 * h;
         let reach = fastest * (tau + 2.0 * h) + fastest * fastest / (2.0 * a) + spare + fastest * h;
         let near = |hz: &Hazard| match *hz {
-            Hazard::Obstacle { center, velocity, keep, growth, .. } => {
-                (center - self.position).length() <= keep + reach + (velocity.length() + growth) * stop
+            Hazard::Obstacle { center, speed, keep, growth, .. } => {
+                (center - self.position).length() <= keep + reach + (speed + growth) * stop
             }
             Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
         };

@@ -24,6 +24,9 @@ pub const RIGHT: usize = 1;
 pub struct World {
     time: f64,
     pose: Pose,
+    /// The heading's direction, a unit complex number carried with the pose: no sine or
+    /// cosine a step.
+    facing: Point,
     drive: DiffDrive,
     axes: [Axis; 2],
     robot_radius: f64,
@@ -110,6 +113,7 @@ impl World {
         let mut world = Self {
             time: 0.0,
             pose: Pose { position: scenario.robot_start(), heading: r.heading_deg.to_radians() },
+            facing: Point::from_polar(1.0, r.heading_deg.to_radians()),
             drive,
             axes: [Axis::new(axis), Axis::new(axis)],
             robot_radius: r.radius,
@@ -235,9 +239,10 @@ impl World {
             return;
         }
         let n = (dt / 1e-3).ceil().max(1.0) as usize;
-        let (start, axes, t0) = (self.pose, self.axes, self.time);
-        let (pose, axes_after, travelled, pieces) = self.advanced(start, axes, dt);
-        (self.pose, self.axes) = (pose, axes_after);
+        let (start, facing, axes, t0) = (self.pose, self.facing, self.axes, self.time);
+        let (pose, facing_after, axes_after, travelled, pieces) = self.advanced(start, facing, axes, dt);
+        // Renormalised each step, so rounding cannot build up over a run.
+        (self.pose, self.facing, self.axes) = (pose, facing_after / facing_after.norm_sqr().sqrt(), axes_after);
         self.time = t0 + dt;
         self.truth.path_length += travelled;
         for (peak, axis) in self.judge.peak_rate.iter_mut().zip(&self.axes) {
@@ -246,22 +251,28 @@ impl World {
         }
         if n > 1 && !self.quiet(start, t0, &pieces, n) {
             let h = dt / n as f64;
-            let (mut pose, mut axes) = (start, axes);
+            let (mut pose, mut facing, mut axes) = (start, facing, axes);
             for k in 1..n {
-                (pose, axes, _, _) = self.advanced(pose, axes, h);
+                (pose, facing, axes, _, _) = self.advanced(pose, facing, axes, h);
                 self.judge(pose, t0 + k as f64 * h);
             }
         }
         self.judge(self.pose, self.time);
     }
 
-    /// The pose and the axes `span` seconds on from `pose` and `axes`, the distance
-    /// travelled, and the pieces of the way (between the ramps' ends, at most three).
-    fn advanced(&self, pose: Pose, mut axes: [Axis; 2], span: f64) -> (Pose, [Axis; 2], f64, Pieces) {
+    /// The pose (facing `facing`) and the axes `span` seconds on from `pose` and `axes`,
+    /// the distance travelled, and the pieces of the way (between the ramps' ends, at most
+    /// three).
+    fn advanced(
+        &self,
+        mut pose: Pose,
+        mut facing: Point,
+        mut axes: [Axis; 2],
+        span: f64,
+    ) -> (Pose, Point, [Axis; 2], f64, Pieces) {
         let speeds = |axes: &[Axis; 2]| axes.map(|a| a.rate() / self.drive.pulses_per_metre);
-        let mut ends = axes.map(|a| a.ramp_left().min(span));
-        ends.sort_by(f64::total_cmp);
-        let (mut pose, mut facing) = (pose, Point::from_polar(1.0, pose.heading));
+        let [first, second] = axes.map(|a| a.ramp_left().min(span));
+        let ends = if first <= second { [first, second] } else { [second, first] };
         let (mut at, mut travelled) = (0.0, 0.0);
         let mut pieces = Pieces::new();
         for end in ends.into_iter().chain([span]) {
@@ -279,7 +290,7 @@ impl World {
             pieces.push(Piece { end, pose, bow: self.drive.bow(from, to, length) });
             at = end;
         }
-        (pose, axes, travelled, pieces)
+        (pose, facing, axes, travelled, pieces)
     }
 
     /// Whether no point of the judging grid strictly inside the step just taken (from
@@ -294,18 +305,17 @@ impl World {
     /// in time).
     fn quiet(&self, start: Pose, t0: f64, pieces: &Pieces, n: usize) -> bool {
         let t1 = self.time;
-        let h = (t1 - t0) / n as f64;
-        // The grid points on each piece, as fractions of it (None: none of them).
+        let whole = pieces.last().map_or(0.0, |p| p.end);
+        let h = whole / n as f64;
+        // The inner points lie in [h, T - h] (from the step's start): on each piece, the
+        // part of that span it holds, as fractions of the piece (None: no part).
         let mut spans = [None; 3];
-        let mut from = 0.0;
+        let mut from: f64 = 0.0;
         for (span, piece) in spans.iter_mut().zip(pieces) {
-            let length = piece.end - from;
-            // Points within a hair of a piece's end are taken on both sides.
-            let first = ((from / h - 1e-9).ceil() as usize).max(1);
-            let last = ((piece.end / h + 1e-9).floor() as usize).min(n - 1);
-            if first <= last {
-                let fraction = |k: usize| ((k as f64 * h - from) / length).clamp(0.0, 1.0);
-                *span = Some((fraction(first), fraction(last)));
+            let (lo, hi) = (from.max(h), piece.end.min(whole - h));
+            if lo <= hi {
+                let length = piece.end - from;
+                *span = Some(((lo - from) / length, (hi - from) / length));
             }
             from = piece.end;
         }

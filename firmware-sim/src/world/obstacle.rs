@@ -12,16 +12,23 @@ pub struct ObstaclePath {
     legs: Vec<(f64, Point, Point)>,
     end: f64,
     repeat: bool,
+    /// `Some((start, velocity))` for one velocity forever: the position in closed form,
+    /// as the world asks it every step.
+    uniform: Option<(Point, Point)>,
 }
 
 impl ObstaclePath {
     pub fn new(spec: &ObstacleSpec) -> Self {
         let start = point(spec.start);
         match &spec.motion {
-            Motion::Stationary => Self { start, legs: Vec::new(), end: 0.0, repeat: false },
-            Motion::Constant { velocity } => {
-                Self { start, legs: vec![(0.0, start, point(*velocity))], end: f64::INFINITY, repeat: false }
-            }
+            Motion::Stationary => Self { start, legs: Vec::new(), end: 0.0, repeat: false, uniform: None },
+            Motion::Constant { velocity } => Self {
+                start,
+                legs: vec![(0.0, start, point(*velocity))],
+                end: f64::INFINITY,
+                repeat: false,
+                uniform: Some((start, point(*velocity))),
+            },
             Motion::Waypoints { points, speed, repeat } => {
                 let mut legs = Vec::new();
                 let (mut t, mut from) = (0.0, start);
@@ -33,7 +40,7 @@ impl ObstaclePath {
                     }
                     from = p;
                 }
-                Self { start, legs, end: t, repeat: *repeat && t > 0.0 }
+                Self { start, legs, end: t, repeat: *repeat && t > 0.0, uniform: None }
             }
         }
     }
@@ -49,8 +56,8 @@ impl ObstaclePath {
     /// Whether the obstacle keeps one velocity from `t0` to `t1` (no turn at a waypoint,
     /// no stop, no restart of a repeating schedule between them).
     pub fn one_velocity_between(&self, t0: f64, t1: f64) -> bool {
-        if self.legs.is_empty() {
-            return true; // stationary
+        if self.legs.is_empty() || self.uniform.is_some() {
+            return true; // stationary, or one velocity forever
         }
         if self.repeat {
             // Which lap, and which leg of it.
@@ -71,6 +78,9 @@ impl ObstaclePath {
     }
 
     pub fn position(&self, t: f64) -> Point {
+        if let Some((start, velocity)) = self.uniform {
+            return start + velocity * t.max(0.0);
+        }
         match self.leg_at(t.max(0.0)) {
             Some((dt, p0, v)) => p0 + v * dt,
             None => self.rest_point(),
