@@ -80,7 +80,7 @@ fn main() {
         ("decode (COBS, CRC, packets)", stages[0]),
         ("track (calibration, pose, Kalman)", stages[1]),
         ("plan (control step)", stages[2]),
-        ("world (kinematics, contact; 1 ms steps)", world_ns),
+        ("world (ramps, kinematics, contact)", world_ns),
         ("firmware, encoders, SLCAN, wires, telemetry", rest),
     ] {
         println!("  {name:<45} {:>6.2} µs  {:>4.0}%", per(ns), 100.0 * ns / total);
@@ -104,11 +104,15 @@ fn main() {
     for (name, base, n) in [("E2 (lane)", &e2, 2000), ("E3b (free space)", &scenario("e3b-delay-margin.toml"), 20000)] {
         let sample = 200;
         let (mut plan_ns, mut commands) = (0.0, 0u64);
+        let mut cost = offline::CycleCost::default();
         for i in 0..sample {
             let s = sweep::perturb(base, 1, i);
-            let summary = offline::run(&s, false).summary;
-            plan_ns += summary.planner_compute.p50_us * 1e3 * summary.cycles as f64;
-            commands += summary.cycles;
+            let run = offline::run(&s, false);
+            plan_ns += run.summary.planner_compute.p50_us * 1e3 * run.summary.cycles as f64;
+            commands += run.summary.cycles;
+            cost.sense_and_track_ns += run.cost.sense_and_track_ns;
+            cost.control_ns += run.cost.control_ns;
+            cost.world_ns += run.cost.world_ns;
         }
         let per_command_ns = plan_ns / commands as f64;
         let per_episode = commands as f64 / sample as f64;
@@ -121,6 +125,17 @@ fn main() {
              bounds it at {bound:.0} episodes/s on 2 threads; the sweep runs {rate:.0} ({:.0}% of the bound)",
             per_command_ns / 1e3,
             100.0 * rate / bound
+        );
+        // Where a cycle of the sweep goes: the stages timed in the sample, and the whole
+        // cycle as the sweep ran it (two threads over its rate and the cycles an episode).
+        let per_cycle = |ns: u64| ns as f64 / commands as f64 / 1e3;
+        let whole = 2.0 / rate / per_episode * 1e6;
+        println!(
+            "  a cycle of it: sensing and tracking {:.2} µs, control step {:.2} µs, world {:.2} µs (means, each \
+             timed with a clock read); the sweep's cycle {whole:.2} µs on each thread",
+            per_cycle(cost.sense_and_track_ns),
+            per_cycle(cost.control_ns),
+            per_cycle(cost.world_ns),
         );
     }
 }

@@ -96,7 +96,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     };
     summary.min_obstacle_clearance = t.min_obstacle_clearance;
     summary.end_time = t.duration;
-    let live = offline::Run { summary, trace };
+    let live = offline::Run { summary, trace, cost: offline::CycleCost::default() };
     std::fs::write(out.join("trajectory.svg"), flowgate::lab::report::trajectory_svg(&scenario, &live))?;
     run.truth.write(&out.join("truth.json"))?;
     std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;

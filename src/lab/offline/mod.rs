@@ -106,7 +106,7 @@ impl Run {
             unclosed_at_a_wall_cycles: 0,
             obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
         };
-        Run { summary, trace }
+        Run { summary, trace, cost: CycleCost::default() }
     }
 }
 
@@ -176,6 +176,21 @@ pub struct TraceRow {
 pub struct Run {
     pub summary: Summary,
     pub trace: Vec<TraceRow>,
+    /// Where its cycles' time went (zero unless timed: [`run`]).
+    pub cost: CycleCost,
+}
+
+/// Where a timed planner-only run's time went, ns in all, on the host clock (each stage's
+/// figure includes one clock read, some 25 ns): what a sweep's episode costs, by stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CycleCost {
+    /// The sensing model (delay, noise, filters) and the tracker (Kalman filters, dead
+    /// reckoning, the estimate).
+    pub sense_and_track_ns: u64,
+    /// The control step: the planner, the wheel speeds and the supervisor.
+    pub control_ns: u64,
+    /// The simulator's world: the wheels' ramps, the kinematics, contact and clearance.
+    pub world_ns: u64,
 }
 
 /// The LEDs on the simulated robot: half its radius ahead of and behind its centre.
@@ -276,12 +291,20 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
     let mut tracker = Tracker::new(rig.tracking, led_geometry(s), &radii);
     let mut measured = vec![C::default(); n];
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
+    let mut cost = CycleCost::default();
+    let clock = || timed.then(Instant::now);
+    let lap = |from: Option<Instant>, total: &mut u64| {
+        if let Some(from) = from {
+            *total += from.elapsed().as_nanos() as u64;
+        }
+    };
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
     let (mut slowed, mut braking, mut goal_occupied, mut unclosed) = (0, 0, 0, 0);
 
     let outcome = loop {
         let t = world.time();
+        let sensing = clock();
         let (t_valid, front, rear) = sensor.measure(&world, t_step, &mut measured);
         for (k, z) in measured.iter().enumerate() {
             tracker.observe_obstacle(k, t_valid, *z);
@@ -289,10 +312,13 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         // A lost pose (coincident LEDs) keeps the last one; the gateway would stop instead.
         tracker.observe_robot(t_valid, front, rear);
         let Some(tracked) = tracker.estimate(t, t_step, config.drive.wheel_base) else { break Outcome::Timeout };
-        let started = timed.then(Instant::now);
+        lap(sensing, &mut cost.sense_and_track_ns);
+        let started = clock();
         let out = control.step(t, &tracked.estimate);
         if let Some(started) = started {
-            let _ = compute.record(started.elapsed().as_nanos() as u64);
+            let ns = started.elapsed().as_nanos() as u64;
+            let _ = compute.record(ns);
+            cost.control_ns += ns;
         }
         cycles += 1;
         if let Some(plan) = out.plan {
@@ -326,7 +352,9 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
                 obstacles: (0..n).map(|k| world.obstacle_position(k, t)).collect(),
             });
         }
+        let stepping = clock();
         world.step(t_step);
+        lap(stepping, &mut cost.world_ns);
         if world.first_contact().is_some() {
             break Outcome::Collision;
         }
@@ -361,5 +389,5 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         unclosed_at_a_wall_cycles: unclosed,
         obstacle_faster_than_robot: faster,
     };
-    Run { summary, trace }
+    Run { summary, trace, cost }
 }
