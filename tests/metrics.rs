@@ -92,6 +92,11 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
         families["flowgate_state"]["samples"].as_array().unwrap().iter().map(|s| s[2].as_f64().unwrap()).sum();
     assert_eq!(states, 1.0, "{families}");
     assert_eq!(value(&families, "flowgate_state", "flowgate_state", Some(("state", "running"))), 1.0);
+    // The planner's flags, by flag, each at most one a cycle.
+    for flag in ["saturated", "tie_break", "margin_shrunk", "unclosed_at_a_wall"] {
+        let n = value(&families, "flowgate_planner_flags", "flowgate_planner_flags_total", Some(("flag", flag)));
+        assert!((0.0..=cycles).contains(&n), "{flag}: {n} of {cycles} cycles");
+    }
     // The histogram: cumulative buckets, +Inf = count = every timed cycle.
     let h = &families["flowgate_cycle_latency_seconds"];
     assert_eq!(h["type"], "histogram");

@@ -948,6 +948,13 @@ impl<K: StageClock> Core<K> {
         let mut wheels = (0.0, 0.0);
         if let Some(out) = step {
             self.counters.obstacle_outran_robot += u64::from(out.outrun);
+            if let Some(plan) = out.plan {
+                let (c, f) = (&mut self.counters, plan.flags);
+                c.planner_saturated += u64::from(f.saturated);
+                c.planner_tie_break += u64::from(f.tie_break);
+                c.planner_margin_shrunk += u64::from(f.margin_shrunk);
+                c.planner_unclosed_at_a_wall += u64::from(f.unclosed_at_a_wall);
+            }
             match out.status {
                 StepStatus::Driving => {
                     pulses = out.pulses;

@@ -130,6 +130,16 @@ pub fn render(s: &Snapshot) -> String {
         "Cycles the robot held still while the goal was inside an obstacle's planning circle.",
         &[("", c.goal_occupied)],
     );
+    counter(
+        "planner_flags",
+        "Cycles whose plan raised a planner flag, by flag.",
+        &[
+            ("{flag=\"saturated\"}", c.planner_saturated),
+            ("{flag=\"tie_break\"}", c.planner_tie_break),
+            ("{flag=\"margin_shrunk\"}", c.planner_margin_shrunk),
+            ("{flag=\"unclosed_at_a_wall\"}", c.planner_unclosed_at_a_wall),
+        ],
+    );
     counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
 
     counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);

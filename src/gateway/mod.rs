@@ -141,6 +141,14 @@ pub struct Counters {
     /// Cycles the robot held still because the goal was inside an obstacle's planning
     /// circle (it waits up to `planner.goal_wait` for the obstacle to pass).
     pub goal_occupied: u64,
+    /// Cycles whose plan raised each of the planner's flags ([`crate::planner::PlanFlags`]):
+    /// the field's speed scaled down to the limit; the tie-break shifting a circle; a
+    /// margin shrunk because the robot or the goal stood in it; a circle at a lane wall
+    /// left unclosed, its boundary met less exactly.
+    pub planner_saturated: u64,
+    pub planner_tie_break: u64,
+    pub planner_margin_shrunk: u64,
+    pub planner_unclosed_at_a_wall: u64,
     pub telemetry_dropped: u64,
 }
 

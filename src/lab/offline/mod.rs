@@ -101,9 +101,9 @@ impl Run {
             supervisor_slowed_cycles: e.report.counters.supervisor_slowed,
             supervisor_braking_cycles: e.report.counters.supervisor_braking,
             goal_occupied_cycles: e.report.counters.goal_occupied,
-            saturated_cycles: 0,
-            tie_break_cycles: 0,
-            unclosed_at_a_wall_cycles: 0,
+            saturated_cycles: e.report.counters.planner_saturated,
+            tie_break_cycles: e.report.counters.planner_tie_break,
+            unclosed_at_a_wall_cycles: e.report.counters.planner_unclosed_at_a_wall,
             obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
         };
         Run { summary, trace, cost: CycleCost::default() }
