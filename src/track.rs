@@ -199,6 +199,10 @@ pub struct DeadReckoning {
     wheel_base: f64,
     /// The commands, oldest first.
     commands: std::collections::VecDeque<WheelCommand>,
+    /// The last prediction's motion through the newest command's span, from its start to
+    /// the prediction's time: (that start, that time, the motion). The next command comes
+    /// at that time, and the span's odometry is then this very motion.
+    newest_span: Option<(f64, f64, Motion)>,
 }
 
 /// One command to the wheels: when, what, and where the wheels were when it came.
@@ -291,7 +295,7 @@ impl DeadReckoning {
     /// Room for `n` commands before it allocates (the delay over the period, plus some);
     /// wheels that ramp at `accel` m/s² (0: at once).
     pub fn with_capacity(n: usize, accel: f64) -> Self {
-        Self { accel, wheel_base: 0.0, commands: std::collections::VecDeque::with_capacity(n) }
+        Self { accel, wheel_base: 0.0, commands: std::collections::VecDeque::with_capacity(n), newest_span: None }
     }
 
     /// Record the wheel speeds commanded at `t`.
@@ -316,6 +320,7 @@ impl DeadReckoning {
     /// The wheels stopped at once (an emergency stop): forget every command.
     pub fn halt(&mut self) {
         self.commands.clear();
+        self.newest_span = None;
     }
 
     /// Forget commands that ended before `t` (keeps the one in force at `t`).
@@ -346,7 +351,9 @@ impl DeadReckoning {
         if last > first {
             pose = pose.then(self.odometry(first + 1, wheel_base).to(self.odometry(last, wheel_base)));
             let c = self.commands[last];
-            pose = pose.then(c.motion(c.t, t, accel, wheel_base));
+            let m = c.motion(c.t, t, accel, wheel_base);
+            self.newest_span = Some((c.t, t, m));
+            pose = pose.then(m);
         }
         Pose { position: pose.position, heading: measured.heading + pose.heading }
     }
@@ -357,13 +364,18 @@ impl DeadReckoning {
             // Integrated with another wheel base (only ever a test's doing): start afresh.
             self.wheel_base = wheel_base;
             self.commands.iter_mut().for_each(|c| c.odometry = None);
+            self.newest_span = None;
         }
         let known = self.commands.range(..=i).rposition(|c| c.odometry.is_some());
         let mut at = known.map_or(Odometry::ORIGIN, |k| self.commands[k].odometry.unwrap_or(Odometry::ORIGIN));
         for k in known.map_or(0, |k| k + 1)..=i {
             if k > 0 {
                 let (c, next) = (self.commands[k - 1], self.commands[k].t);
-                at = at.then(c.motion(c.t, next, self.accel, wheel_base));
+                let motion = match self.newest_span {
+                    Some((from, to, m)) if from == c.t && to == next => m,
+                    _ => c.motion(c.t, next, self.accel, wheel_base),
+                };
+                at = at.then(motion);
             }
             self.commands[k].odometry = Some(at);
         }
