@@ -339,12 +339,12 @@ fn plan_command_shards_and_merges_a_sweep() {
 /// Beside a standing obstacle with 1 mm of noise and 0.3 s of delay, 40 seeds: the
 /// paper's planner alone (no allowance for the prediction's uncertainty, no supervisor)
 /// grazes it in some; with the defaults (one standard deviation of the predicted centre in
-/// the margin, room for the supervisor, the supervisor on) none does, and all reach the
-/// goal but at most one, which may stall beside the obstacle, held by its margins: E1's
-/// sweep stalls in 0.9% of its episodes, and whether a run that skirts the margin for
-/// seconds stalls turns on rounding (one of these seeds did at one commit while the
-/// world's integration changed, none before or after). (The issue measured 22 of 40
-/// grazing before the dead reckoning followed the boards' ramp.)
+/// the margin, room for the supervisor, the supervisor on) none does, and all 40 reach
+/// the goal. Whether a run that skirts the margin for seconds stalls there instead, held
+/// by its margins, turns on rounding: E1's sweep stalls in 0.9% of its episodes, and one
+/// of these seeds did at one commit of stop 28 while the world's integration changed. A
+/// stall here is not a graze; should one appear, it is the count below that moves. (The
+/// issue measured 22 of 40 grazing before the dead reckoning followed the boards' ramp.)
 #[test]
 fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
     let base = scenario("e1-standing-obstacle.toml");
@@ -364,6 +364,5 @@ fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
     let after: Vec<_> = runs(false).collect();
     assert!(after.iter().all(|s| s.first_contact.is_none()), "{after:?}");
     let goals = after.iter().filter(|s| s.outcome == Outcome::Goal).count();
-    assert!(after.iter().all(|s| matches!(s.outcome, Outcome::Goal | Outcome::Stall)), "{after:?}");
-    assert!(goals >= 39, "{goals} of 40 reached the goal: {after:?}");
+    assert_eq!(goals, 40, "{after:?}");
 }

@@ -208,7 +208,12 @@ impl World {
     }
     /// Wheel rim speeds now, m/s: left, right.
     pub fn wheel_speeds(&self) -> [f64; 2] {
-        self.axes.map(|a| a.rate() / self.drive.pulses_per_metre)
+        self.rim_speeds(&self.axes)
+    }
+
+    /// The rim speeds axes at `axes`' rates drive, m/s: left, right.
+    fn rim_speeds(&self, axes: &[Axis; 2]) -> [f64; 2] {
+        axes.map(|a| a.rate() / self.drive.pulses_per_metre)
     }
 
     /// Set both axes' target pulse rates (pulses/s), as a velocity command does.
@@ -277,7 +282,6 @@ impl World {
         mut axes: [Axis; 2],
         span: f64,
     ) -> (Pose, Point, [Axis; 2], f64, Pieces) {
-        let speeds = |axes: &[Axis; 2]| axes.map(|a| a.rate() / self.drive.pulses_per_metre);
         let [first, second] = axes.map(|a| a.ramp_left().min(span));
         let ends = if first <= second { [first, second] } else { [second, first] };
         let (mut at, mut travelled) = (0.0, 0.0);
@@ -286,11 +290,11 @@ impl World {
             if end <= at {
                 continue;
             }
-            let (from, length) = (speeds(&axes), end - at);
+            let (from, length) = (self.rim_speeds(&axes), end - at);
             axes.iter_mut().for_each(|a| {
                 a.step(length);
             });
-            let to = speeds(&axes);
+            let to = self.rim_speeds(&axes);
             let m = self.drive.motion(from, to, length);
             (pose, facing) = m.apply(pose, facing);
             travelled += m.length;
@@ -565,11 +569,12 @@ mod tests {
             close += usize::from(a.min_obstacle_clearance < 0.01);
         }
         // The cases reach what the check is about: contacts and close approaches (182 and
-        // 157 of the 300), and most steps passed over (68%).
+        // 157 of the 300), and most steps passed over (68%; the seed fixes every figure).
         let passed_over = PASSED_OVER.with(|steps| steps.get());
-        assert!(
-            contacts > 150 && close > 130 && passed_over * 10 > steps * 6,
-            "{contacts} contacts, {close} close, {passed_over} of {steps} steps passed over"
+        assert_eq!(
+            (contacts, close, passed_over, steps),
+            (182, 157, 82_050, 120_781),
+            "contacts, close, passed over, steps"
         );
     }
 }

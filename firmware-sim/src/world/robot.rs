@@ -18,12 +18,14 @@ pub struct DiffDrive {
 }
 
 impl DiffDrive {
-    /// The pose after the wheels emitted `pulses` (left, right) from `pose` at constant
-    /// speeds: the centre moves on an arc.
-    pub fn advance(&self, pose: Pose, pulses: [f64; 2]) -> Pose {
-        let [left, right] = pulses.map(|p| p / self.pulses_per_metre);
-        let m = self.motion([left, right], [left, right], 1.0);
-        m.apply(pose, Point::from_polar(1.0, pose.heading)).0
+    /// The centre's speed at wheel rim speeds `w` (left, right), m/s.
+    fn speed(w: [f64; 2]) -> f64 {
+        0.5 * (w[0] + w[1])
+    }
+
+    /// The turn rate at wheel rim speeds `w` (left, right), rad/s.
+    fn turn_rate(&self, w: [f64; 2]) -> f64 {
+        (w[1] - w[0]) / self.wheel_base
     }
 
     /// The robot's motion in its own frame over `span` seconds while its wheels' rim speeds
@@ -33,10 +35,8 @@ impl DiffDrive {
     /// quadrature over pieces turning at most [`QUADRATURE_TURN`] each (exact to about
     /// 1e-15 of the travel).
     pub fn motion(&self, from: [f64; 2], to: [f64; 2], span: f64) -> Motion {
-        let speed = |w: [f64; 2]| 0.5 * (w[0] + w[1]);
-        let turn_rate = |w: [f64; 2]| (w[1] - w[0]) / self.wheel_base;
-        let (v0, v1) = (speed(from), speed(to));
-        let (w0, w1) = (turn_rate(from), turn_rate(to));
+        let (v0, v1) = (Self::speed(from), Self::speed(to));
+        let (w0, w1) = (self.turn_rate(from), self.turn_rate(to));
         let turned = 0.5 * (w0 + w1) * span;
         let length = travel(v0, v1, span);
         if from == to {
@@ -66,19 +66,16 @@ impl DiffDrive {
         }
         Motion { displacement, turned, length }
     }
-}
 
-impl DiffDrive {
     /// How far the centre may stray, over a motion of `span` seconds with the wheels'
     /// speeds going linearly from `from` to `to`, from its chord traversed at constant
     /// speed, m: `M span² / 8` for an acceleration bounded by `M`, here the speed's rate
     /// of change plus the largest speed times the largest turn rate (both linear in time,
     /// so extreme at the ends).
     pub fn bow(&self, from: [f64; 2], to: [f64; 2], span: f64) -> f64 {
-        let speed = |w: [f64; 2]| 0.5 * (w[0] + w[1]);
-        let turn_rate = |w: [f64; 2]| ((w[1] - w[0]) / self.wheel_base).abs();
-        let tangential = (speed(to) - speed(from)).abs() / span;
-        let normal = speed(from).abs().max(speed(to).abs()) * turn_rate(from).max(turn_rate(to));
+        let (v0, v1) = (Self::speed(from), Self::speed(to));
+        let tangential = (v1 - v0).abs() / span;
+        let normal = v0.abs().max(v1.abs()) * self.turn_rate(from).abs().max(self.turn_rate(to).abs());
         (tangential + normal) * span * span / 8.0
     }
 }
@@ -151,14 +148,21 @@ mod tests {
     use super::*;
     use std::f64::consts::PI;
 
+    /// The pose after the wheels emitted `pulses` (left, right) from `pose` at constant
+    /// speeds (one second of them): the centre moves on an arc.
+    fn advance(d: &DiffDrive, pose: Pose, pulses: [f64; 2]) -> Pose {
+        let speeds = pulses.map(|p| p / d.pulses_per_metre);
+        d.motion(speeds, speeds, 1.0).apply(pose, Point::from_polar(1.0, pose.heading)).0
+    }
+
     #[test]
     fn straight_and_turn_in_place() {
         let d = DiffDrive { wheel_base: 0.1, pulses_per_metre: 1000.0 };
-        let p = d.advance(Pose { position: Point::new(0.0, 0.0), heading: 0.0 }, [100.0, 100.0]);
+        let p = advance(&d, Pose { position: Point::new(0.0, 0.0), heading: 0.0 }, [100.0, 100.0]);
         assert!((p.position - Point::new(0.1, 0.0)).norm() < 1e-12);
         // Opposite wheels, each travelling a quarter of the wheel circle: half a turn.
         let quarter = PI * 0.1 / 4.0 * 1000.0;
-        let p = d.advance(p, [-quarter, quarter]);
+        let p = advance(&d, p, [-quarter, quarter]);
         assert!((p.position - Point::new(0.1, 0.0)).norm() < 1e-12);
         assert!((p.heading - PI / 2.0).abs() < 1e-12);
     }
@@ -170,7 +174,7 @@ mod tests {
         // Left wheel on radius 0.15, right on 0.25: the centre circles at radius 0.2.
         let n = 1000;
         for _ in 0..n {
-            p = d.advance(p, [2.0 * PI * 0.15 * 1000.0 / n as f64, 2.0 * PI * 0.25 * 1000.0 / n as f64]);
+            p = advance(&d, p, [2.0 * PI * 0.15 * 1000.0 / n as f64, 2.0 * PI * 0.25 * 1000.0 / n as f64]);
         }
         assert!(p.position.norm() < 1e-9, "{:?}", p.position);
     }
