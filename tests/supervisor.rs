@@ -151,6 +151,30 @@ proptest! {
     }
 }
 
+/// Found by `no_active_contact_in_a_lane`: in the narrowest lane the adversary swings
+/// toward the lower line while an obstacle at half the robot's speed closes from just
+/// behind. Every stop then leaves the robot, in its last step, a sliver of speed facing a
+/// little toward the obstacle, which is by then within reach: judged as driving into it,
+/// no command passed and the supervisor braked in 3 cycles. The contact that follows is
+/// passive either way.
+#[test]
+fn an_obstacle_closing_from_behind_in_a_narrow_lane_leaves_a_safe_stop() {
+    let c = Case {
+        heading_deg: -16.850464282288637,
+        accel: 0.9570576008795109,
+        obstacle_radius: 0.06680852603182073,
+        gap: 0.03612193750687065,
+        bearing_deg: -170.00081592499606,
+        speed_ratio: 0.5486923880119554,
+        course_deg: 0.0,
+        lane: Some(0.12),
+    };
+    let (contact, braking) = drive(&scenario(&c), Aim::Wall(-1.0), true);
+    let contact = contact.expect("the obstacle catches the robot");
+    assert!(!contact.active && contact.with == Touched::Obstacle(0), "{contact:?}");
+    assert_eq!(braking, 0);
+}
+
 /// Moving away, turning on the spot and standing still pass, even with an obstacle closing
 /// in at full speed: the supervisor never holds a robot where it would be hit.
 #[test]

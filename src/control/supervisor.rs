@@ -1,7 +1,7 @@
 //! The safety supervisor: the last word on every wheel command, independent of the field.
 //!
 //! **Its promise:** the robot is never driving toward an obstacle or a lane line when it
-//! touches it. A contact can still happen, when an obstacle runs into a robot that has
+//! touches it (faster than [`APPROACH_TOLERANCE`], a fifth of what the world calls active). A contact can still happen, when an obstacle runs into a robot that has
 //! stopped or is moving away (a *passive* contact); the field and the margins are what
 //! avoid those.
 //!
@@ -17,9 +17,10 @@
 //! - an obstacle: its predicted centre moves on at its estimated velocity; the robot must
 //!   keep the sum of the radii, `sigmas` standard deviations of the centre, `sigmas`
 //!   standard deviations of the velocity times the time ahead, a fixed `clearance` and one
-//!   step's travel from it, or else be moving away from it;
+//!   step's travel from it, or else be moving away from it (or toward it no faster than
+//!   [`APPROACH_TOLERANCE`]);
 //! - a lane line: the robot's centre keeps `clearance` and a step's travel from it, or
-//!   moves away from it.
+//!   moves away from it (the same).
 //!
 //! A command that fails is slowed: the largest forward speed that passes with the command's
 //! turn (bisection), else with the turn the wheels hold now (the brake above), else the
@@ -125,12 +126,27 @@ impl Hazard {
             Hazard::Obstacle { center, velocity: v, keep, growth, .. } => {
                 let d = center + v * s - position;
                 let reach = keep + slack + growth * s;
-                d.norm_sqr() < reach * reach && d.re * velocity.re + d.im * velocity.im > 0.0
+                // Toward it faster than [`APPROACH_TOLERANCE`]: `d · v > tol |d|`.
+                let toward = d.re * velocity.re + d.im * velocity.im;
+                let distance_sqr = d.norm_sqr();
+                distance_sqr < reach * reach
+                    && toward > 0.0
+                    && toward * toward > APPROACH_TOLERANCE * APPROACH_TOLERANCE * distance_sqr
             }
-            Hazard::Wall { side, keep } => half_width - side * position.im < keep + slack && side * velocity.im > 0.0,
+            Hazard::Wall { side, keep } => {
+                half_width - side * position.im < keep + slack && side * velocity.im > APPROACH_TOLERANCE
+            }
         }
     }
 }
+
+/// How fast the robot may still be moving toward a hazard within its reach, m/s: a fifth of
+/// the 1 cm/s above which the world classes a contact active. A stop's last step leaves a
+/// sliver of speed (up to the ramp's step, `a · STEP`) in whatever direction the turn has
+/// left the robot facing; judged as driving into an obstacle closing in from beside, that
+/// sliver made every stop unsafe, and the supervisor braked for want of a safe command
+/// (`tests/supervisor.rs`, an obstacle closing from behind in the narrowest lane).
+pub const APPROACH_TOLERANCE: f64 = 0.002;
 
 /// The step along the predicted path, s.
 pub const STEP: f64 = 0.005;
