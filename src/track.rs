@@ -307,7 +307,11 @@ impl DeadReckoning {
     /// The wheels' rim speeds at `t` as the ramps have brought them (at rest before any
     /// command), m/s: left, right.
     pub fn wheels_at(&self, t: f64) -> [f64; 2] {
-        // The commands are in time order: a binary search, not a scan of the delay window.
+        // Mostly asked for now, when the newest command is in force; else the commands are
+        // in time order: a binary search, not a scan of the delay window.
+        if let Some(c) = self.commands.back().filter(|c| c.t <= t) {
+            return c.speeds_after(t - c.t, self.accel);
+        }
         match self.commands.partition_point(|c| c.t <= t) {
             0 => [0.0; 2],
             k => {
@@ -336,7 +340,9 @@ impl DeadReckoning {
     pub fn predict(&mut self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
         // The commands in force at the window's ends (none before the first command: at rest).
         // The commands are in time order: binary searches, not scans of the delay window.
-        let Some(last) = self.commands.partition_point(|c| c.t < t).checked_sub(1) else { return measured };
+        let newest_in_force = self.commands.back().is_some_and(|c| c.t < t);
+        let in_force = if newest_in_force { self.commands.len() } else { self.commands.partition_point(|c| c.t < t) };
+        let Some(last) = in_force.checked_sub(1) else { return measured };
         let first = self.commands.partition_point(|c| c.t <= t_valid).saturating_sub(1).min(last);
         // Heading counted from the measured one, so the turn adds to it exactly as measured.
         let mut pose =

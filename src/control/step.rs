@@ -1,7 +1,7 @@
 use super::supervisor::{supervise, Supervision, SupervisorConfig};
 use crate::geometry::Length;
 use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
-use crate::planner::{ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
+use crate::planner::{Field, ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
 use crate::track::Estimate;
 use num_complex::Complex64 as C;
 
@@ -122,6 +122,8 @@ impl Envelope {
 pub struct ControlStep {
     config: ControlConfig,
     planner: Planner,
+    /// The field each cycle builds into (see [`Planner::plan_in`]).
+    field: Field,
     /// Where and when the robot last made progress.
     progress_anchor: Option<(f64, C)>,
     /// Since when the goal has been inside an obstacle's planning circle.
@@ -131,9 +133,11 @@ pub struct ControlStep {
 
 impl ControlStep {
     pub fn new(config: ControlConfig) -> Self {
+        let planner = Planner::new(config.planner);
         Self {
             config,
-            planner: Planner::new(config.planner),
+            planner,
+            field: Field::empty(config.planner.space, planner.sink(config.goal)),
             progress_anchor: None,
             goal_occupied_since: None,
             envelope: Envelope::default(),
@@ -173,7 +177,7 @@ impl ControlStep {
             obstacles: estimate.obstacles,
             delay: estimate.delay,
         };
-        let plan = match self.planner.plan(&input) {
+        let plan = match self.planner.plan_in(&input, &mut self.field) {
             Ok(plan) => plan,
             Err(PlannerError::GoalInsideObstacle { index }) => {
                 // A passing obstacle over the goal: hold still until it has gone, rather

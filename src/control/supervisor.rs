@@ -161,7 +161,16 @@ const BISECTIONS: usize = 16;
 /// The supervisor's verdict on the command `proposed` in the state `estimate` (judged on
 /// its obstacles predicted to now, whatever the planner plans on).
 pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: WheelSpeeds) -> (WheelSpeeds, Supervision) {
-    let ctx = Context::new(cfg, estimate, estimate.predicted);
+    // Filled in place: a kilobyte and more, which a move would copy every verdict.
+    let mut hazards = ArrayVec::new();
+    fill_hazards(&mut hazards, cfg, estimate.predicted);
+    let ctx = Context {
+        cfg,
+        position: estimate.pose.position,
+        heading: estimate.pose.heading,
+        wheels: estimate.wheels,
+        hazards: &hazards,
+    };
     let Some(hazard) = ctx.first_driven_into(proposed, ROBUSTNESS) else { return (proposed, Supervision::Passed) };
     let forward = 0.5 * (proposed.left + proposed.right);
     let turn = 0.5 * (proposed.right - proposed.left);
@@ -198,30 +207,33 @@ struct Context<'a> {
     position: C,
     heading: f64,
     wheels: [f64; 2],
-    hazards: ArrayVec<Hazard, { MAX_OBSTACLES + 2 }>,
+    hazards: &'a [Hazard],
 }
 
-impl<'a> Context<'a> {
-    fn new(cfg: &'a SupervisorConfig, e: &Estimate<'_>, obstacles: &[ObstacleEstimate]) -> Self {
-        let mut hazards = ArrayVec::new();
-        for (index, o) in obstacles.iter().enumerate().take(MAX_OBSTACLES) {
-            hazards.push(Hazard::Obstacle {
-                index,
-                center: o.center,
-                velocity: o.velocity,
-                speed: o.velocity.length(),
-                keep: o.radius + cfg.robot_radius + cfg.sigmas * o.position_sd + cfg.clearance,
-                growth: cfg.sigmas * o.velocity_sd,
-            });
-        }
-        if cfg.lane_half_width.is_some() {
-            for side in [1.0, -1.0] {
-                hazards.push(Hazard::Wall { side, keep: cfg.clearance });
-            }
-        }
-        Self { cfg, position: e.pose.position, heading: e.pose.heading, wheels: e.wheels, hazards }
+/// What the robot must not drive into: each obstacle, and each lane line.
+fn fill_hazards(
+    hazards: &mut ArrayVec<Hazard, { MAX_OBSTACLES + 2 }>,
+    cfg: &SupervisorConfig,
+    obstacles: &[ObstacleEstimate],
+) {
+    for (index, o) in obstacles.iter().enumerate().take(MAX_OBSTACLES) {
+        hazards.push(Hazard::Obstacle {
+            index,
+            center: o.center,
+            velocity: o.velocity,
+            speed: o.velocity.length(),
+            keep: o.radius + cfg.robot_radius + cfg.sigmas * o.position_sd + cfg.clearance,
+            growth: cfg.sigmas * o.velocity_sd,
+        });
     }
+    if cfg.lane_half_width.is_some() {
+        for side in [1.0, -1.0] {
+            hazards.push(Hazard::Wall { side, keep: cfg.clearance });
+        }
+    }
+}
 
+impl Context<'_> {
     /// Whether a path braking from `position`, `s` seconds ahead, at centre speed `mean`
     /// in steps of `h`, can no longer come within any hazard's reach: it travels at most
     /// `mean²/2a` and a step more, each check keeps a step's travel and `spare` more, it

@@ -263,8 +263,13 @@ impl Planner {
 
     /// The velocity command at the robot's position.
     pub fn plan(&self, input: &PlanInput<'_>) -> Result<Plan, PlannerError> {
-        let mut field = Field::empty(self.config.space, self.sink(input.goal));
-        let mut flags = self.build(input, &mut field)?;
+        self.plan_in(input, &mut Field::empty(self.config.space, self.sink(input.goal)))
+    }
+
+    /// [`plan`](Self::plan), building the field into `field` (whatever it held): a control
+    /// loop keeps one, rather than setting up a kilobyte of empty field every cycle.
+    pub fn plan_in(&self, input: &PlanInput<'_>, field: &mut Field) -> Result<Plan, PlannerError> {
+        let mut flags = self.build(input, field)?;
         let v = field.velocity(input.position)?;
         let speed = v.length();
         let velocity = if speed > self.config.max_speed {

@@ -249,7 +249,9 @@ impl World {
         }
         let n = (dt / 1e-3).ceil().max(1.0) as usize;
         let (start, facing, axes, t0) = (self.pose, self.facing, self.axes, self.time);
-        let (pose, facing_after, axes_after, travelled, pieces) = self.advanced(start, facing, axes, dt);
+        // Filled in place, as is the inner points' scratch below: a move would copy them.
+        let mut pieces = Pieces::new();
+        let (pose, facing_after, axes_after, travelled) = self.advanced(start, facing, axes, dt, &mut pieces);
         // Renormalised each step, so rounding cannot build up over a run.
         (self.pose, self.facing, self.axes) = (pose, facing_after / facing_after.norm_sqr().sqrt(), axes_after);
         self.time = t0 + dt;
@@ -264,28 +266,30 @@ impl World {
         if n > 1 && !quiet {
             let h = dt / n as f64;
             let (mut pose, mut facing, mut axes) = (start, facing, axes);
+            let mut scratch = Pieces::new();
             for k in 1..n {
-                (pose, facing, axes, _, _) = self.advanced(pose, facing, axes, h);
+                (pose, facing, axes, _) = self.advanced(pose, facing, axes, h, &mut scratch);
                 self.judge(pose, t0 + k as f64 * h);
             }
         }
         self.judge(self.pose, self.time);
     }
 
-    /// The pose (facing `facing`) and the axes `span` seconds on from `pose` and `axes`,
-    /// the distance travelled, and the pieces of the way (between the ramps' ends, at most
-    /// three).
+    /// The pose (facing `facing`) and the axes `span` seconds on from `pose` and `axes`, and
+    /// the distance travelled; the pieces of the way (between the ramps' ends, at most
+    /// three) into `pieces`.
     fn advanced(
         &self,
         mut pose: Pose,
         mut facing: Point,
         mut axes: [Axis; 2],
         span: f64,
-    ) -> (Pose, Point, [Axis; 2], f64, Pieces) {
+        pieces: &mut Pieces,
+    ) -> (Pose, Point, [Axis; 2], f64) {
         let [first, second] = axes.map(|a| a.ramp_left().min(span));
         let ends = if first <= second { [first, second] } else { [second, first] };
         let (mut at, mut travelled) = (0.0, 0.0);
-        let mut pieces = Pieces::new();
+        pieces.clear();
         for end in ends.into_iter().chain([span]) {
             if end <= at {
                 continue;
@@ -301,7 +305,7 @@ impl World {
             pieces.push(Piece { end, pose, speeds: [from, to] });
             at = end;
         }
-        (pose, facing, axes, travelled, pieces)
+        (pose, facing, axes, travelled)
     }
 
     /// Whether no point of the judging grid strictly inside the step just taken (from
