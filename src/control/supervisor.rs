@@ -1,7 +1,8 @@
 //! The safety supervisor: the last word on every wheel command, independent of the field.
 //!
-//! **Its promise:** the robot is never driving toward an obstacle or a lane line when it
-//! touches it (faster than [`APPROACH_TOLERANCE`], a fifth of what the world calls active). A contact can still happen, when an obstacle runs into a robot that has
+//! **Its promise:** the robot is never driving toward an obstacle (faster than
+//! [`APPROACH_TOLERANCE`], a fifth of what the world calls active) or a lane line when it
+//! touches it. A contact can still happen, when an obstacle runs into a robot that has
 //! stopped or is moving away (a *passive* contact); the field and the margins are what
 //! avoid those.
 //!
@@ -20,7 +21,9 @@
 //!   step's travel from it, or else be moving away from it (or toward it no faster than
 //!   [`APPROACH_TOLERANCE`]);
 //! - a lane line: the robot's centre keeps `clearance` and a step's travel from it, or
-//!   moves away from it (the same).
+//!   moves away from it (at any speed toward it a robot would creep up to the line, its
+//!   estimate cross it, and the planner refuse it: a line does not move, so no stop ever
+//!   needs the tolerance there).
 //!
 //! A command that fails is slowed: the largest forward speed that passes with the command's
 //! turn (bisection), else with the turn the wheels hold now (the brake above), else the
@@ -133,15 +136,13 @@ impl Hazard {
                     && toward > 0.0
                     && toward * toward > APPROACH_TOLERANCE * APPROACH_TOLERANCE * distance_sqr
             }
-            Hazard::Wall { side, keep } => {
-                half_width - side * position.im < keep + slack && side * velocity.im > APPROACH_TOLERANCE
-            }
+            Hazard::Wall { side, keep } => half_width - side * position.im < keep + slack && side * velocity.im > 0.0,
         }
     }
 }
 
-/// How fast the robot may still be moving toward a hazard within its reach, m/s: a fifth of
-/// the 1 cm/s above which the world classes a contact active. A stop's last step leaves a
+/// How fast the robot may still be moving toward an obstacle within its reach, m/s: a fifth
+/// of the 1 cm/s above which the world classes a contact active. A stop's last step leaves a
 /// sliver of speed (up to the ramp's step, `a · STEP`) in whatever direction the turn has
 /// left the robot facing; judged as driving into an obstacle closing in from beside, that
 /// sliver made every stop unsafe, and the supervisor braked for want of a safe command
