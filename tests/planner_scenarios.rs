@@ -69,6 +69,11 @@ fn e3_delay_collides_without_margin_and_succeeds_with_it() {
     let b = offline::run(&scenario("e3b-delay-margin.toml"), false).summary;
     assert_eq!(b.outcome, Outcome::Goal, "{b:?}");
     assert!(b.min_obstacle_clearance.unwrap() > 0.0);
+    // The 1.1 R0 margin and the prediction's uncertainty take in the robot as the obstacle
+    // passes: 90 of its 736 cycles plan with that circle shrunk short of the robot instead
+    // of freezing it, and summary.json says so. Without a margin nothing is shrunk.
+    assert_eq!((b.margin_shrunk_cycles, b.cycles), (90, 736), "{b:?}");
+    assert_eq!(a.margin_shrunk_cycles, 0, "{a:?}");
 }
 
 /// Pinned: robot, obstacle and goal collinear. Without the tie-break the robot runs into

@@ -75,10 +75,17 @@ impl Axis {
     /// Advance by `dt`; returns the pulses emitted (fractional). Exact: the rate moves
     /// linearly at the ramp's acceleration until it reaches the target, then holds.
     pub fn step(&mut self, dt: f64) -> f64 {
-        let ramp = self.ramp_left().min(dt);
-        let reached = self.rate_after(ramp);
+        // `rate_after` spelled out with the ramp's end taken once: a step that reaches it
+        // ends on the target, one that does not ends where the ramp has got to.
+        let left = self.ramp_left();
+        let (ramp, reached) = if dt >= left {
+            (left, self.target)
+        } else {
+            let change = self.config.accel * dt;
+            (dt, self.rate + (self.target - self.rate).clamp(-change, change))
+        };
         let pulses = 0.5 * (self.rate + reached) * ramp + reached * (dt - ramp);
-        self.rate = self.rate_after(dt);
+        self.rate = reached;
         self.position += pulses;
         pulses
     }

@@ -290,11 +290,13 @@ impl World {
         let ends = if first <= second { [first, second] } else { [second, first] };
         let (mut at, mut travelled) = (0.0, 0.0);
         pieces.clear();
+        // Each piece starts at the speeds the last one ended on.
+        let mut from = self.rim_speeds(&axes);
         for end in ends.into_iter().chain([span]) {
             if end <= at {
                 continue;
             }
-            let (from, length) = (self.rim_speeds(&axes), end - at);
+            let length = end - at;
             axes.iter_mut().for_each(|a| {
                 a.step(length);
             });
@@ -303,7 +305,7 @@ impl World {
             (pose, facing) = m.apply(pose, facing);
             travelled += m.length;
             pieces.push(Piece { end, pose, speeds: [from, to] });
-            at = end;
+            (at, from) = (end, to);
         }
         (pose, facing, axes, travelled)
     }

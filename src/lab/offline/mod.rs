@@ -103,6 +103,7 @@ impl Run {
             goal_occupied_cycles: e.report.counters.goal_occupied,
             saturated_cycles: e.report.counters.planner_saturated,
             tie_break_cycles: e.report.counters.planner_tie_break,
+            margin_shrunk_cycles: e.report.counters.planner_margin_shrunk,
             unclosed_at_a_wall_cycles: e.report.counters.planner_unclosed_at_a_wall,
             obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
         };
@@ -151,6 +152,10 @@ pub struct Summary {
     pub goal_occupied_cycles: u64,
     pub saturated_cycles: u64,
     pub tie_break_cycles: u64,
+    /// Cycles in which the robot or the goal was inside an obstacle's planning circle (its
+    /// margin) but outside the true one, and the circle was shrunk to just short of it
+    /// rather than freeze the robot (the supervisor guards what the margin gave up).
+    pub margin_shrunk_cycles: u64,
     /// Cycles whose field left a circle reaching a lane wall unclosed (closing it would
     /// take in the robot or the goal), meeting its boundary less exactly.
     pub unclosed_at_a_wall_cycles: u64,
@@ -299,7 +304,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         }
     };
     let mut trace = Vec::new();
-    let (mut invalid, mut saturated, mut tie_break, mut faster, mut cycles) = (0, 0, 0, false, 0u64);
+    let (mut invalid, mut saturated, mut tie_break, mut shrunk, mut faster, mut cycles) = (0, 0, 0, 0, false, 0u64);
     let (mut slowed, mut braking, mut goal_occupied, mut unclosed) = (0, 0, 0, 0);
 
     let outcome = loop {
@@ -324,6 +329,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         if let Some(plan) = out.plan {
             saturated += u64::from(plan.flags.saturated);
             tie_break += u64::from(plan.flags.tie_break);
+            shrunk += u64::from(plan.flags.margin_shrunk);
             unclosed += u64::from(plan.flags.unclosed_at_a_wall);
         }
         faster |= out.outrun;
@@ -386,6 +392,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         goal_occupied_cycles: goal_occupied,
         saturated_cycles: saturated,
         tie_break_cycles: tie_break,
+        margin_shrunk_cycles: shrunk,
         unclosed_at_a_wall_cycles: unclosed,
         obstacle_faster_than_robot: faster,
     };
