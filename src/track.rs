@@ -17,7 +17,12 @@ pub struct Pose {
 /// The estimated state at the moment the command will act.
 #[derive(Debug, Clone, Copy)]
 pub struct Estimate<'a> {
-    pub pose: Pose,
+    /// The robot's centre.
+    pub position: C,
+    /// Its heading as a unit vector: what the wheel speeds and the supervisor turn by,
+    /// carried from the LEDs' axis through the dead reckoning without an angle (the angle,
+    /// [`Estimate::pose`], is for displays and records).
+    pub facing: C,
     /// The wheels' rim speeds now, as the ramps have brought them toward the commands, m/s:
     /// left, right.
     pub wheels: [f64; 2],
@@ -27,6 +32,13 @@ pub struct Estimate<'a> {
     pub predicted: &'a [ObstacleEstimate],
     /// Measured sensing-to-actuation delay, s.
     pub delay: f64,
+}
+
+impl Estimate<'_> {
+    /// The robot's pose, its heading as an angle in `(-π, π]`.
+    pub fn pose(&self) -> Pose {
+        Pose { position: self.position, heading: self.facing.arg() }
+    }
 }
 
 /// How the tracker estimates the state the command will act on.
@@ -60,18 +72,25 @@ pub struct LedGeometry {
 impl LedGeometry {
     /// The pose from the two LED positions; `None` if they coincide (no heading).
     pub fn pose(&self, front: C, rear: C) -> Option<Pose> {
+        self.locate(front, rear).map(|(position, facing)| Pose { position, heading: facing.arg() })
+    }
+    /// The robot's centre from the two LED positions and its heading as a unit vector (the
+    /// LEDs' axis); `None` if they coincide.
+    pub fn locate(&self, front: C, rear: C) -> Option<(C, C)> {
         let axis = front - rear;
         let len = axis.length();
         if len.is_nan() || len <= 0.0 {
             return None;
         }
-        let position = rear + axis * (self.rear / (self.front + self.rear));
-        Some(Pose { position, heading: axis.arg() })
+        Some((rear + axis * (self.rear / (self.front + self.rear)), axis / len))
     }
     /// Where the LEDs of a robot at `pose` are.
     pub fn leds(&self, pose: Pose) -> (C, C) {
-        let u = C::from_polar(1.0, pose.heading);
-        (pose.position + u * self.front, pose.position - u * self.rear)
+        self.leds_facing(pose.position, C::from_polar(1.0, pose.heading))
+    }
+    /// Where the LEDs of a robot at `position` facing along the unit vector `facing` are.
+    pub fn leds_facing(&self, position: C, facing: C) -> (C, C) {
+        (position + facing * self.front, position - facing * self.rear)
     }
 }
 
@@ -234,10 +253,16 @@ impl Odometry {
     /// This pose moved by `m` (in its own frame); the heading's direction is renormalised,
     /// so rounding cannot build up over a long run.
     fn then(self, m: Motion) -> Odometry {
-        let facing = self.facing * m.facing;
+        let moved = self.moved(m);
+        Odometry { facing: moved.facing / moved.facing.length(), ..moved }
+    }
+
+    /// This pose moved by `m`, the heading's direction as it comes (a prediction's few
+    /// steps are renormalised once, at their end).
+    fn moved(self, m: Motion) -> Odometry {
         Odometry {
             position: self.position + self.facing * m.displacement,
-            facing: facing / facing.length(),
+            facing: self.facing * m.facing,
             heading: self.heading + m.turned,
         }
     }
@@ -337,31 +362,36 @@ impl DeadReckoning {
     /// The pose measured at `t_valid`, advanced to `t` with the commands in force meanwhile:
     /// the two spans the window cuts are integrated, the whole ones between are taken from
     /// the odometry (see [`Odometry`]), so a prediction costs the same whatever the delay.
-    pub fn predict(&mut self, measured: Pose, t_valid: f64, t: f64, wheel_base: f64) -> Pose {
+    /// The centre and the heading (a unit vector) measured at `t_valid`, advanced to `t`
+    /// with the commands in force meanwhile: the two spans the window cuts are integrated,
+    /// the whole ones between are taken from the odometry (see [`Odometry`]), so a
+    /// prediction costs the same whatever the delay.
+    pub fn predict(&mut self, position: C, facing: C, t_valid: f64, t: f64, wheel_base: f64) -> (C, C) {
         // The commands in force at the window's ends (none before the first command: at rest).
-        // The commands are in time order: binary searches, not scans of the delay window.
+        // The commands are in time order: the newest is mostly the one in force now.
         let newest_in_force = self.commands.back().is_some_and(|c| c.t < t);
         let in_force = if newest_in_force { self.commands.len() } else { self.commands.partition_point(|c| c.t < t) };
-        let Some(last) = in_force.checked_sub(1) else { return measured };
-        let first = self.commands.partition_point(|c| c.t <= t_valid).saturating_sub(1).min(last);
+        let Some(last) = in_force.checked_sub(1) else { return (position, facing) };
+        // The window's start is near the front ([`DeadReckoning::forget_before`] keeps
+        // the command in force a period before it): counted from there, one or two steps.
+        let first = self.commands.iter().take_while(|c| c.t <= t_valid).count().saturating_sub(1).min(last);
         // Heading counted from the measured one, so the turn adds to it exactly as measured.
-        let mut pose =
-            Odometry { position: measured.position, facing: C::from_polar(1.0, measured.heading), heading: 0.0 };
+        let mut pose = Odometry { position, facing, heading: 0.0 };
         let accel = self.accel;
         let c = self.commands[first];
         let first_end = if first == last { t } else { self.commands[first + 1].t };
         let from = c.t.max(t_valid);
         if first_end > from {
-            pose = pose.then(c.motion(from, first_end, accel, wheel_base));
+            pose = pose.moved(c.motion(from, first_end, accel, wheel_base));
         }
         if last > first {
-            pose = pose.then(self.odometry(first + 1, wheel_base).to(self.odometry(last, wheel_base)));
+            pose = pose.moved(self.odometry(first + 1, wheel_base).to(self.odometry(last, wheel_base)));
             let c = self.commands[last];
             let m = c.motion(c.t, t, accel, wheel_base);
             self.newest_span = Some((c.t, t, m));
-            pose = pose.then(m);
+            pose = pose.moved(m);
         }
-        Pose { position: pose.position, heading: measured.heading + pose.heading }
+        (pose.position, pose.facing / pose.facing.length())
     }
 
     /// Command `i`'s odometry, integrating the spans before it that have none yet.
@@ -371,6 +401,10 @@ impl DeadReckoning {
             self.wheel_base = wheel_base;
             self.commands.iter_mut().for_each(|c| c.odometry = None);
             self.newest_span = None;
+        }
+        // Mostly asked for one it has, or the newest, whose predecessor it has.
+        if let Some(at) = self.commands[i].odometry {
+            return at;
         }
         let known = self.commands.range(..=i).rposition(|c| c.odometry.is_some());
         let mut at = known.map_or(Odometry::ORIGIN, |k| self.commands[k].odometry.unwrap_or(Odometry::ORIGIN));
@@ -435,7 +469,8 @@ pub struct Tracker {
     filters: [Option<ConstantVelocityKf>; MAX_OBSTACLES],
     /// Each obstacle's last measured position (planned on when prediction is off).
     measured: [C; MAX_OBSTACLES],
-    pose: Option<(f64, Pose)>,
+    /// When the last measured pose was valid, its centre, and its heading as a unit vector.
+    pose: Option<(f64, C, C)>,
     dead_reckoning: DeadReckoning,
     estimates: [ObstacleEstimate; MAX_OBSTACLES],
     /// The same obstacles, always predicted to the estimate's time.
@@ -491,9 +526,9 @@ impl Tracker {
     /// The robot's two LEDs, valid at `t_valid`. Returns whether they gave a pose (they do
     /// unless they coincide).
     pub fn observe_robot(&mut self, t_valid: f64, front: C, rear: C) -> bool {
-        match self.geometry.pose(front, rear) {
-            Some(pose) if self.pose.is_none_or(|(t, _)| t_valid >= t) => {
-                self.pose = Some((t_valid, pose));
+        match self.geometry.locate(front, rear) {
+            Some((position, facing)) if self.pose.is_none_or(|(t, ..)| t_valid >= t) => {
+                self.pose = Some((t_valid, position, facing));
                 true
             }
             _ => false,
@@ -518,8 +553,10 @@ impl Tracker {
         if off.is_nan() || off > tolerance {
             return Err(Implausible::LedSpacing { measured: spacing, mounted });
         }
-        let (Some((t0, last)), Some(pose)) = (self.pose, self.geometry.pose(front, rear)) else { return Ok(()) };
-        let moved = (pose.position - last.position).length();
+        let (Some((t0, last, _)), Some((position, _))) = (self.pose, self.geometry.locate(front, rear)) else {
+            return Ok(());
+        };
+        let moved = (position - last).length();
         let reach = max_speed * (t_valid - t0).abs() + tolerance;
         if moved.is_nan() || moved > reach {
             return Err(Implausible::Jump { moved, reach });
@@ -559,7 +596,7 @@ impl Tracker {
 
     /// When the last pose was valid, s.
     pub fn pose_time(&self) -> Option<f64> {
-        self.pose.map(|(t, _)| t)
+        self.pose.map(|(t, ..)| t)
     }
 
     /// Forget the pose (after a stop, so a stale one is never driven on).
@@ -582,12 +619,12 @@ impl Tracker {
     /// validity, the obstacles predicted by their filters, and the sensing-to-actuation delay
     /// (age of the pose plus the period the command holds). `None` before any pose.
     pub fn estimate(&mut self, t: f64, sample_time: f64, wheel_base: f64) -> Option<Tracked<'_>> {
-        let (t_valid, measured) = self.pose?;
+        let (t_valid, measured, facing) = self.pose?;
         self.dead_reckoning.forget_before(t_valid - sample_time);
-        let pose = if self.settings.predict_robot {
-            self.dead_reckoning.predict(measured, t_valid, t, wheel_base)
+        let (position, facing) = if self.settings.predict_robot {
+            self.dead_reckoning.predict(measured, facing, t_valid, t, wheel_base)
         } else {
-            measured
+            (measured, facing)
         };
         let mut n = 0;
         let mut clearance: Option<f64> = None;
@@ -604,12 +641,13 @@ impl Tracker {
             // that uncertain, whatever centre the planner takes.
             self.estimates[n] = if predict { now } else { ObstacleEstimate { center: self.measured[k], ..now } };
             n += 1;
-            let gap = (self.estimates[n - 1].center - pose.position).length() - self.radii[k];
+            let gap = (self.estimates[n - 1].center - position).length() - self.radii[k];
             clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
         }
         Some(Tracked {
             estimate: Estimate {
-                pose,
+                position,
+                facing,
                 wheels: self.dead_reckoning.wheels_at(t),
                 obstacles: &self.estimates[..n],
                 predicted: &self.predicted[..n],
@@ -725,11 +763,11 @@ mod tests {
         let mut dr = DeadReckoning::default();
         dr.command(0.0, 0.1, 0.1); // straight at 0.1 m/s
         dr.command(1.0, 0.0, 0.0); // then stopped
-        let start = Pose { position: C::new(0.0, 0.0), heading: 0.0 };
-        let p = dr.predict(start, 0.5, 2.0, 0.1);
-        assert!((p.position - C::new(0.05, 0.0)).length() < 1e-12, "{}", p.position);
+        let (start, east) = (C::new(0.0, 0.0), C::new(1.0, 0.0));
+        let (p, _) = dr.predict(start, east, 0.5, 2.0, 0.1);
+        assert!((p - C::new(0.05, 0.0)).length() < 1e-12, "{p}");
         dr.forget_before(1.5);
-        assert_eq!(dr.predict(start, 1.5, 2.0, 0.1), start);
+        assert_eq!(dr.predict(start, east, 1.5, 2.0, 0.1), (start, east));
     }
 
     /// With the boards' ramp: the wheels' speeds follow each command at the acceleration,
@@ -759,9 +797,10 @@ mod tests {
             pose.heading += angle;
             wheels = next;
         }
-        let p = dr.predict(start, 0.0, 1.0, base);
-        assert!((p.position - pose.position).length() < 1e-5, "{} vs {}", p.position, pose.position);
-        assert!((p.heading - pose.heading).abs() < 1e-9, "{} vs {}", p.heading, pose.heading);
+        let (p, facing) = dr.predict(start.position, C::from_polar(1.0, start.heading), 0.0, 1.0, base);
+        assert!((p - pose.position).length() < 1e-5, "{p} vs {}", pose.position);
+        // The heading, carried as a unit vector without angles.
+        assert!((facing - C::from_polar(1.0, pose.heading)).length() < 1e-9, "{facing} vs {}", pose.heading);
     }
 
     /// A prediction takes the whole spans inside its window from the odometry that earlier
@@ -780,7 +819,7 @@ mod tests {
             let t_valid = (t - delay + 0.007).max(0.0);
             dr.forget_before(t_valid - period);
             let now = t + 0.5 * period;
-            let predicted = dr.predict(start, t_valid, now, base);
+            let (predicted, facing) = dr.predict(start.position, C::from_polar(1.0, start.heading), t_valid, now, base);
             let mut afresh =
                 Odometry { position: start.position, facing: C::from_polar(1.0, start.heading), heading: 0.0 };
             for (i, c) in dr.commands.iter().enumerate() {
@@ -790,8 +829,8 @@ mod tests {
                     afresh = afresh.then(c.motion(from, end, accel, base));
                 }
             }
-            assert!((predicted.position - afresh.position).length() < 1e-13, "{k}");
-            assert!((predicted.heading - (start.heading + afresh.heading)).abs() < 1e-13, "{k}");
+            assert!((predicted - afresh.position).length() < 1e-13, "{k}");
+            assert!((facing - C::from_polar(1.0, start.heading + afresh.heading)).length() < 1e-13, "{k}");
         }
         assert!(dr.commands.iter().filter(|c| c.odometry.is_some()).count() >= 10, "the odometry is kept");
     }

@@ -85,10 +85,17 @@ fn drive(s: &Scenario, aim: Aim, supervised: bool) -> (Option<Contact>, u32) {
             Aim::Wall(side) => pose.position + C::new(0.05, side),
         };
         let command = C::from_polar(MAX_SPEED, (target - pose.position).arg());
-        let proposed = wheel_speeds(command, pose.heading, &drive);
+        let facing = world.facing();
+        let proposed = wheel_speeds(command, facing, &drive);
         let obstacles = [obstacle];
-        let estimate =
-            Estimate { pose, wheels: world.wheel_speeds(), obstacles: &obstacles, predicted: &obstacles, delay: 0.0 };
+        let estimate = Estimate {
+            position: pose.position,
+            facing,
+            wheels: world.wheel_speeds(),
+            obstacles: &obstacles,
+            predicted: &obstacles,
+            delay: 0.0,
+        };
         let wheels = if supervised {
             let (wheels, verdict) = supervise(&supervisor, &estimate, proposed);
             braking += u32::from(matches!(verdict, Supervision::Braking { .. }));
@@ -183,8 +190,9 @@ fn the_supervisor_never_traps_the_robot() {
     // An obstacle 1 cm away ahead, coming at 14 cm/s; the robot at rest facing it, or
     // backing away from it already.
     let obstacle = [ObstacleEstimate::exact(C::new(0.15, 0.0), C::new(-0.14, 0.0), 0.07)];
-    let pose = Pose { position: C::new(0.0, 0.0), heading: 0.0 };
-    let at_rest = Estimate { pose, wheels: [0.0; 2], obstacles: &obstacle, predicted: &obstacle, delay: 0.0 };
+    let (position, east) = (C::new(0.0, 0.0), C::new(1.0, 0.0));
+    let at_rest =
+        Estimate { position, facing: east, wheels: [0.0; 2], obstacles: &obstacle, predicted: &obstacle, delay: 0.0 };
     for (what, wheels) in [
         ("standing still", WheelSpeeds { left: 0.0, right: 0.0 }),
         ("turning on the spot", WheelSpeeds { left: -0.1, right: 0.1 }),
@@ -193,9 +201,8 @@ fn the_supervisor_never_traps_the_robot() {
         assert_eq!(supervise(&cfg, &at_rest, wheels), (wheels, Supervision::Passed), "{what}");
     }
     // Facing away and driving off at full speed, from rest and at speed.
-    let away = Pose { heading: std::f64::consts::PI, ..pose };
     for speed in [0.0, 0.15] {
-        let e = Estimate { pose: away, wheels: [speed; 2], ..at_rest };
+        let e = Estimate { facing: -east, wheels: [speed; 2], ..at_rest };
         let full = WheelSpeeds { left: 0.15, right: 0.15 };
         assert_eq!(supervise(&cfg, &e, full), (full, Supervision::Passed), "driving away from {speed} m/s");
     }
@@ -207,13 +214,14 @@ fn the_supervisor_never_traps_the_robot() {
     assert!(wheels.left == wheels.right && wheels.left < 0.025, "{wheels:?}");
     // The lane line 2 mm to the left: driving at it is slowed, along it passes.
     let by_the_wall = Estimate {
-        pose: Pose { position: C::new(-1.0, 0.198), heading: 1.5 },
+        position: C::new(-1.0, 0.198),
+        facing: C::from_polar(1.0, 1.5),
         obstacles: &[],
         predicted: &[],
         ..at_rest
     };
     assert!(matches!(supervise(&cfg, &by_the_wall, toward).1, Supervision::Slowed { hazard: None }));
-    let along = Estimate { pose: Pose { heading: 0.0, ..by_the_wall.pose }, ..by_the_wall };
+    let along = Estimate { facing: east, ..by_the_wall };
     assert_eq!(supervise(&cfg, &along, toward).1, Supervision::Passed);
 }
 
@@ -281,8 +289,14 @@ fn sweeps_have_no_active_contact_where_obstacles_are_slower() {
 fn a_ramp_too_slow_to_stop_brakes_and_says_so() {
     let cfg = SupervisorConfig::new(0.001, 0.108, ROBOT_RADIUS, 0.02, None);
     let obstacle = [ObstacleEstimate::exact(C::new(0.5, 0.0), C::default(), 0.07)];
-    let pose = Pose { position: C::new(0.0, 0.0), heading: 0.0 };
-    let moving = Estimate { pose, wheels: [0.15; 2], obstacles: &obstacle, predicted: &obstacle, delay: 0.0 };
+    let moving = Estimate {
+        position: C::new(0.0, 0.0),
+        facing: C::new(1.0, 0.0),
+        wheels: [0.15; 2],
+        obstacles: &obstacle,
+        predicted: &obstacle,
+        delay: 0.0,
+    };
     let (wheels, verdict) = supervise(&cfg, &moving, WheelSpeeds { left: 0.15, right: 0.15 });
     assert_eq!(verdict, Supervision::Braking { hazard: Some(0) });
     assert_eq!(wheels, WheelSpeeds { left: 0.0, right: 0.0 });

@@ -166,7 +166,7 @@ impl ControlStep {
     }
 
     fn decide(&mut self, t: f64, estimate: &Estimate<'_>) -> StepOutput {
-        let position = estimate.pose.position;
+        let position = estimate.position;
         if (position - self.config.goal).length() <= self.config.goal_tolerance {
             return StepOutput::stop(StepStatus::AtGoal, None);
         }
@@ -197,7 +197,7 @@ impl ControlStep {
         if self.stalled(t, position) {
             return StepOutput::stop(StepStatus::Stalled, Some(plan));
         }
-        let proposed = wheel_speeds(plan.velocity, estimate.pose.heading, &self.config.drive);
+        let proposed = wheel_speeds(plan.velocity, estimate.facing, &self.config.drive);
         let (wheels, supervision) = match &self.config.supervisor {
             Some(cfg) => supervise(cfg, estimate, proposed),
             None => (proposed, Supervision::Passed),

@@ -167,8 +167,8 @@ pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: Whee
     fill_hazards(&mut hazards, cfg, estimate.predicted);
     let ctx = Context {
         cfg,
-        position: estimate.pose.position,
-        heading: estimate.pose.heading,
+        position: estimate.position,
+        facing: estimate.facing,
         wheels: estimate.wheels,
         hazards: &hazards,
     };
@@ -206,7 +206,8 @@ const ROBUSTNESS: f64 = 0.001;
 struct Context<'a> {
     cfg: &'a SupervisorConfig,
     position: C,
-    heading: f64,
+    /// The heading as a unit vector.
+    facing: C,
     wheels: [f64; 2],
     hazards: &'a [Hazard],
 }
@@ -284,10 +285,11 @@ impl Context<'_> {
         let (mut position, mut wheels) = (self.position, self.wheels);
         // The heading as a unit complex number, turned by each step's small rotation: no
         // sine or cosine a step (a verdict can take a hundred steps).
-        let mut facing = C::from_polar(1.0, self.heading);
+        let mut facing = self.facing;
         // The last turn rate's step and half-step rotations: once the wheels reach the
         // command, and all through the brake, the turn rate holds, and so do they.
         let mut turning = (0.0, C::new(1.0, 0.0), C::new(1.0, 0.0));
+        let mut braking_turn = None;
         let mut s = 0.0;
         loop {
             if s >= tau && self.out_of_reach(s, position, 0.5 * (wheels[0] + wheels[1]), h, spare, half_width) {
@@ -295,16 +297,21 @@ impl Context<'_> {
             }
             // The wheels over the next step: toward the command until τ, then braking.
             let next = if s < tau {
-                [0, 1].map(|w| ramp(wheels[w], target[w], a * h))
+                [ramp(wheels[0], target[0], a * h), ramp(wheels[1], target[1], a * h)]
             } else {
                 let mean = 0.5 * (wheels[0] + wheels[1]);
                 let drop = (a * h).min(mean.max(0.0));
                 [wheels[0] - drop, wheels[1] - drop]
             };
-            let (v, omega) = (
-                0.25 * (wheels[0] + next[0] + wheels[1] + next[1]),
-                0.5 * (next[1] - next[0] + wheels[1] - wheels[0]) / base,
-            );
+            let v = 0.25 * (wheels[0] + next[0] + wheels[1] + next[1]);
+            // The brake lowers both wheels alike, so it holds the turn rate it starts with
+            // (taken once: the wheels' difference, recomputed, would wander by rounding and
+            // cost a rotation every step).
+            let omega = if s < tau {
+                0.5 * (next[1] - next[0] + wheels[1] - wheels[0]) / base
+            } else {
+                *braking_turn.get_or_insert((wheels[1] - wheels[0]) / base)
+            };
             // One step's travel is kept beside the radii: the check runs at the step's ends.
             let slack = v.abs() * h + spare;
             let velocity = facing * v;
@@ -315,7 +322,8 @@ impl Context<'_> {
                 }
             }
             if omega != turning.0 {
-                turning = (omega, rotation(0.5 * omega * h), rotation(omega * h));
+                let half = rotation(0.5 * omega * h);
+                turning = (omega, half, half * half);
             }
             position += facing * turning.1 * (v * h);
             facing *= turning.2;

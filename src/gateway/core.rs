@@ -517,7 +517,7 @@ impl<K: StageClock> Core<K> {
             (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
         let (pose, obstacles) = match self.tracker.estimate(now.secs(), period, wheel_base) {
             Some(tr) => {
-                let p = tr.estimate.pose;
+                let p = tr.estimate.pose();
                 let delay = tr.estimate.delay;
                 let obstacles = tr
                     .estimate
@@ -937,7 +937,7 @@ impl<K: StageClock> Core<K> {
             }
             let plan_start = self.clock.now_ns();
             let step = self.safety.state().may_move().then(|| self.control.step(t, &tracked.estimate));
-            (tracked.estimate.pose, tracked.estimate.delay, tracked.clearance, step, track_ns, plan_start, ready)
+            (tracked.estimate.pose(), tracked.estimate.delay, tracked.clearance, step, track_ns, plan_start, ready)
         };
         if ready {
             self.state_changed(now);

@@ -1,6 +1,7 @@
 //! From a velocity command to wheel speeds (eq. 30) and stepper pulse rates.
 //!
-//! `v_{l,r} = v ∓ K_c l_w Δθ / (2T)`, `Δθ = wrap(arg(u + i v) − θ)`.
+//! `v_{l,r} = v ∓ K_c l_w Δθ / (2T)`, `Δθ = wrap(arg(u + i v) − θ)`: the angle from the
+//! heading's unit vector to the command, so `wrap` is never needed.
 //! Beyond the paper: the forward speed is `|u + i v| · max(cos Δθ, 0)`, so a robot facing
 //! away from the command turns before it drives (the paper's robot started roughly aligned);
 //! and both wheels are scaled by one factor when either exceeds the wheel limit, which
@@ -40,14 +41,17 @@ pub struct WheelSpeeds {
     pub right: f64,
 }
 
-/// Eq. 30 with the heading gate and wheel limits described in the module docs.
-pub fn wheel_speeds(command: C, heading: f64, cfg: &DriveConfig) -> WheelSpeeds {
+/// Eq. 30 with the heading gate and wheel limits described in the module docs; `facing`
+/// is the heading as a unit vector.
+pub fn wheel_speeds(command: C, facing: C, cfg: &DriveConfig) -> WheelSpeeds {
     let speed = command.length();
-    if speed.is_nan() || speed <= 0.0 || !heading.is_finite() {
+    if speed.is_nan() || speed <= 0.0 || !(facing.re.is_finite() && facing.im.is_finite()) {
         return WheelSpeeds::default();
     }
-    let dtheta = wrap_angle(command.arg() - heading);
-    let v = speed * dtheta.cos().max(0.0);
+    // The command seen from the heading: its angle is Δθ, its x is |u + i v| cos Δθ.
+    let relative = command * facing.conj();
+    let dtheta = relative.im.atan2(relative.re);
+    let v = relative.re.max(0.0);
     let turn = cfg.steering_gain * cfg.wheel_base * dtheta / (2.0 * cfg.sample_time);
     let (left, right) = (v - turn, v + turn);
     let scale = (left.abs().max(right.abs()) / cfg.max_wheel_speed).max(1.0);
@@ -93,10 +97,10 @@ mod tests {
     fn equation_30() {
         let c = cfg();
         // Aligned: both wheels at the commanded speed.
-        let w = wheel_speeds(C::new(0.1, 0.0), 0.0, &c);
+        let w = wheel_speeds(C::new(0.1, 0.0), C::new(1.0, 0.0), &c);
         assert!((w.left - 0.1).abs() < 1e-12 && (w.right - 0.1).abs() < 1e-12);
         // Δθ = 0.2 rad to the left: right wheel faster by K_c l_w Δθ / T.
-        let w = wheel_speeds(C::from_polar(0.1, 0.2), 0.0, &c);
+        let w = wheel_speeds(C::from_polar(0.1, 0.2), C::new(1.0, 0.0), &c);
         let turn = 0.06 * 0.108 * 0.2 / (2.0 * 0.02);
         assert!((w.right - w.left - 2.0 * turn).abs() < 1e-12);
         assert!((0.5 * (w.left + w.right) - 0.1 * 0.2f64.cos()).abs() < 1e-12);
@@ -113,7 +117,7 @@ mod tests {
         #[test]
         fn wheel_limits_hold_and_curvature_is_kept(speed in 0.0..2.0f64, arg in -4.0..4.0f64, heading in -4.0..4.0f64) {
             let c = cfg();
-            let w = wheel_speeds(C::from_polar(speed, arg), heading, &c);
+            let w = wheel_speeds(C::from_polar(speed, arg), C::from_polar(1.0, heading), &c);
             prop_assert!(w.left.abs() <= c.max_wheel_speed + 1e-12 && w.right.abs() <= c.max_wheel_speed + 1e-12);
             prop_assert!(w.left.is_finite() && w.right.is_finite());
             // Turning toward the command: the sign of (right - left) follows Δθ.

@@ -161,6 +161,10 @@ impl World {
     pub fn pose(&self) -> Pose {
         self.pose
     }
+    /// The heading as a unit vector (the pose's, integrated without angles).
+    pub fn facing(&self) -> Point {
+        self.facing
+    }
     pub fn robot_radius(&self) -> f64 {
         self.robot_radius
     }

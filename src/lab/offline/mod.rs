@@ -217,8 +217,8 @@ struct Sensor {
     leds: LedGeometry,
     led_filters: [LowPass; 2],
     obstacle_filters: Vec<LowPass>,
-    /// The robot's true pose over the last `delay` seconds.
-    history: VecDeque<(f64, Pose)>,
+    /// The robot's true centre and heading (a unit vector) over the last `delay` seconds.
+    history: VecDeque<(f64, C, C)>,
 }
 
 impl Sensor {
@@ -246,13 +246,13 @@ impl Sensor {
     /// `t - delay`, noisy and filtered. Returns the time of validity and the LEDs.
     fn measure(&mut self, world: &World, dt: f64, obstacles: &mut [C]) -> (f64, C, C) {
         let t = world.time();
-        self.history.push_back((t, world.pose().into()));
+        self.history.push_back((t, world.pose().position, world.facing()));
         let t_valid = (t - self.delay).max(0.0);
         while self.history.len() > 1 && self.history[1].0 <= t_valid + 1e-9 {
             self.history.pop_front();
         }
-        let truth = self.history[0].1;
-        let (front, rear) = self.leds.leds(truth);
+        let (_, position, facing) = self.history[0];
+        let (front, rear) = self.leds.leds_facing(position, facing);
         let (front, rear) = (self.noisy(front), self.noisy(rear));
         let front = self.led_filters[0].filter(front, dt);
         let rear = self.led_filters[1].filter(rear, dt);
