@@ -230,6 +230,9 @@ struct WheelCommand {
     t: f64,
     target: [f64; 2],
     from: [f64; 2],
+    /// When the wheels reach `target`, s (taken once: every prediction crossing the
+    /// command's span asks).
+    ramp_end: f64,
     /// Where the robot was when this command came, by the commands before it: filled in
     /// once the previous command's span is over and a prediction needs it.
     odometry: Option<Odometry>,
@@ -326,7 +329,9 @@ impl DeadReckoning {
     /// Record the wheel speeds commanded at `t`.
     pub fn command(&mut self, t: f64, left: f64, right: f64) {
         let from = self.wheels_at(t);
-        self.commands.push_back(WheelCommand { t, target: [left, right], from, odometry: None });
+        let mut c = WheelCommand { t, target: [left, right], from, ramp_end: t, odometry: None };
+        c.ramp_end = t + c.ramp_time(self.accel);
+        self.commands.push_back(c);
     }
 
     /// The wheels' rim speeds at `t` as the ramps have brought them (at rest before any
@@ -437,11 +442,15 @@ impl WheelCommand {
             m.facing *= half * half;
             m.turned += angle;
         };
-        let ramp_end = (self.t + self.ramp_time(accel)).min(to);
+        let ramp_end = self.ramp_end.min(to);
         if ramp_end > from {
             // Most ramps fit in one step (a command changes the speeds a little).
-            let n = if ramp_end - from <= RAMP_STEP { 1.0 } else { ((ramp_end - from) / RAMP_STEP).ceil() };
-            let h = (ramp_end - from) / n;
+            let (n, h) = if ramp_end - from <= RAMP_STEP {
+                (1.0, ramp_end - from)
+            } else {
+                let n = ((ramp_end - from) / RAMP_STEP).ceil();
+                (n, (ramp_end - from) / n)
+            };
             for k in 0..n as usize {
                 let mid = from + (k as f64 + 0.5) * h - self.t;
                 advance(self.speeds_after(mid, accel), h);

@@ -106,10 +106,13 @@ impl Envelope {
     /// now outruns it.
     pub fn update(&mut self, obstacles: &[ObstacleEstimate], limit: f64) -> bool {
         for (outrun, o) in self.outrun.iter_mut().zip(obstacles) {
-            let speed = o.velocity.length();
-            if speed - o.velocity_sd >= limit {
+            // Compared squared (no root a cycle): speed - sd >= limit is speed² >= (limit +
+            // sd)², and speed + sd < limit is speed² < (limit - sd)² with limit > sd.
+            let speed_sqr = o.velocity.norm_sqr();
+            let (above, below) = (limit + o.velocity_sd, limit - o.velocity_sd);
+            if speed_sqr >= above * above {
                 *outrun = true;
-            } else if speed + o.velocity_sd < limit {
+            } else if below > 0.0 && speed_sqr < below * below {
                 *outrun = false;
             }
         }

@@ -9,7 +9,7 @@
 
 use num_complex::Complex64 as C;
 
-use crate::geometry::Length;
+use crate::geometry::angle;
 
 /// The drive's geometry and the steering gain.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,13 +44,14 @@ pub struct WheelSpeeds {
 /// Eq. 30 with the heading gate and wheel limits described in the module docs; `facing`
 /// is the heading as a unit vector.
 pub fn wheel_speeds(command: C, facing: C, cfg: &DriveConfig) -> WheelSpeeds {
-    let speed = command.length();
-    if speed.is_nan() || speed <= 0.0 || !(facing.re.is_finite() && facing.im.is_finite()) {
+    // (Its square: the length itself is not needed, and is zero or NaN exactly when it is.)
+    let speed_sqr = command.norm_sqr();
+    if speed_sqr.is_nan() || speed_sqr <= 0.0 || !(facing.re.is_finite() && facing.im.is_finite()) {
         return WheelSpeeds::default();
     }
     // The command seen from the heading: its angle is Δθ, its x is |u + i v| cos Δθ.
     let relative = command * facing.conj();
-    let dtheta = relative.im.atan2(relative.re);
+    let dtheta = angle(relative);
     let v = relative.re.max(0.0);
     let turn = cfg.steering_gain * cfg.wheel_base * dtheta / (2.0 * cfg.sample_time);
     let (left, right) = (v - turn, v + turn);

@@ -36,6 +36,7 @@ pub mod drive;
 pub mod field;
 pub mod multipole;
 
+use arrayvec::ArrayVec;
 pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
 use num_complex::Complex64 as C;
 
@@ -195,19 +196,20 @@ impl Planner {
         Sink { goal, strength: c.cruise_speed * c.reference_radius, c1: c.c1, reference_radius: c.reference_radius }
     }
 
-    /// The obstacles as planned: margins and tie-break applied. Returns the count.
+    /// The obstacles as planned into `out` (emptied first): margins and tie-break applied.
     pub fn plan_obstacles(
         &self,
         input: &PlanInput<'_>,
-        out: &mut [PlanObstacle; MAX_OBSTACLES],
-    ) -> Result<(usize, PlanFlags), PlannerError> {
+        out: &mut ArrayVec<PlanObstacle, MAX_OBSTACLES>,
+    ) -> Result<PlanFlags, PlannerError> {
+        out.clear();
         if input.obstacles.len() > MAX_OBSTACLES {
             return Err(FieldError::TooManyObstacles);
         }
         let mut flags = PlanFlags::default();
         let to_goal = input.goal - input.position;
         let left = if to_goal.length() > 0.0 { C::i() * to_goal / to_goal.length() } else { C::default() };
-        for (slot, o) in out.iter_mut().zip(input.obstacles) {
+        for o in input.obstacles {
             let speed = o.velocity.length();
             let r0 = o.radius + input.robot_radius;
             let mut p = PlanObstacle {
@@ -238,9 +240,9 @@ impl Planner {
                     flags.margin_shrunk = true;
                 }
             }
-            *slot = p;
+            out.push(p);
         }
-        Ok((input.obstacles.len(), flags))
+        Ok(flags)
     }
 
     /// The field for this input, as [`plan`](Self::plan) builds it (margins and tie-break
@@ -254,9 +256,10 @@ impl Planner {
     /// Build the field for this input into `field` (it is large in a lane: a control cycle
     /// builds into one rather than copying a new one out).
     fn build(&self, input: &PlanInput<'_>, field: &mut Field) -> Result<PlanFlags, PlannerError> {
-        let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
-        let (n, mut flags) = self.plan_obstacles(input, &mut planned)?;
-        field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned[..n], Some(input.position))?;
+        // Filled in place, never initialised beyond what is planned.
+        let mut planned = ArrayVec::new();
+        let mut flags = self.plan_obstacles(input, &mut planned)?;
+        field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned, Some(input.position))?;
         flags.unclosed_at_a_wall = field.unclosed_at_a_wall();
         Ok(flags)
     }

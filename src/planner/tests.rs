@@ -450,8 +450,8 @@ fn a_robot_inside_a_margin_is_steered_not_frozen() {
     let at = C::from_polar(0.17, 2.5);
     let input =
         PlanInput { position: at, goal: C::new(1.0, 0.0), robot_radius: 0.07, obstacles: &obstacles, delay: 0.0 };
-    let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
-    let (_, flags) = planner.plan_obstacles(&input, &mut planned).unwrap();
+    let mut planned = arrayvec::ArrayVec::new();
+    let flags = planner.plan_obstacles(&input, &mut planned).unwrap();
     assert!(flags.margin_shrunk);
     assert!((planned[0].radius - (0.17 - SHRUNK_GAP)).abs() < 1e-12, "{}", planned[0].radius);
     let plan = planner.plan(&input).unwrap();
@@ -491,7 +491,7 @@ fn the_margin_includes_the_prediction_uncertainty() {
         obstacles: &obstacles,
         delay: 0.0,
     };
-    let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+    let mut planned = arrayvec::ArrayVec::new();
     planner.plan_obstacles(&input, &mut planned).unwrap();
     assert!((planned[0].radius - (0.14 + 0.02 + 0.006)).abs() < 1e-12, "{}", planned[0].radius);
 }
