@@ -182,6 +182,33 @@ fn an_obstacle_closing_from_behind_in_a_narrow_lane_leaves_a_safe_stop() {
     assert_eq!(braking, 0);
 }
 
+/// A known gap, found by `no_active_contact_with_an_obstacle` at 30,000 cases (stop 30):
+/// the supervisor brakes once for want of a safe command (no active contact follows). It
+/// braked with stop 29's arithmetic too (its heading and wheel speeds recomputed as they
+/// were), so the gap is older than this stop's changes. Without the path's last look (where
+/// it comes to rest) the case passes: that look judges the stop at the last 5 ms step's
+/// mean speed, up to `a · STEP / 2` = 5.3 mm/s at this ramp (2.1 m/s²), above the 2 mm/s
+/// approach tolerance, though the robot is at rest by then. What the look must keep (the
+/// obstacle's own approach over that step) is not yet worked out: ignored until fixed;
+/// `cargo test --release --test supervisor -- --ignored` fails on it.
+#[test]
+#[ignore = "known gap: the supervisor brakes once in this case"]
+fn a_fast_ramp_stop_beside_a_crossing_obstacle_leaves_a_safe_command() {
+    let c = Case {
+        heading_deg: -4.866443855127273,
+        accel: 2.1126550268995135,
+        obstacle_radius: 0.02,
+        gap: 0.039348474007467285,
+        bearing_deg: 35.15530640198861,
+        speed_ratio: 0.5440396296392555,
+        course_deg: -129.345463808901,
+        lane: None,
+    };
+    let (contact, braking) = drive(&scenario(&c), Aim::Obstacle, true);
+    assert!(contact.is_none_or(|k| !k.active), "{contact:?}");
+    assert_eq!(braking, 0);
+}
+
 /// Moving away, turning on the spot and standing still pass, even with an obstacle closing
 /// in at full speed: the supervisor never holds a robot where it would be hit.
 #[test]
