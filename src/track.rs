@@ -84,12 +84,8 @@ impl LedGeometry {
         }
         Some((rear + axis * (self.rear / (self.front + self.rear)), axis / len))
     }
-    /// Where the LEDs of a robot at `pose` are.
-    pub fn leds(&self, pose: Pose) -> (C, C) {
-        self.leds_facing(pose.position, C::from_polar(1.0, pose.heading))
-    }
     /// Where the LEDs of a robot at `position` facing along the unit vector `facing` are.
-    pub fn leds_facing(&self, position: C, facing: C) -> (C, C) {
+    pub fn leds(&self, position: C, facing: C) -> (C, C) {
         (position + facing * self.front, position - facing * self.rear)
     }
 }
@@ -247,11 +243,10 @@ struct Odometry {
     position: C,
     /// The heading as a unit complex number.
     facing: C,
-    heading: f64,
 }
 
 impl Odometry {
-    const ORIGIN: Odometry = Odometry { position: C::new(0.0, 0.0), facing: C::new(1.0, 0.0), heading: 0.0 };
+    const ORIGIN: Odometry = Odometry { position: C::new(0.0, 0.0), facing: C::new(1.0, 0.0) };
 
     /// This pose moved by `m` (in its own frame); the heading's direction is renormalised,
     /// so rounding cannot build up over a long run.
@@ -263,31 +258,22 @@ impl Odometry {
     /// This pose moved by `m`, the heading's direction as it comes (a prediction's few
     /// steps are renormalised once, at their end).
     fn moved(self, m: Motion) -> Odometry {
-        Odometry {
-            position: self.position + self.facing * m.displacement,
-            facing: self.facing * m.facing,
-            heading: self.heading + m.turned,
-        }
+        Odometry { position: self.position + self.facing * m.displacement, facing: self.facing * m.facing }
     }
 
     /// The motion from this pose to `to`, in this pose's frame.
     fn to(self, to: Odometry) -> Motion {
         let back = self.facing.conj();
-        Motion {
-            displacement: back * (to.position - self.position),
-            facing: to.facing * back,
-            turned: to.heading - self.heading,
-        }
+        Motion { displacement: back * (to.position - self.position), facing: to.facing * back }
     }
 }
 
-/// A rigid motion of the robot in its own frame at the start: where it ends up, which way
-/// it then faces (a unit complex number) and the angle turned.
+/// A rigid motion of the robot in its own frame at the start: where it ends up, and which
+/// way it then faces (a unit complex number).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Motion {
     displacement: C,
     facing: C,
-    turned: f64,
 }
 
 impl WheelCommand {
@@ -298,13 +284,6 @@ impl WheelCommand {
         }
         let step = accel * dt.max(0.0);
         [ramp(self.from[0], self.target[0], step), ramp(self.from[1], self.target[1], step)]
-    }
-    /// How long after it the wheels reach this command's speeds, s.
-    fn ramp_time(&self, accel: f64) -> f64 {
-        if accel <= 0.0 {
-            return 0.0;
-        }
-        (self.target[0] - self.from[0]).abs().max((self.target[1] - self.from[1]).abs()) / accel
     }
 }
 
@@ -329,9 +308,14 @@ impl DeadReckoning {
     /// Record the wheel speeds commanded at `t`.
     pub fn command(&mut self, t: f64, left: f64, right: f64) {
         let from = self.wheels_at(t);
-        let mut c = WheelCommand { t, target: [left, right], from, ramp_end: t, odometry: None };
-        c.ramp_end = t + c.ramp_time(self.accel);
-        self.commands.push_back(c);
+        let target = [left, right];
+        // The wheels reach it after the larger change at the ramp's acceleration.
+        let ramp = if self.accel <= 0.0 {
+            0.0
+        } else {
+            (target[0] - from[0]).abs().max((target[1] - from[1]).abs()) / self.accel
+        };
+        self.commands.push_back(WheelCommand { t, target, from, ramp_end: t + ramp, odometry: None });
     }
 
     /// The wheels' rim speeds at `t` as the ramps have brought them (at rest before any
@@ -364,9 +348,6 @@ impl DeadReckoning {
         }
     }
 
-    /// The pose measured at `t_valid`, advanced to `t` with the commands in force meanwhile:
-    /// the two spans the window cuts are integrated, the whole ones between are taken from
-    /// the odometry (see [`Odometry`]), so a prediction costs the same whatever the delay.
     /// The centre and the heading (a unit vector) measured at `t_valid`, advanced to `t`
     /// with the commands in force meanwhile: the two spans the window cuts are integrated,
     /// the whole ones between are taken from the odometry (see [`Odometry`]), so a
@@ -381,7 +362,7 @@ impl DeadReckoning {
         // the command in force a period before it): counted from there, one or two steps.
         let first = self.commands.iter().take_while(|c| c.t <= t_valid).count().saturating_sub(1).min(last);
         // Heading counted from the measured one, so the turn adds to it exactly as measured.
-        let mut pose = Odometry { position, facing, heading: 0.0 };
+        let mut pose = Odometry { position, facing };
         let accel = self.accel;
         let c = self.commands[first];
         let first_end = if first == last { t } else { self.commands[first + 1].t };
@@ -433,14 +414,13 @@ impl WheelCommand {
     /// the ramp in short steps at their mean speeds, then on at the command's. The heading
     /// is a unit complex number turned by each step's small rotation: no sine or cosine.
     fn motion(&self, mut from: f64, to: f64, accel: f64, wheel_base: f64) -> Motion {
-        let mut m = Motion { displacement: C::default(), facing: C::new(1.0, 0.0), turned: 0.0 };
+        let mut m = Motion { displacement: C::default(), facing: C::new(1.0, 0.0) };
         let mut advance = |[left, right]: [f64; 2], span: f64| {
             let v = 0.5 * (left + right);
             let angle = (right - left) / wheel_base * span;
             let half = rotation(0.5 * angle);
             m.displacement += m.facing * half * (v * span);
             m.facing *= half * half;
-            m.turned += angle;
         };
         let ramp_end = self.ramp_end.min(to);
         if ramp_end > from {
@@ -702,7 +682,7 @@ mod tests {
     fn pose_from_leds_round_trips() {
         let g = LedGeometry { front: 0.04, rear: 0.02 };
         let pose = Pose { position: C::new(0.1, -0.2), heading: 2.0 };
-        let (f, r) = g.leds(pose);
+        let (f, r) = g.leds(pose.position, C::from_polar(1.0, pose.heading));
         let back = g.pose(f, r).unwrap();
         assert!((back.position - pose.position).length() < 1e-12);
         assert!((back.heading - pose.heading).abs() < 1e-12);
@@ -829,8 +809,7 @@ mod tests {
             dr.forget_before(t_valid - period);
             let now = t + 0.5 * period;
             let (predicted, facing) = dr.predict(start.position, C::from_polar(1.0, start.heading), t_valid, now, base);
-            let mut afresh =
-                Odometry { position: start.position, facing: C::from_polar(1.0, start.heading), heading: 0.0 };
+            let mut afresh = Odometry { position: start.position, facing: C::from_polar(1.0, start.heading) };
             for (i, c) in dr.commands.iter().enumerate() {
                 let end = dr.commands.get(i + 1).map_or(now, |n| n.t.min(now));
                 let from = c.t.max(t_valid);
@@ -839,7 +818,7 @@ mod tests {
                 }
             }
             assert!((predicted - afresh.position).length() < 1e-13, "{k}");
-            assert!((facing - C::from_polar(1.0, start.heading + afresh.heading)).length() < 1e-13, "{k}");
+            assert!((facing - afresh.facing).length() < 1e-13, "{k}");
         }
         assert!(dr.commands.iter().filter(|c| c.odometry.is_some()).count() >= 10, "the odometry is kept");
     }

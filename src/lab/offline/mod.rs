@@ -252,7 +252,7 @@ impl Sensor {
             self.history.pop_front();
         }
         let (_, position, facing) = self.history[0];
-        let (front, rear) = self.leds.leds_facing(position, facing);
+        let (front, rear) = self.leds.leds(position, facing);
         let (front, rear) = (self.noisy(front), self.noisy(rear));
         let front = self.led_filters[0].filter(front, dt);
         let rear = self.led_filters[1].filter(rear, dt);
