@@ -182,17 +182,15 @@ fn an_obstacle_closing_from_behind_in_a_narrow_lane_leaves_a_safe_stop() {
     assert_eq!(braking, 0);
 }
 
-/// A known gap, found by `no_active_contact_with_an_obstacle` at 30,000 cases (stop 30):
-/// the supervisor brakes once for want of a safe command (no active contact follows). It
-/// braked with stop 29's arithmetic too (its heading and wheel speeds recomputed as they
-/// were), so the gap is older than this stop's changes. Without the path's last look (where
-/// it comes to rest) the case passes: that look judges the stop at the last 5 ms step's
+/// Found by `no_active_contact_with_an_obstacle` at 30,000 cases (stop 30), where the
+/// supervisor braked once for want of a safe command (no active contact followed). The
+/// path's last look, where the robot comes to rest, judged the stop at the last 5 ms step's
 /// mean speed, up to `a · STEP / 2` = 5.3 mm/s at this ramp (2.1 m/s²), above the 2 mm/s
-/// approach tolerance, though the robot is at rest by then. What the look must keep (the
-/// obstacle's own approach over that step) is not yet worked out: ignored until fixed;
-/// `cargo test --release --test supervisor -- --ignored` fails on it.
+/// approach tolerance, with an obstacle crossing close by: every stop looked unsafe. Each
+/// step is now judged at its start against what the obstacle can close over the step (its
+/// speed and its uncertainty's growth times the step), so the last step covers the way to
+/// rest, and a centre at rest drives into nothing.
 #[test]
-#[ignore = "known gap: the supervisor brakes once in this case"]
 fn a_fast_ramp_stop_beside_a_crossing_obstacle_leaves_a_safe_command() {
     let c = Case {
         heading_deg: -4.866443855127273,

@@ -18,8 +18,9 @@
 //! - an obstacle: its predicted centre moves on at its estimated velocity; the robot must
 //!   keep the sum of the radii, `sigmas` standard deviations of the centre, `sigmas`
 //!   standard deviations of the velocity times the time ahead, a fixed `clearance` and one
-//!   step's travel from it, or else be moving away from it (or toward it no faster than
-//!   [`APPROACH_TOLERANCE`]);
+//!   step's travel of both from it (each step is judged at its start), or else be moving
+//!   away from it (or toward it no faster than [`APPROACH_TOLERANCE`]). Once the centre
+//!   has stopped it drives into nothing;
 //! - a lane line: the robot's centre keeps `clearance` and a step's travel from it, or
 //!   moves away from it (at any speed toward it a robot would creep up to the line, its
 //!   estimate cross it, and the planner refuse it: a line does not move, so no stop ever
@@ -122,13 +123,16 @@ impl Hazard {
         }
     }
 
-    /// Whether a robot at `position` moving at `velocity`, `s` seconds ahead, drives into
-    /// it, keeping `slack` more than it must.
-    fn driven_into(&self, s: f64, position: C, velocity: C, half_width: f64, slack: f64) -> bool {
+    /// Whether a robot at `position` moving at `velocity` over the step of `h` seconds
+    /// that starts `s` seconds ahead drives into it, keeping `slack` more than it must.
+    /// An obstacle is judged where it is at the step's start, so its reach takes in what
+    /// it can close over the step (its speed and its uncertainty's growth): a contact
+    /// anywhere in the step is then seen at its start, the last one included.
+    fn driven_into(&self, s: f64, h: f64, position: C, velocity: C, half_width: f64, slack: f64) -> bool {
         match *self {
-            Hazard::Obstacle { center, velocity: v, keep, growth, .. } => {
+            Hazard::Obstacle { center, velocity: v, speed, keep, growth, .. } => {
                 let d = center + v * s - position;
-                let reach = keep + slack + growth * s;
+                let reach = keep + slack + growth * (s + h) + speed * h;
                 // Toward it faster than [`APPROACH_TOLERANCE`]: `d · v > tol |d|`.
                 let toward = d.re * velocity.re + d.im * velocity.im;
                 let distance_sqr = d.norm_sqr();
@@ -242,21 +246,46 @@ impl Context<'_> {
     /// ends within `mean/a` and two steps (the last drop can leave a rounding's worth of
     /// speed for one more), and each obstacle comes at most its speed and growth
     /// meanwhile. Most braking tails end here, long before the robot stops.
-    fn out_of_reach(&self, s: f64, position: C, mean: f64, h: f64, spare: f64, half_width: f64) -> bool {
+    ///
+    /// Or, hazard by hazard, the robot never again moves toward it: see
+    /// [`Context::never_toward`], the brake holding its turn rate `turn_rate`.
+    #[allow(clippy::too_many_arguments)]
+    fn out_of_reach(
+        &self,
+        s: f64,
+        position: C,
+        facing: C,
+        mean: f64,
+        turn_rate: f64,
+        h: f64,
+        spare: f64,
+        half_width: f64,
+    ) -> bool {
         let a = self.cfg.wheel_accel;
         let left = mean / a + 2.0 * h;
         let margin = mean * mean / (2.0 * a) + 2.0 * mean * h + spare;
-        self.hazards.iter().all(|hz| match *hz {
-            Hazard::Obstacle { center, velocity, speed, keep, growth, .. } => {
-                let reach = keep + margin + growth * (s + left) + speed * left;
-                (center + velocity * s - position).norm_sqr() > reach * reach
-            }
-            Hazard::Wall { side, keep } => half_width - side * position.im > keep + margin,
+        let turned = turn_rate.abs() * left;
+        self.hazards.iter().all(|hz| {
+            let far = match *hz {
+                Hazard::Obstacle { center, velocity, speed, keep, growth, .. } => {
+                    let reach = keep + margin + growth * (s + left) + speed * left;
+                    (center + velocity * s - position).norm_sqr() > reach * reach
+                }
+                Hazard::Wall { side, keep } => half_width - side * position.im > keep + margin,
+            };
+            far || never_toward(hz, s, position, facing, left, turned)
         })
     }
 
     /// The first hazard `command` drives into along its path (see the module docs).
     fn first_driven_into(&self, command: WheelSpeeds, spare: f64) -> Option<Hazard> {
+        self.first_driven_into_by(command, spare, Shortcuts::Taken)
+    }
+
+    /// As [`Context::first_driven_into`]; with [`Shortcuts::Untaken`], the whole path
+    /// walked to the stop, which is what the shortcuts are tested against.
+    fn first_driven_into_by(&self, command: WheelSpeeds, spare: f64, shortcuts: Shortcuts) -> Option<Hazard> {
+        let taken = shortcuts == Shortcuts::Taken;
         let (a, tau, base) = (self.cfg.wheel_accel, self.cfg.reaction_time, self.cfg.wheel_base);
         let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
         // Most cycles nothing is within reach. No wheel goes faster than the fastest of its
@@ -278,10 +307,30 @@ impl Context<'_> {
             }
             Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
         };
-        if !self.hazards.iter().any(near) {
+        if taken && !self.hazards.iter().any(near) {
             return None;
         }
+        // Nor is anything when the robot never moves toward it along the whole path, as long
+        // as the centre never reverses (each wheel ramps monotonically from its speed now to
+        // the command, so their slower ends summing to zero or more is enough). The turn
+        // rate is linear between the moments a wheel reaches its command (the ramp lasts
+        // until the step that crosses `τ` ends), so it is largest in size at one of them,
+        // and the brake holds the one it starts with.
         let target = [command.left, command.right];
+        if taken && self.wheels[0].min(target[0]) + self.wheels[1].min(target[1]) >= 0.0 {
+            let ramp_end = tau + h;
+            let turn_rate_at = |t: f64| {
+                let step = a * t.min(ramp_end);
+                (ramp(self.wheels[1], target[1], step) - ramp(self.wheels[0], target[0], step)) / base
+            };
+            let reached = |k: usize| (target[k] - self.wheels[k]).abs() / a;
+            let fastest_turn =
+                [0.0, reached(0), reached(1), ramp_end].iter().fold(0.0f64, |m, &t| m.max(turn_rate_at(t).abs()));
+            let turned = fastest_turn * stop;
+            if self.hazards.iter().all(|hz| never_toward(hz, 0.0, self.position, self.facing, stop, turned)) {
+                return None;
+            }
+        }
         let (mut position, mut wheels) = (self.position, self.wheels);
         // The heading as a unit complex number, turned by each step's small rotation: no
         // sine or cosine a step (a verdict can take a hundred steps).
@@ -292,7 +341,19 @@ impl Context<'_> {
         let mut braking_turn = None;
         let mut s = 0.0;
         loop {
-            if s >= tau && self.out_of_reach(s, position, 0.5 * (wheels[0] + wheels[1]), h, spare, half_width) {
+            if taken
+                && s >= tau
+                && self.out_of_reach(
+                    s,
+                    position,
+                    facing,
+                    0.5 * (wheels[0] + wheels[1]),
+                    braking_turn.unwrap_or((wheels[1] - wheels[0]) / base),
+                    h,
+                    spare,
+                    half_width,
+                )
+            {
                 return None;
             }
             // The wheels over the next step: toward the command until τ, then braking.
@@ -316,7 +377,7 @@ impl Context<'_> {
             let slack = v.abs() * h + spare;
             let velocity = facing * v;
             if v > 0.0 {
-                let hit = self.hazards.iter().find(|hz| hz.driven_into(s, position, velocity, half_width, slack));
+                let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, half_width, slack));
                 if hit.is_some() {
                     return hit.copied();
                 }
@@ -330,10 +391,114 @@ impl Context<'_> {
             wheels = next;
             s += h;
             if s >= tau && 0.5 * (wheels[0] + wheels[1]) <= 0.0 {
-                // Stopped: one last look where it came to rest, still moving until now.
-                let last = facing * v;
-                return self.hazards.iter().find(|hz| hz.driven_into(s, position, last, half_width, slack)).copied();
+                // Stopped: the centre is at rest (the wheels may still turn it on the
+                // spot), so it drives into nothing from here; the last step's check saw
+                // what the obstacles close over it.
+                return None;
             }
+        }
+    }
+}
+
+/// Whether a verdict may end early, where nothing is within reach or the robot never
+/// moves toward anything: it must decide exactly as walking the whole path would.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Shortcuts {
+    Taken,
+    #[cfg_attr(not(test), allow(dead_code))]
+    Untaken,
+}
+
+/// Whether a robot at `position` facing `facing`, `s` seconds ahead, moving forward (or
+/// not at all) for at most `span` seconds more and turning by at most `turned` radians
+/// meanwhile, never moves toward `hazard` (so can never drive into it, wherever it goes).
+///
+/// An obstacle: its offset `d` from the robot, dotted with the heading `f` at any later
+/// moment, is at most `d·f₀ cos θ + |d × f₀| sin θ` (the turn `θ`, within `turned`) plus
+/// the obstacle's own travel toward it (its speed times `span`); the robot's own travel
+/// only lowers it while it turns by no more than a right angle, each bit of it within
+/// `turned` of the heading then. Bounded with `cos θ ≥ 1 - θ²/2` and `sin θ ≤ θ`, and
+/// required below a nanometre's worth short of zero, where rounding is some 1e-17 m. A lane
+/// line: the heading's component across it, by the same bound.
+fn never_toward(hazard: &Hazard, s: f64, position: C, facing: C, span: f64, turned: f64) -> bool {
+    // Beyond a radian the robot's own travel may turn toward what it left behind.
+    if turned > 1.0 {
+        return false;
+    }
+    let shrink = 1.0 - 0.5 * turned * turned;
+    // The largest `x cos θ + |y| sin θ` over |θ| ≤ `turned`, for `x`, `y` as given.
+    let bound = |along: f64, across: f64| if along < 0.0 { along * shrink } else { along } + across.abs() * turned;
+    const FUZZ: f64 = 1e-9;
+    match *hazard {
+        Hazard::Obstacle { center, velocity, speed, .. } => {
+            let d = center + velocity * s - position;
+            let along = d.re * facing.re + d.im * facing.im;
+            let across = d.im * facing.re - d.re * facing.im;
+            bound(along, across) + speed * span < -FUZZ
+        }
+        Hazard::Wall { side, .. } => bound(side * facing.im, facing.re) < -FUZZ,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
+
+        /// The shortcuts (nothing within reach; never moving toward anything, from the
+        /// start or from a step of the brake on) decide every verdict as walking the whole
+        /// path to the stop does: random robots, wheels, commands and ramps among one to
+        /// three obstacles within a stop's reach, moving and uncertain, in free space or
+        /// near a lane's line.
+        #[test]
+        fn the_shortcuts_never_change_a_verdict(
+            heading in -3.2f64..3.2,
+            y in -0.15f64..0.15,
+            wheels in prop::array::uniform2(-0.05f64..0.25),
+            command in prop::array::uniform2(-0.05f64..0.25),
+            accel in 0.3f64..3.0,
+            wall_gap in prop::option::of(0.0f64..0.04),
+            obstacles in prop::collection::vec(
+                (
+                    0.0f64..0.12,
+                    // From the heading: anywhere, or about abeam, where only a turn brings
+                    // the robot toward it.
+                    prop_oneof![-3.2f64..3.2, 1.2f64..1.9, -1.9f64..-1.2],
+                    0.0f64..0.2,
+                    -3.2f64..3.2,
+                    0.02f64..0.1,
+                    0.0f64..0.01,
+                    0.0f64..0.02,
+                ),
+                1..=3,
+            ),
+            spare in prop::sample::select(vec![0.0, ROBUSTNESS]),
+        ) {
+            // In a lane, its nearer line `wall_gap` from the robot's centre.
+            let cfg = SupervisorConfig::new(accel, 0.108, 0.07, 0.017, wall_gap.map(|gap| y.abs() + gap));
+            let position = C::new(0.0, y);
+            let predicted: Vec<ObstacleEstimate> = obstacles
+                .iter()
+                .map(|&(distance, bearing, speed, course, radius, position_sd, velocity_sd)| ObstacleEstimate {
+                    center: position + C::from_polar(distance + 0.07 + radius, heading + bearing),
+                    velocity: C::from_polar(speed, course),
+                    radius,
+                    position_sd,
+                    velocity_sd,
+                })
+                .collect();
+            let mut hazards = ArrayVec::new();
+            fill_hazards(&mut hazards, &cfg, &predicted);
+            let ctx = Context { cfg: &cfg, position, facing: C::from_polar(1.0, heading), wheels, hazards: &hazards };
+            let command = WheelSpeeds { left: command[0], right: command[1] };
+            let index = |h: Option<Hazard>| h.map(|h| (h.index(), matches!(h, Hazard::Wall { side, .. } if side > 0.0)));
+            prop_assert_eq!(
+                index(ctx.first_driven_into_by(command, spare, Shortcuts::Taken)),
+                index(ctx.first_driven_into_by(command, spare, Shortcuts::Untaken))
+            );
         }
     }
 }

@@ -75,10 +75,16 @@ impl DiffDrive {
     /// of change plus the largest speed times the largest turn rate (both linear in time,
     /// so extreme at the ends).
     pub fn bow(&self, from: [f64; 2], to: [f64; 2], span: f64) -> f64 {
+        self.swerve(from, to, span) * span * span / 8.0
+    }
+
+    /// The most the centre's acceleration can be over such a motion, m/s²: the speed's
+    /// rate of change plus the largest speed times the largest turn rate.
+    pub fn swerve(&self, from: [f64; 2], to: [f64; 2], span: f64) -> f64 {
         let (v0, v1) = (Self::speed(from), Self::speed(to));
         let tangential = (v1 - v0).abs() / span;
         let normal = v0.abs().max(v1.abs()) * self.turn_rate(from).abs().max(self.turn_rate(to).abs());
-        (tangential + normal) * span * span / 8.0
+        tangential + normal
     }
 }
 
