@@ -264,7 +264,8 @@ impl World {
             // A ramp is monotone: the step's fastest rate is at one of its ends.
             *peak = peak.max(axis.rate().abs());
         }
-        let quiet = judging == Judging::WhereItMatters && self.quiet(start, t0, &pieces, n);
+        // A step within one millisecond has no inner points to pass over.
+        let quiet = n > 1 && judging == Judging::WhereItMatters && self.quiet(start, t0, &pieces, n);
         #[cfg(test)]
         tests::PASSED_OVER.with(|steps| steps.set(steps.get() + usize::from(n > 1 && quiet)));
         if n > 1 && !quiet {

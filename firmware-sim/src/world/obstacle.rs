@@ -46,7 +46,7 @@ impl ObstaclePath {
     }
 
     fn leg_at(&self, t: f64) -> Option<(f64, Point, Point)> {
-        let t = if self.repeat { t.rem_euclid(self.end) } else { t };
+        let t = if self.repeat { self.lap_time(t) } else { t };
         if t >= self.end {
             return None;
         }
@@ -70,16 +70,26 @@ impl ObstaclePath {
     /// The leg in force at `t` (`legs.len()`: resting after the last).
     fn leg_index(&self, t: f64) -> usize {
         let t = t.max(0.0);
-        let t = if self.repeat { t.rem_euclid(self.end) } else { t };
+        let t = if self.repeat { self.lap_time(t) } else { t };
         if t >= self.end {
             return self.legs.len();
         }
         self.legs.iter().rposition(|l| l.0 <= t).unwrap_or(0)
     }
 
+    /// `t` within the repeating schedule's lap. Out of line: inlined, the compiler
+    /// computed the remainder (a library call) on every path, repeating or not.
+    #[inline(never)]
+    fn lap_time(&self, t: f64) -> f64 {
+        t.rem_euclid(self.end)
+    }
+
     pub fn position(&self, t: f64) -> Point {
         if let Some((start, velocity)) = self.uniform {
             return start + velocity * t.max(0.0);
+        }
+        if self.legs.is_empty() {
+            return self.start; // standing
         }
         match self.leg_at(t.max(0.0)) {
             Some((dt, p0, v)) => p0 + v * dt,
