@@ -357,7 +357,11 @@ impl Context<'_> {
         // with (taken once: the wheels' difference, recomputed, would wander by rounding and
         // cost a rotation every step).
         let braking_turn = (path.wheels[1] - path.wheels[0]) / base;
-        loop {
+        // The brake stops the centre within `u/a` and a step or two (`h` is at least
+        // 1/MAX_PATH_STEPS of that): a bound on the loop whatever the rounding does. A path
+        // that were to outlast it is judged driven into its first hazard (a brake), not
+        // passed.
+        for _ in 0..MAX_PATH_STEPS as usize + 4 {
             let mean = 0.5 * (path.wheels[0] + path.wheels[1]);
             if taken && self.out_of_reach(path.s, path.position, path.facing, mean, braking_turn, h, spare, half_width)
             {
@@ -375,6 +379,7 @@ impl Context<'_> {
                 return None;
             }
         }
+        self.hazards.first().copied()
     }
 
     /// One step of `h` along the path, the wheels going to `next` and the robot turning
