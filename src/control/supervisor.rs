@@ -340,7 +340,7 @@ impl Context<'_> {
             turning: (0.0, C::new(1.0, 0.0), C::new(1.0, 0.0)),
         };
         // Toward the command until τ (the step that crosses it included).
-        if path.s < tau {
+        if tau > 0.0 {
             while path.s < tau {
                 let wheels = path.wheels;
                 let next = [ramp(wheels[0], target[0], a * h), ramp(wheels[1], target[1], a * h)];
@@ -349,7 +349,7 @@ impl Context<'_> {
                     return Some(hit);
                 }
             }
-            if 0.5 * (path.wheels[0] + path.wheels[1]) <= 0.0 {
+            if path.speed() <= 0.0 {
                 return None; // at rest already (see below)
             }
         }
@@ -362,7 +362,7 @@ impl Context<'_> {
         // that were to outlast it is judged driven into its first hazard (a brake), not
         // passed.
         for _ in 0..MAX_PATH_STEPS as usize + 4 {
-            let mean = 0.5 * (path.wheels[0] + path.wheels[1]);
+            let mean = path.speed();
             if taken && self.out_of_reach(path.s, path.position, path.facing, mean, braking_turn, h, spare, half_width)
             {
                 return None;
@@ -372,7 +372,7 @@ impl Context<'_> {
             if let Some(hit) = self.step(&mut path, next, braking_turn, h, spare, half_width) {
                 return Some(hit);
             }
-            if 0.5 * (path.wheels[0] + path.wheels[1]) <= 0.0 {
+            if path.speed() <= 0.0 {
                 // Stopped: the centre is at rest (the wheels may still turn it on the
                 // spot), so it drives into nothing from here; the last step's check saw
                 // what the obstacles close over it.
@@ -420,6 +420,13 @@ struct Path {
     /// The last turn rate's half-step and step rotations: once the wheels reach the
     /// command, and all through the brake, the turn rate holds, and so do they.
     turning: (f64, C, C),
+}
+
+impl Path {
+    /// The centre's speed now, m/s.
+    fn speed(&self) -> f64 {
+        0.5 * (self.wheels[0] + self.wheels[1])
+    }
 }
 
 /// Whether a verdict may end early, where nothing is within reach or the robot never

@@ -356,8 +356,6 @@ impl World {
             *bow = self.drive.bow(piece.speeds[0], piece.speeds[1], length);
             from = piece.end;
         }
-        // Rounding is some 1e-16 m here; a nanometre is far above it.
-        const FUZZ: f64 = 1e-9;
         for ((path, _), (min, touch)) in
             self.obstacles.iter().zip(self.judge.min_distance_sqr.iter().zip(&self.judge.touch_sqr))
         {
@@ -372,15 +370,8 @@ impl World {
             for (k, ((piece, span), bow)) in pieces.iter().zip(spans).zip(bows).enumerate() {
                 let r1 =
                     if k + 1 == pieces.len() { at_end } else { path.position(t0 + piece.end) - piece.pose.position };
-                if let Some((lo, hi)) = span {
-                    let change = r1 - r0;
-                    let along = change.norm_sqr();
-                    let tau =
-                        if along > 0.0 { (-(r0.re * change.re + r0.im * change.im) / along).clamp(lo, hi) } else { lo };
-                    let gap = (r0 + change * tau).norm_sqr().sqrt() - bow - FUZZ;
-                    if gap <= 0.0 || gap * gap <= floor {
-                        return false;
-                    }
+                if span.is_some_and(|(lo, hi)| !chord_clears(r0, r1, lo, hi, bow, floor)) {
+                    return false;
                 }
                 r0 = r1;
             }
@@ -390,12 +381,8 @@ impl World {
             let mut y0 = start.position.im;
             for ((piece, span), bow) in pieces.iter().zip(spans).zip(bows) {
                 let y1 = piece.pose.position.im;
-                if let Some((lo, hi)) = span {
-                    // |y| is convex along the chord: its largest value is at an end.
-                    let at = |tau: f64| (y0 + (y1 - y0) * tau).abs();
-                    if half_width - at(lo).max(at(hi)) - bow - FUZZ <= floor {
-                        return false;
-                    }
+                if span.is_some_and(|(lo, hi)| !chord_clears_lines(y0, y1, lo, hi, bow, half_width, floor)) {
+                    return false;
                 }
                 y0 = y1;
             }
@@ -414,7 +401,6 @@ impl World {
         let length = t1 - t;
         let bow = swerve * length * length / 8.0;
         let (lo, hi) = (1.0 / points as f64, (points - 1) as f64 / points as f64);
-        const FUZZ: f64 = 1e-9;
         for ((path, _), (min, touch)) in
             self.obstacles.iter().zip(self.judge.min_distance_sqr.iter().zip(&self.judge.touch_sqr))
         {
@@ -424,19 +410,14 @@ impl World {
             let r0 = path.position(t) - pose.position;
             let r1 = path.position(t1) - self.pose.position;
             let floor = min.min(r1.norm_sqr()).max(*touch);
-            let change = r1 - r0;
-            let along = change.norm_sqr();
-            let tau = if along > 0.0 { (-(r0.re * change.re + r0.im * change.im) / along).clamp(lo, hi) } else { lo };
-            let gap = (r0 + change * tau).norm_sqr().sqrt() - bow - FUZZ;
-            if gap <= 0.0 || gap * gap <= floor {
+            if !chord_clears(r0, r1, lo, hi, bow, floor) {
                 return false;
             }
         }
         if let Some(half_width) = self.lane_half_width {
             let floor = self.truth.min_wall_clearance.min(half_width - self.pose.position.im.abs()).max(0.0);
             let (y0, y1) = (pose.position.im, self.pose.position.im);
-            let at = |tau: f64| (y0 + (y1 - y0) * tau).abs();
-            if half_width - at(lo).max(at(hi)) - bow - FUZZ <= floor {
+            if !chord_clears_lines(y0, y1, lo, hi, bow, half_width, floor) {
                 return false;
             }
         }
@@ -510,6 +491,29 @@ impl World {
 fn distance(a: Point, b: Point) -> f64 {
     let d = a - b;
     (d.re * d.re + d.im * d.im).sqrt()
+}
+
+/// Rounding in the chord tests is some 1e-16 m; a nanometre is far above it.
+const CHORD_FUZZ: f64 = 1e-9;
+
+/// Whether the offset to an obstacle, going along the chord from `r0` to `r1` and straying
+/// from it by at most `bow`, stays above `floor` (a squared distance) at every fraction of
+/// the chord in `[lo, hi]`: the chord's distance is convex, so its least value there is at
+/// the clamped foot of the perpendicular.
+fn chord_clears(r0: Point, r1: Point, lo: f64, hi: f64, bow: f64, floor: f64) -> bool {
+    let change = r1 - r0;
+    let along = change.norm_sqr();
+    let tau = if along > 0.0 { (-(r0.re * change.re + r0.im * change.im) / along).clamp(lo, hi) } else { lo };
+    let gap = (r0 + change * tau).norm_sqr().sqrt() - bow - CHORD_FUZZ;
+    gap > 0.0 && gap * gap > floor
+}
+
+/// Whether the centre, going along the chord from `y0` to `y1` across the lane (straying by
+/// at most `bow`), keeps more than `floor` from both lines at every fraction in `[lo, hi]`:
+/// `|y|` is convex along the chord, so its largest value is at an end.
+fn chord_clears_lines(y0: f64, y1: f64, lo: f64, hi: f64, bow: f64, half_width: f64, floor: f64) -> bool {
+    let at = |tau: f64| (y0 + (y1 - y0) * tau).abs();
+    half_width - at(lo).max(at(hi)) - bow - CHORD_FUZZ > floor
 }
 
 /// Which points of a step's grid are judged.
