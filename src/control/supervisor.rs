@@ -685,16 +685,17 @@ mod tests {
             up in prop::array::uniform2(prop::bool::ANY),
             beyond in prop::array::uniform2(prop::array::uniform2(-0.05f64..0.1)),
         ) {
-            let ramp = scene.cfg.wheel_accel * (scene.cfg.reaction_time + STEP);
+            // What the ramp reaches: the steps before `τ` and the one crossing it.
+            let h = scene.judge(|ctx| BeyondRamp::new(ctx).h);
+            let ramp = scene.cfg.wheel_accel * (scene.cfg.reaction_time + h);
             let command = |b: [f64; 2]| {
                 let target = |k: usize| scene.wheels[k] + if up[k] { ramp + b[k] } else { -ramp - b[k] };
                 WheelSpeeds { left: target(0), right: target(1) }
             };
             let commands = [command(beyond[0]), command(beyond[1])];
-            let (h, senses, same_step, verdicts) = scene.judge(|ctx| {
+            let (senses, same_step, verdicts) = scene.judge(|ctx| {
                 let found = BeyondRamp::new(ctx);
                 (
-                    found.h,
                     commands.map(|c| found.sense(ctx, c)),
                     // A fast command on a slow ramp gets a longer step (and a walk of its own).
                     commands.map(|c| ctx.path_step(BeyondRamp::fastest_of(c)) == found.h),
