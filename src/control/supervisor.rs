@@ -261,7 +261,7 @@ impl BeyondRamp {
     fn new(ctx: &Context<'_>) -> Self {
         // The step every command whose wheels stay within the ones now and the limits gets
         // (a faster one gets a longer step, and its own walk: see `sense`).
-        let h = ctx.path_step(0.0);
+        let h = ctx.path_step(ctx.fastest(WheelSpeeds { left: 0.0, right: 0.0 }));
         let (step, tau) = (ctx.cfg.wheel_accel * h, ctx.cfg.reaction_time);
         let (mut steps, mut s) = (0, 0.0);
         // As the path counts them: `s` grows by `h` a step while it is below `τ` (some
@@ -289,7 +289,7 @@ impl BeyondRamp {
     /// one way, and a rounded difference with it does too. `None`: within reach, or a step
     /// other than the one found.
     fn sense(&self, ctx: &Context<'_>, command: WheelSpeeds) -> Option<[usize; 2]> {
-        if ctx.path_step(Self::fastest_of(command)) != self.h {
+        if ctx.path_step(ctx.fastest(command)) != self.h {
             return None;
         }
         if self.steps == 0 {
@@ -307,18 +307,19 @@ impl BeyondRamp {
         };
         Some([one(0, command.left)?, one(1, command.right)?])
     }
-
-    fn fastest_of(command: WheelSpeeds) -> f64 {
-        command.left.abs().max(command.right.abs())
-    }
 }
 
 impl Context<'_> {
-    /// The step along the path of a command whose wheels go no faster than `fastest` (and
-    /// the wheels' speeds now): [`STEP`], longer where a slow ramp makes the stop long (its
-    /// travel is kept as slack, so a longer step is only more cautious).
+    /// The fastest a wheel goes on the path of `command`: no wheel goes faster than the
+    /// fastest of its speed now and its command, m/s.
+    fn fastest(&self, command: WheelSpeeds) -> f64 {
+        [self.wheels[0], self.wheels[1], command.left, command.right].iter().fold(0.0f64, |m, v| m.max(v.abs()))
+    }
+
+    /// The step along a path whose wheels go no faster than `fastest`: [`STEP`], longer
+    /// where a slow ramp makes the stop long (its travel is kept as slack, so a longer step
+    /// is only more cautious).
     fn path_step(&self, fastest: f64) -> f64 {
-        let fastest = fastest.max(self.wheels[0].abs()).max(self.wheels[1].abs());
         STEP.max((self.cfg.reaction_time + fastest / self.cfg.wheel_accel) / MAX_PATH_STEPS)
     }
 
@@ -385,8 +386,7 @@ impl Context<'_> {
         // more. The path ends by `τ + u/a` and three steps (the one crossing `τ`, the
         // brake's last, part-filled one, and one more where that leaves a rounding's worth
         // of speed), and each obstacle comes at most its speed and growth meanwhile.
-        let fastest =
-            [self.wheels[0], self.wheels[1], command.left, command.right].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let fastest = self.fastest(command);
         let h = self.path_step(fastest);
         let stop = tau + fastest / a + 3.0 * h;
         let reach = fastest * (tau + 2.0 * h) + fastest * fastest / (2.0 * a) + spare + fastest * h;
@@ -451,9 +451,9 @@ impl Context<'_> {
         // passed.
         for k in 0..MAX_PATH_STEPS as usize + 4 {
             let mean = path.speed();
-            // Asked every fourth step: it ends about one walk in fifteen it is asked of
-            // (around E1) and costs half a step, so asking every step cost more than the
-            // steps it saved. Any step may ask: it only ends a walk that would pass.
+            // Asked every fourth step: it ends few of the walks it is asked of (around E1 and
+            // E5) and costs about half a step, so asking every step cost more than the steps
+            // it saved. Any step may ask: it only ends a walk that would pass.
             if taken
                 && k % 4 == 0
                 && self.out_of_reach(path.s, path.position, path.facing, mean, braking_turn, h, spare, half_width)
@@ -698,7 +698,7 @@ mod tests {
                 (
                     commands.map(|c| found.sense(ctx, c)),
                     // A fast command on a slow ramp gets a longer step (and a walk of its own).
-                    commands.map(|c| ctx.path_step(BeyondRamp::fastest_of(c)) == found.h),
+                    commands.map(|c| ctx.path_step(ctx.fastest(c)) == found.h),
                     commands.map(|c| named(ctx.first_driven_into_by(c, ROBUSTNESS, Shortcuts::Untaken))),
                 )
             });
