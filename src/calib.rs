@@ -215,6 +215,21 @@ impl Calibration {
         self.to_raw(floor).is_some_and(|(x, y)| x.abs() < self.half_scale && y.abs() < self.half_scale)
     }
 
+    /// The floor the PSD sees, in words for an error message: the floor points at the
+    /// corners of its counts (the calibrated arena is the quadrilateral they span, its
+    /// sides bowed by the lens distortion).
+    pub fn view_extent(&self) -> String {
+        let h = self.half_scale;
+        let corners: Vec<String> = [(-h, -h), (h, -h), (h, h), (-h, h)]
+            .iter()
+            .map(|&(x, y)| match self.to_floor(x, y) {
+                Some(p) => format!("({:.3}, {:.3})", p.re, p.im),
+                None => "(beyond the horizon)".into(),
+            })
+            .collect();
+        format!("the PSD sees the floor within the corners {} m", corners.join(", "))
+    }
+
     /// Raw reading (distorted counts) of a floor point: the forward model.
     pub fn to_raw(&self, floor: Point) -> Option<(f64, f64)> {
         let p = self.h * Vector3::new(floor.re, floor.im, 1.0);

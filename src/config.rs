@@ -128,6 +128,11 @@ pub struct ObstacleLed {
     pub led: u8,
     /// The obstacle's radius `a_0`, m.
     pub radius: f64,
+    /// Whether the gateway may arm only once this LED has been seen. By default an obstacle
+    /// not seen yet is absent (parked outside the arena, not switched on) and is avoided
+    /// from its first sample.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub required: bool,
 }
 
 /// The time-division schedule: each LED's slot (`slot_us`), or the whole frame
@@ -323,6 +328,22 @@ pub struct SafetyConfig {
     /// distance the robot can drive since the last pose) before it is discarded, m.
     #[serde(default = "default_pose_tolerance")]
     pub pose_tolerance_m: f64,
+    /// Stop when a tracked obstacle stays unseen inside the view for this long, ms. Past the
+    /// pose timeout it is avoided as the region it may have reached; an obstacle seen
+    /// leaving the view is dropped instead.
+    #[serde(default = "default_occlusion_timeout")]
+    pub occlusion_timeout_ms: u32,
+    /// The fastest any obstacle on the rig moves, m/s: how fast an unseen obstacle's region
+    /// grows.
+    #[serde(default = "default_max_obstacle_speed")]
+    pub max_obstacle_speed: f64,
+}
+
+fn default_occlusion_timeout() -> u32 {
+    1000
+}
+fn default_max_obstacle_speed() -> f64 {
+    0.5
 }
 
 fn default_pose_tolerance() -> f64 {
@@ -350,6 +371,8 @@ impl Default for SafetyConfig {
             heartbeat_timeout_ms: default_heartbeat_timeout(),
             sample_timeout_ms: default_sample_timeout(),
             pose_tolerance_m: default_pose_tolerance(),
+            occlusion_timeout_ms: default_occlusion_timeout(),
+            max_obstacle_speed: default_max_obstacle_speed(),
         }
     }
 }
@@ -360,6 +383,8 @@ const MAX_STEPS_PER_REV: u32 = 10_000;
 
 /// Longest watchdog accepted, ms: a minute. Longer is a typo, not a rig.
 const MAX_WATCHDOG_MS: u32 = 60_000;
+/// The fastest obstacle speed a config may give, m/s (a running person is about 5).
+const MAX_OBSTACLE_SPEED: f64 = 10.0;
 /// Largest telemetry queue accepted, records.
 const MAX_QUEUE: usize = 1 << 20;
 
@@ -610,6 +635,12 @@ impl GatewayConfig {
                 return invalid("goal.position", "must be finite");
             }
             positive("goal.tolerance", g.tolerance)?;
+            if !calibration.in_view(C::new(g.position[0], g.position[1])) {
+                return invalid(
+                    "goal.position",
+                    format!("{:?} lies outside the calibrated arena: {}", g.position, calibration.view_extent()),
+                );
+            }
         }
         self.planner.validate()?;
         if let Some(lane) = self.lane {
@@ -629,6 +660,7 @@ impl GatewayConfig {
             ("safety.pose_timeout_ms", s.pose_timeout_ms),
             ("safety.heartbeat_timeout_ms", s.heartbeat_timeout_ms),
             ("safety.sample_timeout_ms", s.sample_timeout_ms),
+            ("safety.occlusion_timeout_ms", s.occlusion_timeout_ms),
         ] {
             if v == 0 || v > MAX_WATCHDOG_MS {
                 return invalid(key, format!("must be 1-{MAX_WATCHDOG_MS} ms, is {v}"));
@@ -636,6 +668,24 @@ impl GatewayConfig {
         }
         if !(s.pose_tolerance_m.is_finite() && s.pose_tolerance_m > 0.0 && s.pose_tolerance_m <= 1.0) {
             return invalid("safety.pose_tolerance_m", format!("must be 0-1 m, is {}", s.pose_tolerance_m));
+        }
+        if s.occlusion_timeout_ms <= s.pose_timeout_ms {
+            return invalid(
+                "safety.occlusion_timeout_ms",
+                format!(
+                    "{} ms must exceed safety.pose_timeout_ms = {} ms: an obstacle is judged occluded only past the pose timeout",
+                    s.occlusion_timeout_ms, s.pose_timeout_ms
+                ),
+            );
+        }
+        if !(s.max_obstacle_speed.is_finite()
+            && s.max_obstacle_speed > 0.0
+            && s.max_obstacle_speed <= MAX_OBSTACLE_SPEED)
+        {
+            return invalid(
+                "safety.max_obstacle_speed",
+                format!("must be 0-{MAX_OBSTACLE_SPEED} m/s, is {}", s.max_obstacle_speed),
+            );
         }
         // Without samples or a fresh pose the gateway sends no command, and the board stops
         // by itself after its command timeout. The gateway's own watchdog must fire first,
@@ -719,6 +769,8 @@ impl GatewayConfig {
                 predict_obstacles: self.planner.predict_obstacles,
                 wheel_accel: d.wheel_accel,
                 kalman: KalmanConfig::default(),
+                occluded_after: ms(s.pose_timeout_ms).as_secs_f64(),
+                max_obstacle_speed: s.max_obstacle_speed,
             },
             safety: SafetySettings {
                 pose_timeout: ms(s.pose_timeout_ms),
@@ -726,6 +778,7 @@ impl GatewayConfig {
                 heartbeat_timeout: ms(s.heartbeat_timeout_ms),
                 sample_timeout: ms(s.sample_timeout_ms),
                 pose_tolerance: s.pose_tolerance_m,
+                occlusion_timeout: ms(s.occlusion_timeout_ms),
             },
             telemetry: self.telemetry.clone(),
             goal: self.goal,
@@ -861,6 +914,7 @@ pub struct SafetySettings {
     pub heartbeat_timeout: Duration,
     pub sample_timeout: Duration,
     pub pose_tolerance: f64,
+    pub occlusion_timeout: Duration,
 }
 
 /// The rig as the gateway runs it: every setting parsed, checked and typed, once.

@@ -49,6 +49,32 @@ pub struct TrackingSettings {
     pub wheel_accel: f64,
     pub predict_obstacles: bool,
     pub kalman: KalmanConfig,
+    /// How long an obstacle may go unseen before its filter's prediction is no longer
+    /// trusted and it is planned on as the region it may have reached, s.
+    pub occluded_after: f64,
+    /// The fastest any obstacle on the rig moves, m/s: how fast an unseen one's region grows.
+    pub max_obstacle_speed: f64,
+}
+
+impl TrackingSettings {
+    /// The region an obstacle last estimated by `kf` may occupy at `t`, if it has been
+    /// unseen long enough to be judged so: its last estimated footprint, grown by how far it
+    /// can have gone at the top obstacle speed since. A sound bound whatever it did unseen,
+    /// where its filter's extrapolation is only a guess.
+    fn occluded_region(&self, kf: &ConstantVelocityKf, radius: f64, t: f64) -> Option<ObstacleEstimate> {
+        let unseen = t - kf.time();
+        (unseen > self.occluded_after).then(|| {
+            let (center, _) = kf.predict(kf.time());
+            ObstacleEstimate {
+                center,
+                velocity: C::default(),
+                radius: radius + self.max_obstacle_speed * unseen,
+                position_sd: kf.uncertainty(kf.time()).0,
+                velocity_sd: 0.0,
+                spread: self.max_obstacle_speed,
+            }
+        })
+    }
 }
 
 /// Why two LED positions cannot be the robot's pose.
@@ -484,10 +510,14 @@ impl Tracker {
         self.filters[..self.count].iter().enumerate().filter_map(move |(k, kf)| {
             let kf = kf.as_ref()?;
             let at = if predict { t } else { kf.time() };
+            if let Some(region) = self.settings.occluded_region(kf, self.radii[k], t) {
+                return Some((region, kf.position_covariance(kf.time())));
+            }
             let (center, velocity) = kf.predict(at);
             let center = if predict { center } else { self.measured[k] };
             let (position_sd, velocity_sd) = kf.uncertainty(at);
-            let estimate = ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd };
+            let estimate =
+                ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd, spread: 0.0 };
             Some((estimate, kf.position_covariance(at)))
         })
     }
@@ -573,9 +603,33 @@ impl Tracker {
         taken
     }
 
-    /// When obstacle `k` was last measured, s (None: never).
+    /// When obstacle `k` was last measured, s (None: never, or its track was dropped).
     pub fn obstacle_time(&self, k: usize) -> Option<f64> {
         self.filters.get(k).copied().flatten().map(|kf| kf.time())
+    }
+
+    /// The obstacles with a track, in the order [`Tracker::estimate`] lists them: the
+    /// `n`th estimate is obstacle `tracked().nth(n)`.
+    pub fn tracked(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.count).filter(|&k| self.filters[k].is_some())
+    }
+
+    /// Where obstacle `k`'s filter puts it at `t` (None: no track).
+    pub fn obstacle_prediction(&self, k: usize, t: f64) -> Option<C> {
+        self.filters.get(k).copied().flatten().map(|kf| kf.predict(t).0)
+    }
+
+    /// Whether obstacle `k` is tracked but unseen long enough to be planned on as a region.
+    pub fn obstacle_occluded(&self, k: usize, t: f64) -> bool {
+        self.obstacle_time(k).is_some_and(|seen| t - seen > self.settings.occluded_after)
+    }
+
+    /// Drop obstacle `k`'s track: it left the view, or an operator's reset forgot it. It is
+    /// absent until seen again, when a new track starts from its first sample.
+    pub fn drop_obstacle(&mut self, k: usize) {
+        if let Some(f) = self.filters.get_mut(k) {
+            *f = None;
+        }
     }
 
     /// How many obstacles it tracks (seen or not).
@@ -620,17 +674,23 @@ impl Tracker {
         let predict = self.settings.predict_obstacles;
         for k in 0..self.count {
             let Some(kf) = &self.filters[k] else { continue };
-            let (center, velocity) = kf.predict(t);
-            let (position_sd, velocity_sd) = kf.uncertainty(t);
-            let now = ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd };
-            self.predicted[n] = now;
-            // Without prediction the planner takes the last measurement as it stands (the
-            // paper's E3); the supervisor always judges the predicted one.
-            // Its uncertainty is the predicted one either way: where the obstacle is now is
-            // that uncertain, whatever centre the planner takes.
-            self.estimates[n] = if predict { now } else { ObstacleEstimate { center: self.measured[k], ..now } };
+            if let Some(region) = self.settings.occluded_region(kf, self.radii[k], t) {
+                self.predicted[n] = region;
+                self.estimates[n] = region;
+            } else {
+                let (center, velocity) = kf.predict(t);
+                let (position_sd, velocity_sd) = kf.uncertainty(t);
+                let now =
+                    ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd, spread: 0.0 };
+                self.predicted[n] = now;
+                // Without prediction the planner takes the last measurement as it stands (the
+                // paper's E3); the supervisor always judges the predicted one.
+                // Its uncertainty is the predicted one either way: where the obstacle is now
+                // is that uncertain, whatever centre the planner takes.
+                self.estimates[n] = if predict { now } else { ObstacleEstimate { center: self.measured[k], ..now } };
+            }
             n += 1;
-            let gap = (self.estimates[n - 1].center - position).length() - self.radii[k];
+            let gap = (self.estimates[n - 1].center - position).length() - self.estimates[n - 1].radius;
             clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
         }
         Some(Tracked {

@@ -190,6 +190,45 @@ async fn a_hidden_robot_led() {
     out.fails_only("LEDs in view", &["LED 1 (robot)", "weak"]);
 }
 
+/// An obstacle's LED out of view is absent, not a fault: a warning naming it. Marked
+/// required, the same LED fails the check, as the arm would be refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hidden_obstacle_led_warns_and_fails_when_required() {
+    let (handle, mut cfg) = sim(&["occlusions=[[3.0, 0.0, 1000.0]]"]).await;
+    let out = check("obstacle-led", &cfg);
+    assert!(out.ok, "{}", out.stdout);
+    assert_eq!(out.verdict("LEDs in view"), "WARN", "{}", out.stdout);
+    assert!(
+        out.line("LEDs in view").contains("LED 3: ") && out.line("LEDs in view").contains("samples weak"),
+        "{}",
+        out.stdout
+    );
+    assert!(out.line("LEDs in view").contains("absent until it comes into view"), "{}", out.stdout);
+    cfg.leds.obstacles[0].required = true;
+    let out = check("obstacle-led-required", &cfg);
+    handle.stop().await;
+    out.fails_only("LEDs in view", &["LED 3 (leds.obstacles[0].required)", "weak"]);
+}
+
+/// A goal the camera cannot see is refused with the config, naming the point and the
+/// arena's extent.
+#[test]
+fn a_goal_outside_the_arena_fails_the_config() {
+    let s = e1();
+    let mut cfg = s.gateway_config(Path::new("/dev/null"), "slcan:/dev/null", None);
+    cfg.goal.as_mut().unwrap().position = [50.0, 0.0];
+    let out = check("far-goal", &cfg);
+    out.fails_only(
+        "config",
+        &[
+            "goal.position",
+            "[50.0, 0.0] lies outside the calibrated arena",
+            "the PSD sees the floor within the corners (",
+        ],
+    );
+    assert_eq!(out.verdict("serial port"), "SKIP");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn duplicates_on_the_line_are_a_warning() {
     let (handle, cfg) = sim(&["serial_duplicate=0.05"]).await;

@@ -193,3 +193,76 @@ async fn an_operator_session_over_the_control_socket() {
     assert!(!socket.exists(), "the socket is removed at exit");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The README's operator session, as written: `rig.example.toml` (two obstacle LEDs, of
+/// which E1 has one: LED 4 is never seen and is absent, not a fault) pointed at the
+/// simulator's ptys, driven with `flowgate ctl --config`, from idle through a refused start
+/// and a refused goal to a queue of two goals reached.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_readme_operator_session_reaches_its_goals() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let s = Scenario::load(&root.join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-session-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut rig: toml_edit::DocumentMut =
+        std::fs::read_to_string(root.join("rig.example.toml")).unwrap().parse().unwrap();
+    rig["serial"]["port"] = toml_edit::value(handle.psd_path.display().to_string());
+    rig["can"]["endpoint"] =
+        toml_edit::value(format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display()));
+    rig["operator"]["socket"] = toml_edit::value(dir.join("control.sock").display().to_string());
+    rig["telemetry"]["out_dir"] = toml_edit::value(dir.join("out").display().to_string());
+    let config = dir.join("rig.toml");
+    std::fs::write(&config, rig.to_string()).unwrap();
+    let mut child = flowgate()
+        .args(["run", "--config"])
+        .arg(&config)
+        .env("RUST_LOG", "flowgate=info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = lines(child.stdout.take().unwrap());
+    let log = lines(child.stderr.take().unwrap());
+    let (mut seen, mut logged) = (Vec::new(), Vec::new());
+    await_line(&log, "control socket", &mut logged);
+    let ctl = |args: &[&str]| {
+        let o = flowgate().args(["ctl", "--config"]).arg(&config).args(args).output().unwrap();
+        (o.status.success(), text(&o))
+    };
+
+    // Idle, with the obstacle E1 has tracked and the one it has not listed as not in view.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        let (ok, status) = ctl(&["status"]);
+        assert!(ok, "{status}");
+        if status.contains("obstacle LED 3 at") {
+            break status;
+        }
+        assert!(std::time::Instant::now() < deadline, "no obstacle estimate within 10 s: {status}");
+    };
+    assert!(status.contains("state      idle") && status.contains("not in view LED 4"), "{status}");
+    let (ok, start) = ctl(&["start"]);
+    assert!(!ok && start.contains("refused: not armed (state idle): arm first"), "{start}");
+    let (ok, arm) = ctl(&["arm"]);
+    assert!(ok && arm.contains("state      armed"), "{arm}");
+    let (ok, inside) = ctl(&["goal", "0.0", "0.02"]);
+    assert!(!ok && inside.contains("inside obstacle LED 3's planning circle"), "{inside}");
+    let (ok, queue) = ctl(&["goal", "--queue", "0.35,-0.25", "0.35,0.05"]);
+    assert!(ok && queue.contains("goals      (0.35, -0.25) then (0.35, 0.05)"), "{queue}");
+    let (ok, start) = ctl(&["start"]);
+    assert!(ok, "{start}");
+    await_line(&out, "state: running", &mut seen);
+    await_line(&out, "state: stopped: goal reached", &mut seen);
+    let (_, done) = ctl(&["status"]);
+    assert!(done.contains("state      stopped: goal reached") && done.contains("goals      -"), "{done}");
+    assert!(!seen.iter().any(|l| l.contains("fault")), "{seen:#?}");
+
+    let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
+    assert!(child.wait().unwrap().success());
+    let truth = handle.stop().await;
+    let end = truth.summary.final_position;
+    assert!((end[0] - 0.35).hypot(end[1] - 0.05) < 0.03, "{end:?}");
+    assert!(truth.summary.first_contact.is_none());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -21,6 +21,7 @@ const T_MS: f64 = 17.0;
 /// The default watchdogs (rig.example.toml), ms.
 const SAMPLE_MS: f64 = 100.0;
 const POSE_MS: f64 = 150.0;
+const OCCLUSION_MS: f64 = 1000.0;
 const HEARTBEAT_MS: f64 = 400.0;
 /// The board's command timeout in the simulated rig, ms.
 const BOARD_MS: f64 = 200.0;
@@ -170,9 +171,16 @@ fn table() -> Vec<Row> {
         row(
             Psd,
             "loss",
-            "the obstacle's LED occluded (its track expires)",
+            "the obstacle's LED occluded for 400 ms",
+            &["occlusions=[[3, 2.0, 2.4]]"],
+            Expect::Counted { check: brief_occlusion },
+        ),
+        row(
+            Psd,
+            "loss",
+            "the obstacle's LED occluded from 2 s",
             &["occlusions=[[3, 2.0, 100.0]]"],
-            fault(R::ObstacleLost, 137.6, 137.7, Watchdog("pose", POSE_MS)),
+            fault(R::ObstacleOccluded { led: 3 }, 987.6, 987.7, Watchdog("occlusion", OCCLUSION_MS)),
         ),
         row(
             Psd,
@@ -342,6 +350,15 @@ fn bursts(e: &Episode) -> String {
     let c = e.report.counters;
     assert_eq!(c.bad_serial_frames, 3, "{c:?}");
     format!("{} bad frames counted, {} bytes dropped", c.bad_serial_frames, c.serial_dropped_bytes)
+}
+
+/// Past the pose timeout the occluded obstacle is driven around as the region it may have
+/// reached; seen again, it is tracked as before.
+fn brief_occlusion(e: &Episode) -> String {
+    let c = e.report.counters;
+    assert!(c.obstacle_occluded_cycles > 5, "{c:?}");
+    assert_eq!((c.obstacles_left_view, c.obstacles_entered_view), (0, 1), "{c:?}");
+    format!("{} cycles planned around the region it may have reached", c.obstacle_occluded_cycles)
 }
 
 fn overrun(e: &Episode) -> String {

@@ -149,9 +149,9 @@ fn goals_inside_an_obstacle_outside_the_lane_or_the_arena_are_refused() {
     let mut rig = idle(&s);
     rig.run_until(1.0);
     let inside = rig.request(&goal(0.02, 0.0)).unwrap_err().to_string();
-    assert!(inside.contains("inside obstacle 0's planning circle"), "{inside}");
+    assert!(inside.contains("inside obstacle LED 3's planning circle"), "{inside}");
     let far = rig.request(&goal(5.0, 0.0)).unwrap_err().to_string();
-    assert!(far.contains("outside the calibrated arena"), "{far}");
+    assert!(far.contains("outside the calibrated arena: the PSD sees the floor within the corners ("), "{far}");
     let nan = rig.request(&goal(f64::NAN, 0.0)).unwrap_err().to_string();
     assert!(nan.contains("finite"), "{nan}");
     assert_eq!(rig.request(&Request::Goal { goals: vec![] }), Err(Refusal::EmptyQueue));
@@ -196,4 +196,53 @@ fn reset_is_refused_while_the_cause_persists() {
     assert_eq!(refusal.to_string(), "fault: motor board heartbeat lost, cause still present");
     assert_eq!(rig.request(&Request::Arm), Err(Refusal::Faulted(State::Fault(StopReason::HeartbeatLost))));
     assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost));
+}
+
+/// An obstacle's LED hidden from 2 s to 4 s: driven around as the region it may have
+/// reached, then a fault naming the LED at the occlusion timeout. The reset forgets the
+/// stale track, and once the LED is seen again the operator's arm, goal and start take the
+/// robot back to Running and on to its goal.
+#[test]
+fn an_occluded_obstacle_faults_by_its_led_and_the_operator_drives_on_after_reset() {
+    let mut s = scenario("e1-standing-obstacle.toml");
+    s.faults = s.faults.with_settings(&["occlusions=[[3, 2.0, 4.0]]".to_string()]).unwrap();
+    let mut rig = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() });
+    rig.run_until(3.5);
+    let fault = StopReason::ObstacleOccluded { led: 3 };
+    assert_eq!(rig.core().state(), State::Fault(fault));
+    assert_eq!(fault.to_string(), "obstacle LED 3 unseen inside the view beyond safety.occlusion_timeout_ms");
+    assert!(rig.status().obstacles.is_empty() || rig.status().obstacles.iter().all(|o| o.occluded));
+    rig.request(&Request::Reset).unwrap();
+    assert_eq!(rig.core().state(), State::Idle);
+    assert_eq!(rig.status().absent, vec![3], "the reset forgot the stale track");
+    rig.run_until(4.5);
+    assert!(rig.status().absent.is_empty(), "seen again after the occlusion: {:?}", rig.status());
+    rig.request(&Request::Arm).unwrap();
+    rig.request(&goal(s.goal.position[0], s.goal.position[1])).unwrap();
+    rig.request(&Request::Start).unwrap();
+    rig.run_until(5.0);
+    assert_eq!(rig.core().state(), State::Running);
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert!(!e.contact);
+}
+
+/// An obstacle that starts outside the camera's view is absent, not a fault: the robot arms
+/// and drives; the obstacle, crossing into the view, across the robot's way and out at the
+/// far side, is tracked from its first samples, avoided, and dropped as it leaves.
+#[test]
+fn an_obstacle_entering_the_view_is_tracked_and_avoided() {
+    let mut s = scenario("e1-standing-obstacle.toml");
+    s.obstacles[0].start = [0.1, -0.95];
+    s.obstacles[0].motion = Motion::Constant { velocity: [0.0, 0.3] };
+    let e = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() }).run(
+        s.time_limit,
+        s.goal.position,
+        s.goal.tolerance,
+    );
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert!(!e.contact);
+    let c = e.report.counters;
+    assert_eq!((c.obstacles_entered_view, c.obstacles_left_view), (1, 1), "{c:?}");
+    assert!(e.truth.summary.min_obstacle_clearance.unwrap() > 0.0);
 }

@@ -371,3 +371,29 @@ fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
     let goals = after.iter().filter(|s| s.outcome == Outcome::Goal).count();
     assert_eq!(goals, 40, "{after:?}");
 }
+
+/// The paper's table ends the same way through the whole stack (the gateway core, the
+/// firmware, the wire protocols, the camera's view) as planner-only: E3a collides as in the
+/// paper, and every other experiment reaches its goal, E3b and E7 with their obstacles
+/// walking out of the camera's view.
+#[test]
+fn the_papers_experiments_end_alike_through_the_whole_stack() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".toml"))
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 9, "{names:?}");
+    for name in &names {
+        let s = scenario(name);
+        let planner_only = offline::run(&s, false).summary.outcome;
+        let whole = flowgate::lab::sim::run(&s, flowgate::lab::sim::Options::default());
+        let expected = if name.starts_with("e3a") { Outcome::Collision } else { Outcome::Goal };
+        assert_eq!(planner_only, expected, "{name} planner-only");
+        assert_eq!(whole.outcome, expected, "{name} whole stack: {}", whole.report);
+    }
+    let e3b = flowgate::lab::sim::run(&scenario("e3b-delay-margin.toml"), flowgate::lab::sim::Options::default());
+    assert_eq!(e3b.report.counters.obstacles_left_view, 1, "{}", e3b.report);
+}

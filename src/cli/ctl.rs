@@ -152,15 +152,21 @@ fn print_reply(v: &serde_json::Value) {
         ),
         None => println!("pose       -"),
     }
-    for (k, o) in s["obstacles"].as_array().into_iter().flatten().enumerate() {
+    for o in s["obstacles"].as_array().into_iter().flatten() {
+        let seen = if o["occluded"].as_bool() == Some(true) { "occluded, last seen" } else { "at" };
         println!(
-            "obstacle {k} at ({:.3}, {:.3}) m, velocity ({:.3}, {:.3}) m/s, planning radius {:.3} m",
+            "obstacle LED {} {seen} ({:.3}, {:.3}) m, velocity ({:.3}, {:.3}) m/s, planning radius {:.3} m",
+            o["led"],
             o["position"][0].as_f64().unwrap_or(f64::NAN),
             o["position"][1].as_f64().unwrap_or(f64::NAN),
             o["velocity"][0].as_f64().unwrap_or(f64::NAN),
             o["velocity"][1].as_f64().unwrap_or(f64::NAN),
             o["planning_radius"].as_f64().unwrap_or(f64::NAN)
         );
+    }
+    let absent: Vec<String> = s["absent"].as_array().into_iter().flatten().map(|l| format!("LED {l}")).collect();
+    if !absent.is_empty() {
+        println!("not in view {}", absent.join(", "));
     }
     println!("cycles     {}", s["cycles"]);
     if let Some(l) = s.get("latency_us").filter(|l| !l.is_null()) {

@@ -231,7 +231,7 @@ fn fill_hazards(
             velocity: o.velocity,
             speed: o.velocity.length(),
             keep: o.radius + cfg.robot_radius + cfg.sigmas * o.position_sd + cfg.clearance,
-            growth: cfg.sigmas * o.velocity_sd,
+            growth: cfg.sigmas * o.velocity_sd + o.spread,
         });
     }
     if cfg.lane_half_width.is_some() {
@@ -627,6 +627,7 @@ mod tests {
                         radius,
                         position_sd,
                         velocity_sd,
+                        spread: 0.0,
                     })
                     .collect();
                 Scene { cfg, position, facing: C::from_polar(1.0, heading), wheels, predicted }

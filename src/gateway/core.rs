@@ -298,7 +298,10 @@ impl<K: StageClock> Core<K> {
             next = next.min(heard + self.rig.safety.heartbeat_timeout).min(self.psd.sync_deadline());
         }
         if state == State::Running {
-            next = next.min(self.pose_deadline()).min(self.track_deadline());
+            next = next.min(self.pose_deadline());
+            if let Some((at, _)) = self.occlusion_deadline() {
+                next = next.min(at);
+            }
         }
         if let Some(since) = self.stopping_since {
             next = next.min(since + STOP_GRACE);
@@ -436,6 +439,15 @@ impl<K: StageClock> Core<K> {
             Request::Status | Request::Stats { .. } => Ok(()),
             Request::Arm => match state {
                 State::Idle | State::Stopped(_) => {
+                    if let Some((index, o)) = self
+                        .rig
+                        .obstacles
+                        .iter()
+                        .enumerate()
+                        .find(|&(k, o)| o.required && self.tracker.obstacle_time(k).is_none())
+                    {
+                        return Err(Refusal::RequiredObstacleUnseen { led: o.led, index });
+                    }
                     let action = self.safety.arm(now.secs());
                     self.armed_at = now;
                     self.enable_retries = 0;
@@ -482,7 +494,12 @@ impl<K: StageClock> Core<K> {
             }
             Request::Reset => match state {
                 State::Fault(reason) if self.cause_present(now, reason) => Err(Refusal::CauseStillPresent(reason)),
-                State::Fault(_) => {
+                State::Fault(reason) => {
+                    if let StopReason::ObstacleOccluded { led } = reason {
+                        if let Some(k) = self.rig.obstacles.iter().position(|o| o.led == led) {
+                            self.tracker.drop_obstacle(k);
+                        }
+                    }
                     self.send(MotorMessage::Nmt {
                         target: Target::Node(self.rig.node),
                         command: NmtCommand::FaultReset,
@@ -515,6 +532,7 @@ impl<K: StageClock> Core<K> {
         let period = self.rig.sample_period.as_secs_f64();
         let (wheel_base, robot, margin) =
             (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
+        let tracked: Vec<usize> = self.tracker.tracked().collect();
         let (pose, obstacles) = match self.tracker.estimate(now.secs(), period, wheel_base) {
             Some(tr) => {
                 let p = tr.estimate.pose();
@@ -523,7 +541,10 @@ impl<K: StageClock> Core<K> {
                     .estimate
                     .obstacles
                     .iter()
-                    .map(|o| ObstacleStatus {
+                    .zip(tracked)
+                    .map(|(o, k)| ObstacleStatus {
+                        led: self.rig.obstacles[k].led,
+                        occluded: o.spread > 0.0,
                         position: [o.center.re, o.center.im],
                         velocity: [o.velocity.re, o.velocity.im],
                         planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
@@ -539,6 +560,10 @@ impl<K: StageClock> Core<K> {
             goals: self.goals.iter().copied().collect(),
             pose,
             obstacles,
+            absent: (0..self.rig.obstacles.len())
+                .filter(|&k| self.tracker.obstacle_time(k).is_none())
+                .map(|k| self.rig.obstacles[k].led)
+                .collect(),
             cycles: self.counters.cycles,
             latency_us: None,
             stages: None,
@@ -585,19 +610,19 @@ impl<K: StageClock> Core<K> {
                 return Err(bad("position and tolerance must be finite, the tolerance positive".into()));
             }
             if !self.rig.calibration.in_view(at) {
-                return Err(bad("outside the calibrated arena (the PSD does not see it)".into()));
+                return Err(bad(format!("outside the calibrated arena: {}", self.rig.calibration.view_extent())));
             }
             if let Space::Lane { half_width } = self.rig.control.planner.space {
                 if y.abs() >= half_width {
                     return Err(bad(format!("outside the lane (|y| >= {half_width} m)")));
                 }
             }
-            for (k, o) in obstacles.iter().enumerate() {
+            for o in &obstacles {
                 let gap = (at - C::new(o.position[0], o.position[1])).norm();
                 if gap <= o.planning_radius {
                     return Err(bad(format!(
-                        "inside obstacle {k}'s planning circle ({gap:.3} m from it, radius {:.3} m)",
-                        o.planning_radius
+                        "inside obstacle LED {}'s planning circle ({gap:.3} m from it, radius {:.3} m)",
+                        o.led, o.planning_radius
                     )));
                 }
             }
@@ -621,10 +646,9 @@ impl<K: StageClock> Core<K> {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
             StopReason::HeartbeatLost => !heard,
-            StopReason::ObstacleLost => {
-                let t = now.secs() - s.pose_timeout.as_secs_f64();
-                (0..self.tracker.obstacle_count()).any(|k| self.tracker.obstacle_time(k).is_none_or(|seen| seen < t))
-            }
+            // The reset forgets the occluded track: the obstacle is absent until seen again
+            // (and a required one refuses the arm until then).
+            StopReason::ObstacleOccluded { .. } => false,
             StopReason::BusOff => !heard || self.board.faults.contains(FaultBits::BUS),
             // The reset clears the board's latched fault; a driver fault that persists
             // faults the gateway again once it runs.
@@ -672,13 +696,16 @@ impl<K: StageClock> Core<K> {
         seen + self.rig.safety.pose_timeout
     }
 
-    /// When the longest-unseen obstacle's track expires (an obstacle never seen counts from
-    /// the arm): a robot must not drive on a guess of where an obstacle went.
-    fn track_deadline(&self) -> HostTime {
-        (0..self.tracker.obstacle_count())
-            .map(|k| self.tracker.obstacle_time(k).map_or(self.armed_at, HostTime::from_secs_f64).max(self.armed_at))
-            .min()
-            .map_or(HostTime::NEVER, |seen| seen + self.rig.safety.pose_timeout)
+    /// When the longest-unseen tracked obstacle has been occluded too long (counted from
+    /// its last sighting, or the arm if later), and which: the region it may have reached
+    /// keeps growing, and a robot must not drive around a guess for ever. An obstacle never
+    /// seen, or seen leaving the view, has no track and no deadline.
+    fn occlusion_deadline(&self) -> Option<(HostTime, usize)> {
+        self.tracker
+            .tracked()
+            .filter_map(|k| Some((HostTime::from_secs_f64(self.tracker.obstacle_time(k)?).max(self.armed_at), k)))
+            .min_by_key(|&(seen, _)| seen)
+            .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
     }
 
     /// The first watchdog that has expired, if any.
@@ -702,8 +729,8 @@ impl<K: StageClock> Core<K> {
             } else {
                 StopReason::PoseLost
             })
-        } else if state == State::Running && now >= self.track_deadline() {
-            Some(StopReason::ObstacleLost)
+        } else if let Some(k) = self.occlusion_deadline().filter(|&(at, _)| state == State::Running && now >= at) {
+            Some(StopReason::ObstacleOccluded { led: self.rig.obstacles[k.1].led })
         } else if now >= heard + s.heartbeat_timeout {
             Some(StopReason::HeartbeatLost)
         } else if now >= self.psd.sync_deadline() {
@@ -948,6 +975,8 @@ impl<K: StageClock> Core<K> {
         let mut wheels = (0.0, 0.0);
         if let Some(out) = step {
             self.counters.obstacle_outran_robot += u64::from(out.outrun);
+            self.counters.obstacle_occluded_cycles +=
+                u64::from(self.tracker.tracked().any(|k| self.tracker.obstacle_occluded(k, t)));
             if let Some(plan) = out.plan {
                 let (c, f) = (&mut self.counters, plan.flags);
                 c.planner_saturated += u64::from(f.saturated);
@@ -970,12 +999,16 @@ impl<K: StageClock> Core<K> {
                 StepStatus::GoalOccupied { index, since } => {
                     self.counters.goal_occupied += 1;
                     if since == t {
-                        tracing::warn!("goal inside obstacle {index}'s planning circle: holding still until it passes");
+                        let led = self.obstacle_led(index);
+                        tracing::warn!(
+                            "goal inside obstacle LED {led}'s planning circle: holding still until it passes"
+                        );
                     }
                 }
                 StepStatus::GoalBlocked { index } => {
                     let wait = self.control.config().goal_wait;
-                    tracing::warn!("goal inside obstacle {index}'s planning circle for {wait} s: stopping");
+                    let led = self.obstacle_led(index);
+                    tracing::warn!("goal inside obstacle LED {led}'s planning circle for {wait} s: stopping");
                     self.stop(now, StopReason::GoalBlocked);
                 }
                 StepStatus::Invalid(e) => {
@@ -1000,6 +1033,12 @@ impl<K: StageClock> Core<K> {
             ..self.record(now, frame_no, end, pulses, delay, pose.position)
         };
         self.command(now, pulses, record, pose.position);
+    }
+
+    /// The LED of the obstacle the planner and the supervisor call `index` (they number
+    /// the tracked obstacles only).
+    fn obstacle_led(&self, index: usize) -> u8 {
+        self.tracker.tracked().nth(index).map_or(u8::MAX, |k| self.rig.obstacles[k].led)
     }
 
     /// A cycle's record, its stage timings left at zero.
@@ -1074,9 +1113,30 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
+        let t = now.secs();
         for (k, o) in self.rig.obstacles.iter().enumerate() {
+            let tracked = self.tracker.obstacle_time(k).is_some();
             if let Some((p, at)) = usable(o.led).and_then(floor) {
-                self.tracker.observe_obstacle(k, at, p);
+                if self.tracker.observe_obstacle(k, at, p) && !tracked {
+                    self.counters.obstacles_entered_view += 1;
+                    tracing::info!(
+                        led = o.led,
+                        "obstacle LED {} came into view at ({:.3}, {:.3}) m",
+                        o.led,
+                        p.re,
+                        p.im
+                    );
+                }
+            } else if self.tracker.obstacle_occluded(k, t) {
+                // Unseen past the pose timeout: gone out of the view if its filter carries it
+                // beyond the edge by now (it was at the edge, heading out); otherwise occluded,
+                // and avoided as a region until it is seen again or the timeout faults.
+                let beyond = self.tracker.obstacle_prediction(k, t).is_some_and(|p| !cal.in_view(p));
+                if beyond {
+                    self.tracker.drop_obstacle(k);
+                    self.counters.obstacles_left_view += 1;
+                    tracing::info!(led = o.led, "obstacle LED {} left the view: track dropped", o.led);
+                }
             }
         }
         self.clear_frame();
@@ -1256,6 +1316,26 @@ mod tests {
     fn core() -> Core<NoClock> {
         let text = include_str!("../../rig.example.toml");
         Core::new(GatewayConfig::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
+    }
+
+    /// An obstacle LED not seen is absent: the arm proceeds, unless the LED is required.
+    #[test]
+    fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
+        let mut c = core();
+        assert_eq!(c.request(ms(1), &Request::Arm), Ok(()));
+        let text = include_str!("../../rig.example.toml").replacen(
+            "{ led = 4, radius = 0.07 }",
+            "{ led = 4, radius = 0.07, required = true }",
+            1,
+        );
+        let mut c = Core::new(GatewayConfig::from_toml(&text, "rig").unwrap().rig("rig").unwrap(), NoClock);
+        let refusal = c.request(ms(1), &Request::Arm).unwrap_err();
+        assert_eq!(refusal, Refusal::RequiredObstacleUnseen { led: 4, index: 1 });
+        assert_eq!(
+            refusal.to_string(),
+            "obstacle LED 4 is required (leds.obstacles[1].required) and has not been seen"
+        );
+        assert_eq!(c.state(), State::Idle);
     }
 
     fn ms(v: u64) -> HostTime {

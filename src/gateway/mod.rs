@@ -141,6 +141,15 @@ pub struct Counters {
     /// Cycles the robot held still because the goal was inside an obstacle's planning
     /// circle (it waits up to `planner.goal_wait` for the obstacle to pass).
     pub goal_occupied: u64,
+    /// Obstacle tracks dropped because the obstacle was seen leaving the calibrated arena
+    /// (its filter's prediction beyond the view's edge once unseen).
+    pub obstacles_left_view: u64,
+    /// Obstacles that came into view and got a track (each first sighting, and each return
+    /// after leaving).
+    pub obstacles_entered_view: u64,
+    /// Cycles planned with some obstacle unseen inside the view, avoided as the region it
+    /// may have reached.
+    pub obstacle_occluded_cycles: u64,
     /// Cycles whose plan raised each of the planner's flags ([`crate::planner::PlanFlags`]):
     /// the field's speed scaled down to the limit; the tie-break shifting a circle; a
     /// margin shrunk because the robot or the goal stood in it; a circle at a lane wall

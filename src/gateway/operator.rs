@@ -69,6 +69,8 @@ pub enum Refusal {
     NotFaulted(State),
     #[error("fault: {0}, cause still present")]
     CauseStillPresent(StopReason),
+    #[error("obstacle LED {led} is required (leds.obstacles[{index}].required) and has not been seen")]
+    RequiredObstacleUnseen { led: u8, index: usize },
     #[error("no goal: set one with `goal X Y`")]
     NoGoal,
     #[error("no goals given")]
@@ -82,6 +84,11 @@ pub enum Refusal {
 /// An obstacle as the gateway estimates it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ObstacleStatus {
+    /// The obstacle's LED.
+    pub led: u8,
+    /// Unseen inside the view past the pose timeout: `position` is where it was last
+    /// seen, and `planning_radius` takes in the region it may have reached since.
+    pub occluded: bool,
     pub position: [f64; 2],
     pub velocity: [f64; 2],
     /// The obstacle's radius plus the robot's, grown by the margin rule now, m.
@@ -98,7 +105,10 @@ pub struct Status {
     pub goals: Vec<Goal>,
     /// x, y (m), heading (rad), when the gateway has a pose.
     pub pose: Option<[f64; 3]>,
+    /// The tracked obstacles (seen, or occluded inside the view).
     pub obstacles: Vec<ObstacleStatus>,
+    /// The obstacle LEDs not tracked: not seen yet, or seen leaving the view.
+    pub absent: Vec<u8>,
     pub cycles: u64,
     /// Cycle latency so far, serial read to CAN write done (filled in by the rig's shell,
     /// which measures it; none in virtual time).

@@ -52,8 +52,11 @@ pub enum StopReason {
     BoardReboot,
     /// Another device sent velocity commands to our board.
     SecondMaster,
-    /// An obstacle went unseen for longer than the pose timeout while running.
-    ObstacleLost,
+    /// A tracked obstacle stayed unseen inside the view for longer than
+    /// `safety.occlusion_timeout_ms` while running.
+    ObstacleOccluded {
+        led: u8,
+    },
     BusOff,
     BoardFault,
     /// Armed, the board stayed Disabled through every enable sent.
@@ -66,8 +69,10 @@ impl StopReason {
     /// The reason's name in `snake_case` (a metrics label): `PoseLost` is `pose_lost`.
     pub fn snake_name(self) -> String {
         let debug = format!("{self:?}");
-        let mut out = String::with_capacity(debug.len() + 4);
-        for (i, c) in debug.chars().enumerate() {
+        // The variant's name, without the data some carry (`ObstacleOccluded { led: 3 }`).
+        let name = debug.split([' ', '{', '(']).next().unwrap_or_default();
+        let mut out = String::with_capacity(name.len() + 4);
+        for (i, c) in name.chars().enumerate() {
             if c.is_ascii_uppercase() && i > 0 {
                 out.push('_');
             }
@@ -128,7 +133,9 @@ impl std::fmt::Display for StopReason {
             Self::CanLinkLost => "CAN link lost",
             Self::BoardReboot => "motor board rebooted",
             Self::SecondMaster => "another device commands the motor board",
-            Self::ObstacleLost => "an obstacle unseen beyond the pose timeout",
+            Self::ObstacleOccluded { led } => {
+                return write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
+            }
             Self::BusOff => "CAN bus-off",
             Self::BoardFault => "motor board fault",
             Self::BoardNotEnabled => "motor board did not enable",

@@ -72,10 +72,47 @@ impl Scenario {
             .map_err(|e| ScenarioError::Planner { path: origin.into(), source: Box::new(e) })?;
         let s = Self { sim, planner, supervised: true };
         let frame_us = s.frame_us().map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
-        s.config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us)
+        let rig = s
+            .config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us)
             .validate()
             .map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        s.robot_in_view(&rig).map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         Ok(s)
+    }
+
+    /// The robot must start where the simulated camera sees both its LEDs: a robot it cannot
+    /// see never gets a pose. (The goal is checked with the rig config; obstacles may start
+    /// outside the view and come into it.)
+    fn robot_in_view(&self, rig: &Rig) -> Result<(), Invalid> {
+        let r = &self.robot;
+        let facing = num_complex::Complex64::from_polar(1.0, r.heading_deg.to_radians());
+        let centre = num_complex::Complex64::new(r.start[0], r.start[1]);
+        let (front, rear) = rig.led_geometry.leds(centre, facing);
+        match [front, rear].into_iter().find(|&p| !rig.calibration.in_view(p)) {
+            None => Ok(()),
+            Some(p) => Err(Invalid {
+                key: "robot.start".into(),
+                why: format!(
+                    "{:?}: the robot's LED at ({:.3}, {:.3}) lies outside the simulated camera's view: {}",
+                    r.start,
+                    p.re,
+                    p.im,
+                    rig.calibration.view_extent()
+                ),
+            }),
+        }
+    }
+
+    /// The fastest any of the scenario's obstacles moves, m/s (0 when none moves).
+    fn fastest_obstacle(&self) -> f64 {
+        self.obstacles
+            .iter()
+            .map(|o| match &o.motion {
+                flowgate_sim::scenario::Motion::Stationary => 0.0,
+                flowgate_sim::scenario::Motion::Constant { velocity } => velocity[0].hypot(velocity[1]),
+                flowgate_sim::scenario::Motion::Waypoints { speed, .. } => *speed,
+            })
+            .fold(0.0, f64::max)
     }
 
     /// The control period as whole microseconds (the PSD schedule's unit).
@@ -140,6 +177,7 @@ impl Scenario {
                     .map(|(k, o)| ObstacleLed {
                         led: leds.first_obstacle.saturating_add(u8::try_from(k).unwrap_or(u8::MAX)),
                         radius: o.radius,
+                        required: false,
                     })
                     .collect(),
             },
@@ -164,7 +202,14 @@ impl Scenario {
             goal: Some(Goal { position: self.goal.position, tolerance: self.goal.tolerance }),
             planner: self.planner,
             lane: self.lane.map(|l| LaneSection { half_width: l.half_width }),
-            safety: SafetyConfig { pose_timeout_ms, sample_timeout_ms, ..safety },
+            // An unseen obstacle's region grows at the fastest any of them can go.
+            safety: SafetyConfig {
+                pose_timeout_ms,
+                sample_timeout_ms,
+                occlusion_timeout_ms: safety.occlusion_timeout_ms + delay_ms,
+                max_obstacle_speed: safety.max_obstacle_speed.max(self.fastest_obstacle()),
+                ..safety
+            },
             telemetry: TelemetryConfig { out_dir, ..TelemetryConfig::default() },
             operator: OperatorConfig::default(),
             realtime: Default::default(),
@@ -193,5 +238,25 @@ mod tests {
         }
         let err = Scenario::from_toml(&E2.replace("[planner]", "[planner]\nbogus = 1"), "e2").unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
+    }
+
+    const E1: &str = include_str!("../../scenarios/e1-standing-obstacle.toml");
+
+    /// A start or goal the simulated camera cannot see is refused at load, naming the key,
+    /// the point and the arena's extent; an obstacle may start out of view.
+    #[test]
+    fn points_the_camera_cannot_see_are_refused_at_load() {
+        let far_start = E1.replacen("start = [-0.35, -0.06]", "start = [-1.5, -0.06]", 1);
+        let err = Scenario::from_toml(&far_start, "e1").unwrap_err().to_string();
+        assert!(err.contains("`robot.start`") && err.contains("[-1.5, -0.06]"), "{err}");
+        assert!(err.contains("the PSD sees the floor within the corners ("), "{err}");
+        let far_goal = E1.replacen("position = [0.35, 0.05]", "position = [50.0, 0.0]", 1);
+        let err = Scenario::from_toml(&far_goal, "e1").unwrap_err().to_string();
+        assert!(
+            err.contains("`goal.position`") && err.contains("[50.0, 0.0] lies outside the calibrated arena"),
+            "{err}"
+        );
+        let far_obstacle = E1.replacen("start = [0.0, 0.0]", "start = [0.0, 1.5]", 1);
+        Scenario::from_toml(&far_obstacle, "e1").unwrap();
     }
 }

@@ -127,12 +127,16 @@ pub struct ObstacleEstimate {
     pub position_sd: f64,
     /// One standard deviation of `velocity` along its worst direction, m/s.
     pub velocity_sd: f64,
+    /// How fast the region it may occupy grows beyond `radius`, m/s: 0 for a tracked
+    /// obstacle; the top obstacle speed for one unseen inside the view, whose `radius`
+    /// is then how far it may have gone since it was last seen (a region, not a body).
+    pub spread: f64,
 }
 
 impl ObstacleEstimate {
     /// An obstacle known exactly (a scripted one, a test's).
     pub const fn exact(center: C, velocity: C, radius: f64) -> Self {
-        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0 }
+        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0, spread: 0.0 }
     }
 }
 
@@ -211,7 +215,14 @@ impl Planner {
         let left = if to_goal.length() > 0.0 { C::i() * to_goal / to_goal.length() } else { C::default() };
         for o in input.obstacles {
             let speed = o.velocity.length();
-            let r0 = o.radius + input.robot_radius;
+            let mut r0 = o.radius + input.robot_radius;
+            if o.spread > 0.0 {
+                // A region is where an unseen obstacle may be, not where it is: planned
+                // around only as far as it leaves the robot and the goal outside (the
+                // supervisor judges the whole region).
+                let room = (input.position - o.center).length().min((input.goal - o.center).length()) - SHRUNK_GAP;
+                r0 = r0.min(room.max(0.0));
+            }
             let mut p = PlanObstacle {
                 center: o.center,
                 velocity: o.velocity,

@@ -318,23 +318,33 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
         1.0 / rig.sample_period.as_secs_f64()
     );
     report.add(STREAM, port, stream_verdict(frames, expected, faults, bad + lost + discarded), detail);
-    // The robot's two LEDs must be seen to arm; an obstacle out of view is worth a warning.
+    // The robot's two LEDs and every required obstacle's must be seen to arm; any other
+    // obstacle out of view is absent until it comes into view: worth a warning.
     let mut problems = Vec::new();
     let mut fail = false;
     for (k, &led) in leds.iter().enumerate() {
         let robot = led == rig.robot_front || led == rig.robot_rear;
+        let obstacle = rig.obstacles.iter().position(|o| o.led == led);
+        let required = robot || obstacle.is_some_and(|i| rig.obstacles[i].required);
+        let role = match obstacle {
+            _ if robot => " (robot)".to_string(),
+            Some(i) if required => format!(" (leds.obstacles[{i}].required)"),
+            _ => String::new(),
+        };
+        let consequence = match obstacle {
+            _ if required => "",
+            Some(_) => ": not seen, absent until it comes into view",
+            None => "",
+        };
         if seen[k] == 0 {
-            problems.push(format!("LED {led}: no samples"));
-            fail |= robot;
+            problems.push(format!("LED {led}{role}: no samples{consequence}"));
+            fail |= required;
         } else if weak[k] * 2 > seen[k] || saturated[k] * 2 > seen[k] {
             problems.push(format!(
-                "LED {led}{}: {} of {} samples weak, {} saturated (out of view, occluded or dead?)",
-                if robot { " (robot)" } else { "" },
-                weak[k],
-                seen[k],
-                saturated[k]
+                "LED {led}{role}: {} of {} samples weak, {} saturated (out of view, occluded or dead?){consequence}",
+                weak[k], seen[k], saturated[k]
             ));
-            fail |= robot;
+            fail |= required;
         }
     }
     let leds_key = "leds";
