@@ -55,6 +55,7 @@ fn scenario(c: &Case) -> Scenario {
          wheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nmax_wheel_speed = 0.25\n\
          wheel_accel = {}\nmax_speed = {MAX_SPEED}\n\
          [goal]\nposition = [3.0, 0.0]\n\
+         [camera]\nhomography = [[400.0, 0.0, 0.0], [0.0, 400.0, 0.0], [0.0, 0.0, 1.0]]\n\
          [[obstacles]]\nradius = {}\nstart = [{}, {}]\nmotion = {{ kind = \"constant\", velocity = [{}, {}] }}\n\
          [sensing]\nsample_time = 0.02\ndelay = 0.0\nposition_noise = 0.0\nlowpass_hz = 0.0\nseed = 1\n\
          [planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.15\n",

@@ -95,8 +95,8 @@ impl RigConfig {
         let seed = scenario.sensing.seed;
         let faults = scenario.faults.clone();
         Self {
+            camera: scenario.camera,
             scenario,
-            camera: CameraModel::default(),
             leds,
             psd: SerialEndpoint::Pty { link: None },
             can: CanEndpoint::SlcanPty { link: None },

@@ -7,7 +7,6 @@
 use std::ops::{Deref, DerefMut};
 use std::path::{Path, PathBuf};
 
-use flowgate_sim::calibration::CameraModel;
 use flowgate_sim::psd_controller::LedMap;
 use serde::Deserialize;
 
@@ -151,7 +150,7 @@ impl Scenario {
 
     fn config_with(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>, frame_us: u32) -> GatewayConfig {
         let leds = LedMap::standard(self.robot.radius);
-        let cam = CameraModel::default();
+        let cam = self.camera;
         let r = &self.robot;
         let delay_ms = (self.sensing.delay * 1e3).ceil().clamp(0.0, 60_000.0) as u32;
         // A rig with a known sensing delay accepts poses that old (and no older), and its

@@ -323,7 +323,7 @@ impl<K: StageClock> VirtualRig<K> {
         if plan.sample_delay_ms == 0.0 {
             plan.sample_delay_ms = scenario.sensing.delay * 1e3;
         }
-        let camera = CameraModel::default();
+        let camera = scenario.camera;
         let spec = ControllerSpec {
             camera,
             leds: LedMap::standard(scenario.robot.radius),

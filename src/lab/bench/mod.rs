@@ -251,7 +251,7 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
          [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nnode = {}\n\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
-         [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
+         [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nocclusion_timeout_ms = 31000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
          [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
         psd.display(),
         node.get(),
