@@ -153,6 +153,20 @@ fn table() -> Vec<Row> {
             &["serial_replay=0.02"],
             Expect::Counted { check: replays },
         ),
+        row(
+            Psd,
+            "incorrect sequence",
+            "one packet numbered 0x7FFF ahead (valid CRC)",
+            &["seq_jump_at=2.0"],
+            Expect::Counted { check: seq_jump },
+        ),
+        row(
+            Psd,
+            "incorrect sequence",
+            "one frame's counter 2^31 - 1 ahead (valid CRC)",
+            &["frame_jump_at=2.0"],
+            Expect::Counted { check: frame_jump },
+        ),
         row(Psd, "loss", "0.05% of bytes lost", &["serial_drop=0.0005"], Expect::Counted { check: byte_loss }),
         row(
             Psd,
@@ -199,6 +213,20 @@ fn table() -> Vec<Row> {
         row(
             Psd,
             "unacceptable delay",
+            "one time-sync reply 80 ms off (80,000 ppm against the 1,000 allowed)",
+            &["sync_reply_step=[2.0, 80.0]"],
+            Expect::Counted { check: odd_sync },
+        ),
+        row(
+            Psd,
+            "unacceptable delay",
+            "the controller's clock steps 80 ms ahead",
+            &["clock_step=[2.0, 80.0]"],
+            fault(R::ClockJumped, 22.4, 22.5, Cycle),
+        ),
+        row(
+            Psd,
+            "unacceptable delay",
             "a delay step of 300 ms",
             &["sample_delay_ramp=[2.0, 2.0, 300]"],
             fault(R::SamplesStopped, 96.4, 96.5, Watchdog("sample", SAMPLE_MS)),
@@ -223,6 +251,13 @@ fn table() -> Vec<Row> {
             "bursts of 64 garbage bytes at 2.0, 2.5 and 3.0 s",
             &["serial_burst_at=[2.0, 2.5, 3.0]", "serial_burst_len=64"],
             Expect::Counted { check: bursts },
+        ),
+        row(
+            Psd,
+            "insertion",
+            "a sample of LED 9 in the robot's slot every frame from 2 s",
+            &["unscheduled_led=[9, 2.0, 100.0]"],
+            fault(R::UnscheduledLed { led: 9 }, 353.7, 353.8, Cycle),
         ),
         row(
             Psd,
@@ -359,6 +394,30 @@ fn brief_occlusion(e: &Episode) -> String {
     assert!(c.obstacle_occluded_cycles > 5, "{c:?}");
     assert_eq!((c.obstacles_left_view, c.obstacles_entered_view), (0, 1), "{c:?}");
     format!("{} cycles planned around the region it may have reached", c.obstacle_occluded_cycles)
+}
+
+/// The far-ahead packet is discarded; the real ones after it go on as before.
+fn seq_jump(e: &Episode) -> String {
+    let c = e.report.counters;
+    assert_eq!((c.psd_seq_jumps, c.psd_seq_rebased, c.psd_out_of_order), (1, 0, 0), "{c:?}");
+    one_command_per_frame(e);
+    format!("{} discarded as a jump; the sequence goes on", c.psd_seq_jumps)
+}
+
+/// The jumped frame is discarded (no command from it); the frames after go on as before.
+fn frame_jump(e: &Episode) -> String {
+    let c = e.report.counters;
+    assert_eq!((c.frames_jumped, c.frames_rebased, c.frames_repeated), (1, 0, 0), "{c:?}");
+    one_command_per_frame(e);
+    format!("{} frame discarded as a jump; the count goes on", c.frames_jumped)
+}
+
+/// The odd reply is refused and the clock checked again at once: the next sync is taken.
+fn odd_sync(e: &Episode) -> String {
+    let c = e.report.counters;
+    assert_eq!(c.time_syncs_implausible, 1, "{c:?}");
+    assert!(c.time_syncs >= 9, "{c:?}");
+    format!("{} sync refused as a step, the next taken", c.time_syncs_implausible)
 }
 
 fn overrun(e: &Episode) -> String {

@@ -66,6 +66,26 @@ pub struct FaultPlan {
     /// driver, ambient saturation, internal).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub controller_fault: Option<[f64; 3]>,
+    /// The first packet on the line from this time goes out twice: first with its sequence
+    /// number 0x7FFF ahead and a valid CRC (a bit error the CRC missed), then as it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seq_jump_at: Option<f64>,
+    /// The first frame from this time carries its counter 2^31 - 1 ahead (its samples and
+    /// its end); the frames after count on as before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_jump_at: Option<f64>,
+    /// `[at_s, ms]`: from `at_s` the controller's clock reads `ms` later (a clock that
+    /// jumped; negative: earlier).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_step: Option<[f64; 2]>,
+    /// `[at_s, ms]`: the first time-sync reply from `at_s` carries the controller's time `ms`
+    /// off (one odd reply; the clock itself is fine).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sync_reply_step: Option<[f64; 2]>,
+    /// `[led, from_s, to_s]`: meanwhile each frame's first sample names this LED, which the
+    /// schedule does not have in that slot.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unscheduled_led: Option<[f64; 3]>,
     /// The PSD controller resets (schedule lost, streaming stops, Fault::Reset sent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub controller_reset_at: Option<f64>,
@@ -143,6 +163,8 @@ impl FaultPlan {
             ("board_reboot_at", self.board_reboot_at),
             ("second_master_at", self.second_master_at),
             ("bus_off_at", self.bus_off_at),
+            ("seq_jump_at", self.seq_jump_at),
+            ("frame_jump_at", self.frame_jump_at),
         ];
         let spans = [
             ("sample_delay_ms", self.sample_delay_ms),
@@ -202,6 +224,18 @@ impl FaultPlan {
                 return err("reflections", format!("each is [led 1-255, from_s, to_s, dx_m], has {r:?}"));
             }
         }
+        for (key, step) in [("clock_step", self.clock_step), ("sync_reply_step", self.sync_reply_step)] {
+            if let Some([at, ms]) = step {
+                if !(at.is_finite() && at >= 0.0 && ms.is_finite() && ms.abs() <= 1e9) {
+                    return err(key, format!("must be [at_s >= 0, ms within ±1e9], is [{at}, {ms}]"));
+                }
+            }
+        }
+        if let Some(u) = self.unscheduled_led {
+            if !(u.iter().all(|v| v.is_finite()) && (1.0..=255.0).contains(&u[0]) && 0.0 <= u[1] && u[1] <= u[2]) {
+                return err("unscheduled_led", format!("must be [led 1-255, from_s, to_s], is {u:?}"));
+            }
+        }
         if let Some([at, code, _]) = self.controller_fault {
             if !(at.is_finite() && at >= 0.0 && (2.0..=5.0).contains(&code)) {
                 return err(
@@ -250,6 +284,22 @@ impl FaultPlan {
         }
     }
 
+    /// How far the controller's clock has stepped by `t`, µs.
+    pub fn clock_step_us(&self, t: f64) -> f64 {
+        match self.clock_step {
+            Some([at, ms]) if t >= at => ms * 1e3,
+            _ => 0.0,
+        }
+    }
+
+    /// The LED an unscheduled sample names at `t`, if any.
+    pub fn unscheduled_led(&self, t: f64) -> Option<u8> {
+        match self.unscheduled_led {
+            Some([led, from, to]) if t >= from && t < to => Some(led as u8),
+            _ => None,
+        }
+    }
+
     /// Whether the SLCAN adapter is bus-off at `t`.
     pub fn adapter_bus_off(&self, t: f64) -> bool {
         matches!(self.adapter_bus_off, Some([from, to]) if t >= from && t < to)
@@ -275,6 +325,8 @@ pub struct SerialFaults {
     repeat_during: Option<[f64; 2]>,
     /// The last packets sent, for replays.
     history: [Option<flowgate_protocol::psd::Packet>; 8],
+    /// When one packet goes out with its sequence number far ahead (then `None`).
+    seq_jump_at: Option<f64>,
     next: usize,
     /// Packets sent twice, packets replayed so far.
     pub duplicated: u64,
@@ -296,6 +348,7 @@ impl SerialFaults {
             replay: plan.serial_replay,
             repeat_during: plan.serial_repeat_during,
             history: [None; 8],
+            seq_jump_at: plan.seq_jump_at,
             next: 0,
             duplicated: 0,
             replayed: 0,
@@ -312,6 +365,10 @@ impl SerialFaults {
         packet: flowgate_protocol::psd::Packet,
         out: &mut impl FnMut(flowgate_protocol::psd::Packet),
     ) {
+        if self.seq_jump_at.is_some_and(|at| t >= at) {
+            self.seq_jump_at = None;
+            out(flowgate_protocol::psd::Packet { seq: packet.seq.wrapping_add(0x7FFF), ..packet });
+        }
         out(packet);
         let active = !matches!(self.repeat_during, Some([from, to]) if t < from || t >= to);
         if active && self.duplicate > 0.0 && self.rng.random_bool(self.duplicate.min(1.0)) {

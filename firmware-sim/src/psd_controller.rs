@@ -162,6 +162,9 @@ pub struct PsdController {
     next_heartbeat: f64,
     reset_done: bool,
     fault_done: bool,
+    /// The one-off faults: the frame whose counter jumps; the odd sync reply sent.
+    jumped_frame: Option<u32>,
+    sync_step_done: bool,
 }
 
 impl PsdController {
@@ -184,6 +187,8 @@ impl PsdController {
             next_heartbeat: 0.0,
             reset_done: false,
             fault_done: false,
+            jumped_frame: None,
+            sync_step_done: false,
         }
     }
 
@@ -194,7 +199,7 @@ impl PsdController {
     /// The controller clock at sim time `t`, µs.
     pub fn clock_us(&self, t: f64) -> u64 {
         let rate = 1.0 + self.faults.clock_drift_ppm * 1e-6;
-        (self.clock_origin_us + t * 1e6 * rate).round().max(0.0) as u64
+        (self.clock_origin_us + t * 1e6 * rate + self.faults.clock_step_us(t)).round().max(0.0) as u64
     }
 
     pub fn streaming(&self) -> bool {
@@ -255,7 +260,14 @@ impl PsdController {
                     }
                     Message::Ping { nonce } => Message::Pong { request_seq: seq, nonce, t_ctrl_us: self.clock_us(t) },
                     Message::TimeSync { host_time_us } => {
-                        Message::TimeSyncReply { request_seq: seq, host_time_us, t_ctrl_us: self.clock_us(t) }
+                        let mut t_ctrl_us = self.clock_us(t);
+                        if let (Some([at, ms]), false) = (self.faults.sync_reply_step, self.sync_step_done) {
+                            if t >= at {
+                                self.sync_step_done = true;
+                                t_ctrl_us = (t_ctrl_us as f64 + ms * 1e3).max(0.0) as u64;
+                            }
+                        }
+                        Message::TimeSyncReply { request_seq: seq, host_time_us, t_ctrl_us }
                     }
                     m if !m.msg_type().is_request() => nack(NackReason::WrongDirection),
                     _ => nack(NackReason::UnknownType),
@@ -321,6 +333,12 @@ impl PsdController {
                 break;
             }
             let n = schedule.slots().len();
+            if self.slot == 0
+                && self.jumped_frame.is_none()
+                && self.faults.frame_jump_at.is_some_and(|at| self.slot_start >= at)
+            {
+                self.jumped_frame = Some(self.frame);
+            }
             if self.slot < n {
                 let slot = schedule.slots()[self.slot];
                 let mid = self.slot_start + 0.5 * f64::from(slot.slot_us) * 1e-6;
@@ -329,13 +347,19 @@ impl PsdController {
                 let p = self.packet(Message::Sample(sample));
                 out.push(Outgoing { at: end + delay, packet: p });
                 self.samples_in_frame += 1;
+                // An extra sample naming an LED the schedule does not have in this slot.
+                if let Some(led) = self.faults.unscheduled_led(mid).filter(|_| self.slot == 0) {
+                    let stray = self.sample(self.slot as u8, led, mid, world, schedule.dark_slot_us > 0);
+                    let p = self.packet(Message::Sample(stray));
+                    out.push(Outgoing { at: end + delay, packet: p });
+                }
             }
             self.slot += 1;
             self.slot_start = end;
             let frame_done = self.slot > n || (self.slot == n && schedule.dark_slot_us == 0);
             if frame_done {
                 let p = self.packet(Message::FrameEnd {
-                    frame: self.frame,
+                    frame: self.frame_no(),
                     t_ctrl_us: self.clock_us(end),
                     samples: self.samples_in_frame,
                 });
@@ -351,6 +375,16 @@ impl PsdController {
             let p = self.packet(Message::Heartbeat { t_ctrl_us: self.clock_us(at), state });
             out.push(Outgoing { at, packet: p });
             self.next_heartbeat += HEARTBEAT_PERIOD;
+        }
+    }
+
+    /// The frame counter as sent: the frame's own, or 2^31 - 1 ahead for the one frame a
+    /// `frame_jump_at` fault picked.
+    fn frame_no(&self) -> u32 {
+        if self.jumped_frame == Some(self.frame) {
+            self.frame.wrapping_add(0x7FFF_FFFF)
+        } else {
+            self.frame
         }
     }
 
@@ -391,7 +425,7 @@ impl PsdController {
         x = x.clamp(-half, half - 1.0);
         y = y.clamp(-half, half - 1.0);
         Sample {
-            frame: self.frame,
+            frame: self.frame_no(),
             slot,
             led,
             t_ctrl_us: self.clock_us(t),

@@ -44,6 +44,10 @@ pub const CRC_LEN: usize = 2;
 pub const MIN_SLOT_US: u16 = 100;
 /// The most LEDs one schedule may hold.
 pub const MAX_SCHEDULE_LEDS: usize = 16;
+/// The latest controller stamp (`t_ctrl_us`) a frame may carry: 2^53 µs, some 285 years of
+/// uptime, and exact in an `f64`. A later one is refused at decode as absurd (a corrupted
+/// stamp that passed the CRC), never mapped to host time.
+pub const MAX_STAMP_US: u64 = 1 << 53;
 /// The largest payload of any message (a full schedule).
 pub const MAX_PAYLOAD_LEN: usize = 5 + 3 * MAX_SCHEDULE_LEDS;
 /// The largest unencoded frame.
@@ -370,6 +374,18 @@ impl Message {
         }
     }
 
+    /// The controller stamp the message carries, if any.
+    pub fn stamp(&self) -> Option<u64> {
+        match *self {
+            Message::Sample(s) => Some(s.t_ctrl_us),
+            Message::FrameEnd { t_ctrl_us, .. }
+            | Message::Heartbeat { t_ctrl_us, .. }
+            | Message::Pong { t_ctrl_us, .. }
+            | Message::TimeSyncReply { t_ctrl_us, .. } => Some(t_ctrl_us),
+            _ => None,
+        }
+    }
+
     fn parse_payload(msg_type: MessageType, payload: &[u8]) -> Result<Self, Error> {
         let mut r = Reader::new(payload);
         let short = Error::PayloadLength { msg_type, len: payload.len() };
@@ -453,6 +469,7 @@ impl Message {
             }))
         })();
         match msg {
+            Some(Ok(m)) if r.remaining() == 0 && m.stamp().is_some_and(|t| t > MAX_STAMP_US) => Err(field("t_ctrl_us")),
             Some(Ok(m)) if r.remaining() == 0 => Ok(m),
             Some(Ok(_)) | None => Err(short),
             Some(Err(e)) => Err(e),
@@ -668,6 +685,30 @@ mod tests {
         assert_eq!(&out[..n], &wire[..]);
         assert_eq!(n, SAMPLE_WIRE_LEN);
         assert_eq!(Packet::decode(&wire[..wire.len() - 1]).unwrap(), packet);
+    }
+
+    /// A stamp beyond [`MAX_STAMP_US`] is refused at decode (a time sync reply of 2^64 - 1
+    /// would otherwise move the clock by centuries); the largest allowed one decodes.
+    #[test]
+    fn absurd_stamps_are_refused_at_decode() {
+        for t_ctrl_us in [MAX_STAMP_US + 1, u64::MAX] {
+            for message in [
+                Message::TimeSyncReply { request_seq: 1, host_time_us: 2, t_ctrl_us },
+                Message::Sample(Sample { t_ctrl_us, ..sample() }),
+                Message::FrameEnd { frame: 1, t_ctrl_us, samples: 2 },
+            ] {
+                let mut buf = [0u8; MAX_FRAME_LEN];
+                let n = Packet::new(7, message).emit(&mut buf).unwrap();
+                assert!(
+                    matches!(Packet::parse(&buf[..n]), Err(Error::Field { field: "t_ctrl_us", .. })),
+                    "{message:?}"
+                );
+            }
+        }
+        let message = Message::TimeSyncReply { request_seq: 1, host_time_us: 2, t_ctrl_us: MAX_STAMP_US };
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let n = Packet::new(7, message).emit(&mut buf).unwrap();
+        assert_eq!(Packet::parse(&buf[..n]).unwrap().message, message);
     }
 
     #[test]

@@ -16,6 +16,11 @@ fn schedule() -> impl Strategy<Value = Schedule> {
     )
 }
 
+/// A controller stamp a frame may carry (later ones are refused as absurd).
+fn stamp() -> impl Strategy<Value = u64> {
+    0..=flowgate_protocol::psd::MAX_STAMP_US
+}
+
 fn psd_message() -> impl Strategy<Value = Message> {
     let nack = (1u8..=9).prop_map(|r| NackReason::from_u8(r).unwrap());
     let fault = (1u8..=5).prop_map(|r| FaultCode::from_u8(r).unwrap());
@@ -34,8 +39,8 @@ fn psd_message() -> impl Strategy<Value = Message> {
         ),
         (any::<u16>(), any::<u8>()).prop_map(|(seq, msg_type)| Message::Ack { seq, msg_type }),
         (any::<u16>(), any::<u8>(), nack).prop_map(|(seq, msg_type, reason)| Message::Nack { seq, msg_type, reason }),
-        (any::<u32>(), any::<u8>(), any::<u8>(), any::<u64>(), any::<i32>(), any::<i32>(), any::<u16>(), 0u8..16)
-            .prop_map(|(frame, slot, led, t_ctrl_us, x, y, intensity, flags)| Message::Sample(Sample {
+        (any::<u32>(), any::<u8>(), any::<u8>(), stamp(), any::<i32>(), any::<i32>(), any::<u16>(), 0u8..16).prop_map(
+            |(frame, slot, led, t_ctrl_us, x, y, intensity, flags)| Message::Sample(Sample {
                 frame,
                 slot,
                 led,
@@ -44,20 +49,21 @@ fn psd_message() -> impl Strategy<Value = Message> {
                 y,
                 intensity,
                 flags: SampleFlags(flags)
-            })),
-        (any::<u32>(), any::<u64>(), any::<u8>()).prop_map(|(frame, t_ctrl_us, samples)| Message::FrameEnd {
+            })
+        ),
+        (any::<u32>(), stamp(), any::<u8>()).prop_map(|(frame, t_ctrl_us, samples)| Message::FrameEnd {
             frame,
             t_ctrl_us,
             samples
         }),
         (fault, any::<u32>()).prop_map(|(code, detail)| Message::Fault { code, detail }),
-        (any::<u64>(), state).prop_map(|(t_ctrl_us, state)| Message::Heartbeat { t_ctrl_us, state }),
-        (any::<u16>(), any::<u32>(), any::<u64>()).prop_map(|(request_seq, nonce, t_ctrl_us)| Message::Pong {
+        (stamp(), state).prop_map(|(t_ctrl_us, state)| Message::Heartbeat { t_ctrl_us, state }),
+        (any::<u16>(), any::<u32>(), stamp()).prop_map(|(request_seq, nonce, t_ctrl_us)| Message::Pong {
             request_seq,
             nonce,
             t_ctrl_us
         }),
-        (any::<u16>(), any::<u64>(), any::<u64>()).prop_map(|(request_seq, host_time_us, t_ctrl_us)| {
+        (any::<u16>(), any::<u64>(), stamp()).prop_map(|(request_seq, host_time_us, t_ctrl_us)| {
             Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us }
         }),
     ]

@@ -22,9 +22,10 @@ use flowgate_protocol::psd::{FaultCode, Message, Packet};
 use flowgate_protocol::CanFrame;
 use num_complex::Complex64 as C;
 
+use super::counter_window::{CounterWindow, Verdict};
 use super::input::{Answer, Input};
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
-use super::psd_session::{PsdSession, Sequence, SessionEvent, SetupError};
+use super::psd_session::{PsdSession, SessionEvent, SetupError};
 use super::recording::{ObstacleView, SceneRecord};
 use super::safety::{Action, Safety, State, StopReason};
 use super::telemetry::CycleRecord;
@@ -51,6 +52,12 @@ const BOARD_SEQ_ERRORS_PER_S: u32 = 10;
 /// Transmits an SLCAN adapter may refuse within a second: beyond, the commands are not
 /// reaching the board.
 const TX_REFUSED_PER_S: u32 = 3;
+/// How far a frame counter may lie from the last frame's, either way, and still be judged
+/// against it (a second of frames at 1 kHz); beyond is a jump.
+const FRAME_WINDOW: u32 = 1024;
+/// Consecutive frame counters beyond the window that confirm the controller's counter
+/// really moved.
+const FRAME_CONFIRM: u8 = 3;
 /// A refused transmit asks for the adapter's status, at most this often.
 const STATUS_REPOLL: Duration = Duration::from_millis(10);
 
@@ -163,6 +170,10 @@ pub struct Core<K: StageClock> {
     /// Bad serial frames, and sequence errors, within the last second.
     bad_frames: Budget,
     link_errors: Budget,
+    /// Samples of LEDs the schedule does not have in their slot, and frame counters beyond
+    /// the window, within the last second: each its own named fault beyond the budget.
+    unscheduled: Budget,
+    frame_jumps: Budget,
     /// Sequence errors the board counted (lost or foreign velocity commands).
     board_seq: Budget,
     /// Transmits the SLCAN adapter refused.
@@ -174,8 +185,13 @@ pub struct Core<K: StageClock> {
     enable_retries: u8,
     /// The frame whose samples are being collected, and how many came.
     collecting: Option<(u32, u8)>,
-    /// The last frame that ended.
-    last_frame: Option<u32>,
+    /// The frame counter, against the last frame that ended.
+    frames: CounterWindow,
+    /// When a robot sample was last discarded as stamped in the future (the clock, not the
+    /// robot, is then what went wrong).
+    robot_from_future: Option<HostTime>,
+    /// The PSD session is being configured again for an operator's reset (not a reconnect).
+    rehandshake: bool,
     next_heartbeat: HostTime,
     stopping_since: Option<HostTime>,
     velocity_seq: u8,
@@ -217,13 +233,17 @@ impl<K: StageClock> Core<K> {
             robot_arrived: HostTime::ZERO,
             bad_frames: Budget::new(rig.safety.bad_frames_per_s),
             link_errors: Budget::new(rig.safety.bad_frames_per_s),
+            unscheduled: Budget::new(rig.safety.bad_frames_per_s),
+            frame_jumps: Budget::new(rig.safety.bad_frames_per_s),
             board_seq: Budget::new(BOARD_SEQ_ERRORS_PER_S),
             tx_refused: Budget::new(TX_REFUSED_PER_S),
             status_polled: HostTime::ZERO,
             enable_sent: HostTime::ZERO,
             enable_retries: 0,
             collecting: None,
-            last_frame: None,
+            frames: CounterWindow::new(32, FRAME_WINDOW, FRAME_CONFIRM),
+            robot_from_future: None,
+            rehandshake: false,
             next_heartbeat: HostTime::ZERO,
             stopping_since: None,
             velocity_seq: 0,
@@ -504,6 +524,15 @@ impl<K: StageClock> Core<K> {
                         target: Target::Node(self.rig.node),
                         command: NmtCommand::FaultReset,
                     });
+                    // The PSD session starts afresh: sequence numbers, frame counter and clock
+                    // taken anew, so no baseline a fault left behind outlives the reset.
+                    if !self.psd.is_down() {
+                        let out = &mut self.out;
+                        self.psd.connect(now, &mut |p| out.push_back(Output::Psd(p)));
+                        self.frames.reset();
+                        self.robot_from_future = None;
+                        self.rehandshake = true;
+                    }
                     self.safety.reset(now.secs());
                     self.state_changed(now);
                     Ok(())
@@ -720,9 +749,15 @@ impl<K: StageClock> Core<K> {
         if now >= self.last_sample + s.sample_timeout {
             Some(StopReason::SamplesStopped)
         } else if state == State::Running && now >= self.pose_deadline() {
-            // Named by what the robot's samples were: seen where it cannot be; arriving, but
-            // too old (delay); or not arriving.
-            Some(if self.implausible.is_some() {
+            // Named by the first cause: the line gone quiet; the robot's samples stamped in
+            // the future (the controller's clock jumped); seen where it cannot be; arriving,
+            // but too old (delay); or not arriving.
+            let quiet = now.since(self.last_sample) > 2 * self.rig.sample_period;
+            Some(if quiet {
+                StopReason::SamplesStopped
+            } else if self.robot_from_future.is_some_and(|at| now.since(at) < s.sample_timeout) {
+                StopReason::ClockJumped
+            } else if self.implausible.is_some() {
                 StopReason::PoseImplausible
             } else if now.since(self.robot_arrived) < s.sample_timeout {
                 StopReason::PoseDelayed
@@ -765,18 +800,32 @@ impl<K: StageClock> Core<K> {
             self.psd.forget_sequence(); // a rebooted controller counts from zero
         }
         match self.psd.sequence(packet.seq) {
-            Sequence::Next => true,
-            Sequence::Gap(n) => {
+            Verdict::Next => true,
+            Verdict::Gap(n) => {
                 self.counters.psd_packets_lost += u64::from(n);
                 true
             }
-            Sequence::Repeat => {
+            Verdict::Rebased => {
+                self.counters.psd_seq_rebased += 1;
+                tracing::warn!(
+                    seq = packet.seq,
+                    "PSD controller's sequence numbers moved: following them from {}",
+                    packet.seq
+                );
+                true
+            }
+            Verdict::Repeat => {
                 self.counters.psd_duplicates += 1;
                 self.link_error(now);
                 false
             }
-            Sequence::Old => {
+            Verdict::Old => {
                 self.counters.psd_out_of_order += 1;
+                self.link_error(now);
+                false
+            }
+            Verdict::Jump => {
+                self.counters.psd_seq_jumps += 1;
                 self.link_error(now);
                 false
             }
@@ -796,10 +845,10 @@ impl<K: StageClock> Core<K> {
             }
             SessionEvent::Streaming => {
                 self.last_sample = now;
-                self.last_frame = None;
+                self.frames.reset();
                 self.collecting = None;
                 self.clear_frame();
-                if self.streamed {
+                if self.streamed && !std::mem::take(&mut self.rehandshake) {
                     self.counters.serial_reconnects += 1;
                     self.progress.serial_reconnects = self.counters.serial_reconnects;
                 }
@@ -824,6 +873,24 @@ impl<K: StageClock> Core<K> {
                     self.counters.time_syncs += 1;
                 } else {
                     self.counters.time_syncs_rejected += 1;
+                }
+                return;
+            }
+            SessionEvent::ClockStep { step_us, again } => {
+                self.counters.time_syncs_implausible += 1;
+                if again {
+                    tracing::error!(
+                        step_us,
+                        "PSD controller's clock jumped by {step_us} µs (confirmed by a second sync)"
+                    );
+                    if is_active(self.state()) {
+                        self.stop(now, StopReason::ClockJumped);
+                    }
+                } else {
+                    tracing::warn!(
+                        step_us,
+                        "time sync refused: the controller's clock moved {step_us} µs, beyond drift; checking again"
+                    );
                 }
                 return;
             }
@@ -875,7 +942,9 @@ impl<K: StageClock> Core<K> {
         let scheduled = self.rig.schedule.slots().get(usize::from(s.slot)).is_some_and(|slot| slot.led == s.led);
         if !scheduled {
             self.counters.samples_unscheduled += 1;
-            self.link_error(now);
+            if self.unscheduled.exceeded(now) && is_active(self.state()) {
+                self.stop(now, StopReason::UnscheduledLed { led: s.led });
+            }
             return;
         }
         match self.collecting {
@@ -900,14 +969,27 @@ impl<K: StageClock> Core<K> {
     /// A frame's end: whether to run its cycle. A frame already done is discarded (no
     /// second command from it); samples of another frame are dropped; gaps are counted.
     fn frame_end(&mut self, now: HostTime, frame: u32, samples: u8) -> bool {
-        let behind = self.last_frame.map(|last| frame.wrapping_sub(last));
-        if behind.is_some_and(|d| d == 0 || d >= 0x8000_0000) {
-            self.counters.frames_repeated += 1;
-            self.link_error(now);
-            return false;
-        }
-        if let Some(d) = behind.filter(|&d| d > 1) {
-            self.counters.frames_lost += u64::from(d - 1);
+        match self.frames.check(frame) {
+            Verdict::Next => {}
+            Verdict::Gap(n) => self.counters.frames_lost += u64::from(n),
+            Verdict::Rebased => {
+                self.counters.frames_rebased += 1;
+                tracing::warn!(frame, "PSD controller's frame counter moved: following it from {frame}");
+            }
+            Verdict::Repeat | Verdict::Old => {
+                self.counters.frames_repeated += 1;
+                self.link_error(now);
+                self.drop_collected(frame);
+                return false;
+            }
+            Verdict::Jump => {
+                self.counters.frames_jumped += 1;
+                if self.frame_jumps.exceeded(now) && is_active(self.state()) {
+                    self.stop(now, StopReason::FrameCounterJump);
+                }
+                self.drop_collected(frame);
+                return false;
+            }
         }
         let received = match self.collecting.take() {
             Some((f, n)) if f == frame => n,
@@ -921,8 +1003,15 @@ impl<K: StageClock> Core<K> {
         if received != samples {
             self.counters.frames_incomplete += 1;
         }
-        self.last_frame = Some(frame);
         true
+    }
+
+    /// A discarded frame's samples go with it (they must not join the next frame).
+    fn drop_collected(&mut self, frame: u32) {
+        if self.collecting.is_some_and(|(f, _)| f == frame) {
+            self.collecting = None;
+            self.clear_frame();
+        }
     }
 
     /// Forget the scheduled LEDs' samples.
@@ -1085,6 +1174,9 @@ impl<K: StageClock> Core<K> {
             if entry.is_some_and(|s| clock.to_host(s.at) > latest) {
                 *entry = None;
                 self.counters.samples_from_future += 1;
+                if slot.led == self.rig.robot_front || slot.led == self.rig.robot_rear {
+                    self.robot_from_future = Some(now);
+                }
             }
         }
         let cal = &self.rig.calibration;

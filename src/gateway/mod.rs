@@ -15,6 +15,7 @@
 
 pub mod control_socket;
 pub mod core;
+pub mod counter_window;
 pub mod http;
 pub mod input;
 pub mod low_latency;
@@ -144,6 +145,16 @@ pub struct Counters {
     /// Obstacle tracks dropped because the obstacle was seen leaving the calibrated arena
     /// (its filter's prediction beyond the view's edge once unseen).
     pub obstacles_left_view: u64,
+    /// PSD packets whose sequence number lay beyond the window (discarded: a suspicious
+    /// jump), and runs of them that confirmed the controller's numbering moved (followed).
+    pub psd_seq_jumps: u64,
+    pub psd_seq_rebased: u64,
+    /// Frames whose counter lay beyond the window (discarded), and runs that confirmed the
+    /// counter moved (followed).
+    pub frames_jumped: u64,
+    pub frames_rebased: u64,
+    /// Time syncs refused because the controller's clock moved further than drift allows.
+    pub time_syncs_implausible: u64,
     /// Obstacles that came into view and got a track (each first sighting, and each return
     /// after leaving).
     pub obstacles_entered_view: u64,

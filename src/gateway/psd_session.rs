@@ -10,6 +10,7 @@ use flowgate_protocol::codec::{PsdCodec, StreamError};
 use flowgate_protocol::psd::{self, Info, Message, NackReason, Packet, Schedule};
 use tokio_util::codec::Decoder as _;
 
+use super::counter_window::{CounterWindow, Verdict};
 use crate::time::{ClockOffset, CtrlTime, HostTime};
 
 /// How long a request waits for its answer before it is sent again.
@@ -24,6 +25,19 @@ pub const MAX_RTT: Duration = Duration::from_millis(10);
 /// How long the clock offset may go without a good sync while streaming: five resyncs in a
 /// row rejected (at 1000 ppm the clocks part by 5 ms meanwhile).
 pub const SYNC_STALE: Duration = Duration::from_secs(5);
+/// How fast the controller's clock may drift from the host's (the protocol's bound), ppm: a
+/// sync whose offset moved further over the interval, beyond the round trips' uncertainty,
+/// is a clock step, not drift.
+pub const MAX_DRIFT_PPM: u64 = 1000;
+/// After a refused step the clock is synced again this soon, to tell one odd reply from a
+/// clock that really jumped.
+pub const STEP_RECHECK: Duration = Duration::from_millis(20);
+/// How far a packet's sequence number may lie from the last one's, either way, and still be
+/// judged against it (a second of packets at 1 kHz with four LEDs); beyond is a jump.
+pub const SEQ_WINDOW: u32 = 1024;
+/// Consecutive sequence numbers beyond the window that confirm the controller's counter
+/// really moved.
+pub const SEQ_CONFIRM: u8 = 4;
 /// Bytes held for decoding: a few frames (the shell reads at most 1 KiB at a time).
 const BUFFER: usize = 4096;
 
@@ -85,19 +99,10 @@ pub enum SessionEvent {
     Pass,
     /// A periodic time sync came back: taken, or discarded for its round trip.
     Resynced { accepted: bool },
-}
-
-/// Where a packet's sequence number falls, against the last one accepted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Sequence {
-    /// The next one.
-    Next,
-    /// Ahead: this many packets were lost in between (accepted).
-    Gap(u16),
-    /// The same again: a duplicate (discarded).
-    Repeat,
-    /// Behind: a replay or a reordering (discarded).
-    Old,
+    /// A periodic time sync put the controller's clock further from the last offset than
+    /// drift allows: refused, and checked again at once. `again`: the recheck found the
+    /// step too, so the controller's clock really jumped.
+    ClockStep { step_us: i64, again: bool },
 }
 
 /// The session.
@@ -112,8 +117,8 @@ pub struct PsdSession {
     phase: Phase,
     offset: ClockOffset,
     info: Option<Info>,
-    /// The controller's last accepted sequence number.
-    last_seq: Option<u16>,
+    /// The controller's sequence numbers, against the last accepted.
+    incoming: CounterWindow,
     /// While streaming: when to sync the clock again, and the sync in flight (sent at).
     next_resync: HostTime,
     resync: Option<(u16, HostTime)>,
@@ -121,6 +126,10 @@ pub struct PsdSession {
     synced_at: HostTime,
     /// The last time sync's round trip (taken or not).
     round_trip: Option<Duration>,
+    /// The round trip the offset was taken from.
+    offset_round_trip: Duration,
+    /// The last periodic sync found a step (refused).
+    stepped: bool,
 }
 
 impl PsdSession {
@@ -134,18 +143,20 @@ impl PsdSession {
             phase: Phase::Down,
             offset: ClockOffset::default(),
             info: None,
-            last_seq: None,
+            incoming: CounterWindow::new(16, SEQ_WINDOW, SEQ_CONFIRM),
             next_resync: HostTime::NEVER,
             resync: None,
             synced_at: HostTime::ZERO,
             round_trip: None,
+            offset_round_trip: Duration::ZERO,
+            stepped: false,
         }
     }
 
     /// The line is open: stop any stream left running and start the handshake.
     pub fn connect(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
         self.buf.clear();
-        self.last_seq = None;
+        self.incoming.reset();
         self.codec = PsdCodec::new();
         send(self.packet(Message::StopStream));
         self.request(now, Step::Info, 1, send);
@@ -155,7 +166,7 @@ impl PsdSession {
     /// again from the schedule on.
     /// Returns whether it had been streaming (a reset in the middle of a run).
     pub fn restart(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) -> bool {
-        self.last_seq = None;
+        self.incoming.reset();
         let was_streaming = self.phase == Phase::Streaming;
         if self.phase != Phase::Down {
             self.request(now, Step::Schedule, 1, send);
@@ -216,22 +227,12 @@ impl PsdSession {
 
     /// Accept whatever sequence number comes next (a controller that rebooted).
     pub fn forget_sequence(&mut self) {
-        self.last_seq = None;
+        self.incoming.reset();
     }
 
-    /// Check a packet's sequence number; the next, or one after a gap, becomes the last.
-    /// Half the number space ahead counts as ahead, the other half as behind.
-    pub fn sequence(&mut self, seq: u16) -> Sequence {
-        let verdict = match self.last_seq.map(|last| seq.wrapping_sub(last)) {
-            None | Some(1) => Sequence::Next,
-            Some(0) => Sequence::Repeat,
-            Some(d) if d < 0x8000 => Sequence::Gap(d - 1),
-            Some(_) => Sequence::Old,
-        };
-        if matches!(verdict, Sequence::Next | Sequence::Gap(_)) {
-            self.last_seq = Some(seq);
-        }
-        verdict
+    /// Check a packet's sequence number against the window ([`CounterWindow`]).
+    pub fn sequence(&mut self, seq: u16) -> Verdict {
+        self.incoming.check(u32::from(seq))
     }
 
     /// Bytes read from the line.
@@ -285,13 +286,23 @@ impl PsdSession {
         {
             if request_seq == seq && host_time_us == sent.as_nanos() / 1000 {
                 self.resync = None;
-                self.round_trip = Some(now.since(sent));
-                let accepted = now.since(sent) <= MAX_RTT;
-                if accepted {
-                    self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
-                    self.synced_at = now;
+                let rtt = now.since(sent);
+                self.round_trip = Some(rtt);
+                if rtt > MAX_RTT {
+                    return SessionEvent::Resynced { accepted: false };
                 }
-                return SessionEvent::Resynced { accepted };
+                let offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+                let step_ns = offset.as_nanos() - self.offset.as_nanos();
+                if step_ns.unsigned_abs() > self.step_bound_ns(now, rtt) {
+                    let again = std::mem::replace(&mut self.stepped, true);
+                    self.next_resync = now + STEP_RECHECK;
+                    let step_us =
+                        i64::try_from(step_ns / 1000).unwrap_or(if step_ns < 0 { i64::MIN } else { i64::MAX });
+                    return SessionEvent::ClockStep { step_us, again };
+                }
+                self.stepped = false;
+                self.take_offset(offset, now, rtt);
+                return SessionEvent::Resynced { accepted: true };
             }
         }
         let Phase::Setup { step, seq, sent, .. } = self.phase else { return SessionEvent::Pass };
@@ -319,9 +330,12 @@ impl PsdSession {
             (Step::TimeSync, Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us })
                 if request_seq == seq && host_time_us == sent.as_nanos() / 1000 =>
             {
-                self.offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
-                self.synced_at = now;
-                self.round_trip = Some(now.since(sent));
+                // The handshake's sync sets the clock afresh (a new session, or a controller
+                // that rebooted): nothing to judge it against.
+                let rtt = now.since(sent);
+                self.round_trip = Some(rtt);
+                self.stepped = false;
+                self.take_offset(ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now), now, rtt);
                 Step::Start
             }
             (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {
@@ -341,6 +355,20 @@ impl PsdSession {
         };
         self.request(now, next, 1, send);
         SessionEvent::Consumed
+    }
+
+    fn take_offset(&mut self, offset: ClockOffset, now: HostTime, rtt: Duration) {
+        self.offset = offset;
+        self.synced_at = now;
+        self.offset_round_trip = rtt;
+    }
+
+    /// How far a sync at `now` with round trip `rtt` may move the offset: the drift bound
+    /// over the time since the offset was taken, plus half of each round trip (either
+    /// stamp may lie anywhere within its own), plus a microsecond of each stamp's rounding.
+    fn step_bound_ns(&self, now: HostTime, rtt: Duration) -> u128 {
+        let drift = now.since(self.synced_at).as_nanos() * u128::from(MAX_DRIFT_PPM) / 1_000_000;
+        drift + (rtt.as_nanos() + self.offset_round_trip.as_nanos()) / 2 + 2_000
     }
 
     fn request(&mut self, now: HostTime, step: Step, tries: u8, send: &mut impl FnMut(Packet)) {

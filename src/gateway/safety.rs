@@ -32,8 +32,19 @@ pub enum StopReason {
     PoseDelayed,
     SamplesStopped,
     SerialGarbled,
-    /// Duplicated, replayed, reordered or unscheduled PSD packets beyond budget.
+    /// Duplicated, replayed, reordered or far-jumped PSD packets beyond budget.
     PsdSequence,
+    /// Samples of an LED the schedule does not have in that slot beyond budget (the last
+    /// one's LED named).
+    UnscheduledLed {
+        led: u8,
+    },
+    /// Frame counters beyond the window (jumps, not a run that confirms a new count) beyond
+    /// budget.
+    FrameCounterJump,
+    /// The controller's clock stepped beyond drift, confirmed by a second sync, or the
+    /// robot's samples came stamped in the future.
+    ClockJumped,
     /// The PSD controller reported a fault (an LED driver, ambient saturation, internal).
     ControllerFault,
     /// The PSD controller rebooted while the gateway was driving on it.
@@ -123,6 +134,11 @@ impl std::fmt::Display for StopReason {
             Self::SamplesStopped => "no samples from the PSD controller",
             Self::SerialGarbled => "garbled serial frames beyond budget",
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
+            Self::UnscheduledLed { led } => {
+                return write!(f, "samples of LED {led}, not in the schedule's slot, beyond budget")
+            }
+            Self::FrameCounterJump => "PSD frame counter jumped beyond its window, beyond budget",
+            Self::ClockJumped => "PSD controller's clock jumped (beyond the 1000 ppm drift bound)",
             Self::ControllerFault => "the PSD controller reports a fault",
             Self::ControllerReset => "the PSD controller rebooted",
             Self::SerialLost => "serial device lost",

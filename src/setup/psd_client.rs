@@ -11,7 +11,8 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{timeout_at, Instant};
 
 use crate::config::SerialConfig;
-use crate::gateway::psd_session::{PsdSession, Sequence, SessionEvent, RETRY_AFTER, TRIES};
+use crate::gateway::counter_window::Verdict;
+use crate::gateway::psd_session::{PsdSession, SessionEvent, RETRY_AFTER, TRIES};
 use crate::gateway::SetupError;
 use crate::link::{open_serial, SerialError};
 use crate::time::HostTime;
@@ -187,9 +188,9 @@ impl PsdClient {
                 continue;
             }
             match self.session.sequence(packet.seq) {
-                Sequence::Next => {}
-                Sequence::Gap(n) => self.tally.lost += u64::from(n),
-                Sequence::Repeat | Sequence::Old => {
+                Verdict::Next | Verdict::Rebased => {}
+                Verdict::Gap(n) => self.tally.lost += u64::from(n),
+                Verdict::Repeat | Verdict::Old | Verdict::Jump => {
                     self.tally.discarded += 1;
                     continue;
                 }
