@@ -531,6 +531,23 @@ fn render(rows: &[(Row, [String; 2])]) -> String {
     out
 }
 
+/// A silent line is named for the samples whatever the watchdogs' order: with the sample
+/// and pose watchdogs equal (80 ms, under a 100 ms board timeout), the pose's fires first,
+/// and is named by the first cause, the line gone quiet, not the pose's delay.
+#[test]
+fn a_silent_line_is_named_for_its_samples_whatever_the_watchdogs() {
+    let mut s =
+        Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    s.faults = s.faults.with_settings(&["serial_silence=[2.0, 2.5]".to_string()]).unwrap();
+    let adjust = |rig: &mut flowgate::config::Rig| {
+        rig.safety.sample_timeout = std::time::Duration::from_millis(80);
+        rig.safety.pose_timeout = std::time::Duration::from_millis(80);
+        rig.board.command_timeout_ms = 100;
+    };
+    let e = sim::run(&s, Options { adjust_rig: Some(adjust), ..Options::default() });
+    assert_eq!(e.report.final_state, State::Fault(StopReason::SamplesStopped), "{}", e.report);
+}
+
 #[test]
 fn every_fault_of_the_table_is_detected_named_and_stopped_in_budget() {
     let mut failures = Vec::new();

@@ -378,6 +378,7 @@ impl<K: StageClock> Core<K> {
     /// The PSD line failed (read error, end of file, write timeout): a serial fault.
     pub fn psd_lost(&mut self, now: HostTime) {
         self.psd.down();
+        self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
         self.stop(now, StopReason::SerialLost);
     }
 
@@ -405,6 +406,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
+        self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
     }
 
     /// A CAN event at `now`.
@@ -777,9 +779,6 @@ impl<K: StageClock> Core<K> {
 
     fn bad_frame(&mut self, now: HostTime, e: StreamError<flowgate_protocol::psd::Error>) {
         self.counters.bad_serial_frames += 1;
-        if let StreamError::Overlong { dropped } = e {
-            self.counters.serial_dropped_bytes += dropped as u64;
-        }
         tracing::debug!("bad serial frame: {e}");
         if self.bad_frames.exceeded(now) && is_active(self.state()) {
             self.stop(now, StopReason::SerialGarbled);
@@ -1428,6 +1427,28 @@ mod tests {
             "obstacle LED 4 is required (leds.obstacles[1].required) and has not been seen"
         );
         assert_eq!(c.state(), State::Idle);
+    }
+
+    /// Every byte thrown away is counted: a whole megabyte with no delimiter (and the
+    /// delimiter that ends it), a garbled frame's bytes with its delimiter.
+    #[test]
+    fn every_discarded_byte_is_counted() {
+        let mut c = core();
+        c.psd_connected(ms(0));
+        let mut run = vec![0x55u8; 1 << 20];
+        run.push(0);
+        for chunk in run.chunks(1024) {
+            c.psd_bytes(ms(1), chunk);
+        }
+        assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1);
+        assert_eq!(c.counters().bad_serial_frames, 1);
+        let mut garbled =
+            bytes(Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Streaming });
+        let i = garbled.len() - 3;
+        garbled[i] ^= if garbled[i] == 0x80 { 0x40 } else { 0x80 };
+        c.psd_bytes(ms(2), &garbled);
+        assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1 + garbled.len() as u64);
+        assert_eq!(c.counters().bad_serial_frames, 2);
     }
 
     fn ms(v: u64) -> HostTime {

@@ -111,6 +111,8 @@ pub struct Counters {
     /// Robot poses discarded: LEDs off their mounted spacing, or further than the robot can go.
     pub poses_implausible: u64,
     pub bad_serial_frames: u64,
+    /// Every byte from the PSD line thrown away: bad frames with their delimiters, runs with
+    /// no delimiter, bytes left undecoded when the line closed.
     pub serial_dropped_bytes: u64,
     pub serial_reconnects: u64,
     pub can_frames_in: u64,

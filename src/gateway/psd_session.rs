@@ -130,6 +130,9 @@ pub struct PsdSession {
     offset_round_trip: Duration,
     /// The last periodic sync found a step (refused).
     stepped: bool,
+    /// Bytes thrown away before the current decoder (its own count starts at zero), and
+    /// bytes still buffered when a session ended.
+    dropped_before: u64,
 }
 
 impl PsdSession {
@@ -150,12 +153,14 @@ impl PsdSession {
             round_trip: None,
             offset_round_trip: Duration::ZERO,
             stepped: false,
+            dropped_before: 0,
         }
     }
 
     /// The line is open: stop any stream left running and start the handshake.
     pub fn connect(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
-        self.buf.clear();
+        self.discard_buffer();
+        self.dropped_before += self.codec.stats().dropped_bytes;
         self.incoming.reset();
         self.codec = PsdCodec::new();
         send(self.packet(Message::StopStream));
@@ -183,7 +188,19 @@ impl PsdSession {
     /// The line is gone.
     pub fn down(&mut self) {
         self.phase = Phase::Down;
+        self.discard_buffer();
+    }
+
+    /// Bytes received and not decoded are thrown away, and counted.
+    fn discard_buffer(&mut self) {
+        self.dropped_before += self.buf.len() as u64;
         self.buf.clear();
+    }
+
+    /// Every byte received and thrown away so far: bad frames with their delimiters, runs
+    /// with no delimiter, bytes left undecoded when a session ended.
+    pub fn dropped_bytes(&self) -> u64 {
+        self.dropped_before + self.codec.stats().dropped_bytes
     }
 
     pub fn is_streaming(&self) -> bool {

@@ -61,6 +61,8 @@ pub struct Options {
     pub wait_for_operator: bool,
     /// How the gateway reaches the CAN bus.
     pub can: CanTransport,
+    /// Settings of the gateway's rig beyond what the scenario implies (a test's watchdogs).
+    pub adjust_rig: Option<fn(&mut crate::config::Rig)>,
 }
 
 /// The gateway's CAN link in the virtual rig.
@@ -338,15 +340,16 @@ impl<K: StageClock> VirtualRig<K> {
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
         board.boot(0.0, &mut world, &mut can_out);
+        let mut gateway_rig = match options.can {
+            CanTransport::Slcan => scenario.rig(),
+            CanTransport::SocketCan => scenario.rig_on("socketcan:vcan0"),
+        };
+        if let Some(adjust) = options.adjust_rig {
+            adjust(&mut gateway_rig);
+        }
         let mut rig = Self {
             t: 0,
-            core: Core::new(
-                match options.can {
-                    CanTransport::Slcan => scenario.rig(),
-                    CanTransport::SocketCan => scenario.rig_on("socketcan:vcan0"),
-                },
-                clock,
-            ),
+            core: Core::new(gateway_rig, clock),
             serial_faults: SerialFaults::new(&plan),
             can_faults: CanFaults::new(&plan),
             bursts: plan.serial_burst_at.iter().copied().collect(),
