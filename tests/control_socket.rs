@@ -256,6 +256,11 @@ async fn the_readme_operator_session_reaches_its_goals() {
     await_line(&out, "state: stopped: goal reached", &mut seen);
     let (_, done) = ctl(&["status"]);
     assert!(done.contains("state      stopped: goal reached") && done.contains("goals      -"), "{done}");
+    // `ctl status | true`: ended quietly, never a panic.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let closed = flowgate().args(["ctl", "--config"]).arg(&config).arg("status").stdout(writer).output().unwrap();
+    assert_eq!(closed.status.code(), Some(141), "{}", String::from_utf8_lossy(&closed.stderr));
     assert!(!seen.iter().any(|l| l.contains("fault")), "{seen:#?}");
 
     let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();

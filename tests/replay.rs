@@ -58,6 +58,15 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     assert!(text.contains("identical, byte for byte"), "{text}");
     assert!(text.contains("final state stopped: goal reached"), "{text}");
     let frames = figure(&text, "CAN frames", "recorded");
+    // Its output into a closed pipe (`| head -1`): ended quietly, never a panic.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let closed = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["replay", mcap.to_str().unwrap()])
+        .stdout(writer)
+        .output()
+        .unwrap();
+    assert_eq!(closed.status.code(), Some(141), "{}", String::from_utf8_lossy(&closed.stderr));
     assert!(frames > 400.0, "{text}");
     let speedup = figure(&text, "replayed", "x real time");
     assert!(speedup >= 50.0, "replay at {speedup}x real time:\n{text}");

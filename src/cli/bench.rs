@@ -1,5 +1,6 @@
 //! `flowgate bench`: gateway-added latency against the wire, sustained rate, CPU and memory.
 
+use crate::cli::say;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
@@ -102,9 +103,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let report = runtime.block_on(flowgate::lab::bench::run(&exe, &transport, &phases, &args.out))?;
-    println!("{report}");
+    say!("{report}");
     let path = args.out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
-    println!("wrote {}", path.display());
+    say!("wrote {}", path.display());
     Ok(())
 }

@@ -1,6 +1,7 @@
 //! `flowgate check --config rig.toml`: the preflight. Moves nothing; prints a PASS/FAIL
 //! table and exits non-zero when any line failed.
 
+use crate::cli::say;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -17,7 +18,7 @@ pub struct CheckArgs {
 pub fn run(args: CheckArgs) -> Result<bool> {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let report = runtime.block_on(flowgate::setup::check::check(&args.config));
-    println!("flowgate check: {}", args.config.display());
-    println!("{report}");
+    say!("flowgate check: {}", args.config.display());
+    say!("{report}");
     Ok(report.failures() == 0)
 }

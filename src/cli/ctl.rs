@@ -3,6 +3,7 @@
 //! One JSON request per line, one reply per line (src/gateway/operator.rs). The exit status
 //! is non-zero when the gateway refuses, with its reason.
 
+use crate::cli::{say, say_raw};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::PathBuf;
@@ -117,7 +118,7 @@ pub fn run(args: CtlArgs) -> Result<()> {
     BufReader::new(&stream).read_line(&mut reply).context("reading the gateway's reply")?;
     let value: serde_json::Value = serde_json::from_str(&reply).context("the gateway's reply is not JSON")?;
     if args.json {
-        println!("{}", reply.trim_end());
+        say!("{}", reply.trim_end());
     } else {
         print_reply(&value);
     }
@@ -130,31 +131,31 @@ pub fn run(args: CtlArgs) -> Result<()> {
 fn print_reply(v: &serde_json::Value) {
     let Some(s) = v.get("status").filter(|s| !s.is_null()) else {
         if v["ok"] == serde_json::Value::Bool(true) {
-            println!("ok");
+            say!("ok");
         }
         return;
     };
-    println!("state      {}", s["state"].as_str().unwrap_or("?"));
-    println!("last stop  {}", s["last_stop"].as_str().unwrap_or("-"));
+    say!("state      {}", s["state"].as_str().unwrap_or("?"));
+    say!("last stop  {}", s["last_stop"].as_str().unwrap_or("-"));
     let goals: Vec<String> = s["goals"]
         .as_array()
         .into_iter()
         .flatten()
         .map(|g| format!("({}, {})", g["position"][0], g["position"][1]))
         .collect();
-    println!("goals      {}", if goals.is_empty() { "-".into() } else { goals.join(" then ") });
+    say!("goals      {}", if goals.is_empty() { "-".into() } else { goals.join(" then ") });
     match s["pose"].as_array() {
-        Some(p) => println!(
+        Some(p) => say!(
             "pose       x {:.3} m  y {:.3} m  heading {:.1}°",
             p[0].as_f64().unwrap_or(f64::NAN),
             p[1].as_f64().unwrap_or(f64::NAN),
             p[2].as_f64().unwrap_or(f64::NAN).to_degrees()
         ),
-        None => println!("pose       -"),
+        None => say!("pose       -"),
     }
     for o in s["obstacles"].as_array().into_iter().flatten() {
         let seen = if o["occluded"].as_bool() == Some(true) { "occluded, last seen" } else { "at" };
-        println!(
+        say!(
             "obstacle LED {} {seen} ({:.3}, {:.3}) m, velocity ({:.3}, {:.3}) m/s, planning radius {:.3} m",
             o["led"],
             o["position"][0].as_f64().unwrap_or(f64::NAN),
@@ -166,11 +167,11 @@ fn print_reply(v: &serde_json::Value) {
     }
     let absent: Vec<String> = s["absent"].as_array().into_iter().flatten().map(|l| format!("LED {l}")).collect();
     if !absent.is_empty() {
-        println!("not in view {}", absent.join(", "));
+        say!("not in view {}", absent.join(", "));
     }
-    println!("cycles     {}", s["cycles"]);
+    say!("cycles     {}", s["cycles"]);
     if let Some(l) = s.get("latency_us").filter(|l| !l.is_null()) {
-        println!(
+        say!(
             "latency    p50 {:.0} µs  p99 {:.0} µs  max {:.0} µs   (serial read -> CAN write done)",
             l["p50_us"].as_f64().unwrap_or(f64::NAN),
             l["p99_us"].as_f64().unwrap_or(f64::NAN),
@@ -181,6 +182,6 @@ fn print_reply(v: &serde_json::Value) {
     if let Some(stages) = stages {
         let mut table = String::new();
         let _ = write_stage_table(&mut table, &stages, "stages (µs) ");
-        print!("{table}");
+        say_raw!("{table}");
     }
 }

@@ -1,5 +1,6 @@
 //! `flowgate demo`: the simulator and the gateway together, no hardware.
 
+use crate::cli::say;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -33,9 +34,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = std::fs::canonicalize(&args.out)?;
-    println!("flowgate demo: {} (simulator + gateway over ptys, CAN {})", scenario.name, args.can);
+    say!("flowgate demo: {} (simulator + gateway over ptys, CAN {})", scenario.name, args.can);
     if let Some(addr) = args.view {
-        println!("live view      http://{addr}/ (read-only; it ends with the run)");
+        say!("live view      http://{addr}/ (read-only; it ends with the run)");
     }
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let run = runtime.block_on(demo::run(
@@ -43,7 +44,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         &args.can,
         demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view },
         |p| {
-            println!(
+            say!(
                 "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
                 p.t,
                 p.state.name(),
@@ -55,8 +56,8 @@ pub fn run(args: DemoArgs) -> Result<()> {
         },
     ))?;
     let t = &run.truth.summary;
-    println!();
-    println!(
+    say!();
+    say!(
         "outcome          {}",
         if run.contact {
             "COLLISION"
@@ -66,13 +67,13 @@ pub fn run(args: DemoArgs) -> Result<()> {
             "goal not reached"
         }
     );
-    println!(
+    say!(
         "world truth      min clearance {} , path {:.3} m, {:.1} s",
         t.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1} mm", c * 1e3)),
         t.path_length,
         t.duration
     );
-    println!("{}", run.report);
+    say!("{}", run.report);
     // The trajectory from the world's truth.
     let trace: Vec<offline::TraceRow> = run
         .truth
@@ -100,12 +101,12 @@ pub fn run(args: DemoArgs) -> Result<()> {
     std::fs::write(out.join("trajectory.svg"), flowgate::lab::report::trajectory_svg(&scenario, &live))?;
     run.truth.write(&out.join("truth.json"))?;
     std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;
-    println!(
+    say!(
         "\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.log,truth.json,report.json}}",
         out.display()
     );
     if let Some(rec) = &run.report.files.recording {
-        println!(
+        say!(
             "recorded {} ({} inputs, {} cycles): flowgate replay {} plays it back",
             args.record.as_ref().map_or(String::new(), |p| p.display().to_string()),
             rec.inputs,

@@ -1,24 +1,12 @@
 //! `flowgate plan`: the offline scenario runner.
 
+use crate::cli::say;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use flowgate::lab::offline::{self, sweep, Mode};
 use flowgate::lab::{report, sim, Scenario};
-
-/// Print a line; a closed stdout (`| head`) ends the command quietly instead of panicking.
-macro_rules! say {
-    ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        if let Err(e) = writeln!(std::io::stdout().lock(), $($arg)*) {
-            if e.kind() == std::io::ErrorKind::BrokenPipe {
-                std::process::exit(0);
-            }
-            return Err(e.into());
-        }
-    }};
-}
 
 #[derive(Args, Debug)]
 pub struct PlanArgs {

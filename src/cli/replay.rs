@@ -3,6 +3,7 @@
 //! (exit status 1 if not); with `--config` or `--set` it is a what-if, and reports how the
 //! commands and the paths they drive differ (and draws them).
 
+use crate::cli::{say, say_raw};
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -34,22 +35,22 @@ pub struct ReplayArgs {
 pub fn run(args: ReplayArgs) -> Result<bool> {
     let recording = Recording::read(&args.recording)?;
     if args.print_config {
-        print!("{}", recording.config_toml);
+        say_raw!("{}", recording.config_toml);
         return Ok(true);
     }
     let duration = recording.duration();
-    println!("recording    {}: {} inputs over {:.1} s", args.recording.display(), recording.inputs.len(), duration);
+    say!("recording    {}: {} inputs over {:.1} s", args.recording.display(), recording.inputs.len(), duration);
     match (&recording.end, &recording.truncated) {
-        (_, Some(why)) => println!("             cut short ({why}): replaying what was read"),
-        (None, None) => println!("             not closed (the gateway did not end it): replaying what was read"),
-        (Some((taken, dropped)), None) if !recording.is_whole() => println!(
+        (_, Some(why)) => say!("             cut short ({why}): replaying what was read"),
+        (None, None) => say!("             not closed (the gateway did not end it): replaying what was read"),
+        (Some((taken, dropped)), None) if !recording.is_whole() => say!(
             "             incomplete: the gateway took {taken} inputs, {} are here ({dropped} records dropped by a full queue)",
             recording.inputs.len()
         ),
-        _ => println!("             whole: every input the gateway took"),
+        _ => say!("             whole: every input the gateway took"),
     }
     if recording.inputs.is_empty() {
-        println!("             no inputs: nothing to replay");
+        say!("             no inputs: nothing to replay");
         return Ok(false);
     }
     let what_if = args.config.is_some() || !args.set.is_empty();
@@ -68,7 +69,7 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
     let recorded = replay::run(recording.config()?.rig("the recorded configuration")?, &recording.inputs);
     let replayed = if what_if { replay::run(rig, &recording.inputs) } else { recorded.clone() };
     let speedup = if replayed.elapsed > 0.0 { duration / replayed.elapsed } else { f64::INFINITY };
-    println!(
+    say!(
         "replayed     in {:.1} ms of CPU, {:.0}x real time; final state {}",
         replayed.elapsed * 1e3,
         speedup,
@@ -85,19 +86,16 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
         let (sent, again) = if whole {
             (&recording.can_sent[..], &replayed.can[..])
         } else {
-            println!("             the recording is not whole: comparing the first {common} frames");
+            say!("             the recording is not whole: comparing the first {common} frames");
             (&recording.can_sent[..common], &replayed.can[..common])
         };
         return Ok(match replay::first_difference(sent, again) {
             None => {
-                println!(
-                    "CAN frames   {n} recorded{unwritten}, {} replayed: identical, byte for byte",
-                    replayed.can.len()
-                );
+                say!("CAN frames   {n} recorded{unwritten}, {} replayed: identical, byte for byte", replayed.can.len());
                 true
             }
             Some(d) => {
-                println!(
+                say!(
                     "CAN frames   {n} recorded, {} replayed: DIFFER at frame {}: recorded {}, replayed {}",
                     replayed.can.len(),
                     d.index,
@@ -116,15 +114,15 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
     let path_a = replay::dead_reckon(&recorded.commands, start, heading, pulses_per_metre, wheel_base);
     let path_b = replay::dead_reckon(&replayed.commands, start, heading, pulses_per_metre, wheel_base);
     let diff = replay::diff_commands(&recorded.commands, &replayed.commands, (&path_a, &path_b), first.t);
-    println!(
+    say!(
         "commands     {} recorded, {} what-if; {} differ{}",
         diff.recorded_commands,
         diff.replayed_commands,
         diff.differing,
         diff.first_differs_at.map_or(String::new(), |t| format!(", the first at {t:.3} s"))
     );
-    println!("             largest wheel difference {} pulses/s", diff.max_pulse_difference);
-    println!(
+    say!("             largest wheel difference {} pulses/s", diff.max_pulse_difference);
+    say!(
         "paths        dead-reckoned from the commands: {:.1} mm apart at most, {:.1} mm at the end",
         diff.max_path_gap * 1e3,
         diff.end_gap * 1e3
@@ -140,6 +138,6 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
         args.recording.with_file_name(format!("{stem}-whatif.svg"))
     });
     std::fs::write(&svg_path, svg).with_context(|| format!("writing {}", svg_path.display()))?;
-    println!("             drawn in {}", svg_path.display());
+    say!("             drawn in {}", svg_path.display());
     Ok(true)
 }

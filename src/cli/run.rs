@@ -88,7 +88,8 @@ pub fn run(args: RunArgs) -> Result<()> {
     })
 }
 
-/// Print a line; a closed stdout must never take the gateway down with it.
+/// Print a line; a closed stdout must never take the gateway down with it (unlike the
+/// other commands' `say!`, which end at a closed stdout).
 fn say(line: &str) {
     use std::io::Write as _;
     let _ = writeln!(std::io::stdout().lock(), "{line}");
