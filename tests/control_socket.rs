@@ -182,12 +182,17 @@ async fn an_operator_session_over_the_control_socket() {
     assert!((end[0] - 0.35).hypot(end[1] - 0.05) < 0.03, "{end:?}");
     assert!(truth.summary.first_contact.is_none());
     // Who asked what, in the telemetry.
-    let events = std::fs::read_to_string(dir.join("telemetry/events.log")).unwrap();
+    let events = std::fs::read_to_string(dir.join("telemetry/latest/events.jsonl")).unwrap();
     assert!(events.contains("uid 0") || events.contains("uid "), "{events}");
     assert!(events.contains("Start accepted") && events.contains("refused: not armed"), "{events}");
+    // One JSON object a line.
+    for line in events.lines() {
+        let event: serde_json::Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {line}"));
+        assert!(event["t_s"].is_f64() && event["text"].is_string(), "{line}");
+    }
     // The run's report covers the whole run, whatever windows the operator started.
     let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("telemetry/report.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.join("telemetry/latest/report.json")).unwrap()).unwrap();
     assert!(report["counters"]["cycles"].as_u64().unwrap() > 0, "{report}");
     assert!(report["stages"].as_array().unwrap().iter().all(|s| s["max_us"].as_f64().unwrap() > 0.0), "{report}");
     assert!(!socket.exists(), "the socket is removed at exit");
@@ -269,5 +274,49 @@ async fn the_readme_operator_session_reaches_its_goals() {
     let end = truth.summary.final_position;
     assert!((end[0] - 0.35).hypot(end[1] - 0.05) < 0.03, "{end:?}");
     assert!(truth.summary.first_contact.is_none());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A gateway killed outright (SIGKILL, as a service manager's watchdog does) leaves its
+/// events on disk: they are flushed at every drain of the telemetry queue, not at exit.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn events_survive_a_sigkill() {
+    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-kill-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let socket = dir.join("control.sock");
+    let mut cfg = s.gateway_config(&handle.psd_path, &can, Some(dir.join("telemetry")));
+    cfg.goal = None;
+    cfg.operator.socket = Some(socket.clone());
+    std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();
+    let mut child = flowgate()
+        .args(["run", "--config"])
+        .arg(dir.join("rig.toml"))
+        .env("RUST_LOG", "flowgate=info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let log = lines(child.stderr.take().unwrap());
+    await_line(&log, "control socket", &mut Vec::new());
+    let arm = ctl(&socket, &["arm"]);
+    assert!(arm.status.success(), "{}", text(&arm));
+    // The event reaches the file while the gateway runs (within a drain or two).
+    let events = dir.join("telemetry/latest/events.jsonl");
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !std::fs::read_to_string(&events).unwrap_or_default().contains("Arm accepted") {
+        assert!(std::time::Instant::now() < deadline, "the arm's event never reached {}", events.display());
+        std::thread::sleep(Duration::from_millis(5)); // polling the file, bounded by the deadline
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    handle.stop().await;
+    let text = std::fs::read_to_string(&events).unwrap();
+    assert!(text.contains("Arm accepted"), "{text}");
+    for line in text.lines() {
+        serde_json::from_str::<serde_json::Value>(line).unwrap_or_else(|e| panic!("{e}: {line}"));
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

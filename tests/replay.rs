@@ -58,6 +58,15 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     assert!(text.contains("identical, byte for byte"), "{text}");
     assert!(text.contains("final state stopped: goal reached"), "{text}");
     let frames = figure(&text, "CAN frames", "recorded");
+    // The recording cut in half (a gateway killed mid-write): its prefix replays, and the
+    // command says the rest is missing and exits non-zero.
+    let bytes = std::fs::read(&mcap).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let (ok, text) = flowgate(&["replay", cut.to_str().unwrap()]);
+    assert!(!ok, "{text}");
+    assert!(text.contains("cut short") || text.contains("not closed"), "{text}");
+    assert!(text.contains("identical, byte for byte; the rest of the run is not in the recording"), "{text}");
     // Its output into a closed pipe (`| head -1`): ended quietly, never a panic.
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);

@@ -102,7 +102,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     run.truth.write(&out.join("truth.json"))?;
     std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;
     say!(
-        "\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.log,truth.json,report.json}}",
+        "\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.jsonl,truth.json,report.json}}",
         out.display()
     );
     if let Some(rec) = &run.report.files.recording {

@@ -1,6 +1,6 @@
 //! `flowgate replay FILE.mcap`: a recorded run through the gateway core again, in virtual
 //! time. With the recorded configuration it must ask for the same CAN frames, byte for byte
-//! (exit status 1 if not); with `--config` or `--set` it is a what-if, and reports how the
+//! (exit status 1 if not, and for a recording cut short, whose prefix it replays); with `--config` or `--set` it is a what-if, and reports how the
 //! commands and the paths they drive differ (and draws them).
 
 use crate::cli::{say, say_raw};
@@ -90,6 +90,13 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
             (&recording.can_sent[..common], &replayed.can[..common])
         };
         return Ok(match replay::first_difference(sent, again) {
+            None if !whole => {
+                say!(
+                    "CAN frames   the first {common} of {n} recorded{unwritten}: identical, byte for byte; \
+                     the rest of the run is not in the recording (exit status 1)"
+                );
+                false
+            }
             None => {
                 say!("CAN frames   {n} recorded{unwritten}, {} replayed: identical, byte for byte", replayed.can.len());
                 true

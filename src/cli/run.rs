@@ -42,7 +42,12 @@ pub fn run(args: RunArgs) -> Result<()> {
     if let Some(addr) = args.view {
         config.operator.view = Some(addr);
     }
-    let rig = config.rig(&args.config.display().to_string())?;
+    let mut rig = config.rig(&args.config.display().to_string())?;
+    if let Some(out_dir) = &rig.telemetry.out_dir {
+        let dir = flowgate::gateway::telemetry::run_directory(out_dir, std::time::SystemTime::now())
+            .with_context(|| format!("telemetry.out_dir = {}: making this run's directory", out_dir.display()))?;
+        rig.telemetry.out_dir = Some(dir);
+    }
     if args.arm && rig.goal.is_none() {
         anyhow::bail!("--arm needs a [goal] in {}", args.config.display());
     }

@@ -8,7 +8,12 @@
 //! - `cycles.csv`: one row per cycle (columns in [`CycleRecord::CSV_HEADER`]);
 //! - `trace.json`: Chrome/Perfetto trace events, one complete event per stage per cycle;
 //! - `can.log`: every CAN frame sent and received, candump `-L` format;
-//! - `events.log`: state changes and operator requests (who asked, and the answer).
+//! - `events.jsonl`: state changes and operator requests (who asked, and the answer), one
+//!   JSON object a line (`{"t_s": 1.234567, "text": "..."}`).
+//!
+//! The text files are flushed at every drain, so a process killed outright (SIGKILL, the
+//! service manager's watchdog) loses at most the last drain's records; `flowgate run` puts
+//! each run in its own directory ([`run_directory`]).
 //!
 //! The loop keeps HDR histograms of end-to-end latency and command period in memory for the
 //! summary printed at exit.
@@ -113,7 +118,7 @@ impl TextFiles {
         let paths = (dir.join("cycles.csv"), dir.join("trace.json"), dir.join("can.log"));
         let create = |p: &Path| std::fs::File::create(p).map(std::io::BufWriter::new);
         let mut files = Self {
-            events: create(&dir.join("events.log"))?,
+            events: create(&dir.join("events.jsonl"))?,
             cycles: create(&paths.0)?,
             trace: create(&paths.1)?,
             can: create(&paths.2)?,
@@ -159,10 +164,21 @@ impl TextFiles {
                 )?;
             }
             Record::Can(f) => f.candump(&self.interface, &mut self.can)?,
-            Record::Event(e) => writeln!(self.events, "({:.6}) {}", e.at_s, e.text)?,
+            Record::Event(e) => {
+                serde_json::to_writer(&mut self.events, &serde_json::json!({ "t_s": e.at_s, "text": e.text }))?;
+                writeln!(self.events)?;
+            }
             Record::Input(_) | Record::PsdSent { .. } | Record::Scene(_) | Record::CanUnwritten { .. } => {}
         }
         Ok(())
+    }
+
+    /// Everything written so far onto the disk's page cache: what a killed process leaves.
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.cycles.flush()?;
+        self.events.flush()?;
+        self.trace.flush()?;
+        self.can.flush()
     }
 
     fn finish(mut self) -> std::io::Result<()> {
@@ -177,7 +193,7 @@ impl TextFiles {
 /// Where the writer puts the records.
 #[derive(Debug, Default)]
 pub struct Sinks {
-    /// A telemetry directory (cycles.csv, trace.json, can.log, events.log) and the CAN
+    /// A telemetry directory (cycles.csv, trace.json, can.log, events.jsonl) and the CAN
     /// interface's name for can.log.
     pub dir: Option<(PathBuf, String)>,
     /// An MCAP recording.
@@ -221,6 +237,9 @@ pub fn start_writer(
                     if let Some(m) = &mut mcap {
                         m.flush_if_due()?;
                     }
+                    if let Some(files) = &mut files {
+                        files.flush()?;
+                    }
                     std::thread::sleep(DRAIN_EVERY);
                     continue;
                 }
@@ -258,9 +277,73 @@ pub fn start_writer(
     Ok((Recorder { tx: Some(tx), dropped, recording }, task))
 }
 
+/// A new directory for one run under `out_dir`, named by its start in UTC
+/// (`20261125T213000Z`, a suffix `-2`, `-3`, ... if that second is taken), and `out_dir/latest`
+/// pointed at it. A run never overwrites another's files.
+pub fn run_directory(out_dir: &Path, start: std::time::SystemTime) -> std::io::Result<PathBuf> {
+    std::fs::create_dir_all(out_dir)?;
+    let stamp = utc_stamp(start);
+    let mut dir = out_dir.join(&stamp);
+    let mut n = 1;
+    loop {
+        match std::fs::create_dir(&dir) {
+            Ok(()) => break,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && n < 1000 => {
+                n += 1;
+                dir = out_dir.join(format!("{stamp}-{n}"));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    // Replaced atomically: a reader of `latest` sees the old run or the new, never neither.
+    let name = dir.file_name().map(PathBuf::from).unwrap_or_default();
+    let staging = out_dir.join(format!(".latest-{}", std::process::id()));
+    let _ = std::fs::remove_file(&staging);
+    std::os::unix::fs::symlink(&name, &staging)?;
+    std::fs::rename(&staging, out_dir.join("latest"))?;
+    Ok(dir)
+}
+
+/// `YYYYMMDDTHHMMSSZ` of a time on the Unix clock (civil from days: H. Hinnant's algorithm).
+fn utc_stamp(t: std::time::SystemTime) -> String {
+    let secs = t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!("{year:04}{month:02}{day:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn utc_stamps_name_the_civil_time() {
+        let at = |s: u64| std::time::UNIX_EPOCH + std::time::Duration::from_secs(s);
+        assert_eq!(utc_stamp(at(0)), "19700101T000000Z");
+        assert_eq!(utc_stamp(at(951_782_400)), "20000229T000000Z");
+        assert_eq!(utc_stamp(at(1_795_642_245)), "20261125T213045Z");
+    }
+
+    #[test]
+    fn each_run_gets_its_own_directory_and_latest_follows() {
+        let out = std::env::temp_dir().join(format!("flowgate-rundir-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let t = std::time::UNIX_EPOCH + std::time::Duration::from_secs(1_795_642_245);
+        let a = run_directory(&out, t).unwrap();
+        let b = run_directory(&out, t).unwrap();
+        assert_eq!(a, out.join("20261125T213045Z"));
+        assert_eq!(b, out.join("20261125T213045Z-2"));
+        assert_eq!(std::fs::read_link(out.join("latest")).unwrap(), PathBuf::from("20261125T213045Z-2"));
+        let _ = std::fs::remove_dir_all(&out);
+    }
 
     #[test]
     fn a_record_stays_small_enough_to_queue_by_value() {

@@ -46,7 +46,7 @@ pub enum DemoError {
 /// What the demo's gateway writes and serves besides driving.
 #[derive(Debug, Clone, Default)]
 pub struct Outputs {
-    /// The telemetry directory (cycles.csv, trace.json, can.log, events.log).
+    /// The telemetry directory (cycles.csv, trace.json, can.log, events.jsonl).
     pub dir: Option<PathBuf>,
     /// An MCAP recording.
     pub record: Option<PathBuf>,
