@@ -10,10 +10,11 @@
 
 use std::path::Path;
 
+use flowgate::gateway::operator::{Goal, Request};
 use flowgate::gateway::telemetry::CycleRecord;
 use flowgate::gateway::{State, StopReason};
 use flowgate::lab::offline::Outcome;
-use flowgate::lab::sim::{self, CanTransport, Episode, Options};
+use flowgate::lab::sim::{self, CanTransport, Episode, Options, VirtualRig};
 use flowgate::lab::Scenario;
 
 /// One cycle of E1, ms.
@@ -89,6 +90,19 @@ enum Expect {
     Counted { check: fn(&Episode) -> String },
 }
 
+/// The way back after a fault: the operator's reset, arm, goal and start once the injected
+/// fault is over.
+#[derive(Debug, Clone, Copy)]
+enum Recovery {
+    /// Counted rows never stop.
+    None,
+    /// The injected fault is over at this time (s): the reset is accepted a little after it,
+    /// and the robot, armed and started again, reaches its goal.
+    After(f64),
+    /// The fault must not be reset while its cause lasts: the reset is refused, saying so.
+    Refused,
+}
+
 #[derive(Debug, Clone, Copy)]
 struct Row {
     link: Link,
@@ -98,6 +112,17 @@ struct Row {
     /// When the fault starts, s.
     start: f64,
     expect: Expect,
+    recovery: Recovery,
+}
+
+impl Row {
+    /// The injected fault is over at `t` (s).
+    const fn until(self, t: f64) -> Self {
+        Self { recovery: Recovery::After(t), ..self }
+    }
+    const fn reset_refused(self) -> Self {
+        Self { recovery: Recovery::Refused, ..self }
+    }
 }
 
 const fn fault(reason: StopReason, fault_ms: f64, rest_ms: f64, budget: Budget) -> Expect {
@@ -109,7 +134,15 @@ fn table() -> Vec<Row> {
     use Budget::*;
     use Link::*;
     use StopReason as R;
-    let row = |link, class, injected, faults, expect| Row { link, class, injected, faults, start: 2.0, expect };
+    let row = |link, class, injected, faults, expect| Row {
+        link,
+        class,
+        injected,
+        faults,
+        start: 2.0,
+        expect,
+        recovery: Recovery::None,
+    };
     let mut rows = vec![
         row(
             Psd,
@@ -117,7 +150,8 @@ fn table() -> Vec<Row> {
             "5% of bytes corrupted (CRC)",
             &["serial_corrupt=0.05", "serial_corrupt_during=[2.0, 2.8]"][..],
             fault(R::SerialGarbled, 104.0, 104.1, Cycle),
-        ),
+        )
+        .until(2.8),
         row(
             Psd,
             "corruption",
@@ -128,10 +162,11 @@ fn table() -> Vec<Row> {
         row(
             Psd,
             "corruption",
-            "the robot's front LED reads 10 cm off from 2 s",
-            &["reflections=[[1, 2.0, 100.0, 0.1]]"],
+            "the robot's front LED reads 10 cm off from 2 s to 3 s",
+            &["reflections=[[1, 2.0, 3.0, 0.1]]"],
             fault(R::PoseImplausible, 146.1, 146.2, Watchdog("pose", POSE_MS)),
-        ),
+        )
+        .until(3.0),
         row(
             Psd,
             "unintended repetition",
@@ -145,7 +180,8 @@ fn table() -> Vec<Row> {
             "every packet sent twice from 2 s",
             &["serial_duplicate=1.0", "serial_repeat_during=[2.0, 3.0]"],
             fault(R::PsdSequence, 76.5, 76.8, Cycle),
-        ),
+        )
+        .until(3.0),
         row(
             Psd,
             "incorrect sequence",
@@ -174,14 +210,16 @@ fn table() -> Vec<Row> {
             "the line silent for 200 ms",
             &["serial_silence=[2.0, 2.2]"],
             fault(R::SamplesStopped, 96.4, 96.5, Watchdog("sample", SAMPLE_MS)),
-        ),
+        )
+        .until(2.2),
         row(
             Psd,
             "loss",
-            "the robot's LED occluded",
-            &["occlusions=[[1, 2.0, 100.0]]"],
+            "the robot's LED occluded from 2 s to 3 s",
+            &["occlusions=[[1, 2.0, 3.0]]"],
             fault(R::PoseLost, 146.1, 146.2, Watchdog("pose", POSE_MS)),
-        ),
+        )
+        .until(3.0),
         row(
             Psd,
             "loss",
@@ -192,10 +230,11 @@ fn table() -> Vec<Row> {
         row(
             Psd,
             "loss",
-            "the obstacle's LED occluded from 2 s",
-            &["occlusions=[[3, 2.0, 100.0]]"],
+            "the obstacle's LED occluded from 2 s to 3.5 s",
+            &["occlusions=[[3, 2.0, 3.5]]"],
             fault(R::ObstacleOccluded { led: 3 }, 987.6, 987.7, Watchdog("occlusion", OCCLUSION_MS)),
-        ),
+        )
+        .until(3.5),
         row(
             Psd,
             "loss",
@@ -223,28 +262,32 @@ fn table() -> Vec<Row> {
             "the controller's clock steps 80 ms ahead",
             &["clock_step=[2.0, 80.0]"],
             fault(R::ClockJumped, 22.4, 22.5, Cycle),
-        ),
+        )
+        .until(2.0),
         row(
             Psd,
             "unacceptable delay",
-            "a delay step of 300 ms",
-            &["sample_delay_ramp=[2.0, 2.0, 300]"],
+            "a delay step of 300 ms from 2 s to 3 s",
+            &["sample_delay_ramp=[2.0, 2.0, 300]", "sample_delay_until=3.0"],
             fault(R::SamplesStopped, 96.4, 96.5, Watchdog("sample", SAMPLE_MS)),
-        ),
+        )
+        .until(3.0),
         row(
             Psd,
             "unacceptable delay",
-            "a delay creeping from 0 to 300 ms over 1.5 s",
-            &["sample_delay_ramp=[2.0, 3.5, 300]"],
+            "a delay creeping from 0 to 300 ms over 1.5 s, gone at 4 s",
+            &["sample_delay_ramp=[2.0, 3.5, 300]", "sample_delay_until=4.0"],
             fault(R::PoseDelayed, 741.1, 741.2, Cycle),
-        ),
+        )
+        .until(4.0),
         row(
             Psd,
             "unacceptable delay",
-            "time sync answered 20 ms late (beyond the 10 ms bound)",
-            &["sync_reply_hold=[2.0, 100.0, 20]"],
+            "time sync answered 20 ms late (beyond the 10 ms bound) until 7 s",
+            &["sync_reply_hold=[2.0, 7.0, 20]"],
             fault(R::ClockUnsynced, 4001.9, 4002.0, Watchdog("time sync", SYNC_MS)),
-        ),
+        )
+        .until(7.0),
         row(
             Psd,
             "insertion",
@@ -255,24 +298,27 @@ fn table() -> Vec<Row> {
         row(
             Psd,
             "insertion",
-            "a sample of LED 9 in the robot's slot every frame from 2 s",
-            &["unscheduled_led=[9, 2.0, 100.0]"],
+            "a sample of LED 9 in the robot's slot every frame from 2 s to 3 s",
+            &["unscheduled_led=[9, 2.0, 3.0]"],
             fault(R::UnscheduledLed { led: 9 }, 353.7, 353.8, Cycle),
-        ),
+        )
+        .until(3.0),
         row(
             Psd,
             "masquerade",
             "the controller resets (a watchdog reboot)",
             &["controller_reset_at=2.0"],
             fault(R::ControllerReset, 0.1, 0.2, Cycle),
-        ),
+        )
+        .until(2.0),
         row(
             Psd,
             "masquerade",
             "the controller reports an LED driver fault",
             &["controller_fault=[2.0, 3, 3]"],
             fault(R::ControllerFault, 0.1, 0.2, Cycle),
-        ),
+        )
+        .until(2.0),
     ];
     for link in [Slcan, SocketCan] {
         // A figure over SLCAN, and over SocketCAN.
@@ -282,31 +328,35 @@ fn table() -> Vec<Row> {
             row(
                 link,
                 "loss",
-                "30% of frames lost from 2 s",
-                &["can_loss=0.3", "can_loss_during=[2.0, 100.0]"],
+                "30% of frames lost from 2 s to 3 s",
+                &["can_loss=0.3", "can_loss_during=[2.0, 3.0]"],
                 fault(R::BoardSequence, f(950.2, 950.1), f(950.2, 950.1), Cycle),
-            ),
+            )
+            .until(3.0),
             row(
                 link,
                 "loss",
-                "the board's heartbeat stops",
-                &["heartbeat_stop_at=2.0"],
+                "the board's heartbeat stops from 2 s to 3 s",
+                &["heartbeat_stop_at=2.0", "heartbeat_resume_at=3.0"],
                 fault(R::HeartbeatLost, f(300.1, 300.1), f(300.2, 300.1), Watchdog("heartbeat", HEARTBEAT_MS)),
-            ),
+            )
+            .until(3.0),
             row(
                 link,
                 "insertion",
                 "another device sends velocity frames to our board",
                 &["second_master_at=2.0"],
                 fault(R::SecondMaster, f(0.2, 0.1), f(0.3, 0.2), Cycle),
-            ),
+            )
+            .reset_refused(),
             row(
                 link,
                 "masquerade",
                 "the board reboots",
                 &["board_reboot_at=2.0"],
                 fault(R::BoardReboot, f(0.1, 0.1), f(0.0, 0.0), Board),
-            ),
+            )
+            .until(2.0),
             row(
                 link,
                 "addressing",
@@ -320,7 +370,8 @@ fn table() -> Vec<Row> {
                 "the board bus-off for 1 s",
                 &["bus_off_at=2.0", "bus_off_s=1.0"],
                 fault(R::HeartbeatLost, f(300.1, 300.1), f(0.0, 0.0), Board),
-            ),
+            )
+            .until(3.0),
             Row {
                 // Off the 100 ms grid of the gateway's heartbeat (with which it polls an
                 // SLCAN adapter's status), so the table shows the poll's latency.
@@ -332,6 +383,7 @@ fn table() -> Vec<Row> {
                     &["adapter_bus_off=[2.05, 3.05]"],
                     fault(R::BusOff, f(9.2, 0.0), f(192.1, 192.0), BoardTimeout),
                 )
+                .until(3.05)
             },
             row(
                 link,
@@ -339,7 +391,8 @@ fn table() -> Vec<Row> {
                 "the board's driver faults",
                 &["board_fault_at=2.0"],
                 fault(R::BoardFault, f(0.3, 0.2), f(0.0, 0.0), Board),
-            ),
+            )
+            .until(2.0),
         ]);
     }
     rows
@@ -461,16 +514,62 @@ fn one_command_per_frame(e: &Episode) {
     assert!(frames.windows(2).all(|w| w[1] > w[0]), "a frame commanded twice or out of order");
 }
 
-fn run(row: &Row) -> Episode {
+fn scenario(row: &Row) -> Scenario {
     let mut s =
         Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
     s.faults = s.faults.with_settings(&row.faults.iter().map(|f| f.to_string()).collect::<Vec<_>>()).unwrap();
-    let can = if row.link == Link::SocketCan { CanTransport::SocketCan } else { CanTransport::Slcan };
-    sim::run(&s, Options { truth_samples: true, telemetry: true, can, ..Options::default() })
+    s
 }
 
-/// Run a row, assert it, and return its measured cells (fault after, wheels at rest after).
-fn check(row: &Row) -> Result<[String; 2], String> {
+fn options(row: &Row) -> Options {
+    let can = if row.link == Link::SocketCan { CanTransport::SocketCan } else { CanTransport::Slcan };
+    Options { truth_samples: true, telemetry: true, can, ..Options::default() }
+}
+
+fn run(row: &Row) -> Episode {
+    sim::run(&scenario(row), options(row))
+}
+
+/// The way back: the same run to a little after the injected fault is over (and after the
+/// fault), then the operator's reset, arm, goal and start; asserted to reach the goal with
+/// no motion outside Running. For a fault that must not be reset, the reset is asserted
+/// refused while its cause lasts.
+fn recover(row: &Row, reason: StopReason, fault_at: f64) -> Result<String, String> {
+    let s = scenario(row);
+    let mut rig = VirtualRig::new(&s, options(row));
+    let over = match row.recovery {
+        Recovery::None => return Err("a fault row needs its recovery".into()),
+        Recovery::After(t) => t,
+        Recovery::Refused => fault_at,
+    };
+    // Half a second after both, on the 100 ms grid the table prints.
+    let at = ((over.max(fault_at) + 0.5) * 10.0).ceil() / 10.0;
+    rig.run_until(at);
+    if rig.core().state() != State::Fault(reason) {
+        return Err(format!("at {at:.1} s the state is {}, not fault: {reason}", rig.core().state()));
+    }
+    if let Recovery::Refused = row.recovery {
+        return match rig.request(&Request::Reset) {
+            Err(refusal) => Ok(format!("reset refused at {at:.1} s: {refusal}")),
+            Ok(()) => Err("the reset was accepted with its cause present".into()),
+        };
+    }
+    let goal = Request::Goal { goals: vec![Goal { position: s.goal.position, tolerance: s.goal.tolerance }] };
+    for request in [Request::Reset, Request::Arm, goal, Request::Start] {
+        rig.request(&request).map_err(|e| format!("{request:?} at {at:.1} s refused: {e}"))?;
+    }
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    if e.outcome != Outcome::Goal || e.motion_outside_running > 0 {
+        return Err(format!("after the reset at {at:.1} s: {:?}, {}", e.outcome, e.report));
+    }
+    let reached = e.report.transitions.iter().rev().find(|(_, st)| *st == State::Stopped(StopReason::GoalReached));
+    let reached = reached.map(|(t, _)| *t).ok_or("no goal reached transition")?;
+    Ok(format!("reset, arm, start at {at:.1} s: goal at {reached:.1} s"))
+}
+
+/// Run a row, assert it, and return its measured cells (fault after, wheels at rest after,
+/// the way back).
+fn check(row: &Row) -> Result<[String; 3], String> {
     let e = run(row);
     if e.motion_outside_running > 0 {
         return Err(format!("{} motion commands outside Running", e.motion_outside_running));
@@ -481,7 +580,7 @@ fn check(row: &Row) -> Result<[String; 2], String> {
             if e.outcome != Outcome::Goal {
                 return Err(format!("outcome {:?}, not goal: {}", e.outcome, e.report));
             }
-            Ok([check(&e), "- (reaches the goal)".into()])
+            Ok([check(&e), "- (reaches the goal)".into(), "-".into()])
         }
         Expect::Fault { reason, fault_ms, rest_ms, budget } => {
             if e.report.final_state != State::Fault(reason) {
@@ -503,29 +602,31 @@ fn check(row: &Row) -> Result<[String; 2], String> {
                     "measured fault {fault:.1} ms, rest {rest:.1} ms; the table says {fault_ms:.1}, {rest_ms:.1}"
                 ));
             }
-            Ok([format!("{reason} at {fault:.1} ms"), format!("{rest:.1} ms")])
+            let recovery = recover(row, reason, row.start + fault / 1e3)?;
+            Ok([format!("{reason} at {fault:.1} ms"), format!("{rest:.1} ms"), recovery])
         }
     }
 }
 
 /// The table as the README carries it.
-fn render(rows: &[(Row, [String; 2])]) -> String {
+fn render(rows: &[(Row, [String; 3])]) -> String {
     let mut out = String::from(
-        "| link | class | injected (from 2 s) | reaction | wheels at rest after | budget |\n|---|---|---|---|---|---|\n",
+        "| link | class | injected (from 2 s) | reaction | wheels at rest after | budget | recovery (virtual time) |\n|---|---|---|---|---|---|---|\n",
     );
-    for (row, [reaction, rest]) in rows {
+    for (row, [reaction, rest, recovery]) in rows {
         let budget = match row.expect {
             Expect::Fault { budget, .. } => budget.text(),
             Expect::Counted { .. } => "-".into(),
         };
         out += &format!(
-            "| {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} |\n",
             row.link.name(),
             row.class,
             row.injected,
             reaction,
             rest,
-            budget
+            budget,
+            recovery
         );
     }
     out

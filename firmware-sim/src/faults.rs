@@ -48,6 +48,9 @@ pub struct FaultPlan {
     /// `from_s` to `extra_ms` at `to_s` and staying there (a step when `from_s == to_s`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sample_delay_ramp: Option<[f64; 3]>,
+    /// The ramp's extra delay is gone from this time on (default: it stays).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sample_delay_until: Option<f64>,
     /// The controller holds its time-sync replies back `[from_s, to_s, ms]`: round trips
     /// that long.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -106,6 +109,9 @@ pub struct FaultPlan {
     /// The motor board stops sending heartbeats (it keeps working otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heartbeat_stop_at: Option<f64>,
+    /// ... and sends them again from this time (default: never).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heartbeat_resume_at: Option<f64>,
     /// The motor board's driver faults: axes stop, state Fault.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board_fault_at: Option<f64>,
@@ -159,6 +165,8 @@ impl FaultPlan {
             ("controller_reset_at", self.controller_reset_at),
             ("serial_vanish_at", self.serial_vanish_at),
             ("heartbeat_stop_at", self.heartbeat_stop_at),
+            ("heartbeat_resume_at", self.heartbeat_resume_at),
+            ("sample_delay_until", self.sample_delay_until),
             ("board_fault_at", self.board_fault_at),
             ("board_reboot_at", self.board_reboot_at),
             ("second_master_at", self.second_master_at),
@@ -276,6 +284,9 @@ impl FaultPlan {
 
     /// The extra sample delay of `sample_delay_ramp` at `t`, s.
     pub fn ramp_delay(&self, t: f64) -> f64 {
+        if self.sample_delay_until.is_some_and(|until| t >= until) {
+            return 0.0;
+        }
         match self.sample_delay_ramp {
             Some([from, _, _]) if t < from => 0.0,
             Some([from, to, ms]) if t < to => ms * 1e-3 * (t - from) / (to - from),
@@ -298,6 +309,11 @@ impl FaultPlan {
             Some([led, from, to]) if t >= from && t < to => Some(led as u8),
             _ => None,
         }
+    }
+
+    /// Whether the board's heartbeat is off at `t`.
+    pub fn heartbeat_stopped(&self, t: f64) -> bool {
+        self.heartbeat_stop_at.is_some_and(|at| t >= at) && !self.heartbeat_resume_at.is_some_and(|at| t >= at)
     }
 
     /// Whether the SLCAN adapter is bus-off at `t`.

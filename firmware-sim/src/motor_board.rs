@@ -220,7 +220,7 @@ impl MotorBoard {
                 self.enter_fault(FaultBits::GATEWAY_LOST, BoardState::Fault, world, out);
             }
         }
-        let hb_stopped = self.plan.heartbeat_stop_at.is_some_and(|at| t >= at);
+        let hb_stopped = self.plan.heartbeat_stopped(t);
         while self.next_heartbeat <= t {
             if !hb_stopped {
                 Self::send(out, MotorMessage::Heartbeat { node: self.node, state: self.state });

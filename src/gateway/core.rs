@@ -192,6 +192,8 @@ pub struct Core<K: StageClock> {
     robot_from_future: Option<HostTime>,
     /// The PSD session is being configured again for an operator's reset (not a reconnect).
     rehandshake: bool,
+    /// When another device's velocity command to our board was last heard.
+    second_master_heard: Option<HostTime>,
     next_heartbeat: HostTime,
     stopping_since: Option<HostTime>,
     velocity_seq: u8,
@@ -244,6 +246,7 @@ impl<K: StageClock> Core<K> {
             frames: CounterWindow::new(32, FRAME_WINDOW, FRAME_CONFIRM),
             robot_from_future: None,
             rehandshake: false,
+            second_master_heard: None,
             next_heartbeat: HostTime::ZERO,
             stopping_since: None,
             velocity_seq: 0,
@@ -681,6 +684,8 @@ impl<K: StageClock> Core<K> {
             // (and a required one refuses the arm until then).
             StopReason::ObstacleOccluded { .. } => false,
             StopReason::BusOff => !heard || self.board.faults.contains(FaultBits::BUS),
+            // Two masters must never drive one board: refused while the other is heard.
+            StopReason::SecondMaster => self.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout),
             // The reset clears the board's latched fault; a driver fault that persists
             // faults the gateway again once it runs.
             _ => false,
@@ -1267,6 +1272,7 @@ impl<K: StageClock> Core<K> {
                 }
                 MotorMessage::Velocity { .. } => {
                     // We never hear our own commands: this one is another device's.
+                    self.second_master_heard = Some(now);
                     self.stop(now, StopReason::SecondMaster);
                 }
                 MotorMessage::Status { state, faults, seq_errors, .. } => {
@@ -1282,7 +1288,10 @@ impl<K: StageClock> Core<K> {
                     }
                     self.board.state = Some(state);
                     self.board.faults = faults;
-                    if faults.contains(FaultBits::BUS) && is_active(self.state()) {
+                    // Just armed, a status older than the enable (and the fault reset before
+                    // it) may still show the board as it was.
+                    let settled = self.state() != State::Armed || now >= self.enable_sent + ENABLE_GRACE;
+                    if faults.contains(FaultBits::BUS) && is_active(self.state()) && settled {
                         self.stop(now, StopReason::BusOff);
                     } else if self.state() == State::Running && matches!(state, BoardState::Fault | BoardState::EStop) {
                         self.stop(now, StopReason::BoardFault);
