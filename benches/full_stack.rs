@@ -1,5 +1,5 @@
 //! The whole stack in virtual time: what one episode costs, how fast sweeps go, and where
-//! a cycle's time goes. `cargo bench --bench full_stack` (README "The whole stack in
+//! a cycle's time goes. `cargo bench --bench full_stack` (docs/performance.md "The whole stack in
 //! virtual time"). Times are thread CPU time, so a busy neighbour does not inflate them.
 
 use std::path::Path;

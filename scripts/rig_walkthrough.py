@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The README's "On a rig" walk-through, run against the simulator with the installed package.
+"""The "On a rig" walk-through (docs/operating.md), run against the simulator with the installed package.
 
 scripts/package installs flowgate_*.deb into a scratch root and calls this with that root.
 Every step is the one a user takes on a rig, with the binary and files the package

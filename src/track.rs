@@ -136,7 +136,7 @@ impl Default for KalmanConfig {
 /// The model, its noise and the measurements treat `x` and `y` alike and apart, and the
 /// filter starts them alike, so the 4×4 covariance is the same 2×2 one (position and
 /// velocity along one axis) on each axis, with nothing between the axes: it is kept as
-/// that one [`AxisCovariance`], and an update is a few scalar operations.
+/// that one `AxisCovariance`, and an update is a few scalar operations.
 #[derive(Debug, Clone, Copy)]
 pub struct ConstantVelocityKf {
     config: KalmanConfig,
@@ -376,7 +376,7 @@ impl DeadReckoning {
 
     /// The centre and the heading (a unit vector) measured at `t_valid`, advanced to `t`
     /// with the commands in force meanwhile: the two spans the window cuts are integrated,
-    /// the whole ones between are taken from the odometry (see [`Odometry`]), so a
+    /// the whole ones between are taken from the odometry (see `Odometry`), so a
     /// prediction costs the same whatever the delay.
     pub fn predict(&mut self, position: C, facing: C, t_valid: f64, t: f64, wheel_base: f64) -> (C, C) {
         // The commands in force at the window's ends (none before the first command: at rest).

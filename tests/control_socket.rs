@@ -199,12 +199,12 @@ async fn an_operator_session_over_the_control_socket() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The README's operator session, as written: `rig.example.toml` (two obstacle LEDs, of
+/// The operator session of docs/operating.md, as written: `rig.example.toml` (two obstacle LEDs, of
 /// which E1 has one: LED 4 is never seen and is absent, not a fault) pointed at the
 /// simulator's ptys, driven with `flowgate ctl --config`, from idle through a refused start
 /// and a refused goal to a queue of two goals reached.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_readme_operator_session_reaches_its_goals() {
+async fn the_documented_operator_session_reaches_its_goals() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let s = Scenario::load(&root.join("scenarios/e1-standing-obstacle.toml")).unwrap();
     let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();

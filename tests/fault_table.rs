@@ -5,8 +5,8 @@
 //! gives when the wheels stood still, held to the detecting watchdog plus one cycle, and
 //! both times are asserted exactly (to 0.05 ms: they are exact for their seed).
 //!
-//! The README's "Communication faults" table is [`table`] rendered: the last test asserts the
-//! README carries it verbatim, so every figure there is one asserted here.
+//! The fault table of docs/faults.md is [`table`] rendered: the last test asserts the page
+//! carries it verbatim, so every figure there is one asserted here.
 
 use std::path::Path;
 
@@ -129,7 +129,7 @@ const fn fault(reason: StopReason, fault_ms: f64, rest_ms: f64, budget: Budget) 
     Expect::Fault { reason, fault_ms, rest_ms, budget }
 }
 
-/// The table, one row a link and class (the README's table is this, rendered).
+/// The table, one row a link and class (docs/faults.md's table is this, rendered).
 fn table() -> Vec<Row> {
     use Budget::*;
     use Link::*;
@@ -608,7 +608,7 @@ fn check(row: &Row) -> Result<[String; 3], String> {
     }
 }
 
-/// The table as the README carries it.
+/// The table as docs/faults.md carries it.
 fn render(rows: &[(Row, [String; 3])]) -> String {
     let mut out = String::from(
         "| link | class | injected (from 2 s) | reaction | wheels at rest after | budget | recovery (virtual time) |\n|---|---|---|---|---|---|---|\n",
@@ -661,6 +661,6 @@ fn every_fault_of_the_table_is_detected_named_and_stopped_in_budget() {
     }
     assert!(failures.is_empty(), "{} rows failed:\n{}", failures.len(), failures.join("\n"));
     let rendered = render(&measured);
-    let readme = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
-    assert!(readme.contains(&rendered), "README.md does not carry the fault table as asserted:\n\n{rendered}");
+    let page = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/faults.md")).unwrap();
+    assert!(page.contains(&rendered), "docs/faults.md does not carry the fault table as asserted:\n\n{rendered}");
 }

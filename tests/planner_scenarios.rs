@@ -34,7 +34,7 @@ fn e2_lane_head_on_reaches_goal() {
 /// E2's obstacle touches the wall, so its circle is closed against it (centred on the wall)
 /// except while that closure would take in the goal: its first second (50 cycles at 20 ms),
 /// until the obstacle, coming head-on, has moved far enough from the goal. Counted, not
-/// hidden; the README quotes the figure.
+/// hidden; docs/simulation.md quotes the figure.
 #[test]
 fn e2_leaves_its_circle_unclosed_only_while_the_closure_would_take_in_the_goal() {
     let s = offline::run(&scenario("e2-lane-head-on.toml"), false).summary;
@@ -346,10 +346,9 @@ fn plan_command_shards_and_merges_a_sweep() {
 /// grazes it in some; with the defaults (one standard deviation of the predicted centre in
 /// the margin, room for the supervisor, the supervisor on) none does, and all 40 reach
 /// the goal. Whether a run that skirts the margin for seconds stalls there instead, held
-/// by its margins, turns on rounding: E1's sweep stalls in 0.9% of its episodes, and one
-/// of these seeds did at one commit of stop 28 while the world's integration changed. A
-/// stall here is not a graze; should one appear, it is the count below that moves. (The
-/// issue measured 22 of 40 grazing before the dead reckoning followed the boards' ramp.)
+/// by its margins, turns on rounding: E1's sweep stalls in 0.9% of its episodes. A stall
+/// here is not a graze; should one appear, it is the count below that moves. (A dead
+/// reckoning that ignored the boards' ramp grazes in 22 of these 40.)
 #[test]
 fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
     let base = scenario("e1-standing-obstacle.toml");

@@ -50,7 +50,7 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
 
     // Replayed with the recorded configuration: the same frames, well faster than real time.
     // This is a debug build sharing the machine with the rest of the suite, so the bound is
-    // loose (170-260x measured alone, 125x under the suite's load); the README's figure is
+    // loose (170-260x measured alone, 125x under the suite's load); docs/recording.md's figure is
     // the release build's own output, not this test's.
     let (ok, text) = flowgate(&["replay", mcap.to_str().unwrap()]);
     assert!(ok, "{text}");

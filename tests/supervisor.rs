@@ -183,12 +183,11 @@ fn an_obstacle_closing_from_behind_in_a_narrow_lane_leaves_a_safe_stop() {
     assert_eq!(braking, 0);
 }
 
-/// Found by `no_active_contact_with_an_obstacle` at 30,000 cases (stop 30), where the
-/// supervisor braked once for want of a safe command (no active contact followed). The
-/// path's last look, where the robot comes to rest, judged the stop at the last 5 ms step's
-/// mean speed, up to `a · STEP / 2` = 5.3 mm/s at this ramp (2.1 m/s²), above the 2 mm/s
-/// approach tolerance, with an obstacle crossing close by: every stop looked unsafe. Each
-/// step is now judged at its start against what the obstacle can close over the step (its
+/// A case `no_active_contact_with_an_obstacle` found at 30,000 cases: a fast ramp (2.1
+/// m/s²) and an obstacle crossing close by. Judging the stop at the last 5 ms step's mean
+/// speed (up to `a · STEP / 2` = 5.3 mm/s here, above the 2 mm/s approach tolerance) would
+/// make every stop look unsafe and the supervisor brake for want of a safe command. Each
+/// step is judged at its start against what the obstacle can close over the step (its
 /// speed and its uncertainty's growth times the step), so the last step covers the way to
 /// rest, and a centre at rest drives into nothing.
 #[test]
@@ -283,7 +282,7 @@ fn contacts_are_classed_by_the_robots_motion() {
 /// chain's delay (up to 0.3 s) and noise: no active contact wherever the obstacles are
 /// slower than the robot; around E5 the same sweep unsupervised has them (so the check can
 /// fail; around E2, E3b and E6 the planner alone now has a few in a thousand or none).
-/// The README's 10^4-episode figures come from `flowgate plan --planner-only --sweep 10000`.
+/// docs/supervisor.md's 10^4-episode figures come from `flowgate plan --planner-only --sweep 10000`.
 #[test]
 fn sweeps_have_no_active_contact_where_obstacles_are_slower() {
     use flowgate::lab::offline::{sweep, Mode};

@@ -1,7 +1,7 @@
 //! The whole stack in deterministic virtual time: the gateway core, the simulator's PSD
 //! controller, SLCAN adapter and motor board, and its world, through the real encoders and
 //! decoders (src/lab/sim.rs). Judged by the world's truth. Every figure asserted here is
-//! exact for its seed: the README's stop table quotes these assertions.
+//! exact for its seed: docs/architecture.md quotes these assertions.
 
 use std::path::Path;
 use std::time::Duration;
@@ -117,7 +117,7 @@ fn an_orderly_stop_ramps_the_wheels_down() {
     let e = rig.finish(s.goal.position, s.goal.tolerance);
     assert_eq!(e.report.final_state, State::Stopped(StopReason::Shutdown), "{}", e.report);
     let rest = stopped(&e, 3.0, 3.0 + T_E1 + s.robot.max_wheel_speed / s.robot.wheel_accel);
-    // The README's figure, exact for the seed.
+    // docs/architecture.md's figure, exact for the seed.
     assert!(((rest - 3.0) * 1e3 - 106.4).abs() < 0.05, "wheels at rest {:.2} ms after the request", (rest - 3.0) * 1e3);
 }
 
@@ -200,8 +200,8 @@ fn the_robot_waits_for_an_obstacle_to_leave_the_goal() {
     assert_eq!(run.outcome, Outcome::Stopped);
 }
 
-/// The gateway counts the planner's flags as the planner-only runner does (its summary
-/// used to write 0 for them), and `/metrics` exports them: E2's circle is left unclosed at
+/// The gateway counts the planner's flags as the planner-only runner does, and `/metrics`
+/// exports them: E2's circle is left unclosed at
 /// the wall while closing it would take in the goal (48 of its 417 cycles here; 50 of 411
 /// on the planner-only runner's own sensing model), its field's speed is cut to the limit
 /// most of the way, and E1 breaks the tie behind its obstacle and has no wall.

@@ -33,7 +33,7 @@ pub struct Scenario {
     /// `flowgate-sim --fault key=value` overrides single keys).
     #[serde(default)]
     pub faults: crate::faults::FaultPlan,
-    /// The PSD camera over the floor (default: [`CameraModel::default`], which sees about
+    /// The PSD camera over the floor (default: [`crate::calibration::CameraModel::default`], which sees about
     /// ±0.8 m). A larger arena describes a camera that sees it.
     #[serde(default)]
     pub camera: crate::calibration::CameraModel,

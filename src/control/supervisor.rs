@@ -64,8 +64,8 @@ pub struct SupervisorConfig {
 }
 
 impl SupervisorConfig {
-    /// One standard deviation and 2 mm beyond it (see the README: three kept robots so far
-    /// off that most episodes around E5 stalled); reaction time one period and a half
+    /// One standard deviation and 2 mm beyond it (see docs/supervisor.md: three keep robots so far
+    /// off that most episodes around E5 stall); reaction time one period and a half
     /// (the command's way to the wheels and the period's jitter, well within half a period).
     pub fn new(wheel_accel: f64, wheel_base: f64, robot_radius: f64, period: f64, lane: Option<f64>) -> Self {
         Self {

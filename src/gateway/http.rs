@@ -16,7 +16,7 @@ pub enum Asked {
     Other,
 }
 
-/// Read a request head. `None`: the client closed or sent more than [`MAX_HEAD`] bytes
+/// Read a request head. `None`: the client closed or sent more than `MAX_HEAD` bytes
 /// before its end.
 pub async fn read_request(stream: &mut TcpStream) -> std::io::Result<Option<Asked>> {
     let mut head = Vec::with_capacity(512);

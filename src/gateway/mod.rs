@@ -1,7 +1,7 @@
 //! The gateway service: PSD samples in, motor CAN frames out, under a safety state machine,
 //! with every cycle timed.
 //!
-//! Two parts (see the README's diagram):
+//! Two parts (see the diagram in docs/architecture.md):
 //! - [`core`]: the gateway's logic with no I/O and no clock. Inputs (PSD bytes, CAN events,
 //!   operator requests, ticks) come with their host time; outputs (PSD packets, CAN frames,
 //!   timing records, state changes) and the next deadline go back. It owns the PSD session

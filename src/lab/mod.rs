@@ -9,7 +9,7 @@
 //! - [`offline`]: the planner-only runner (control step against the world, with a modelled
 //!   sensing chain), and sweeps over either mode;
 //! - [`demo`]: the simulator and the gateway in real time over real ptys;
-//! - [`report`]: plots; [`bench`]: the gateway benchmark over ptys and SocketCAN.
+//! - [`report`]: plots; [`bench`](mod@bench): the gateway benchmark over ptys and SocketCAN.
 
 pub mod bench;
 pub mod demo;

@@ -3,7 +3,7 @@
 //! The real gateway [`Core`] is wired to the simulator's firmware (the PSD controller, an
 //! SLCAN USB-CAN adapter and the motor board on its bus) and its world, through the real
 //! encoders and decoders: COBS + CRC frames on the serial line, SLCAN lines to the adapter,
-//! CAN frames on the bus. Each direction of each line is a [`Wire`] that delivers its bytes
+//! CAN frames on the bus. Each direction of each line is a `Wire` that delivers its bytes
 //! in order after their transmission time (10 bits a byte). Time jumps from one event to the
 //! next: the core's deadline, a firmware event, a delivery, a fault. Every random choice is
 //! seeded by the scenario, so one seed gives one run, byte for byte (`cycles.csv` and

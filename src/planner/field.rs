@@ -1,7 +1,7 @@
 //! The navigation function: a complex velocity field `F(z) = u - i v` whose streamlines
 //! lead to the goal around circular obstacles, moving or not, in free space or in a lane.
 //!
-//! Built from the corrected equations of `shared/docs/planner-math.md` (the paper's print
+//! Built from the corrected equations of docs/planner.md (the paper's print
 //! has typos), every term expressed through two primitives of the [`Space`]: a unit sink
 //! and a doublet. In a lane both primitives carry their wall images in closed form, so the
 //! walls are exact streamlines of every term.
@@ -28,7 +28,7 @@
 //! flux a circle across a wall sweeps), fitted by least squares on the circle each time the
 //! field is built ([`super::multipole`]). It leaves the walls exact and each circle a
 //! streamline to the fit's residual: below 1e-6 of the flow's speed up to a 90% blockage,
-//! clear of the walls or reaching one (which [`in_lane`] first closes against it).
+//! clear of the walls or reaching one (which `in_lane` first closes against it).
 
 use arrayvec::ArrayVec;
 use num_complex::Complex64 as C;
@@ -182,7 +182,7 @@ pub struct Field {
     /// multipole series that makes its circle a streamline (see [`super::multipole`]).
     lane_series: ArrayVec<LaneSeries, MAX_OBSTACLES>,
     /// Some circle reaching a wall was left unclosed, its closure taking in the robot or the
-    /// goal (see [`in_lane`]): its series is the less exact arc fit.
+    /// goal (see `in_lane`): its series is the less exact arc fit.
     unclosed_at_a_wall: bool,
 }
 
@@ -230,7 +230,7 @@ impl Field {
     }
 
     /// [`rebuild`](Self::rebuild), leaving `robot` (where the robot is) outside any circle
-    /// that [`in_lane`] would close over it, as it leaves the goal.
+    /// that `in_lane` would close over it, as it leaves the goal.
     pub fn rebuild_clear_of(
         &mut self,
         space: Space,
@@ -485,7 +485,7 @@ fn closed_against_the_wall(o: PlanObstacle, half_width: f64) -> PlanObstacle {
 /// beyond the wall by nearly the radius).
 const MIN_CLOSED: f64 = 0.25;
 
-/// A gap to a wall below this fraction of the radius is closed (see [`in_lane`]).
+/// A gap to a wall below this fraction of the radius is closed (see `in_lane`).
 pub const WALL_CLOSE: f64 = 0.1;
 /// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
 /// leave `bounds`, reach the goal, or meet an obstacle.

@@ -49,7 +49,7 @@ const POINTS_PER_ORDER: usize = 3;
 const POINTS_PER_ORDER_AT_A_WALL: usize = 4;
 /// On a circle centred on a wall (whose coefficients are real), 4 an order round the
 /// circle: half lie in the lane, 2 a real unknown (with 1.5, as clear of the walls, the
-/// worst residual across the README's grid is 1.0e-6 instead of 3.7e-7).
+/// worst residual across docs/simulation.md's grid is 1.0e-6 instead of 3.7e-7).
 const POINTS_PER_ORDER_ON_A_WALL: usize = 4;
 /// The most collocation points in the lane on one circle: a circle clear of the walls at
 /// its most orders, or a circle centred on a wall at its (half its points are in the lane).

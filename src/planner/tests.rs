@@ -1,4 +1,5 @@
-//! The checks of `planner-math.md` section 3, as properties over random configurations.
+//! The checks of the planner's mathematics (docs/planner.md, "The checks that prove the
+//! terms"), as properties over random configurations.
 
 use super::multipole;
 use super::*;
@@ -82,8 +83,7 @@ proptest! {
 
     /// Check 2 on the whole lane field with two obstacles anywhere in the lane (near or across
     /// a wall too, with their series): the walls are streamlines to rounding, asserted at
-    /// 2e-12 of the speed (2.7e-13 is the worst seen in 20,000 cases; 1.1e-12 before stop 27,
-    /// beside circles across a wall, whose regularised arc fits had the largest terms).
+    /// 2e-12 of the speed (2.7e-13 is the worst seen in 20,000 cases).
     #[test]
     fn lane_field_walls((a, r) in lane_circle(0.4), (b, rb) in lane_circle(0.4), (va, vb) in (vel(), vel()), x in -4.0..5.0f64) {
         let h = 0.4;
@@ -371,10 +371,10 @@ proptest! {
     /// where its series converges as a circle's clear of the walls does. Every such circle,
     /// up to a true blockage of 90% right at a wall (a closed one of 95%), with the goal far
     /// downstream or near it in the band of [`CONVERGENT`], is a streamline to 1e-6 (the
-    /// worst seen in 20,000 cases is 6.4e-8; 3.7e-7 across the README's grid). Until issue
-    /// 13 the field pointed into such an obstacle at 9.6 m/s; until stop 27 the closure
-    /// crossed the wall at an angle, leaving a corner no series converged at, and residuals
-    /// up to 2e-2.
+    /// worst seen in 20,000 cases is 6.4e-8; 3.7e-7 across the grid of the planner's
+    /// documentation). A closure that crossed the wall at an angle would leave a corner no
+    /// series converges at (residuals of 2e-2), one that ignored the wall a field pointing
+    /// into the obstacle.
     #[test]
     fn lane_circles_near_a_wall_are_exact(
         h in 0.1..1.0f64,

@@ -1,7 +1,7 @@
 //! `flowgate calibrate`: the camera calibration from an LED placed at known floor points.
 //!
 //! The pieces without I/O live here: averaging one point's samples (weak and saturated
-//! ones rejected), the fit ([`Calibration::fit_with_distortion`]), the residual plot, and
+//! ones rejected), the fit ([`crate::calib::Calibration::fit_with_distortion`]), the residual plot, and
 //! writing the `[calibration]` section back into the user's `rig.toml` with `toml_edit`,
 //! so their comments and layout stay. The prompts and the streaming are the CLI's
 //! (`src/cli/calibrate.rs`), over [`PsdClient`].

@@ -240,7 +240,7 @@ impl World {
     /// the pose is integrated along them (see [`DiffDrive::motion`]), in one piece between
     /// the ramps' ends however long `dt` is. The truth is judged on a grid of at most
     /// 1 ms (`dt` split evenly): at its end always, and at every point of it only where a
-    /// contact or a new closest approach could fall between ([`World::quiet`]), which
+    /// contact or a new closest approach could fall between (`World::quiet`), which
     /// leaves the truth exactly as judging every point would. A control period of a sweep
     /// is then one integration and one judgement, except near a closest approach.
     pub fn step(&mut self, dt: f64) {
@@ -392,7 +392,7 @@ impl World {
 
     /// Whether none of the grid's `points - 1` points still to come, evenly between `pose`
     /// at `t` and the step's end (the present pose), can hold a contact or a new smallest
-    /// clearance: [`World::quiet`]'s test on one chord from `pose` to the end, its bow
+    /// clearance: `World::quiet`'s test on one chord from `pose` to the end, its bow
     /// from `swerve`, the most the centre's acceleration can be over the step (the chord
     /// may cross the pieces' ends: the speeds are continuous there, so a bound on the
     /// acceleration bounds the bow all the same).

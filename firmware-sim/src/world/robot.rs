@@ -32,7 +32,7 @@ impl DiffDrive {
     /// (m/s; left, right) go linearly from `from` to `to`, as they do on the boards' ramps.
     /// At constant speeds it is the exact arc; through a ramp the heading changes
     /// quadratically and the displacement is integrated by three-point Gauss-Legendre
-    /// quadrature over pieces turning at most [`QUADRATURE_TURN`] each (exact to about
+    /// quadrature over pieces turning at most `QUADRATURE_TURN` each (exact to about
     /// 1e-15 of the travel).
     pub fn motion(&self, from: [f64; 2], to: [f64; 2], span: f64) -> Motion {
         let (v0, v1) = (Self::speed(from), Self::speed(to));

@@ -5,7 +5,7 @@
 //! Gateway-added latency of a cycle: from the moment the last byte of the cycle's frames
 //! (its `FrameEnd`) has been written into the PSD pty, to the moment the resulting velocity
 //! command is readable on the bus. It includes the pty and the CAN transport, so each rate
-//! is first run through a null gateway ([`peers::NullGateway`]: the same endpoints, no
+//! is first run through a null gateway (`peers::NullGateway`: the same endpoints, no
 //! work) to measure the floor those impose on this machine. Both are stated beside the wire
 //! time of the same traffic, so a user can read off whether flowgate, the host or the wire
 //! is the bottleneck.
@@ -582,7 +582,7 @@ impl PairTally {
 
 /// Run the benchmark. The gateway (`gateway_exe run`) and the null gateway (`gateway_exe
 /// null-gateway`) are each their own process with their own PSD pty and CAN side; every
-/// phase alternates between them in blocks of [`BLOCK`], so the floor is measured over the
+/// phase alternates between them in blocks of `BLOCK`, so the floor is measured over the
 /// same seconds as the gateway. A phase with a low-latency window adds a second pair in
 /// that mode to the rotation, started for that phase only.
 pub async fn run(
@@ -675,7 +675,7 @@ pub async fn run(
         sustained_vs_floor_samples_per_s: sustained_vs_floor,
         gateway_states,
         other_states,
-        planner_note: "planner per-evaluation figures: cargo bench --bench planner (README)",
+        planner_note: "planner per-evaluation figures: cargo bench --bench planner (docs/performance.md)",
     })
 }
 
