@@ -649,6 +649,22 @@ fn a_silent_line_is_named_for_its_samples_whatever_the_watchdogs() {
     assert_eq!(e.report.final_state, State::Fault(StopReason::SamplesStopped), "{}", e.report);
 }
 
+/// An SLCAN adapter opened at 500 kbit/s on the 1 Mbit/s bus hears nothing, and its
+/// transmits, never acknowledged, take its controller error passive and then bus-off, as a
+/// real controller's error counters do: the gateway faults on it once armed, and nothing
+/// moves.
+#[test]
+fn an_adapter_at_another_bitrate_than_the_bus_goes_bus_off() {
+    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let adjust = |rig: &mut flowgate::config::Rig| {
+        rig.can = "slcan:/dev/null?bitrate=500000".parse().unwrap();
+    };
+    let e = sim::run(&s, Options { adjust_rig: Some(adjust), truth_samples: true, ..Options::default() });
+    assert_eq!(e.report.final_state, State::Fault(StopReason::BusOff), "{}", e.report);
+    assert_eq!(e.truth.summary.path_length, 0.0, "the robot moved");
+    assert_eq!(e.report.counters.can_frames_in, 0, "{}", e.report);
+}
+
 #[test]
 fn every_fault_of_the_table_is_detected_named_and_stopped_in_budget() {
     let mut failures = Vec::new();

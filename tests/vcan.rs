@@ -184,6 +184,29 @@ async fn a_bus_off_error_frame_faults_the_gateway() {
     assert!(r.report.counters.can_error_frames >= 1);
 }
 
+/// Sets a network interface up again when dropped (whatever the test's outcome).
+struct UpAgain<'a>(&'a str);
+
+impl Drop for UpAgain<'_> {
+    fn drop(&mut self) {
+        let _ = Command::new("ip").args(["link", "set", self.0, "up"]).status();
+    }
+}
+
+/// The host's own interface going down under a running gateway (`ip link set down`, as a
+/// `slcand` that exits or a USB adapter pulled) is named as such, not bus-off.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_interface_set_down_is_named_as_such() {
+    let Some(iface) = vcan("an_interface_set_down_is_named_as_such") else { return };
+    let run = e1_running_for(&iface, 1.0).await;
+    let up_again = UpAgain(&iface);
+    let ok = Command::new("ip").args(["link", "set", &iface, "down"]).status().expect("ip (iproute2)").success();
+    assert!(ok, "ip link set {iface} down");
+    let r = run.await.unwrap().expect("both sides survive");
+    drop(up_again);
+    assert_eq!(r.report.stop_reason, Some(flowgate::gateway::StopReason::CanInterfaceDown), "{}", r.report);
+}
+
 /// `flowgate bench --can socketcan:IFACE` works end to end: the gateway process and the null
 /// gateway both answer every frame over SocketCAN, and the bench's raw-socket reader sees
 /// every command. No timing is asserted (performance is measured by the bench, not tests).

@@ -8,7 +8,7 @@ use flowgate_protocol::CanFrame;
 pub const VERSION: (u8, u8) = (10, 13);
 pub const SERIAL: [u8; 4] = *b"FG01";
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct SlcanAdapter {
     open: bool,
     listen_only: bool,
@@ -16,13 +16,39 @@ pub struct SlcanAdapter {
     timestamps: bool,
     /// Lines the adapter refused (BEL).
     pub errors: u64,
-    /// The adapter's own CAN controller is bus-off: it sends nothing, refuses transmits and
-    /// says so in its status flags.
+    /// The adapter's own CAN controller is held bus-off (a fault the simulator injects): it
+    /// sends nothing, refuses transmits and says so in its status flags.
     pub bus_off: bool,
+    /// The bitrate the bus runs at. An adapter opened at another rate sees only bit errors:
+    /// nothing it receives is a frame, and nothing it sends is acknowledged.
+    pub bus_bitrate: Bitrate,
+    /// The controller's transmit error counter (ISO 11898-1: +8 an error, error passive from
+    /// 128, bus-off at 256); closing the channel resets the controller.
+    tec: u16,
+}
+
+impl Default for SlcanAdapter {
+    fn default() -> Self {
+        Self {
+            open: false,
+            listen_only: false,
+            bitrate: None,
+            timestamps: false,
+            errors: 0,
+            bus_off: false,
+            bus_bitrate: Bitrate::M1,
+            tec: 0,
+        }
+    }
 }
 
 /// Status flags while bus-off: bus error, error passive, transmit FIFO full.
 pub const BUS_OFF_FLAGS: u8 = 0x80 | 0x20 | 0x02;
+/// Status flags while error passive: bus error, error passive.
+pub const ERROR_PASSIVE_FLAGS: u8 = 0x80 | 0x20;
+/// A frame the controller cannot get acknowledged is sent again at once, some sixteen times
+/// before the host asks anything more: each adds 8 to the transmit error counter.
+const TEC_PER_FAILED_TRANSMIT: u16 = 16 * 8;
 
 impl SlcanAdapter {
     pub fn is_open(&self) -> bool {
@@ -32,13 +58,40 @@ impl SlcanAdapter {
         self.bitrate
     }
 
+    /// Whether its controller is off the bus: held there by a fault, or by its own errors.
+    fn off(&self) -> bool {
+        self.bus_off || self.tec >= 256
+    }
+
+    /// Opened at another rate than the bus's: every bit on the wire is an error to it.
+    fn mismatched(&self) -> bool {
+        self.open && self.bitrate.is_some_and(|b| b != self.bus_bitrate)
+    }
+
+    /// The LAWICEL status flags (`F`).
+    pub fn status_flags(&self) -> u8 {
+        if self.off() {
+            BUS_OFF_FLAGS
+        } else if self.tec >= 128 {
+            ERROR_PASSIVE_FLAGS
+        } else {
+            0
+        }
+    }
+
     /// One line from the host (or the error it decoded to). Replies go to `to_host`, a
     /// frame to transmit goes to `to_bus`.
     pub fn handle(&mut self, line: Option<Command>, to_host: &mut Vec<Response>, to_bus: &mut Vec<CanFrame>) {
         let ok = match line {
             None => false,
-            Some(Command::Transmit(frame)) if self.open && !self.listen_only && !self.bus_off => {
-                to_bus.push(frame);
+            Some(Command::Transmit(frame)) if self.open && !self.listen_only && !self.off() => {
+                if self.mismatched() {
+                    // Queued, but never acknowledged on the bus: retried until error passive,
+                    // and at the next such frame bus-off.
+                    self.tec = (self.tec + TEC_PER_FAILED_TRANSMIT).min(256);
+                } else {
+                    to_bus.push(frame);
+                }
                 to_host.push(Response::TxAck { extended: frame.id().is_extended() });
                 return;
             }
@@ -65,6 +118,7 @@ impl SlcanAdapter {
             }
             Some(Command::Close) => {
                 self.open = false;
+                self.tec = 0;
                 true
             }
             Some(Command::Version) => {
@@ -76,7 +130,7 @@ impl SlcanAdapter {
                 return;
             }
             Some(Command::StatusFlags) => {
-                to_host.push(Response::StatusFlags(if self.bus_off { BUS_OFF_FLAGS } else { 0 }));
+                to_host.push(Response::StatusFlags(self.status_flags()));
                 return;
             }
             Some(Command::Empty) => true,
@@ -91,7 +145,7 @@ impl SlcanAdapter {
 
     /// A frame seen on the bus, as the host receives it (only while the channel is open).
     pub fn from_bus(&self, frame: CanFrame, t: f64) -> Option<Response> {
-        (self.open && !self.bus_off).then(|| Response::Frame {
+        (self.open && !self.off() && !self.mismatched()).then(|| Response::Frame {
             frame,
             timestamp_ms: self.timestamps.then_some(((t * 1000.0) as u64 % 60_000) as u16),
         })
@@ -105,7 +159,7 @@ mod tests {
 
     #[test]
     fn python_can_start_sequence_then_traffic() {
-        let mut a = SlcanAdapter::default();
+        let mut a = SlcanAdapter { bus_bitrate: Bitrate::K500, ..SlcanAdapter::default() };
         let (mut host, mut bus) = (Vec::new(), Vec::new());
         for cmd in [Command::Close, Command::SetBitrate(Bitrate::K500), Command::Empty, Command::Open] {
             a.handle(Some(cmd), &mut host, &mut bus);
@@ -141,6 +195,43 @@ mod tests {
         a.handle(Some(Command::StatusFlags), &mut host, &mut bus);
         assert_eq!(host, vec![Response::Error, Response::StatusFlags(BUS_OFF_FLAGS)]);
         assert_eq!(bus.len(), 1, "nothing sent while bus-off");
+    }
+
+    /// An adapter opened at another rate than the bus's receives nothing, and its transmits,
+    /// never acknowledged, take it error passive and then bus-off, as a CAN controller's
+    /// error counters do; closing the channel resets it.
+    #[test]
+    fn a_bitrate_other_than_the_buss_ends_bus_off() {
+        let mut a = SlcanAdapter::default();
+        let (mut host, mut bus) = (Vec::new(), Vec::new());
+        for cmd in [Command::SetBitrate(Bitrate::K500), Command::Open] {
+            a.handle(Some(cmd), &mut host, &mut bus);
+        }
+        let f = CanFrame::new(CanId::Standard(0x101), &[1]).unwrap();
+        assert!(a.from_bus(f, 0.0).is_none(), "nothing received at the wrong rate");
+        host.clear();
+        a.handle(Some(Command::Transmit(f)), &mut host, &mut bus);
+        a.handle(Some(Command::StatusFlags), &mut host, &mut bus);
+        a.handle(Some(Command::Transmit(f)), &mut host, &mut bus);
+        a.handle(Some(Command::StatusFlags), &mut host, &mut bus);
+        a.handle(Some(Command::Transmit(f)), &mut host, &mut bus);
+        assert_eq!(
+            host,
+            vec![
+                Response::TxAck { extended: false },
+                Response::StatusFlags(ERROR_PASSIVE_FLAGS),
+                Response::TxAck { extended: false },
+                Response::StatusFlags(BUS_OFF_FLAGS),
+                Response::Error,
+            ]
+        );
+        assert!(bus.is_empty(), "nothing reached the bus");
+        host.clear();
+        for cmd in [Command::Close, Command::SetBitrate(Bitrate::M1), Command::Open, Command::StatusFlags] {
+            a.handle(Some(cmd), &mut host, &mut bus);
+        }
+        assert_eq!(host.last(), Some(&Response::StatusFlags(0)), "reopened at the bus's rate");
+        assert!(a.from_bus(f, 0.0).is_some());
     }
 
     #[test]

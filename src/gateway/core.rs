@@ -194,6 +194,8 @@ pub struct Core<K: StageClock> {
     rehandshake: bool,
     /// When another device's velocity command to our board was last heard.
     second_master_heard: Option<HostTime>,
+    /// The CAN link is open (not failed or down since it last opened).
+    can_link_up: bool,
     next_heartbeat: HostTime,
     stopping_since: Option<HostTime>,
     velocity_seq: u8,
@@ -247,6 +249,7 @@ impl<K: StageClock> Core<K> {
             robot_from_future: None,
             rehandshake: false,
             second_master_heard: None,
+            can_link_up: true,
             next_heartbeat: HostTime::ZERO,
             stopping_since: None,
             velocity_seq: 0,
@@ -444,17 +447,23 @@ impl<K: StageClock> Core<K> {
                     self.stop(now, StopReason::BusOff);
                 }
             }
+            CanEvent::InterfaceDown => {
+                self.can_link_up = false;
+                self.stop(now, StopReason::CanInterfaceDown);
+            }
         }
     }
 
-    /// The CAN link failed (a write error or timeout, the interface gone).
+    /// The CAN link failed (a write error or timeout, the adapter gone).
     pub fn can_failed(&mut self, now: HostTime) {
+        self.can_link_up = false;
         self.stop(now, StopReason::CanLinkLost);
     }
 
     /// The CAN link is open again after a loss (the core stays faulted until reset).
     pub fn can_reopened(&mut self) {
         self.counters.can_reconnects += 1;
+        self.can_link_up = true;
     }
 
     /// An operator's request at `now`. Refusals say exactly why and change nothing.
@@ -684,6 +693,7 @@ impl<K: StageClock> Core<K> {
             // (and a required one refuses the arm until then).
             StopReason::ObstacleOccluded { .. } => false,
             StopReason::BusOff => !heard || self.board.faults.contains(FaultBits::BUS),
+            StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link_up,
             // Two masters must never drive one board: refused while the other is heard.
             StopReason::SecondMaster => self.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout),
             // The reset clears the board's latched fault; a driver fault that persists
@@ -1106,7 +1116,14 @@ impl<K: StageClock> Core<K> {
                 }
                 StepStatus::Invalid(e) => {
                     self.counters.planner_invalid += 1;
-                    tracing::error!("planner: {e}");
+                    match e {
+                        crate::planner::PlannerError::InsideObstacle { index }
+                        | crate::planner::PlannerError::GoalInsideObstacle { index }
+                        | crate::planner::PlannerError::BadRadius { index } => {
+                            tracing::error!("planner: {e} (obstacle LED {})", self.obstacle_led(index));
+                        }
+                        _ => tracing::error!("planner: {e}"),
+                    }
                     self.stop(now, StopReason::PlannerInvalid);
                 }
             }
@@ -1458,6 +1475,21 @@ mod tests {
         c.psd_bytes(ms(2), &garbled);
         assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1 + garbled.len() as u64);
         assert_eq!(c.counters().bad_serial_frames, 2);
+    }
+
+    /// A SocketCAN interface that goes down is named as such (not bus-off), and its fault
+    /// cannot be reset until the link is open again.
+    #[test]
+    fn an_interface_gone_down_is_named_and_held_until_the_link_reopens() {
+        let mut c = core();
+        c.request(ms(1), &Request::Arm).unwrap();
+        c.can_event(ms(2), CanEvent::InterfaceDown);
+        assert_eq!(c.state(), State::Fault(StopReason::CanInterfaceDown));
+        assert_eq!(StopReason::CanInterfaceDown.to_string(), "CAN interface went down");
+        assert_eq!(c.request(ms(3), &Request::Reset), Err(Refusal::CauseStillPresent(StopReason::CanInterfaceDown)));
+        c.can_reopened();
+        assert_eq!(c.request(ms(4), &Request::Reset), Ok(()));
+        assert_eq!(c.state(), State::Idle);
     }
 
     fn ms(v: u64) -> HostTime {

@@ -202,6 +202,7 @@ pub fn input_json(r: &InputRecord) -> Value {
             CanEvent::ErrorFrame { bus_off } => json!({ "event": "error_frame", "bus_off": bus_off }),
             CanEvent::Garbled => json!({ "event": "garbled" }),
             CanEvent::TransmitRefused => json!({ "event": "transmit_refused" }),
+            CanEvent::InterfaceDown => json!({ "event": "interface_down" }),
             CanEvent::AdapterStatus { bus_off, error_passive } => {
                 json!({ "event": "adapter_status", "bus_off": bus_off, "error_passive": error_passive })
             }
@@ -248,6 +249,7 @@ pub fn input_from_json(v: &Value) -> Result<InputRecord, String> {
             "error_frame" => CanEvent::ErrorFrame { bus_off: flag("bus_off")? },
             "garbled" => CanEvent::Garbled,
             "transmit_refused" => CanEvent::TransmitRefused,
+            "interface_down" => CanEvent::InterfaceDown,
             "adapter_status" => {
                 CanEvent::AdapterStatus { bus_off: flag("bus_off")?, error_passive: flag("error_passive")? }
             }
@@ -624,6 +626,7 @@ mod tests {
             Input::Can(CanEvent::ErrorFrame { bus_off: true }),
             Input::Can(CanEvent::Garbled),
             Input::Can(CanEvent::TransmitRefused),
+            Input::Can(CanEvent::InterfaceDown),
             Input::Can(CanEvent::AdapterStatus { bus_off: false, error_passive: true }),
             Input::CanFailed,
             Input::CanReopened,

@@ -56,8 +56,10 @@ pub enum StopReason {
     BoardSequence,
     /// The SLCAN adapter refused more transmits than the budget allows.
     CanTransmitRefused,
-    /// The CAN link itself failed: a write error or timeout, the adapter or interface gone.
+    /// The CAN link itself failed: a write error or timeout, the adapter gone.
     CanLinkLost,
+    /// The SocketCAN interface went down or away (not the bus: the host's interface).
+    CanInterfaceDown,
     HeartbeatLost,
     /// The motor board announced a boot while the gateway drove it.
     BoardReboot,
@@ -147,6 +149,7 @@ impl std::fmt::Display for StopReason {
             Self::BoardSequence => "motor board counts lost or foreign commands beyond budget",
             Self::CanTransmitRefused => "CAN adapter refuses to transmit beyond budget",
             Self::CanLinkLost => "CAN link lost",
+            Self::CanInterfaceDown => "CAN interface went down",
             Self::BoardReboot => "motor board rebooted",
             Self::SecondMaster => "another device commands the motor board",
             Self::ObstacleOccluded { led } => {

@@ -347,6 +347,11 @@ impl<K: StageClock> VirtualRig<K> {
         if let Some(adjust) = options.adjust_rig {
             adjust(&mut gateway_rig);
         }
+        // The shell opens the adapter at the rig's bitrate; the simulated bus runs at 1 Mbit/s.
+        let adapter_bitrate = match &gateway_rig.can {
+            crate::link::CanUrl::Slcan { bitrate, .. } => Bitrate::from_bps(*bitrate).unwrap_or(Bitrate::M1),
+            _ => Bitrate::M1,
+        };
         let mut rig = Self {
             t: 0,
             core: Core::new(gateway_rig, clock),
@@ -398,7 +403,7 @@ impl<K: StageClock> VirtualRig<K> {
         };
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
         if options.can == CanTransport::Slcan {
-            for cmd in [Command::Close, Command::SetBitrate(Bitrate::M1), Command::Open] {
+            for cmd in [Command::Close, Command::SetBitrate(adapter_bitrate), Command::Open] {
                 rig.host_line(cmd);
             }
         }

@@ -83,6 +83,8 @@ pub enum CanError {
     SlcanSilent { path: String },
     #[error("CAN link closed")]
     Closed,
+    #[error("CAN interface went down")]
+    InterfaceDown,
     #[error("CAN {what} did not finish within its deadline (adapter stalled?)")]
     Timeout { what: &'static str },
     #[error("CAN I/O: {0}")]
@@ -108,6 +110,9 @@ pub enum CanEvent {
         bus_off: bool,
         error_passive: bool,
     },
+    /// The SocketCAN interface went down or away (`ip link set down`, a `slcand` that
+    /// exited, a USB adapter pulled): not the bus, the host's own interface.
+    InterfaceDown,
 }
 
 /// LAWICEL status flags (`F` reply): transmit FIFO full, error passive, bus error.
@@ -184,6 +189,19 @@ pub async fn open_can(url: &CanUrl) -> Result<CanLink, CanError> {
 /// SocketCAN (`can0`, `vcan0`).
 pub struct SocketCanLink {
     socket: socketcan::tokio::CanSocket,
+    interface: String,
+    /// The interface was reported down once: the next failure ends the link.
+    reported_down: bool,
+}
+
+/// Whether a network interface is down or gone: its `IFF_UP` flag clear in sysfs, or no
+/// such interface.
+fn interface_down(interface: &str) -> bool {
+    let flags = std::fs::read_to_string(format!("/sys/class/net/{interface}/flags"));
+    match flags.ok().and_then(|f| u32::from_str_radix(f.trim().trim_start_matches("0x"), 16).ok()) {
+        Some(flags) => flags & 1 == 0,
+        None => true,
+    }
 }
 
 impl SocketCanLink {
@@ -195,7 +213,7 @@ impl SocketCanLink {
         socket
             .set_error_filter_accept_all()
             .map_err(|source| CanError::SocketCan { interface: interface.to_string(), source })?;
-        Ok(Self { socket })
+        Ok(Self { socket, interface: interface.to_string(), reported_down: false })
     }
 }
 
@@ -210,14 +228,22 @@ impl SocketCanLink {
         Ok(self.socket.write_frame(frame.into()).await?)
     }
     async fn recv(&mut self) -> Result<CanEvent, CanError> {
-        match self.socket.next().await {
-            Some(Ok(f)) => Ok(match CanFrame::try_from(&f) {
-                Ok(frame) => CanEvent::Frame(frame),
-                Err(e) => CanEvent::ErrorFrame { bus_off: e.0 & CAN_ERR_BUSOFF != 0 },
-            }),
+        // A bus-off report or a failing socket may be the interface itself going away:
+        // named as such, once; after that a failure ends the link (and it is reopened).
+        let event = match self.socket.next().await {
+            Some(Ok(f)) => match CanFrame::try_from(&f) {
+                Ok(frame) => return Ok(CanEvent::Frame(frame)),
+                Err(e) => Ok(CanEvent::ErrorFrame { bus_off: e.0 & CAN_ERR_BUSOFF != 0 }),
+            },
             Some(Err(e)) => Err(CanError::Io(std::io::Error::other(e))),
             None => Err(CanError::Closed),
+        };
+        let suspect = !matches!(event, Ok(CanEvent::ErrorFrame { bus_off: false }));
+        if suspect && !self.reported_down && interface_down(&self.interface) {
+            self.reported_down = true;
+            return Ok(CanEvent::InterfaceDown);
         }
+        event
     }
 }
 

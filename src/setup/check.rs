@@ -576,6 +576,7 @@ async fn listen(link: &mut CanLink, node: NodeId, poll_status: bool) -> Result<H
             }
             CanEvent::AdapterStatus { bus_off, error_passive } => heard.adapter = Some((bus_off, error_passive)),
             CanEvent::Garbled | CanEvent::TransmitRefused => heard.error_frames += 1,
+            CanEvent::InterfaceDown => return Err(CanError::InterfaceDown),
         }
     }
     heard.other_nodes.sort_unstable();
