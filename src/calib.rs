@@ -215,6 +215,24 @@ impl Calibration {
         self.to_raw(floor).is_some_and(|(x, y)| x.abs() < self.half_scale && y.abs() < self.half_scale)
     }
 
+    /// An axis-aligned rectangle of floor the PSD sees, `[x_min, x_max, y_min, y_max]` (m):
+    /// inside the quadrilateral the corners of its counts span (its sides straight without
+    /// lens distortion, bowed a little with it). `None` if a corner maps to no floor point.
+    pub fn inner_rect(&self) -> Option<[f64; 4]> {
+        let h = self.half_scale;
+        let c = |x: f64, y: f64| self.to_floor(x, y);
+        let (a, b, cc, d) = (c(-h, -h)?, c(h, -h)?, c(h, h)?, c(-h, h)?);
+        let xs = [a.re, b.re, cc.re, d.re];
+        let ys = [a.im, b.im, cc.im, d.im];
+        // The two smallest x are the left side's corners: the rectangle starts at the larger.
+        let mut sx = xs;
+        sx.sort_by(f64::total_cmp);
+        let mut sy = ys;
+        sy.sort_by(f64::total_cmp);
+        let rect = [sx[1], sx[2], sy[1], sy[2]];
+        (rect[0] < rect[1] && rect[2] < rect[3]).then_some(rect)
+    }
+
     /// The floor the PSD sees, in words for an error message: the floor points at the
     /// corners of its counts (the calibrated arena is the quadrilateral they span, its
     /// sides bowed by the lens distortion).

@@ -734,7 +734,7 @@ impl GatewayConfig {
                 return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is listed twice"));
             }
         }
-        let control = self.control_config(sample_period);
+        let control = self.control_config(sample_period, &calibration);
         let ppm = control.drive.pulses_per_metre();
         let to_rate = |key: &str, v: f64| {
             let rate = (v * ppm).round();
@@ -815,18 +815,21 @@ impl GatewayConfig {
     }
 
     /// The control settings: the one place a config becomes a [`ControlConfig`].
-    fn control_config(&self, sample_period: Duration) -> ControlConfig {
+    fn control_config(&self, sample_period: Duration, calibration: &Calibration) -> ControlConfig {
         let robot = self.robot.radius;
         let reference_radius = robot + self.leds.obstacles.iter().map(|o| o.radius).fold(robot, f64::max);
         let p = &self.planner;
         let d = &self.drive;
-        let supervisor = SupervisorConfig::new(
+        let mut supervisor = SupervisorConfig::new(
             d.wheel_accel,
             d.wheel_base,
             robot,
             sample_period.as_secs_f64(),
             self.lane.map(|l| l.half_width),
         );
+        // Both LEDs in view: the centre keeps the farther LED's offset from the view's edge.
+        let led = self.leds.front_offset.max(self.leds.rear_offset);
+        supervisor.arena = calibration.inner_rect().map(|[x0, x1, y0, y1]| [x0 + led, x1 - led, y0 + led, y1 - led]);
         ControlConfig {
             planner: PlannerConfig {
                 space: self.lane.map_or(Space::Free, |l| Space::Lane { half_width: l.half_width }),

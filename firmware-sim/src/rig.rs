@@ -118,6 +118,67 @@ pub enum RigError {
     Link { path: PathBuf, source: std::io::Error },
     #[error("cannot open CAN interface {interface}: {source} (does it exist and is it up? `ip link add dev vcan0 type vcan; ip link set up vcan0`)")]
     SocketCan { interface: String, source: std::io::Error },
+    #[error("cannot start the simulator's thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// A rig running on a thread of its own, with its own runtime: its firmware keeps the pace
+/// of its deadlines whatever the process around it does (a gateway, a live view and a
+/// browser sharing a loaded machine's CPUs).
+#[derive(Debug)]
+pub struct RigThread {
+    /// The path a host opens for the PSD controller.
+    pub psd_path: PathBuf,
+    /// The SLCAN adapter's path (with `slcan-pty`).
+    pub can_path: Option<PathBuf>,
+    stop: oneshot::Sender<()>,
+    truth: oneshot::Receiver<TruthRecord>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl RigThread {
+    /// Stop the rig; returns the world's truth.
+    pub async fn stop(self) -> TruthRecord {
+        let _ = self.stop.send(());
+        let truth = self.truth.await.unwrap_or_default();
+        let _ = self.thread.join();
+        truth
+    }
+}
+
+/// Start a rig on a thread of its own (see [`RigThread`]).
+pub async fn spawn(config: RigConfig) -> Result<RigThread, RigError> {
+    let (ready_tx, ready_rx) = oneshot::channel();
+    let (stop_tx, stop_rx) = oneshot::channel::<()>();
+    let (truth_tx, truth_rx) = oneshot::channel();
+    let thread = std::thread::Builder::new()
+        .name("flowgate-sim".into())
+        .spawn(move || {
+            let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+                Ok(r) => r,
+                Err(e) => {
+                    let _ = ready_tx.send(Err(RigError::Thread(e)));
+                    return;
+                }
+            };
+            runtime.block_on(async move {
+                match start(config).await {
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                    }
+                    Ok(handle) => {
+                        let _ = ready_tx.send(Ok((handle.psd_path.clone(), handle.can_path.clone())));
+                        let _ = stop_rx.await;
+                        let _ = truth_tx.send(handle.stop().await);
+                    }
+                }
+            });
+        })
+        .map_err(RigError::Thread)?;
+    let (psd_path, can_path) = ready_rx
+        .await
+        .map_err(|_| RigError::Thread(std::io::Error::other("the simulator's thread ended at start")))??;
+    Ok(RigThread { psd_path, can_path, stop: stop_tx, truth: truth_rx, thread })
 }
 
 /// Counters of the rig's links, readable while it runs.

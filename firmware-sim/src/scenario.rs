@@ -37,7 +37,34 @@ pub struct Scenario {
     /// ±0.8 m). A larger arena describes a camera that sees it.
     #[serde(default)]
     pub camera: crate::calibration::CameraModel,
+    /// A crowd crossing a circle (CrowdNav's circle crossing): the robot and the obstacles
+    /// are placed by [`Scenario::crowd_episode`], afresh for every episode of a sweep.
+    #[serde(default)]
+    pub crowd: Option<CrowdSpec>,
 }
+
+/// The robot and `obstacles` non-reactive obstacles on a circle of `circle_radius` about
+/// the origin, each crossing to the opposite side: the robot from (0, -r) to (0, r), each
+/// obstacle from a random point of the circle to its antipode (both jittered), at
+/// `speed_ratio` of the robot's speed limit, then standing there.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CrowdSpec {
+    pub obstacles: usize,
+    pub circle_radius: f64,
+    pub obstacle_radius: f64,
+    pub speed_ratio: f64,
+    /// The largest offset of each start and each goal from the circle, m, either axis.
+    #[serde(default = "default_jitter")]
+    pub jitter: f64,
+}
+
+fn default_jitter() -> f64 {
+    0.05
+}
+
+/// How many placements a crowd tries before it gives up on one obstacle's place.
+const CROWD_TRIES: usize = 10_000;
 
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -172,11 +199,92 @@ impl Scenario {
         Self::from_toml(&text, &path.display().to_string())
     }
 
-    /// Parse and validate scenario text; `origin` names it in errors.
+    /// Parse and validate scenario text; `origin` names it in errors. A crowd is placed for
+    /// its first episode, from `sensing.seed`.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ScenarioError> {
-        let s: Scenario =
+        let mut s: Scenario =
             toml::from_str(text).map_err(|e| ScenarioError::Parse { path: origin.into(), source: Box::new(e) })?;
-        s.validate().map_err(|(key, why)| ScenarioError::Invalid { path: origin.into(), key, why })?;
+        let invalid = |(key, why)| ScenarioError::Invalid { path: origin.into(), key, why };
+        if s.crowd.is_some() {
+            s.validate_crowd().map_err(invalid)?;
+            s = s.crowd_episode(s.sensing.seed, 0).map_err(invalid)?;
+        }
+        s.validate().map_err(invalid)?;
+        Ok(s)
+    }
+
+    fn validate_crowd(&self) -> Result<(), (String, String)> {
+        let Some(c) = self.crowd else { return Ok(()) };
+        let bad = |key: &str, why: String| Err((format!("crowd.{key}"), why));
+        if !(1..=16).contains(&c.obstacles) {
+            return bad("obstacles", format!("must be 1-16, is {}", c.obstacles));
+        }
+        for (key, v) in
+            [("circle_radius", c.circle_radius), ("obstacle_radius", c.obstacle_radius), ("speed_ratio", c.speed_ratio)]
+        {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(key, format!("must be a positive number, is {v}"));
+            }
+        }
+        if !(c.jitter.is_finite() && c.jitter >= 0.0 && c.jitter < c.circle_radius) {
+            return bad("jitter", format!("must be 0 or more, under circle_radius, is {}", c.jitter));
+        }
+        if !self.obstacles.is_empty() {
+            return Err(("obstacles".into(), "a crowd places its own obstacles: leave [[obstacles]] out".into()));
+        }
+        Ok(())
+    }
+
+    /// This scenario with its crowd placed for episode `i` of seed `seed` (reproducibly from
+    /// the two), or as it is without a crowd. A crowd that cannot be placed without overlap
+    /// in [`CROWD_TRIES`] tries an obstacle is refused, naming the key.
+    pub fn crowd_episode(&self, seed: u64, i: u64) -> Result<Scenario, (String, String)> {
+        use rand::{Rng, SeedableRng};
+        let Some(c) = self.crowd else { return Ok(self.clone()) };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ i.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xC20D);
+        let mut s = self.clone();
+        s.obstacles.clear();
+        let r = c.circle_radius;
+        s.robot.start = [0.0, -r];
+        s.robot.heading_deg = 90.0;
+        s.goal.position = [0.0, r];
+        let (start, goal) = (point(s.robot.start), point(s.goal.position));
+        let body = c.obstacle_radius + s.robot.radius + 0.05;
+        let apart = 2.0 * c.obstacle_radius + 0.02;
+        let speed = c.speed_ratio * s.robot.max_speed;
+        let mut placed: Vec<(Point, Point)> = Vec::with_capacity(c.obstacles);
+        for k in 0..c.obstacles {
+            let mut found = None;
+            for _ in 0..CROWD_TRIES {
+                let theta = rng.random_range(0.0..std::f64::consts::TAU);
+                let mut jitter =
+                    || Point::new(rng.random_range(-c.jitter..=c.jitter), rng.random_range(-c.jitter..=c.jitter));
+                let from = Point::from_polar(r, theta) + jitter();
+                let to = -Point::from_polar(r, theta) + jitter();
+                let clear = (from - start).norm() >= body
+                    && (from - goal).norm() >= body
+                    && (to - goal).norm() >= body
+                    && (to - start).norm() >= body
+                    && placed.iter().all(|&(f, t)| (from - f).norm() >= apart && (to - t).norm() >= apart);
+                if clear {
+                    found = Some((from, to));
+                    break;
+                }
+            }
+            let Some((from, to)) = found else {
+                return Err((
+                    "crowd.obstacles".into(),
+                    format!("obstacle {k} finds no place on a circle of {r} m clear of the others"),
+                ));
+            };
+            placed.push((from, to));
+            s.obstacles.push(ObstacleSpec {
+                radius: c.obstacle_radius,
+                start: [from.re, from.im],
+                motion: Motion::Waypoints { points: vec![[to.re, to.im]], speed, repeat: false },
+            });
+        }
+        s.sensing.seed = rng.random();
         Ok(s)
     }
 

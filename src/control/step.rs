@@ -1,4 +1,4 @@
-use super::supervisor::{supervise, Supervision, SupervisorConfig};
+use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
 use crate::geometry::Length;
 use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::planner::{Field, ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
@@ -202,7 +202,20 @@ impl ControlStep {
         }
         let proposed = wheel_speeds(plan.velocity, estimate.facing, &self.config.drive);
         let (wheels, supervision) = match &self.config.supervisor {
-            Some(cfg) => supervise(cfg, estimate, proposed),
+            Some(cfg) => {
+                let (chosen, verdict) = supervise(cfg, estimate, proposed);
+                let hazard = match verdict {
+                    Supervision::Slowed { hazard } | Supervision::Braking { hazard } => Some(hazard),
+                    Supervision::Passed => Some(None),
+                    Supervision::Evaded { .. } => None,
+                };
+                // Evasion's wheels stay within the robot's speed limit, as the planner's do.
+                let max_wheel = self.config.planner.max_speed.min(self.config.drive.max_wheel_speed);
+                match hazard.and_then(|h| evade(cfg, estimate, proposed, chosen, max_wheel).map(|e| (e, h))) {
+                    Some((evasive, hazard)) => (evasive, Supervision::Evaded { hazard }),
+                    None => (chosen, verdict),
+                }
+            }
             None => (proposed, Supervision::Passed),
         };
         let pulses = pulse_rates(wheels, &self.config.drive);

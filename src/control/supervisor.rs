@@ -61,6 +61,9 @@ pub struct SupervisorConfig {
     pub sigmas: f64,
     /// Gap kept beyond the uncertainty, m.
     pub clearance: f64,
+    /// Where the camera sees the robot's centre, `[x_min, x_max, y_min, y_max]` (m): an
+    /// evasion keeps it inside (the promise does not depend on it). `None`: anywhere.
+    pub arena: Option<[f64; 4]>,
 }
 
 impl SupervisorConfig {
@@ -76,6 +79,7 @@ impl SupervisorConfig {
             lane_half_width: lane,
             sigmas: 1.0,
             clearance: 0.002,
+            arena: None,
         }
     }
 }
@@ -97,6 +101,10 @@ pub enum Supervision {
     Slowed { hazard: Option<usize> },
     /// Even braking cannot keep the promise under the estimate: the robot brakes.
     Braking { hazard: Option<usize> },
+    /// Slowed or braking, the robot would stand in an obstacle's way: it evades instead,
+    /// with the reachable command that keeps the largest predicted clearance (see
+    /// [`evade`]).
+    Evaded { hazard: Option<usize> },
 }
 
 impl Supervision {
@@ -202,6 +210,86 @@ pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: Whee
     }
     (with(held_turn)(0.0), Supervision::Braking { hazard: hazard.index() })
 }
+
+/// How far ahead evasion looks, s: long enough for an obstacle at the robot's speed to
+/// cross its keep-out circle, short enough that the obstacles' straight courses hold.
+pub const EVASION_HORIZON: f64 = 2.0;
+/// Evasion's prediction step, s.
+const EVASION_STEP: f64 = 0.05;
+/// Each wheel's candidate speeds, as fractions of its limit: the commands evasion chooses
+/// among (reversing included) are every pair of these.
+const EVASION_WHEEL_FRACTIONS: [f64; 7] = [-1.0, -0.6, -0.3, 0.0, 0.3, 0.6, 1.0];
+
+/// Evasion: when the command the supervisor passed would leave the robot inside a moving
+/// obstacle's keep-out circle within [`EVASION_HORIZON`] (the obstacle running into it),
+/// choose among the commands the wheels can reach, reversing included, that keep the
+/// supervisor's promise (never driving into a hazard): the nearest to the planner's
+/// `proposed` command that keeps clear of every hazard over the horizon, walls included;
+/// if none does, the one that keeps the largest predicted clearance. `None`: the chosen
+/// command is kept (no contact predicted, or nothing does better).
+pub fn evade(
+    cfg: &SupervisorConfig,
+    estimate: &Estimate<'_>,
+    proposed: WheelSpeeds,
+    chosen: WheelSpeeds,
+    max_wheel_speed: f64,
+) -> Option<WheelSpeeds> {
+    let mut hazards = ArrayVec::new();
+    fill_hazards(&mut hazards, cfg, estimate.predicted);
+    let ctx = Context {
+        cfg,
+        position: estimate.position,
+        facing: estimate.facing,
+        wheels: estimate.wheels,
+        hazards: &hazards,
+    };
+    if ctx.least_margin_ahead(chosen, Ahead::Moving) >= 0.0 {
+        return None;
+    }
+    let kept = ctx.least_margin_ahead(chosen, Ahead::All);
+    // The nearest clear command to the proposal, else the largest margin.
+    let (mut nearest, mut widest): (Option<(f64, WheelSpeeds)>, (f64, WheelSpeeds)) = (None, (kept, chosen));
+    for left in EVASION_WHEEL_FRACTIONS {
+        for right in EVASION_WHEEL_FRACTIONS {
+            let command = WheelSpeeds { left: left * max_wheel_speed, right: right * max_wheel_speed };
+            if ctx.first_driven_into(command, EVASION_SPARE).is_some() || ctx.approaches_a_near_obstacle(command) {
+                continue;
+            }
+            let margin = ctx.least_margin_ahead(command, Ahead::All);
+            if margin >= 0.0 {
+                let off = (command.left - proposed.left).hypot(command.right - proposed.right);
+                if nearest.is_none_or(|(d, _)| off < d) {
+                    nearest = Some((off, command));
+                }
+            } else if margin > widest.0 + 1e-9 {
+                widest = (margin, command);
+            }
+        }
+    }
+    let command = nearest.map_or(widest.1, |(_, c)| c);
+    (command != chosen).then_some(command)
+}
+
+/// What an evasive command is certified with beyond the promise, m: more than a command
+/// the planner proposed ([`ROBUSTNESS`]), since an evasion turns and reverses where the
+/// next cycle's brake must still find its way clear.
+const EVASION_SPARE: f64 = 0.01;
+
+/// How close an obstacle's keep-out circle may be for evasion to move toward it, m.
+const EVASION_NEAR: f64 = 0.15;
+/// How close a lane line may be for evasion to move toward it, m.
+const EVASION_NEAR_WALL: f64 = 0.05;
+
+/// Which hazards a look ahead judges.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Ahead {
+    /// Only obstacles that move (what can run into a robot).
+    Moving,
+    All,
+}
+
+/// Below this speed an obstacle counts as standing for evasion's trigger, m/s.
+const STANDING: f64 = 0.02;
 
 /// What a command is certified with beyond the promise, m: the next cycle judges the brake
 /// it relied on from a state a little off the model's (whole pulses, the cycle's jitter),
@@ -367,6 +455,69 @@ impl Context<'_> {
             };
             far || never_toward(hz, s, position, facing, left, turned)
         })
+    }
+
+    /// Whether `command` would move the robot's centre toward an obstacle within
+    /// [`EVASION_NEAR`] of its keep-out circle, or toward a lane line within
+    /// [`EVASION_NEAR_WALL`]: an evasion only ever moves away from what is close, so an
+    /// estimate a little off cannot turn it into driving into that obstacle or line.
+    fn approaches_a_near_obstacle(&self, command: WheelSpeeds) -> bool {
+        let velocity = self.facing * (0.5 * (command.left + command.right));
+        let p = self.position;
+        let near_edge = self.cfg.arena.is_some_and(|[x0, x1, y0, y1]| {
+            (p.re - x0 < EVASION_NEAR_WALL && velocity.re < 0.0)
+                || (x1 - p.re < EVASION_NEAR_WALL && velocity.re > 0.0)
+                || (p.im - y0 < EVASION_NEAR_WALL && velocity.im < 0.0)
+                || (y1 - p.im < EVASION_NEAR_WALL && velocity.im > 0.0)
+        });
+        near_edge
+            || self.hazards.iter().any(|h| match *h {
+                Hazard::Obstacle { center, keep, .. } => {
+                    let offset = center - self.position;
+                    offset.length() - keep < EVASION_NEAR && (velocity.conj() * offset).re > 0.0
+                }
+                Hazard::Wall { side, keep } => self.cfg.lane_half_width.is_some_and(|hw| {
+                    hw - side * self.position.im - keep < EVASION_NEAR_WALL && side * velocity.im > 0.0
+                }),
+            })
+    }
+
+    /// The least margin to any hazard (the gap beyond what the robot must keep from it) over
+    /// [`EVASION_HORIZON`], the wheels ramping to `command` and holding it, each obstacle
+    /// moving on at its estimated velocity, its keep-out growing with its uncertainty.
+    fn least_margin_ahead(&self, command: WheelSpeeds, which: Ahead) -> f64 {
+        let a = self.cfg.wheel_accel * EVASION_STEP;
+        let (mut wheels, mut position, mut facing) = (self.wheels, self.position, self.facing);
+        let mut least = f64::INFINITY;
+        let steps = (EVASION_HORIZON / EVASION_STEP).round() as usize;
+        for k in 0..=steps {
+            let t = k as f64 * EVASION_STEP;
+            for h in self.hazards {
+                let margin = match *h {
+                    Hazard::Obstacle { speed, growth, .. } if which == Ahead::Moving && speed < STANDING + growth => {
+                        continue
+                    }
+                    Hazard::Wall { .. } if which == Ahead::Moving => continue,
+                    Hazard::Obstacle { center, velocity, keep, growth, .. } => {
+                        (position - (center + velocity * t)).length() - keep - growth * t
+                    }
+                    Hazard::Wall { side, keep } => {
+                        self.cfg.lane_half_width.map_or(f64::INFINITY, |hw| hw - side * position.im - keep)
+                    }
+                };
+                least = least.min(margin);
+            }
+            if let (Some([x0, x1, y0, y1]), Ahead::All) = (self.cfg.arena, which) {
+                let inside = (position.re - x0).min(x1 - position.re).min(position.im - y0).min(y1 - position.im);
+                least = least.min(inside);
+            }
+            wheels = [ramp(wheels[0], command.left, a), ramp(wheels[1], command.right, a)];
+            let speed = 0.5 * (wheels[0] + wheels[1]);
+            let turn = (wheels[1] - wheels[0]) / self.cfg.wheel_base * EVASION_STEP;
+            position += facing * (speed * EVASION_STEP);
+            facing *= C::from_polar(1.0, turn);
+        }
+        least
     }
 
     /// The first hazard `command` drives into along its path (see the module docs).

@@ -1095,6 +1095,7 @@ impl<K: StageClock> Core<K> {
                         Supervision::Passed => {}
                         Supervision::Slowed { .. } => self.counters.supervisor_slowed += 1,
                         Supervision::Braking { .. } => self.counters.supervisor_braking += 1,
+                        Supervision::Evaded { .. } => self.counters.supervisor_evaded += 1,
                     }
                 }
                 StepStatus::AtGoal => self.goal_reached(now),

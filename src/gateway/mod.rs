@@ -138,6 +138,9 @@ pub struct Counters {
     /// Cycles in which the supervisor braked because no slower command could keep its
     /// promise (the estimate moved faster than a reaction time allows for).
     pub supervisor_braking: u64,
+    /// Cycles in which slowing or braking would have left the robot in an obstacle's way,
+    /// and it evaded instead (the supervisor's [`crate::control::supervisor::evade`]).
+    pub supervisor_evaded: u64,
     /// Cycles in which some obstacle outran what the robot can deliver (judged with
     /// hysteresis on its tracked speed): avoidance is not guaranteed then.
     pub obstacle_outran_robot: u64,

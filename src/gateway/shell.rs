@@ -320,7 +320,9 @@ impl Io {
     /// it every `REOPEN_EVERY`. The core stays faulted: an operator resets and arms again.
     fn lose_can<K: StageClock>(&mut self, core: &mut Core<K>) {
         let now = self.now();
-        self.feed(core, now, Input::CanFailed);
+        // A SocketCAN interface that went down or away is named as such, not as the link.
+        let down = matches!(&self.can_url, CanUrl::SocketCan { interface } if crate::link::interface_down(interface));
+        self.feed(core, now, if down { Input::Can(CanEvent::InterfaceDown) } else { Input::CanFailed });
         if self.can.take().is_some() {
             self.next_can_reopen = now + REOPEN_EVERY;
         }

@@ -70,7 +70,8 @@ pub async fn run(
         }
         CanEndpoint::SlcanPty { .. } => String::new(),
     };
-    let handle = rig::start(rig_cfg).await?;
+    // The simulator on a thread of its own: on a loaded machine it keeps its pace.
+    let handle = rig::spawn(rig_cfg).await?;
     let can_url = if can_url.is_empty() {
         format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().expect("slcan pty").display())
     } else {

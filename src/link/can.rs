@@ -196,7 +196,7 @@ pub struct SocketCanLink {
 
 /// Whether a network interface is down or gone: its `IFF_UP` flag clear in sysfs, or no
 /// such interface.
-fn interface_down(interface: &str) -> bool {
+pub fn interface_down(interface: &str) -> bool {
     let flags = std::fs::read_to_string(format!("/sys/class/net/{interface}/flags"));
     match flags.ok().and_then(|f| u32::from_str_radix(f.trim().trim_start_matches("0x"), 16).ok()) {
         Some(flags) => flags & 1 == 0,

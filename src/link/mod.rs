@@ -8,6 +8,7 @@ mod can;
 mod serial;
 
 pub use can::{
-    open_can, slcan_event, CanError, CanEvent, CanLink, CanUrl, MemoryBus, MemoryLink, SlcanLink, SocketCanLink,
+    interface_down, open_can, slcan_event, CanError, CanEvent, CanLink, CanUrl, MemoryBus, MemoryLink, SlcanLink,
+    SocketCanLink,
 };
 pub use serial::{open_serial, SerialError};

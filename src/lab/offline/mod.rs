@@ -100,6 +100,7 @@ impl Run {
             invalid_cycles: e.report.counters.planner_invalid,
             supervisor_slowed_cycles: e.report.counters.supervisor_slowed,
             supervisor_braking_cycles: e.report.counters.supervisor_braking,
+            supervisor_evaded_cycles: e.report.counters.supervisor_evaded,
             goal_occupied_cycles: e.report.counters.goal_occupied,
             saturated_cycles: e.report.counters.planner_saturated,
             tie_break_cycles: e.report.counters.planner_tie_break,
@@ -148,6 +149,9 @@ pub struct Summary {
     pub supervisor_slowed_cycles: u64,
     /// Cycles in which the supervisor braked, no slower command keeping its promise.
     pub supervisor_braking_cycles: u64,
+    /// Cycles in which the robot evaded instead of slowing or braking in an obstacle's way.
+    #[serde(default)]
+    pub supervisor_evaded_cycles: u64,
     /// Cycles the robot held still while the goal was inside an obstacle's planning circle.
     pub goal_occupied_cycles: u64,
     pub saturated_cycles: u64,
@@ -306,6 +310,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
     let mut trace = Vec::new();
     let (mut invalid, mut saturated, mut tie_break, mut shrunk, mut faster, mut cycles) = (0, 0, 0, 0, false, 0u64);
     let (mut slowed, mut braking, mut goal_occupied, mut unclosed) = (0, 0, 0, 0);
+    let mut evaded = 0;
 
     let outcome = loop {
         let t = world.time();
@@ -337,6 +342,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
             Supervision::Passed => {}
             Supervision::Slowed { .. } => slowed += 1,
             Supervision::Braking { .. } => braking += 1,
+            Supervision::Evaded { .. } => evaded += 1,
         }
         match out.status {
             StepStatus::AtGoal => break Outcome::Goal,
@@ -389,6 +395,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         invalid_cycles: invalid,
         supervisor_slowed_cycles: slowed,
         supervisor_braking_cycles: braking,
+        supervisor_evaded_cycles: evaded,
         goal_occupied_cycles: goal_occupied,
         saturated_cycles: saturated,
         tie_break_cycles: tie_break,

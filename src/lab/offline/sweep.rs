@@ -1,6 +1,7 @@
 //! Monte-Carlo sweeps around a scenario: the evidence for the safety envelope.
 //!
-//! Each episode perturbs the base scenario, reproducibly from `(seed, episode)`:
+//! Each episode perturbs the base scenario, reproducibly from `(seed, episode)` (a crowd
+//! scenario instead places its crowd afresh: [`flowgate_sim::scenario::Scenario::crowd_episode`]):
 //! - every moving obstacle's speed × U(0.5, 1.5), its heading ± U(20°);
 //! - the robot's start ± U(3 cm) in x and y (kept inside the lane);
 //! - the sensing delay U(0, max(2 × base delay, 0.3 s));
@@ -93,6 +94,15 @@ pub struct SweepReport {
 
 /// The scenario of episode `i`.
 pub fn perturb(base: &Scenario, seed: u64, i: u64) -> Scenario {
+    if base.crowd.is_some() {
+        let mut s = base.clone();
+        // Placed at load for (sensing.seed, 0) with the same rules: it places again.
+        match base.sim.crowd_episode(seed, i) {
+            Ok(placed) => s.sim = placed,
+            Err((key, why)) => tracing::warn!("episode {i}: `{key}` {why}: the episode runs the base crowd"),
+        }
+        return s;
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ i.wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let mut s = base.clone();
     for o in &mut s.obstacles {
