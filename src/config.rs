@@ -285,6 +285,13 @@ pub struct PlannerSettings {
     /// delayed obstacle positions.
     #[serde(default = "default_true")]
     pub predict_obstacles: bool,
+    /// Evasion: where the robot would be run into by a moving obstacle within a second,
+    /// standing or holding its command, it takes the clear reachable command (reversing
+    /// included) that gives up least, instead of slowing in the obstacle's way. It keeps the
+    /// supervisor's promise; it can hold a robot back before a slow obstacle coming head-on
+    /// in free space, so it is off unless asked for (docs/supervisor.md, "Evasion").
+    #[serde(default)]
+    pub evasion: bool,
 }
 
 fn default_true() -> bool {
@@ -857,6 +864,7 @@ impl GatewayConfig {
             stall: StallConfig::default(),
             supervisor: Some(supervisor),
             goal_wait: p.goal_wait,
+            evasion: p.evasion,
         }
     }
 }

@@ -35,6 +35,8 @@ pub struct ControlConfig {
     /// How long the robot holds still while the goal is inside an obstacle's planning
     /// circle before the run gives up on that goal, s (0: at once).
     pub goal_wait: f64,
+    /// Evade where the robot would be run into ([`super::supervisor::evade`]).
+    pub evasion: bool,
 }
 
 /// What the step decided.
@@ -165,10 +167,10 @@ impl ControlStep {
     pub fn step(&mut self, t: f64, estimate: &Estimate<'_>) -> StepOutput {
         let limit = self.config.planner.max_speed.min(self.config.drive.max_wheel_speed);
         let outrun = self.envelope.update(estimate.predicted, limit);
-        StepOutput { outrun, ..self.decide(t, estimate) }
+        StepOutput { outrun, ..self.decide(t, estimate, outrun) }
     }
 
-    fn decide(&mut self, t: f64, estimate: &Estimate<'_>) -> StepOutput {
+    fn decide(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool) -> StepOutput {
         let position = estimate.position;
         if (position - self.config.goal).length() <= self.config.goal_tolerance {
             return StepOutput::stop(StepStatus::AtGoal, None);
@@ -209,6 +211,9 @@ impl ControlStep {
                     Supervision::Passed => Some(None),
                     Supervision::Evaded { .. } => None,
                 };
+                // Against an obstacle that outruns the robot, running from it cannot work: the
+                // field's way round is the better bet.
+                let hazard = hazard.filter(|_| self.config.evasion && !outrun);
                 // Evasion's wheels stay within the robot's speed limit, as the planner's do.
                 let max_wheel = self.config.planner.max_speed.min(self.config.drive.max_wheel_speed);
                 match hazard.and_then(|h| evade(cfg, estimate, proposed, chosen, max_wheel).map(|e| (e, h))) {

@@ -213,7 +213,10 @@ pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: Whee
 
 /// How far ahead evasion looks, s: long enough for an obstacle at the robot's speed to
 /// cross its keep-out circle, short enough that the obstacles' straight courses hold.
-pub const EVASION_HORIZON: f64 = 2.0;
+pub const EVASION_HORIZON: f64 = 1.5;
+/// How soon a contact must be predicted for evasion to act, s: an imminent one, not a
+/// passing that the field's own way round will resolve.
+pub const EVASION_TRIGGER: f64 = 1.0;
 /// Evasion's prediction step, s.
 const EVASION_STEP: f64 = 0.05;
 /// Each wheel's candidate speeds, as fractions of its limit: the commands evasion chooses
@@ -243,10 +246,14 @@ pub fn evade(
         wheels: estimate.wheels,
         hazards: &hazards,
     };
-    if ctx.least_margin_ahead(chosen, Ahead::Moving) >= 0.0 {
+    // Only where the robot, holding its command or standing, would be run into.
+    let standing = WheelSpeeds { left: 0.0, right: 0.0 };
+    if ctx.least_margin_ahead(chosen, Ahead::Moving, EVASION_TRIGGER) >= 0.0
+        || ctx.least_margin_ahead(standing, Ahead::Moving, EVASION_TRIGGER) >= 0.0
+    {
         return None;
     }
-    let kept = ctx.least_margin_ahead(chosen, Ahead::All);
+    let kept = ctx.least_margin_ahead(chosen, Ahead::All, EVASION_HORIZON);
     // The nearest clear command to the proposal, else the largest margin.
     let (mut nearest, mut widest): (Option<(f64, WheelSpeeds)>, (f64, WheelSpeeds)) = (None, (kept, chosen));
     for left in EVASION_WHEEL_FRACTIONS {
@@ -255,11 +262,13 @@ pub fn evade(
             if ctx.first_driven_into(command, EVASION_SPARE).is_some() || ctx.approaches_a_near_obstacle(command) {
                 continue;
             }
-            let margin = ctx.least_margin_ahead(command, Ahead::All);
+            let margin = ctx.least_margin_ahead(command, Ahead::All, EVASION_HORIZON);
             if margin >= 0.0 {
+                // Least cost: away from the proposal, and giving up forward progress.
                 let off = (command.left - proposed.left).hypot(command.right - proposed.right);
-                if nearest.is_none_or(|(d, _)| off < d) {
-                    nearest = Some((off, command));
+                let cost = off - (command.left + command.right);
+                if nearest.is_none_or(|(d, _)| cost < d) {
+                    nearest = Some((cost, command));
                 }
             } else if margin > widest.0 + 1e-9 {
                 widest = (margin, command);
@@ -485,11 +494,11 @@ impl Context<'_> {
     /// The least margin to any hazard (the gap beyond what the robot must keep from it) over
     /// [`EVASION_HORIZON`], the wheels ramping to `command` and holding it, each obstacle
     /// moving on at its estimated velocity, its keep-out growing with its uncertainty.
-    fn least_margin_ahead(&self, command: WheelSpeeds, which: Ahead) -> f64 {
+    fn least_margin_ahead(&self, command: WheelSpeeds, which: Ahead, horizon: f64) -> f64 {
         let a = self.cfg.wheel_accel * EVASION_STEP;
         let (mut wheels, mut position, mut facing) = (self.wheels, self.position, self.facing);
         let mut least = f64::INFINITY;
-        let steps = (EVASION_HORIZON / EVASION_STEP).round() as usize;
+        let steps = (horizon / EVASION_STEP).round() as usize;
         for k in 0..=steps {
             let t = k as f64 * EVASION_STEP;
             for h in self.hazards {
