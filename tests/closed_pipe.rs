@@ -40,6 +40,7 @@ fn commands_that_print_end_quietly_at_a_closed_stdout() {
     assert_no_panic(&["plan", "--all", "scenarios", "--planner-only", "--out", out], 141);
     assert_no_panic(&["plan", "--planner-only", "--out", out, e1.to_str().unwrap()], 141);
     assert_no_panic(&["check", "--config", "rig.example.toml"], 141);
+    assert_no_panic(&["bench", "--quick", "--out", out], 141);
     // Commands that fail before printing anything say so on stderr, with their own status.
     assert_no_panic(&["ctl", "--socket", "/nonexistent/flowgate.sock", "status"], 1);
     assert_no_panic(&["run", "--config", "/nonexistent/rig.toml"], 1);

@@ -100,6 +100,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         phases[0].also.push(Mode { record: true, ..Mode::default() });
         phases[0].also.push(Mode { record: true, view: true, ..Mode::default() });
     }
+    let names: Vec<&str> = phases.iter().map(|p| p.name).collect();
+    say!("bench: phases {} ({}), bench.json to {}", names.join(", "), args.can, args.out.display());
     let exe = std::env::current_exe().context("locating the flowgate binary")?;
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let report = runtime.block_on(flowgate::lab::bench::run(&exe, &transport, &phases, &args.out))?;
