@@ -237,7 +237,7 @@ impl Scenario {
 
     /// This scenario with its crowd placed for episode `i` of seed `seed` (reproducibly from
     /// the two), or as it is without a crowd. A crowd that cannot be placed without overlap
-    /// in [`CROWD_TRIES`] tries an obstacle is refused, naming the key.
+    /// in `CROWD_TRIES` tries an obstacle is refused, naming the key.
     pub fn crowd_episode(&self, seed: u64, i: u64) -> Result<Scenario, (String, String)> {
         use rand::{Rng, SeedableRng};
         let Some(c) = self.crowd else { return Ok(self.clone()) };
