@@ -175,6 +175,11 @@ const BISECTIONS: usize = 16;
 /// The supervisor's verdict on the command `proposed` in the state `estimate` (judged on
 /// its obstacles predicted to now, whatever the planner plans on).
 pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: WheelSpeeds) -> (WheelSpeeds, Supervision) {
+    judged(cfg, estimate, |ctx| verdict(ctx, proposed))
+}
+
+/// `f` judged in the state `estimate`: its hazards and the robot's pose and wheels.
+fn judged<R>(cfg: &SupervisorConfig, estimate: &Estimate<'_>, f: impl FnOnce(&Context<'_>) -> R) -> R {
     // Filled in place: a kilobyte and more, which a move would copy every verdict.
     let mut hazards = ArrayVec::new();
     fill_hazards(&mut hazards, cfg, estimate.predicted);
@@ -185,6 +190,11 @@ pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: Whee
         wheels: estimate.wheels,
         hazards: &hazards,
     };
+    f(&ctx)
+}
+
+/// The verdict on `proposed` in `ctx` (see [`supervise`]).
+fn verdict(ctx: &Context<'_>, proposed: WheelSpeeds) -> (WheelSpeeds, Supervision) {
     let Some(hazard) = ctx.first_driven_into(proposed, ROBUSTNESS) else { return (proposed, Supervision::Passed) };
     let forward = 0.5 * (proposed.left + proposed.right);
     let turn = 0.5 * (proposed.right - proposed.left);
@@ -195,7 +205,7 @@ pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: Whee
     // [`ROBUSTNESS`] to spare.
     for command in [with(turn), with(held_turn)] {
         if ctx.first_driven_into(command(0.0), 0.0).is_none() {
-            let mut beyond_ramp = BeyondRamp::new(&ctx);
+            let mut beyond_ramp = BeyondRamp::new(ctx);
             let (mut lo, mut hi) = (0.0, forward.max(0.0));
             for _ in 0..BISECTIONS {
                 let mid = 0.5 * (lo + hi);
@@ -237,15 +247,11 @@ pub fn evade(
     chosen: WheelSpeeds,
     max_wheel_speed: f64,
 ) -> Option<WheelSpeeds> {
-    let mut hazards = ArrayVec::new();
-    fill_hazards(&mut hazards, cfg, estimate.predicted);
-    let ctx = Context {
-        cfg,
-        position: estimate.position,
-        facing: estimate.facing,
-        wheels: estimate.wheels,
-        hazards: &hazards,
-    };
+    judged(cfg, estimate, |ctx| evasion(ctx, proposed, chosen, max_wheel_speed))
+}
+
+/// The evasion in `ctx` (see [`evade`]).
+fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wheel_speed: f64) -> Option<WheelSpeeds> {
     // Only where the robot, holding its command or standing, would be run into.
     let standing = WheelSpeeds { left: 0.0, right: 0.0 };
     if ctx.least_margin_ahead(chosen, Ahead::Moving, EVASION_TRIGGER) >= 0.0
