@@ -63,22 +63,17 @@ fn await_line(rx: &mpsc::Receiver<String>, what: &str, seen: &mut Vec<String>) {
     panic!("no line with `{what}`: {seen:#?}");
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_operator_session_over_the_control_socket() {
-    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
-    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
-    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-ctl-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
-    let socket = dir.join("control.sock");
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, Some(dir.join("telemetry")));
-    cfg.goal = None; // goals come from the operator
-    cfg.operator.socket = Some(socket.clone());
-    std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();
+/// A running `flowgate run --config CONFIG` and its output lines, once its control socket
+/// is up (its log goes on being read, so its stderr never fills).
+struct Gateway {
+    child: std::process::Child,
+    out: mpsc::Receiver<String>,
+}
+
+fn run_gateway(config: &Path) -> Gateway {
     let mut child = flowgate()
         .args(["run", "--config"])
-        .arg(dir.join("rig.toml"))
+        .arg(config)
         .env("RUST_LOG", "flowgate=info")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -86,8 +81,32 @@ async fn an_operator_session_over_the_control_socket() {
         .unwrap();
     let out = lines(child.stdout.take().unwrap());
     let log = lines(child.stderr.take().unwrap());
-    let (mut seen, mut logged) = (Vec::new(), Vec::new());
-    await_line(&log, "control socket", &mut logged);
+    await_line(&log, "control socket", &mut Vec::new());
+    Gateway { child, out }
+}
+
+/// E1's simulator over real ptys, and in a new directory `flowgate-NAME-PID` a rig config
+/// pointed at it (goals from the operator, a control socket, telemetry there).
+async fn e1_rig(name: &str) -> (flowgate_sim::rig::RigHandle, PathBuf, PathBuf) {
+    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let socket = dir.join("control.sock");
+    let mut cfg = s.gateway_config(&handle.psd_path, &can, Some(dir.join("telemetry")));
+    cfg.goal = None; // goals come from the operator
+    cfg.operator.socket = Some(socket.clone());
+    std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();
+    (handle, dir, socket)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_operator_session_over_the_control_socket() {
+    let (handle, dir, socket) = e1_rig("ctl").await;
+    let Gateway { mut child, out } = run_gateway(&dir.join("rig.toml"));
+    let mut seen = Vec::new();
 
     // Idle: nothing moves until asked.
     let status = ctl(&socket, &["status"]);
@@ -219,18 +238,8 @@ async fn the_documented_operator_session_reaches_its_goals() {
     rig["telemetry"]["out_dir"] = toml_edit::value(dir.join("out").display().to_string());
     let config = dir.join("rig.toml");
     std::fs::write(&config, rig.to_string()).unwrap();
-    let mut child = flowgate()
-        .args(["run", "--config"])
-        .arg(&config)
-        .env("RUST_LOG", "flowgate=info")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let out = lines(child.stdout.take().unwrap());
-    let log = lines(child.stderr.take().unwrap());
-    let (mut seen, mut logged) = (Vec::new(), Vec::new());
-    await_line(&log, "control socket", &mut logged);
+    let Gateway { mut child, out } = run_gateway(&config);
+    let mut seen = Vec::new();
     let ctl = |args: &[&str]| {
         let o = flowgate().args(["ctl", "--config"]).arg(&config).args(args).output().unwrap();
         (o.status.success(), text(&o))
@@ -281,26 +290,8 @@ async fn the_documented_operator_session_reaches_its_goals() {
 /// events on disk: they are flushed at every drain of the telemetry queue, not at exit.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn events_survive_a_sigkill() {
-    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
-    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
-    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-kill-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let socket = dir.join("control.sock");
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, Some(dir.join("telemetry")));
-    cfg.goal = None;
-    cfg.operator.socket = Some(socket.clone());
-    std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();
-    let mut child = flowgate()
-        .args(["run", "--config"])
-        .arg(dir.join("rig.toml"))
-        .env("RUST_LOG", "flowgate=info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let log = lines(child.stderr.take().unwrap());
-    await_line(&log, "control socket", &mut Vec::new());
+    let (handle, dir, socket) = e1_rig("kill").await;
+    let Gateway { mut child, .. } = run_gateway(&dir.join("rig.toml"));
     let arm = ctl(&socket, &["arm"]);
     assert!(arm.status.success(), "{}", text(&arm));
     // The event reaches the file while the gateway runs (within a drain or two).

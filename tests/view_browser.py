@@ -9,37 +9,20 @@ screenshot. Prints a JSON summary; exits 1 naming what failed.
 """
 import json
 import sys
-import tempfile
-import time
-import urllib.request
 
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
+import chromium
+
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 
 url, shot = sys.argv[1], sys.argv[2]
-options = webdriver.ChromeOptions()
-options.binary_location = "/usr/bin/chromium"
-for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync",
-             "--window-size=1420,700", f"--user-data-dir={tempfile.mkdtemp()}"]:
-    options.add_argument(flag)
-driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+driver = chromium.headless()
 failures = []
 out = {}
 print("ready", flush=True)
 try:
     # The run starts after "ready": poll until its view answers (connection refused until then).
-    deadline = time.monotonic() + 60
-    while True:
-        try:
-            urllib.request.urlopen(url + "frame.json", timeout=2).read()
-            break
-        except OSError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.1)
+    chromium.await_view(url)
     driver.get(url)
     wait = WebDriverWait(driver, 20, poll_frequency=0.1)
     robot = lambda: driver.find_element(By.ID, "robot")
