@@ -16,7 +16,8 @@ use num_complex::Complex64 as C;
 use serde::Serialize;
 
 use crate::config::{GatewayConfig, Rig};
-use crate::gateway::recording::{self, frame_from_json, InputRecord};
+use crate::gateway::input::InputRecord;
+use crate::gateway::recording::{self, frame_from_json};
 use crate::gateway::{Core, NoClock, Output};
 use crate::planner::Space;
 use crate::svg::{Axes, Svg};

@@ -24,6 +24,8 @@ const SAMPLE_MS: f64 = 100.0;
 const POSE_MS: f64 = 150.0;
 const OCCLUSION_MS: f64 = 1000.0;
 const HEARTBEAT_MS: f64 = 400.0;
+/// The simulated rig's motor board.
+const NODE: u8 = 1;
 /// The board's command timeout in the simulated rig, ms.
 const BOARD_MS: f64 = 200.0;
 /// A time sync may go unanswered within bound this long, ms.
@@ -101,6 +103,9 @@ enum Recovery {
     After(f64),
     /// The fault must not be reset while its cause lasts: the reset is refused, saying so.
     Refused,
+    /// Refused while the cause lasts, as `Refused`; the cause ends at this time (s), and
+    /// the way back is then as `After`'s.
+    RefusedUntil(f64),
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -122,6 +127,10 @@ impl Row {
     }
     const fn reset_refused(self) -> Self {
         Self { recovery: Recovery::Refused, ..self }
+    }
+    /// Refused while the cause lasts, which ends at `t` (s).
+    const fn reset_refused_until(self, t: f64) -> Self {
+        Self { recovery: Recovery::RefusedUntil(t), ..self }
     }
 }
 
@@ -330,7 +339,7 @@ fn table() -> Vec<Row> {
                 "loss",
                 "30% of frames lost from 2 s to 3 s",
                 &["can_loss=0.3", "can_loss_during=[2.0, 3.0]"],
-                fault(R::BoardSequence, f(950.2, 950.1), f(950.2, 950.1), Cycle),
+                fault(R::BoardSequence { node: NODE }, f(950.2, 950.1), f(950.2, 950.1), Cycle),
             )
             .until(3.0),
             row(
@@ -338,7 +347,12 @@ fn table() -> Vec<Row> {
                 "loss",
                 "the board's heartbeat stops from 2 s to 3 s",
                 &["heartbeat_stop_at=2.0", "heartbeat_resume_at=3.0"],
-                fault(R::HeartbeatLost, f(300.1, 300.1), f(300.2, 300.1), Watchdog("heartbeat", HEARTBEAT_MS)),
+                fault(
+                    R::HeartbeatLost { node: NODE },
+                    f(300.1, 300.1),
+                    f(300.2, 300.1),
+                    Watchdog("heartbeat", HEARTBEAT_MS),
+                ),
             )
             .until(3.0),
             row(
@@ -346,7 +360,7 @@ fn table() -> Vec<Row> {
                 "insertion",
                 "another device sends velocity frames to our board",
                 &["second_master_at=2.0"],
-                fault(R::SecondMaster, f(0.2, 0.1), f(0.3, 0.2), Cycle),
+                fault(R::SecondMaster { node: NODE }, f(0.2, 0.1), f(0.3, 0.2), Cycle),
             )
             .reset_refused(),
             row(
@@ -354,7 +368,7 @@ fn table() -> Vec<Row> {
                 "masquerade",
                 "the board reboots",
                 &["board_reboot_at=2.0"],
-                fault(R::BoardReboot, f(0.1, 0.1), f(0.0, 0.0), Board),
+                fault(R::BoardReboot { node: NODE }, f(0.1, 0.1), f(0.0, 0.0), Board),
             )
             .until(2.0),
             row(
@@ -369,7 +383,7 @@ fn table() -> Vec<Row> {
                 "bus-off",
                 "the board bus-off for 1 s",
                 &["bus_off_at=2.0", "bus_off_s=1.0"],
-                fault(R::HeartbeatLost, f(300.1, 300.1), f(0.0, 0.0), Board),
+                fault(R::HeartbeatLost { node: NODE }, f(300.1, 300.1), f(0.0, 0.0), Board),
             )
             .until(3.0),
             Row {
@@ -390,9 +404,17 @@ fn table() -> Vec<Row> {
                 "(board)",
                 "the board's driver faults",
                 &["board_fault_at=2.0"],
-                fault(R::BoardFault, f(0.3, 0.2), f(0.0, 0.0), Board),
+                fault(R::BoardFault { node: NODE }, f(0.3, 0.2), f(0.0, 0.0), Board),
             )
             .until(2.0),
+            row(
+                link,
+                "(board)",
+                "the board's own e-stop input open from 2 s to 3 s",
+                &["board_estop=[2.0, 3.0]"],
+                fault(R::BoardEStop { node: NODE }, f(0.3, 0.2), f(0.0, 0.0), Board),
+            )
+            .reset_refused_until(3.0),
         ]);
     }
     rows
@@ -537,23 +559,33 @@ fn run(row: &Row) -> Episode {
 fn recover(row: &Row, reason: StopReason, fault_at: f64) -> Result<String, String> {
     let s = scenario(row);
     let mut rig = VirtualRig::new(&s, options(row));
+    // Half a second after a time, on the 100 ms grid the table prints.
+    let grid = |t: f64| ((t + 0.5) * 10.0).ceil() / 10.0;
+    let faulted = |rig: &VirtualRig, at: f64| match rig.core().state() {
+        State::Fault(r) if r == reason => Ok(()),
+        other => Err(format!("at {at:.1} s the state is {other}, not fault: {reason}")),
+    };
+    let mut refused = String::new();
     let over = match row.recovery {
         Recovery::None => return Err("a fault row needs its recovery".into()),
         Recovery::After(t) => t,
-        Recovery::Refused => fault_at,
+        Recovery::Refused | Recovery::RefusedUntil(_) => {
+            let at = grid(fault_at);
+            rig.run_until(at);
+            faulted(&rig, at)?;
+            match rig.request(&Request::Reset) {
+                Err(refusal) => refused = format!("reset refused at {at:.1} s: {refusal}"),
+                Ok(()) => return Err("the reset was accepted with its cause present".into()),
+            }
+            match row.recovery {
+                Recovery::RefusedUntil(t) => t,
+                _ => return Ok(refused),
+            }
+        }
     };
-    // Half a second after both, on the 100 ms grid the table prints.
-    let at = ((over.max(fault_at) + 0.5) * 10.0).ceil() / 10.0;
+    let at = grid(over.max(fault_at));
     rig.run_until(at);
-    if rig.core().state() != State::Fault(reason) {
-        return Err(format!("at {at:.1} s the state is {}, not fault: {reason}", rig.core().state()));
-    }
-    if let Recovery::Refused = row.recovery {
-        return match rig.request(&Request::Reset) {
-            Err(refusal) => Ok(format!("reset refused at {at:.1} s: {refusal}")),
-            Ok(()) => Err("the reset was accepted with its cause present".into()),
-        };
-    }
+    faulted(&rig, at)?;
     let goal = Request::Goal { goals: vec![Goal { position: s.goal.position, tolerance: s.goal.tolerance }] };
     for request in [Request::Reset, Request::Arm, goal, Request::Start] {
         rig.request(&request).map_err(|e| format!("{request:?} at {at:.1} s refused: {e}"))?;
@@ -564,7 +596,8 @@ fn recover(row: &Row, reason: StopReason, fault_at: f64) -> Result<String, Strin
     }
     let reached = e.report.transitions.iter().rev().find(|(_, st)| *st == State::Stopped(StopReason::GoalReached));
     let reached = reached.map(|(t, _)| *t).ok_or("no goal reached transition")?;
-    Ok(format!("reset, arm, start at {at:.1} s: goal at {reached:.1} s"))
+    let back = format!("reset, arm, start at {at:.1} s: goal at {reached:.1} s");
+    Ok(if refused.is_empty() { back } else { format!("{refused}; {back}") })
 }
 
 /// Run a row, assert it, and return its measured cells (fault after, wheels at rest after,

@@ -288,7 +288,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
         report.transitions.iter().map(|(_, s)| *s).filter(|s| matches!(s, State::Fault(_))).collect();
     assert_eq!(faults.len(), 1, "{:?}", report.transitions);
     assert!(
-        [StopReason::SerialLost, StopReason::SamplesStopped, StopReason::BoardFault]
+        [StopReason::SerialLost, StopReason::SamplesStopped, StopReason::BoardFault { node: 1 }]
             .contains(&faults[0].reason().unwrap()),
         "{:?}",
         report.transitions

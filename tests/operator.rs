@@ -190,12 +190,12 @@ fn reset_is_refused_while_the_cause_persists() {
     s.faults = s.faults.with_settings(&["heartbeat_stop_at=2.0".to_string()]).unwrap();
     let mut rig = VirtualRig::new(&s, Options::default());
     rig.run_until(3.0);
-    assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost));
+    assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost { node: 1 }));
     let refusal = rig.request(&Request::Reset).unwrap_err();
-    assert_eq!(refusal, Refusal::CauseStillPresent(StopReason::HeartbeatLost));
+    assert_eq!(refusal, Refusal::CauseStillPresent(StopReason::HeartbeatLost { node: 1 }));
     assert_eq!(refusal.to_string(), "fault: motor board heartbeat lost, cause still present");
-    assert_eq!(rig.request(&Request::Arm), Err(Refusal::Faulted(State::Fault(StopReason::HeartbeatLost))));
-    assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost));
+    assert_eq!(rig.request(&Request::Arm), Err(Refusal::Faulted(State::Fault(StopReason::HeartbeatLost { node: 1 }))));
+    assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost { node: 1 }));
 }
 
 /// An obstacle's LED hidden from 2 s to 4 s: driven around as the region it may have

@@ -115,6 +115,11 @@ pub struct FaultPlan {
     /// The motor board's driver faults: axes stop, state Fault.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board_fault_at: Option<f64>,
+    /// The motor board's own e-stop input is open over `[from_s, to_s)` (a stop button
+    /// wired to the board, pressed and released): the board latches EStop, refuses fault
+    /// resets while the input is open, and takes one once it has closed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board_estop: Option<[f64; 2]>,
     /// The motor board reboots (power glitch): axes stop, boot-up heartbeat, Disabled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board_reboot_at: Option<f64>,
@@ -196,6 +201,7 @@ impl FaultPlan {
             ("serial_silence", self.serial_silence),
             ("adapter_bus_off", self.adapter_bus_off),
             ("can_loss_during", self.can_loss_during),
+            ("board_estop", self.board_estop),
         ] {
             if let Some([from, to]) = w {
                 if !(from.is_finite() && to.is_finite() && from >= 0.0 && from <= to) {
@@ -317,6 +323,11 @@ impl FaultPlan {
     }
 
     /// Whether the SLCAN adapter is bus-off at `t`.
+    /// Whether the board's e-stop input is open at `t`.
+    pub fn board_estop_open(&self, t: f64) -> bool {
+        matches!(self.board_estop, Some([from, to]) if t >= from && t < to)
+    }
+
     pub fn adapter_bus_off(&self, t: f64) -> bool {
         matches!(self.adapter_bus_off, Some([from, to]) if t >= from && t < to)
     }

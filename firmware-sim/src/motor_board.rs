@@ -1,7 +1,8 @@
 //! The pulse-motor board's firmware (PCL-80K-like, two axes), as a state machine: CAN frames
 //! in, CAN frames out, time an argument. Its axes are the world's wheels.
 //!
-//! States: BootUp -> Disabled <-> Enabled; Fault and EStop latch until a fault reset.
+//! States: BootUp -> Disabled <-> Enabled; Fault and EStop latch until a fault reset. The
+//! board's own e-stop input latches EStop too, and refuses fault resets while it is open.
 //! Velocity commands act only when Enabled. The board stops both axes by itself when no
 //! velocity command arrives within its command timeout, or when the gateway's heartbeat
 //! (once seen) stops for three timeouts.
@@ -43,6 +44,8 @@ pub struct MotorBoard {
     plan: FaultPlan,
     board_fault_done: bool,
     reboot_done: bool,
+    /// When `poll` last ran (the e-stop input is read there).
+    last_poll: f64,
     pub counters: BoardCounters,
 }
 
@@ -62,6 +65,7 @@ impl MotorBoard {
             plan,
             board_fault_done: false,
             reboot_done: false,
+            last_poll: 0.0,
             counters: BoardCounters::default(),
         }
     }
@@ -134,7 +138,10 @@ impl MotorBoard {
                     self.state = BoardState::Disabled;
                 }
                 NmtCommand::Reset => self.boot(t, world, out),
-                NmtCommand::FaultReset if matches!(self.state, BoardState::Fault | BoardState::EStop) => {
+                NmtCommand::FaultReset
+                    if matches!(self.state, BoardState::Fault | BoardState::EStop)
+                        && !self.faults.contains(FaultBits::ESTOP_INPUT) =>
+                {
                     self.faults = FaultBits::default();
                     self.state = BoardState::Disabled;
                 }
@@ -175,11 +182,22 @@ impl MotorBoard {
         if self.state == BoardState::Enabled {
             next = next.min(self.last_command + f64::from(self.timeout_ms) * 1e-3);
         }
+        // The input is read at every poll: the next edge is an event.
+        if let Some(edge) = self.plan.board_estop.into_iter().flatten().find(|&edge| edge > self.last_poll) {
+            next = next.min(edge);
+        }
         next
     }
 
     /// Timeouts and periodic frames due by `t`.
     pub fn poll(&mut self, t: f64, world: &mut World, out: &mut Vec<CanFrame>) {
+        self.last_poll = t;
+        if self.plan.board_estop_open(t) {
+            self.enter_fault(FaultBits::ESTOP | FaultBits::ESTOP_INPUT, BoardState::EStop, world, out);
+        } else {
+            // Closed again: the latch stays until a fault reset.
+            self.faults.0 &= !FaultBits::ESTOP_INPUT;
+        }
         if let (Some(at), false) = (self.plan.board_reboot_at, self.reboot_done) {
             if t >= at {
                 self.reboot_done = true;

@@ -1,13 +1,14 @@
 //! The gateway core driven by arbitrary PSD bytes, CAN events, ticks and operator requests:
 //! it must never panic, and it must never command motion outside Running.
 //!
-//! The input is a little program, one operation after another (see `step`). PSD frames can
+//! The input is a little program, one operation after another (see `step`), each handed to
+//! the core through its one door, `Core::handle`, as the rig's shell hands it its inputs. PSD frames can
 //! come raw or with a correct CRC and COBS framing (so the fuzzer reaches the handshake and
 //! the stream, not only the CRC check); CAN frames are any id and payload.
 #![no_main]
 use flowgate::config::{GatewayConfig, Goal, Rig};
 use flowgate::gateway::operator::Request;
-use flowgate::gateway::{Core, NoClock, Output, State};
+use flowgate::gateway::{Core, Input, NoClock, Output, State};
 use flowgate::link::CanEvent;
 use flowgate::time::HostTime;
 use flowgate_protocol::motor::MotorMessage;
@@ -18,9 +19,9 @@ use std::time::Duration;
 
 const RIG: &str = include_str!("../../rig.example.toml");
 
-struct Input<'a>(&'a [u8]);
+struct Program<'a>(&'a [u8]);
 
-impl<'a> Input<'a> {
+impl<'a> Program<'a> {
     fn byte(&mut self) -> Option<u8> {
         let (&b, rest) = self.0.split_first()?;
         self.0 = rest;
@@ -65,12 +66,12 @@ impl Watch {
     }
 }
 
-fn step(core: &mut Core<NoClock>, now: &mut HostTime, input: &mut Input) -> Option<()> {
+fn step(core: &mut Core<NoClock>, now: &mut HostTime, input: &mut Program) -> Option<()> {
     let op = input.byte()?;
     match op % 10 {
         0 => {
             let n = usize::from(input.byte()? % 64);
-            core.psd_bytes(*now, input.bytes(n));
+            core.handle(*now, Input::PsdBytes(input.bytes(n)));
         }
         1 | 2 => {
             // A frame with a correct CRC and COBS framing around arbitrary body bytes.
@@ -82,19 +83,19 @@ fn step(core: &mut Core<NoClock>, now: &mut HostTime, input: &mut Input) -> Opti
             let mut wire = [0u8; 80];
             let m = cobs::encode(&frame[..body.len() + 2], &mut wire).ok()?;
             wire[m] = 0;
-            core.psd_bytes(*now, &wire[..=m]);
+            core.handle(*now, Input::PsdBytes(&wire[..=m]));
         }
         3 => {
             let id = input.u16() & 0x7ff;
             let n = usize::from(input.byte()? % 9);
             let data = input.bytes(n);
             if let Some(Ok(frame)) = CanId::standard(id).map(|id| CanFrame::new(id, data)) {
-                core.can_event(*now, CanEvent::Frame(frame));
+                core.handle(*now, Input::Can(CanEvent::Frame(frame)));
             }
         }
         4 | 5 => {
             *now = *now + Duration::from_micros(u64::from(input.u16()) * 10);
-            core.tick(*now);
+            core.handle(*now, Input::Tick);
         }
         6 => {
             let request = match input.byte()? % 8 {
@@ -115,7 +116,7 @@ fn step(core: &mut Core<NoClock>, now: &mut HostTime, input: &mut Input) -> Opti
                 }
                 _ => Request::Cancel,
             };
-            let _ = core.request(*now, &request);
+            core.handle(*now, Input::Request(&request));
         }
         7 => {
             let event = match input.byte()? % 5 {
@@ -125,14 +126,21 @@ fn step(core: &mut Core<NoClock>, now: &mut HostTime, input: &mut Input) -> Opti
                 3 => CanEvent::AdapterStatus { bus_off: true, error_passive: false },
                 _ => CanEvent::ErrorFrame { bus_off: input.byte()? & 1 == 1 },
             };
-            core.can_event(*now, event);
+            core.handle(*now, Input::Can(event));
         }
-        8 => match input.byte()? % 3 {
-            0 => core.psd_lost(*now),
-            1 => core.psd_connected(*now),
-            _ => core.can_failed(*now),
-        },
-        _ => core.shutdown(*now),
+        8 => {
+            let link = match input.byte()? % 5 {
+                0 => Input::PsdLost,
+                1 => Input::PsdConnected,
+                2 => Input::CanFailed,
+                3 => Input::CanReopened,
+                _ => Input::Can(CanEvent::InterfaceDown),
+            };
+            core.handle(*now, link);
+        }
+        _ => {
+            core.handle(*now, Input::Shutdown);
+        }
     }
     Some(())
 }
@@ -150,13 +158,13 @@ fn rig() -> Rig {
 
 fuzz_target!(|data: &[u8]| {
     let mut core = Core::new(rig(), NoClock);
-    let mut input = Input(data);
+    let mut input = Program(data);
     if input.byte().is_some_and(|b| b & 1 == 1) {
-        core.arm_at_start();
+        core.handle(HostTime::ZERO, Input::ArmAtStart);
     }
     let mut now = HostTime::ZERO;
     let mut watch = Watch { state: core.state() };
-    core.psd_connected(now);
+    core.handle(now, Input::PsdConnected);
     watch.drain(&mut core);
     while step(&mut core, &mut now, &mut input).is_some() {
         watch.drain(&mut core);

@@ -34,7 +34,8 @@
 //!
 //! - Any frame on an e-stop id is an emergency stop, whatever its length: a board must not
 //!   ignore a stop because of a malformed payload. Both axes stop at once (no ramp) and the
-//!   board latches `EStop` until a fault reset.
+//!   board latches `EStop` until a fault reset. So does the board's own e-stop input (a
+//!   stop button wired to it), which also refuses the fault reset for as long as it is open.
 //! - The velocity command sets both axes in one frame, so the wheels change together. Its
 //!   `seq` increments by one per command; the board counts gaps and repeats in
 //!   `seq errors` (wrapping at 256) and reports the last `seq` it applied.
@@ -185,6 +186,10 @@ impl FaultBits {
     pub const DRIVER: u8 = 1 << 4;
     /// The gateway's heartbeat stopped.
     pub const GATEWAY_LOST: u8 = 1 << 5;
+    /// The board's own e-stop input is open (a stop button wired to the board). The board
+    /// holds `EStop` while it is, refusing fault resets; once it closes, a fault reset
+    /// clears the latch.
+    pub const ESTOP_INPUT: u8 = 1 << 6;
 
     pub const fn contains(self, bit: u8) -> bool {
         self.0 & bit == bit

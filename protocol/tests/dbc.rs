@@ -28,7 +28,7 @@ const REASONS: &[(u8, &str)] =
     &[(0, "Unspecified"), (1, "Operator"), (2, "GatewayFault"), (3, "Shutdown"), (4, "External")];
 const NMT_VALUES: &[(u8, &str)] = &[(1, "Enable"), (2, "Disable"), (0x81, "Reset"), (0x82, "FaultReset")];
 
-fn fault_bits(base: u32) -> [Signal; 6] {
+fn fault_bits(base: u32) -> [Signal; 7] {
     [
         sig("fault_cmd_timeout", base, 1, false, ""),
         sig("fault_estop", base + 1, 1, false, ""),
@@ -36,6 +36,7 @@ fn fault_bits(base: u32) -> [Signal; 6] {
         sig("fault_bus", base + 3, 1, false, ""),
         sig("fault_driver", base + 4, 1, false, ""),
         sig("fault_gateway_lost", base + 5, 1, false, ""),
+        sig("fault_estop_input", base + 6, 1, false, ""),
     ]
 }
 
@@ -210,11 +211,19 @@ fn motor_dbc_matches_the_code() {
 /// The DBC signal values of a message, as cantools should read them.
 fn signals(m: &MotorMessage) -> Vec<(&'static str, i64)> {
     let bits = |f: FaultBits| -> Vec<(&'static str, i64)> {
-        ["fault_cmd_timeout", "fault_estop", "fault_rate_limit", "fault_bus", "fault_driver", "fault_gateway_lost"]
-            .iter()
-            .enumerate()
-            .map(|(i, n)| (*n, i64::from(f.0 >> i & 1)))
-            .collect()
+        [
+            "fault_cmd_timeout",
+            "fault_estop",
+            "fault_rate_limit",
+            "fault_bus",
+            "fault_driver",
+            "fault_gateway_lost",
+            "fault_estop_input",
+        ]
+        .iter()
+        .enumerate()
+        .map(|(i, n)| (*n, i64::from(f.0 >> i & 1)))
+        .collect()
     };
     match *m {
         MotorMessage::EStop { reason, .. } => vec![("reason", reason as i64)],

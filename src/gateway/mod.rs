@@ -1,279 +1,30 @@
 //! The gateway service: PSD samples in, motor CAN frames out, under a safety state machine,
 //! with every cycle timed.
 //!
-//! Two parts (see the diagram in docs/architecture.md):
+//! Two rooms (see docs/architecture.md):
 //! - [`core`]: the gateway's logic with no I/O and no clock. Inputs (PSD bytes, CAN events,
-//!   operator requests, ticks) come with their host time; outputs (PSD packets, CAN frames,
-//!   timing records, state changes) and the next deadline go back. It owns the PSD session
-//!   ([`psd_session`]), the tracker, the control step, the safety machine ([`safety`]) and
-//!   the watchdogs.
-//! - [`shell`]: the tokio shell for the rig: opens the links, reads, writes (each with a
-//!   deadline), sleeps until the core's next deadline, reopens a lost serial line.
+//!   operator requests, ticks) come with their host time through one door,
+//!   [`Core::handle`]; outputs (PSD packets, CAN frames, timing records, state changes) and
+//!   the next deadline go back. It owns the PSD session, the tracker, the control step, the
+//!   safety machine and the watchdogs, and defines every type they exchange.
+//! - [`shell`]: the tokio driver for the rig and the services around it: it opens the
+//!   links, reads, writes (each with a deadline), sleeps until the core's next deadline,
+//!   and serves telemetry, recording, `/metrics`, the live view and the control socket.
+//!   The shell uses the core; the core knows nothing of the shell.
 //!
-//! Telemetry goes to a writer thread through a bounded queue (see [`telemetry`]): the loop
-//! never waits on it.
+//! The core's and the shell's modules are re-exported here under their own names, so
+//! `gateway::operator` is `gateway::core::operator`.
 
-pub mod control_socket;
 pub mod core;
-pub mod counter_window;
-pub mod http;
-pub mod input;
-pub mod low_latency;
-pub mod metrics;
-pub mod operator;
-pub mod psd_session;
-pub mod realtime;
-pub mod recording;
-pub mod safety;
+pub mod report;
 pub mod shell;
-pub mod systemd;
-pub mod telemetry;
-pub mod timing;
-pub mod view;
 
-use serde::Serialize;
-
-pub use self::core::{Core, NoClock, Output, StageClock};
-pub use input::{Answer, Input};
-pub use psd_session::SetupError;
-pub use safety::{State, StopReason};
-pub use shell::{run, Controls};
-
-use crate::link::{CanError, SerialError};
-
-/// A startup failure: the gateway could not begin.
-#[derive(Debug, thiserror::Error)]
-pub enum GatewayError {
-    #[error(transparent)]
-    Serial(#[from] SerialError),
-    #[error(transparent)]
-    Can(#[from] CanError),
-    #[error("PSD controller on {port}: {source}")]
-    Setup { port: String, source: SetupError },
-    #[error("telemetry output {path}: {source}")]
-    Telemetry { path: String, source: std::io::Error },
-    #[error(transparent)]
-    ControlSocket(#[from] control_socket::ControlSocketError),
-    #[error("systemd notification: {0}")]
-    Notify(#[from] systemd::NotifyError),
-    #[error(transparent)]
-    Realtime(#[from] realtime::RealtimeError),
-    #[error("operator.metrics = \"{addr}\": cannot listen there: {source}")]
-    Metrics { addr: std::net::SocketAddr, source: std::io::Error },
-    #[error("operator.view = \"{addr}\": cannot listen there: {source}")]
-    View { addr: std::net::SocketAddr, source: std::io::Error },
-}
-
-/// What the gateway shows while it runs (for a live display). Receivers are woken when the
-/// state or the reconnect count changes; the per-cycle figures are updated silently, for a
-/// display that samples them with `borrow()` at its own pace.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
-pub struct Progress {
-    pub t: f64,
-    pub state: State,
-    pub cycles: u64,
-    pub goal_distance: f64,
-    /// Smallest estimated gap to an obstacle's footprint, m.
-    pub clearance: Option<f64>,
-    pub e2e_us: f64,
-    pub serial_reconnects: u64,
-}
-
-/// Counters of everything unusual the gateway saw.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
-pub struct Counters {
-    pub cycles: u64,
-    pub samples: u64,
-    /// Samples and frame ends that came before time sync (discarded).
-    pub samples_unsynced: u64,
-    /// Samples stamped in the future by more than a period (discarded).
-    pub samples_from_future: u64,
-    /// Overruns the controller reported (samples lost inside it), and its other faults.
-    pub controller_overruns: u64,
-    pub controller_faults: u64,
-    /// Periodic time syncs taken, and discarded for a round trip over 10 ms.
-    pub time_syncs: u64,
-    pub time_syncs_rejected: u64,
-    /// Controller packets lost (gaps in their sequence numbers).
-    pub psd_packets_lost: u64,
-    /// Controller packets seen twice (discarded).
-    pub psd_duplicates: u64,
-    /// Controller packets behind the sequence: replays, reordering (discarded).
-    pub psd_out_of_order: u64,
-    /// Frames that never ended (gaps in the frame counter, or samples of another frame).
-    pub frames_lost: u64,
-    /// Frame ends for a frame already done (discarded: no second command).
-    pub frames_repeated: u64,
-    /// Frames whose sample count disagrees with their end (run on what came).
-    pub frames_incomplete: u64,
-    /// Samples from an LED or slot that is not in the schedule (discarded).
-    pub samples_unscheduled: u64,
-    /// Robot poses discarded: LEDs off their mounted spacing, or further than the robot can go.
-    pub poses_implausible: u64,
-    pub bad_serial_frames: u64,
-    /// Every byte from the PSD line thrown away: bad frames with their delimiters, runs with
-    /// no delimiter, bytes left undecoded when the line closed.
-    pub serial_dropped_bytes: u64,
-    pub serial_reconnects: u64,
-    pub can_frames_in: u64,
-    /// Times the CAN link was lost and opened again.
-    pub can_reconnects: u64,
-    /// Frames from node ids that are not configured (ignored).
-    pub can_foreign: u64,
-    /// Frames that do not decode as motor messages, and garbled adapter lines (ignored).
-    pub can_undecodable: u64,
-    /// Error frames (SocketCAN) and bus-off reports (an SLCAN adapter's status flags).
-    pub can_error_frames: u64,
-    /// Transmits the SLCAN adapter refused (BEL), and its error-passive reports.
-    pub can_tx_refused: u64,
-    pub can_error_passive: u64,
-    /// Sequence errors the motor board counted in our velocity commands (lost or foreign).
-    pub board_seq_errors: u64,
-    /// Enables sent again because an armed board still reported Disabled (one was lost).
-    pub board_enable_retries: u64,
-    pub planner_invalid: u64,
-    /// Cycles whose command the safety supervisor slowed (a hazard within the robot's
-    /// stopping path).
-    pub supervisor_slowed: u64,
-    /// Cycles in which the supervisor braked because no slower command could keep its
-    /// promise (the estimate moved faster than a reaction time allows for).
-    pub supervisor_braking: u64,
-    /// Cycles in which slowing or braking would have left the robot in an obstacle's way,
-    /// and it evaded instead (the supervisor's [`crate::control::supervisor::evade`]).
-    pub supervisor_evaded: u64,
-    /// Cycles in which some obstacle outran what the robot can deliver (judged with
-    /// hysteresis on its tracked speed): avoidance is not guaranteed then.
-    pub obstacle_outran_robot: u64,
-    /// Cycles the robot held still because the goal was inside an obstacle's planning
-    /// circle (it waits up to `planner.goal_wait` for the obstacle to pass).
-    pub goal_occupied: u64,
-    /// Obstacle tracks dropped because the obstacle was seen leaving the calibrated arena
-    /// (its filter's prediction beyond the view's edge once unseen).
-    pub obstacles_left_view: u64,
-    /// PSD packets whose sequence number lay beyond the window (discarded: a suspicious
-    /// jump), and runs of them that confirmed the controller's numbering moved (followed).
-    pub psd_seq_jumps: u64,
-    pub psd_seq_rebased: u64,
-    /// Frames whose counter lay beyond the window (discarded), and runs that confirmed the
-    /// counter moved (followed).
-    pub frames_jumped: u64,
-    pub frames_rebased: u64,
-    /// Time syncs refused because the controller's clock moved further than drift allows.
-    pub time_syncs_implausible: u64,
-    /// Obstacles that came into view and got a track (each first sighting, and each return
-    /// after leaving).
-    pub obstacles_entered_view: u64,
-    /// Cycles planned with some obstacle unseen inside the view, avoided as the region it
-    /// may have reached.
-    pub obstacle_occluded_cycles: u64,
-    /// Cycles whose plan raised each of the planner's flags ([`crate::planner::PlanFlags`]):
-    /// the field's speed scaled down to the limit; the tie-break shifting a circle; a
-    /// margin shrunk because the robot or the goal stood in it; a circle at a lane wall
-    /// left unclosed, its boundary met less exactly.
-    pub planner_saturated: u64,
-    pub planner_tie_break: u64,
-    pub planner_margin_shrunk: u64,
-    pub planner_unclosed_at_a_wall: u64,
-    pub telemetry_dropped: u64,
-}
-
-/// The run's report.
-#[derive(Debug, Clone, Serialize)]
-pub struct Report {
-    pub final_state: State,
-    pub stop_reason: Option<StopReason>,
-    pub transitions: Vec<(f64, State)>,
-    pub e2e: telemetry::Distribution,
-    pub period: telemetry::Distribution,
-    pub deadline_misses: u64,
-    /// Each stage of a cycle: min, p50, p99, max, mean, jitter (σ), µs (empty in virtual
-    /// time, where the stages take none).
-    pub stages: Vec<telemetry::StageSummary>,
-    /// The control period the schedule gives, s.
-    pub sample_time: f64,
-    pub counters: Counters,
-    pub files: telemetry::WrittenFiles,
-}
-
-impl Report {
-    /// The report of a run that ended with `core` in its final state.
-    pub fn new<K: StageClock>(
-        core: &Core<K>,
-        timing: Option<&telemetry::Timing>,
-        telemetry_dropped: u64,
-        files: telemetry::WrittenFiles,
-    ) -> Self {
-        let state = core.state();
-        let mut counters = core.counters();
-        counters.telemetry_dropped = telemetry_dropped;
-        Report {
-            final_state: state,
-            stop_reason: state.reason(),
-            transitions: core.safety().history.clone(),
-            e2e: timing.map(telemetry::Timing::e2e).unwrap_or_default(),
-            period: timing.map(telemetry::Timing::period).unwrap_or_default(),
-            deadline_misses: timing.map_or(0, |t| t.deadline_misses),
-            stages: timing.map(telemetry::Timing::stages).unwrap_or_default(),
-            sample_time: core.rig().sample_period.as_secs_f64(),
-            counters,
-            files,
-        }
-    }
-}
-
-impl std::fmt::Display for Report {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let c = &self.counters;
-        writeln!(f, "final state      {}", self.final_state)?;
-        writeln!(
-            f,
-            "cycles           {} at T = {:.1} ms, {} deadline misses (e2e > T)",
-            c.cycles,
-            self.sample_time * 1e3,
-            self.deadline_misses
-        )?;
-        writeln!(
-            f,
-            "e2e latency      p50 {:.0} µs  p99 {:.0} µs  p99.9 {:.0} µs  max {:.0} µs   (serial frame read -> CAN write done)",
-            self.e2e.p50_us, self.e2e.p99_us, self.e2e.p999_us, self.e2e.max_us
-        )?;
-        writeln!(
-            f,
-            "command period   p50 {:.2} ms  p99 {:.2} ms  max {:.2} ms  jitter (σ) {:.0} µs",
-            self.period.p50_us / 1e3,
-            self.period.p99_us / 1e3,
-            self.period.max_us / 1e3,
-            self.period.stdev_us
-        )?;
-        if self.stages.iter().any(|s| s.max_us > 0.0) {
-            telemetry::write_stage_table(f, &self.stages, "stages (µs)      ")?;
-        }
-        writeln!(
-            f,
-            "serial           {} samples, {} bad frames, {} bytes dropped, {} reconnects",
-            c.samples, c.bad_serial_frames, c.serial_dropped_bytes, c.serial_reconnects
-        )?;
-        writeln!(
-            f,
-            "                 {} samples before time sync, {} stamped in the future (discarded)",
-            c.samples_unsynced, c.samples_from_future
-        )?;
-        writeln!(
-            f,
-            "psd link         {} packets lost, {} duplicated, {} out of order; frames: {} lost, {} repeated, {} incomplete; {} unscheduled samples",
-            c.psd_packets_lost,
-            c.psd_duplicates,
-            c.psd_out_of_order,
-            c.frames_lost,
-            c.frames_repeated,
-            c.frames_incomplete,
-            c.samples_unscheduled
-        )?;
-        writeln!(
-            f,
-            "can              {} frames in, {} from other nodes, {} undecodable, {} error frames (all ignored)",
-            c.can_frames_in, c.can_foreign, c.can_undecodable, c.can_error_frames
-        )?;
-        write!(f, "telemetry        {} records dropped (queue full)", c.telemetry_dropped)
-    }
-}
+pub use self::core::{
+    counter_window, input, operator, psd_session, safety, scene, timing, Answer, Core, Counters, Input, NoClock,
+    Output, Progress, SetupError, StageClock, State, StopReason,
+};
+pub use report::Report;
+pub use shell::{
+    control_socket, http, low_latency, metrics, realtime, recording, run, systemd, telemetry, view, Controls,
+    GatewayError,
+};

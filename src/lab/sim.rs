@@ -30,9 +30,10 @@ use flowgate_sim::world::World;
 use tokio_util::codec::Decoder as _;
 
 use super::{Outcome, Scenario};
+use crate::gateway::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::operator::{Refusal, Request, Status};
 use crate::gateway::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
-use crate::gateway::{Core, NoClock, Output, Report, SetupError, StageClock, State};
+use crate::gateway::{Answer, Core, Input, NoClock, Output, Report, SetupError, StageClock, State};
 use crate::link::{slcan_event, CanEvent};
 use crate::time::HostTime;
 
@@ -63,6 +64,9 @@ pub struct Options {
     pub can: CanTransport,
     /// Settings of the gateway's rig beyond what the scenario implies (a test's watchdogs).
     pub adjust_rig: Option<fn(&mut crate::config::Rig)>,
+    /// Keep every input handed to the core, as a recording's input channels keep them
+    /// ([`Episode::inputs`]): replayed into a fresh core, they give the same outputs.
+    pub record_inputs: bool,
 }
 
 /// The gateway's CAN link in the virtual rig.
@@ -252,6 +256,8 @@ pub struct Episode {
     /// What the simulator injected on the serial line: packets duplicated, packets
     /// replayed, bytes dropped, bytes corrupted.
     pub injected: [u64; 4],
+    /// Every input the core took, in order, with [`Options::record_inputs`].
+    pub inputs: Vec<InputRecord>,
 }
 
 /// The stack in virtual time. `K` times the core's stages ([`NoClock`] for determinism).
@@ -264,6 +270,8 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     board: MotorBoard,
     adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
     core: Core<K>,
+    /// The inputs handed to the core, when kept.
+    inputs: Option<Vec<InputRecord>>,
     plan: FaultPlan,
     serial_faults: SerialFaults,
     can_faults: CanFaults,
@@ -355,6 +363,7 @@ impl<K: StageClock> VirtualRig<K> {
         let mut rig = Self {
             t: 0,
             core: Core::new(gateway_rig, clock),
+            inputs: options.record_inputs.then(Vec::new),
             serial_faults: SerialFaults::new(&plan),
             can_faults: CanFaults::new(&plan),
             bursts: plan.serial_burst_at.iter().copied().collect(),
@@ -408,9 +417,9 @@ impl<K: StageClock> VirtualRig<K> {
             }
         }
         if !options.wait_for_operator {
-            rig.core.arm_at_start();
+            rig.feed(Input::ArmAtStart);
         }
-        rig.core.psd_connected(HostTime::ZERO);
+        rig.feed(Input::PsdConnected);
         rig.firmware_out();
         rig
     }
@@ -449,22 +458,32 @@ impl<K: StageClock> VirtualRig<K> {
         }
     }
 
-    /// An operator's request now.
-    pub fn request(&mut self, request: &Request) -> Result<(), Refusal> {
-        let result = self.core.request(HostTime::from_nanos(self.t), request);
+    /// Hand the core one input now: the one way into it, as the shell's.
+    fn feed(&mut self, input: Input<'_>) -> Option<Answer> {
+        feed(&mut self.core, &mut self.inputs, HostTime::from_nanos(self.t), input)
+    }
+
+    /// An operator's request now, and the core's answer.
+    fn ask(&mut self, request: &Request) -> Answer {
+        let answer = self.feed(Input::Request(request)).expect("the core answers every request");
         self.drain_core();
         self.firmware_out();
-        result
+        answer
+    }
+
+    /// An operator's request now.
+    pub fn request(&mut self, request: &Request) -> Result<(), Refusal> {
+        self.ask(request).result
     }
 
     /// The operator's status view now.
     pub fn status(&mut self) -> Status {
-        self.core.status(HostTime::from_nanos(self.t))
+        self.ask(&Request::Status).status.expect("a status request is answered with the status")
     }
 
     /// A shutdown request now (as SIGINT gives the rig's gateway).
     pub fn shutdown(&mut self) {
-        self.core.shutdown(HostTime::from_nanos(self.t));
+        self.feed(Input::Shutdown);
         self.drain_core();
         self.firmware_out();
     }
@@ -482,7 +501,7 @@ impl<K: StageClock> VirtualRig<K> {
         self.deliver();
         let now = HostTime::from_nanos(self.t);
         if now >= self.core.next_deadline() {
-            self.core.tick(now);
+            self.feed(Input::Tick);
         }
         self.drain_core();
         self.firmware_out();
@@ -523,7 +542,6 @@ impl<K: StageClock> VirtualRig<K> {
     /// The serial device vanishing and coming back; foreign traffic on the bus.
     fn faults_due(&mut self) {
         let t = self.time();
-        let now = HostTime::from_nanos(self.t);
         if let Some((gone_at, back_at)) = self.vanish {
             if !self.psd_gone && t >= gone_at {
                 // The pty closes: the host's read fails at once.
@@ -532,7 +550,7 @@ impl<K: StageClock> VirtualRig<K> {
                 self.to_controller.clear();
                 self.pending.clear();
                 self.psd_out.clear();
-                self.core.psd_lost(now);
+                self.feed(Input::PsdLost);
                 self.next_reopen = t + REOPEN_EVERY;
             } else if self.psd_gone && t >= back_at {
                 self.vanish = None;
@@ -547,7 +565,7 @@ impl<K: StageClock> VirtualRig<K> {
             } else {
                 self.next_reopen = f64::INFINITY;
                 self.controller_rx.clear();
-                self.core.psd_connected(now);
+                self.feed(Input::PsdConnected);
             }
         }
         if t >= self.next_foreign {
@@ -633,7 +651,10 @@ impl<K: StageClock> VirtualRig<K> {
             }
         }
         while self.to_host.take(self.t, &mut self.scratch) {
-            self.core.psd_bytes(now, &self.scratch);
+            // In reads of at most a chunk, as the shell's.
+            for chunk in self.scratch.chunks(PSD_CHUNK) {
+                feed(&mut self.core, &mut self.inputs, now, Input::PsdBytes(chunk));
+            }
         }
         while self.can_down.take(self.t, &mut self.scratch) {
             self.adapter_rx.extend_from_slice(&self.scratch);
@@ -662,12 +683,12 @@ impl<K: StageClock> VirtualRig<K> {
             if let Some(tel) = &mut self.telemetry {
                 let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
             }
-            self.core.can_event(now, CanEvent::Frame(frame));
+            self.feed(Input::Can(CanEvent::Frame(frame)));
         }
         // SocketCAN tells of its controller going bus-off with an error frame, unasked.
         let host_bus_off = self.options.can == CanTransport::SocketCan && self.plan.adapter_bus_off(t);
         if host_bus_off && !self.host_bus_off {
-            self.core.can_event(now, CanEvent::ErrorFrame { bus_off: true });
+            self.feed(Input::Can(CanEvent::ErrorFrame { bus_off: true }));
         }
         self.host_bus_off = host_bus_off;
         while self.can_up.take(self.t, &mut self.scratch) {
@@ -677,7 +698,7 @@ impl<K: StageClock> VirtualRig<K> {
                     if let (CanEvent::Frame(frame), Some(tel)) = (event, &mut self.telemetry) {
                         let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
                     }
-                    self.core.can_event(now, event);
+                    feed(&mut self.core, &mut self.inputs, now, Input::Can(event));
                 }
             }
         }
@@ -685,7 +706,6 @@ impl<K: StageClock> VirtualRig<K> {
 
     /// Hand each of the core's outputs to its line, as the shell does.
     fn drain_core(&mut self) {
-        let now = HostTime::from_nanos(self.t);
         while let Some(output) = self.core.poll() {
             match output {
                 Output::Psd(packet) => {
@@ -718,7 +738,7 @@ impl<K: StageClock> VirtualRig<K> {
                 Output::Streaming => {}
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {
-                    self.core.psd_lost(now);
+                    self.feed(Input::PsdLost);
                     self.next_reopen = self.time() + REOPEN_EVERY;
                 }
             }
@@ -809,8 +829,22 @@ impl<K: StageClock> VirtualRig<K> {
                 self.serial_faults.dropped,
                 self.serial_faults.corrupted,
             ],
+            inputs: self.inputs.unwrap_or_default(),
         }
     }
+}
+
+/// Hand `core` one input at `now`, keeping a copy in `log` when there is one.
+fn feed<K: StageClock>(
+    core: &mut Core<K>,
+    log: &mut Option<Vec<InputRecord>>,
+    now: HostTime,
+    input: Input<'_>,
+) -> Option<Answer> {
+    if let Some(log) = log {
+        log.push(InputRecord { seq: log.len() as u64, at: now, input: RecordedInput::of(input) });
+    }
+    core.handle(now, input)
 }
 
 /// Run `scenario` through the whole stack in virtual time, deterministically.

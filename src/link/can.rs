@@ -1,8 +1,7 @@
-//! CAN backends behind one trait.
+//! CAN backends: SocketCAN and SLCAN, one enum ([`CanLink`]) chosen by a URL ([`CanUrl`]).
 
 use std::path::PathBuf;
 use std::str::FromStr;
-use std::sync::{Arc, Mutex};
 
 use bytes::BytesMut;
 use flowgate_protocol::codec::{SlcanHostCodec, StreamError};
@@ -10,8 +9,10 @@ use flowgate_protocol::slcan::{self, Bitrate, Command, Line as _, Response};
 use flowgate_protocol::CanFrame;
 use futures_util::StreamExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::sync::broadcast;
 use tokio_util::codec::Decoder;
+
+#[cfg(feature = "lab")]
+use super::memory::{MemoryBus, MemoryLink};
 
 /// A CAN endpoint, parsed from its URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -20,7 +21,9 @@ pub enum CanUrl {
     SocketCan { interface: String },
     /// `slcan:PATH[?bitrate=BPS][&baud=BAUD]`
     Slcan { path: PathBuf, bitrate: u32, baud: u32 },
-    /// `memory`: in-process, for unit tests.
+    /// `memory`: an in-process bus ([`super::memory`]), only in builds with the lab tools
+    /// (tests); the deployed gateway's parser does not know it.
+    #[cfg(feature = "lab")]
     Memory,
 }
 
@@ -65,6 +68,7 @@ impl FromStr for CanUrl {
                 }
                 Ok(Self::Slcan { path: path.into(), bitrate, baud })
             }
+            #[cfg(feature = "lab")]
             "memory" => Ok(Self::Memory),
             _ => Err(bad("unknown scheme")),
         }
@@ -144,6 +148,7 @@ const CAN_ERR_BUSOFF: u32 = 0x0000_0040;
 pub enum CanLink {
     SocketCan(SocketCanLink),
     Slcan(SlcanLink),
+    #[cfg(feature = "lab")]
     Memory(MemoryLink),
 }
 
@@ -154,6 +159,7 @@ impl CanLink {
         match self {
             Self::SocketCan(l) => l.send(frame).await,
             Self::Slcan(l) => l.send(frame).await,
+            #[cfg(feature = "lab")]
             Self::Memory(l) => l.send(frame),
         }
     }
@@ -163,7 +169,9 @@ impl CanLink {
     pub async fn poll_status(&mut self) -> Result<(), CanError> {
         match self {
             Self::Slcan(l) => l.write(&Command::StatusFlags).await,
-            Self::SocketCan(_) | Self::Memory(_) => Ok(()),
+            Self::SocketCan(_) => Ok(()),
+            #[cfg(feature = "lab")]
+            Self::Memory(_) => Ok(()),
         }
     }
 
@@ -172,6 +180,7 @@ impl CanLink {
         match self {
             Self::SocketCan(l) => l.recv().await,
             Self::Slcan(l) => l.recv().await,
+            #[cfg(feature = "lab")]
             Self::Memory(l) => l.recv().await,
         }
     }
@@ -182,6 +191,7 @@ pub async fn open_can(url: &CanUrl) -> Result<CanLink, CanError> {
     Ok(match url {
         CanUrl::SocketCan { interface } => CanLink::SocketCan(SocketCanLink::open(interface)?),
         CanUrl::Slcan { path, bitrate, baud } => CanLink::Slcan(SlcanLink::open(path, *bitrate, *baud).await?),
+        #[cfg(feature = "lab")]
         CanUrl::Memory => CanLink::Memory(MemoryBus::new().attach()),
     })
 }
@@ -324,70 +334,9 @@ impl std::fmt::Debug for SlcanLink {
     }
 }
 
-/// An in-process CAN bus for unit tests: every attached link sees every other's frames.
-#[derive(Clone)]
-pub struct MemoryBus {
-    tx: broadcast::Sender<(usize, CanFrame)>,
-    next_id: Arc<Mutex<usize>>,
-}
-
-impl std::fmt::Debug for MemoryBus {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("MemoryBus")
-    }
-}
-
-impl Default for MemoryBus {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl MemoryBus {
-    pub fn new() -> Self {
-        Self { tx: broadcast::channel(1024).0, next_id: Arc::new(Mutex::new(0)) }
-    }
-    /// A new node on the bus.
-    pub fn attach(&self) -> MemoryLink {
-        let mut id = self.next_id.lock().expect("not poisoned");
-        *id += 1;
-        MemoryLink { id: *id, tx: self.tx.clone(), rx: self.tx.subscribe() }
-    }
-}
-
-pub struct MemoryLink {
-    id: usize,
-    tx: broadcast::Sender<(usize, CanFrame)>,
-    rx: broadcast::Receiver<(usize, CanFrame)>,
-}
-
-impl std::fmt::Debug for MemoryLink {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("MemoryLink")
-    }
-}
-
-impl MemoryLink {
-    pub fn send(&mut self, frame: CanFrame) -> Result<(), CanError> {
-        let _ = self.tx.send((self.id, frame));
-        Ok(())
-    }
-    pub async fn recv(&mut self) -> Result<CanEvent, CanError> {
-        loop {
-            match self.rx.recv().await {
-                Ok((from, f)) if from != self.id => return Ok(CanEvent::Frame(f)),
-                Ok(_) => continue,
-                Err(broadcast::error::RecvError::Lagged(_)) => return Ok(CanEvent::Garbled),
-                Err(broadcast::error::RecvError::Closed) => return Err(CanError::Closed),
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use flowgate_protocol::CanId;
 
     #[test]
     fn parses_urls() {
@@ -409,16 +358,5 @@ mod tests {
             let err = url.parse::<CanUrl>().unwrap_err();
             assert!(err.contains(why), "{url}: {err}");
         }
-    }
-
-    #[tokio::test]
-    async fn memory_bus_delivers_to_others_only() {
-        let bus = MemoryBus::new();
-        let (mut a, mut b) = (bus.attach(), bus.attach());
-        let f = CanFrame::new(CanId::Standard(0x101), &[1]).unwrap();
-        a.send(f).unwrap();
-        assert_eq!(b.recv().await.unwrap(), CanEvent::Frame(f));
-        b.send(f).unwrap();
-        assert_eq!(a.recv().await.unwrap(), CanEvent::Frame(f));
     }
 }

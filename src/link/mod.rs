@@ -1,14 +1,13 @@
 //! Links to the rig: the PSD controller's serial line and the motor boards' CAN bus.
 //!
 //! CAN backends sit behind one enum, [`CanLink`], selected by a URL-like string
-//! ([`CanUrl`]): `socketcan:can0`, `slcan:/dev/ttyACM0?bitrate=1000000`, or `memory`
-//! (an in-process bus for unit tests only).
+//! ([`CanUrl`]): `socketcan:can0` or `slcan:/dev/ttyACM0?bitrate=1000000`; builds with the
+//! lab tools also know `memory`, an in-process bus for tests.
 
 mod can;
+#[cfg(feature = "lab")]
+pub mod memory;
 mod serial;
 
-pub use can::{
-    interface_down, open_can, slcan_event, CanError, CanEvent, CanLink, CanUrl, MemoryBus, MemoryLink, SlcanLink,
-    SocketCanLink,
-};
+pub use can::{interface_down, open_can, slcan_event, CanError, CanEvent, CanLink, CanUrl, SlcanLink, SocketCanLink};
 pub use serial::{open_serial, SerialError};

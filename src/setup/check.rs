@@ -371,6 +371,7 @@ async fn check_can(rig: &Rig, report: &mut Report) {
     let endpoint = match &rig.can {
         CanUrl::SocketCan { interface } => interface.clone(),
         CanUrl::Slcan { path, .. } => path.display().to_string(),
+        #[cfg(feature = "lab")]
         CanUrl::Memory => "memory".to_string(),
     };
     if let CanUrl::SocketCan { interface } = &rig.can {

@@ -53,27 +53,51 @@ pub enum StopReason {
     /// No time sync with a round trip within bound for `SYNC_STALE`: stamps cannot be trusted.
     ClockUnsynced,
     /// The motor board counted more lost or foreign commands than the budget allows.
-    BoardSequence,
+    BoardSequence {
+        node: u8,
+    },
     /// The SLCAN adapter refused more transmits than the budget allows.
     CanTransmitRefused,
     /// The CAN link itself failed: a write error or timeout, the adapter gone.
     CanLinkLost,
     /// The SocketCAN interface went down or away (not the bus: the host's interface).
     CanInterfaceDown,
-    HeartbeatLost,
+    /// The motor board's heartbeat stopped for longer than `safety.heartbeat_timeout_ms`.
+    HeartbeatLost {
+        node: u8,
+    },
     /// The motor board announced a boot while the gateway drove it.
-    BoardReboot,
+    BoardReboot {
+        node: u8,
+    },
     /// Another device sent velocity commands to our board.
-    SecondMaster,
+    SecondMaster {
+        node: u8,
+    },
     /// A tracked obstacle stayed unseen inside the view for longer than
     /// `safety.occlusion_timeout_ms` while running.
     ObstacleOccluded {
         led: u8,
     },
+    /// The gateway's own CAN controller went bus-off (an error frame or the adapter's flags).
     BusOff,
-    BoardFault,
+    /// The motor board reports its CAN controller error passive or bus-off.
+    BoardBusOff {
+        node: u8,
+    },
+    /// The motor board latched a fault (its driver, its command timeout, an e-stop).
+    BoardFault {
+        node: u8,
+    },
+    /// The motor board's own e-stop input (a stop button wired to it) latched its e-stop:
+    /// the reset is refused while the input stays open.
+    BoardEStop {
+        node: u8,
+    },
     /// Armed, the board stayed Disabled through every enable sent.
-    BoardNotEnabled,
+    BoardNotEnabled {
+        node: u8,
+    },
     PlannerInvalid,
 }
 
@@ -144,20 +168,24 @@ impl std::fmt::Display for StopReason {
             Self::ControllerFault => "the PSD controller reports a fault",
             Self::ControllerReset => "the PSD controller rebooted",
             Self::SerialLost => "serial device lost",
-            Self::HeartbeatLost => "motor board heartbeat lost",
+            Self::HeartbeatLost { node } => return write!(f, "motor board {node} heartbeat lost"),
             Self::ClockUnsynced => "controller clock unsynchronised (time sync round trips too long)",
-            Self::BoardSequence => "motor board counts lost or foreign commands beyond budget",
+            Self::BoardSequence { node } => {
+                return write!(f, "motor board {node} counts lost or foreign commands beyond budget")
+            }
             Self::CanTransmitRefused => "CAN adapter refuses to transmit beyond budget",
             Self::CanLinkLost => "CAN link lost",
             Self::CanInterfaceDown => "CAN interface went down",
-            Self::BoardReboot => "motor board rebooted",
-            Self::SecondMaster => "another device commands the motor board",
+            Self::BoardReboot { node } => return write!(f, "motor board {node} rebooted"),
+            Self::SecondMaster { node } => return write!(f, "another device commands motor board {node}"),
             Self::ObstacleOccluded { led } => {
                 return write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
             }
             Self::BusOff => "CAN bus-off",
-            Self::BoardFault => "motor board fault",
-            Self::BoardNotEnabled => "motor board did not enable",
+            Self::BoardBusOff { node } => return write!(f, "motor board {node} CAN bus-off"),
+            Self::BoardFault { node } => return write!(f, "motor board {node} fault"),
+            Self::BoardEStop { node } => return write!(f, "e-stop latched by motor board {node} (its e-stop input)"),
+            Self::BoardNotEnabled { node } => return write!(f, "motor board {node} did not enable"),
             Self::PlannerInvalid => "planner refused its input",
         })
     }
@@ -332,12 +360,12 @@ mod tests {
         let mut s = Safety::default();
         s.arm(0.0);
         s.ready(0.0);
-        assert_eq!(s.stop(1.0, StopReason::HeartbeatLost), Action::EmergencyStop);
-        assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost));
+        assert_eq!(s.stop(1.0, StopReason::HeartbeatLost { node: 1 }), Action::EmergencyStop);
+        assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost { node: 1 }));
         // Nothing but an arm leaves Fault: not readiness, not another stop.
         s.ready(2.0);
         assert_eq!(s.stop(2.0, StopReason::GoalReached), Action::None);
-        assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost));
+        assert_eq!(s.state(), State::Fault(StopReason::HeartbeatLost { node: 1 }));
         assert_eq!(s.arm(2.5), Action::None, "arming does not clear a fault");
         assert!(s.reset(2.9));
         assert_eq!(s.arm(3.0), Action::EnableBoard);

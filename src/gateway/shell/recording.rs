@@ -29,15 +29,11 @@ use flowgate_protocol::psd::{self, Packet};
 use flowgate_protocol::{CanFrame, CanId};
 use serde_json::{json, Value};
 
-use super::operator::Request;
-use super::timing::CycleRecord;
-use super::Input;
+use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
+use crate::gateway::core::scene::SceneRecord;
+use crate::gateway::core::timing::CycleRecord;
 use crate::link::CanEvent;
-use crate::planner::MAX_OBSTACLES;
 use crate::time::HostTime;
-
-/// The most bytes one PSD read hands the core, and one input record holds.
-pub const PSD_CHUNK: usize = 256;
 
 /// The metadata record holding the configuration.
 pub const METADATA: &str = "flowgate";
@@ -51,104 +47,6 @@ pub const GATEWAY_INPUT: &str = "/gateway/input";
 pub const PSD_TX: &str = "/psd/tx";
 pub const CAN_TX: &str = "/can/tx";
 pub const CYCLE: &str = "/cycle";
-
-/// One input to the core as recorded: it owns its bytes (a fixed chunk: queueing it does
-/// not allocate; requests are rare and boxed).
-// Large by design: a record is copied into the queue, never boxed (no allocation per cycle).
-#[allow(clippy::large_enum_variant)]
-#[derive(Debug, Clone, PartialEq)]
-pub enum RecordedInput {
-    PsdConnected,
-    PsdLost,
-    PsdBytes { len: u16, bytes: [u8; PSD_CHUNK] },
-    Can(CanEvent),
-    CanFailed,
-    CanReopened,
-    Request(Box<Request>),
-    ArmAtStart,
-    Shutdown,
-    Tick,
-}
-
-impl RecordedInput {
-    /// A copy of `input`. PSD reads longer than [`PSD_CHUNK`] are cut there (the shell never
-    /// reads more at once).
-    pub fn of(input: Input<'_>) -> Self {
-        match input {
-            Input::PsdConnected => Self::PsdConnected,
-            Input::PsdLost => Self::PsdLost,
-            Input::PsdBytes(b) => {
-                let len = b.len().min(PSD_CHUNK);
-                let mut bytes = [0; PSD_CHUNK];
-                bytes[..len].copy_from_slice(&b[..len]);
-                Self::PsdBytes { len: len as u16, bytes }
-            }
-            Input::Can(e) => Self::Can(e),
-            Input::CanFailed => Self::CanFailed,
-            Input::CanReopened => Self::CanReopened,
-            Input::Request(r) => Self::Request(Box::new(r.clone())),
-            Input::ArmAtStart => Self::ArmAtStart,
-            Input::Shutdown => Self::Shutdown,
-            Input::Tick => Self::Tick,
-        }
-    }
-
-    /// The input to hand the core.
-    pub fn as_input(&self) -> Input<'_> {
-        match self {
-            Self::PsdConnected => Input::PsdConnected,
-            Self::PsdLost => Input::PsdLost,
-            Self::PsdBytes { len, bytes } => Input::PsdBytes(&bytes[..usize::from(*len)]),
-            Self::Can(e) => Input::Can(*e),
-            Self::CanFailed => Input::CanFailed,
-            Self::CanReopened => Input::CanReopened,
-            Self::Request(r) => Input::Request(r),
-            Self::ArmAtStart => Input::ArmAtStart,
-            Self::Shutdown => Input::Shutdown,
-            Self::Tick => Input::Tick,
-        }
-    }
-}
-
-/// An input with its place in the run: `seq` counts every input the loop took (a dropped
-/// record leaves a gap), `at` is when.
-#[derive(Debug, Clone, PartialEq)]
-pub struct InputRecord {
-    pub seq: u64,
-    pub at: HostTime,
-    pub input: RecordedInput,
-}
-
-/// One tracked obstacle in a cycle's scene. `f32`: a micrometre over tens of metres, and
-/// half the queue's memory.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct ObstacleView {
-    pub position: [f32; 2],
-    pub velocity: [f32; 2],
-    /// Position covariance `[xx, xy, yy]`, m².
-    pub covariance: [f32; 3],
-    pub planning_radius: f32,
-    /// The obstacle's own radius, m.
-    pub radius: f32,
-}
-
-/// What the gateway believed in one cycle: the robot's pose and goal, each obstacle.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct SceneRecord {
-    pub cycle: u64,
-    pub at: HostTime,
-    /// x, y (m), heading (rad).
-    pub pose: [f64; 3],
-    pub goal: [f64; 2],
-    pub count: u8,
-    pub obstacles: [ObstacleView; MAX_OBSTACLES],
-}
-
-impl SceneRecord {
-    pub fn obstacles(&self) -> &[ObstacleView] {
-        &self.obstacles[..usize::from(self.count).min(MAX_OBSTACLES)]
-    }
-}
 
 fn hex(bytes: &[u8]) -> String {
     use std::fmt::Write as _;
@@ -611,7 +509,8 @@ pub struct EventRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::operator::Goal;
+    use crate::gateway::core::operator::{Goal, Request};
+    use crate::gateway::core::Input;
 
     #[test]
     fn every_kind_of_input_survives_its_json() {

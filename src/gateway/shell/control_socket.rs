@@ -18,7 +18,7 @@ use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{UnixListener, UnixStream};
 use tokio::sync::{mpsc, oneshot, Semaphore};
 
-use super::operator::{Request, Status};
+use crate::gateway::core::operator::{Request, Status};
 
 /// Longest request line accepted, bytes.
 pub const MAX_REQUEST: usize = 4096;

@@ -29,8 +29,9 @@ use serde::Serialize;
 use tokio::sync::mpsc;
 
 pub use super::recording::{CanRecord, EventRecord};
-use super::recording::{InputRecord, McapSink, RecordingSummary, SceneRecord};
-pub use super::timing::{write_stage_table, CycleRecord, Distribution, Stage, StageSummary, Timing};
+use super::recording::{McapSink, RecordingSummary};
+pub use crate::gateway::core::timing::{write_stage_table, CycleRecord, Distribution, Stage, StageSummary, Timing};
+use crate::gateway::core::{input::InputRecord, scene::SceneRecord};
 use crate::time::HostTime;
 
 // Large by design: a record is copied into the queue, never boxed (no allocation per cycle).

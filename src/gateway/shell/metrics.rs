@@ -16,7 +16,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 
 use super::http::{self, Asked};
-use super::{Counters, State};
+use crate::gateway::core::{Counters, State};
 
 /// How often the loop publishes a snapshot.
 pub const PUBLISH_EVERY: Duration = Duration::from_secs(1);
@@ -46,7 +46,7 @@ impl Snapshot {
         Self {
             state: State::Idle,
             counters: Counters::default(),
-            e2e_ns: super::timing::Timing::default().e2e_histogram().clone(),
+            e2e_ns: crate::gateway::core::timing::Timing::default().e2e_histogram().clone(),
             deadline_misses: 0,
             uptime_s: 0.0,
             stops: Vec::new(),

@@ -1,17 +1,54 @@
 //! The gateway core: everything the gateway decides, with no I/O and no clock.
 //!
-//! Inputs come with the host time at which they happened: PSD bytes as read, CAN events as
-//! received, the line opening or failing, operator requests, and ticks when the core's own
-//! deadline comes ([`Core::next_deadline`]). Outputs are queued for the caller to take
-//! with [`Core::poll`]: packets for the PSD controller, CAN frames, each cycle's command
-//! with its timing record, and state changes. The same core runs on the rig (the tokio
-//! shell in [`super::shell`]), in the deterministic full-stack simulation, and in
-//! benchmarks; that is what makes a virtual-time test evidence about the rig.
+//! The core is a state machine in the manner of quinn-proto's `Connection`. There is one way
+//! in and two ways out:
+//!
+//! - [`Core::handle`]`(now, input)`: every [`Input`] (PSD bytes as read, CAN events as
+//!   received, the links opening and failing, an operator's request, a shutdown, a tick)
+//!   with the host time at which it happened. An operator's request gets its [`Answer`].
+//! - [`Core::poll`], after every `handle`, until it returns `None`: the [`Output`]s to carry
+//!   out, in order (packets for the PSD controller, CAN frames, each cycle's command with its
+//!   timing record, state changes).
+//! - [`Core::next_deadline`], after draining: when to hand the core [`Input::Tick`] if
+//!   nothing else happens first. Watchdogs, heartbeats and retries live there, so they fire
+//!   however the I/O around the core behaves.
+//!
+//! The rig's tokio shell ([`crate::gateway::shell`]), replay of a recording
+//! ([`crate::replay`]), the virtual rig of the deterministic simulation and the fuzz target
+//! all drive it this way and no other, so a recording of the inputs of any of them replays
+//! every decision, byte for byte. The queries ([`Core::state`], [`Core::counters`],
+//! [`Core::scene`], ...) change nothing.
+//!
+//! ```
+//! use flowgate::config::GatewayConfig;
+//! use flowgate::gateway::{Core, Input, NoClock, Output};
+//! use flowgate::time::HostTime;
+//!
+//! let config = GatewayConfig::from_toml(include_str!("../../../rig.example.toml"), "rig.toml").unwrap();
+//! let mut core = Core::new(config.rig("rig.toml").unwrap(), NoClock);
+//! let mut now = HostTime::ZERO;
+//! core.handle(now, Input::PsdConnected);
+//! let mut to_controller = 0;
+//! for _ in 0..10 {
+//!     // Carry out what the core asks: here, count the packets for the controller.
+//!     while let Some(output) = core.poll() {
+//!         if let Output::Psd(_packet) = output {
+//!             to_controller += 1; // the shell encodes and writes it to the serial line
+//!         }
+//!     }
+//!     // Nothing was read: sleep until the core's deadline and tick it.
+//!     now = core.next_deadline();
+//!     core.handle(now, Input::Tick);
+//! }
+//! // The handshake's request, asked again while the controller stays silent.
+//! assert!(to_controller >= 2);
+//! ```
 //!
 //! Per cycle (one PSD time-division frame, closed by its `FrameEnd`):
 //! decode -> floor coordinates (calibration) -> [`Tracker`] -> control step -> one CAN
-//! velocity frame. Watchdogs are deadlines, so they fire from [`Core::tick`] however the
-//! I/O around the core behaves.
+//! velocity frame. The same core runs on the rig, in deterministic virtual time against the
+//! simulator's firmware, in replay and in the benchmarks: that is what makes a
+//! virtual-time test evidence about the rig.
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -22,20 +59,32 @@ use flowgate_protocol::psd::{FaultCode, Message, Packet};
 use flowgate_protocol::CanFrame;
 use num_complex::Complex64 as C;
 
-use super::counter_window::{CounterWindow, Verdict};
-use super::input::{Answer, Input};
-use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
-use super::psd_session::{PsdSession, SessionEvent, SetupError};
-use super::recording::{ObstacleView, SceneRecord};
-use super::safety::{Action, Safety, State, StopReason};
-use super::telemetry::CycleRecord;
-use super::{Counters, Progress};
+pub mod counter_window;
+mod counters;
+pub mod input;
+pub mod operator;
+pub mod psd_session;
+pub mod safety;
+pub mod scene;
+pub mod timing;
+
+pub use counters::{Counters, Progress};
+pub use input::{Answer, Input};
+pub use psd_session::SetupError;
+pub use safety::{State, StopReason};
+
 use crate::config::Rig;
 use crate::control::{ControlStep, StepStatus, Supervision};
 use crate::link::CanEvent;
 use crate::planner::Space;
 use crate::time::{CtrlTime, HostTime};
 use crate::track::{Implausible, Pose, Tracker};
+use counter_window::{CounterWindow, Verdict};
+use operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
+use psd_session::{PsdSession, SessionEvent};
+use safety::{Action, Safety};
+use scene::{ObstacleView, SceneRecord};
+use timing::CycleRecord;
 
 /// How often the gateway sends its heartbeat.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
@@ -314,7 +363,7 @@ impl<K: StageClock> Core<K> {
         self.out.pop_front()
     }
 
-    /// When the core next needs a [`Core::tick`], whatever else happens.
+    /// When the core next needs an [`Input::Tick`], whatever else happens.
     pub fn next_deadline(&self) -> HostTime {
         let mut next = self.next_heartbeat.min(self.psd.deadline());
         let state = self.state();
@@ -369,27 +418,27 @@ impl<K: StageClock> Core<K> {
 
     /// An operator's request and its answer: the status comes with a query or an accepted
     /// request.
-    pub fn answer(&mut self, now: HostTime, request: &Request) -> Answer {
+    fn answer(&mut self, now: HostTime, request: &Request) -> Answer {
         let result = self.request(now, request);
         let status = (request.is_query() || result.is_ok()).then(|| self.status(now));
         Answer { result, status }
     }
 
     /// The PSD line opened: configure the controller.
-    pub fn psd_connected(&mut self, now: HostTime) {
+    fn psd_connected(&mut self, now: HostTime) {
         let out = &mut self.out;
         self.psd.connect(now, &mut |p| out.push_back(Output::Psd(p)));
     }
 
     /// The PSD line failed (read error, end of file, write timeout): a serial fault.
-    pub fn psd_lost(&mut self, now: HostTime) {
+    fn psd_lost(&mut self, now: HostTime) {
         self.psd.down();
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
         self.stop(now, StopReason::SerialLost);
     }
 
     /// Bytes read from the PSD line at `now`.
-    pub fn psd_bytes(&mut self, now: HostTime, bytes: &[u8]) {
+    fn psd_bytes(&mut self, now: HostTime, bytes: &[u8]) {
         if self.psd.is_down() {
             return;
         }
@@ -416,7 +465,7 @@ impl<K: StageClock> Core<K> {
     }
 
     /// A CAN event at `now`.
-    pub fn can_event(&mut self, now: HostTime, event: CanEvent) {
+    fn can_event(&mut self, now: HostTime, event: CanEvent) {
         match event {
             CanEvent::Frame(f) => self.can_frame(now, &f),
             CanEvent::Garbled => self.counters.can_undecodable += 1,
@@ -455,19 +504,19 @@ impl<K: StageClock> Core<K> {
     }
 
     /// The CAN link failed (a write error or timeout, the adapter gone).
-    pub fn can_failed(&mut self, now: HostTime) {
+    fn can_failed(&mut self, now: HostTime) {
         self.can_link_up = false;
         self.stop(now, StopReason::CanLinkLost);
     }
 
     /// The CAN link is open again after a loss (the core stays faulted until reset).
-    pub fn can_reopened(&mut self) {
+    fn can_reopened(&mut self) {
         self.counters.can_reconnects += 1;
         self.can_link_up = true;
     }
 
     /// An operator's request at `now`. Refusals say exactly why and change nothing.
-    pub fn request(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
+    fn request(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
         let state = self.state();
         match request {
             Request::Status | Request::Stats { .. } => Ok(()),
@@ -559,19 +608,19 @@ impl<K: StageClock> Core<K> {
 
     /// Arm and start towards the rig's `[goal]` as soon as the controller first streams, with
     /// no operator (`flowgate run --arm`, the demo, the virtual rig; never a service).
-    pub fn arm_at_start(&mut self) {
+    fn arm_at_start(&mut self) {
         self.arm_at_start = true;
     }
 
     /// Arm, set `goal` and start.
-    pub fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
+    fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
         self.request(now, &Request::Arm)?;
         self.request(now, &Request::Goal { goals: vec![goal] })?;
         self.request(now, &Request::Start)
     }
 
     /// What the gateway knows now: state, goals, pose, obstacles.
-    pub fn status(&mut self, now: HostTime) -> Status {
+    fn status(&mut self, now: HostTime) -> Status {
         let period = self.rig.sample_period.as_secs_f64();
         let (wheel_base, robot, margin) =
             (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
@@ -688,14 +737,18 @@ impl<K: StageClock> Core<K> {
             StopReason::PoseLost => {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
-            StopReason::HeartbeatLost => !heard,
+            StopReason::HeartbeatLost { .. } => !heard,
             // The reset forgets the occluded track: the obstacle is absent until seen again
             // (and a required one refuses the arm until then).
             StopReason::ObstacleOccluded { .. } => false,
-            StopReason::BusOff => !heard || self.board.faults.contains(FaultBits::BUS),
+            StopReason::BusOff | StopReason::BoardBusOff { .. } => !heard || self.board.faults.contains(FaultBits::BUS),
+            // The board refuses to leave its e-stop while its input is open; so does the gateway.
+            StopReason::BoardEStop { .. } => !heard || self.board.faults.contains(FaultBits::ESTOP_INPUT),
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link_up,
             // Two masters must never drive one board: refused while the other is heard.
-            StopReason::SecondMaster => self.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout),
+            StopReason::SecondMaster { .. } => {
+                self.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout)
+            }
             // The reset clears the board's latched fault; a driver fault that persists
             // faults the gateway again once it runs.
             _ => false,
@@ -703,7 +756,7 @@ impl<K: StageClock> Core<K> {
     }
 
     /// Stop in order and end the run once at rest.
-    pub fn shutdown(&mut self, now: HostTime) {
+    fn shutdown(&mut self, now: HostTime) {
         self.shutdown = true;
         if !matches!(self.state(), State::Stopping(_)) {
             self.stop(now, StopReason::Shutdown);
@@ -711,7 +764,7 @@ impl<K: StageClock> Core<K> {
     }
 
     /// Time passed: heartbeats, retries, watchdogs, the end of an orderly stop.
-    pub fn tick(&mut self, now: HostTime) {
+    fn tick(&mut self, now: HostTime) {
         if now >= self.next_heartbeat {
             let state = self.state().wire();
             self.send(MotorMessage::GatewayHeartbeat { state });
@@ -784,7 +837,7 @@ impl<K: StageClock> Core<K> {
         } else if let Some(k) = self.occlusion_deadline().filter(|&(at, _)| state == State::Running && now >= at) {
             Some(StopReason::ObstacleOccluded { led: self.rig.obstacles[k.1].led })
         } else if now >= heard + s.heartbeat_timeout {
-            Some(StopReason::HeartbeatLost)
+            Some(StopReason::HeartbeatLost { node: self.rig.node.get() })
         } else if now >= self.psd.sync_deadline() {
             Some(StopReason::ClockUnsynced)
         } else {
@@ -1285,13 +1338,13 @@ impl<K: StageClock> Core<K> {
                     self.board.last_heartbeat = Some(now);
                     self.board.state = Some(state);
                     if state == BoardState::BootUp && is_active(self.state()) {
-                        self.stop(now, StopReason::BoardReboot);
+                        self.stop(now, StopReason::BoardReboot { node: self.rig.node.get() });
                     }
                 }
                 MotorMessage::Velocity { .. } => {
                     // We never hear our own commands: this one is another device's.
                     self.second_master_heard = Some(now);
-                    self.stop(now, StopReason::SecondMaster);
+                    self.stop(now, StopReason::SecondMaster { node: self.rig.node.get() });
                 }
                 MotorMessage::Status { state, faults, seq_errors, .. } => {
                     let before = self.board.seq_errors.replace(seq_errors);
@@ -1301,7 +1354,7 @@ impl<K: StageClock> Core<K> {
                         // Each counts against the budget: a lossy bus or another sender.
                         let exceeded = (0..new).fold(false, |over, _| self.board_seq.exceeded(now) | over);
                         if exceeded && is_active(self.state()) {
-                            self.stop(now, StopReason::BoardSequence);
+                            self.stop(now, StopReason::BoardSequence { node: self.rig.node.get() });
                         }
                     }
                     self.board.state = Some(state);
@@ -1309,14 +1362,20 @@ impl<K: StageClock> Core<K> {
                     // Just armed, a status older than the enable (and the fault reset before
                     // it) may still show the board as it was.
                     let settled = self.state() != State::Armed || now >= self.enable_sent + ENABLE_GRACE;
+                    let node = self.rig.node.get();
+                    let latched = if faults.contains(FaultBits::ESTOP_INPUT) {
+                        StopReason::BoardEStop { node }
+                    } else {
+                        StopReason::BoardFault { node }
+                    };
                     if faults.contains(FaultBits::BUS) && is_active(self.state()) && settled {
-                        self.stop(now, StopReason::BusOff);
+                        self.stop(now, StopReason::BoardBusOff { node });
                     } else if self.state() == State::Running && matches!(state, BoardState::Fault | BoardState::EStop) {
-                        self.stop(now, StopReason::BoardFault);
+                        self.stop(now, latched);
                     } else if self.state() == State::Armed && now >= self.enable_sent + ENABLE_GRACE {
                         // A status older than the enable may still show the board as it was.
                         match state {
-                            BoardState::Fault | BoardState::EStop => self.stop(now, StopReason::BoardFault),
+                            BoardState::Fault | BoardState::EStop => self.stop(now, latched),
                             BoardState::Disabled => self.board_still_disabled(now),
                             _ => {}
                         }
@@ -1340,7 +1399,7 @@ impl<K: StageClock> Core<K> {
     /// armed gateway must not wait silently for a board that never enables.
     fn board_still_disabled(&mut self, now: HostTime) {
         if self.enable_retries >= ENABLE_RETRIES {
-            self.stop(now, StopReason::BoardNotEnabled);
+            self.stop(now, StopReason::BoardNotEnabled { node: self.rig.node.get() });
             return;
         }
         self.enable_retries += 1;
@@ -1432,7 +1491,7 @@ mod tests {
     const CTRL_EPOCH_US: u64 = 5_000_000; // the controller booted 5 s before us
 
     fn core() -> Core<NoClock> {
-        let text = include_str!("../../rig.example.toml");
+        let text = include_str!("../../../rig.example.toml");
         Core::new(GatewayConfig::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
     }
 
@@ -1441,7 +1500,7 @@ mod tests {
     fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
         let mut c = core();
         assert_eq!(c.request(ms(1), &Request::Arm), Ok(()));
-        let text = include_str!("../../rig.example.toml").replacen(
+        let text = include_str!("../../../rig.example.toml").replacen(
             "{ led = 4, radius = 0.07 }",
             "{ led = 4, radius = 0.07, required = true }",
             1,
@@ -1676,7 +1735,7 @@ mod tests {
             c.tick(now);
         }
         // The first to expire: the board's heartbeat (never heard) or the samples.
-        assert!(matches!(c.state(), State::Fault(StopReason::SamplesStopped | StopReason::HeartbeatLost)));
+        assert!(matches!(c.state(), State::Fault(StopReason::SamplesStopped | StopReason::HeartbeatLost { .. })));
         assert!(now <= expected, "{now} vs {expected}");
     }
 

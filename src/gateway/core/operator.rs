@@ -8,7 +8,7 @@
 //! ```
 //!
 //! Answers are `{"ok":true,"status":{...}}` or `{"ok":false,"error":"not armed",...}`. The
-//! rules live in the core ([`super::Core::request`]); this module only names things.
+//! rules live in the core ([`Core::handle`](super::Core::handle)); this module only names things.
 
 use serde::{Deserialize, Serialize};
 

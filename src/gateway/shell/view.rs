@@ -23,8 +23,8 @@ use tokio::sync::watch;
 
 use super::http::{self, Asked};
 use super::metrics;
-use super::recording::SceneRecord;
-use super::State;
+use crate::gateway::core::scene::SceneRecord;
+use crate::gateway::core::State;
 use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
 
 /// How often the loop publishes its scene.
@@ -301,7 +301,7 @@ async fn client(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::recording::ObstacleView;
+    use crate::gateway::scene::ObstacleView;
     use crate::planner::Space;
 
     fn setup() -> ViewSetup {

@@ -13,19 +13,28 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{mpsc, watch};
 use tokio::time::{timeout, Instant};
 
-use super::control_socket::{self, Command, ControlSocket, Reply};
-use super::core::{Core, Output, StageClock};
-use super::input::{Answer, Input};
-use super::low_latency::{SpinWindow, Wait};
-use super::operator::Request;
-use super::realtime;
-use super::recording::{InputRecord, McapSink, RecordedInput, RecordingSetup, PSD_CHUNK};
-use super::systemd::Notifier;
-use super::telemetry::{self, CanRecord, Record, Recorder, Sinks, Timing};
-use super::{metrics, view};
-use super::{GatewayError, Progress, Report, State};
+pub mod control_socket;
+pub mod http;
+pub mod low_latency;
+pub mod metrics;
+pub mod realtime;
+pub mod recording;
+pub mod systemd;
+pub mod telemetry;
+pub mod view;
+
+use control_socket::{Command, ControlSocket, Reply};
+use low_latency::{SpinWindow, Wait};
+use recording::{McapSink, RecordingSetup};
+use systemd::Notifier;
+use telemetry::{CanRecord, Record, Recorder, Sinks, Timing};
+
+use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
+use super::core::operator::Request;
+use super::core::{Core, Output, Progress, SetupError, StageClock, State};
+use super::Report;
 use crate::config::Rig;
-use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl};
+use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl, SerialError};
 use crate::time::HostTime;
 
 /// Deadline of one write to the PSD line (a few frames at 921600 baud take well under 1 ms).
@@ -621,4 +630,27 @@ pub async fn run(
         None => telemetry::WrittenFiles::default(),
     };
     Ok(Report::new(&core, Some(&timing), dropped, files))
+}
+
+/// A startup failure: the gateway could not begin.
+#[derive(Debug, thiserror::Error)]
+pub enum GatewayError {
+    #[error(transparent)]
+    Serial(#[from] SerialError),
+    #[error(transparent)]
+    Can(#[from] CanError),
+    #[error("PSD controller on {port}: {source}")]
+    Setup { port: String, source: SetupError },
+    #[error("telemetry output {path}: {source}")]
+    Telemetry { path: String, source: std::io::Error },
+    #[error(transparent)]
+    ControlSocket(#[from] control_socket::ControlSocketError),
+    #[error("systemd notification: {0}")]
+    Notify(#[from] systemd::NotifyError),
+    #[error(transparent)]
+    Realtime(#[from] realtime::RealtimeError),
+    #[error("operator.metrics = \"{addr}\": cannot listen there: {source}")]
+    Metrics { addr: std::net::SocketAddr, source: std::io::Error },
+    #[error("operator.view = \"{addr}\": cannot listen there: {source}")]
+    View { addr: std::net::SocketAddr, source: std::io::Error },
 }
