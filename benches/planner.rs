@@ -6,13 +6,13 @@
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
 use flowgate::planner::{Field, Margin, ObstacleEstimate, PlanInput, Planner, PlannerConfig, Sink, Space, TieBreak};
-use num_complex::Complex64 as C;
+use flowgate::Point;
 
 fn obstacles(n: usize) -> Vec<ObstacleEstimate> {
     (0..n)
         .map(|k| {
             let a = k as f64 * 2.399; // golden-angle spiral, well apart
-            ObstacleEstimate::exact(C::from_polar(0.25 + 0.12 * k as f64, a), C::from_polar(0.05, -a), 0.03)
+            ObstacleEstimate::exact(Point::from_polar(0.25 + 0.12 * k as f64, a), Point::from_polar(0.05, -a), 0.03)
         })
         .collect()
 }
@@ -32,8 +32,8 @@ fn planner(space: Space) -> Planner {
 }
 
 fn bench(c: &mut Criterion) {
-    let robot = C::new(-1.6, 0.02);
-    let goal = C::new(1.8, -0.03);
+    let robot = Point::new(-1.6, 0.02);
+    let goal = Point::new(1.8, -0.03);
     let cases: [(&str, Space, usize); 5] = [
         ("free_1", Space::Free, 1),
         ("lane_1", Space::Lane { half_width: 0.6 }, 1),

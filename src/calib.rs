@@ -6,8 +6,8 @@
 //! (fixed-point iteration), then `H⁻¹`. `H` comes from the config, or is fitted by least
 //! squares (normalised DLT, nalgebra SVD) from reference points measured on the rig.
 
+use crate::Point;
 use nalgebra::{DMatrix, Matrix3, Vector3};
-use num_complex::Complex64 as Point;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibError {

@@ -13,9 +13,9 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use crate::Point;
 use flowgate_protocol::motor::{NodeId, MAX_U24};
 use flowgate_protocol::psd::{LedSlot, Schedule, MAX_SCHEDULE_LEDS};
-use num_complex::Complex64 as C;
 use serde::{Deserialize, Serialize};
 
 use crate::calib::Calibration;
@@ -59,7 +59,7 @@ pub struct GatewayConfig {
 #[serde(deny_unknown_fields)]
 pub struct RealtimeConfig {
     /// Low-latency mode: poll for the next frame from this long before it is due until this
-    /// long after, instead of sleeping (src/gateway/low_latency.rs); 0 = off (default). Costs
+    /// long after, instead of sleeping (src/gateway/shell/low_latency.rs); 0 = off (default). Costs
     /// about (spin_us + 1 ms) / T of a core (`flowgate bench` measures it).
     #[serde(default)]
     pub spin_us: u32,
@@ -459,6 +459,258 @@ fn non_negative(key: &str, v: f64) -> Result<(), Invalid> {
     }
 }
 
+fn ms(v: u32) -> Duration {
+    Duration::from_millis(u64::from(v))
+}
+
+impl SerialConfig {
+    fn validate(&self) -> Result<(), Invalid> {
+        if self.baud == 0 {
+            return invalid("serial.baud", "must be positive");
+        }
+        if self.port.as_os_str().is_empty() {
+            return invalid("serial.port", "is empty");
+        }
+        Ok(())
+    }
+}
+
+impl LedConfig {
+    /// The LEDs' ids in firing order: the robot's two, then the obstacles'.
+    fn validate(&self) -> Result<Vec<u8>, Invalid> {
+        if self.robot_front == self.robot_rear {
+            return invalid("leds.robot_rear", format!("must differ from leds.robot_front ({})", self.robot_front));
+        }
+        non_negative("leds.front_offset", self.front_offset)?;
+        non_negative("leds.rear_offset", self.rear_offset)?;
+        positive("leds.front_offset", self.front_offset + self.rear_offset)?;
+        let mut ids = vec![self.robot_front, self.robot_rear];
+        for (i, o) in self.obstacles.iter().enumerate() {
+            if ids.contains(&o.led) {
+                return invalid(&format!("leds.obstacles[{i}].led"), format!("LED {} is used twice", o.led));
+            }
+            ids.push(o.led);
+            positive(&format!("leds.obstacles[{i}].radius"), o.radius)?;
+        }
+        if ids.len() > MAX_SCHEDULE_LEDS || self.obstacles.len() > MAX_OBSTACLES {
+            return invalid(
+                "leds.obstacles",
+                format!(
+                    "{} obstacles ({} LEDs in all): at most {} obstacles and {MAX_SCHEDULE_LEDS} LEDs",
+                    self.obstacles.len(),
+                    ids.len(),
+                    MAX_OBSTACLES.min(MAX_SCHEDULE_LEDS - 2)
+                ),
+            );
+        }
+        Ok(ids)
+    }
+}
+
+impl CanConfig {
+    fn validate(&self) -> Result<(CanUrl, NodeId), Invalid> {
+        let can: CanUrl = self.endpoint.parse().or_else(|e: String| invalid("can.endpoint", e))?;
+        let Some(node) = NodeId::new(self.node) else {
+            return invalid("can.node", format!("must be 1-15, is {}", self.node));
+        };
+        Ok((can, node))
+    }
+}
+
+impl DriveSection {
+    fn validate(&self, sample_period: Duration) -> Result<(), Invalid> {
+        positive("drive.wheel_radius", self.wheel_radius)?;
+        positive("drive.wheel_base", self.wheel_base)?;
+        positive("drive.max_wheel_speed", self.max_wheel_speed)?;
+        positive("drive.wheel_accel", self.wheel_accel)?;
+        if self.steps_per_rev == 0 || self.microsteps == 0 {
+            return invalid("drive.steps_per_rev", "steps_per_rev and microsteps must be at least 1");
+        }
+        if self.microsteps > MAX_MICROSTEPS {
+            return invalid(
+                "drive.microsteps",
+                format!("must be 1-{MAX_MICROSTEPS} (what stepper drivers do), is {}", self.microsteps),
+            );
+        }
+        if self.steps_per_rev > MAX_STEPS_PER_REV {
+            return invalid("drive.steps_per_rev", format!("must be 1-{MAX_STEPS_PER_REV}, is {}", self.steps_per_rev));
+        }
+        if self.command_timeout_ms == 0 {
+            return invalid("drive.command_timeout_ms", "must be positive");
+        }
+        if sample_period >= ms(self.command_timeout_ms.into()) {
+            return invalid(
+                "drive.command_timeout_ms",
+                format!(
+                    "{} ms is not longer than the control period T = {} µs: the board would stop between commands",
+                    self.command_timeout_ms,
+                    sample_period.as_micros()
+                ),
+            );
+        }
+        Ok(())
+    }
+
+    /// What the board is configured with, in its pulses: each must fit its 24 bits.
+    fn board_settings(&self, pulses_per_metre: f64) -> Result<BoardSettings, Invalid> {
+        let to_rate = |key: &str, v: f64| {
+            let rate = (v * pulses_per_metre).round();
+            if rate >= 1.0 && rate <= f64::from(MAX_U24) {
+                Ok(rate as u32)
+            } else {
+                invalid(key, format!("is {rate} pulses/s at this wheel and stepper: must be 1-{MAX_U24}"))
+            }
+        };
+        Ok(BoardSettings {
+            accel: to_rate("drive.wheel_accel", self.wheel_accel)?,
+            max_rate: to_rate("drive.max_wheel_speed", self.max_wheel_speed)?,
+            command_timeout_ms: self.command_timeout_ms,
+        })
+    }
+}
+
+impl RobotSection {
+    fn validate(&self, drive: &DriveSection) -> Result<(), Invalid> {
+        positive("robot.radius", self.radius)?;
+        positive("robot.max_speed", self.max_speed)?;
+        // The centre moves at the mean of the wheels' rim speeds: never faster than they go.
+        if self.max_speed > drive.max_wheel_speed {
+            return invalid(
+                "robot.max_speed",
+                format!(
+                    "{} m/s is above drive.max_wheel_speed = {} m/s: the wheels cannot carry the robot that fast",
+                    self.max_speed, drive.max_wheel_speed
+                ),
+            );
+        }
+        Ok(())
+    }
+}
+
+impl OperatorConfig {
+    fn validate(&self) -> Result<(), Invalid> {
+        if self.socket.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+            return invalid("operator.socket", "is empty");
+        }
+        Ok(())
+    }
+}
+
+impl SafetyConfig {
+    /// The watchdogs, against each other and against the board's command timeout.
+    fn validate(&self, sample_period: Duration, board_timeout_ms: u16) -> Result<(), Invalid> {
+        for (key, v) in [
+            ("safety.pose_timeout_ms", self.pose_timeout_ms),
+            ("safety.heartbeat_timeout_ms", self.heartbeat_timeout_ms),
+            ("safety.sample_timeout_ms", self.sample_timeout_ms),
+            ("safety.occlusion_timeout_ms", self.occlusion_timeout_ms),
+        ] {
+            if v == 0 || v > MAX_WATCHDOG_MS {
+                return invalid(key, format!("must be 1-{MAX_WATCHDOG_MS} ms, is {v}"));
+            }
+        }
+        if !(self.pose_tolerance_m.is_finite() && self.pose_tolerance_m > 0.0 && self.pose_tolerance_m <= 1.0) {
+            return invalid("safety.pose_tolerance_m", format!("must be 0-1 m, is {}", self.pose_tolerance_m));
+        }
+        if self.occlusion_timeout_ms <= self.pose_timeout_ms {
+            return invalid(
+                "safety.occlusion_timeout_ms",
+                format!(
+                    "{} ms must exceed safety.pose_timeout_ms = {} ms: an obstacle is judged occluded only past the pose timeout",
+                    self.occlusion_timeout_ms, self.pose_timeout_ms
+                ),
+            );
+        }
+        if !(self.max_obstacle_speed.is_finite()
+            && self.max_obstacle_speed > 0.0
+            && self.max_obstacle_speed <= MAX_OBSTACLE_SPEED)
+        {
+            return invalid(
+                "safety.max_obstacle_speed",
+                format!("must be 0-{MAX_OBSTACLE_SPEED} m/s, is {}", self.max_obstacle_speed),
+            );
+        }
+        // Without samples or a fresh pose the gateway sends no command, and the board stops
+        // by itself after its command timeout. The gateway's own watchdog must fire first,
+        // with a cycle to spare, so the stop is named by its cause (serial, pose), not as a
+        // board fault.
+        let board_timeout = ms(board_timeout_ms.into());
+        for (key, v) in
+            [("safety.sample_timeout_ms", self.sample_timeout_ms), ("safety.pose_timeout_ms", self.pose_timeout_ms)]
+        {
+            if ms(v) + sample_period > board_timeout {
+                return invalid(
+                    key,
+                    format!(
+                        "{v} ms plus the period T = {} µs exceeds drive.command_timeout_ms = {} ms: the board would \
+                         stop the robot before the gateway names the cause",
+                        sample_period.as_micros(),
+                        board_timeout_ms
+                    ),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    fn settings(&self) -> SafetySettings {
+        SafetySettings {
+            pose_timeout: ms(self.pose_timeout_ms),
+            bad_frames_per_s: self.bad_frames_per_s,
+            heartbeat_timeout: ms(self.heartbeat_timeout_ms),
+            sample_timeout: ms(self.sample_timeout_ms),
+            pose_tolerance: self.pose_tolerance_m,
+            occlusion_timeout: ms(self.occlusion_timeout_ms),
+        }
+    }
+}
+
+impl TelemetryConfig {
+    fn validate(&self) -> Result<(), Invalid> {
+        if self.queue == 0 || self.queue > MAX_QUEUE {
+            return invalid("telemetry.queue", format!("must be 1-{MAX_QUEUE} records, is {}", self.queue));
+        }
+        Ok(())
+    }
+}
+
+impl RealtimeConfig {
+    fn validate(&self, sample_period: Duration) -> Result<(), Invalid> {
+        let spin = Duration::from_micros(u64::from(self.spin_us));
+        if spin * 2 >= sample_period {
+            return invalid(
+                "realtime.spin_us",
+                format!(
+                    "{} µs: the window (twice it) must be shorter than the control period T = {} µs, or the gateway \
+                     never sleeps",
+                    self.spin_us,
+                    sample_period.as_micros()
+                ),
+            );
+        }
+        if self.fifo_priority > 99 {
+            return invalid("realtime.fifo_priority", format!("must be 1-99 (0: off), is {}", self.fifo_priority));
+        }
+        for (i, &cpu) in self.cpus.iter().enumerate() {
+            if cpu >= rustix::thread::CpuSet::MAX_CPU {
+                return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is beyond what Linux numbers"));
+            }
+            if self.cpus[..i].contains(&cpu) {
+                return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is listed twice"));
+            }
+        }
+        Ok(())
+    }
+
+    fn settings(&self) -> RealtimeSettings {
+        RealtimeSettings {
+            cpus: self.cpus.clone(),
+            fifo_priority: (self.fifo_priority > 0).then_some(self.fifo_priority),
+            lock_memory: self.lock_memory,
+        }
+    }
+}
+
 impl PlannerSettings {
     /// The planner's rules, shared by rig configs and scenario files.
     pub fn validate(&self) -> Result<(), Invalid> {
@@ -554,209 +806,29 @@ impl GatewayConfig {
         self.validate().map_err(|invalid| ConfigError::Invalid { path: origin.into(), invalid })
     }
 
-    /// Check every value; on success, the typed rig. On error, the key and why.
+    /// Check every value; on success, the typed rig. On error, the key and why. Each section
+    /// checks its own keys; the checks that tie sections together (the period against the
+    /// board's timeout, the goal against the view and the lane) say which keys they weigh.
     pub fn validate(&self) -> Result<Rig, Invalid> {
-        if self.serial.baud == 0 {
-            return invalid("serial.baud", "must be positive");
-        }
-        if self.serial.port.as_os_str().is_empty() {
-            return invalid("serial.port", "is empty");
-        }
-        let l = &self.leds;
-        if l.robot_front == l.robot_rear {
-            return invalid("leds.robot_rear", format!("must differ from leds.robot_front ({})", l.robot_front));
-        }
-        non_negative("leds.front_offset", l.front_offset)?;
-        non_negative("leds.rear_offset", l.rear_offset)?;
-        positive("leds.front_offset", l.front_offset + l.rear_offset)?;
-        let mut ids = vec![l.robot_front, l.robot_rear];
-        for (i, o) in l.obstacles.iter().enumerate() {
-            if ids.contains(&o.led) {
-                return invalid(&format!("leds.obstacles[{i}].led"), format!("LED {} is used twice", o.led));
-            }
-            ids.push(o.led);
-            positive(&format!("leds.obstacles[{i}].radius"), o.radius)?;
-        }
-        if ids.len() > MAX_SCHEDULE_LEDS || l.obstacles.len() > MAX_OBSTACLES {
-            return invalid(
-                "leds.obstacles",
-                format!(
-                    "{} obstacles ({} LEDs in all): at most {} obstacles and {MAX_SCHEDULE_LEDS} LEDs",
-                    l.obstacles.len(),
-                    ids.len(),
-                    MAX_OBSTACLES.min(MAX_SCHEDULE_LEDS - 2)
-                ),
-            );
-        }
-        let schedule = self.schedule.build(&ids)?;
+        self.serial.validate()?;
+        let leds = self.leds.validate()?;
+        let schedule = self.schedule.build(&leds)?;
         let sample_period = Duration::from_micros(u64::from(schedule.frame_period_us()));
         let calibration = self.calibration()?;
-        let can: CanUrl = self.can.endpoint.parse().or_else(|e: String| invalid("can.endpoint", e))?;
-        let Some(node) = NodeId::new(self.can.node) else {
-            return invalid("can.node", format!("must be 1-15, is {}", self.can.node));
-        };
-        let d = &self.drive;
-        positive("drive.wheel_radius", d.wheel_radius)?;
-        positive("drive.wheel_base", d.wheel_base)?;
-        positive("drive.max_wheel_speed", d.max_wheel_speed)?;
-        positive("drive.wheel_accel", d.wheel_accel)?;
-        if d.steps_per_rev == 0 || d.microsteps == 0 {
-            return invalid("drive.steps_per_rev", "steps_per_rev and microsteps must be at least 1");
-        }
-        if d.microsteps > MAX_MICROSTEPS {
-            return invalid(
-                "drive.microsteps",
-                format!("must be 1-{MAX_MICROSTEPS} (what stepper drivers do), is {}", d.microsteps),
-            );
-        }
-        if d.steps_per_rev > MAX_STEPS_PER_REV {
-            return invalid("drive.steps_per_rev", format!("must be 1-{MAX_STEPS_PER_REV}, is {}", d.steps_per_rev));
-        }
-        if d.command_timeout_ms == 0 {
-            return invalid("drive.command_timeout_ms", "must be positive");
-        }
-        if sample_period >= Duration::from_millis(u64::from(d.command_timeout_ms)) {
-            return invalid(
-                "drive.command_timeout_ms",
-                format!(
-                    "{} ms is not longer than the control period T = {} µs: the board would stop between commands",
-                    d.command_timeout_ms,
-                    sample_period.as_micros()
-                ),
-            );
-        }
-        positive("robot.radius", self.robot.radius)?;
-        positive("robot.max_speed", self.robot.max_speed)?;
-        // The centre moves at the mean of the wheels' rim speeds: never faster than they go.
-        if self.robot.max_speed > d.max_wheel_speed {
-            return invalid(
-                "robot.max_speed",
-                format!(
-                    "{} m/s is above drive.max_wheel_speed = {} m/s: the wheels cannot carry the robot that fast",
-                    self.robot.max_speed, d.max_wheel_speed
-                ),
-            );
-        }
-        if let Some(g) = &self.goal {
-            if !g.position.iter().all(|v| v.is_finite()) {
-                return invalid("goal.position", "must be finite");
-            }
-            positive("goal.tolerance", g.tolerance)?;
-            if !calibration.in_view(C::new(g.position[0], g.position[1])) {
-                return invalid(
-                    "goal.position",
-                    format!("{:?} lies outside the calibrated arena: {}", g.position, calibration.view_extent()),
-                );
-            }
-        }
+        let (can, node) = self.can.validate()?;
+        self.drive.validate(sample_period)?;
+        self.robot.validate(&self.drive)?;
+        self.validate_goal(&calibration)?;
         self.planner.validate()?;
-        if let Some(lane) = self.lane {
-            positive("lane.half_width", lane.half_width)?;
-            if let Some(g) = self.goal.filter(|g| g.position[1].abs() >= lane.half_width) {
-                return invalid(
-                    "goal.position",
-                    format!("{:?} lies outside the lane (|y| >= {})", g.position, lane.half_width),
-                );
-            }
-        }
-        if self.operator.socket.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
-            return invalid("operator.socket", "is empty");
-        }
-        let s = &self.safety;
-        for (key, v) in [
-            ("safety.pose_timeout_ms", s.pose_timeout_ms),
-            ("safety.heartbeat_timeout_ms", s.heartbeat_timeout_ms),
-            ("safety.sample_timeout_ms", s.sample_timeout_ms),
-            ("safety.occlusion_timeout_ms", s.occlusion_timeout_ms),
-        ] {
-            if v == 0 || v > MAX_WATCHDOG_MS {
-                return invalid(key, format!("must be 1-{MAX_WATCHDOG_MS} ms, is {v}"));
-            }
-        }
-        if !(s.pose_tolerance_m.is_finite() && s.pose_tolerance_m > 0.0 && s.pose_tolerance_m <= 1.0) {
-            return invalid("safety.pose_tolerance_m", format!("must be 0-1 m, is {}", s.pose_tolerance_m));
-        }
-        if s.occlusion_timeout_ms <= s.pose_timeout_ms {
-            return invalid(
-                "safety.occlusion_timeout_ms",
-                format!(
-                    "{} ms must exceed safety.pose_timeout_ms = {} ms: an obstacle is judged occluded only past the pose timeout",
-                    s.occlusion_timeout_ms, s.pose_timeout_ms
-                ),
-            );
-        }
-        if !(s.max_obstacle_speed.is_finite()
-            && s.max_obstacle_speed > 0.0
-            && s.max_obstacle_speed <= MAX_OBSTACLE_SPEED)
-        {
-            return invalid(
-                "safety.max_obstacle_speed",
-                format!("must be 0-{MAX_OBSTACLE_SPEED} m/s, is {}", s.max_obstacle_speed),
-            );
-        }
-        // Without samples or a fresh pose the gateway sends no command, and the board stops
-        // by itself after its command timeout. The gateway's own watchdog must fire first,
-        // with a cycle to spare, so the stop is named by its cause (serial, pose), not as a
-        // board fault.
-        let board_timeout = Duration::from_millis(u64::from(d.command_timeout_ms));
-        for (key, v) in
-            [("safety.sample_timeout_ms", s.sample_timeout_ms), ("safety.pose_timeout_ms", s.pose_timeout_ms)]
-        {
-            if Duration::from_millis(u64::from(v)) + sample_period > board_timeout {
-                return invalid(
-                    key,
-                    format!(
-                        "{v} ms plus the period T = {} µs exceeds drive.command_timeout_ms = {} ms: the board would \
-                         stop the robot before the gateway names the cause",
-                        sample_period.as_micros(),
-                        d.command_timeout_ms
-                    ),
-                );
-            }
-        }
-        if self.telemetry.queue == 0 || self.telemetry.queue > MAX_QUEUE {
-            return invalid("telemetry.queue", format!("must be 1-{MAX_QUEUE} records, is {}", self.telemetry.queue));
-        }
-        let spin = Duration::from_micros(u64::from(self.realtime.spin_us));
-        if spin * 2 >= sample_period {
-            return invalid(
-                "realtime.spin_us",
-                format!(
-                    "{} µs: the window (twice it) must be shorter than the control period T = {} µs, or the gateway \
-                     never sleeps",
-                    self.realtime.spin_us,
-                    sample_period.as_micros()
-                ),
-            );
-        }
-        let rt = &self.realtime;
-        if rt.fifo_priority > 99 {
-            return invalid("realtime.fifo_priority", format!("must be 1-99 (0: off), is {}", rt.fifo_priority));
-        }
-        for (i, &cpu) in rt.cpus.iter().enumerate() {
-            if cpu >= rustix::thread::CpuSet::MAX_CPU {
-                return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is beyond what Linux numbers"));
-            }
-            if rt.cpus[..i].contains(&cpu) {
-                return invalid(&format!("realtime.cpus[{i}]"), format!("CPU {cpu} is listed twice"));
-            }
-        }
+        self.validate_lane()?;
+        self.operator.validate()?;
+        self.safety.validate(sample_period, self.drive.command_timeout_ms)?;
+        self.telemetry.validate()?;
+        self.realtime.validate(sample_period)?;
         let control = self.control_config(sample_period, &calibration);
-        let ppm = control.drive.pulses_per_metre();
-        let to_rate = |key: &str, v: f64| {
-            let rate = (v * ppm).round();
-            if rate >= 1.0 && rate <= f64::from(MAX_U24) {
-                Ok(rate as u32)
-            } else {
-                invalid(key, format!("is {rate} pulses/s at this wheel and stepper: must be 1-{MAX_U24}"))
-            }
-        };
-        let board = BoardSettings {
-            accel: to_rate("drive.wheel_accel", d.wheel_accel)?,
-            max_rate: to_rate("drive.max_wheel_speed", d.max_wheel_speed)?,
-            command_timeout_ms: d.command_timeout_ms,
-        };
-        let ms = |v: u32| Duration::from_millis(u64::from(v));
+        let board = self.drive.board_settings(control.drive.pulses_per_metre())?;
+        let l = &self.leds;
+        let spin = Duration::from_micros(u64::from(self.realtime.spin_us));
         Ok(Rig {
             serial: self.serial.clone(),
             can,
@@ -771,33 +843,55 @@ impl GatewayConfig {
             psd_counts: self.calibration.counts,
             control,
             board,
-            tracking: TrackingSettings {
-                predict_robot: self.planner.predict_robot,
-                predict_obstacles: self.planner.predict_obstacles,
-                wheel_accel: d.wheel_accel,
-                kalman: KalmanConfig::default(),
-                occluded_after: ms(s.pose_timeout_ms).as_secs_f64(),
-                max_obstacle_speed: s.max_obstacle_speed,
-            },
-            safety: SafetySettings {
-                pose_timeout: ms(s.pose_timeout_ms),
-                bad_frames_per_s: s.bad_frames_per_s,
-                heartbeat_timeout: ms(s.heartbeat_timeout_ms),
-                sample_timeout: ms(s.sample_timeout_ms),
-                pose_tolerance: s.pose_tolerance_m,
-                occlusion_timeout: ms(s.occlusion_timeout_ms),
-            },
+            tracking: self.tracking_settings(),
+            safety: self.safety.settings(),
             telemetry: self.telemetry.clone(),
             goal: self.goal,
             operator: self.operator.clone(),
             spin: (!spin.is_zero()).then_some(spin),
-            realtime: RealtimeSettings {
-                cpus: rt.cpus.clone(),
-                fifo_priority: (rt.fifo_priority > 0).then_some(rt.fifo_priority),
-                lock_memory: rt.lock_memory,
-            },
+            realtime: self.realtime.settings(),
             config: self.clone(),
         })
+    }
+
+    /// `[goal]`: finite, with a tolerance, and where the camera sees it.
+    fn validate_goal(&self, calibration: &Calibration) -> Result<(), Invalid> {
+        let Some(g) = &self.goal else { return Ok(()) };
+        if !g.position.iter().all(|v| v.is_finite()) {
+            return invalid("goal.position", "must be finite");
+        }
+        positive("goal.tolerance", g.tolerance)?;
+        if !calibration.in_view(Point::new(g.position[0], g.position[1])) {
+            return invalid(
+                "goal.position",
+                format!("{:?} lies outside the calibrated arena: {}", g.position, calibration.view_extent()),
+            );
+        }
+        Ok(())
+    }
+
+    /// `[lane]`: a width, and the goal inside it.
+    fn validate_lane(&self) -> Result<(), Invalid> {
+        let Some(lane) = self.lane else { return Ok(()) };
+        positive("lane.half_width", lane.half_width)?;
+        if let Some(g) = self.goal.filter(|g| g.position[1].abs() >= lane.half_width) {
+            return invalid(
+                "goal.position",
+                format!("{:?} lies outside the lane (|y| >= {})", g.position, lane.half_width),
+            );
+        }
+        Ok(())
+    }
+
+    fn tracking_settings(&self) -> TrackingSettings {
+        TrackingSettings {
+            predict_robot: self.planner.predict_robot,
+            predict_obstacles: self.planner.predict_obstacles,
+            wheel_accel: self.drive.wheel_accel,
+            kalman: KalmanConfig::default(),
+            occluded_after: ms(self.safety.pose_timeout_ms).as_secs_f64(),
+            max_obstacle_speed: self.safety.max_obstacle_speed,
+        }
     }
 
     fn calibration(&self) -> Result<Calibration, Invalid> {
@@ -858,7 +952,7 @@ impl GatewayConfig {
                 steering_gain: p.kc,
                 sample_time: sample_period.as_secs_f64(),
             },
-            goal: self.goal.map_or(C::default(), |g| C::new(g.position[0], g.position[1])),
+            goal: self.goal.map_or(Point::default(), |g| Point::new(g.position[0], g.position[1])),
             goal_tolerance: self.goal.map_or(default_tolerance(), |g| g.tolerance),
             robot_radius: robot,
             stall: StallConfig::default(),

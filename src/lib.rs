@@ -26,4 +26,4 @@ pub mod svg;
 pub mod time;
 pub mod track;
 
-pub use num_complex::Complex64 as Point;
+pub use flowgate_protocol::plane::{wrap_angle, Point};

@@ -11,8 +11,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use crate::Point;
 use flowgate_protocol::CanFrame;
-use num_complex::Complex64 as C;
 use serde::Serialize;
 
 use crate::config::{GatewayConfig, Rig};
@@ -264,7 +264,13 @@ pub fn first_difference(recorded: &[SentFrame], replayed: &[CanFrame]) -> Option
 
 /// The path a robot would drive under `commands` (pulse rates held until the next), from
 /// `start` heading `heading`: differential-drive dead reckoning.
-pub fn dead_reckon(commands: &[Command], start: C, heading: f64, pulses_per_metre: f64, wheel_base: f64) -> Vec<C> {
+pub fn dead_reckon(
+    commands: &[Command],
+    start: Point,
+    heading: f64,
+    pulses_per_metre: f64,
+    wheel_base: f64,
+) -> Vec<Point> {
     let mut path = Vec::with_capacity(commands.len() + 1);
     let (mut p, mut th) = (start, heading);
     path.push(p);
@@ -275,7 +281,7 @@ pub fn dead_reckon(commands: &[Command], start: C, heading: f64, pulses_per_metr
         let omega = (r - l) / wheel_base;
         // Midpoint heading: exact enough at a command period's turn.
         let mid = th + 0.5 * omega * dt;
-        p += C::from_polar(v * dt, mid);
+        p += Point::from_polar(v * dt, mid);
         th += omega * dt;
         path.push(p);
     }
@@ -298,7 +304,7 @@ pub struct CommandDiff {
     pub end_gap: f64,
 }
 
-pub fn diff_commands(recorded: &[Command], replayed: &[Command], paths: (&[C], &[C]), t0: f64) -> CommandDiff {
+pub fn diff_commands(recorded: &[Command], replayed: &[Command], paths: (&[Point], &[Point]), t0: f64) -> CommandDiff {
     let pairs = recorded.iter().zip(replayed);
     let differing: Vec<(&Command, &Command)> = pairs.clone().filter(|(a, b)| a.pulses != b.pulses).collect();
     let max_pulse_difference = pairs
@@ -324,27 +330,27 @@ pub fn diff_commands(recorded: &[Command], replayed: &[Command], paths: (&[C], &
 
 /// The recorded and the what-if paths (dead-reckoned from their commands) beside the
 /// measured path, with the lane's walls: `plan`'s style.
-pub fn paths_svg(measured: &[C], recorded: &[C], what_if: &[C], space: Space, title: &str) -> String {
+pub fn paths_svg(measured: &[Point], recorded: &[Point], what_if: &[Point], space: Space, title: &str) -> String {
     let all = measured.iter().chain(recorded).chain(what_if);
-    let (mut lo, mut hi) = (C::new(f64::INFINITY, f64::INFINITY), C::new(f64::NEG_INFINITY, f64::NEG_INFINITY));
+    let (mut lo, mut hi) = (Point::new(f64::INFINITY, f64::INFINITY), Point::new(f64::NEG_INFINITY, f64::NEG_INFINITY));
     for p in all.clone() {
-        lo = C::new(lo.re.min(p.re), lo.im.min(p.im));
-        hi = C::new(hi.re.max(p.re), hi.im.max(p.im));
+        lo = Point::new(lo.re.min(p.re), lo.im.min(p.im));
+        hi = Point::new(hi.re.max(p.re), hi.im.max(p.im));
     }
     if let Space::Lane { half_width } = space {
         lo.im = lo.im.min(-half_width);
         hi.im = hi.im.max(half_width);
     }
     if !(lo.re.is_finite() && hi.re.is_finite()) {
-        (lo, hi) = (C::new(-1.0, -1.0), C::new(1.0, 1.0));
+        (lo, hi) = (Point::new(-1.0, -1.0), Point::new(1.0, 1.0));
     }
-    let pad = C::new(0.05, 0.05);
+    let pad = Point::new(0.05, 0.05);
     let mut svg = Svg::new(760.0, 460.0);
     let axes = Axes::equal(&svg, lo - pad, hi + pad, (60.0, 40.0, 50.0, 20.0));
     axes.frame(&mut svg, "x (m)", "y (m)");
     if let Space::Lane { half_width } = space {
         for y in [-half_width, half_width] {
-            axes.polyline(&mut svg, &[C::new(lo.re - pad.re, y), C::new(hi.re + pad.re, y)], "#444", 2.0, None);
+            axes.polyline(&mut svg, &[Point::new(lo.re - pad.re, y), Point::new(hi.re + pad.re, y)], "#444", 2.0, None);
         }
     }
     axes.polyline(&mut svg, measured, "#999", 3.0, None);
@@ -390,11 +396,11 @@ mod tests {
     fn dead_reckoning_drives_straight_and_turns_on_the_spot() {
         // 1000 pulses/m: 100 pulses/s on both wheels for 2 s is 0.2 m straight ahead.
         let straight: Vec<Command> = (0..=20).map(|k| command(0.1 * f64::from(k), [100, 100])).collect();
-        let path = dead_reckon(&straight, C::new(1.0, 0.0), std::f64::consts::FRAC_PI_2, 1000.0, 0.1);
-        assert!((path.last().unwrap() - C::new(1.0, 0.2)).norm() < 1e-12, "{:?}", path.last());
+        let path = dead_reckon(&straight, Point::new(1.0, 0.0), std::f64::consts::FRAC_PI_2, 1000.0, 0.1);
+        assert!((path.last().unwrap() - Point::new(1.0, 0.2)).norm() < 1e-12, "{:?}", path.last());
         // Opposite wheels at 0.05 m/s, wheel base 0.1 m: 1 rad/s, no travel.
         let spin: Vec<Command> = (0..=10).map(|k| command(0.1 * f64::from(k), [-50, 50])).collect();
-        let path = dead_reckon(&spin, C::new(0.0, 0.0), 0.0, 1000.0, 0.1);
+        let path = dead_reckon(&spin, Point::new(0.0, 0.0), 0.0, 1000.0, 0.1);
         assert!(path.iter().all(|p| p.norm() < 1e-12));
     }
 

@@ -1,7 +1,7 @@
 //! A few SVG primitives: enough for line plots in data coordinates (the lab's reports, the
 //! calibration's residual plot).
 
-use num_complex::Complex64 as C;
+use crate::Point;
 use std::fmt::Write as _;
 
 #[derive(Debug)]
@@ -38,8 +38,8 @@ impl Svg {
 /// A plot area: data rectangle `lo..hi` mapped into the SVG minus margins (left, top, bottom, right).
 #[derive(Debug)]
 pub struct Axes {
-    lo: C,
-    hi: C,
+    lo: Point,
+    hi: Point,
     x0: f64,
     y0: f64,
     w: f64,
@@ -47,24 +47,24 @@ pub struct Axes {
 }
 
 impl Axes {
-    pub fn new(svg: &Svg, lo: C, hi: C, margins: (f64, f64, f64, f64)) -> Self {
+    pub fn new(svg: &Svg, lo: Point, hi: Point, margins: (f64, f64, f64, f64)) -> Self {
         let (l, t, b, r) = margins;
         Self { lo, hi, x0: l, y0: t, w: svg.width - l - r, h: svg.height - t - b }
     }
 
     /// Like `new`, with equal scales on both axes (the data range grows to fit).
-    pub fn equal(svg: &Svg, lo: C, hi: C, margins: (f64, f64, f64, f64)) -> Self {
+    pub fn equal(svg: &Svg, lo: Point, hi: Point, margins: (f64, f64, f64, f64)) -> Self {
         let mut a = Self::new(svg, lo, hi, margins);
         let span = hi - lo;
         let scale = (a.w / span.re).min(a.h / span.im);
         let centre = (lo + hi) * 0.5;
-        let half = C::new(a.w / scale, a.h / scale) * 0.5;
+        let half = Point::new(a.w / scale, a.h / scale) * 0.5;
         a.lo = centre - half;
         a.hi = centre + half;
         a
     }
 
-    fn px(&self, p: C) -> (f64, f64) {
+    fn px(&self, p: Point) -> (f64, f64) {
         let x = self.x0 + (p.re - self.lo.re) / (self.hi.re - self.lo.re) * self.w;
         let y = self.y0 + (self.hi.im - p.im) / (self.hi.im - self.lo.im) * self.h;
         (x, y)
@@ -83,7 +83,7 @@ impl Axes {
                 let decimals = (-step.log10().floor()).max(0.0) as usize;
                 let label = format!("{:.*}", decimals, (v / step).round() * step);
                 if horizontal {
-                    let (x, y) = self.px(C::new(v, self.lo.im));
+                    let (x, y) = self.px(Point::new(v, self.lo.im));
                     let _ = writeln!(
                         svg.body,
                         r##"<line x1="{x:.1}" y1="{y:.1}" x2="{x:.1}" y2="{:.1}" stroke="#ccc"/>"##,
@@ -91,7 +91,7 @@ impl Axes {
                     );
                     svg.text(x, y + 14.0, &label, "middle", 10.0, "#333");
                 } else {
-                    let (x, y) = self.px(C::new(self.lo.re, v));
+                    let (x, y) = self.px(Point::new(self.lo.re, v));
                     let _ = writeln!(
                         svg.body,
                         r##"<line x1="{x:.1}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#eee"/>"##,
@@ -110,7 +110,7 @@ impl Axes {
         );
     }
 
-    pub fn polyline(&self, svg: &mut Svg, pts: &[C], color: &str, width: f64, dash: Option<&str>) {
+    pub fn polyline(&self, svg: &mut Svg, pts: &[Point], color: &str, width: f64, dash: Option<&str>) {
         if pts.len() < 2 {
             return;
         }
@@ -124,7 +124,7 @@ impl Axes {
             writeln!(svg.body, r#"<polyline points="{d}" fill="none" stroke="{color}" stroke-width="{width}"{dash}/>"#);
     }
 
-    pub fn circle(&self, svg: &mut Svg, c: C, r: f64, color: &str, width: f64, fill_opacity: f64) {
+    pub fn circle(&self, svg: &mut Svg, c: Point, r: f64, color: &str, width: f64, fill_opacity: f64) {
         let (x, y) = self.px(c);
         let rpx = r / (self.hi.re - self.lo.re) * self.w;
         let _ = writeln!(
@@ -133,12 +133,12 @@ impl Axes {
         );
     }
 
-    pub fn label(&self, svg: &mut Svg, at: C, text: &str, color: &str) {
+    pub fn label(&self, svg: &mut Svg, at: Point, text: &str, color: &str) {
         let (x, y) = self.px(at);
         svg.text(x, y - 4.0, text, "middle", 9.0, color);
     }
 
-    pub fn marker(&self, svg: &mut Svg, at: C, color: &str, text: &str) {
+    pub fn marker(&self, svg: &mut Svg, at: Point, color: &str, text: &str) {
         let (x, y) = self.px(at);
         let _ = writeln!(svg.body, r#"<circle cx="{x:.1}" cy="{y:.1}" r="5" fill="{color}"/>"#);
         svg.text(x + 8.0, y - 8.0, text, "start", 12.0, color);

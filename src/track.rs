@@ -2,7 +2,7 @@
 //! from a constant-velocity Kalman filter, predicted to the moment a command acts (delay
 //! compensation). Time is an argument everywhere.
 
-use num_complex::Complex64 as C;
+use crate::Point;
 
 use crate::geometry::{rotation, Length};
 use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
@@ -10,7 +10,7 @@ use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
 /// The robot's pose: centre and heading (rad from +x, counter-clockwise).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
-    pub position: C,
+    pub position: Point,
     pub heading: f64,
 }
 
@@ -18,11 +18,11 @@ pub struct Pose {
 #[derive(Debug, Clone, Copy)]
 pub struct Estimate<'a> {
     /// The robot's centre.
-    pub position: C,
+    pub position: Point,
     /// Its heading as a unit vector: what the wheel speeds and the supervisor turn by,
     /// carried from the LEDs' axis through the dead reckoning without an angle (the angle,
     /// [`Estimate::pose`], is for displays and records).
-    pub facing: C,
+    pub facing: Point,
     /// The wheels' rim speeds now, as the ramps have brought them toward the commands, m/s:
     /// left, right.
     pub wheels: [f64; 2],
@@ -67,7 +67,7 @@ impl TrackingSettings {
             let (center, _) = kf.predict(kf.time());
             ObstacleEstimate {
                 center,
-                velocity: C::default(),
+                velocity: Point::default(),
                 radius: radius + self.max_obstacle_speed * unseen,
                 position_sd: kf.uncertainty(kf.time()).0,
                 velocity_sd: 0.0,
@@ -97,12 +97,12 @@ pub struct LedGeometry {
 
 impl LedGeometry {
     /// The pose from the two LED positions; `None` if they coincide (no heading).
-    pub fn pose(&self, front: C, rear: C) -> Option<Pose> {
+    pub fn pose(&self, front: Point, rear: Point) -> Option<Pose> {
         self.locate(front, rear).map(|(position, facing)| Pose { position, heading: facing.arg() })
     }
     /// The robot's centre from the two LED positions and its heading as a unit vector (the
     /// LEDs' axis); `None` if they coincide.
-    pub fn locate(&self, front: C, rear: C) -> Option<(C, C)> {
+    pub fn locate(&self, front: Point, rear: Point) -> Option<(Point, Point)> {
         let axis = front - rear;
         let len = axis.length();
         if len.is_nan() || len <= 0.0 {
@@ -111,7 +111,7 @@ impl LedGeometry {
         Some((rear + axis * (self.rear / (self.front + self.rear)), axis / len))
     }
     /// Where the LEDs of a robot at `position` facing along the unit vector `facing` are.
-    pub fn leds(&self, position: C, facing: C) -> (C, C) {
+    pub fn leds(&self, position: Point, facing: Point) -> (Point, Point) {
         (position + facing * self.front, position - facing * self.rear)
     }
 }
@@ -141,8 +141,8 @@ impl Default for KalmanConfig {
 pub struct ConstantVelocityKf {
     config: KalmanConfig,
     t: f64,
-    position: C,
-    velocity: C,
+    position: Point,
+    velocity: Point,
     p: AxisCovariance,
 }
 
@@ -170,14 +170,14 @@ impl AxisCovariance {
 
 impl ConstantVelocityKf {
     /// A filter started at a first measurement `z` taken at `t`, velocity unknown.
-    pub fn new(config: KalmanConfig, t: f64, z: C) -> Self {
+    pub fn new(config: KalmanConfig, t: f64, z: Point) -> Self {
         let r = config.measurement_noise.powi(2);
-        Self { config, t, position: z, velocity: C::default(), p: AxisCovariance { pp: r, pv: 0.0, vv: 0.25 } }
+        Self { config, t, position: z, velocity: Point::default(), p: AxisCovariance { pp: r, pv: 0.0, vv: 0.25 } }
     }
 
     /// Fold in a measurement `z` taken at `t` (measurements must come in time order; an
     /// older one is ignored and `false` returned).
-    pub fn update(&mut self, t: f64, z: C) -> bool {
+    pub fn update(&mut self, t: f64, z: Point) -> bool {
         let dt = t - self.t;
         if dt < 0.0 || !z.re.is_finite() || !z.im.is_finite() {
             return false;
@@ -199,7 +199,7 @@ impl ConstantVelocityKf {
     }
 
     /// Position and velocity predicted to time `t` (no state change).
-    pub fn predict(&self, t: f64) -> (C, C) {
+    pub fn predict(&self, t: f64) -> (Point, Point) {
         let dt = t - self.t;
         (self.position + self.velocity * dt, self.velocity)
     }
@@ -266,13 +266,13 @@ struct WheelCommand {
 /// difference of their odometry, whatever the delay.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Odometry {
-    position: C,
+    position: Point,
     /// The heading as a unit complex number.
-    facing: C,
+    facing: Point,
 }
 
 impl Odometry {
-    const ORIGIN: Odometry = Odometry { position: C::new(0.0, 0.0), facing: C::new(1.0, 0.0) };
+    const ORIGIN: Odometry = Odometry { position: Point::new(0.0, 0.0), facing: Point::new(1.0, 0.0) };
 
     /// This pose moved by `m` (in its own frame); the heading's direction is renormalised,
     /// so rounding cannot build up over a long run.
@@ -298,8 +298,8 @@ impl Odometry {
 /// way it then faces (a unit complex number).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Motion {
-    displacement: C,
-    facing: C,
+    displacement: Point,
+    facing: Point,
 }
 
 impl WheelCommand {
@@ -378,7 +378,7 @@ impl DeadReckoning {
     /// with the commands in force meanwhile: the two spans the window cuts are integrated,
     /// the whole ones between are taken from the odometry (see `Odometry`), so a
     /// prediction costs the same whatever the delay.
-    pub fn predict(&mut self, position: C, facing: C, t_valid: f64, t: f64, wheel_base: f64) -> (C, C) {
+    pub fn predict(&mut self, position: Point, facing: Point, t_valid: f64, t: f64, wheel_base: f64) -> (Point, Point) {
         // The commands in force at the window's ends (none before the first command: at rest).
         // The commands are in time order: the newest is mostly the one in force now.
         let newest_in_force = self.commands.back().is_some_and(|c| c.t < t);
@@ -440,7 +440,7 @@ impl WheelCommand {
     /// the ramp in short steps at their mean speeds, then on at the command's. The heading
     /// is a unit complex number turned by each step's small rotation: no sine or cosine.
     fn motion(&self, mut from: f64, to: f64, accel: f64, wheel_base: f64) -> Motion {
-        let mut m = Motion { displacement: C::default(), facing: C::new(1.0, 0.0) };
+        let mut m = Motion { displacement: Point::default(), facing: Point::new(1.0, 0.0) };
         let mut advance = |[left, right]: [f64; 2], span: f64| {
             let v = 0.5 * (left + right);
             let angle = (right - left) / wheel_base * span;
@@ -483,9 +483,9 @@ pub struct Tracker {
     count: usize,
     filters: [Option<ConstantVelocityKf>; MAX_OBSTACLES],
     /// Each obstacle's last measured position (planned on when prediction is off).
-    measured: [C; MAX_OBSTACLES],
+    measured: [Point; MAX_OBSTACLES],
     /// When the last measured pose was valid, its centre, and its heading as a unit vector.
-    pose: Option<(f64, C, C)>,
+    pose: Option<(f64, Point, Point)>,
     dead_reckoning: DeadReckoning,
     estimates: [ObstacleEstimate; MAX_OBSTACLES],
     /// The same obstacles, always predicted to the estimate's time.
@@ -534,17 +534,17 @@ impl Tracker {
             radii: r,
             count,
             filters: [None; MAX_OBSTACLES],
-            measured: [C::default(); MAX_OBSTACLES],
+            measured: [Point::default(); MAX_OBSTACLES],
             pose: None,
             dead_reckoning: DeadReckoning::with_capacity(64, settings.wheel_accel),
-            estimates: [ObstacleEstimate::exact(C::default(), C::default(), 0.0); MAX_OBSTACLES],
-            predicted: [ObstacleEstimate::exact(C::default(), C::default(), 0.0); MAX_OBSTACLES],
+            estimates: [ObstacleEstimate::exact(Point::default(), Point::default(), 0.0); MAX_OBSTACLES],
+            predicted: [ObstacleEstimate::exact(Point::default(), Point::default(), 0.0); MAX_OBSTACLES],
         }
     }
 
     /// The robot's two LEDs, valid at `t_valid`. Returns whether they gave a pose (they do
     /// unless they coincide).
-    pub fn observe_robot(&mut self, t_valid: f64, front: C, rear: C) -> bool {
+    pub fn observe_robot(&mut self, t_valid: f64, front: Point, rear: Point) -> bool {
         match self.geometry.locate(front, rear) {
             Some((position, facing)) if self.pose.is_none_or(|(t, ..)| t_valid >= t) => {
                 self.pose = Some((t_valid, position, facing));
@@ -561,8 +561,8 @@ impl Tracker {
     pub fn plausible(
         &self,
         t_valid: f64,
-        front: C,
-        rear: C,
+        front: Point,
+        rear: Point,
         max_speed: f64,
         tolerance: f64,
     ) -> Result<(), Implausible> {
@@ -585,7 +585,7 @@ impl Tracker {
 
     /// Obstacle `k` seen at `p`, valid at `t_valid`. Returns whether its filter took it
     /// (an older measurement than the filter's last, or a non-finite one, is refused).
-    pub fn observe_obstacle(&mut self, k: usize, t_valid: f64, p: C) -> bool {
+    pub fn observe_obstacle(&mut self, k: usize, t_valid: f64, p: Point) -> bool {
         if k >= self.count {
             return false;
         }
@@ -615,7 +615,7 @@ impl Tracker {
     }
 
     /// Where obstacle `k`'s filter puts it at `t` (None: no track).
-    pub fn obstacle_prediction(&self, k: usize, t: f64) -> Option<C> {
+    pub fn obstacle_prediction(&self, k: usize, t: f64) -> Option<Point> {
         self.filters.get(k).copied().flatten().map(|kf| kf.predict(t).0)
     }
 
@@ -712,7 +712,7 @@ impl Tracker {
 #[derive(Debug, Clone, Copy)]
 pub struct LowPass {
     hz: f64,
-    state: Option<C>,
+    state: Option<Point>,
 }
 
 impl LowPass {
@@ -720,7 +720,7 @@ impl LowPass {
         Self { hz, state: None }
     }
     /// Filter `x` after `dt` seconds.
-    pub fn filter(&mut self, x: C, dt: f64) -> C {
+    pub fn filter(&mut self, x: Point, dt: f64) -> Point {
         if self.hz <= 0.0 {
             return x;
         }
@@ -741,8 +741,8 @@ mod tests {
     #[test]
     fn pose_from_leds_round_trips() {
         let g = LedGeometry { front: 0.04, rear: 0.02 };
-        let pose = Pose { position: C::new(0.1, -0.2), heading: 2.0 };
-        let (f, r) = g.leds(pose.position, C::from_polar(1.0, pose.heading));
+        let pose = Pose { position: Point::new(0.1, -0.2), heading: 2.0 };
+        let (f, r) = g.leds(pose.position, Point::from_polar(1.0, pose.heading));
         let back = g.pose(f, r).unwrap();
         assert!((back.position - pose.position).length() < 1e-12);
         assert!((back.heading - pose.heading).abs() < 1e-12);
@@ -753,8 +753,8 @@ mod tests {
     /// ahead of the measurements.
     #[test]
     fn kalman_tracks_constant_velocity() {
-        let v = C::new(0.141, -0.05);
-        let at = |t: f64| C::new(-0.3, 0.2) + v * t;
+        let v = Point::new(0.141, -0.05);
+        let at = |t: f64| Point::new(-0.3, 0.2) + v * t;
         let mut kf = ConstantVelocityKf::new(KalmanConfig::default(), 0.0, at(0.0));
         for k in 1..=100 {
             let t = f64::from(k) * 0.02;
@@ -773,7 +773,7 @@ mod tests {
         use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
         let config = KalmanConfig::default();
         let (q, r) = (config.process_noise, config.measurement_noise.powi(2));
-        let at = |t: f64| C::new(0.3 * (0.7 * t).sin() - 0.1 * t, 0.2 * (1.1 * t).cos());
+        let at = |t: f64| Point::new(0.3 * (0.7 * t).sin() - 0.1 * t, 0.2 * (1.1 * t).cos());
         let mut kf = ConstantVelocityKf::new(config, 0.0, at(0.0));
         let mut x = Vector4::new(at(0.0).re, at(0.0).im, 0.0, 0.0);
         let mut p = Matrix4::from_diagonal(&Vector4::new(r, r, 0.25, 0.25));
@@ -783,7 +783,7 @@ mod tests {
             let dt = 0.017 + 0.004 * f64::from(k % 5);
             t += dt;
             let wobble = 0.002 * (f64::from(k) * 2.3).sin();
-            let z = at(t) + C::new(wobble, -wobble);
+            let z = at(t) + Point::new(wobble, -wobble);
             assert!(kf.update(t, z));
             let mut f = Matrix4::identity();
             f[(0, 2)] = dt;
@@ -797,8 +797,8 @@ mod tests {
             x += gain * (Vector2::new(z.re, z.im) - h * x);
             p = (Matrix4::identity() - gain * h) * p;
             let (position, velocity) = kf.predict(t);
-            assert!((position - C::new(x[0], x[1])).norm() < 1e-12, "{k}");
-            assert!((velocity - C::new(x[2], x[3])).norm() < 1e-10, "{k}");
+            assert!((position - Point::new(x[0], x[1])).norm() < 1e-12, "{k}");
+            assert!((velocity - Point::new(x[2], x[3])).norm() < 1e-10, "{k}");
             let cov = kf.position_covariance(t);
             assert!((cov[0] - p[(0, 0)]).abs() < 1e-12 * p[(0, 0)] && (cov[2] - p[(1, 1)]).abs() < 1e-12 * p[(1, 1)]);
             assert!(p[(0, 1)].abs() < 1e-18 && p[(0, 3)].abs() < 1e-18, "nothing between the axes");
@@ -812,9 +812,9 @@ mod tests {
         let mut dr = DeadReckoning::default();
         dr.command(0.0, 0.1, 0.1); // straight at 0.1 m/s
         dr.command(1.0, 0.0, 0.0); // then stopped
-        let (start, east) = (C::new(0.0, 0.0), C::new(1.0, 0.0));
+        let (start, east) = (Point::new(0.0, 0.0), Point::new(1.0, 0.0));
         let (p, _) = dr.predict(start, east, 0.5, 2.0, 0.1);
-        assert!((p - C::new(0.05, 0.0)).length() < 1e-12, "{p}");
+        assert!((p - Point::new(0.05, 0.0)).length() < 1e-12, "{p}");
         dr.forget_before(1.5);
         assert_eq!(dr.predict(start, east, 1.5, 2.0, 0.1), (start, east));
     }
@@ -834,7 +834,7 @@ mod tests {
         assert!((w[0] - 0.10).abs() < 1e-12 && (w[1] - 0.15).abs() < 1e-12, "{w:?}");
         assert_eq!(dr.wheels_at(1.0), [0.0; 2]);
         // The same commands, integrated finely as the simulator's world does.
-        let (base, start) = (0.108, Pose { position: C::new(0.1, 0.2), heading: 0.3 });
+        let (base, start) = (0.108, Pose { position: Point::new(0.1, 0.2), heading: 0.3 });
         let (mut pose, mut wheels, dt) = (start, [0.0f64; 2], 1e-4);
         for k in 0..10_000 {
             let t = f64::from(k) * dt;
@@ -842,14 +842,14 @@ mod tests {
             let next = [0, 1].map(|w| wheels[w] + (target[w] - wheels[w]).clamp(-accel * dt, accel * dt));
             let (l, r) = (0.5 * (wheels[0] + next[0]), 0.5 * (wheels[1] + next[1]));
             let angle = (r - l) / base * dt;
-            pose.position += C::from_polar(0.5 * (l + r) * dt, pose.heading + 0.5 * angle);
+            pose.position += Point::from_polar(0.5 * (l + r) * dt, pose.heading + 0.5 * angle);
             pose.heading += angle;
             wheels = next;
         }
-        let (p, facing) = dr.predict(start.position, C::from_polar(1.0, start.heading), 0.0, 1.0, base);
+        let (p, facing) = dr.predict(start.position, Point::from_polar(1.0, start.heading), 0.0, 1.0, base);
         assert!((p - pose.position).length() < 1e-5, "{p} vs {}", pose.position);
         // The heading, carried as a unit vector without angles.
-        assert!((facing - C::from_polar(1.0, pose.heading)).length() < 1e-9, "{facing} vs {}", pose.heading);
+        assert!((facing - Point::from_polar(1.0, pose.heading)).length() < 1e-9, "{facing} vs {}", pose.heading);
     }
 
     /// A prediction takes the whole spans inside its window from the odometry that earlier
@@ -860,7 +860,7 @@ mod tests {
     fn dead_reckoning_reuses_the_odometry() {
         let (period, delay, base, accel) = (0.02, 0.3, 0.108, 1.0);
         let mut dr = DeadReckoning::with_capacity(32, accel);
-        let start = Pose { position: C::new(-0.4, 0.1), heading: -0.2 };
+        let start = Pose { position: Point::new(-0.4, 0.1), heading: -0.2 };
         for k in 0..1000 {
             let t = f64::from(k) * period;
             let phase = f64::from(k) * 0.37;
@@ -868,8 +868,9 @@ mod tests {
             let t_valid = (t - delay + 0.007).max(0.0);
             dr.forget_before(t_valid - period);
             let now = t + 0.5 * period;
-            let (predicted, facing) = dr.predict(start.position, C::from_polar(1.0, start.heading), t_valid, now, base);
-            let mut afresh = Odometry { position: start.position, facing: C::from_polar(1.0, start.heading) };
+            let (predicted, facing) =
+                dr.predict(start.position, Point::from_polar(1.0, start.heading), t_valid, now, base);
+            let mut afresh = Odometry { position: start.position, facing: Point::from_polar(1.0, start.heading) };
             for (i, c) in dr.commands.iter().enumerate() {
                 let end = dr.commands.get(i + 1).map_or(now, |n| n.t.min(now));
                 let from = c.t.max(t_valid);
@@ -888,9 +889,9 @@ mod tests {
         // A first-order filter lags a ramp by τ = 1/(2π fc): 0.159 s at 1 Hz.
         let mut lp = LowPass::new(1.0);
         let dt = 0.001;
-        let mut y = C::default();
+        let mut y = Point::default();
         for k in 0..20_000 {
-            y = lp.filter(C::new(f64::from(k) * dt, 0.0), dt);
+            y = lp.filter(Point::new(f64::from(k) * dt, 0.0), dt);
         }
         let lag = 19_999.0 * dt - y.re;
         assert!((lag - 1.0 / std::f64::consts::TAU).abs() < 2e-3, "{lag}");

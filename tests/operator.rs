@@ -193,7 +193,7 @@ fn reset_is_refused_while_the_cause_persists() {
     assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost { node: 1 }));
     let refusal = rig.request(&Request::Reset).unwrap_err();
     assert_eq!(refusal, Refusal::CauseStillPresent(StopReason::HeartbeatLost { node: 1 }));
-    assert_eq!(refusal.to_string(), "fault: motor board heartbeat lost, cause still present");
+    assert_eq!(refusal.to_string(), "fault: motor board 1 heartbeat lost, cause still present");
     assert_eq!(rig.request(&Request::Arm), Err(Refusal::Faulted(State::Fault(StopReason::HeartbeatLost { node: 1 }))));
     assert_eq!(rig.core().state(), State::Fault(StopReason::HeartbeatLost { node: 1 }));
 }

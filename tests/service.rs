@@ -128,7 +128,7 @@ async fn log_lines_fit_the_journal() {
         };
         assert!(!line.contains('\u{1b}'), "no colour codes off a terminal: {line:?}");
         if journal {
-            assert!(line.starts_with("<6>flowgate::gateway::shell: control socket "), "{line:?}");
+            assert!(line.starts_with("<6>flowgate::gateway::shell::services: control socket "), "{line:?}");
         } else {
             assert!(line.contains(" INFO ") && !line.starts_with('<'), "{line:?}");
         }

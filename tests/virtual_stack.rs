@@ -218,3 +218,26 @@ fn the_gateway_counts_the_planners_flags() {
     assert_eq!(summary.unclosed_at_a_wall_cycles, 48);
     assert_eq!(summary.saturated_cycles, e2.report.counters.planner_saturated);
 }
+
+/// One way into the core: the virtual rig hands it the same `Input`s the rig's shell does,
+/// so the inputs it fed, replayed into a fresh core (as `flowgate replay` replays a
+/// recording), give every CAN frame again, byte for byte: here E5 with serial corruption,
+/// duplicates and a board reboot, which reach the handshake, the windows and a fault.
+#[test]
+fn the_virtual_rigs_inputs_replay_to_the_same_frames() {
+    let s = with_faults(
+        "e5-moving-and-standing.toml",
+        &["serial_corrupt=0.0002", "serial_duplicate=0.02", "board_reboot_at=6.0"],
+    );
+    let rig = VirtualRig::new(&s, Options { record_inputs: true, ..Options::default() });
+    let gateway_rig = rig.core().rig().clone();
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert_eq!(e.report.final_state, State::Fault(StopReason::BoardReboot { node: 1 }), "{}", e.report);
+    let c = &e.report.counters;
+    assert!(c.bad_serial_frames > 0 && c.psd_duplicates > 0, "{}", e.report);
+    assert!(e.inputs.len() > 2000 && e.can_sent.len() > 300, "{} inputs, {} frames", e.inputs.len(), e.can_sent.len());
+    let replayed = flowgate::replay::run(gateway_rig, &e.inputs);
+    assert_eq!(replayed.can.len(), e.can_sent.len());
+    assert!(replayed.can == e.can_sent, "the replay's frames differ from the run's");
+    assert_eq!(replayed.final_state, e.report.final_state.to_string());
+}

@@ -19,4 +19,4 @@ pub mod slcan_adapter;
 pub mod truth;
 pub mod world;
 
-pub use num_complex::Complex64 as Point;
+pub use flowgate_protocol::plane::{wrap_angle, Point};

@@ -5,7 +5,7 @@
 //! `scenarios/README.md`. Unknown keys are refused, and [`Scenario::validate`] names the
 //! key of any bad value.
 
-use num_complex::Complex64 as Point;
+use flowgate_protocol::plane::Point;
 use serde::Deserialize;
 use std::path::Path;
 

@@ -1,6 +1,7 @@
 //! # flowgate-protocol
 //!
-//! The wire formats of a flowgate rig, and nothing else: no I/O, no allocation, no clock.
+//! The wire formats of a flowgate rig, and the floor plane ([`plane`]) that both its ends,
+//! the gateway and the simulator, reckon in: no I/O, no allocation, no clock.
 //!
 //! | module    | link                                   | framing                              |
 //! |-----------|----------------------------------------|--------------------------------------|
@@ -21,7 +22,8 @@
 //!
 //! ## Features
 //!
-//! - `std` (default): `std::error::Error` for the error types. Without it the crate is `no_std`.
+//! - `std` (default): `std::error::Error` for the error types, `num-complex`'s `std`. Without
+//!   it the crate is `no_std`.
 //! - `codec`: `tokio_util::codec` decoders/encoders ([`codec`]) that yield a bad frame as an
 //!   error item and carry on, resynchronise after garbage, and count what they dropped.
 //! - `socketcan`: `From`/`TryFrom` between [`CanFrame`] and `socketcan::CanFrame`.
@@ -32,6 +34,7 @@ pub mod can;
 pub mod cobs;
 pub mod crc;
 pub mod motor;
+pub mod plane;
 pub mod psd;
 pub mod slcan;
 mod wire;

@@ -1,6 +1,6 @@
 //! `flowgate ctl`: the operator's commands, sent to a running gateway's control socket.
 //!
-//! One JSON request per line, one reply per line (src/gateway/operator.rs). The exit status
+//! One JSON request per line, one reply per line (src/gateway/core/operator.rs). The exit status
 //! is non-zero when the gateway refuses, with its reason.
 
 use crate::cli::{say, say_raw};

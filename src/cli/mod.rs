@@ -1,3 +1,6 @@
+//! The `flowgate` command line: one module a subcommand, each parsing its flags with clap
+//! and calling the library (probe-rs's split: the library does the work, the CLI says it).
+
 #[cfg(feature = "lab")]
 pub mod bench;
 pub mod calibrate;

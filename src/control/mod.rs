@@ -7,4 +7,4 @@ pub mod supervisor;
 
 pub use crate::track::Estimate;
 pub use step::{ControlConfig, ControlStep, Envelope, StallConfig, StepOutput, StepStatus};
-pub use supervisor::{supervise, Supervision, SupervisorConfig};
+pub use supervisor::{evade, supervise, Evasion, Supervision, SupervisorConfig};

@@ -1,9 +1,12 @@
+//! One control cycle: the estimate in, the planner's velocity, the supervisor's verdict and
+//! evasion, and the pulse rates out; with the stall and goal-occupied checks around them.
+
 use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
 use crate::geometry::Length;
 use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::planner::{Field, ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
 use crate::track::Estimate;
-use num_complex::Complex64 as C;
+use crate::Point;
 
 /// When the robot counts as stalled: it moved less than `min_progress` in `window` seconds
 /// while away from the goal (a stagnation point, or a deadlock the field cannot resolve).
@@ -24,7 +27,7 @@ impl Default for StallConfig {
 pub struct ControlConfig {
     pub planner: PlannerConfig,
     pub drive: DriveConfig,
-    pub goal: C,
+    pub goal: Point,
     /// The goal counts as reached within this distance, m.
     pub goal_tolerance: f64,
     pub robot_radius: f64,
@@ -130,7 +133,7 @@ pub struct ControlStep {
     /// The field each cycle builds into (see [`Planner::plan_in`]).
     field: Field,
     /// Where and when the robot last made progress.
-    progress_anchor: Option<(f64, C)>,
+    progress_anchor: Option<(f64, Point)>,
     /// Since when the goal has been inside an obstacle's planning circle.
     goal_occupied_since: Option<f64>,
     envelope: Envelope,
@@ -149,7 +152,7 @@ impl ControlStep {
         }
     }
     /// Drive to a new goal from the next step (progress is judged afresh).
-    pub fn set_goal(&mut self, goal: C, tolerance: f64) {
+    pub fn set_goal(&mut self, goal: Point, tolerance: f64) {
         self.config.goal = goal;
         self.config.goal_tolerance = tolerance;
         self.progress_anchor = None;
@@ -217,7 +220,7 @@ impl ControlStep {
                 // Evasion's wheels stay within the robot's speed limit, as the planner's do.
                 let max_wheel = self.config.planner.max_speed.min(self.config.drive.max_wheel_speed);
                 match hazard.and_then(|h| evade(cfg, estimate, proposed, chosen, max_wheel).map(|e| (e, h))) {
-                    Some((evasive, hazard)) => (evasive, Supervision::Evaded { hazard }),
+                    Some((evasive, hazard)) => (evasive.wheels, Supervision::Evaded { hazard }),
                     None => (chosen, verdict),
                 }
             }
@@ -227,7 +230,7 @@ impl ControlStep {
         StepOutput { status: StepStatus::Driving, plan: Some(plan), supervision, outrun: false, wheels, pulses }
     }
 
-    fn stalled(&mut self, t: f64, position: C) -> bool {
+    fn stalled(&mut self, t: f64, position: Point) -> bool {
         match self.progress_anchor {
             Some((t0, p0)) if (position - p0).length() < self.config.stall.min_progress => {
                 t - t0 > self.config.stall.window
@@ -245,7 +248,7 @@ mod tests {
     use super::*;
 
     fn obstacle(speed: f64, sd: f64) -> ObstacleEstimate {
-        ObstacleEstimate { velocity_sd: sd, ..ObstacleEstimate::exact(C::default(), C::new(speed, 0.0), 0.07) }
+        ObstacleEstimate { velocity_sd: sd, ..ObstacleEstimate::exact(Point::default(), Point::new(speed, 0.0), 0.07) }
     }
 
     /// The envelope flag follows the estimate's confidence, not its noise: an obstacle at

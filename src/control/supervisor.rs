@@ -35,7 +35,7 @@
 //! The supervisor keeps no state: the estimate carries the wheels' present speeds. So the
 //! gateway, the offline runner, replay and the benchmarks apply the same rule.
 
-use num_complex::Complex64 as C;
+use crate::Point;
 
 use arrayvec::ArrayVec;
 
@@ -119,7 +119,7 @@ enum Hazard {
     /// An obstacle: where it is predicted now, its velocity, the distance to keep from its
     /// centre now, and how fast that distance grows with the time ahead (its velocity's
     /// uncertainty).
-    Obstacle { index: usize, center: C, velocity: C, speed: f64, keep: f64, growth: f64 },
+    Obstacle { index: usize, center: Point, velocity: Point, speed: f64, keep: f64, growth: f64 },
     /// A lane line at `y = side · h`: the centre keeps `keep` from it.
     Wall { side: f64, keep: f64 },
 }
@@ -137,7 +137,7 @@ impl Hazard {
     /// An obstacle is judged where it is at the step's start, so its reach takes in what
     /// it can close over the step (its speed and its uncertainty's growth): a contact
     /// anywhere in the step is then seen at its start, the last one included.
-    fn driven_into(&self, s: f64, h: f64, position: C, velocity: C, half_width: f64, slack: f64) -> bool {
+    fn driven_into(&self, s: f64, h: f64, position: Point, velocity: Point, half_width: f64, slack: f64) -> bool {
         match *self {
             Hazard::Obstacle { center, velocity: v, speed, keep, growth, .. } => {
                 let d = center + v * s - position;
@@ -246,12 +246,20 @@ pub fn evade(
     proposed: WheelSpeeds,
     chosen: WheelSpeeds,
     max_wheel_speed: f64,
-) -> Option<WheelSpeeds> {
+) -> Option<Evasion> {
     judged(cfg, estimate, |ctx| evasion(ctx, proposed, chosen, max_wheel_speed))
 }
 
+/// An evasive command, and whether the supervisor's model predicts it clear of every
+/// hazard over [`EVASION_HORIZON`] (an escape), or only the largest clearance there is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Evasion {
+    pub wheels: WheelSpeeds,
+    pub clear: bool,
+}
+
 /// The evasion in `ctx` (see [`evade`]).
-fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wheel_speed: f64) -> Option<WheelSpeeds> {
+fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wheel_speed: f64) -> Option<Evasion> {
     // Only where the robot, holding its command or standing, would be run into.
     let standing = WheelSpeeds { left: 0.0, right: 0.0 };
     if ctx.least_margin_ahead(chosen, Ahead::Moving, EVASION_TRIGGER) >= 0.0
@@ -281,8 +289,16 @@ fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wh
             }
         }
     }
-    let command = nearest.map_or(widest.1, |(_, c)| c);
-    (command != chosen).then_some(command)
+    let (command, clear) = nearest.map_or((widest.1, false), |(_, c)| (c, true));
+    (command != chosen).then_some(Evasion { wheels: command, clear })
+}
+
+/// The least length of `from + s · step` for `s` in `[0, 1]`: how close two points moving
+/// straight come, `from` apart at the start and closing by `step`.
+fn closest_approach(from: Point, step: Point) -> f64 {
+    let along = step.norm_sqr();
+    let s = if along > 0.0 { (-(from.conj() * step).re / along).clamp(0.0, 1.0) } else { 0.0 };
+    (from + step * s).length()
 }
 
 /// What an evasive command is certified with beyond the promise, m: more than a command
@@ -314,9 +330,9 @@ const ROBUSTNESS: f64 = 0.001;
 /// The state one verdict is judged in.
 struct Context<'a> {
     cfg: &'a SupervisorConfig,
-    position: C,
+    position: Point,
     /// The heading as a unit vector.
-    facing: C,
+    facing: Point,
     wheels: [f64; 2],
     hazards: &'a [Hazard],
 }
@@ -448,8 +464,8 @@ impl Context<'_> {
     fn out_of_reach(
         &self,
         s: f64,
-        position: C,
-        facing: C,
+        position: Point,
+        facing: Point,
         mean: f64,
         turn_rate: f64,
         h: f64,
@@ -500,13 +516,25 @@ impl Context<'_> {
     /// The least margin to any hazard (the gap beyond what the robot must keep from it) over
     /// [`EVASION_HORIZON`], the wheels ramping to `command` and holding it, each obstacle
     /// moving on at its estimated velocity, its keep-out growing with its uncertainty.
+    ///
+    /// Judged over each [`EVASION_STEP`] as a whole, not at its ends: the robot moves along
+    /// the step's chord at the mean of its speeds at the step's ends (exact on a ramp), the
+    /// obstacle along its course, and the gap is their closest approach within the step
+    /// (the keep-out as grown by the step's end).
     fn least_margin_ahead(&self, command: WheelSpeeds, which: Ahead, horizon: f64) -> f64 {
         let a = self.cfg.wheel_accel * EVASION_STEP;
         let (mut wheels, mut position, mut facing) = (self.wheels, self.position, self.facing);
         let mut least = f64::INFINITY;
         let steps = (horizon / EVASION_STEP).round() as usize;
-        for k in 0..=steps {
-            let t = k as f64 * EVASION_STEP;
+        for k in 0..steps {
+            let (t, end) = (k as f64 * EVASION_STEP, (k + 1) as f64 * EVASION_STEP);
+            let next = [ramp(wheels[0], command.left, a), ramp(wheels[1], command.right, a)];
+            let speed = 0.25 * (wheels[0] + wheels[1] + next[0] + next[1]);
+            let turn = 0.5 * ((wheels[1] - wheels[0]) + (next[1] - next[0])) / self.cfg.wheel_base * EVASION_STEP;
+            // Along the chord: the heading half way through the step's turn.
+            let half_turn = Point::from_polar(1.0, 0.5 * turn);
+            let moved = facing * half_turn * (speed * EVASION_STEP);
+            let arrived = position + moved;
             for h in self.hazards {
                 let margin = match *h {
                     Hazard::Obstacle { speed, growth, .. } if which == Ahead::Moving && speed < STANDING + growth => {
@@ -514,23 +542,25 @@ impl Context<'_> {
                     }
                     Hazard::Wall { .. } if which == Ahead::Moving => continue,
                     Hazard::Obstacle { center, velocity, keep, growth, .. } => {
-                        (position - (center + velocity * t)).length() - keep - growth * t
+                        let from = position - (center + velocity * t);
+                        closest_approach(from, moved - velocity * EVASION_STEP) - keep - growth * end
                     }
-                    Hazard::Wall { side, keep } => {
-                        self.cfg.lane_half_width.map_or(f64::INFINITY, |hw| hw - side * position.im - keep)
-                    }
+                    // Straight motion toward a line is nearest it at an end.
+                    Hazard::Wall { side, keep } => self
+                        .cfg
+                        .lane_half_width
+                        .map_or(f64::INFINITY, |hw| hw - (side * position.im).max(side * arrived.im) - keep),
                 };
                 least = least.min(margin);
             }
             if let (Some([x0, x1, y0, y1]), Ahead::All) = (self.cfg.arena, which) {
-                let inside = (position.re - x0).min(x1 - position.re).min(position.im - y0).min(y1 - position.im);
-                least = least.min(inside);
+                for p in [position, arrived] {
+                    least = least.min((p.re - x0).min(x1 - p.re).min(p.im - y0).min(y1 - p.im));
+                }
             }
-            wheels = [ramp(wheels[0], command.left, a), ramp(wheels[1], command.right, a)];
-            let speed = 0.5 * (wheels[0] + wheels[1]);
-            let turn = (wheels[1] - wheels[0]) / self.cfg.wheel_base * EVASION_STEP;
-            position += facing * (speed * EVASION_STEP);
-            facing *= C::from_polar(1.0, turn);
+            position = arrived;
+            facing *= half_turn * half_turn;
+            wheels = next;
         }
         least
     }
@@ -591,7 +621,7 @@ impl Context<'_> {
             facing: self.facing,
             wheels: self.wheels,
             s: 0.0,
-            turning: (0.0, C::new(1.0, 0.0), C::new(1.0, 0.0)),
+            turning: (0.0, Point::new(1.0, 0.0), Point::new(1.0, 0.0)),
         };
         // Toward the command until τ (the step that crosses it included).
         if tau > 0.0 {
@@ -670,15 +700,15 @@ impl Context<'_> {
 
 /// Where a verdict's path has come to, `s` seconds ahead.
 struct Path {
-    position: C,
+    position: Point,
     /// The heading as a unit complex number, turned by each step's small rotation: no
     /// sine or cosine a step (a verdict can take a hundred steps).
-    facing: C,
+    facing: Point,
     wheels: [f64; 2],
     s: f64,
     /// The last turn rate's half-step and step rotations: once the wheels reach the
     /// command, and all through the brake, the turn rate holds, and so do they.
-    turning: (f64, C, C),
+    turning: (f64, Point, Point),
 }
 
 impl Path {
@@ -708,7 +738,7 @@ enum Shortcuts {
 /// `turned` of the heading then. Bounded with `cos θ ≥ 1 - θ²/2` and `sin θ ≤ θ`, and
 /// required below a nanometre's worth short of zero, where rounding is some 1e-17 m. A lane
 /// line: the heading's component across it, by the same bound.
-fn never_toward(hazard: &Hazard, s: f64, position: C, facing: C, span: f64, turned: f64) -> bool {
+fn never_toward(hazard: &Hazard, s: f64, position: Point, facing: Point, span: f64, turned: f64) -> bool {
     // Beyond a radian the robot's own travel may turn toward what it left behind.
     if turned > 1.0 {
         return false;
@@ -738,8 +768,8 @@ mod tests {
     #[derive(Debug, Clone)]
     struct Scene {
         cfg: SupervisorConfig,
-        position: C,
-        facing: C,
+        position: Point,
+        facing: Point,
         wheels: [f64; 2],
         predicted: Vec<ObstacleEstimate>,
     }
@@ -784,19 +814,19 @@ mod tests {
             .prop_map(|(heading, y, wheels, accel, wall_gap, obstacles)| {
                 // In a lane, its nearer line `wall_gap` from the robot's centre.
                 let cfg = SupervisorConfig::new(accel, 0.108, 0.07, 0.017, wall_gap.map(|gap| y.abs() + gap));
-                let position = C::new(0.0, y);
+                let position = Point::new(0.0, y);
                 let predicted = obstacles
                     .iter()
                     .map(|&(distance, bearing, speed, course, radius, position_sd, velocity_sd)| ObstacleEstimate {
-                        center: position + C::from_polar(distance + 0.07 + radius, heading + bearing),
-                        velocity: C::from_polar(speed, course),
+                        center: position + Point::from_polar(distance + 0.07 + radius, heading + bearing),
+                        velocity: Point::from_polar(speed, course),
                         radius,
                         position_sd,
                         velocity_sd,
                         spread: 0.0,
                     })
                     .collect();
-                Scene { cfg, position, facing: C::from_polar(1.0, heading), wheels, predicted }
+                Scene { cfg, position, facing: Point::from_polar(1.0, heading), wheels, predicted }
             })
     }
 

@@ -16,15 +16,13 @@
 //! `gateway::operator` is `gateway::core::operator`.
 
 pub mod core;
-pub mod report;
 pub mod shell;
 
 pub use self::core::{
     counter_window, input, operator, psd_session, safety, scene, timing, Answer, Core, Counters, Input, NoClock,
     Output, Progress, SetupError, StageClock, State, StopReason,
 };
-pub use report::Report;
 pub use shell::{
-    control_socket, http, low_latency, metrics, realtime, recording, run, systemd, telemetry, view, Controls,
-    GatewayError,
+    control_socket, http, low_latency, metrics, realtime, recording, report, run, systemd, telemetry, view, Controls,
+    GatewayError, Report,
 };

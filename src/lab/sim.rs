@@ -41,8 +41,6 @@ use crate::time::HostTime;
 pub const SERIAL_BAUD: f64 = 921_600.0;
 /// The longest the world advances without an event (so its truth is sampled finely).
 const MAX_STEP_NS: u64 = 5_000_000;
-/// How often the shell tries a lost serial line again, s.
-const REOPEN_EVERY: f64 = 0.2;
 /// How long the world keeps running after the gateway stopped, s (its truth then shows
 /// the robot at rest).
 pub const LINGER: f64 = 0.8;
@@ -256,8 +254,10 @@ pub struct Episode {
     /// What the simulator injected on the serial line: packets duplicated, packets
     /// replayed, bytes dropped, bytes corrupted.
     pub injected: [u64; 4],
-    /// Every input the core took, in order, with [`Options::record_inputs`].
+    /// Every input the core took, in order, and every CAN frame it asked for, with
+    /// [`Options::record_inputs`].
     pub inputs: Vec<InputRecord>,
+    pub can_sent: Vec<CanFrame>,
 }
 
 /// The stack in virtual time. `K` times the core's stages ([`NoClock`] for determinism).
@@ -270,15 +270,15 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     board: MotorBoard,
     adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
     core: Core<K>,
-    /// The inputs handed to the core, when kept.
+    /// The inputs handed to the core, and the CAN frames it asked for, when kept.
     inputs: Option<Vec<InputRecord>>,
+    can_sent: Vec<CanFrame>,
     plan: FaultPlan,
     serial_faults: SerialFaults,
     can_faults: CanFaults,
     bursts: VecDeque<f64>,
     vanish: Option<(f64, f64)>,
     psd_gone: bool,
-    next_reopen: f64,
     next_foreign: f64,
     /// When the second master next speaks.
     next_master: f64,
@@ -364,12 +364,12 @@ impl<K: StageClock> VirtualRig<K> {
             t: 0,
             core: Core::new(gateway_rig, clock),
             inputs: options.record_inputs.then(Vec::new),
+            can_sent: Vec::new(),
             serial_faults: SerialFaults::new(&plan),
             can_faults: CanFaults::new(&plan),
             bursts: plan.serial_burst_at.iter().copied().collect(),
             vanish: plan.serial_vanish_at.map(|at| (at, at + plan.serial_vanish_s)),
             psd_gone: false,
-            next_reopen: f64::INFINITY,
             next_foreign: if plan.foreign_frames { 0.0 } else { f64::INFINITY },
             next_master: plan.second_master_at.unwrap_or(f64::INFINITY),
             plan,
@@ -519,7 +519,6 @@ impl<K: StageClock> VirtualRig<K> {
         at(self.next_truth);
         at(self.bursts.front().copied().unwrap_or(f64::INFINITY));
         at(self.vanish.map_or(f64::INFINITY, |(gone, back)| if self.psd_gone { back } else { gone }));
-        at(self.next_reopen);
         at(self.next_foreign);
         at(self.next_master);
         for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
@@ -551,21 +550,11 @@ impl<K: StageClock> VirtualRig<K> {
                 self.pending.clear();
                 self.psd_out.clear();
                 self.feed(Input::PsdLost);
-                self.next_reopen = t + REOPEN_EVERY;
             } else if self.psd_gone && t >= back_at {
                 self.vanish = None;
                 self.psd_gone = false;
                 self.controller = self.spec.build();
                 self.controller.boot(t, &mut self.psd_out);
-            }
-        }
-        if t >= self.next_reopen {
-            if self.psd_gone {
-                self.next_reopen += REOPEN_EVERY;
-            } else {
-                self.next_reopen = f64::INFINITY;
-                self.controller_rx.clear();
-                self.feed(Input::PsdConnected);
             }
         }
         if t >= self.next_foreign {
@@ -739,8 +728,15 @@ impl<K: StageClock> VirtualRig<K> {
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {
                     self.feed(Input::PsdLost);
-                    self.next_reopen = self.time() + REOPEN_EVERY;
                 }
+                // The pty opens again once the device is back.
+                Output::OpenPsd if !self.psd_gone => {
+                    self.controller_rx.clear();
+                    self.feed(Input::PsdConnected);
+                }
+                Output::OpenPsd => {}
+                // The virtual rig's CAN link is never lost.
+                Output::OpenCan => {}
             }
         }
     }
@@ -773,6 +769,9 @@ impl<K: StageClock> VirtualRig<K> {
 
     fn send_can(&mut self, frame: CanFrame) -> u64 {
         let at_s = self.time();
+        if self.inputs.is_some() {
+            self.can_sent.push(frame);
+        }
         if let Some(tel) = &mut self.telemetry {
             let _ = CanRecord { at_s, frame, sent: true }.candump(self.options.can.interface(), &mut tel.can_log);
         }
@@ -830,6 +829,7 @@ impl<K: StageClock> VirtualRig<K> {
                 self.serial_faults.corrupted,
             ],
             inputs: self.inputs.unwrap_or_default(),
+            can_sent: self.can_sent,
         }
     }
 }

@@ -7,7 +7,7 @@
 //! and both wheels are scaled by one factor when either exceeds the wheel limit, which
 //! keeps the path's curvature while slowing down.
 
-use num_complex::Complex64 as C;
+use crate::Point;
 
 use crate::geometry::angle;
 
@@ -43,7 +43,7 @@ pub struct WheelSpeeds {
 
 /// Eq. 30 with the heading gate and wheel limits described in the module docs; `facing`
 /// is the heading as a unit vector.
-pub fn wheel_speeds(command: C, facing: C, cfg: &DriveConfig) -> WheelSpeeds {
+pub fn wheel_speeds(command: Point, facing: Point, cfg: &DriveConfig) -> WheelSpeeds {
     // (Its square: the length itself is not needed, and is zero or NaN exactly when it is.)
     let speed_sqr = command.norm_sqr();
     if speed_sqr.is_nan() || speed_sqr <= 0.0 || !(facing.re.is_finite() && facing.im.is_finite()) {
@@ -66,20 +66,10 @@ pub fn pulse_rates(w: WheelSpeeds, cfg: &DriveConfig) -> [i32; 2] {
     [w.left, w.right].map(|v| (v * ppm).round().clamp(-max, max) as i32)
 }
 
-/// An angle in `(-π, π]`.
-pub fn wrap_angle(a: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w <= -PI {
-        w + TAU
-    } else {
-        w
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::wrap_angle;
     use proptest::prelude::*;
 
     fn cfg() -> DriveConfig {
@@ -98,10 +88,10 @@ mod tests {
     fn equation_30() {
         let c = cfg();
         // Aligned: both wheels at the commanded speed.
-        let w = wheel_speeds(C::new(0.1, 0.0), C::new(1.0, 0.0), &c);
+        let w = wheel_speeds(Point::new(0.1, 0.0), Point::new(1.0, 0.0), &c);
         assert!((w.left - 0.1).abs() < 1e-12 && (w.right - 0.1).abs() < 1e-12);
         // Δθ = 0.2 rad to the left: right wheel faster by K_c l_w Δθ / T.
-        let w = wheel_speeds(C::from_polar(0.1, 0.2), C::new(1.0, 0.0), &c);
+        let w = wheel_speeds(Point::from_polar(0.1, 0.2), Point::new(1.0, 0.0), &c);
         let turn = 0.06 * 0.108 * 0.2 / (2.0 * 0.02);
         assert!((w.right - w.left - 2.0 * turn).abs() < 1e-12);
         assert!((0.5 * (w.left + w.right) - 0.1 * 0.2f64.cos()).abs() < 1e-12);
@@ -118,7 +108,7 @@ mod tests {
         #[test]
         fn wheel_limits_hold_and_curvature_is_kept(speed in 0.0..2.0f64, arg in -4.0..4.0f64, heading in -4.0..4.0f64) {
             let c = cfg();
-            let w = wheel_speeds(C::from_polar(speed, arg), C::from_polar(1.0, heading), &c);
+            let w = wheel_speeds(Point::from_polar(speed, arg), Point::from_polar(1.0, heading), &c);
             prop_assert!(w.left.abs() <= c.max_wheel_speed + 1e-12 && w.right.abs() <= c.max_wheel_speed + 1e-12);
             prop_assert!(w.left.is_finite() && w.right.is_finite());
             // Turning toward the command: the sign of (right - left) follows Δθ.

@@ -30,8 +30,8 @@
 //! streamline to the fit's residual: below 1e-6 of the flow's speed up to a 90% blockage,
 //! clear of the walls or reaching one (which `in_lane` first closes against it).
 
+use crate::Point;
 use arrayvec::ArrayVec;
-use num_complex::Complex64 as C;
 
 use crate::geometry::Length;
 
@@ -56,7 +56,7 @@ impl Space {
     /// A unit sink at `a` (as `u - i v`): `-1/(z - a)`, plus its wall images in a lane:
     /// `-ϖ [coth(ϖ(z - a)) + tanh(ϖ(z - conj a))]`.
     #[inline(always)]
-    pub fn sink(self, z: C, a: C) -> C {
+    pub fn sink(self, z: Point, a: Point) -> Point {
         match self {
             Space::Free => -(z - a).inv(),
             Space::Lane { half_width } => Self::lane_sink(half_width, z, a),
@@ -64,7 +64,7 @@ impl Space {
     }
 
     // The lane's terms out of line, so that free space's inline to a few operations.
-    fn lane_sink(half_width: f64, z: C, a: C) -> C {
+    fn lane_sink(half_width: f64, z: Point, a: Point) -> Point {
         let w = Self::varpi(half_width);
         -w * (coth(w * (z - a)) + tanh(w * (z - a.conj())))
     }
@@ -72,14 +72,14 @@ impl Space {
     /// A doublet of moment `mu` at `a`: `mu/(z - a)²`, plus its wall images in a lane:
     /// `ϖ² [mu csch²(ϖ(z - a)) - conj(mu) sech²(ϖ(z - conj a))]`.
     #[inline(always)]
-    pub fn doublet(self, z: C, a: C, mu: C) -> C {
+    pub fn doublet(self, z: Point, a: Point, mu: Point) -> Point {
         match self {
             Space::Free => mu * ((z - a) * (z - a)).inv(),
             Space::Lane { half_width } => Self::lane_doublet(half_width, z, a, mu),
         }
     }
 
-    fn lane_doublet(half_width: f64, z: C, a: C, mu: C) -> C {
+    fn lane_doublet(half_width: f64, z: Point, a: Point, mu: Point) -> Point {
         let w = Self::varpi(half_width);
         w * w * (mu * csch2(w * (z - a)) - mu.conj() * sech2(w * (z - a.conj())))
     }
@@ -89,7 +89,7 @@ impl Space {
 // Re x >= 0 by symmetry, so |q| <= 1 and nothing overflows),
 // tanh x = (1 - q)/(1 + q), coth x = (1 + q)/(1 - q), csch² x = 4q/(1 - q)², sech² x = 4q/(1 + q)².
 #[inline]
-fn half_plane(x: C) -> (C, f64) {
+fn half_plane(x: Point) -> (Point, f64) {
     if x.re >= 0.0 {
         ((-2.0 * x).exp(), 1.0)
     } else {
@@ -97,22 +97,22 @@ fn half_plane(x: C) -> (C, f64) {
     }
 }
 #[inline]
-fn tanh(x: C) -> C {
+fn tanh(x: Point) -> Point {
     let (q, sign) = half_plane(x);
     sign * (1.0 - q) / (1.0 + q)
 }
 #[inline]
-fn coth(x: C) -> C {
+fn coth(x: Point) -> Point {
     let (q, sign) = half_plane(x);
     sign * (1.0 + q) / (1.0 - q)
 }
 #[inline]
-fn csch2(x: C) -> C {
+fn csch2(x: Point) -> Point {
     let (q, _) = half_plane(x);
     4.0 * q / ((1.0 - q) * (1.0 - q))
 }
 #[inline]
-fn sech2(x: C) -> C {
+fn sech2(x: Point) -> Point {
     let (q, _) = half_plane(x);
     4.0 * q / ((1.0 + q) * (1.0 + q))
 }
@@ -121,15 +121,15 @@ fn sech2(x: C) -> C {
 /// (obstacle radius + robot radius + margin).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PlanObstacle {
-    pub center: C,
-    pub velocity: C,
+    pub center: Point,
+    pub velocity: Point,
     pub radius: f64,
 }
 
 /// The goal sink: where, how strong, how it is smoothed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sink {
-    pub goal: C,
+    pub goal: Point,
     /// Sink strength `m`, m²/s.
     pub strength: f64,
     /// `c1` of `K(r)`, 1/m.
@@ -175,9 +175,9 @@ pub struct Field {
     n: usize,
     obstacles: [PlanObstacle; MAX_OBSTACLES],
     /// Doublet moments `μ_k = R_k² V_k`.
-    moments: [C; MAX_OBSTACLES],
+    moments: [Point; MAX_OBSTACLES],
     /// Image of the goal sink in circle k.
-    sink_images: [C; MAX_OBSTACLES],
+    sink_images: [Point; MAX_OBSTACLES],
     /// Lane only (empty in free space, which so never pays for it): each obstacle's
     /// multipole series that makes its circle a streamline (see [`super::multipole`]).
     lane_series: ArrayVec<LaneSeries, MAX_OBSTACLES>,
@@ -195,7 +195,7 @@ struct LaneSeries {
     motion_fit: Fitted,
 }
 
-fn finite(z: C) -> bool {
+fn finite(z: Point) -> bool {
     z.re.is_finite() && z.im.is_finite()
 }
 
@@ -214,9 +214,10 @@ impl Field {
             space,
             sink,
             n: 0,
-            obstacles: [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES],
-            moments: [C::default(); MAX_OBSTACLES],
-            sink_images: [C::default(); MAX_OBSTACLES],
+            obstacles: [PlanObstacle { center: Point::default(), velocity: Point::default(), radius: 1.0 };
+                MAX_OBSTACLES],
+            moments: [Point::default(); MAX_OBSTACLES],
+            sink_images: [Point::default(); MAX_OBSTACLES],
             lane_series: ArrayVec::new(),
             unclosed_at_a_wall: false,
         }
@@ -236,7 +237,7 @@ impl Field {
         space: Space,
         sink: Sink,
         obstacles: &[PlanObstacle],
-        robot: Option<C>,
+        robot: Option<Point>,
     ) -> Result<(), FieldError> {
         self.n = 0;
         self.lane_series.clear();
@@ -304,13 +305,13 @@ impl Field {
         let rho = multipole::convergence_rate(half_width, o.center, o.radius, others.chain([self.sink.goal]));
         let orders = multipole::orders_for(rho, series.real());
         let regularisation = if rho >= 1.0 { multipole::WALL_REGULARISATION } else { 0.0 };
-        let mut points = [(C::default(), C::default()); POINTS];
+        let mut points = [(Point::default(), Point::default()); POINTS];
         let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, &mut points);
         let (mut sink_target, mut motion_target, mut source_flow) = ([0.0; POINTS], [0.0; POINTS], [0.0; POINTS]);
         for (j, &(z, normal)) in points[..m].iter().enumerate() {
             let sink_flow =
                 space.sink(z, self.sink.goal) + space.sink(z, self.sink_images[k]) - space.sink(z, o.center);
-            let mut motion_flow = C::default();
+            let mut motion_flow = Point::default();
             for (i, other) in self.obstacles[..n].iter().enumerate() {
                 motion_flow += space.doublet(z, other.center, self.moments[i]);
                 if i != k {
@@ -331,7 +332,7 @@ impl Field {
     /// The image of obstacle `j`'s doublet in circle `k` (circle theorem): at
     /// `z_k + R_k²/conj(z_j - z_k)`, moment `-conj(μ_j) R_k² / conj(z_j - z_k)²`.
     #[inline]
-    fn doublet_image(&self, k: usize, j: usize) -> Option<(C, C)> {
+    fn doublet_image(&self, k: usize, j: usize) -> Option<(Point, Point)> {
         let o = &self.obstacles[k];
         let d = (self.obstacles[j].center - o.center).conj();
         let r2 = o.radius * o.radius;
@@ -363,7 +364,7 @@ impl Field {
         let o = self.obstacles().get(k)?;
         let (mut worst, mut scale) = (0.0f64, o.velocity.length());
         for j in 0..samples {
-            let normal = C::from_polar(1.0, std::f64::consts::TAU * j as f64 / samples as f64);
+            let normal = Point::from_polar(1.0, std::f64::consts::TAU * j as f64 / samples as f64);
             let z = o.center + normal * (o.radius * (1.0 + 1e-11));
             if let Ok(v) = self.velocity(z) {
                 worst = worst.max(((v - o.velocity) * normal.conj()).re.abs());
@@ -374,7 +375,7 @@ impl Field {
     }
 
     /// `F(z) = u - i v` at `z`. The robot's velocity command is `conj(F)`.
-    pub fn eval(&self, z: C) -> Result<C, FieldError> {
+    pub fn eval(&self, z: Point) -> Result<Point, FieldError> {
         if !finite(z) {
             return Err(FieldError::NonFinite);
         }
@@ -386,7 +387,7 @@ impl Field {
         let space = self.space;
         let r = (z - self.sink.goal).length();
         if r == 0.0 {
-            return Ok(C::default()); // K(0) = 0: at rest on the goal
+            return Ok(Point::default()); // K(0) = 0: at rest on the goal
         }
         let km = self.sink.smoothing(r) * self.sink.strength;
         let mut f = km * space.sink(z, self.sink.goal);
@@ -421,7 +422,7 @@ impl Field {
             if let Some(lane) = lane {
                 // The series is real-linear in its coefficients: one evaluation for both.
                 let orders = lane.sink_fit.orders.max(lane.motion_fit.orders);
-                let mut c = [C::default(); ORDERS];
+                let mut c = [Point::default(); ORDERS];
                 for ((c, a), b) in c[..orders].iter_mut().zip(&lane.sink_fit.coeffs).zip(&lane.motion_fit.coeffs) {
                     *c = a * km + b;
                 }
@@ -433,7 +434,7 @@ impl Field {
     }
 
     /// The velocity command at `z`: `u + i v = conj(F(z))`.
-    pub fn velocity(&self, z: C) -> Result<C, FieldError> {
+    pub fn velocity(&self, z: Point) -> Result<Point, FieldError> {
         self.eval(z).map(|f| f.conj())
     }
 }
@@ -456,9 +457,9 @@ impl Field {
 /// goal, the robot): the robot would be stopped, or the goal blocked, by a circle grown for
 /// the series' sake. That circle stays as planned, its series converging less well.
 /// Returns the circle as planned, and whether it reaches a wall but was left unclosed.
-fn in_lane(o: PlanObstacle, half_width: f64, keep_clear: [Option<C>; 2]) -> (PlanObstacle, bool) {
+fn in_lane(o: PlanObstacle, half_width: f64, keep_clear: [Option<Point>; 2]) -> (PlanObstacle, bool) {
     let closed = closed_against_the_wall(o, half_width);
-    let takes_in = |p: C| (p - closed.center).length() <= closed.radius && (p - o.center).length() > o.radius;
+    let takes_in = |p: Point| (p - closed.center).length() <= closed.radius && (p - o.center).length() > o.radius;
     if closed != o && keep_clear.into_iter().flatten().any(takes_in) {
         (o, true)
     } else {
@@ -478,7 +479,11 @@ fn closed_against_the_wall(o: PlanObstacle, half_width: f64) -> PlanObstacle {
     // the wall for one beyond it.
     let radius = if d >= 0.0 { d + o.radius } else { (o.radius * o.radius - d * d).max(0.0).sqrt() };
     let radius = radius.max(MIN_CLOSED * o.radius);
-    PlanObstacle { center: C::new(o.center.re, side * half_width), velocity: C::new(o.velocity.re, 0.0), radius }
+    PlanObstacle {
+        center: Point::new(o.center.re, side * half_width),
+        velocity: Point::new(o.velocity.re, 0.0),
+        radius,
+    }
 }
 
 /// The smallest closed circle, as a fraction of the planned radius (a centre estimated
@@ -489,9 +494,15 @@ const MIN_CLOSED: f64 = 0.25;
 pub const WALL_CLOSE: f64 = 0.1;
 /// Streamlines of `field` from `seeds`: unit-speed RK2 steps of `step` metres until they
 /// leave `bounds`, reach the goal, or meet an obstacle.
-pub fn streamlines(field: &Field, seeds: &[C], step: f64, max_steps: usize, bounds: (C, C)) -> Vec<Vec<C>> {
-    let dir = |z: C| field.velocity(z).ok().filter(|v| v.length() > 1e-12).map(|v| v / v.length());
-    let inside = |z: C| z.re >= bounds.0.re && z.re <= bounds.1.re && z.im >= bounds.0.im && z.im <= bounds.1.im;
+pub fn streamlines(
+    field: &Field,
+    seeds: &[Point],
+    step: f64,
+    max_steps: usize,
+    bounds: (Point, Point),
+) -> Vec<Vec<Point>> {
+    let dir = |z: Point| field.velocity(z).ok().filter(|v| v.length() > 1e-12).map(|v| v / v.length());
+    let inside = |z: Point| z.re >= bounds.0.re && z.re <= bounds.1.re && z.im >= bounds.0.im && z.im <= bounds.1.im;
     seeds
         .iter()
         .map(|&seed| {

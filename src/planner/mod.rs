@@ -36,9 +36,9 @@ pub mod drive;
 pub mod field;
 pub mod multipole;
 
+use crate::Point;
 use arrayvec::ArrayVec;
 pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
-use num_complex::Complex64 as C;
 
 use crate::geometry::Length;
 
@@ -118,8 +118,8 @@ pub struct PlannerConfig {
 /// An obstacle as estimated by tracking, at the time the command will act.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ObstacleEstimate {
-    pub center: C,
-    pub velocity: C,
+    pub center: Point,
+    pub velocity: Point,
     /// The obstacle's own radius `a_0`, m.
     pub radius: f64,
     /// One standard deviation of `center` along its worst direction, m (the tracker's
@@ -135,7 +135,7 @@ pub struct ObstacleEstimate {
 
 impl ObstacleEstimate {
     /// An obstacle known exactly (a scripted one, a test's).
-    pub const fn exact(center: C, velocity: C, radius: f64) -> Self {
+    pub const fn exact(center: Point, velocity: Point, radius: f64) -> Self {
         Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0, spread: 0.0 }
     }
 }
@@ -143,8 +143,8 @@ impl ObstacleEstimate {
 /// Everything the planner needs for one command.
 #[derive(Debug, Clone, Copy)]
 pub struct PlanInput<'a> {
-    pub position: C,
-    pub goal: C,
+    pub position: Point,
+    pub goal: Point,
     /// The robot's radius `a_r`, m.
     pub robot_radius: f64,
     pub obstacles: &'a [ObstacleEstimate],
@@ -171,9 +171,9 @@ pub struct PlanFlags {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Plan {
     /// The raw field velocity `u + i v`, m/s.
-    pub field: C,
+    pub field: Point,
     /// The command after saturation, m/s.
-    pub velocity: C,
+    pub velocity: Point,
     pub flags: PlanFlags,
 }
 
@@ -195,7 +195,7 @@ impl Planner {
     }
 
     /// The sink for a goal.
-    pub fn sink(&self, goal: C) -> Sink {
+    pub fn sink(&self, goal: Point) -> Sink {
         let c = &self.config;
         Sink { goal, strength: c.cruise_speed * c.reference_radius, c1: c.c1, reference_radius: c.reference_radius }
     }
@@ -212,7 +212,7 @@ impl Planner {
         }
         let mut flags = PlanFlags::default();
         let to_goal = input.goal - input.position;
-        let left = if to_goal.length() > 0.0 { C::i() * to_goal / to_goal.length() } else { C::default() };
+        let left = if to_goal.length() > 0.0 { Point::i() * to_goal / to_goal.length() } else { Point::default() };
         for o in input.obstacles {
             let speed = o.velocity.length();
             let mut r0 = o.radius + input.robot_radius;
@@ -297,7 +297,7 @@ impl Planner {
 }
 
 /// How far the tie-break shifts obstacle `o`'s planning circle for a robot at `z`.
-fn tie_break_shift(tb: &TieBreak, z: C, goal: C, o: &PlanObstacle) -> f64 {
+fn tie_break_shift(tb: &TieBreak, z: Point, goal: Point, o: &PlanObstacle) -> f64 {
     let p = z - o.center; // robot, seen from the obstacle
     let g = goal - o.center; // goal, seen from the obstacle
     let (np, ng) = (p.length(), g.length());

@@ -32,7 +32,7 @@
 //! here), shared by the two right-hand sides (the goal sink's flow and the obstacles'
 //! motion).
 
-use num_complex::Complex64 as C;
+use crate::Point;
 
 use crate::geometry::Length;
 
@@ -59,7 +59,7 @@ const _: () = assert!(POINTS_PER_ORDER_AT_A_WALL * WALL_ORDERS <= POINTS);
 
 /// Whether a circle at `a` is centred on a wall of the lane of half-width `h`: a circle
 /// closed against it (`field::in_lane` puts the centre exactly there).
-fn centred_on_a_wall(h: f64, a: C) -> bool {
+fn centred_on_a_wall(h: f64, a: Point) -> bool {
     a.im.abs() == h
 }
 /// The fit's aim: the series' truncation error, relative to the flow on the circle.
@@ -88,9 +88,9 @@ pub struct Series {
     /// `y_0`: the axis of the series' lane (0, or the wall a circle is centred on).
     y0: f64,
     /// The centre in `s`.
-    sa: C,
+    sa: Point,
     /// The scale `σ = 2ϖ s_a R`: `σ/(s - s_a) ≈ R/(z - a)` near the centre.
-    sigma: C,
+    sigma: Point,
     /// The centre is on a wall (a circle closed against it), see [`Series::new`].
     real: bool,
 }
@@ -105,11 +105,11 @@ impl Series {
     /// a streamline. In the doubled lane `s` spreads half as much over the circle as it
     /// would in the lane (the circle is up to twice the half-width across), which keeps
     /// the fit well conditioned.
-    pub fn new(h: f64, a: C, r: f64) -> Self {
+    pub fn new(h: f64, a: Point, r: f64) -> Self {
         let real = centred_on_a_wall(h, a);
         let (h, y0) = if real { (2.0 * h, a.im) } else { (h, 0.0) };
         let two_varpi = std::f64::consts::PI / (2.0 * h);
-        let sa = if real { C::new(1.0, 0.0) } else { C::from_polar(1.0, two_varpi * a.im) };
+        let sa = if real { Point::new(1.0, 0.0) } else { Point::from_polar(1.0, two_varpi * a.im) };
         Self { two_varpi, x0: a.re, y0, sa, sigma: sa * (two_varpi * r), real }
     }
 
@@ -120,27 +120,27 @@ impl Series {
 
     /// `s` at `z`, or None where every multipole is negligible.
     #[inline]
-    fn s(&self, z: C) -> Option<C> {
+    fn s(&self, z: Point) -> Option<Point> {
         let x = self.two_varpi * (z.re - self.x0);
-        (x.abs() < FAR).then(|| C::from_polar(x.exp(), self.two_varpi * (z.im - self.y0)))
+        (x.abs() < FAR).then(|| Point::from_polar(x.exp(), self.two_varpi * (z.im - self.y0)))
     }
 
     /// What every term at `z` is made of: `s`, `d = s - s_a`, `m = s + conj s_a`, and the
     /// ratios `t = σ/d`, `u = -conj σ/m` (`u = conj t` on the walls, which keeps them exact);
     /// None where every multipole is negligible.
     #[inline]
-    fn at(&self, z: C) -> Option<Point> {
+    fn at(&self, z: Point) -> Option<SeriesFrame> {
         let s = self.s(z)?;
         let (d, m) = (s - self.sa, s + self.sa.conj());
-        Some(Point { s, d, m, t: self.sigma / d, u: -self.sigma.conj() / m })
+        Some(SeriesFrame { s, d, m, t: self.sigma / d, u: -self.sigma.conj() / m })
     }
 
     /// The flow `u - i v` of the series with coefficients `c` (orders 1, 2, ...) at `z`.
     #[inline]
-    pub fn eval(&self, z: C, c: &[C]) -> C {
-        let Some(p) = self.at(z) else { return C::default() };
+    pub fn eval(&self, z: Point, c: &[Point]) -> Point {
+        let Some(p) = self.at(z) else { return Point::default() };
         // Σ n c_n t^n and Σ n conj(c_n) u^n by Horner.
-        let (mut direct, mut mirror) = (C::default(), C::default());
+        let (mut direct, mut mirror) = (Point::default(), Point::default());
         for (n, cn) in c.iter().enumerate().rev() {
             let order = (n + 1) as f64;
             direct = (direct + cn * order) * p.t;
@@ -150,9 +150,9 @@ impl Series {
     }
 
     /// The flows of the terms of orders `1..=orders` at `z` for the coefficients 1 and `i`.
-    fn terms(&self, z: C, orders: usize, out: &mut [(C, C); ORDERS]) {
+    fn terms(&self, z: Point, orders: usize, out: &mut [(Point, Point); ORDERS]) {
         let Some(p) = self.at(z) else {
-            out.fill((C::default(), C::default()));
+            out.fill((Point::default(), Point::default()));
             return;
         };
         let scale = -self.two_varpi * p.s;
@@ -163,32 +163,32 @@ impl Series {
             un *= p.u;
             let order = (n + 1) as f64;
             let (direct, mirror) = (tn * order, un * order);
-            *slot = (direct + mirror, C::i() * (direct - mirror));
+            *slot = (direct + mirror, Point::i() * (direct - mirror));
         }
     }
 }
 
 /// A point in a series' frame (see [`Series::at`]).
-struct Point {
-    s: C,
-    d: C,
-    m: C,
-    t: C,
-    u: C,
+struct SeriesFrame {
+    s: Point,
+    d: Point,
+    m: Point,
+    t: Point,
+    u: Point,
 }
 
 /// A fitted series: multipole coefficients (those beyond `orders` are zero) and the
 /// strength of the centre source.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Fitted {
-    pub coeffs: [C; ORDERS],
+    pub coeffs: [Point; ORDERS],
     pub orders: usize,
     pub source: f64,
 }
 
 impl Default for Fitted {
     fn default() -> Self {
-        Self { coeffs: [C::default(); ORDERS], orders: 0, source: 0.0 }
+        Self { coeffs: [Point::default(); ORDERS], orders: 0, source: 0.0 }
     }
 }
 
@@ -206,7 +206,7 @@ impl Default for Fitted {
 /// wall it sits on is already in the flow the series corrects (the lane's images of a sink
 /// or a doublet, and of their images in this circle, which the circle's symmetry maps onto
 /// one another), so only images in the far wall count.
-pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -> f64 {
+pub fn convergence_rate(h: f64, a: Point, r: f64, others: impl Iterator<Item = Point>) -> f64 {
     let on_a_wall = centred_on_a_wall(h, a);
     let d = if on_a_wall { 2.0 * h } else { (h - a.im.abs()).max(0.0) };
     if d <= r {
@@ -219,7 +219,7 @@ pub fn convergence_rate(h: f64, a: C, r: f64, others: impl Iterator<Item = C>) -
             if on_a_wall && wall != far_wall {
                 continue;
             }
-            let mirror = C::new(p.re, 2.0 * wall - p.im);
+            let mirror = Point::new(p.re, 2.0 * wall - p.im);
             rho = rho.max(r / (mirror - a).length());
         }
     }
@@ -246,7 +246,14 @@ pub fn orders_for(rho: f64, real: bool) -> usize {
 /// The collocation points for `orders` on a circle of radius `r` at `a` that lie inside the
 /// lane (`at_a_wall`: the circle reaches a wall, and gets denser points): `(z, unit
 /// normal)` into `out`; returns how many.
-pub fn collocation(h: f64, a: C, r: f64, orders: usize, at_a_wall: bool, out: &mut [(C, C); POINTS]) -> usize {
+pub fn collocation(
+    h: f64,
+    a: Point,
+    r: f64,
+    orders: usize,
+    at_a_wall: bool,
+    out: &mut [(Point, Point); POINTS],
+) -> usize {
     let per_order = if centred_on_a_wall(h, a) {
         POINTS_PER_ORDER_ON_A_WALL
     } else if at_a_wall {
@@ -257,7 +264,7 @@ pub fn collocation(h: f64, a: C, r: f64, orders: usize, at_a_wall: bool, out: &m
     let points = per_order * orders.clamp(1, ORDERS);
     let mut m = 0;
     for j in 0..points {
-        let n = C::from_polar(1.0, std::f64::consts::TAU * (j as f64 + 0.5) / points as f64);
+        let n = Point::from_polar(1.0, std::f64::consts::TAU * (j as f64 + 0.5) / points as f64);
         let z = a + n * r;
         if z.im.abs() < h * (1.0 - 1e-9) && m < out.len() {
             out[m] = (z, n);
@@ -276,7 +283,7 @@ pub fn collocation(h: f64, a: C, r: f64, orders: usize, at_a_wall: bool, out: &m
 pub fn fit(
     series: &Series,
     orders: usize,
-    points: &[(C, C); POINTS],
+    points: &[(Point, Point); POINTS],
     m: usize,
     source_flow: &[f64; POINTS],
     targets: [&[f64; POINTS]; 2],
@@ -302,7 +309,7 @@ pub fn fit(
     // whole each fit: a workspace kept across cycles would spare that.
     let mut buffer = [0.0; ROWS * UNKNOWNS];
     let a = &mut buffer[..rows * p];
-    let mut flows = [(C::default(), C::default()); ORDERS];
+    let mut flows = [(Point::default(), Point::default()); ORDERS];
     for (row, &(z, normal)) in points[..m].iter().enumerate() {
         series.terms(z, orders, &mut flows);
         for (n, (re, im)) in flows[..orders].iter().enumerate() {
@@ -367,7 +374,7 @@ pub fn fit(
             x[k] = (rhs[k] - sum) / diag[k];
         }
         for n in 0..orders {
-            fitted.coeffs[n] = if real { C::new(x[n], 0.0) } else { C::new(x[2 * n], x[2 * n + 1]) };
+            fitted.coeffs[n] = if real { Point::new(x[n], 0.0) } else { Point::new(x[2 * n], x[2 * n + 1]) };
         }
         fitted.orders = orders;
         fitted.source = x[p - 1];

@@ -6,29 +6,29 @@ use super::*;
 use proptest::prelude::*;
 use std::f64::consts::PI;
 
-fn sink(goal: C) -> Sink {
+fn sink(goal: Point) -> Sink {
     Sink { goal, strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 }
 }
 
-fn pt() -> impl Strategy<Value = C> {
-    (-1.0..1.0f64, -1.0..1.0f64).prop_map(|(x, y)| C::new(x, y))
+fn pt() -> impl Strategy<Value = Point> {
+    (-1.0..1.0f64, -1.0..1.0f64).prop_map(|(x, y)| Point::new(x, y))
 }
 
-fn vel() -> impl Strategy<Value = C> {
-    (-0.3..0.3f64, -0.3..0.3f64).prop_map(|(x, y)| C::new(x, y))
+fn vel() -> impl Strategy<Value = Point> {
+    (-0.3..0.3f64, -0.3..0.3f64).prop_map(|(x, y)| Point::new(x, y))
 }
 
 /// The normal speed of the flow at angle θ on obstacle `o`'s circle, minus the
 /// obstacle's own normal speed: zero when the boundary condition holds.
 fn boundary_residual(field: &Field, o: &PlanObstacle, theta: f64) -> f64 {
-    let n = C::from_polar(1.0, theta);
+    let n = Point::from_polar(1.0, theta);
     let z = o.center + n * o.radius * (1.0 + 1e-11);
     let v = field.velocity(z).unwrap();
     (v * n.conj()).re - (o.velocity * n.conj()).re
 }
 
 /// Up to `n` non-overlapping obstacles with the goal outside all of them.
-fn scene(n: usize) -> impl Strategy<Value = (C, Vec<PlanObstacle>)> {
+fn scene(n: usize) -> impl Strategy<Value = (Point, Vec<PlanObstacle>)> {
     (pt(), proptest::collection::vec((pt(), vel(), 0.05..0.25f64), n)).prop_filter_map(
         "overlapping obstacles or goal inside one",
         |(goal, raw)| {
@@ -70,9 +70,9 @@ proptest! {
     #[test]
     fn walls_are_streamlines(h in 0.1..1.0f64, a in pt(), mu in vel(), x in -3.0..3.0f64) {
         let space = Space::Lane { half_width: h };
-        let a = C::new(a.re, a.im * h * 0.9);
+        let a = Point::new(a.re, a.im * h * 0.9);
         for y in [h, -h] {
-            let z = C::new(x, y);
+            let z = Point::new(x, y);
             let s = space.sink(z, a);
             let d = space.doublet(z, a, mu);
             // F = u - i v: v = -Im F.
@@ -92,13 +92,13 @@ proptest! {
             PlanObstacle { center: b + 1.0, velocity: vb, radius: rb },
         ];
         prop_assume!((obs[0].center - obs[1].center).norm() > 1.3 * (r + rb) + 0.05);
-        let goal = C::new(4.5, 0.0);
+        let goal = Point::new(4.5, 0.0);
         prop_assume!(obs.iter().all(|o| (goal - o.center).norm() > 1.5 * o.radius));
         let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
         // 1e-15 h inside the wall (the field is not defined on it): the normal flow there
         // is at most that times its gradient, far below the bound.
         for y in [h * (1.0 - 1e-15), -h * (1.0 - 1e-15)] {
-            let z = C::new(x, y);
+            let z = Point::new(x, y);
             if field.obstacles().iter().all(|o| (z - o.center).norm() > o.radius + 0.01) {
                 let f = field.eval(z).unwrap();
                 prop_assert!(f.im.abs() <= 2e-12 * f.norm().max(0.1), "v = {:e} at {z} (|F| = {})", f.im, f.norm());
@@ -109,16 +109,16 @@ proptest! {
     /// Check 3: the closed forms equal truncated sums of wall images (period 4ih).
     #[test]
     fn closed_forms_match_image_sums(h in 0.2..0.6f64, a in pt(), z in pt(), mu in vel()) {
-        let a = C::new(a.re, a.im * h * 0.9);
-        let z = C::new(z.re, z.im * h * 0.9);
+        let a = Point::new(a.re, a.im * h * 0.9);
+        let z = Point::new(z.re, z.im * h * 0.9);
         prop_assume!((z - a).norm() > 0.05);
         let lane = Space::Lane { half_width: h };
         let n = 20_000;
-        let (mut sink_sum, mut doublet_sum) = (C::default(), C::default());
+        let (mut sink_sum, mut doublet_sum) = (Point::default(), Point::default());
         for k in -n..=n {
-            let shift = C::new(0.0, 4.0 * h * f64::from(k));
+            let shift = Point::new(0.0, 4.0 * h * f64::from(k));
             let direct = a + shift; // the source and its translates
-            let mirror = a.conj() + C::new(0.0, 2.0 * h) + shift; // its mirror images
+            let mirror = a.conj() + Point::new(0.0, 2.0 * h) + shift; // its mirror images
             sink_sum += -(z - direct).inv() - (z - mirror).inv();
             doublet_sum += mu / ((z - direct) * (z - direct)) + mu.conj() / ((z - mirror) * (z - mirror));
         }
@@ -133,7 +133,7 @@ proptest! {
     fn far_field_speed(((goal, obs), dir) in (scene(1), 0.0..2.0 * PI)) {
         let s = sink(goal);
         let field = Field::new(Space::Free, s, &obs).unwrap();
-        let z = goal + C::from_polar(1e4, dir);
+        let z = goal + Point::from_polar(1e4, dir);
         let speed = field.velocity(z).unwrap().norm();
         let expect = s.strength / s.reference_radius;
         prop_assert!((speed - expect).abs() < 1e-3 * expect, "{speed} vs {expect}");
@@ -155,39 +155,39 @@ proptest! {
 #[test]
 fn stagnation_points() {
     let r = 0.14;
-    let obs = [PlanObstacle { center: C::default(), velocity: C::default(), radius: r }];
-    let field = Field::new(Space::Free, sink(C::new(1e7, 0.0)), &obs).unwrap();
-    let scale = field.velocity(C::new(0.0, 5.0 * r)).unwrap().norm();
+    let obs = [PlanObstacle { center: Point::default(), velocity: Point::default(), radius: r }];
+    let field = Field::new(Space::Free, sink(Point::new(1e7, 0.0)), &obs).unwrap();
+    let scale = field.velocity(Point::new(0.0, 5.0 * r)).unwrap().norm();
     for x in [-r, r] {
-        let v = field.velocity(C::new(x * (1.0 + 1e-9), 0.0)).unwrap();
+        let v = field.velocity(Point::new(x * (1.0 + 1e-9), 0.0)).unwrap();
         assert!(v.norm() < 1e-6 * scale, "speed {} at {x}", v.norm());
     }
     // The rear point is a saddle: on the axis the flow runs into it, off the axis past it.
-    let on_axis = field.velocity(C::new(-3.0 * r, 0.0)).unwrap();
+    let on_axis = field.velocity(Point::new(-3.0 * r, 0.0)).unwrap();
     assert!(on_axis.re > 0.0 && on_axis.im.abs() < 1e-12);
 }
 
 /// Check 6: goal within R of an obstacle centre is reported, never garbage.
 #[test]
 fn goal_inside_obstacle_is_an_error() {
-    let obs = [PlanObstacle { center: C::new(0.5, 0.0), velocity: C::default(), radius: 0.14 }];
-    let err = Field::new(Space::Free, sink(C::new(0.6, 0.0)), &obs).unwrap_err();
+    let obs = [PlanObstacle { center: Point::new(0.5, 0.0), velocity: Point::default(), radius: 0.14 }];
+    let err = Field::new(Space::Free, sink(Point::new(0.6, 0.0)), &obs).unwrap_err();
     assert_eq!(err, FieldError::GoalInsideObstacle { index: 0 });
 }
 
 #[test]
 fn invalid_inputs_are_typed_errors() {
-    let o = PlanObstacle { center: C::new(0.5, 0.0), velocity: C::default(), radius: 0.14 };
-    let goal = C::new(1.0, 0.0);
+    let o = PlanObstacle { center: Point::new(0.5, 0.0), velocity: Point::default(), radius: 0.14 };
+    let goal = Point::new(1.0, 0.0);
     assert_eq!(Field::new(Space::Lane { half_width: 0.0 }, sink(goal), &[o]).unwrap_err(), FieldError::BadLane(0.0));
-    let nan = PlanObstacle { center: C::new(f64::NAN, 0.0), ..o };
+    let nan = PlanObstacle { center: Point::new(f64::NAN, 0.0), ..o };
     assert_eq!(Field::new(Space::Free, sink(goal), &[nan]).unwrap_err(), FieldError::NonFinite);
     let field = Field::new(Space::Free, sink(goal), &[o]).unwrap();
-    assert_eq!(field.eval(C::new(0.45, 0.0)).unwrap_err(), FieldError::InsideObstacle { index: 0 });
-    assert_eq!(field.eval(C::new(f64::INFINITY, 0.0)).unwrap_err(), FieldError::NonFinite);
-    assert_eq!(field.eval(goal).unwrap(), C::default());
+    assert_eq!(field.eval(Point::new(0.45, 0.0)).unwrap_err(), FieldError::InsideObstacle { index: 0 });
+    assert_eq!(field.eval(Point::new(f64::INFINITY, 0.0)).unwrap_err(), FieldError::NonFinite);
+    assert_eq!(field.eval(goal).unwrap(), Point::default());
     let lane = Field::new(Space::Lane { half_width: 0.2 }, sink(goal * 0.1), &[]).unwrap();
-    assert_eq!(lane.eval(C::new(0.0, 0.3)).unwrap_err(), FieldError::OutsideLane);
+    assert_eq!(lane.eval(Point::new(0.0, 0.3)).unwrap_err(), FieldError::OutsideLane);
     let too_many = [o; MAX_OBSTACLES + 1];
     assert_eq!(Field::new(Space::Free, sink(goal), &too_many).unwrap_err(), FieldError::TooManyObstacles);
 }
@@ -202,7 +202,7 @@ fn worst_residual(field: &Field, o: &PlanObstacle) -> f64 {
     let (mut worst, mut scale) = (0.0f64, 0.0f64);
     for d in 0..720 {
         let theta = f64::from(d) * PI / 360.0;
-        let z = o.center + C::from_polar(o.radius * (1.0 + 1e-11), theta);
+        let z = o.center + Point::from_polar(o.radius * (1.0 + 1e-11), theta);
         if z.im.abs() < h * (1.0 - 1e-9) {
             worst = worst.max(boundary_residual(field, o, theta).abs());
             scale = scale.max(field.velocity(z).unwrap().norm());
@@ -217,12 +217,12 @@ fn worst_residual(field: &Field, o: &PlanObstacle) -> f64 {
 fn lane_circle_residual_is_at_the_fit_level() {
     let lane = Space::Lane { half_width: 0.2 };
     for (centre, radius, velocity) in [
-        (C::new(0.0, 0.0), 0.14, C::new(-0.056, 0.0)),
-        (C::new(0.2, 0.0), 0.18, C::default()),
-        (C::new(0.2, 0.0), 0.18, C::new(-0.05, 0.03)),
-        (C::new(0.0, 0.03), 0.03, C::new(0.1, 0.0)),
+        (Point::new(0.0, 0.0), 0.14, Point::new(-0.056, 0.0)),
+        (Point::new(0.2, 0.0), 0.18, Point::default()),
+        (Point::new(0.2, 0.0), 0.18, Point::new(-0.05, 0.03)),
+        (Point::new(0.0, 0.03), 0.03, Point::new(0.1, 0.0)),
     ] {
-        let s = Sink { goal: C::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
+        let s = Sink { goal: Point::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
         let obs = PlanObstacle { center: centre, velocity, radius };
         let field = Field::new(lane, s, &[obs]).unwrap();
         let worst = worst_residual(&field, &obs);
@@ -254,10 +254,10 @@ fn planner(tie_break: Option<TieBreak>) -> Planner {
 /// (keep right), deterministically.
 #[test]
 fn tie_break_breaks_the_symmetric_case() {
-    let obstacles = [ObstacleEstimate::exact(C::new(0.0, 0.0), C::new(-0.05, 0.0), 0.07)];
+    let obstacles = [ObstacleEstimate::exact(Point::new(0.0, 0.0), Point::new(-0.05, 0.0), 0.07)];
     let input = PlanInput {
-        position: C::new(-0.4, 0.0),
-        goal: C::new(0.6, 0.0),
+        position: Point::new(-0.4, 0.0),
+        goal: Point::new(0.6, 0.0),
         robot_radius: 0.07,
         obstacles: &obstacles,
         delay: 0.0,
@@ -268,7 +268,7 @@ fn tie_break_breaks_the_symmetric_case() {
     assert!(broken.flags.tie_break);
     assert!(broken.velocity.im < -1e-4, "expected a push to the right (−y), got {}", broken.velocity);
     // Off the axis, outside the cone, the tie-break leaves the field alone.
-    let off = PlanInput { position: C::new(-0.4, 0.2), ..input };
+    let off = PlanInput { position: Point::new(-0.4, 0.2), ..input };
     let tb = planner(Some(TieBreak::default())).plan(&off).unwrap();
     assert!(!tb.flags.tie_break);
     assert_eq!(tb.velocity, planner(None).plan(&off).unwrap().velocity);
@@ -284,10 +284,10 @@ fn margins() {
 
 #[test]
 fn saturation_keeps_direction() {
-    let obstacles = [ObstacleEstimate::exact(C::new(0.3, 0.3), C::new(0.0, -0.2), 0.07)];
+    let obstacles = [ObstacleEstimate::exact(Point::new(0.3, 0.3), Point::new(0.0, -0.2), 0.07)];
     let input = PlanInput {
-        position: C::new(-2.0, 0.0),
-        goal: C::new(2.0, 0.0),
+        position: Point::new(-2.0, 0.0),
+        goal: Point::new(2.0, 0.0),
         robot_radius: 0.07,
         obstacles: &obstacles,
         delay: 0.0,
@@ -300,8 +300,8 @@ fn saturation_keeps_direction() {
 
 /// A circle in a lane of half-width `h`: (centre, radius) with the centre anywhere inside
 /// the lane and `R` up to 90% of `h`.
-fn lane_circle(h: f64) -> impl Strategy<Value = (C, f64)> {
-    (-3.0..3.0f64, -1.0..1.0f64, 0.02..0.9f64).prop_map(move |(x, y, r)| (C::new(x, y * h * 0.999), r * h))
+fn lane_circle(h: f64) -> impl Strategy<Value = (Point, f64)> {
+    (-3.0..3.0f64, -1.0..1.0f64, 0.02..0.9f64).prop_map(move |(x, y, r)| (Point::new(x, y * h * 0.999), r * h))
 }
 
 /// The gap to the nearer wall over the radius below which a circle is closed against the
@@ -310,18 +310,18 @@ const CLOSED_BELOW: f64 = super::field::WALL_CLOSE;
 
 /// A circle near a wall, closed against it: the gap to the nearer wall anywhere from R/10
 /// down to minus R (the centre on the wall).
-fn near_wall_circle(h: f64) -> impl Strategy<Value = (C, f64)> {
+fn near_wall_circle(h: f64) -> impl Strategy<Value = (Point, f64)> {
     (-3.0..3.0f64, 0.0..1.0f64, any::<bool>(), 0.02..0.9f64).prop_map(move |(x, u, up, r)| {
         let y = (1.0 - u * r * (1.0 + CLOSED_BELOW)).max(0.0) * h;
-        (C::new(x, if up { y } else { -y } * 0.99999), r * h)
+        (Point::new(x, if up { y } else { -y } * 0.99999), r * h)
     })
 }
 
 /// A circle clear of the walls in a lane of half-width `h`: a gap to the walls of R/10 or
 /// more, up to a 90% blockage of the lane.
-fn clear_lane_circle(h: f64) -> impl Strategy<Value = (C, f64)> {
+fn clear_lane_circle(h: f64) -> impl Strategy<Value = (Point, f64)> {
     (-3.0..3.0f64, -1.0..1.0f64, 0.02..0.9f64)
-        .prop_map(move |(x, y, r)| (C::new(x, y * (1.0 - r * (1.0 + CLOSED_BELOW)) * h), r * h))
+        .prop_map(move |(x, y, r)| (Point::new(x, y * (1.0 - r * (1.0 + CLOSED_BELOW)) * h), r * h))
 }
 
 /// The band where the lane series is held to 1e-6: a convergence rate (see
@@ -346,7 +346,7 @@ proptest! {
         two in any::<bool>(),
     ) {
         let (a, b) = ((a.0 * h, a.1 * h), (b.0 * h, b.1 * h));
-        let goal = C::new(goal.re * 3.0 * h, goal.im * h * 0.99);
+        let goal = Point::new(goal.re * 3.0 * h, goal.im * h * 0.99);
         let mut obs = vec![PlanObstacle { center: a.0, velocity: va, radius: a.1 }];
         if two {
             obs.push(PlanObstacle { center: b.0, velocity: vb, radius: b.1 });
@@ -386,7 +386,7 @@ proptest! {
         let (a, r) = (a * h, r * h);
         prop_assume!(h - a.im.abs() - r < CLOSED_BELOW * r); // what is closed
         // The goal anywhere in the lane near the circle (or downstream, far from it).
-        let goal = if far { C::new(a.re + 3.0 * h, 0.0) } else { C::new(a.re + goal.re * 3.0 * h, goal.im * h * 0.99) };
+        let goal = if far { Point::new(a.re + 3.0 * h, 0.0) } else { Point::new(a.re + goal.re * 3.0 * h, goal.im * h * 0.99) };
         prop_assume!((goal - a).norm() > 1.3 * r);
         let obs = [PlanObstacle { center: a, velocity: v, radius: r }];
         let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
@@ -399,7 +399,7 @@ proptest! {
         prop_assume!(far || rate <= CONVERGENT);
         prop_assert!((planned.center - a).norm() + r <= planned.radius + 1e-12, "the planned circle covers the true one");
         prop_assert_eq!(planned.center.im.abs(), h, "centred on the wall");
-        prop_assert_eq!(planned.velocity, C::new(v.re, 0.0), "sliding along it");
+        prop_assert_eq!(planned.velocity, Point::new(v.re, 0.0), "sliding along it");
         let worst = worst_residual(&field, &planned);
         prop_assert!(worst < 1e-6, "residual {worst:.2e} on {planned:?} (h = {h})");
     }
@@ -411,13 +411,13 @@ proptest! {
     /// fails.
     #[test]
     fn standing_obstacles_are_never_entered(h in 0.1..0.5f64, (a, r) in lane_circle(1.0), y0 in -1.0..1.0f64) {
-        let (a, r) = (C::new(0.0, a.im * h), (r * h).max(0.02));
+        let (a, r) = (Point::new(0.0, a.im * h), (r * h).max(0.02));
         prop_assume!(r < 0.9 * h);
-        let goal = C::new(a.re + 3.0 * h + r, 0.0);
-        let obs = [PlanObstacle { center: a, velocity: C::default(), radius: r }];
+        let goal = Point::new(a.re + 3.0 * h + r, 0.0);
+        let obs = [PlanObstacle { center: a, velocity: Point::default(), radius: r }];
         let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
         let planned = field.obstacles()[0];
-        let mut z = C::new(a.re - r - 2.0 * h, y0 * h * 0.95);
+        let mut z = Point::new(a.re - r - 2.0 * h, y0 * h * 0.95);
         prop_assume!((z - planned.center).norm() > planned.radius);
         for _ in 0..3000 {
             let v = match field.velocity(z) {
@@ -445,11 +445,11 @@ proptest! {
 #[test]
 fn a_robot_inside_a_margin_is_steered_not_frozen() {
     let planner = Planner::new(PlannerConfig { margin: Margin::Factor { factor: 1.5 }, ..*planner(None).config() });
-    let obstacles = [ObstacleEstimate::exact(C::new(0.0, 0.0), C::new(0.0, 0.05), 0.07)];
+    let obstacles = [ObstacleEstimate::exact(Point::new(0.0, 0.0), Point::new(0.0, 0.05), 0.07)];
     // R_0 = 0.14, planned at 0.21; the robot at 0.17 from the centre, off the axis.
-    let at = C::from_polar(0.17, 2.5);
+    let at = Point::from_polar(0.17, 2.5);
     let input =
-        PlanInput { position: at, goal: C::new(1.0, 0.0), robot_radius: 0.07, obstacles: &obstacles, delay: 0.0 };
+        PlanInput { position: at, goal: Point::new(1.0, 0.0), robot_radius: 0.07, obstacles: &obstacles, delay: 0.0 };
     let mut planned = arrayvec::ArrayVec::new();
     let flags = planner.plan_obstacles(&input, &mut planned).unwrap();
     assert!(flags.margin_shrunk);
@@ -462,17 +462,17 @@ fn a_robot_inside_a_margin_is_steered_not_frozen() {
     let normal = (relative * at.conj()).re / at.norm();
     assert!(normal.abs() < 0.1 * relative.norm(), "normal {normal} of {relative}");
     // Inside the true circle: refused.
-    let inside = PlanInput { position: C::from_polar(0.13, 2.5), ..input };
+    let inside = PlanInput { position: Point::from_polar(0.13, 2.5), ..input };
     assert_eq!(planner.plan(&inside).unwrap_err(), FieldError::InsideObstacle { index: 0 });
     // A goal inside the margin: shrunk likewise; inside the true circle: refused.
-    let near_goal = PlanInput { position: C::new(-1.0, 0.0), goal: C::from_polar(0.18, 0.5), ..input };
+    let near_goal = PlanInput { position: Point::new(-1.0, 0.0), goal: Point::from_polar(0.18, 0.5), ..input };
     planner.plan_obstacles(&near_goal, &mut planned).unwrap();
     assert!((planned[0].radius - (0.18 - SHRUNK_GAP)).abs() < 1e-12, "{}", planned[0].radius);
     assert!(planner.plan(&near_goal).is_ok());
-    let blocked = PlanInput { goal: C::from_polar(0.12, 0.5), ..near_goal };
+    let blocked = PlanInput { goal: Point::from_polar(0.12, 0.5), ..near_goal };
     assert_eq!(planner.plan(&blocked).unwrap_err(), FieldError::GoalInsideObstacle { index: 0 });
     // Outside the margin: untouched.
-    let outside = PlanInput { position: C::from_polar(0.3, 2.5), ..input };
+    let outside = PlanInput { position: Point::from_polar(0.3, 2.5), ..input };
     planner.plan_obstacles(&outside, &mut planned).unwrap();
     assert!((planned[0].radius - 0.21).abs() < 1e-12);
 }
@@ -482,11 +482,13 @@ fn a_robot_inside_a_margin_is_steered_not_frozen() {
 #[test]
 fn the_margin_includes_the_prediction_uncertainty() {
     let planner = Planner::new(PlannerConfig { uncertainty_sigmas: 2.0, clearance: 0.006, ..*planner(None).config() });
-    let obstacles =
-        [ObstacleEstimate { position_sd: 0.01, ..ObstacleEstimate::exact(C::new(0.0, 0.0), C::default(), 0.07) }];
+    let obstacles = [ObstacleEstimate {
+        position_sd: 0.01,
+        ..ObstacleEstimate::exact(Point::new(0.0, 0.0), Point::default(), 0.07)
+    }];
     let input = PlanInput {
-        position: C::new(-1.0, 0.0),
-        goal: C::new(1.0, 0.0),
+        position: Point::new(-1.0, 0.0),
+        goal: Point::new(1.0, 0.0),
         robot_radius: 0.07,
         obstacles: &obstacles,
         delay: 0.0,
@@ -508,10 +510,10 @@ fn the_drawn_field_is_the_planned_one() {
     });
     // R_0 = 0.08 at y = 0.115: 5 mm from the wall, which closes the circle against it
     // unless that would take in the robot, 2 mm outside the circle by the wall.
-    let obstacles = [ObstacleEstimate::exact(C::new(0.0, 0.115), C::default(), 0.05)];
+    let obstacles = [ObstacleEstimate::exact(Point::new(0.0, 0.115), Point::default(), 0.05)];
     let input = PlanInput {
-        position: C::new(0.0, 0.197),
-        goal: C::new(1.0, 0.0),
+        position: Point::new(0.0, 0.197),
+        goal: Point::new(1.0, 0.0),
         robot_radius: 0.03,
         obstacles: &obstacles,
         delay: 0.0,
@@ -522,7 +524,7 @@ fn the_drawn_field_is_the_planned_one() {
     assert!((field.obstacles()[0].radius - 0.08).abs() < 1e-12, "left as planned");
     assert!(plan.flags.unclosed_at_a_wall && field.unclosed_at_a_wall(), "and said so");
     // Elsewhere the same circle is closed against the wall, in both.
-    let away = PlanInput { position: C::new(-0.6, 0.0), ..input };
+    let away = PlanInput { position: Point::new(-0.6, 0.0), ..input };
     let (field, _) = planner.field(&away).unwrap();
     assert!(field.obstacles()[0].radius > 0.08, "closed");
     assert!(!field.unclosed_at_a_wall() && !planner.plan(&away).unwrap().flags.unclosed_at_a_wall);

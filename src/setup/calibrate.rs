@@ -9,8 +9,8 @@
 use std::path::Path;
 use std::time::Duration;
 
+use crate::Point;
 use flowgate_protocol::psd::{Sample, SampleFlags};
-use num_complex::Complex64 as C;
 use tokio::time::Instant;
 
 use super::psd_client::{PsdClient, PsdClientError};
@@ -151,19 +151,20 @@ pub fn write_back(text: &str, fit: &Fit, note: &str) -> Result<String, String> {
 /// magnified so a millimetre shows.
 pub fn residual_svg(floor: &[[f64; 2]], fit: &Fit) -> String {
     let mut svg = Svg::new(640.0, 600.0);
-    let (lo, hi) = floor.iter().fold((C::new(f64::MAX, f64::MAX), C::new(f64::MIN, f64::MIN)), |(lo, hi), p| {
-        (C::new(lo.re.min(p[0]), lo.im.min(p[1])), C::new(hi.re.max(p[0]), hi.im.max(p[1])))
-    });
-    let pad = C::new(0.1, 0.1) * ((hi - lo).norm().max(0.1));
+    let (lo, hi) =
+        floor.iter().fold((Point::new(f64::MAX, f64::MAX), Point::new(f64::MIN, f64::MIN)), |(lo, hi), p| {
+            (Point::new(lo.re.min(p[0]), lo.im.min(p[1])), Point::new(hi.re.max(p[0]), hi.im.max(p[1])))
+        });
+    let pad = Point::new(0.1, 0.1) * ((hi - lo).norm().max(0.1));
     let axes = Axes::equal(&svg, lo - pad, hi + pad, (70.0, 50.0, 50.0, 20.0));
     axes.frame(&mut svg, "floor x (m)", "floor y (m)");
     let max_res = fit.residuals.iter().map(|r| r[0].hypot(r[1])).fold(0.0, f64::max).max(1e-6);
     // The largest residual drawn as a tenth of the span.
     let magnify = (0.1 * (hi - lo).norm().max(0.1) / max_res).round().max(1.0);
     for (p, r) in floor.iter().zip(&fit.residuals) {
-        let at = C::new(p[0], p[1]);
+        let at = Point::new(p[0], p[1]);
         axes.circle(&mut svg, at, 0.004 * (hi - lo).norm().max(0.1), "#1f77b4", 1.0, 1.0);
-        axes.polyline(&mut svg, &[at, at + C::new(r[0], r[1]) * magnify], "#d62728", 2.0, None);
+        axes.polyline(&mut svg, &[at, at + Point::new(r[0], r[1]) * magnify], "#d62728", 2.0, None);
         axes.label(&mut svg, at, &format!("{:.2} mm", 1e3 * r[0].hypot(r[1])), "#333");
     }
     svg.text(

@@ -1,6 +1,6 @@
 //! Differential-drive kinematics: wheel speeds over time in, pose out.
 
-use crate::Point;
+use crate::{wrap_angle, Point};
 
 /// The robot's pose: centre and heading (rad, from +x, counter-clockwise).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -137,20 +137,6 @@ pub fn turn(theta: f64) -> Point {
     Point::new(cos, sin)
 }
 
-/// An angle in `(-π, π]`.
-pub fn wrap_angle(a: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    if a > -PI && a <= PI {
-        return a; // the common case, every millisecond of a run: no division
-    }
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w <= -PI {
-        w + TAU
-    } else {
-        w
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -215,12 +201,5 @@ mod tests {
             assert!((turn(theta) - Point::from_polar(1.0, theta)).norm() < 2e-16, "{theta}");
         }
         assert_eq!(turn(0.7), Point::from_polar(1.0, 0.7));
-    }
-
-    #[test]
-    fn wraps_angles() {
-        assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
-        assert!((wrap_angle(-PI) - PI).abs() < 1e-12);
-        assert!((wrap_angle(0.5) - 0.5).abs() < 1e-12);
     }
 }

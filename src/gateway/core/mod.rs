@@ -53,11 +53,11 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use crate::Point;
 use flowgate_protocol::codec::StreamError;
 use flowgate_protocol::motor::{BoardState, EStopReason, FaultBits, MotorMessage, NmtCommand, Target};
 use flowgate_protocol::psd::{FaultCode, Message, Packet};
 use flowgate_protocol::CanFrame;
-use num_complex::Complex64 as C;
 
 pub mod counter_window;
 mod counters;
@@ -107,6 +107,8 @@ const FRAME_WINDOW: u32 = 1024;
 /// Consecutive frame counters beyond the window that confirm the controller's counter
 /// really moved.
 const FRAME_CONFIRM: u8 = 3;
+/// How often a lost serial line or CAN link is asked to be opened again.
+pub const REOPEN_EVERY: Duration = Duration::from_millis(200);
 /// A refused transmit asks for the adapter's status, at most this often.
 const STATUS_REPOLL: Duration = Duration::from_millis(10);
 
@@ -144,9 +146,17 @@ pub enum Output {
     PollCanStatus,
     /// The PSD controller is configured and streaming.
     Streaming,
-    /// The PSD controller could not be configured; the caller closes the line (and tries
-    /// again later, or gives up if it never streamed).
+    /// The PSD controller could not be configured; the caller closes the line and hands
+    /// the core [`Input::PsdLost`] (or gives up, if it never streamed).
     SetupFailed(SetupError),
+    /// Open the lost PSD serial line again, and hand the core [`Input::PsdConnected`] once
+    /// it is open. A failed attempt needs no answer: the core asks again every
+    /// [`REOPEN_EVERY`].
+    OpenPsd,
+    /// Open the lost CAN link again (it may take its time: an SLCAN adapter answers three
+    /// commands), and hand the core [`Input::CanReopened`] once it is open. The core asks
+    /// again every [`REOPEN_EVERY`]; an attempt still under way when it does goes on.
+    OpenCan,
 }
 
 /// One LED's sample in the frame being collected.
@@ -245,6 +255,9 @@ pub struct Core<K: StageClock> {
     second_master_heard: Option<HostTime>,
     /// The CAN link is open (not failed or down since it last opened).
     can_link_up: bool,
+    /// When to ask for the lost PSD line, and the lost CAN link, to be opened again.
+    psd_reopen_at: HostTime,
+    can_reopen_at: HostTime,
     next_heartbeat: HostTime,
     stopping_since: Option<HostTime>,
     velocity_seq: u8,
@@ -299,6 +312,8 @@ impl<K: StageClock> Core<K> {
             rehandshake: false,
             second_master_heard: None,
             can_link_up: true,
+            psd_reopen_at: HostTime::NEVER,
+            can_reopen_at: HostTime::NEVER,
             next_heartbeat: HostTime::ZERO,
             stopping_since: None,
             velocity_seq: 0,
@@ -365,7 +380,7 @@ impl<K: StageClock> Core<K> {
 
     /// When the core next needs an [`Input::Tick`], whatever else happens.
     pub fn next_deadline(&self) -> HostTime {
-        let mut next = self.next_heartbeat.min(self.psd.deadline());
+        let mut next = self.next_heartbeat.min(self.psd.deadline()).min(self.psd_reopen_at).min(self.can_reopen_at);
         let state = self.state();
         if is_active(state) {
             next = next.min(self.last_sample + self.rig.safety.sample_timeout);
@@ -426,12 +441,16 @@ impl<K: StageClock> Core<K> {
 
     /// The PSD line opened: configure the controller.
     fn psd_connected(&mut self, now: HostTime) {
+        self.psd_reopen_at = HostTime::NEVER;
         let out = &mut self.out;
         self.psd.connect(now, &mut |p| out.push_back(Output::Psd(p)));
     }
 
     /// The PSD line failed (read error, end of file, write timeout): a serial fault.
     fn psd_lost(&mut self, now: HostTime) {
+        if self.psd_reopen_at == HostTime::NEVER {
+            self.psd_reopen_at = now + REOPEN_EVERY;
+        }
         self.psd.down();
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
         self.stop(now, StopReason::SerialLost);
@@ -497,7 +516,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
             CanEvent::InterfaceDown => {
-                self.can_link_up = false;
+                self.can_lost(now);
                 self.stop(now, StopReason::CanInterfaceDown);
             }
         }
@@ -505,14 +524,24 @@ impl<K: StageClock> Core<K> {
 
     /// The CAN link failed (a write error or timeout, the adapter gone).
     fn can_failed(&mut self, now: HostTime) {
-        self.can_link_up = false;
+        self.can_lost(now);
         self.stop(now, StopReason::CanLinkLost);
+    }
+
+    /// The CAN link is gone: ask for it again a little later (once per loss: a link
+    /// failing again while it is lost changes nothing).
+    fn can_lost(&mut self, now: HostTime) {
+        if self.can_link_up {
+            self.can_reopen_at = now + REOPEN_EVERY;
+        }
+        self.can_link_up = false;
     }
 
     /// The CAN link is open again after a loss (the core stays faulted until reset).
     fn can_reopened(&mut self) {
         self.counters.can_reconnects += 1;
         self.can_link_up = true;
+        self.can_reopen_at = HostTime::NEVER;
     }
 
     /// An operator's request at `now`. Refusals say exactly why and change nothing.
@@ -697,7 +726,7 @@ impl<K: StageClock> Core<K> {
         for (index, g) in goals.iter().enumerate() {
             let [x, y] = g.position;
             let bad = |why: String| Refusal::BadGoal { index, x, y, why };
-            let at = C::new(x, y);
+            let at = Point::new(x, y);
             if !(x.is_finite() && y.is_finite() && g.tolerance.is_finite() && g.tolerance > 0.0) {
                 return Err(bad("position and tolerance must be finite, the tolerance positive".into()));
             }
@@ -710,7 +739,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
             for o in &obstacles {
-                let gap = (at - C::new(o.position[0], o.position[1])).norm();
+                let gap = (at - Point::new(o.position[0], o.position[1])).norm();
                 if gap <= o.planning_radius {
                     return Err(bad(format!(
                         "inside obstacle LED {}'s planning circle ({gap:.3} m from it, radius {:.3} m)",
@@ -722,7 +751,7 @@ impl<K: StageClock> Core<K> {
         self.goals.clear();
         self.goals.extend(goals.iter().copied());
         let first = goals[0];
-        self.control.set_goal(C::new(first.position[0], first.position[1]), first.tolerance);
+        self.control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
         Ok(())
     }
 
@@ -778,6 +807,14 @@ impl<K: StageClock> Core<K> {
         let out = &mut self.out;
         if let Some(e) = self.psd.tick(now, &mut |p| out.push_back(Output::Psd(p))) {
             self.out.push_back(Output::SetupFailed(e));
+        }
+        if now >= self.psd_reopen_at {
+            self.psd_reopen_at = now + REOPEN_EVERY;
+            self.out.push_back(Output::OpenPsd);
+        }
+        if now >= self.can_reopen_at {
+            self.can_reopen_at = now + REOPEN_EVERY;
+            self.out.push_back(Output::OpenCan);
         }
         if let Some(reason) = self.watchdog(now) {
             self.stop(now, reason);
@@ -1206,7 +1243,15 @@ impl<K: StageClock> Core<K> {
     }
 
     /// A cycle's record, its stage timings left at zero.
-    fn record(&mut self, now: HostTime, frame: u32, end: CtrlTime, pulses: [i32; 2], delay: f64, at: C) -> CycleRecord {
+    fn record(
+        &mut self,
+        now: HostTime,
+        frame: u32,
+        end: CtrlTime,
+        pulses: [i32; 2],
+        delay: f64,
+        at: Point,
+    ) -> CycleRecord {
         CycleRecord {
             cycle: self.counters.cycles,
             frame,
@@ -1229,7 +1274,7 @@ impl<K: StageClock> Core<K> {
         match self.goals.front() {
             Some(next) => {
                 tracing::info!("goal reached; next goal ({}, {})", next.position[0], next.position[1]);
-                self.control.set_goal(C::new(next.position[0], next.position[1]), next.tolerance);
+                self.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
             }
             None => {
                 self.start_requested = false;
@@ -1309,7 +1354,7 @@ impl<K: StageClock> Core<K> {
         self.clear_frame();
     }
 
-    fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: C) {
+    fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
         let encode_start = self.clock.now_ns();
         let message =
             MotorMessage::Velocity { node: self.rig.node, left: pulses[0], right: pulses[1], seq: self.velocity_seq };
@@ -1597,7 +1642,7 @@ mod tests {
         let cal = core.rig().calibration;
         let mut out = Vec::new();
         for (slot, led, x) in [(0u8, 1u8, 0.035), (1, 2, -0.035)] {
-            let (rx, ry) = cal.to_raw(C::new(x, 0.0)).unwrap();
+            let (rx, ry) = cal.to_raw(Point::new(x, 0.0)).unwrap();
             let s = Sample {
                 frame: n,
                 slot,
@@ -1758,7 +1803,7 @@ mod tests {
         commands(&mut c);
         let cal = c.rig().calibration;
         let sample = |slot: u8, led: u8, x: f64| {
-            let (rx, ry) = cal.to_raw(C::new(x, 0.0)).unwrap();
+            let (rx, ry) = cal.to_raw(Point::new(x, 0.0)).unwrap();
             Message::Sample(Sample {
                 frame: 7,
                 slot,

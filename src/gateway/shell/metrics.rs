@@ -61,6 +61,15 @@ const STATES: [&str; 6] = ["idle", "armed", "running", "stopping", "stopped", "f
 /// The snapshot in the Prometheus text format.
 pub fn render(s: &Snapshot) -> String {
     let mut out = String::with_capacity(4096);
+    write_counters(&mut out, s);
+    write_stops(&mut out, s);
+    write_gauges(&mut out, s);
+    write_latency(&mut out, &s.e2e_ns);
+    out
+}
+
+/// The counters of everything unusual, each a `_total` family.
+fn write_counters(out: &mut String, s: &Snapshot) {
     let c = &s.counters;
     let mut counter = |name: &str, help: &str, samples: &[(&str, u64)]| {
         let _ = writeln!(out, "# HELP flowgate_{name}_total {help}");
@@ -143,6 +152,10 @@ pub fn render(s: &Snapshot) -> String {
     counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
 
     counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);
+}
+
+/// Faults and orderly stops, by reason.
+fn write_stops(out: &mut String, s: &Snapshot) {
     for (family, help, faults) in
         [("faults", "Faults (latched until reset), by reason.", true), ("stops", "Orderly stops, by reason.", false)]
     {
@@ -152,6 +165,10 @@ pub fn render(s: &Snapshot) -> String {
             let _ = writeln!(out, "flowgate_{family}_total{{reason=\"{reason}\"}} {n}");
         }
     }
+}
+
+/// The safety state and the uptime.
+fn write_gauges(out: &mut String, s: &Snapshot) {
     let _ = writeln!(out, "# HELP flowgate_state The safety state (1 for the current one).");
     let _ = writeln!(out, "# TYPE flowgate_state gauge");
     let now = s.state.name();
@@ -161,8 +178,10 @@ pub fn render(s: &Snapshot) -> String {
     let _ = writeln!(out, "# HELP flowgate_uptime_seconds Seconds since the gateway started.");
     let _ = writeln!(out, "# TYPE flowgate_uptime_seconds gauge");
     let _ = writeln!(out, "flowgate_uptime_seconds {:.3}", s.uptime_s);
+}
 
-    let h = &s.e2e_ns;
+/// The end-to-end latency as a cumulative histogram.
+fn write_latency(out: &mut String, h: &Histogram<u64>) {
     let _ = writeln!(
         out,
         "# HELP flowgate_cycle_latency_seconds End-to-end cycle latency: serial frame read to CAN write done."
@@ -179,7 +198,6 @@ pub fn render(s: &Snapshot) -> String {
         h.iter_recorded().map(|v| v.value_iterated_to() as f64 * v.count_at_value() as f64).sum::<f64>() / 1e9;
     let _ = writeln!(out, "flowgate_cycle_latency_seconds_sum {sum_s}");
     let _ = writeln!(out, "flowgate_cycle_latency_seconds_count {}", h.len());
-    out
 }
 
 /// Serve `/metrics` on `listener` from the latest snapshot, until the channel closes.

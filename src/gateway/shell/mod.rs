@@ -1,9 +1,17 @@
-//! The tokio shell around the [`Core`] on a rig: it opens the links, reads the PSD serial
-//! line and the CAN bus, writes what the core asks (every write under a deadline), sleeps
-//! until the core's next deadline, and reopens a lost serial line or CAN link. All decisions are the
-//! core's; the shell only moves bytes and reads the clock.
+//! The tokio shell around the [`Core`] on a rig, a short driver of named steps in the manner
+//! of quinn's connection driver:
+//!
+//! 1. [`run`] opens the links and starts the services (`services.rs`);
+//! 2. then, until the core is finished: carry out what the core asks (`drain`), publish the
+//!    statistics and the scene when due (`wake_at`), wait for the next event or the core's
+//!    deadline (`next_event`), and hand it to the core (`take`);
+//! 3. finally stop the services and report (`finish`).
+//!
+//! Every decision is the core's, including when a lost line is opened again
+//! ([`Output::OpenPsd`], [`Output::OpenCan`]); the shell moves bytes, reads the clock, puts a
+//! deadline on every write and measures how long each takes.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -19,20 +27,22 @@ pub mod low_latency;
 pub mod metrics;
 pub mod realtime;
 pub mod recording;
+pub mod report;
+mod services;
 pub mod systemd;
 pub mod telemetry;
 pub mod view;
 
-use control_socket::{Command, ControlSocket, Reply};
+use control_socket::{Command, Reply};
 use low_latency::{SpinWindow, Wait};
-use recording::{McapSink, RecordingSetup};
+pub use report::Report;
+use services::Services;
 use systemd::Notifier;
-use telemetry::{CanRecord, Record, Recorder, Sinks, Timing};
+use telemetry::{CanRecord, Record, Timing};
 
 use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
 use super::core::operator::Request;
 use super::core::{Core, Output, Progress, SetupError, StageClock, State};
-use super::Report;
 use crate::config::Rig;
 use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl, SerialError};
 use crate::time::HostTime;
@@ -44,8 +54,6 @@ const PSD_WRITE_DEADLINE: Duration = Duration::from_millis(50);
 const CAN_WRITE_DEADLINE: Duration = Duration::from_millis(50);
 /// Deadline of opening the CAN link (an SLCAN adapter answers three commands).
 const CAN_OPEN_DEADLINE: Duration = Duration::from_secs(5);
-/// How often a lost serial line or CAN link is tried again.
-const REOPEN_EVERY: Duration = Duration::from_millis(200);
 
 /// What the loop is told from outside.
 #[derive(Debug)]
@@ -57,12 +65,14 @@ pub struct Controls {
     pub arm_at_start: bool,
     requests: mpsc::Receiver<Command>,
     sender: mpsc::Sender<Command>,
+    /// Shutdown was asked for and handed to the core.
+    shutdown_seen: bool,
 }
 
 impl Controls {
     pub fn new(shutdown: watch::Receiver<bool>, arm_at_start: bool) -> Self {
         let (sender, requests) = mpsc::channel(control_socket::QUEUE);
-        Self { shutdown, arm_at_start, requests, sender }
+        Self { shutdown, arm_at_start, requests, sender, shutdown_seen: false }
     }
 
     /// Where operator requests go (the control socket uses one too).
@@ -81,39 +91,115 @@ impl StageClock for Monotonic {
     }
 }
 
-/// The shell's I/O: the links, the telemetry queue, the timing summary.
+/// Run the gateway until shutdown. Startup failures are returned; everything after is
+/// handled by the core's safety state machine and reported.
+pub async fn run(
+    rig: Rig,
+    mut controls: Controls,
+    progress: Option<watch::Sender<Progress>>,
+) -> Result<Report, GatewayError> {
+    let origin = Instant::now();
+    let notifier = Notifier::from_env()?;
+    let can = match timeout(CAN_OPEN_DEADLINE, open_can(&rig.can)).await {
+        Ok(link) => link?,
+        Err(_) => return Err(CanError::Timeout { what: "open" }.into()),
+    };
+    let psd = open_serial(&rig.serial.port, rig.serial.baud)?;
+    let services = Services::start(&rig, origin, controls.sender())?;
+    // On the loop's thread, once everything is open (the writer thread keeps the normal
+    // policy) and before the first cycle.
+    if !rig.realtime.is_empty() {
+        realtime::apply(&rig.realtime)?;
+        tracing::info!("real-time settings: {}", rig.realtime);
+    }
+    let mut io = Io::new(&rig, origin, psd, can, services, progress, notifier);
+    let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
+    io.begin(&mut core, &mut controls);
+    loop {
+        io.drain(&mut core).await?;
+        if core.finished() {
+            break;
+        }
+        let wake = io.wake_at(&core);
+        let event = io.next_event(&mut controls, wake).await;
+        io.take(&mut core, &mut controls, event);
+    }
+    Ok(io.finish(&core).await)
+}
+
+/// What woke the loop.
+enum Event {
+    /// A read from the PSD line: bytes in the read buffer, or the line failed.
+    PsdRead(std::io::Result<usize>),
+    /// An event from the CAN link, or its failure.
+    Can(Result<CanEvent, CanError>),
+    /// A reopen of the CAN link ended.
+    CanOpened(Result<CanLink, CanError>),
+    /// The core's deadline (or a service's) came.
+    Deadline,
+    /// An operator's request.
+    Request(Command),
+    /// The low-latency window's pause ended: poll again.
+    Spin,
+    /// Shutdown was asked for (or nobody is left to ask).
+    Shutdown,
+}
+
+/// The shell's I/O: the links, the services, the timing summary.
 struct Io {
     origin: Instant,
     port: String,
+    serial: crate::config::SerialConfig,
     psd: Option<tokio_serial::SerialStream>,
+    /// One read is one input (a recording holds it whole).
+    read_buf: [u8; PSD_CHUNK],
     /// The CAN link; `None` while it is lost and being reopened.
     can: Option<CanLink>,
     can_url: CanUrl,
     /// A reopen in flight: opening an SLCAN adapter waits on its answers, so it runs as its
     /// own task and the loop keeps ticking the core meanwhile.
     can_opening: Option<tokio::task::JoinHandle<Result<CanLink, CanError>>>,
-    next_can_reopen: HostTime,
-    recorder: Recorder,
+    services: Services,
     timing: Timing,
     progress: Option<watch::Sender<Progress>>,
     sample_period: Duration,
-    next_reopen: HostTime,
     /// The low-latency mode's window, when it is on.
     spin: Option<SpinWindow>,
     /// Where the operator's stats window starts (`ctl stats --reset`); none: the run's start.
     stats_from: Option<Timing>,
     /// systemd's notification socket, when it started the gateway.
     notifier: Option<Notifier>,
-    /// `/metrics` and the view's statistics: where the loop publishes its snapshot, and
-    /// when it next does.
-    metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
-    /// The live view: where the loop publishes its scene, and when it next does.
-    view: Option<(view::ViewPublisher, HostTime)>,
-    /// Inputs handed to the core while recording (each record's `seq`).
-    inputs_taken: Arc<AtomicU64>,
 }
 
 impl Io {
+    fn new(
+        rig: &Rig,
+        origin: Instant,
+        psd: tokio_serial::SerialStream,
+        can: CanLink,
+        services: Services,
+        progress: Option<watch::Sender<Progress>>,
+        notifier: Option<Notifier>,
+    ) -> Self {
+        Self {
+            origin,
+            port: rig.serial.port.display().to_string(),
+            serial: rig.serial.clone(),
+            psd: Some(psd),
+            read_buf: [0; PSD_CHUNK],
+            can: Some(can),
+            can_url: rig.can.clone(),
+            can_opening: None,
+            services,
+            timing: Timing::default(),
+            progress,
+            sample_period: rig.sample_period,
+            spin: rig.spin.map(SpinWindow::new),
+            stats_from: None,
+            notifier,
+        }
+    }
+
     fn now(&self) -> HostTime {
         HostTime::from_nanos(self.origin.elapsed().as_nanos() as u64)
     }
@@ -126,18 +212,111 @@ impl Io {
 
     /// Hand the core an input, recording it first when a recording is on.
     fn feed<K: StageClock>(&mut self, core: &mut Core<K>, now: HostTime, input: Input<'_>) -> Option<Answer> {
-        if self.recorder.recording() {
-            let seq = self.inputs_taken.fetch_add(1, Ordering::Relaxed);
-            self.recorder.record(Record::Input(InputRecord { seq, at: now, input: RecordedInput::of(input) }));
+        let recorder = &mut self.services.recorder;
+        if recorder.recording() {
+            let seq = self.services.inputs_taken.fetch_add(1, Ordering::Relaxed);
+            recorder.record(Record::Input(InputRecord { seq, at: now, input: RecordedInput::of(input) }));
         }
         core.handle(now, input)
     }
 
-    fn lose_psd<K: StageClock>(&mut self, core: &mut Core<K>) {
-        self.psd = None;
-        let now = self.now();
-        self.next_reopen = now + REOPEN_EVERY;
-        self.feed(core, now, Input::PsdLost);
+    /// The first inputs: arm at start when asked, the PSD line open, a shutdown asked for
+    /// before the loop began.
+    fn begin<K: StageClock>(&mut self, core: &mut Core<K>, controls: &mut Controls) {
+        if controls.arm_at_start {
+            self.feed(core, self.now(), Input::ArmAtStart);
+        }
+        self.feed(core, self.now(), Input::PsdConnected);
+        if *controls.shutdown.borrow() {
+            self.shut_down(core, controls);
+        }
+    }
+
+    /// When to wake if nothing happens: the core's deadline, a publication, the watchdog's
+    /// notification. The watchdog is fed from here, the loop itself: a wedged loop starves it.
+    fn wake_at<K: StageClock>(&mut self, core: &Core<K>) -> Instant {
+        let publish_at = self.publish_metrics(core).min(self.publish_view(core));
+        let mut wake = self.instant(core.next_deadline().min(publish_at));
+        if let Some(n) = &mut self.notifier {
+            n.alive(std::time::Instant::now());
+            wake = wake.min(n.next_due().map_or(wake, Instant::from_std));
+        }
+        wake
+    }
+
+    /// Wait for the next event, or `wake`.
+    async fn next_event(&mut self, controls: &mut Controls, wake: Instant) -> Event {
+        let spin = self.spin.as_ref().map_or(Wait::Sleep, |s| s.wait(std::time::Instant::now()));
+        let Io { psd, read_buf, can, can_opening, .. } = self;
+        let shutdown_seen = controls.shutdown_seen;
+        tokio::select! {
+            read = async {
+                match psd.as_mut() {
+                    Some(port) => port.read(read_buf).await,
+                    None => std::future::pending().await,
+                }
+            } => Event::PsdRead(read),
+            event = async {
+                match can.as_mut() {
+                    Some(can) => can.recv().await,
+                    None => std::future::pending().await,
+                }
+            } => Event::Can(event),
+            opened = async {
+                match can_opening.as_mut() {
+                    Some(task) => task.await.unwrap_or(Err(CanError::Closed)),
+                    None => std::future::pending().await,
+                }
+            } => Event::CanOpened(opened),
+            _ = tokio::time::sleep_until(wake) => Event::Deadline,
+            Some(cmd) = controls.requests.recv() => Event::Request(cmd),
+            // Low-latency mode: poll for the frame due now instead of sleeping to it.
+            () = spin.pause() => Event::Spin,
+            changed = controls.shutdown.changed(), if !shutdown_seen => {
+                // A dropped sender is a shutdown too: nobody is left to ask for one.
+                if changed.is_err() || *controls.shutdown.borrow() { Event::Shutdown } else { Event::Spin }
+            }
+        }
+    }
+
+    /// Hand an event to the core (or to the shell's own bookkeeping).
+    fn take<K: StageClock>(&mut self, core: &mut Core<K>, controls: &mut Controls, event: Event) {
+        match event {
+            Event::PsdRead(Ok(n)) if n > 0 => {
+                let now = self.now();
+                let read_buf = self.read_buf;
+                self.feed(core, now, Input::PsdBytes(&read_buf[..n]));
+            }
+            Event::PsdRead(_) => {
+                tracing::error!("serial line lost; reconnecting");
+                self.lose_psd(core);
+            }
+            Event::Can(Ok(event)) => {
+                if let CanEvent::Frame(frame) = event {
+                    self.services.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: false }));
+                }
+                self.feed(core, self.now(), Input::Can(event));
+            }
+            Event::Can(Err(e)) => {
+                tracing::error!("CAN link: {e}; reopening");
+                self.lose_can(core);
+            }
+            Event::CanOpened(opened) => self.can_opened(core, opened),
+            Event::Deadline => {
+                self.feed(core, self.now(), Input::Tick);
+            }
+            Event::Request(cmd) => self.answer(core, cmd),
+            Event::Spin => {}
+            Event::Shutdown => self.shut_down(core, controls),
+        }
+    }
+
+    fn shut_down<K: StageClock>(&mut self, core: &mut Core<K>, controls: &mut Controls) {
+        controls.shutdown_seen = true;
+        if let Some(n) = &mut self.notifier {
+            n.stopping();
+        }
+        self.feed(core, self.now(), Input::Shutdown);
     }
 
     /// Carry out everything the core has asked for. A startup failure ends the run.
@@ -145,8 +324,8 @@ impl Io {
         while let Some(output) = core.poll() {
             match output {
                 Output::Psd(packet) => {
-                    if self.recorder.recording() {
-                        self.recorder.record(Record::PsdSent { at: self.now(), packet });
+                    if self.services.recorder.recording() {
+                        self.services.recorder.record(Record::PsdSent { at: self.now(), packet });
                     }
                     if self.write_psd(packet).await.is_err() {
                         tracing::error!("serial write failed or timed out; reconnecting");
@@ -158,55 +337,9 @@ impl Io {
                         self.lose_can(core);
                     }
                 }
-                Output::Command { frame, mut record } => {
-                    if let Some(spin) = &mut self.spin {
-                        spin.frame(self.origin.into_std() + Duration::from_nanos(record.rx_ns));
-                    }
-                    let started = Instant::now();
-                    let sent = self.send_can(frame).await;
-                    record.written(started.elapsed().as_nanos() as u64, self.now(), self.sample_period);
-                    self.timing.add(&record);
-                    self.recorder.record(Record::Cycle(record));
-                    if self.recorder.recording() {
-                        self.recorder.record(Record::Scene(core.scene(HostTime::from_nanos(record.rx_ns))));
-                    }
-                    if let Some(tx) = &self.progress {
-                        // Sampled by displays at their own pace: no wake-up per cycle.
-                        tx.send_if_modified(|p| {
-                            *p = core.progress();
-                            p.e2e_us = record.e2e_ns as f64 / 1e3;
-                            false
-                        });
-                    }
-                    if sent.is_err() {
-                        self.lose_can(core);
-                    }
-                }
-                Output::State { state, at } => {
-                    tracing::info!("state: {state}");
-                    if let Some(n) = &mut self.notifier {
-                        n.status(&state.to_string());
-                    }
-                    self.recorder.record(Record::Event(telemetry::EventRecord {
-                        at_s: at.secs(),
-                        text: format!("state: {state}"),
-                    }));
-                    if let Some(tx) = &self.progress {
-                        let p = core.progress();
-                        tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
-                    }
-                }
-                Output::PollCanStatus => {
-                    let Some(can) = &mut self.can else { continue };
-                    let polled = match timeout(CAN_WRITE_DEADLINE, can.poll_status()).await {
-                        Ok(r) => r,
-                        Err(_) => Err(CanError::Timeout { what: "status poll" }),
-                    };
-                    if let Err(e) = polled {
-                        tracing::error!("CAN status poll: {e}");
-                        self.lose_can(core);
-                    }
-                }
+                Output::Command { frame, record } => self.command(core, frame, record).await,
+                Output::State { state, at } => self.state_changed(core, state, at),
+                Output::PollCanStatus => self.poll_can_status(core).await,
                 Output::Streaming => {
                     if let Some(n) = &mut self.notifier {
                         n.ready(&core.state().to_string());
@@ -223,9 +356,68 @@ impl Io {
                     tracing::warn!("serial reconnect: {e}");
                     self.lose_psd(core);
                 }
+                Output::OpenPsd => self.reopen_psd(core),
+                Output::OpenCan => self.reopen_can(),
             }
         }
         Ok(())
+    }
+
+    /// A cycle's command: write it, complete its timing record, and show it.
+    async fn command<K: StageClock>(
+        &mut self,
+        core: &mut Core<K>,
+        frame: CanFrame,
+        mut record: telemetry::CycleRecord,
+    ) {
+        if let Some(spin) = &mut self.spin {
+            spin.frame(self.origin.into_std() + Duration::from_nanos(record.rx_ns));
+        }
+        let started = Instant::now();
+        let sent = self.send_can(frame).await;
+        record.written(started.elapsed().as_nanos() as u64, self.now(), self.sample_period);
+        self.timing.add(&record);
+        let recorder = &mut self.services.recorder;
+        recorder.record(Record::Cycle(record));
+        if recorder.recording() {
+            recorder.record(Record::Scene(core.scene(HostTime::from_nanos(record.rx_ns))));
+        }
+        if let Some(tx) = &self.progress {
+            // Sampled by displays at their own pace: no wake-up per cycle.
+            tx.send_if_modified(|p| {
+                *p = core.progress();
+                p.e2e_us = record.e2e_ns as f64 / 1e3;
+                false
+            });
+        }
+        if sent.is_err() {
+            self.lose_can(core);
+        }
+    }
+
+    fn state_changed<K: StageClock>(&mut self, core: &Core<K>, state: State, at: HostTime) {
+        tracing::info!("state: {state}");
+        if let Some(n) = &mut self.notifier {
+            n.status(&state.to_string());
+        }
+        let text = format!("state: {state}");
+        self.services.recorder.record(Record::Event(telemetry::EventRecord { at_s: at.secs(), text }));
+        if let Some(tx) = &self.progress {
+            let p = core.progress();
+            tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
+        }
+    }
+
+    async fn poll_can_status<K: StageClock>(&mut self, core: &mut Core<K>) {
+        let Some(can) = &mut self.can else { return };
+        let polled = match timeout(CAN_WRITE_DEADLINE, can.poll_status()).await {
+            Ok(r) => r,
+            Err(_) => Err(CanError::Timeout { what: "status poll" }),
+        };
+        if let Err(e) = polled {
+            tracing::error!("CAN status poll: {e}");
+            self.lose_can(core);
+        }
     }
 
     async fn write_psd(&mut self, packet: Packet) -> std::io::Result<()> {
@@ -237,8 +429,8 @@ impl Io {
 
     async fn send_can(&mut self, frame: CanFrame) -> Result<(), CanError> {
         let Some(can) = &mut self.can else {
-            if self.recorder.recording() {
-                self.recorder.record(Record::CanUnwritten { at: self.now(), frame });
+            if self.services.recorder.recording() {
+                self.services.recorder.record(Record::CanUnwritten { at: self.now(), frame });
             }
             return Err(CanError::Closed);
         };
@@ -246,7 +438,7 @@ impl Io {
             Ok(r) => r,
             Err(_) => Err(CanError::Timeout { what: "write" }),
         };
-        self.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: true }));
+        self.services.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: true }));
         if let Err(e) = &result {
             tracing::error!("CAN write: {e}");
         }
@@ -254,22 +446,18 @@ impl Io {
     }
 
     /// An operator's request: the core decides, the peer gets the answer and the state.
-    fn handle<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
+    fn answer<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
         let now = self.now();
         let Some(Answer { result, status }) = self.feed(core, now, Input::Request(&cmd.request)) else { return };
         let status = status.map(|mut status| {
-            status.latency_us = (self.timing.cycles > 0).then(|| self.timing.e2e());
-            if let Request::Stats { reset } = cmd.request {
-                let window = match &self.stats_from {
-                    Some(base) => self.timing.since(base),
-                    None => self.timing.clone(),
-                };
-                status.latency_us = (window.cycles > 0).then(|| window.e2e());
-                status.stages = Some(window.stages());
-                if reset {
-                    self.stats_from = Some(self.timing.clone());
-                }
-            }
+            // The write times are the shell's to measure: it adds them to the answer.
+            let window = match cmd.request {
+                Request::Stats { reset } => Some(self.stats_window(reset)),
+                _ => None,
+            };
+            let whole = (self.timing.cycles > 0).then(|| self.timing.e2e());
+            status.latency_us = window.as_ref().map_or(whole, |w| (w.cycles > 0).then(|| w.e2e()));
+            status.stages = window.map(|w| w.stages());
             status
         });
         let text = match &result {
@@ -281,7 +469,7 @@ impl Io {
                 Ok(()) => tracing::info!("{text}"),
                 Err(_) => tracing::warn!("{text}"),
             }
-            self.recorder.record(Record::Event(telemetry::EventRecord { at_s: now.secs(), text }));
+            self.services.recorder.record(Record::Event(telemetry::EventRecord { at_s: now.secs(), text }));
         }
         let reply = match result {
             Ok(()) => Reply { ok: true, error: None, status },
@@ -290,14 +478,29 @@ impl Io {
         let _ = cmd.reply.send(reply);
     }
 
+    /// The cycles since the operator's last `stats --reset` (or the start); with `reset`,
+    /// a new window starts after this one.
+    fn stats_window(&mut self, reset: bool) -> Timing {
+        let window = match &self.stats_from {
+            Some(base) => self.timing.since(base),
+            None => self.timing.clone(),
+        };
+        if reset {
+            self.stats_from = Some(self.timing.clone());
+        }
+        window
+    }
+
     /// Publish a metrics snapshot when one is due (about once a second: a copy of the
     /// counters and the latency histogram, never per cycle). Returns when the next is due.
     fn publish_metrics<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
         let now = self.now();
-        let Some((tx, next)) = &mut self.metrics else { return HostTime::NEVER };
+        let view_frames_dropped = self.services.view.as_ref().map_or(0, |(v, _)| v.dropped.load(Ordering::Relaxed));
+        let telemetry_dropped = self.services.recorder.dropped();
+        let Some((tx, next)) = &mut self.services.metrics else { return HostTime::NEVER };
         if now >= *next {
             let mut counters = core.counters();
-            counters.telemetry_dropped = self.recorder.dropped();
+            counters.telemetry_dropped = telemetry_dropped;
             tx.send_replace(Arc::new(metrics::Snapshot {
                 state: core.state(),
                 counters,
@@ -305,7 +508,7 @@ impl Io {
                 deadline_misses: self.timing.deadline_misses,
                 uptime_s: now.secs(),
                 stops: stops_by_reason(core),
-                view_frames_dropped: self.view.as_ref().map_or(0, |(v, _)| v.dropped.load(Ordering::Relaxed)),
+                view_frames_dropped,
             }));
             *next = now + metrics::PUBLISH_EVERY;
         }
@@ -316,7 +519,7 @@ impl Io {
     /// allocation). Returns when the next is due.
     fn publish_view<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
         let now = self.now();
-        let Some((publisher, next)) = &mut self.view else { return HostTime::NEVER };
+        let Some((publisher, next)) = &mut self.services.view else { return HostTime::NEVER };
         if now >= *next {
             let scene = core.scene(now);
             publisher.publish(view::ViewSnapshot { scene, state: core.state(), cycles: core.counters().cycles });
@@ -325,27 +528,36 @@ impl Io {
         *next
     }
 
-    /// The CAN link failed: fault the core (named for the link), drop the link and reopen
-    /// it every `REOPEN_EVERY`. The core stays faulted: an operator resets and arms again.
+    /// The serial line failed: close it and tell the core (which asks for it again).
+    fn lose_psd<K: StageClock>(&mut self, core: &mut Core<K>) {
+        self.psd = None;
+        self.feed(core, self.now(), Input::PsdLost);
+    }
+
+    /// The CAN link failed: drop it and tell the core, naming an interface that went down
+    /// (the core stays faulted until an operator resets it, and asks for the link again).
     fn lose_can<K: StageClock>(&mut self, core: &mut Core<K>) {
-        let now = self.now();
-        // A SocketCAN interface that went down or away is named as such, not as the link.
         let down = matches!(&self.can_url, CanUrl::SocketCan { interface } if crate::link::interface_down(interface));
-        self.feed(core, now, if down { Input::Can(CanEvent::InterfaceDown) } else { Input::CanFailed });
-        if self.can.take().is_some() {
-            self.next_can_reopen = now + REOPEN_EVERY;
+        self.can = None;
+        self.feed(core, self.now(), if down { Input::Can(CanEvent::InterfaceDown) } else { Input::CanFailed });
+    }
+
+    /// The core asks for the serial line again: try once.
+    fn reopen_psd<K: StageClock>(&mut self, core: &mut Core<K>) {
+        if self.psd.is_some() {
+            return;
+        }
+        if let Ok(port) = open_serial(&self.serial.port, self.serial.baud) {
+            self.psd = Some(port);
+            self.feed(core, self.now(), Input::PsdConnected);
         }
     }
 
-    /// The service is stopping in order (SIGINT, SIGTERM).
-    fn stopping(&mut self) {
-        if let Some(n) = &mut self.notifier {
-            n.stopping();
-        }
-    }
-
+    /// The core asks for the CAN link again: open it in a task (an attempt under way goes on).
     fn reopen_can(&mut self) {
-        self.next_can_reopen = HostTime::NEVER;
+        if self.can.is_some() || self.can_opening.is_some() {
+            return;
+        }
         let url = self.can_url.clone();
         self.can_opening = Some(tokio::spawn(async move {
             timeout(CAN_OPEN_DEADLINE, open_can(&url)).await.unwrap_or(Err(CanError::Timeout { what: "open" }))
@@ -360,21 +572,19 @@ impl Io {
                 self.can = Some(link);
                 self.feed(core, self.now(), Input::CanReopened);
             }
-            Err(e) => {
-                tracing::debug!("CAN reopen: {e}");
-                self.next_can_reopen = self.now() + REOPEN_EVERY;
-            }
+            Err(e) => tracing::debug!("CAN reopen: {e}"),
         }
     }
 
-    fn reopen<K: StageClock>(&mut self, core: &mut Core<K>, path: &std::path::Path, baud: u32) {
-        let now = self.now();
-        self.next_reopen = now + REOPEN_EVERY;
-        if let Ok(port) = open_serial(path, baud) {
-            self.psd = Some(port);
-            self.next_reopen = HostTime::NEVER;
-            self.feed(core, now, Input::PsdConnected);
+    /// Stop the services, wait for the telemetry's files, and report.
+    async fn finish<K: StageClock>(mut self, core: &Core<K>) -> Report {
+        if let Some(task) = self.can_opening.take() {
+            task.abort();
         }
+        let dropped = self.services.recorder.dropped();
+        let timing = std::mem::take(&mut self.timing);
+        let files = self.services.finish().await;
+        Report::new(core, Some(&timing), dropped, files)
     }
 }
 
@@ -398,238 +608,8 @@ fn stops_by_reason<K: StageClock>(core: &Core<K>) -> Vec<(String, bool, u64)> {
     out
 }
 
-/// The telemetry writer, when the rig asks for a directory of files or a recording.
-#[allow(clippy::type_complexity)]
-fn start_telemetry(
-    rig: &Rig,
-    origin: Instant,
-    inputs_taken: Arc<AtomicU64>,
-) -> Result<(Recorder, Option<tokio::task::JoinHandle<std::io::Result<telemetry::WrittenFiles>>>), GatewayError> {
-    let interface = match &rig.can {
-        CanUrl::SocketCan { interface } => interface.clone(),
-        _ => "slcan0".to_string(),
-    };
-    let failed = |path: &std::path::Path| {
-        let path = path.display().to_string();
-        move |source| GatewayError::Telemetry { path, source }
-    };
-    let mcap = match &rig.telemetry.record {
-        Some(path) => {
-            // The host clock's zero on the Unix clock: MCAP log times are absolute.
-            let origin_unix_ns = ((unix_now() * 1e9) as u64).saturating_sub(origin.elapsed().as_nanos() as u64);
-            let setup = RecordingSetup {
-                config_toml: rig.config.to_toml(),
-                lane_half_width: match rig.control.planner.space {
-                    crate::planner::Space::Lane { half_width } => Some(half_width),
-                    crate::planner::Space::Free => None,
-                },
-                robot_radius: rig.control.robot_radius,
-                origin_unix_ns,
-            };
-            Some(McapSink::create(path, setup).map_err(failed(path))?)
-        }
-        None => None,
-    };
-    let sinks = Sinks { dir: rig.telemetry.out_dir.clone().map(|d| (d, interface)), mcap };
-    if sinks.is_empty() {
-        return Ok((Recorder::disabled(), None));
-    }
-    let where_ = rig.telemetry.out_dir.clone().or(rig.telemetry.record.clone()).unwrap_or_default();
-    let (recorder, writer) =
-        telemetry::start_writer(sinks, rig.telemetry.queue, inputs_taken).map_err(failed(&where_))?;
-    Ok((recorder, Some(writer)))
-}
-
 fn unix_now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// Run the gateway until shutdown. Startup failures are returned; everything after is
-/// handled by the core's safety state machine and reported.
-pub async fn run(
-    rig: Rig,
-    mut controls: Controls,
-    progress: Option<watch::Sender<Progress>>,
-) -> Result<Report, GatewayError> {
-    let origin = Instant::now();
-    let notifier = Notifier::from_env()?;
-    let can = match timeout(CAN_OPEN_DEADLINE, open_can(&rig.can)).await {
-        Ok(link) => link?,
-        Err(_) => return Err(CanError::Timeout { what: "open" }.into()),
-    };
-    let psd = open_serial(&rig.serial.port, rig.serial.baud)?;
-    let _socket_task = match &rig.operator.socket {
-        Some(path) => {
-            let socket = ControlSocket::bind(path, rig.operator.group.as_deref())?;
-            tracing::info!("control socket {}", path.display());
-            Some(tokio::spawn(socket.serve(controls.sender())))
-        }
-        None => None,
-    };
-    let inputs_taken = Arc::new(AtomicU64::new(0));
-    let (recorder, writer) = start_telemetry(&rig, origin, inputs_taken.clone())?;
-    // The statistics snapshot feeds `/metrics` and the view's latency histogram.
-    let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some())
-        .then(|| watch::channel(Arc::new(metrics::Snapshot::empty())));
-    if let (Some(addr), Some((_, rx))) = (rig.operator.metrics, &stats) {
-        let listener = std::net::TcpListener::bind(addr)
-            .and_then(|l| l.set_nonblocking(true).map(|()| l))
-            .and_then(tokio::net::TcpListener::from_std)
-            .map_err(|source| GatewayError::Metrics { addr, source })?;
-        tracing::info!("metrics on http://{addr}/metrics");
-        tokio::spawn(metrics::serve(listener, rx.clone()));
-    }
-    let view = match (rig.operator.view, &stats) {
-        (Some(addr), Some((_, rx))) => {
-            let setup = view::ViewSetup {
-                planner: rig.control.planner,
-                robot_radius: rig.control.robot_radius,
-                lane_half_width: match rig.control.planner.space {
-                    crate::planner::Space::Lane { half_width } => Some(half_width),
-                    crate::planner::Space::Free => None,
-                },
-            };
-            let publisher =
-                view::start(addr, setup, rx.clone()).map_err(|source| GatewayError::View { addr, source })?;
-            if !addr.ip().is_loopback() {
-                tracing::warn!("the live view on {addr} is visible beyond this host (read-only)");
-            }
-            tracing::info!("live view on http://{addr}/");
-            Some((publisher, HostTime::ZERO))
-        }
-        _ => None,
-    };
-    let metrics = stats.map(|(tx, _)| (tx, HostTime::ZERO));
-    // On the loop's thread, once everything is open (the writer thread keeps the normal
-    // policy) and before the first cycle.
-    if !rig.realtime.is_empty() {
-        realtime::apply(&rig.realtime)?;
-        tracing::info!("real-time settings: {}", rig.realtime);
-    }
-    let (path, baud) = (rig.serial.port.clone(), rig.serial.baud);
-    let mut io = Io {
-        origin,
-        port: path.display().to_string(),
-        psd: Some(psd),
-        can: Some(can),
-        can_url: rig.can.clone(),
-        can_opening: None,
-        next_can_reopen: HostTime::NEVER,
-        recorder,
-        timing: Timing::default(),
-        progress,
-        sample_period: rig.sample_period,
-        next_reopen: HostTime::NEVER,
-        spin: rig.spin.map(SpinWindow::new),
-        stats_from: None,
-        notifier,
-        metrics,
-        view,
-        inputs_taken,
-    };
-    let mut core = Core::new(rig, Monotonic(std::time::Instant::now()));
-    if controls.arm_at_start {
-        io.feed(&mut core, io.now(), Input::ArmAtStart);
-    }
-    io.feed(&mut core, io.now(), Input::PsdConnected);
-    // One read is one input (a recording holds it whole).
-    let mut read_buf = [0u8; PSD_CHUNK];
-    let mut shutdown_seen = *controls.shutdown.borrow();
-    if shutdown_seen {
-        io.stopping();
-        io.feed(&mut core, io.now(), Input::Shutdown);
-    }
-    loop {
-        io.drain(&mut core).await?;
-        if core.finished() {
-            break;
-        }
-        let publish_at = io.publish_metrics(&core).min(io.publish_view(&core));
-        // The watchdog is fed from here, the loop itself: a wedged loop starves it.
-        let mut wake = io.instant(core.next_deadline().min(io.next_reopen).min(io.next_can_reopen).min(publish_at));
-        if let Some(n) = &mut io.notifier {
-            n.alive(std::time::Instant::now());
-            wake = wake.min(n.next_due().map_or(wake, Instant::from_std));
-        }
-        let spin = io.spin.as_ref().map_or(Wait::Sleep, |s| s.wait(std::time::Instant::now()));
-        tokio::select! {
-            read = async {
-                match io.psd.as_mut() {
-                    Some(port) => port.read(&mut read_buf).await,
-                    None => std::future::pending().await,
-                }
-            } => match read {
-                Ok(n) if n > 0 => {
-                    io.feed(&mut core, io.now(), Input::PsdBytes(&read_buf[..n]));
-                }
-                _ => {
-                    tracing::error!("serial line lost; reconnecting");
-                    io.lose_psd(&mut core);
-                }
-            },
-            event = async {
-                match io.can.as_mut() {
-                    Some(can) => can.recv().await,
-                    None => std::future::pending().await,
-                }
-            } => match event {
-                Ok(event) => {
-                    if let CanEvent::Frame(frame) = event {
-                        io.recorder.record(Record::Can(CanRecord { at_s: unix_now(), frame, sent: false }));
-                    }
-                    io.feed(&mut core, io.now(), Input::Can(event));
-                }
-                Err(e) => {
-                    tracing::error!("CAN link: {e}; reopening");
-                    io.lose_can(&mut core);
-                }
-            },
-            opened = async {
-                match io.can_opening.as_mut() {
-                    Some(task) => task.await,
-                    None => std::future::pending().await,
-                }
-            } => {
-                let opened = opened.unwrap_or(Err(CanError::Closed));
-                io.can_opened(&mut core, opened);
-            },
-            _ = tokio::time::sleep_until(wake) => {
-                let now = io.now();
-                if io.psd.is_none() && now >= io.next_reopen {
-                    io.reopen(&mut core, &path, baud);
-                }
-                if io.can.is_none() && io.can_opening.is_none() && now >= io.next_can_reopen {
-                    io.reopen_can();
-                }
-                io.feed(&mut core, now, Input::Tick);
-            }
-            Some(cmd) = controls.requests.recv() => io.handle(&mut core, cmd),
-            // Low-latency mode: poll for the frame due now instead of sleeping to it.
-            () = spin.pause() => {}
-            changed = controls.shutdown.changed(), if !shutdown_seen => {
-                // A dropped sender is a shutdown too: nobody is left to ask for one.
-                if changed.is_err() || *controls.shutdown.borrow() {
-                    shutdown_seen = true;
-                    io.stopping();
-                    io.feed(&mut core, io.now(), Input::Shutdown);
-                }
-            }
-        }
-    }
-    if let Some(task) = _socket_task {
-        task.abort();
-    }
-    if let Some(task) = io.can_opening.take() {
-        task.abort();
-    }
-    let dropped = io.recorder.dropped();
-    let timing = std::mem::take(&mut io.timing);
-    drop(io);
-    let files = match writer {
-        Some(w) => w.await.ok().and_then(Result::ok).unwrap_or_default(),
-        None => telemetry::WrittenFiles::default(),
-    };
-    Ok(Report::new(&core, Some(&timing), dropped, files))
 }
 
 /// A startup failure: the gateway could not begin.

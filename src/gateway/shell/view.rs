@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use num_complex::Complex64 as C;
+use crate::Point;
 use serde_json::json;
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
@@ -145,51 +145,52 @@ async fn render(
 /// The planner's field for the scene (planning circles as the loop last grew them), for
 /// streamlines. `None` before a pose, or when the planner could not make one.
 fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
-    let mut planned = [PlanObstacle { center: C::default(), velocity: C::default(), radius: 1.0 }; MAX_OBSTACLES];
+    let mut planned =
+        [PlanObstacle { center: Point::default(), velocity: Point::default(), radius: 1.0 }; MAX_OBSTACLES];
     let n = s.obstacles().len();
     for (slot, o) in planned.iter_mut().zip(s.obstacles()) {
         *slot = PlanObstacle {
-            center: C::new(f64::from(o.position[0]), f64::from(o.position[1])),
-            velocity: C::new(f64::from(o.velocity[0]), f64::from(o.velocity[1])),
+            center: Point::new(f64::from(o.position[0]), f64::from(o.position[1])),
+            velocity: Point::new(f64::from(o.velocity[0]), f64::from(o.velocity[1])),
             radius: f64::from(o.planning_radius),
         };
     }
     // Built as the control step builds it: no circle closed against a wall over the robot.
-    let (space, sink) = (setup.planner.space, Planner::new(setup.planner).sink(C::new(s.goal[0], s.goal[1])));
+    let (space, sink) = (setup.planner.space, Planner::new(setup.planner).sink(Point::new(s.goal[0], s.goal[1])));
     let mut field = Field::empty(space, sink);
-    field.rebuild_clear_of(space, sink, &planned[..n], Some(C::new(s.pose[0], s.pose[1]))).ok()?;
+    field.rebuild_clear_of(space, sink, &planned[..n], Some(Point::new(s.pose[0], s.pose[1]))).ok()?;
     Some(field)
 }
 
 fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &metrics::Snapshot, seq: u64) -> String {
     let s = &v.scene;
-    let robot = C::new(s.pose[0], s.pose[1]);
-    let goal = C::new(s.goal[0], s.goal[1]);
+    let robot = Point::new(s.pose[0], s.pose[1]);
+    let goal = Point::new(s.goal[0], s.goal[1]);
     // The drawing's extent: the robot, the goal, the obstacles and the path, with a margin.
     let mut lo = robot;
     let mut hi = robot;
-    let mut grow = |p: C, r: f64| {
-        lo = C::new(lo.re.min(p.re - r), lo.im.min(p.im - r));
-        hi = C::new(hi.re.max(p.re + r), hi.im.max(p.im + r));
+    let mut grow = |p: Point, r: f64| {
+        lo = Point::new(lo.re.min(p.re - r), lo.im.min(p.im - r));
+        hi = Point::new(hi.re.max(p.re + r), hi.im.max(p.im + r));
     };
     grow(goal, 0.05);
     for o in s.obstacles() {
-        grow(C::new(f64::from(o.position[0]), f64::from(o.position[1])), f64::from(o.planning_radius));
+        grow(Point::new(f64::from(o.position[0]), f64::from(o.position[1])), f64::from(o.planning_radius));
     }
     for p in path {
-        grow(C::new(p[0], p[1]), setup.robot_radius);
+        grow(Point::new(p[0], p[1]), setup.robot_radius);
     }
     if let Some(h) = setup.lane_half_width {
-        grow(C::new(robot.re, 0.0), h);
+        grow(Point::new(robot.re, 0.0), h);
     }
-    let pad = C::new(0.15, 0.15);
+    let pad = Point::new(0.15, 0.15);
     let bounds = (lo - pad, hi + pad);
     let lines: Vec<Vec<[f64; 2]>> = match (s.count > 0 || path.len() > 1).then(|| field(s, setup)).flatten() {
         Some(field) => {
             let to_goal = goal - robot;
-            let across = C::i() * to_goal / to_goal.norm().max(1e-9);
+            let across = Point::i() * to_goal / to_goal.norm().max(1e-9);
             let span = (bounds.1 - bounds.0).norm() * 0.5;
-            let seeds: Vec<C> = (-8..=8).map(|k| robot + across * (span * f64::from(k) / 8.0)).collect();
+            let seeds: Vec<Point> = (-8..=8).map(|k| robot + across * (span * f64::from(k) / 8.0)).collect();
             streamlines(&field, &seeds, 0.01, 400, bounds)
                 .into_iter()
                 .map(|l| l.into_iter().map(|z| [round(z.re), round(z.im)]).collect())
@@ -358,7 +359,7 @@ mod tests {
         scene.obstacles[0] =
             ObstacleView { position: [0.0, 0.175], planning_radius: 0.12, radius: 0.05, ..ObstacleView::default() };
         let f = field(&scene, &setup()).unwrap();
-        assert!(f.velocity(C::new(0.0, 0.297)).is_ok());
+        assert!(f.velocity(Point::new(0.0, 0.297)).is_ok());
         assert!((f.obstacles()[0].radius - 0.12).abs() < 1e-6, "left as planned");
     }
 }

@@ -10,9 +10,9 @@ pub mod sweep;
 use std::collections::VecDeque;
 use std::time::Instant;
 
+use crate::Point;
 use flowgate_sim::world::{Contact, World};
 use hdrhistogram::Histogram;
-use num_complex::Complex64 as C;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -71,10 +71,10 @@ impl Run {
             .iter()
             .map(|x| TraceRow {
                 t: x.t,
-                pose: Pose { position: C::new(x.x, x.y), heading: x.heading },
-                command: C::default(),
+                pose: Pose { position: Point::new(x.x, x.y), heading: x.heading },
+                command: Point::default(),
                 speed: 0.5 * (x.wheel_speeds[0] + x.wheel_speeds[1]),
-                obstacles: x.obstacles.iter().map(|o| C::new(o[0], o[1])).collect(),
+                obstacles: x.obstacles.iter().map(|o| Point::new(o[0], o[1])).collect(),
             })
             .collect();
         let summary = Summary {
@@ -174,10 +174,10 @@ pub struct TraceRow {
     pub t: f64,
     pub pose: Pose,
     /// Commanded velocity (saturated), m/s.
-    pub command: C,
+    pub command: Point,
     /// Realised speed of the robot's centre, m/s.
     pub speed: f64,
-    pub obstacles: Vec<C>,
+    pub obstacles: Vec<Point>,
 }
 
 /// A finished run.
@@ -222,7 +222,7 @@ struct Sensor {
     led_filters: [LowPass; 2],
     obstacle_filters: Vec<LowPass>,
     /// The robot's true centre and heading (a unit vector) over the last `delay` seconds.
-    history: VecDeque<(f64, C, C)>,
+    history: VecDeque<(f64, Point, Point)>,
 }
 
 impl Sensor {
@@ -239,16 +239,16 @@ impl Sensor {
         }
     }
 
-    fn noisy(&mut self, p: C) -> C {
+    fn noisy(&mut self, p: Point) -> Point {
         match self.noise {
-            Some(n) => p + C::new(n.sample(&mut self.rng), n.sample(&mut self.rng)),
+            Some(n) => p + Point::new(n.sample(&mut self.rng), n.sample(&mut self.rng)),
             None => p,
         }
     }
 
     /// Measure at world time `t`: the robot's LEDs and the obstacle centres as they were at
     /// `t - delay`, noisy and filtered. Returns the time of validity and the LEDs.
-    fn measure(&mut self, world: &World, dt: f64, obstacles: &mut [C]) -> (f64, C, C) {
+    fn measure(&mut self, world: &World, dt: f64, obstacles: &mut [Point]) -> (f64, Point, Point) {
         let t = world.time();
         self.history.push_back((t, world.pose().position, world.facing()));
         let t_valid = (t - self.delay).max(0.0);
@@ -298,7 +298,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
     let n = s.obstacles.len().min(MAX_OBSTACLES);
     let radii: Vec<f64> = s.obstacles.iter().map(|o| o.radius).collect();
     let mut tracker = Tracker::new(rig.tracking, led_geometry(s), &radii);
-    let mut measured = vec![C::default(); n];
+    let mut measured = vec![Point::default(); n];
     let mut compute = Histogram::<u64>::new(3).expect("histogram");
     let mut cost = CycleCost::default();
     let clock = || timed.then(Instant::now);
@@ -359,7 +359,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
             trace.push(TraceRow {
                 t,
                 pose: world.pose().into(),
-                command: out.plan.map_or(C::default(), |p| p.velocity),
+                command: out.plan.map_or(Point::default(), |p| p.velocity),
                 speed: 0.5 * (w[0] + w[1]),
                 obstacles: (0..n).map(|k| world.obstacle_position(k, t)).collect(),
             });

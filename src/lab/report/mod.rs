@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use num_complex::Complex64 as C;
+use crate::Point;
 
 use crate::lab::offline::Run;
 use crate::lab::Scenario;
@@ -38,7 +38,7 @@ pub fn start_field(s: &Scenario) -> Option<Field> {
 /// `trajectory.svg`: walls, streamlines at the start, obstacles' paths with their circles at
 /// intervals, the robot's path and the goal.
 pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
-    let mut pts: Vec<C> = run.trace.iter().map(|r| r.pose.position).collect();
+    let mut pts: Vec<Point> = run.trace.iter().map(|r| r.pose.position).collect();
     pts.extend(run.trace.iter().flat_map(|r| r.obstacles.iter().copied()));
     pts.push(s.goal());
     pts.push(s.robot_start());
@@ -62,22 +62,22 @@ pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
 
     if let Some(field) = start_field(s) {
         let to_goal = s.goal() - s.robot_start();
-        let across = C::i() * to_goal / to_goal.norm().max(1e-9);
+        let across = Point::i() * to_goal / to_goal.norm().max(1e-9);
         let span = (hi - lo).norm() * 0.5;
-        let seeds: Vec<C> = (-12..=12).map(|k| s.robot_start() + across * (span * f64::from(k) / 12.0)).collect();
+        let seeds: Vec<Point> = (-12..=12).map(|k| s.robot_start() + across * (span * f64::from(k) / 12.0)).collect();
         for line in streamlines(&field, &seeds, 0.004, 2000, (lo, hi)) {
             ax.polyline(&mut svg, &line, STREAM, 1.0, None);
         }
     }
     if let Some(lane) = s.lane {
         for y in [lane.half_width, -lane.half_width] {
-            ax.polyline(&mut svg, &[C::new(lo.re, y), C::new(hi.re, y)], "#444", 3.0, None);
+            ax.polyline(&mut svg, &[Point::new(lo.re, y), Point::new(hi.re, y)], "#444", 3.0, None);
         }
     }
     // Obstacles: path, and circles about every second (solid: true radius).
     let every = (1.0 / s.sensing.sample_time).round().max(1.0) as usize;
     for (k, o) in s.obstacles.iter().enumerate() {
-        let path: Vec<C> = run.trace.iter().map(|r| r.obstacles[k]).collect();
+        let path: Vec<Point> = run.trace.iter().map(|r| r.obstacles[k]).collect();
         ax.polyline(&mut svg, &path, OBSTACLE, 1.5, Some("4 3"));
         for (i, row) in run.trace.iter().enumerate().filter(|(i, _)| i % every == 0) {
             ax.circle(&mut svg, row.obstacles[k], o.radius, OBSTACLE, 0.8, 0.08);
@@ -86,7 +86,7 @@ pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
             }
         }
     }
-    let path: Vec<C> = run.trace.iter().map(|r| r.pose.position).collect();
+    let path: Vec<Point> = run.trace.iter().map(|r| r.pose.position).collect();
     ax.polyline(&mut svg, &path, ROBOT, 2.0, None);
     for (_, row) in run.trace.iter().enumerate().filter(|(i, _)| i % (5 * every) == 0) {
         ax.circle(&mut svg, row.pose.position, s.robot.radius, ROBOT, 0.8, 0.05);
@@ -114,27 +114,27 @@ pub fn history_svg(s: &Scenario, run: &Run) -> String {
     let mut svg = Svg::new(760.0, 560.0);
     svg.text(svg.width / 2.0, 22.0, &format!("{}: speed and azimuth", s.name), "middle", 14.0, "#000");
     let t_end = run.trace.last().map_or(1.0, |r| r.t).max(1e-3);
-    let commanded: Vec<C> = run.trace.iter().map(|r| C::new(r.t, r.command.norm() * 1e3)).collect();
-    let realised: Vec<C> = run.trace.iter().map(|r| C::new(r.t, r.speed * 1e3)).collect();
+    let commanded: Vec<Point> = run.trace.iter().map(|r| Point::new(r.t, r.command.norm() * 1e3)).collect();
+    let realised: Vec<Point> = run.trace.iter().map(|r| Point::new(r.t, r.speed * 1e3)).collect();
     let v_max = commanded.iter().chain(&realised).map(|p| p.im).fold(10.0, f64::max) * 1.1;
-    let top = Axes::new(&svg, C::new(0.0, 0.0), C::new(t_end, v_max), (60.0, 40.0, 290.0, 20.0));
+    let top = Axes::new(&svg, Point::new(0.0, 0.0), Point::new(t_end, v_max), (60.0, 40.0, 290.0, 20.0));
     top.frame(&mut svg, "time (s)", "speed (mm/s)");
     top.polyline(&mut svg, &commanded, COMMAND, 1.5, Some("5 3"));
     top.polyline(&mut svg, &realised, ROBOT, 1.5, None);
 
-    let unwrap = |angles: &mut Vec<C>| {
+    let unwrap = |angles: &mut Vec<Point>| {
         for i in 1..angles.len() {
-            let d = crate::planner::drive::wrap_angle((angles[i].im - angles[i - 1].im).to_radians()).to_degrees();
+            let d = crate::wrap_angle((angles[i].im - angles[i - 1].im).to_radians()).to_degrees();
             angles[i].im = angles[i - 1].im + d;
         }
     };
-    let mut cmd_az: Vec<C> = run
+    let mut cmd_az: Vec<Point> = run
         .trace
         .iter()
         .filter(|r| r.command.norm() > 1e-6)
-        .map(|r| C::new(r.t, r.command.arg().to_degrees()))
+        .map(|r| Point::new(r.t, r.command.arg().to_degrees()))
         .collect();
-    let mut real_az: Vec<C> = run.trace.iter().map(|r| C::new(r.t, r.pose.heading.to_degrees())).collect();
+    let mut real_az: Vec<Point> = run.trace.iter().map(|r| Point::new(r.t, r.pose.heading.to_degrees())).collect();
     unwrap(&mut cmd_az);
     unwrap(&mut real_az);
     let (a_lo, a_hi) = cmd_az
@@ -142,7 +142,7 @@ pub fn history_svg(s: &Scenario, run: &Run) -> String {
         .chain(&real_az)
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p.im), hi.max(p.im)));
     let (a_lo, a_hi) = if a_lo.is_finite() { (a_lo - 10.0, a_hi + 10.0) } else { (-90.0, 90.0) };
-    let bottom = Axes::new(&svg, C::new(0.0, a_lo), C::new(t_end, a_hi), (60.0, 300.0, 40.0, 20.0));
+    let bottom = Axes::new(&svg, Point::new(0.0, a_lo), Point::new(t_end, a_hi), (60.0, 300.0, 40.0, 20.0));
     bottom.frame(&mut svg, "time (s)", "azimuth (deg)");
     bottom.polyline(&mut svg, &cmd_az, COMMAND, 1.5, Some("5 3"));
     bottom.polyline(&mut svg, &real_az, ROBOT, 1.5, None);
@@ -154,13 +154,12 @@ pub fn history_svg(s: &Scenario, run: &Run) -> String {
     svg.finish()
 }
 
-fn bounds(pts: &[C], pad: f64) -> (C, C) {
-    let (lo, hi) = pts
-        .iter()
-        .fold((C::new(f64::INFINITY, f64::INFINITY), C::new(f64::NEG_INFINITY, f64::NEG_INFINITY)), |(lo, hi), p| {
-            (C::new(lo.re.min(p.re), lo.im.min(p.im)), C::new(hi.re.max(p.re), hi.im.max(p.im)))
-        });
-    (lo - C::new(pad, pad), hi + C::new(pad, pad))
+fn bounds(pts: &[Point], pad: f64) -> (Point, Point) {
+    let (lo, hi) = pts.iter().fold(
+        (Point::new(f64::INFINITY, f64::INFINITY), Point::new(f64::NEG_INFINITY, f64::NEG_INFINITY)),
+        |(lo, hi), p| (Point::new(lo.re.min(p.re), lo.im.min(p.im)), Point::new(hi.re.max(p.re), hi.im.max(p.im))),
+    );
+    (lo - Point::new(pad, pad), hi + Point::new(pad, pad))
 }
 
 /// A one-line result for the terminal.

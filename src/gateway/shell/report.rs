@@ -3,9 +3,9 @@
 
 use serde::Serialize;
 
-use super::core::timing::{self, Distribution, StageSummary, Timing};
-use super::core::{Core, Counters, StageClock, State, StopReason};
-use super::shell::telemetry::WrittenFiles;
+use super::telemetry::WrittenFiles;
+use crate::gateway::core::timing::{self, Distribution, StageSummary, Timing};
+use crate::gateway::core::{Core, Counters, StageClock, State, StopReason};
 
 /// The run's report.
 #[derive(Debug, Clone, Serialize)]

@@ -1,0 +1,145 @@
+//! The services beside the loop, started before it and stopped after it: the control
+//! socket, the telemetry writer (text files and the MCAP recording), `/metrics` and the
+//! live view. None of them is on the per-sample path: the loop hands them copies through
+//! bounded queues and watch channels, and never waits on them.
+
+use std::sync::atomic::AtomicU64;
+use std::sync::Arc;
+
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+
+use super::control_socket::{Command, ControlSocket};
+use super::recording::{McapSink, RecordingSetup};
+use super::telemetry::{self, Recorder, Sinks, WrittenFiles};
+use super::{metrics, unix_now, view, GatewayError};
+use crate::config::Rig;
+use crate::link::CanUrl;
+use crate::planner::Space;
+use crate::time::HostTime;
+
+/// The services of one run.
+pub(super) struct Services {
+    /// Where the loop queues its records (a disabled one when nothing is written).
+    pub recorder: Recorder,
+    /// Inputs handed to the core while recording (each record's `seq`).
+    pub inputs_taken: Arc<AtomicU64>,
+    /// `/metrics` and the view's statistics: where the loop publishes its snapshot, and
+    /// when it next does.
+    pub metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
+    /// The live view: where the loop publishes its scene, and when it next does.
+    pub view: Option<(view::ViewPublisher, HostTime)>,
+    writer: Option<JoinHandle<std::io::Result<WrittenFiles>>>,
+    socket: Option<JoinHandle<()>>,
+}
+
+impl Services {
+    /// Start what the rig's config asks for; operator requests go to `requests`.
+    pub fn start(rig: &Rig, origin: Instant, requests: mpsc::Sender<Command>) -> Result<Self, GatewayError> {
+        let socket = match &rig.operator.socket {
+            Some(path) => {
+                let socket = ControlSocket::bind(path, rig.operator.group.as_deref())?;
+                tracing::info!("control socket {}", path.display());
+                Some(tokio::spawn(socket.serve(requests)))
+            }
+            None => None,
+        };
+        let inputs_taken = Arc::new(AtomicU64::new(0));
+        let (recorder, writer) = start_telemetry(rig, origin, inputs_taken.clone())?;
+        // The statistics snapshot feeds `/metrics` and the view's latency histogram.
+        let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some())
+            .then(|| watch::channel(Arc::new(metrics::Snapshot::empty())));
+        if let (Some(addr), Some((_, rx))) = (rig.operator.metrics, &stats) {
+            let listener = std::net::TcpListener::bind(addr)
+                .and_then(|l| l.set_nonblocking(true).map(|()| l))
+                .and_then(tokio::net::TcpListener::from_std)
+                .map_err(|source| GatewayError::Metrics { addr, source })?;
+            tracing::info!("metrics on http://{addr}/metrics");
+            tokio::spawn(metrics::serve(listener, rx.clone()));
+        }
+        let view = match (rig.operator.view, &stats) {
+            (Some(addr), Some((_, rx))) => Some((start_view(rig, addr, rx.clone())?, HostTime::ZERO)),
+            _ => None,
+        };
+        let metrics = stats.map(|(tx, _)| (tx, HostTime::ZERO));
+        Ok(Self { recorder, inputs_taken, metrics, view, writer, socket })
+    }
+
+    /// Stop the services and wait for the telemetry writer to finish its files.
+    pub async fn finish(mut self) -> WrittenFiles {
+        if let Some(task) = self.socket.take() {
+            task.abort();
+        }
+        // Dropping the recorder closes the writer's queue: it writes what is left and ends.
+        drop(self.recorder);
+        match self.writer {
+            Some(w) => w.await.ok().and_then(Result::ok).unwrap_or_default(),
+            None => WrittenFiles::default(),
+        }
+    }
+}
+
+fn lane_half_width(rig: &Rig) -> Option<f64> {
+    match rig.control.planner.space {
+        Space::Lane { half_width } => Some(half_width),
+        Space::Free => None,
+    }
+}
+
+fn start_view(
+    rig: &Rig,
+    addr: std::net::SocketAddr,
+    stats: watch::Receiver<Arc<metrics::Snapshot>>,
+) -> Result<view::ViewPublisher, GatewayError> {
+    let setup = view::ViewSetup {
+        planner: rig.control.planner,
+        robot_radius: rig.control.robot_radius,
+        lane_half_width: lane_half_width(rig),
+    };
+    let publisher = view::start(addr, setup, stats).map_err(|source| GatewayError::View { addr, source })?;
+    if !addr.ip().is_loopback() {
+        tracing::warn!("the live view on {addr} is visible beyond this host (read-only)");
+    }
+    tracing::info!("live view on http://{addr}/");
+    Ok(publisher)
+}
+
+/// The telemetry writer, when the rig asks for a directory of files or a recording.
+#[allow(clippy::type_complexity)]
+fn start_telemetry(
+    rig: &Rig,
+    origin: Instant,
+    inputs_taken: Arc<AtomicU64>,
+) -> Result<(Recorder, Option<JoinHandle<std::io::Result<WrittenFiles>>>), GatewayError> {
+    let interface = match &rig.can {
+        CanUrl::SocketCan { interface } => interface.clone(),
+        _ => "slcan0".to_string(),
+    };
+    let failed = |path: &std::path::Path| {
+        let path = path.display().to_string();
+        move |source| GatewayError::Telemetry { path, source }
+    };
+    let mcap = match &rig.telemetry.record {
+        Some(path) => {
+            // The host clock's zero on the Unix clock: MCAP log times are absolute.
+            let origin_unix_ns = ((unix_now() * 1e9) as u64).saturating_sub(origin.elapsed().as_nanos() as u64);
+            let setup = RecordingSetup {
+                config_toml: rig.config.to_toml(),
+                lane_half_width: lane_half_width(rig),
+                robot_radius: rig.control.robot_radius,
+                origin_unix_ns,
+            };
+            Some(McapSink::create(path, setup).map_err(failed(path))?)
+        }
+        None => None,
+    };
+    let sinks = Sinks { dir: rig.telemetry.out_dir.clone().map(|d| (d, interface)), mcap };
+    if sinks.is_empty() {
+        return Ok((Recorder::disabled(), None));
+    }
+    let where_ = rig.telemetry.out_dir.clone().or(rig.telemetry.record.clone()).unwrap_or_default();
+    let (recorder, writer) =
+        telemetry::start_writer(sinks, rig.telemetry.queue, inputs_taken).map_err(failed(&where_))?;
+    Ok((recorder, Some(writer)))
+}
