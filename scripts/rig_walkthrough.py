@@ -180,7 +180,7 @@ def main():
             fail("flowgate check fails after the calibration:\n" + r.stdout)
         print("the calibrated config passes flowgate check")
 
-        step("5. the unit: systemd-analyze verify")
+        step("5. the unit: systemd-analyze verify, and security rated OK (3.0 at most)")
         if shutil.which("systemd-analyze"):
             unit = os.path.join(work, "flowgate.service")
             text = open(os.path.join(root, "lib/systemd/system/flowgate.service")).read()
@@ -191,6 +191,12 @@ def main():
             print(r.stdout, r.stderr, flush=True)
             if r.returncode != 0:
                 fail("systemd-analyze verify refused the unit")
+            # Its hardening: "OK" is an exposure of 3.0 at most (the threshold is in tenths).
+            r = run(["systemd-analyze", "security", "--offline=true", "--threshold=30", unit])
+            overall = [line for line in r.stdout.splitlines() if "Overall exposure level" in line]
+            print("\n".join(overall), flush=True)
+            if r.returncode != 0 or not overall:
+                fail("the unit is exposed beyond 3.0:\n" + r.stdout)
         else:
             print("systemd-analyze is not installed here: skipped (tests/service.rs covers the notifications)")
 

@@ -405,9 +405,23 @@ pub struct TelemetryConfig {
     /// what it sent, each cycle's scene; `flowgate replay` plays it back.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub record: Option<PathBuf>,
+    /// How the recording's chunks are compressed: `zstd` (default), `lz4` or `none`.
+    /// Recordings are read whatever their compression.
+    #[serde(default)]
+    pub record_compression: RecordCompression,
     /// Capacity of the queue to the writer task (records beyond it are dropped and counted).
     #[serde(default = "default_queue")]
     pub queue: usize,
+}
+
+/// The compression of a recording's chunks.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RecordCompression {
+    #[default]
+    Zstd,
+    Lz4,
+    None,
 }
 
 fn default_queue() -> usize {
@@ -416,7 +430,7 @@ fn default_queue() -> usize {
 
 impl Default for TelemetryConfig {
     fn default() -> Self {
-        Self { out_dir: None, record: None, queue: default_queue() }
+        Self { out_dir: None, record: None, record_compression: RecordCompression::default(), queue: default_queue() }
     }
 }
 

@@ -32,6 +32,8 @@ enum Command {
     /// Play a recording back through the gateway core: the same CAN frames, byte for byte;
     /// or a what-if with another configuration (--config, --set KEY=VALUE).
     Replay(cli::replay::ReplayArgs),
+    /// Look into a recording: `flowgate record info FILE.mcap`.
+    Record(cli::record::RecordArgs),
     /// Operate a running gateway: status, arm, start, stop, estop, reset, goal, cancel.
     Ctl(cli::ctl::CtlArgs),
     /// Measure the gateway: latency against the wire, sustained rate, CPU, memory.
@@ -81,6 +83,7 @@ fn run() -> Result<bool> {
         Command::Check(args) => cli::check::run(args),
         Command::Calibrate(args) => done(cli::calibrate::run(args)),
         Command::Replay(args) => cli::replay::run(args),
+        Command::Record(args) => cli::record::run(args),
         #[cfg(feature = "lab")]
         Command::Demo(args) => done(cli::demo::run(args)),
         #[cfg(feature = "lab")]

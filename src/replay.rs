@@ -415,3 +415,132 @@ mod tests {
         assert_eq!((d.index, d.recorded, d.replayed.as_deref()), (1, None, Some("101#03")));
     }
 }
+
+/// What a recording holds, at a glance (as `mcap info` or `ros2 bag info` say it).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct RecordingInfo {
+    /// The file's size, bytes.
+    pub bytes: u64,
+    /// The profile its header names (`flowgate` for the gateway's own).
+    pub profile: String,
+    /// The first and last message's log times, ns since the Unix epoch.
+    pub start_ns: Option<u64>,
+    pub end_ns: Option<u64>,
+    /// Each channel: topic, message encoding, schema name, messages.
+    pub channels: Vec<(String, String, String, u64)>,
+    /// Chunks by compression (`""` is none): how many, compressed and uncompressed bytes.
+    pub chunks: Vec<(String, u64, u64, u64)>,
+    /// Cycles (messages on `/cycle`) and the file's bytes per cycle.
+    pub cycles: u64,
+    /// The reader stopped early (damaged or cut): what it said.
+    pub truncated: Option<String>,
+}
+
+impl RecordingInfo {
+    /// Read the summary of any MCAP file, compressed or not, whole or cut short.
+    pub fn read(path: &Path) -> Result<Self, ReplayError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| ReplayError::Read { path: name.clone(), source })?;
+        let mut info = RecordingInfo { bytes: bytes.len() as u64, ..Self::default() };
+        let options = mcap::read::Options::IgnoreEndMagic.into();
+        // The chunks as stored (their compression and sizes), without opening them.
+        let linear = mcap::read::LinearReader::new_with_options(&bytes, options)
+            .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
+        for record in linear {
+            match record {
+                Ok(mcap::records::Record::Header(h)) => info.profile = h.profile,
+                Ok(mcap::records::Record::Chunk { header, .. }) => {
+                    let compression = header.compression.clone();
+                    match info.chunks.iter_mut().find(|c| c.0 == compression) {
+                        Some(c) => {
+                            c.1 += 1;
+                            c.2 += header.compressed_size;
+                            c.3 += header.uncompressed_size;
+                        }
+                        None => info.chunks.push((compression, 1, header.compressed_size, header.uncompressed_size)),
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    info.truncated = Some(e.to_string());
+                    break;
+                }
+            }
+        }
+        // The messages, each chunk opened.
+        let flat = mcap::read::ChunkFlattener::new_with_options(&bytes, options)
+            .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
+        let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
+        let mut channels: BTreeMap<u16, usize> = BTreeMap::new();
+        for record in flat {
+            match record {
+                Ok(mcap::records::Record::Schema { header, .. }) => {
+                    schemas.insert(header.id, header.name);
+                }
+                Ok(mcap::records::Record::Channel(ch)) => {
+                    let schema = schemas.get(&ch.schema_id).cloned().unwrap_or_default();
+                    channels.entry(ch.id).or_insert_with(|| {
+                        info.channels.push((ch.topic, ch.message_encoding, schema, 0));
+                        info.channels.len() - 1
+                    });
+                }
+                Ok(mcap::records::Record::Message { header, .. }) => {
+                    if let Some(&k) = channels.get(&header.channel_id) {
+                        info.channels[k].3 += 1;
+                        if info.channels[k].0 == recording::CYCLE {
+                            info.cycles += 1;
+                        }
+                    }
+                    info.start_ns = Some(info.start_ns.map_or(header.log_time, |t| t.min(header.log_time)));
+                    info.end_ns = Some(info.end_ns.map_or(header.log_time, |t| t.max(header.log_time)));
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    info.truncated.get_or_insert(e.to_string());
+                    break;
+                }
+            }
+        }
+        Ok(info)
+    }
+
+    /// Seconds from the first message to the last.
+    pub fn duration(&self) -> f64 {
+        match (self.start_ns, self.end_ns) {
+            (Some(a), Some(b)) => b.saturating_sub(a) as f64 * 1e-9,
+            _ => 0.0,
+        }
+    }
+}
+
+impl std::fmt::Display for RecordingInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let profile = if self.profile.is_empty() { "(none)" } else { &self.profile };
+        writeln!(f, "profile      {profile}")?;
+        writeln!(f, "size         {} bytes", self.bytes)?;
+        writeln!(f, "duration     {:.3} s", self.duration())?;
+        let messages: u64 = self.channels.iter().map(|c| c.3).sum();
+        writeln!(f, "messages     {messages}")?;
+        if self.cycles > 0 {
+            writeln!(
+                f,
+                "cycles       {} ({:.0} bytes of file a cycle)",
+                self.cycles,
+                self.bytes as f64 / self.cycles as f64
+            )?;
+        }
+        for (compression, n, stored, raw) in &self.chunks {
+            let name = if compression.is_empty() { "none" } else { compression };
+            let ratio = if *stored > 0 { *raw as f64 / *stored as f64 } else { 0.0 };
+            writeln!(f, "chunks       {n} {name}: {stored} bytes stored, {raw} uncompressed ({ratio:.1}x)")?;
+        }
+        writeln!(f, "channels")?;
+        for (topic, encoding, schema, n) in &self.channels {
+            writeln!(f, "  {topic:<16} {n:>8} msgs  {encoding} {schema}")?;
+        }
+        match &self.truncated {
+            Some(why) => write!(f, "cut short    {why}"),
+            None => write!(f, "whole"),
+        }
+    }
+}

@@ -46,8 +46,9 @@ fn commands_that_print_end_quietly_at_a_closed_stdout() {
     assert_no_panic(&["run", "--config", "/nonexistent/rig.toml"], 1);
     assert_no_panic(&["calibrate", "--config", "/nonexistent/rig.toml"], 1);
     assert_no_panic(&["replay", "/nonexistent/run.mcap"], 1);
+    assert_no_panic(&["record", "info", "/nonexistent/run.mcap"], 1);
     // Help and version.
-    for sub in ["demo", "check", "calibrate", "run", "replay", "ctl", "bench", "plan"] {
+    for sub in ["demo", "check", "calibrate", "run", "replay", "record", "ctl", "bench", "plan"] {
         let (code, stderr) = with_closed_stdout(&[sub, "--help"]);
         assert!(!stderr.contains("panicked") && code != Some(101), "{sub} --help: {code:?} {stderr}");
     }

@@ -114,5 +114,32 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
     for why in ["duplicate", "bad_frame", "out_of_order"] {
         assert_eq!(value(&families, "flowgate_psd_discarded", "flowgate_psd_discarded_total", Some(("why", why))), 0.0);
     }
+    // Every fault and stop reason is there before it happens, at 0.
+    let faults = |reason| value(&families, "flowgate_faults", "flowgate_faults_total", Some(("reason", reason)));
+    assert_eq!(faults("heartbeat_lost"), 0.0);
+    assert_eq!(faults("board_e_stop"), 0.0);
+    assert_eq!(families["flowgate_faults"]["samples"].as_array().unwrap().len(), 28, "{families}");
+    assert_eq!(families["flowgate_stops"]["samples"].as_array().unwrap().len(), 5, "{families}");
+    assert_eq!(value(&families, "flowgate_build_info", "flowgate_build_info", Some(("version", "0.1.0"))), 1.0);
+    // The process, as Prometheus's client libraries name it.
+    assert!(value(&families, "process_cpu_seconds", "process_cpu_seconds_total", None) > 0.0, "{families}");
+    assert!(value(&families, "process_resident_memory_bytes", "process_resident_memory_bytes", None) > 1e6);
+    assert!(value(&families, "process_open_fds", "process_open_fds", None) >= 5.0);
+    let started = value(&families, "process_start_time_seconds", "process_start_time_seconds", None);
+    assert!(started > 1.7e9, "{started}");
+    // Each stage's histogram, counting every timed cycle.
+    let stages = &families["flowgate_stage_seconds"];
+    assert_eq!(stages["type"], "histogram");
+    for stage in ["decode", "checks", "track", "plan", "encode", "can_write"] {
+        let n = stages["samples"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s[0] == "flowgate_stage_seconds_count" && s[1]["stage"] == stage)
+            .unwrap_or_else(|| panic!("no count for {stage}"))[2]
+            .as_f64()
+            .unwrap();
+        assert_eq!(n, count, "{stage}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -72,6 +72,11 @@ for row, c in zip(rows, cycles):
     if not same:
         check(False, f"cycle {row['cycle']}: cycles.csv {row} != /cycle {c}")
         break
+# Counts and times are integers in the JSON, as the channel's schema says.
+schema = json.loads(summary.schemas[[c for c in summary.channels.values() if c.topic == "/cycle"][0].schema_id].data)
+integers = [k for k, v in schema["properties"].items() if v["type"] == "integer"]
+check({"cycle", "rx_ns", "e2e_ns", "pulses_left"} <= set(integers), f"/cycle integer fields {integers}")
+check(all(isinstance(c[k], int) for c in cycles for k in integers), "every /cycle integer field an integer")
 check(len(messages.get("/robot/pose", [])) == len(cycles), "one /robot/pose per cycle")
 # The arena is drawn at most 20 times a second (every cycle when slower).
 arena = [m[1] for m in messages.get("/arena", [])]

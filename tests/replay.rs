@@ -37,7 +37,7 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     // An independent reader: Python's mcap package, against the text telemetry.
     let python =
         std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test (it installs mcap)");
-    let out = Command::new(python)
+    let out = Command::new(&python)
         .arg(root().join("tests/read_recording.py"))
         .args([&mcap, &dir, &root().join("protocol/motor.dbc")])
         .output()
@@ -79,6 +79,24 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     assert!(frames > 400.0, "{text}");
     let speedup = figure(&text, "replayed", "x real time");
     assert!(speedup >= 50.0, "replay at {speedup}x real time:\n{text}");
+
+    // Re-written by Python's own mcap writer, with its zstd or lz4 chunks (as other tools
+    // write): read, summarised and replayed to the same frames.
+    let (ok, text) = flowgate(&["record", "info", mcap.to_str().unwrap()]);
+    assert!(ok && text.contains(" zstd: ") && text.contains("whole"), "{text}");
+    for compression in ["zstd", "lz4"] {
+        let rewritten = dir.join(format!("python-{compression}.mcap"));
+        let out = Command::new(&python)
+            .arg(root().join("tests/rewrite_recording.py"))
+            .args([mcap.as_os_str(), rewritten.as_os_str(), compression.as_ref()])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let (ok, text) = flowgate(&["record", "info", rewritten.to_str().unwrap()]);
+        assert!(ok && text.contains(&format!(" {compression}: ")), "{text}");
+        let (ok, text) = flowgate(&["replay", rewritten.to_str().unwrap()]);
+        assert!(ok && text.contains("identical, byte for byte"), "{compression}: {text}");
+    }
 
     // A what-if: a higher steering gain commands differently from the first moving cycle.
     let svg = dir.join("kc.svg");

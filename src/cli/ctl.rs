@@ -6,7 +6,7 @@
 use crate::cli::{say, say_raw};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
@@ -18,7 +18,8 @@ use serde::Deserialize as _;
 
 #[derive(Args, Debug)]
 pub struct CtlArgs {
-    /// The control socket (default: `[operator] socket` of --config).
+    /// The control socket (default: `[operator] socket` of --config, else the installed
+    /// service's, /run/flowgate/control.sock).
     #[arg(long, value_name = "PATH", conflicts_with = "config")]
     socket: Option<PathBuf>,
     /// The rig config naming the socket.
@@ -98,6 +99,9 @@ fn request(command: &CtlCommand) -> Result<Request> {
     })
 }
 
+/// Where the packaged service's control socket is.
+const INSTALLED_SOCKET: &str = "/run/flowgate/control.sock";
+
 pub fn run(args: CtlArgs) -> Result<()> {
     let socket = match (&args.socket, &args.config) {
         (Some(s), _) => s.clone(),
@@ -105,7 +109,13 @@ pub fn run(args: CtlArgs) -> Result<()> {
             let rig = GatewayConfig::load(c)?;
             rig.operator.socket.with_context(|| format!("{} has no [operator] socket", c.display()))?
         }
-        (None, None) => bail!("name the gateway: --socket PATH or --config rig.toml"),
+        // The installed service's socket (its unit's RuntimeDirectory, the packaged config's
+        // `[operator] socket`).
+        (None, None) if Path::new(INSTALLED_SOCKET).exists() => PathBuf::from(INSTALLED_SOCKET),
+        (None, None) => bail!(
+            "no gateway at {INSTALLED_SOCKET} (the installed service's socket): name one with --socket PATH \
+             or --config rig.toml"
+        ),
     };
     let req = request(&args.command)?;
     let mut stream = UnixStream::connect(&socket)

@@ -13,6 +13,7 @@ pub mod logging;
 pub mod null_gateway;
 #[cfg(feature = "lab")]
 pub mod plan;
+pub mod record;
 pub mod replay;
 pub mod run;
 

@@ -114,7 +114,7 @@ pub fn load_points(path: &Path) -> Result<Vec<[f64; 2]>, CalibrateError> {
 /// removed, since the two exclude each other), everything else as the user wrote it. A
 /// comment above the homography says where it came from.
 pub fn write_back(text: &str, fit: &Fit, note: &str) -> Result<String, String> {
-    use toml_edit::{value, Array, DocumentMut, Item, Table};
+    use toml_edit::{Array, DocumentMut, Item, Table, Value};
     let mut doc: DocumentMut = text.parse().map_err(|e: toml_edit::TomlError| e.to_string())?;
     if !doc.contains_key("calibration") {
         doc["calibration"] = Item::Table(Table::new());
@@ -134,8 +134,17 @@ pub fn write_back(text: &str, fit: &Fit, note: &str) -> Result<String, String> {
         }
         rows.push(r);
     }
-    table["homography"] = value(rows);
-    table["k1"] = value(fit.k1);
+    // A key rewritten keeps its own comments (a trailing `# ...` after the value too).
+    let mut set = |key: &str, new: Value| match table.get_mut(key).and_then(Item::as_value_mut) {
+        Some(old) => {
+            let decor = old.decor().clone();
+            *old = new;
+            *old.decor_mut() = decor;
+        }
+        None => table[key] = Item::Value(new),
+    };
+    set("homography", Value::Array(rows));
+    set("k1", Value::from(fit.k1));
     if let Some(mut key) = table.key_mut("homography") {
         // Keep the user's comments above the key; replace an earlier run's note.
         let decor = key.leaf_decor_mut();
@@ -207,8 +216,8 @@ mod tests {
     #[test]
     fn the_section_is_replaced_and_the_rest_kept() {
         let text = "# my rig\n[serial]\nport = \"/dev/x\" # the USB one\n\n[calibration]\ncounts = 4096\n\
-                    # measured 2026-01-01\nhomography = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n\n[can]\n\
-                    endpoint = \"x\"\n";
+                    # measured 2026-01-01\nhomography = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] # pixels to m\n\
+                    k1 = 0.0    # lens distortion\n\n[can]\nendpoint = \"x\"\n";
         let points: Vec<([f64; 2], [f64; 2])> = (0..9)
             .map(|i| {
                 let f = [0.2 * f64::from(i % 3) - 0.2, 0.2 * f64::from(i / 3) - 0.2];
@@ -219,6 +228,9 @@ mod tests {
         let out = write_back(text, &fit, "fitted by flowgate calibrate: first").unwrap();
         assert!(out.starts_with("# my rig\n[serial]\nport = \"/dev/x\" # the USB one\n"), "{out}");
         assert!(out.contains("# measured 2026-01-01\n# fitted by flowgate calibrate: first\nhomography = [["), "{out}");
+        // The values' own trailing comments stay too.
+        assert!(out.contains("]] # pixels to m\n") && out.contains("    # lens distortion\n"), "{out}");
+        assert!(!out.contains("k1 = 0.0 "), "{out}");
         // A second run replaces its note; the user's comment stays.
         let again = write_back(&out, &fit, "fitted by flowgate calibrate: second").unwrap();
         assert!(again.contains("# measured 2026-01-01\n# fitted by flowgate calibrate: second\nhomography"), "{again}");

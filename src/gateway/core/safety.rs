@@ -102,6 +102,43 @@ pub enum StopReason {
 }
 
 impl StopReason {
+    /// One of each reason (the LED or node 0): every label `/metrics` carries from the start.
+    pub const ALL: [StopReason; 33] = [
+        Self::GoalReached,
+        Self::Stalled,
+        Self::Operator,
+        Self::Shutdown,
+        Self::GoalBlocked,
+        Self::OperatorEStop,
+        Self::PoseLost,
+        Self::PoseImplausible,
+        Self::PoseDelayed,
+        Self::SamplesStopped,
+        Self::SerialGarbled,
+        Self::PsdSequence,
+        Self::UnscheduledLed { led: 0 },
+        Self::FrameCounterJump,
+        Self::ClockJumped,
+        Self::ControllerFault,
+        Self::ControllerReset,
+        Self::SerialLost,
+        Self::ClockUnsynced,
+        Self::BoardSequence { node: 0 },
+        Self::CanTransmitRefused,
+        Self::CanLinkLost,
+        Self::CanInterfaceDown,
+        Self::HeartbeatLost { node: 0 },
+        Self::BoardReboot { node: 0 },
+        Self::SecondMaster { node: 0 },
+        Self::ObstacleOccluded { led: 0 },
+        Self::BusOff,
+        Self::BoardBusOff { node: 0 },
+        Self::BoardFault { node: 0 },
+        Self::BoardEStop { node: 0 },
+        Self::BoardNotEnabled { node: 0 },
+        Self::PlannerInvalid,
+    ];
+
     /// Whether this is a fault (stop at once, latch) rather than an orderly stop.
     /// The reason's name in `snake_case` (a metrics label): `PoseLost` is `pose_lost`.
     pub fn snake_name(self) -> String {
@@ -339,6 +376,51 @@ impl Safety {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `ALL` holds each reason once. The match is exhaustive: a new reason does not compile
+    /// here until it is added, and so to `ALL`.
+    #[test]
+    fn all_holds_every_reason_once() {
+        let names: std::collections::BTreeSet<String> = StopReason::ALL.iter().map(|r| r.snake_name()).collect();
+        assert_eq!(names.len(), StopReason::ALL.len());
+        for reason in StopReason::ALL {
+            match reason {
+                StopReason::GoalReached
+                | StopReason::Stalled
+                | StopReason::Operator
+                | StopReason::Shutdown
+                | StopReason::GoalBlocked
+                | StopReason::OperatorEStop
+                | StopReason::PoseLost
+                | StopReason::PoseImplausible
+                | StopReason::PoseDelayed
+                | StopReason::SamplesStopped
+                | StopReason::SerialGarbled
+                | StopReason::PsdSequence
+                | StopReason::UnscheduledLed { .. }
+                | StopReason::FrameCounterJump
+                | StopReason::ClockJumped
+                | StopReason::ControllerFault
+                | StopReason::ControllerReset
+                | StopReason::SerialLost
+                | StopReason::ClockUnsynced
+                | StopReason::BoardSequence { .. }
+                | StopReason::CanTransmitRefused
+                | StopReason::CanLinkLost
+                | StopReason::CanInterfaceDown
+                | StopReason::HeartbeatLost { .. }
+                | StopReason::BoardReboot { .. }
+                | StopReason::SecondMaster { .. }
+                | StopReason::ObstacleOccluded { .. }
+                | StopReason::BusOff
+                | StopReason::BoardBusOff { .. }
+                | StopReason::BoardFault { .. }
+                | StopReason::BoardEStop { .. }
+                | StopReason::BoardNotEnabled { .. }
+                | StopReason::PlannerInvalid => {}
+            }
+        }
+    }
 
     #[test]
     fn runs_only_after_arming_and_readiness() {

@@ -264,6 +264,11 @@ impl Timing {
         &self.e2e
     }
 
+    /// Each stage's durations, ns, in [`Stage::ALL`]'s order.
+    pub fn stage_histograms(&self) -> &[Histogram<u64>; Stage::COUNT] {
+        &self.stages
+    }
+
     pub fn e2e(&self) -> Distribution {
         Self::dist(&self.e2e)
     }

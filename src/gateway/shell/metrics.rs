@@ -16,7 +16,8 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 
 use super::http::{self, Asked};
-use crate::gateway::core::{Counters, State};
+use crate::gateway::core::timing::{Stage, Timing};
+use crate::gateway::core::{Counters, State, StopReason};
 
 /// How often the loop publishes a snapshot.
 pub const PUBLISH_EVERY: Duration = Duration::from_secs(1);
@@ -24,6 +25,8 @@ pub const PUBLISH_EVERY: Duration = Duration::from_secs(1);
 const CLIENT_DEADLINE: Duration = Duration::from_secs(2);
 /// The latency histogram's bucket bounds, s: 10 µs to 100 ms.
 pub const BUCKETS_S: [f64; 14] = [1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 1e-1, 1.0];
+/// The stages' bucket bounds, s: 1 µs to 10 ms.
+pub const STAGE_BUCKETS_S: [f64; 11] = [1e-6, 2e-6, 5e-6, 1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 1e-2];
 
 /// What the loop publishes.
 #[derive(Debug, Clone)]
@@ -38,19 +41,26 @@ pub struct Snapshot {
     pub stops: Vec<(String, bool, u64)>,
     /// Frames the live view's clients skipped.
     pub view_frames_dropped: u64,
+    /// Each stage's durations, ns, in [`Stage::ALL`]'s order.
+    pub stages: [Histogram<u64>; Stage::COUNT],
+    /// When the gateway started, s since the Unix epoch.
+    pub start_time_s: f64,
 }
 
 impl Snapshot {
     /// Before the loop's first publication.
-    pub fn empty() -> Self {
+    pub fn empty(start_time_s: f64) -> Self {
+        let timing = Timing::default();
         Self {
             state: State::Idle,
             counters: Counters::default(),
-            e2e_ns: crate::gateway::core::timing::Timing::default().e2e_histogram().clone(),
+            e2e_ns: timing.e2e_histogram().clone(),
             deadline_misses: 0,
             uptime_s: 0.0,
             stops: Vec::new(),
             view_frames_dropped: 0,
+            stages: timing.stage_histograms().clone(),
+            start_time_s,
         }
     }
 }
@@ -65,6 +75,8 @@ pub fn render(s: &Snapshot) -> String {
     write_stops(&mut out, s);
     write_gauges(&mut out, s);
     write_latency(&mut out, &s.e2e_ns);
+    write_stages(&mut out, &s.stages);
+    write_process(&mut out, s.start_time_s);
     out
 }
 
@@ -161,8 +173,11 @@ fn write_stops(out: &mut String, s: &Snapshot) {
     {
         let _ = writeln!(out, "# HELP flowgate_{family}_total {help}");
         let _ = writeln!(out, "# TYPE flowgate_{family}_total counter");
-        for (reason, _, n) in s.stops.iter().filter(|(_, fault, _)| *fault == faults) {
-            let _ = writeln!(out, "flowgate_{family}_total{{reason=\"{reason}\"}} {n}");
+        // Every reason from the start, at 0 until it happens: a rate() over it is defined.
+        for reason in StopReason::ALL.iter().filter(|r| r.is_fault() == faults) {
+            let name = reason.snake_name();
+            let n = s.stops.iter().find(|(r, ..)| *r == name).map_or(0, |(.., n)| *n);
+            let _ = writeln!(out, "flowgate_{family}_total{{reason=\"{name}\"}} {n}");
         }
     }
 }
@@ -178,6 +193,71 @@ fn write_gauges(out: &mut String, s: &Snapshot) {
     let _ = writeln!(out, "# HELP flowgate_uptime_seconds Seconds since the gateway started.");
     let _ = writeln!(out, "# TYPE flowgate_uptime_seconds gauge");
     let _ = writeln!(out, "flowgate_uptime_seconds {:.3}", s.uptime_s);
+    let commit = env!("FLOWGATE_COMMIT").trim_start_matches("commit ");
+    let _ = writeln!(out, "# HELP flowgate_build_info The build: version and git commit (always 1).");
+    let _ = writeln!(out, "# TYPE flowgate_build_info gauge");
+    let _ = writeln!(out, "flowgate_build_info{{version=\"{}\",commit=\"{commit}\"}} 1", env!("CARGO_PKG_VERSION"));
+}
+
+/// Cumulative buckets of `h` (ns) at `bounds` (s), with `labels` before `le`.
+fn write_buckets(out: &mut String, name: &str, labels: &str, h: &Histogram<u64>, bounds: &[f64]) {
+    for le in bounds {
+        let bound_ns = (le * 1e9) as u64;
+        let count: u64 =
+            h.iter_recorded().filter(|v| v.value_iterated_to() <= bound_ns).map(|v| v.count_at_value()).sum();
+        let _ = writeln!(out, "{name}_bucket{{{labels}le=\"{le}\"}} {count}");
+    }
+    let _ = writeln!(out, "{name}_bucket{{{labels}le=\"+Inf\"}} {}", h.len());
+    let sum_s: f64 =
+        h.iter_recorded().map(|v| v.value_iterated_to() as f64 * v.count_at_value() as f64).sum::<f64>() / 1e9;
+    let braces = labels.trim_end_matches(',');
+    let braces = if braces.is_empty() { String::new() } else { format!("{{{braces}}}") };
+    let _ = writeln!(out, "{name}_sum{braces} {sum_s}");
+    let _ = writeln!(out, "{name}_count{braces} {}", h.len());
+}
+
+/// Each stage's duration as a cumulative histogram, by stage.
+fn write_stages(out: &mut String, stages: &[Histogram<u64>; Stage::COUNT]) {
+    let _ = writeln!(out, "# HELP flowgate_stage_seconds Each stage of a cycle: how long it took.");
+    let _ = writeln!(out, "# TYPE flowgate_stage_seconds histogram");
+    for (stage, h) in Stage::ALL.iter().zip(stages) {
+        write_buckets(out, "flowgate_stage_seconds", &format!("stage=\"{}\",", stage.name()), h, &STAGE_BUCKETS_S);
+    }
+}
+
+/// The process's own figures, as Prometheus's client libraries name them (read from /proc
+/// when scraped, never by the loop).
+fn write_process(out: &mut String, start_time_s: f64) {
+    let mut gauge = |name: &str, kind: &str, help: &str, v: Option<f64>| {
+        if let Some(v) = v {
+            let _ = writeln!(out, "# HELP {name} {help}");
+            let _ = writeln!(out, "# TYPE {name} {kind}");
+            let _ = writeln!(out, "{name} {v}");
+        }
+    };
+    let stat = std::fs::read_to_string("/proc/self/stat").ok();
+    // Fields after the command's closing parenthesis: utime and stime are the 12th and 13th.
+    let cpu = stat.as_deref().and_then(|s| {
+        let fields: Vec<&str> = s.rsplit_once(')')?.1.split_whitespace().collect();
+        let ticks = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+        Some(ticks / rustix::param::clock_ticks_per_second() as f64)
+    });
+    gauge("process_cpu_seconds_total", "counter", "User and system CPU time spent, s.", cpu);
+    let rss = std::fs::read_to_string("/proc/self/status").ok().and_then(|s| {
+        let kib = s.lines().find_map(|l| l.strip_prefix("VmRSS:"))?.trim().trim_end_matches("kB").trim();
+        Some(kib.parse::<f64>().ok()? * 1024.0)
+    });
+    gauge("process_resident_memory_bytes", "gauge", "Resident memory, bytes.", rss);
+    let fds = std::fs::read_dir("/proc/self/fd").ok().map(|d| d.count() as f64);
+    gauge("process_open_fds", "gauge", "Open file descriptors.", fds);
+    let max_fds = rustix::process::getrlimit(rustix::process::Resource::Nofile).current.map(|n| n as f64);
+    gauge("process_max_fds", "gauge", "The most file descriptors it may open.", max_fds);
+    gauge(
+        "process_start_time_seconds",
+        "gauge",
+        "When the gateway started, s since the Unix epoch.",
+        Some(start_time_s),
+    );
 }
 
 /// The end-to-end latency as a cumulative histogram.
@@ -187,17 +267,7 @@ fn write_latency(out: &mut String, h: &Histogram<u64>) {
         "# HELP flowgate_cycle_latency_seconds End-to-end cycle latency: serial frame read to CAN write done."
     );
     let _ = writeln!(out, "# TYPE flowgate_cycle_latency_seconds histogram");
-    for le in BUCKETS_S {
-        let bound_ns = (le * 1e9) as u64;
-        let count: u64 =
-            h.iter_recorded().filter(|v| v.value_iterated_to() <= bound_ns).map(|v| v.count_at_value()).sum();
-        let _ = writeln!(out, "flowgate_cycle_latency_seconds_bucket{{le=\"{le}\"}} {count}");
-    }
-    let _ = writeln!(out, "flowgate_cycle_latency_seconds_bucket{{le=\"+Inf\"}} {}", h.len());
-    let sum_s: f64 =
-        h.iter_recorded().map(|v| v.value_iterated_to() as f64 * v.count_at_value() as f64).sum::<f64>() / 1e9;
-    let _ = writeln!(out, "flowgate_cycle_latency_seconds_sum {sum_s}");
-    let _ = writeln!(out, "flowgate_cycle_latency_seconds_count {}", h.len());
+    write_buckets(out, "flowgate_cycle_latency_seconds", "", h, &BUCKETS_S);
 }
 
 /// Serve `/metrics` on `listener` from the latest snapshot, until the channel closes.
@@ -245,6 +315,7 @@ mod tests {
             uptime_s: 12.5,
             stops: vec![("pose_lost".into(), true, 2), ("goal_reached".into(), false, 1)],
             view_frames_dropped: 3,
+            ..Snapshot::empty(1_700_000_000.0)
         };
         let text = render(&s);
         assert!(text.contains("flowgate_cycles_total 4\n"), "{text}");
@@ -257,5 +328,12 @@ mod tests {
         assert!(text.contains("flowgate_cycle_latency_seconds_bucket{le=\"0.00005\"} 3\n"), "{text}");
         assert!(text.contains("flowgate_cycle_latency_seconds_bucket{le=\"+Inf\"} 4\n"), "{text}");
         assert!(text.contains("flowgate_cycle_latency_seconds_count 4\n"), "{text}");
+        // Every reason from the start, at 0 until it happens.
+        assert!(text.contains("flowgate_faults_total{reason=\"heartbeat_lost\"} 0\n"), "{text}");
+        assert!(text.contains("flowgate_stops_total{reason=\"shutdown\"} 0\n"), "{text}");
+        assert!(text.contains("flowgate_build_info{version=\""), "{text}");
+        assert!(text.contains("flowgate_stage_seconds_bucket{stage=\"plan\",le=\"0.000001\"} 0\n"), "{text}");
+        assert!(text.contains("process_start_time_seconds 1700000000\n"), "{text}");
+        assert!(text.contains("process_open_fds "), "{text}");
     }
 }

@@ -509,6 +509,8 @@ impl Io {
                 uptime_s: now.secs(),
                 stops: stops_by_reason(core),
                 view_frames_dropped,
+                stages: self.timing.stage_histograms().clone(),
+                start_time_s: self.services.start_time_s,
             }));
             *next = now + metrics::PUBLISH_EVERY;
         }

@@ -29,6 +29,7 @@ use flowgate_protocol::psd::{self, Packet};
 use flowgate_protocol::{CanFrame, CanId};
 use serde_json::{json, Value};
 
+use crate::config::RecordCompression;
 use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::timing::CycleRecord;
@@ -176,6 +177,8 @@ pub struct RecordingSetup {
     pub robot_radius: f64,
     /// Where the host clock's zero is, ns since the Unix epoch (MCAP log times are absolute).
     pub origin_unix_ns: u64,
+    /// How the chunks are compressed.
+    pub compression: RecordCompression,
 }
 
 /// Everything the writer thread writes into the MCAP file.
@@ -194,6 +197,9 @@ pub struct McapSink {
 
 /// The MCAP chunk size, bytes.
 const CHUNK_BYTES: u64 = 256 * 1024;
+/// zstd's level (lz4 ignores it): a second's chunk of JSON compresses about 8 times, in
+/// well under a millisecond of the writer thread's time.
+const COMPRESSION_LEVEL: u32 = 9;
 /// How often the writer closes the current chunk, so a reader sees it even if the gateway
 /// is killed later.
 const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
@@ -225,6 +231,32 @@ fn object_schema(title: &str, properties: &[(&str, &str)]) -> Vec<u8> {
     serde_json::to_vec(&json!({ "title": title, "type": "object", "properties": props })).unwrap_or_default()
 }
 
+/// The JSON type of a `/cycle` field: its times and counts are integers.
+fn cycle_field_type(name: &str) -> &'static str {
+    match name {
+        "state" => "string",
+        "delay_s" | "goal_distance" | "x" | "y" => "number",
+        _ => "integer",
+    }
+}
+
+/// A length or an orientation's component to a micrometre (a millionth): finer than the
+/// camera resolves, and a third of the digits of a full `f64` in the file.
+fn round6(v: f64) -> f64 {
+    (v * 1e6).round() / 1e6
+}
+
+/// An `f32` of the scene, to a micrometre.
+fn micro(v: f32) -> f64 {
+    round6(f64::from(v))
+}
+
+/// An `f32` as the shortest decimal that reads back as it (a variance of 1.38e-5 m², not
+/// its `f64` widening's twenty digits).
+fn shortest(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(0.0)
+}
+
 fn io_error(e: mcap::McapError) -> std::io::Error {
     std::io::Error::other(e)
 }
@@ -238,7 +270,19 @@ impl McapSink {
         let file = BufWriter::new(File::create(path)?);
         // Small chunks, and a flush each second (`flush_if_due`): a gateway killed outright
         // loses at most about the last second of its recording.
-        let options = mcap::WriteOptions::new().compression(None).profile("flowgate").chunk_size(Some(CHUNK_BYTES));
+        let compression = match setup.compression {
+            RecordCompression::Zstd => Some(mcap::Compression::Zstd),
+            RecordCompression::Lz4 => Some(mcap::Compression::Lz4),
+            RecordCompression::None => None,
+        };
+        // No message indexes: a reader scans a second's chunk as fast as it seeks in it, and
+        // they would be a quarter of a compressed file.
+        let options = mcap::WriteOptions::new()
+            .compression(compression)
+            .compression_level(COMPRESSION_LEVEL)
+            .emit_message_indexes(false)
+            .profile("flowgate")
+            .chunk_size(Some(CHUNK_BYTES));
         let mut writer = options.create(file).map_err(io_error)?;
         let input_schema = object_schema(
             "flowgate.Input",
@@ -249,7 +293,7 @@ impl McapSink {
             &[("id", "integer"), ("extended", "boolean"), ("remote", "boolean"), ("data", "string")],
         );
         let cycle_props: Vec<(&str, &str)> =
-            CycleRecord::CSV_HEADER.split(',').map(|c| (c, if c == "state" { "string" } else { "number" })).collect();
+            CycleRecord::CSV_HEADER.split(',').map(|c| (c, cycle_field_type(c))).collect();
         let table: [(&'static str, &str, Vec<u8>); 10] = [
             (PSD_RX, "flowgate.Input", input_schema.clone()),
             (CAN_RX, "flowgate.Input", input_schema.clone()),
@@ -354,7 +398,11 @@ impl McapSink {
             .split(',')
             .zip(text.trim_end().split(','))
             .map(|(name, value)| {
-                let v = value.parse::<f64>().map_or_else(|_| json!(value), |x| json!(x));
+                let v = match cycle_field_type(name) {
+                    "integer" => value.parse::<i64>().map_or_else(|_| json!(value), |x| json!(x)),
+                    "number" => value.parse::<f64>().map_or_else(|_| json!(value), |x| json!(x)),
+                    _ => json!(value),
+                };
                 (name.to_string(), v)
             })
             .collect();
@@ -381,12 +429,17 @@ impl McapSink {
             .obstacles()
             .iter()
             .map(|o| {
-                json!({ "position": o.position, "velocity": o.velocity, "covariance": o.covariance, "planning_radius": o.planning_radius, "radius": o.radius })
+                json!({
+                    "position": o.position.map(micro), "velocity": o.velocity.map(micro),
+                    "covariance": o.covariance.map(shortest), "planning_radius": micro(o.planning_radius),
+                    "radius": micro(o.radius)
+                })
             })
             .collect();
         self.put("/obstacles", s.cycle as u32, at, &json!({ "timestamp": stamp, "obstacles": obstacles }))?;
-        let [x, y, heading] = s.pose;
-        let orientation = json!({ "x": 0.0, "y": 0.0, "z": (heading / 2.0).sin(), "w": (heading / 2.0).cos() });
+        let [x, y, heading] = s.pose.map(round6);
+        let orientation =
+            json!({ "x": 0.0, "y": 0.0, "z": round6((heading / 2.0).sin()), "w": round6((heading / 2.0).cos()) });
         let pose = json!({ "timestamp": stamp, "frame_id": "floor", "pose": { "position": { "x": x, "y": y, "z": 0.0 }, "orientation": orientation } });
         self.put("/robot/pose", s.cycle as u32, at, &pose)?;
         if self.arena_at.is_some_and(|last| at < last + ARENA_EVERY_NS) {
@@ -408,18 +461,19 @@ impl McapSink {
                 "color": { "r": rgba[0], "g": rgba[1], "b": rgba[2], "a": rgba[3] }
             })
         };
-        let mut cylinders = vec![disc(s.pose[0], s.pose[1], self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
+        let mut cylinders =
+            vec![disc(round6(s.pose[0]), round6(s.pose[1]), self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
         let mut arrows = Vec::new();
         for o in s.obstacles() {
-            let (x, y) = (f64::from(o.position[0]), f64::from(o.position[1]));
-            cylinders.push(disc(x, y, f64::from(o.planning_radius), 0.01, [0.9, 0.5, 0.1, 0.25]));
-            let (vx, vy) = (f64::from(o.velocity[0]), f64::from(o.velocity[1]));
+            let [x, y] = o.position.map(micro);
+            cylinders.push(disc(x, y, micro(o.planning_radius), 0.01, [0.9, 0.5, 0.1, 0.25]));
+            let [vx, vy] = o.velocity.map(micro);
             let speed = vx.hypot(vy);
             if speed > 1e-3 {
                 let yaw = vy.atan2(vx);
                 arrows.push(json!({
-                    "pose": { "position": { "x": x, "y": y, "z": 0.06 }, "orientation": { "x": 0.0, "y": 0.0, "z": (yaw / 2.0).sin(), "w": (yaw / 2.0).cos() } },
-                    "shaft_length": speed, "shaft_diameter": 0.01, "head_length": 0.03, "head_diameter": 0.03,
+                    "pose": { "position": { "x": x, "y": y, "z": 0.06 }, "orientation": { "x": 0.0, "y": 0.0, "z": round6((yaw / 2.0).sin()), "w": round6((yaw / 2.0).cos()) } },
+                    "shaft_length": round6(speed), "shaft_diameter": 0.01, "head_length": 0.03, "head_diameter": 0.03,
                     "color": { "r": 0.9, "g": 0.2, "b": 0.1, "a": 1.0 }
                 }));
             }

@@ -30,6 +30,8 @@ pub(super) struct Services {
     pub metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
     /// The live view: where the loop publishes its scene, and when it next does.
     pub view: Option<(view::ViewPublisher, HostTime)>,
+    /// When the gateway started, s since the Unix epoch.
+    pub start_time_s: f64,
     writer: Option<JoinHandle<std::io::Result<WrittenFiles>>>,
     socket: Option<JoinHandle<()>>,
 }
@@ -45,11 +47,12 @@ impl Services {
             }
             None => None,
         };
+        let start_time_s = unix_now() - origin.elapsed().as_secs_f64();
         let inputs_taken = Arc::new(AtomicU64::new(0));
         let (recorder, writer) = start_telemetry(rig, origin, inputs_taken.clone())?;
         // The statistics snapshot feeds `/metrics` and the view's latency histogram.
         let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some())
-            .then(|| watch::channel(Arc::new(metrics::Snapshot::empty())));
+            .then(|| watch::channel(Arc::new(metrics::Snapshot::empty(start_time_s))));
         if let (Some(addr), Some((_, rx))) = (rig.operator.metrics, &stats) {
             let listener = std::net::TcpListener::bind(addr)
                 .and_then(|l| l.set_nonblocking(true).map(|()| l))
@@ -63,7 +66,7 @@ impl Services {
             _ => None,
         };
         let metrics = stats.map(|(tx, _)| (tx, HostTime::ZERO));
-        Ok(Self { recorder, inputs_taken, metrics, view, writer, socket })
+        Ok(Self { recorder, inputs_taken, metrics, view, start_time_s, writer, socket })
     }
 
     /// Stop the services and wait for the telemetry writer to finish its files.
@@ -129,6 +132,7 @@ fn start_telemetry(
                 lane_half_width: lane_half_width(rig),
                 robot_radius: rig.control.robot_radius,
                 origin_unix_ns,
+                compression: rig.telemetry.record_compression,
             };
             Some(McapSink::create(path, setup).map_err(failed(path))?)
         }

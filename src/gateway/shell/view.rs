@@ -331,7 +331,7 @@ mod tests {
             ..ObstacleView::default()
         };
         let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
-        let stats = metrics::Snapshot::empty();
+        let stats = metrics::Snapshot::empty(0.0);
         let text = frame_json(&v, &setup(), &[[-0.6, 0.0], [-0.5, 0.0]], &stats, 7);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
         assert_eq!(f["seq"], 7);
