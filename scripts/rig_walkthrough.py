@@ -145,7 +145,7 @@ def main():
     r = run([flowgate, "--help"])
     commands = re.findall(r"^  (\w[\w-]*) ", r.stdout, re.M)
     print("commands:", " ".join(commands))
-    if commands[:5] != ["check", "calibrate", "run", "replay", "ctl"] or {"demo", "bench", "plan"} & set(commands):
+    if commands[:6] != ["check", "calibrate", "run", "replay", "record", "ctl"] or {"demo", "bench", "plan"} & set(commands):
         fail(f"unexpected commands {commands}")
     for f in ["lib/systemd/system/flowgate.service", "etc/udev/rules.d/99-flowgate.rules", "etc/flowgate/rig.toml"]:
         if not os.path.isfile(os.path.join(root, f)):

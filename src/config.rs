@@ -95,6 +95,11 @@ pub struct OperatorConfig {
     /// `127.0.0.1:8080`; none = not served. Read-only, like `metrics`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub view: Option<std::net::SocketAddr>,
+    /// Serve the recording's channels live over the Foxglove WebSocket protocol here, e.g.
+    /// `127.0.0.1:8765` (Foxglove's default): Foxglove connects to the running gateway.
+    /// None = not served. Read-only, like `metrics`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub foxglove: Option<std::net::SocketAddr>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

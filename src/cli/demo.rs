@@ -25,6 +25,10 @@ pub struct DemoArgs {
     /// Serve the live view here while the demo runs (`--view` alone: 127.0.0.1:8080).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8080")]
     view: Option<std::net::SocketAddr>,
+    /// Serve Foxglove live here while the demo runs (`--foxglove` alone: 127.0.0.1:8765,
+    /// Foxglove's default): in Foxglove, "Open connection", Foxglove WebSocket.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    foxglove: Option<std::net::SocketAddr>,
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
@@ -38,11 +42,14 @@ pub fn run(args: DemoArgs) -> Result<()> {
     if let Some(addr) = args.view {
         say!("live view      http://{addr}/ (read-only; it ends with the run)");
     }
+    if let Some(addr) = args.foxglove {
+        say!("Foxglove live  ws://{addr} (read-only; it ends with the run)");
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let run = runtime.block_on(demo::run(
         &scenario,
         &args.can,
-        demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view },
+        demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view, foxglove: args.foxglove },
         |p| {
             say!(
                 "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",

@@ -52,6 +52,8 @@ pub struct Outputs {
     pub record: Option<PathBuf>,
     /// The live view's address.
     pub view: Option<std::net::SocketAddr>,
+    /// Foxglove live's address.
+    pub foxglove: Option<std::net::SocketAddr>,
 }
 
 /// Run `scenario` with the simulator and the gateway until the gateway stops (goal, fault)
@@ -80,6 +82,7 @@ pub async fn run(
     let mut config = scenario.gateway_config(&handle.psd_path, &can_url, outputs.dir);
     config.telemetry.record = outputs.record;
     config.operator.view = outputs.view;
+    config.operator.foxglove = outputs.foxglove;
     let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());

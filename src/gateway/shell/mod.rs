@@ -22,6 +22,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::time::{timeout, Instant};
 
 pub mod control_socket;
+pub mod foxglove;
 pub mod http;
 pub mod low_latency;
 pub mod metrics;
@@ -105,7 +106,7 @@ pub async fn run(
         Err(_) => return Err(CanError::Timeout { what: "open" }.into()),
     };
     let psd = open_serial(&rig.serial.port, rig.serial.baud)?;
-    let services = Services::start(&rig, origin, controls.sender())?;
+    let services = Services::start(&rig, origin, controls.sender()).await?;
     // On the loop's thread, once everything is open (the writer thread keeps the normal
     // policy) and before the first cycle.
     if !rig.realtime.is_empty() {
@@ -635,4 +636,6 @@ pub enum GatewayError {
     Metrics { addr: std::net::SocketAddr, source: std::io::Error },
     #[error("operator.view = \"{addr}\": cannot listen there: {source}")]
     View { addr: std::net::SocketAddr, source: std::io::Error },
+    #[error("operator.foxglove = \"{addr}\": cannot serve Foxglove live there: {source}")]
+    Foxglove { addr: std::net::SocketAddr, source: ::foxglove::FoxgloveError },
 }

@@ -29,6 +29,7 @@ use flowgate_protocol::psd::{self, Packet};
 use flowgate_protocol::{CanFrame, CanId};
 use serde_json::{json, Value};
 
+use super::foxglove::Live;
 use crate::config::RecordCompression;
 use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::core::scene::SceneRecord;
@@ -183,9 +184,11 @@ pub struct RecordingSetup {
 
 /// Everything the writer thread writes into the MCAP file.
 pub struct McapSink {
-    path: PathBuf,
-    writer: mcap::Writer<BufWriter<File>>,
+    /// The recording, when one is written: its path and writer.
+    file: Option<(PathBuf, mcap::Writer<BufWriter<File>>)>,
     channels: BTreeMap<&'static str, u16>,
+    /// Foxglove live, when served: the same messages to its clients.
+    live: Option<Live>,
     setup: RecordingSetup,
     inputs: u64,
     messages: u64,
@@ -210,7 +213,8 @@ pub const ARENA_EVERY_NS: u64 = 50_000_000;
 
 impl std::fmt::Debug for McapSink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("McapSink").field("path", &self.path).field("messages", &self.messages).finish_non_exhaustive()
+        let path = self.file.as_ref().map(|(p, _)| p);
+        f.debug_struct("McapSink").field("path", &path).field("live", &self.live).finish_non_exhaustive()
     }
 }
 
@@ -229,6 +233,31 @@ fn object_schema(title: &str, properties: &[(&str, &str)]) -> Vec<u8> {
     let props: serde_json::Map<String, Value> =
         properties.iter().map(|(name, ty)| (name.to_string(), json!({ "type": ty }))).collect();
     serde_json::to_vec(&json!({ "title": title, "type": "object", "properties": props })).unwrap_or_default()
+}
+
+/// Every channel: topic, schema name, schema (JSON Schema).
+fn channel_table() -> [(&'static str, &'static str, Vec<u8>); 10] {
+    let input_schema = object_schema(
+        "flowgate.Input",
+        &[("seq", "integer"), ("t_ns", "integer"), ("kind", "string"), ("bytes", "string"), ("event", "string")],
+    );
+    let frame_schema = object_schema(
+        "flowgate.CanFrame",
+        &[("id", "integer"), ("extended", "boolean"), ("remote", "boolean"), ("data", "string")],
+    );
+    let cycle_props: Vec<(&str, &str)> = CycleRecord::CSV_HEADER.split(',').map(|c| (c, cycle_field_type(c))).collect();
+    [
+        (PSD_RX, "flowgate.Input", input_schema.clone()),
+        (CAN_RX, "flowgate.Input", input_schema.clone()),
+        (GATEWAY_INPUT, "flowgate.Input", input_schema),
+        (PSD_TX, "flowgate.PsdPacket", object_schema("flowgate.PsdPacket", &[("seq", "integer"), ("wire", "string")])),
+        (CAN_TX, "flowgate.CanFrame", frame_schema),
+        (CYCLE, "flowgate.Cycle", object_schema("flowgate.Cycle", &cycle_props)),
+        ("/obstacles", "flowgate.Obstacles", object_schema("flowgate.Obstacles", &[("obstacles", "array")])),
+        ("/robot/pose", "foxglove.PoseInFrame", object_schema("foxglove.PoseInFrame", &[("pose", "object")])),
+        ("/arena", "foxglove.SceneUpdate", object_schema("foxglove.SceneUpdate", &[("entities", "array")])),
+        ("/log", "foxglove.Log", object_schema("foxglove.Log", &[("message", "string"), ("level", "integer")])),
+    ]
 }
 
 /// The JSON type of a `/cycle` field: its times and counts are integers.
@@ -262,8 +291,47 @@ fn io_error(e: mcap::McapError) -> std::io::Error {
 }
 
 impl McapSink {
-    /// Create the file and write its channels and the configuration.
-    pub fn create(path: &Path, setup: RecordingSetup) -> std::io::Result<Self> {
+    /// Create the recording at `path` (none: no file) and write its channels and the
+    /// configuration; advertise the same channels on `live` when it is served.
+    pub fn create(path: Option<&Path>, setup: RecordingSetup, mut live: Option<Live>) -> std::io::Result<Self> {
+        let mut writer = match path {
+            Some(path) => Some((path.to_path_buf(), Self::create_file(path, &setup)?)),
+            None => None,
+        };
+        let mut channels = BTreeMap::new();
+        for (topic, schema, data) in channel_table() {
+            if let Some((_, writer)) = &mut writer {
+                let schema_id = writer.add_schema(schema, "jsonschema", &data).map_err(io_error)?;
+                let id = writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(io_error)?;
+                channels.insert(topic, id);
+            }
+            if let Some(live) = &mut live {
+                live.add_channel(topic, schema, &data).map_err(std::io::Error::other)?;
+            }
+        }
+        if let Some((_, writer)) = &mut writer {
+            let metadata = BTreeMap::from([
+                ("config".to_string(), setup.config_toml.clone()),
+                ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+                ("origin_unix_ns".to_string(), setup.origin_unix_ns.to_string()),
+                ("psd_chunk".to_string(), PSD_CHUNK.to_string()),
+            ]);
+            writer.write_metadata(&mcap::records::Metadata { name: METADATA.into(), metadata }).map_err(io_error)?;
+        }
+        Ok(Self {
+            file: writer,
+            channels,
+            live,
+            setup,
+            inputs: 0,
+            messages: 0,
+            cycles: 0,
+            arena_at: None,
+            flushed: std::time::Instant::now(),
+        })
+    }
+
+    fn create_file(path: &Path, setup: &RecordingSetup) -> std::io::Result<mcap::Writer<BufWriter<File>>> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir)?;
         }
@@ -283,65 +351,18 @@ impl McapSink {
             .emit_message_indexes(false)
             .profile("flowgate")
             .chunk_size(Some(CHUNK_BYTES));
-        let mut writer = options.create(file).map_err(io_error)?;
-        let input_schema = object_schema(
-            "flowgate.Input",
-            &[("seq", "integer"), ("t_ns", "integer"), ("kind", "string"), ("bytes", "string"), ("event", "string")],
-        );
-        let frame_schema = object_schema(
-            "flowgate.CanFrame",
-            &[("id", "integer"), ("extended", "boolean"), ("remote", "boolean"), ("data", "string")],
-        );
-        let cycle_props: Vec<(&str, &str)> =
-            CycleRecord::CSV_HEADER.split(',').map(|c| (c, cycle_field_type(c))).collect();
-        let table: [(&'static str, &str, Vec<u8>); 10] = [
-            (PSD_RX, "flowgate.Input", input_schema.clone()),
-            (CAN_RX, "flowgate.Input", input_schema.clone()),
-            (GATEWAY_INPUT, "flowgate.Input", input_schema),
-            (
-                PSD_TX,
-                "flowgate.PsdPacket",
-                object_schema("flowgate.PsdPacket", &[("seq", "integer"), ("wire", "string")]),
-            ),
-            (CAN_TX, "flowgate.CanFrame", frame_schema),
-            (CYCLE, "flowgate.Cycle", object_schema("flowgate.Cycle", &cycle_props)),
-            ("/obstacles", "flowgate.Obstacles", object_schema("flowgate.Obstacles", &[("obstacles", "array")])),
-            ("/robot/pose", "foxglove.PoseInFrame", object_schema("foxglove.PoseInFrame", &[("pose", "object")])),
-            ("/arena", "foxglove.SceneUpdate", object_schema("foxglove.SceneUpdate", &[("entities", "array")])),
-            ("/log", "foxglove.Log", object_schema("foxglove.Log", &[("message", "string"), ("level", "integer")])),
-        ];
-        let mut channels = BTreeMap::new();
-        for (topic, schema, data) in table {
-            let schema_id = writer.add_schema(schema, "jsonschema", &data).map_err(io_error)?;
-            let id = writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(io_error)?;
-            channels.insert(topic, id);
-        }
-        let metadata = BTreeMap::from([
-            ("config".to_string(), setup.config_toml.clone()),
-            ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-            ("origin_unix_ns".to_string(), setup.origin_unix_ns.to_string()),
-            ("psd_chunk".to_string(), PSD_CHUNK.to_string()),
-        ]);
-        writer.write_metadata(&mcap::records::Metadata { name: METADATA.into(), metadata }).map_err(io_error)?;
-        Ok(Self {
-            path: path.to_path_buf(),
-            writer,
-            channels,
-            setup,
-            inputs: 0,
-            messages: 0,
-            cycles: 0,
-            arena_at: None,
-            flushed: std::time::Instant::now(),
-        })
+        options.create(file).map_err(io_error)
     }
 
     fn put(&mut self, topic: &str, sequence: u32, host_ns: u64, value: &Value) -> std::io::Result<()> {
-        let Some(&channel_id) = self.channels.get(topic) else { return Ok(()) };
         let data = serde_json::to_vec(value).map_err(std::io::Error::other)?;
         let log_time = self.setup.origin_unix_ns.saturating_add(host_ns);
+        if let Some(live) = &self.live {
+            live.log(topic, log_time, &data);
+        }
+        let (Some((_, writer)), Some(&channel_id)) = (&mut self.file, self.channels.get(topic)) else { return Ok(()) };
         let header = mcap::records::MessageHeader { channel_id, sequence, log_time, publish_time: log_time };
-        self.writer.write_to_known_channel(&header, &data).map_err(io_error)?;
+        writer.write_to_known_channel(&header, &data).map_err(io_error)?;
         self.messages += 1;
         Ok(())
     }
@@ -349,9 +370,9 @@ impl McapSink {
     /// Close the current chunk if the last flush was a second ago (the writer calls this
     /// when its queue is empty).
     pub fn flush_if_due(&mut self) -> std::io::Result<()> {
-        if self.flushed.elapsed() >= FLUSH_EVERY {
+        if let (Some((_, writer)), true) = (&mut self.file, self.flushed.elapsed() >= FLUSH_EVERY) {
             self.flushed = std::time::Instant::now();
-            self.writer.flush().map_err(io_error)?;
+            writer.flush().map_err(io_error)?;
         }
         Ok(())
     }
@@ -505,22 +526,25 @@ impl McapSink {
 
     /// Close the file: the end record says how many inputs the loop took (`taken`) and how
     /// many records the queue dropped, so a reader knows whether the recording is whole.
-    pub fn finish(mut self, taken: u64, dropped: u64) -> std::io::Result<RecordingSummary> {
+    /// Stop serving live. None: there was no recording to close.
+    pub fn finish(mut self, taken: u64, dropped: u64) -> std::io::Result<Option<RecordingSummary>> {
+        if let Some(live) = self.live.take() {
+            live.stop();
+        }
+        let Some((path, mut writer)) = self.file.take() else { return Ok(None) };
         let metadata = BTreeMap::from([
             ("inputs_taken".to_string(), taken.to_string()),
             ("inputs_written".to_string(), self.inputs.to_string()),
             ("records_dropped".to_string(), dropped.to_string()),
         ]);
-        self.writer
-            .write_metadata(&mcap::records::Metadata { name: METADATA_END.into(), metadata })
-            .map_err(io_error)?;
-        self.writer.finish().map_err(io_error)?;
-        Ok(RecordingSummary {
-            path: Some(self.path),
+        writer.write_metadata(&mcap::records::Metadata { name: METADATA_END.into(), metadata }).map_err(io_error)?;
+        writer.finish().map_err(io_error)?;
+        Ok(Some(RecordingSummary {
+            path: Some(path),
             inputs: self.inputs,
             messages: self.messages,
             cycles: self.cycles,
-        })
+        }))
     }
 }
 

@@ -3,6 +3,7 @@
 //! live view. None of them is on the per-sample path: the loop hands them copies through
 //! bounded queues and watch channels, and never waits on them.
 
+use std::path::Path;
 use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 
@@ -11,6 +12,7 @@ use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 use super::control_socket::{Command, ControlSocket};
+use super::foxglove::Live;
 use super::recording::{McapSink, RecordingSetup};
 use super::telemetry::{self, Recorder, Sinks, WrittenFiles};
 use super::{metrics, unix_now, view, GatewayError};
@@ -38,7 +40,7 @@ pub(super) struct Services {
 
 impl Services {
     /// Start what the rig's config asks for; operator requests go to `requests`.
-    pub fn start(rig: &Rig, origin: Instant, requests: mpsc::Sender<Command>) -> Result<Self, GatewayError> {
+    pub async fn start(rig: &Rig, origin: Instant, requests: mpsc::Sender<Command>) -> Result<Self, GatewayError> {
         let socket = match &rig.operator.socket {
             Some(path) => {
                 let socket = ControlSocket::bind(path, rig.operator.group.as_deref())?;
@@ -49,7 +51,11 @@ impl Services {
         };
         let start_time_s = unix_now() - origin.elapsed().as_secs_f64();
         let inputs_taken = Arc::new(AtomicU64::new(0));
-        let (recorder, writer) = start_telemetry(rig, origin, inputs_taken.clone())?;
+        let live = match rig.operator.foxglove {
+            Some(addr) => Some(start_foxglove(addr).await?),
+            None => None,
+        };
+        let (recorder, writer) = start_telemetry(rig, origin, inputs_taken.clone(), live)?;
         // The statistics snapshot feeds `/metrics` and the view's latency histogram.
         let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some())
             .then(|| watch::channel(Arc::new(metrics::Snapshot::empty(start_time_s))));
@@ -108,12 +114,23 @@ fn start_view(
     Ok(publisher)
 }
 
-/// The telemetry writer, when the rig asks for a directory of files or a recording.
+async fn start_foxglove(addr: std::net::SocketAddr) -> Result<Live, GatewayError> {
+    let live = Live::start(addr).await.map_err(|source| GatewayError::Foxglove { addr, source })?;
+    if !addr.ip().is_loopback() {
+        tracing::warn!("Foxglove live on {addr} is visible beyond this host (read-only)");
+    }
+    tracing::info!("Foxglove live on ws://{}:{}", addr.ip(), live.port());
+    Ok(live)
+}
+
+/// The telemetry writer, when the rig asks for a directory of files, a recording or
+/// Foxglove live.
 #[allow(clippy::type_complexity)]
 fn start_telemetry(
     rig: &Rig,
     origin: Instant,
     inputs_taken: Arc<AtomicU64>,
+    live: Option<Live>,
 ) -> Result<(Recorder, Option<JoinHandle<std::io::Result<WrittenFiles>>>), GatewayError> {
     let interface = match &rig.can {
         CanUrl::SocketCan { interface } => interface.clone(),
@@ -123,8 +140,9 @@ fn start_telemetry(
         let path = path.display().to_string();
         move |source| GatewayError::Telemetry { path, source }
     };
-    let mcap = match &rig.telemetry.record {
-        Some(path) => {
+    let mcap = match (&rig.telemetry.record, live) {
+        (None, None) => None,
+        (path, live) => {
             // The host clock's zero on the Unix clock: MCAP log times are absolute.
             let origin_unix_ns = ((unix_now() * 1e9) as u64).saturating_sub(origin.elapsed().as_nanos() as u64);
             let setup = RecordingSetup {
@@ -134,9 +152,9 @@ fn start_telemetry(
                 origin_unix_ns,
                 compression: rig.telemetry.record_compression,
             };
-            Some(McapSink::create(path, setup).map_err(failed(path))?)
+            let file = path.as_deref();
+            Some(McapSink::create(file, setup, live).map_err(failed(file.unwrap_or(Path::new("foxglove"))))?)
         }
-        None => None,
     };
     let sinks = Sinks { dir: rig.telemetry.out_dir.clone().map(|d| (d, interface)), mcap };
     if sinks.is_empty() {

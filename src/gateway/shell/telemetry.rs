@@ -271,7 +271,7 @@ pub fn start_writer(
         }
         if let Some(m) = mcap {
             let taken = inputs_taken.load(Ordering::Relaxed);
-            written.recording = Some(m.finish(taken, dropped_seen.load(Ordering::Relaxed))?);
+            written.recording = m.finish(taken, dropped_seen.load(Ordering::Relaxed))?;
         }
         Ok(written)
     });

@@ -164,56 +164,12 @@ fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
 
 fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &metrics::Snapshot, seq: u64) -> String {
     let s = &v.scene;
-    let robot = Point::new(s.pose[0], s.pose[1]);
-    let goal = Point::new(s.goal[0], s.goal[1]);
-    // The drawing's extent: the robot, the goal, the obstacles and the path, with a margin.
-    let mut lo = robot;
-    let mut hi = robot;
-    let mut grow = |p: Point, r: f64| {
-        lo = Point::new(lo.re.min(p.re - r), lo.im.min(p.im - r));
-        hi = Point::new(hi.re.max(p.re + r), hi.im.max(p.im + r));
-    };
-    grow(goal, 0.05);
-    for o in s.obstacles() {
-        grow(Point::new(f64::from(o.position[0]), f64::from(o.position[1])), f64::from(o.planning_radius));
-    }
-    for p in path {
-        grow(Point::new(p[0], p[1]), setup.robot_radius);
-    }
-    if let Some(h) = setup.lane_half_width {
-        grow(Point::new(robot.re, 0.0), h);
-    }
-    let pad = Point::new(0.15, 0.15);
-    let bounds = (lo - pad, hi + pad);
-    let lines: Vec<Vec<[f64; 2]>> = match (s.count > 0 || path.len() > 1).then(|| field(s, setup)).flatten() {
-        Some(field) => {
-            let to_goal = goal - robot;
-            let across = Point::i() * to_goal / to_goal.norm().max(1e-9);
-            let span = (bounds.1 - bounds.0).norm() * 0.5;
-            let seeds: Vec<Point> = (-8..=8).map(|k| robot + across * (span * f64::from(k) / 8.0)).collect();
-            streamlines(&field, &seeds, 0.01, 400, bounds)
-                .into_iter()
-                .map(|l| l.into_iter().map(|z| [round(z.re), round(z.im)]).collect())
-                .collect()
-        }
-        None => Vec::new(),
-    };
+    let bounds = drawing_bounds(s, setup, path);
+    let lines = streamline_points(s, setup, path, bounds);
     let obstacles: Vec<_> = s
         .obstacles()
         .iter()
         .map(|o| json!({ "p": o.position, "v": o.velocity, "planning_radius": o.planning_radius, "radius": o.radius }))
-        .collect();
-    let h = &stats.e2e_ns;
-    let mut below = 0;
-    let histogram: Vec<_> = metrics::BUCKETS_S
-        .iter()
-        .map(|&le| {
-            let bound = (le * 1e9) as u64;
-            let n: u64 = h.iter_recorded().filter(|x| x.value_iterated_to() <= bound).map(|x| x.count_at_value()).sum();
-            let in_bucket = n - below;
-            below = n;
-            json!({ "le_s": le, "count": in_bucket })
-        })
         .collect();
     json!({
         "seq": seq,
@@ -228,9 +184,70 @@ fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &me
         "path": path,
         "streamlines": lines,
         "bounds": [[bounds.0.re, bounds.0.im], [bounds.1.re, bounds.1.im]],
-        "latency": { "histogram": histogram, "cycles": h.len(), "deadline_misses": stats.deadline_misses },
+        "latency": {
+            "histogram": latency_buckets(&stats.e2e_ns),
+            "cycles": stats.e2e_ns.len(),
+            "deadline_misses": stats.deadline_misses
+        },
     })
     .to_string()
+}
+
+/// The drawing's extent: the robot, the goal, the obstacles and the path, with a margin.
+fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, path: &[[f64; 2]]) -> (Point, Point) {
+    let robot = Point::new(s.pose[0], s.pose[1]);
+    let mut lo = robot;
+    let mut hi = robot;
+    let mut grow = |p: Point, r: f64| {
+        lo = Point::new(lo.re.min(p.re - r), lo.im.min(p.im - r));
+        hi = Point::new(hi.re.max(p.re + r), hi.im.max(p.im + r));
+    };
+    grow(Point::new(s.goal[0], s.goal[1]), 0.05);
+    for o in s.obstacles() {
+        grow(Point::new(f64::from(o.position[0]), f64::from(o.position[1])), f64::from(o.planning_radius));
+    }
+    for p in path {
+        grow(Point::new(p[0], p[1]), setup.robot_radius);
+    }
+    if let Some(h) = setup.lane_half_width {
+        grow(Point::new(robot.re, 0.0), h);
+    }
+    let pad = Point::new(0.15, 0.15);
+    (lo - pad, hi + pad)
+}
+
+/// The field's streamlines through seeds across the way to the goal, within `bounds`.
+fn streamline_points(
+    s: &SceneRecord,
+    setup: &ViewSetup,
+    path: &[[f64; 2]],
+    bounds: (Point, Point),
+) -> Vec<Vec<[f64; 2]>> {
+    let Some(field) = (s.count > 0 || path.len() > 1).then(|| field(s, setup)).flatten() else { return Vec::new() };
+    let robot = Point::new(s.pose[0], s.pose[1]);
+    let to_goal = Point::new(s.goal[0], s.goal[1]) - robot;
+    let across = Point::i() * to_goal / to_goal.norm().max(1e-9);
+    let span = (bounds.1 - bounds.0).norm() * 0.5;
+    let seeds: Vec<Point> = (-8..=8).map(|k| robot + across * (span * f64::from(k) / 8.0)).collect();
+    streamlines(&field, &seeds, 0.01, 400, bounds)
+        .into_iter()
+        .map(|l| l.into_iter().map(|z| [round(z.re), round(z.im)]).collect())
+        .collect()
+}
+
+/// The latency histogram's counts per bucket (not cumulative), for the view's bars.
+fn latency_buckets(h: &hdrhistogram::Histogram<u64>) -> Vec<serde_json::Value> {
+    let mut below = 0;
+    metrics::BUCKETS_S
+        .iter()
+        .map(|&le| {
+            let bound = (le * 1e9) as u64;
+            let n: u64 = h.iter_recorded().filter(|x| x.value_iterated_to() <= bound).map(|x| x.count_at_value()).sum();
+            let in_bucket = n - below;
+            below = n;
+            json!({ "le_s": le, "count": in_bucket })
+        })
+        .collect()
 }
 
 fn round(x: f64) -> f64 {

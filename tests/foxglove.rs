@@ -1,0 +1,83 @@
+//! Foxglove live: a real `flowgate run` driving the simulator over ptys serves the
+//! recording's channels over the Foxglove WebSocket protocol, and an independent client
+//! (Python's `websockets`, written from the published protocol: tests/foxglove_client.py)
+//! connects, sees every channel advertised with its schema, subscribes, and decodes what the
+//! gateway is doing: its cycles, in order, with integers as integers, and the robot's pose.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+
+use flowgate::lab::Scenario;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn foxglove_connects_to_a_running_gateway() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("flowgate-foxglove-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let s = Scenario::load(&root.join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
+    // A free loopback port.
+    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    cfg.operator.foxglove = Some(addr);
+    let config = dir.join("rig.toml");
+    std::fs::write(&config, cfg.to_toml()).unwrap();
+    let mut gateway = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["run", "--arm", "--config"])
+        .arg(&config)
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let python = std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test");
+    // The client retries nothing: wait for the server to listen.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while std::net::TcpStream::connect(addr).is_err() {
+        assert!(std::time::Instant::now() < deadline, "nothing listens on {addr}");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await; // polling for the port to open
+    }
+    let out = tokio::task::spawn_blocking(move || {
+        Command::new(python)
+            .arg(root.join("tests/foxglove_client.py"))
+            .args([&format!("ws://{addr}"), "50", "/cycle", "/robot/pose", "/arena"])
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    let _ = gateway.kill();
+    let _ = gateway.wait();
+    handle.stop().await;
+    let _ = std::fs::remove_dir_all(&dir);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert!(v["server"].as_str().unwrap().starts_with("flowgate "), "{v}");
+    assert_eq!(v["subprotocol"], "foxglove.sdk.v1", "{v}");
+    // Every channel of the recording, JSON with a JSON Schema.
+    for (topic, schema) in [
+        ("/psd/rx", "flowgate.Input"),
+        ("/can/rx", "flowgate.Input"),
+        ("/gateway/input", "flowgate.Input"),
+        ("/psd/tx", "flowgate.PsdPacket"),
+        ("/can/tx", "flowgate.CanFrame"),
+        ("/cycle", "flowgate.Cycle"),
+        ("/obstacles", "flowgate.Obstacles"),
+        ("/robot/pose", "foxglove.PoseInFrame"),
+        ("/arena", "foxglove.SceneUpdate"),
+        ("/log", "foxglove.Log"),
+    ] {
+        let ch = &v["channels"][topic];
+        assert_eq!(ch["schemaName"], schema, "{topic}: {ch}");
+        assert_eq!((ch["encoding"].as_str(), ch["schemaEncoding"].as_str()), (Some("json"), Some("jsonschema")));
+    }
+    assert_eq!(v["channels"]["/cycle"]["schema"]["properties"]["cycle"]["type"], "integer");
+    // The gateway's cycles as they run: consecutive, integers, timestamps rising.
+    let cycles: Vec<u64> =
+        v["messages"]["/cycle"].as_array().unwrap().iter().map(|c| c["cycle"].as_u64().unwrap()).collect();
+    assert!(cycles.len() >= 50 && cycles.windows(2).all(|w| w[1] == w[0] + 1), "{cycles:?}");
+    assert!(v["timestamps_rising"].as_bool().unwrap());
+    let pose = &v["messages"]["/robot/pose"][0]["pose"]["position"];
+    assert!(pose["x"].as_f64().unwrap().abs() < 2.0 && pose["y"].is_number(), "{pose}");
+    assert!(v["messages"]["/arena"].as_array().unwrap().len() >= 50);
+}
