@@ -5,30 +5,15 @@
 //! gateway is doing: its cycles, in order, with integers as integers, and the robot's pose.
 
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 
-use flowgate::lab::Scenario;
+mod support;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn foxglove_connects_to_a_running_gateway() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let dir = std::env::temp_dir().join(format!("flowgate-foxglove-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let s = Scenario::load(&root.join("scenarios/e1-standing-obstacle.toml")).unwrap();
-    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
-    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
-    // A free loopback port.
-    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
-    cfg.operator.foxglove = Some(addr);
-    let config = dir.join("rig.toml");
-    std::fs::write(&config, cfg.to_toml()).unwrap();
-    let mut gateway = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["run", "--arm", "--config"])
-        .arg(&config)
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
+    let addr = support::free_loopback_addr();
+    let gateway = support::run_on_sim("foxglove", |cfg| cfg.operator.foxglove = Some(addr)).await;
     let python = std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test");
     // The client retries nothing: wait for the server to listen.
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
@@ -45,10 +30,7 @@ async fn foxglove_connects_to_a_running_gateway() {
     })
     .await
     .unwrap();
-    let _ = gateway.kill();
-    let _ = gateway.wait();
-    handle.stop().await;
-    let _ = std::fs::remove_dir_all(&dir);
+    gateway.stop().await;
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();

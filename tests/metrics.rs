@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use flowgate::lab::Scenario;
+mod support;
 
 /// One HTTP GET, whole reply; `None` while nothing listens yet.
 fn scrape(addr: std::net::SocketAddr, path: &str) -> Option<String> {
@@ -48,23 +48,8 @@ fn value(families: &serde_json::Value, family: &str, sample: &str, label: Option
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn metrics_scraped_and_parsed_by_prometheus_client() {
-    let dir = std::env::temp_dir().join(format!("flowgate-metrics-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
-    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
-    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
-    // A free loopback port.
-    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
-    cfg.operator.metrics = Some(addr);
-    let config = dir.join("rig.toml");
-    std::fs::write(&config, cfg.to_toml()).unwrap();
-    let mut gateway = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["run", "--arm", "--config"])
-        .arg(&config)
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
+    let addr = support::free_loopback_addr();
+    let gateway = support::run_on_sim("metrics", |cfg| cfg.operator.metrics = Some(addr)).await;
     // Scrape until the gateway has run a hundred cycles (it publishes once a second).
     let mut families = serde_json::Value::Null;
     for _ in 0..40 {
@@ -78,9 +63,7 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
         }
     }
     let not_found = scrape(addr, "/other").unwrap();
-    let _ = gateway.kill();
-    let _ = gateway.wait();
-    handle.stop().await;
+    gateway.stop().await;
     assert!(not_found.starts_with("HTTP/1.1 404"), "{not_found}");
 
     let cycles = value(&families, "flowgate_cycles", "flowgate_cycles_total", None);
@@ -141,5 +124,4 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
             .unwrap();
         assert_eq!(n, count, "{stage}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -200,26 +200,34 @@ proptest! {
     }
 }
 
+impl Case {
+    /// An obstacle `gap` beyond touching at `bearing_deg`, on a course aimed `offset` times
+    /// the two radii beside the robot's centre (within them: it would hit a robot that stays).
+    #[allow(clippy::too_many_arguments)]
+    fn threat(
+        heading_deg: f64,
+        accel: f64,
+        obstacle_radius: f64,
+        gap: f64,
+        bearing_deg: f64,
+        speed_ratio: f64,
+        offset: f64,
+    ) -> Self {
+        let reach = obstacle_radius + ROBOT_RADIUS;
+        let start = Point::from_polar(gap + reach, bearing_deg.to_radians());
+        let beside = Point::from_polar(offset * reach, bearing_deg.to_radians() + std::f64::consts::FRAC_PI_2);
+        let course_deg = (beside - start).arg().to_degrees();
+        Case { heading_deg, accel, obstacle_radius, gap, bearing_deg, speed_ratio, course_deg, lane: None }
+    }
+}
+
 /// An obstacle on a course through a standing robot, slower than the robot can go.
 fn threat() -> impl Strategy<Value = Case> {
     // Where it starts (beyond touching, and bearing), its speed, and how far off the robot's
     // centre its course passes (within the two radii: it would hit a robot that stays).
     (-180.0..180.0f64, 0.3..3.0f64, 0.02..0.12f64, 0.05..0.6f64, -180.0..180.0f64, 0.2..0.95f64, -0.9..0.9f64).prop_map(
-        |(heading_deg, accel, obstacle_radius, gap, bearing_deg, speed_ratio, offset)| {
-            let reach = obstacle_radius + ROBOT_RADIUS;
-            let start = Point::from_polar(gap + reach, bearing_deg.to_radians());
-            // Aimed at a point `offset · reach` beside the robot's centre, across its course.
-            let beside = Point::from_polar(offset * reach, bearing_deg.to_radians() + std::f64::consts::FRAC_PI_2);
-            Case {
-                heading_deg,
-                accel,
-                obstacle_radius,
-                gap,
-                bearing_deg,
-                speed_ratio,
-                course_deg: (beside - start).arg().to_degrees(),
-                lane: None,
-            }
+        |(heading, accel, radius, gap, bearing, speed, offset)| {
+            Case::threat(heading, accel, radius, gap, bearing, speed, offset)
         },
     )
 }
@@ -458,20 +466,7 @@ fn evasion_escapes_most_threats_to_a_standing_robot() {
             for gap in [0.05, 0.2, 0.5] {
                 for offset in [-0.5, 0.0, 0.5] {
                     let bearing_deg = f64::from(bearing) * 45.0 + 10.0;
-                    let (obstacle_radius, reach) = (0.05, 0.05 + ROBOT_RADIUS);
-                    let start = Point::from_polar(gap + reach, bearing_deg.to_radians());
-                    let beside =
-                        Point::from_polar(offset * reach, bearing_deg.to_radians() + std::f64::consts::FRAC_PI_2);
-                    let c = Case {
-                        heading_deg: 0.0,
-                        accel: 1.0,
-                        obstacle_radius,
-                        gap,
-                        bearing_deg,
-                        speed_ratio,
-                        course_deg: (beside - start).arg().to_degrees(),
-                        lane: None,
-                    };
+                    let c = Case::threat(0.0, 1.0, 0.05, gap, bearing_deg, speed_ratio, offset);
                     let s = scenario(&c);
                     let standing = drive_guarded(&s, Aim::Stand, Guard::Supervisor, 30.0);
                     assert!(standing.contact.is_some_and(|k| !k.active), "{c:?}: {:?}", standing.contact);
