@@ -28,6 +28,7 @@ fn planner(space: Space) -> Planner {
         uncertainty_sigmas: 1.0,
         clearance: 0.006,
         tie_break: Some(TieBreak::default()),
+        anticipation: 0.0,
     })
 }
 

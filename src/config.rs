@@ -297,6 +297,12 @@ pub struct PlannerSettings {
     /// in free space, so it is off unless asked for (docs/supervisor.md, "Evasion").
     #[serde(default)]
     pub evasion: bool,
+    /// Anticipation in a lane, s (0: off): a moving obstacle is passed on the side its
+    /// drift across the robot's way leaves, and planned where it will be nearest the robot
+    /// while they pass, looking at most this far ahead (docs/planner.md). Not used in free
+    /// space.
+    #[serde(default = "default_anticipation")]
+    pub anticipation: f64,
 }
 
 fn default_true() -> bool {
@@ -309,6 +315,10 @@ fn default_uncertainty_sigmas() -> f64 {
 
 fn default_clearance() -> f64 {
     0.006
+}
+
+fn default_anticipation() -> f64 {
+    3.0
 }
 
 fn default_goal_wait() -> f64 {
@@ -745,6 +755,9 @@ impl PlannerSettings {
         if !(self.clearance.is_finite() && (0.0..=0.1).contains(&self.clearance)) {
             return invalid("planner.clearance", format!("must be from 0 to 0.1 m, is {}", self.clearance));
         }
+        if !(self.anticipation.is_finite() && (0.0..=30.0).contains(&self.anticipation)) {
+            return invalid("planner.anticipation", format!("must be from 0 to 30 s, is {}", self.anticipation));
+        }
         if !(self.goal_wait.is_finite() && (0.0..=3600.0).contains(&self.goal_wait)) {
             return invalid("planner.goal_wait", format!("must be from 0 to 3600 s, is {}", self.goal_wait));
         }
@@ -961,6 +974,7 @@ impl GatewayConfig {
                 uncertainty_sigmas: p.uncertainty_sigmas,
                 clearance: p.clearance,
                 tie_break: p.tie_break.then(TieBreak::default),
+                anticipation: p.anticipation,
             },
             drive: DriveConfig {
                 wheel_base: d.wheel_base,
@@ -1118,6 +1132,8 @@ mod tests {
             ("clearance = 0.006", "clearance = -0.001", "planner.clearance"),
             ("goal_wait = 10.0", "goal_wait = -1.0", "planner.goal_wait"),
             ("goal_wait = 10.0", "goal_wait = inf", "planner.goal_wait"),
+            ("anticipation = 3.0", "anticipation = -1", "planner.anticipation"),
+            ("anticipation = 3.0", "anticipation = nan", "planner.anticipation"),
             ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = nan", "planner.margin.extra_speed"),
             ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = -1", "planner.margin.extra_speed"),
             ("k1 = 0.0", "k1 = nan", "calibration.k1"),

@@ -71,6 +71,7 @@ impl TrackingSettings {
                 radius: radius + self.max_obstacle_speed * unseen,
                 position_sd: kf.uncertainty(kf.time()).0,
                 velocity_sd: 0.0,
+                drift: Point::default(),
                 spread: self.max_obstacle_speed,
             }
         })
@@ -143,8 +144,15 @@ pub struct ConstantVelocityKf {
     t: f64,
     position: Point,
     velocity: Point,
+    /// `velocity` smoothed over [`DRIFT_TIME_CONSTANT`].
+    drift: Point,
     p: AxisCovariance,
 }
+
+/// The time constant of an obstacle's drift (its velocity smoothed), s: long enough that
+/// the filter's sample-to-sample wander (some cm/s at the default process noise) averages
+/// out, short enough to follow a turn within a couple of seconds.
+pub const DRIFT_TIME_CONSTANT: f64 = 1.0;
 
 /// The covariance of one axis's position and velocity (m², m²/s, m²/s²), the same for
 /// both axes.
@@ -172,7 +180,14 @@ impl ConstantVelocityKf {
     /// A filter started at a first measurement `z` taken at `t`, velocity unknown.
     pub fn new(config: KalmanConfig, t: f64, z: Point) -> Self {
         let r = config.measurement_noise.powi(2);
-        Self { config, t, position: z, velocity: Point::default(), p: AxisCovariance { pp: r, pv: 0.0, vv: 0.25 } }
+        Self {
+            config,
+            t,
+            position: z,
+            velocity: Point::default(),
+            drift: Point::default(),
+            p: AxisCovariance { pp: r, pv: 0.0, vv: 0.25 },
+        }
     }
 
     /// Fold in a measurement `z` taken at `t` (measurements must come in time order; an
@@ -194,6 +209,7 @@ impl ConstantVelocityKf {
         let innovation = z - self.position;
         self.position += innovation * kp;
         self.velocity += innovation * kv;
+        self.drift += (self.velocity - self.drift) * (dt / DRIFT_TIME_CONSTANT).min(1.0);
         self.p = AxisCovariance { pp: (1.0 - kp) * p.pp, pv: (1.0 - kp) * p.pv, vv: p.vv - kv * p.pv };
         true
     }
@@ -202,6 +218,11 @@ impl ConstantVelocityKf {
     pub fn predict(&self, t: f64) -> (Point, Point) {
         let dt = t - self.t;
         (self.position + self.velocity * dt, self.velocity)
+    }
+
+    /// The velocity smoothed over [`DRIFT_TIME_CONSTANT`], m/s.
+    pub fn drift(&self) -> Point {
+        self.drift
     }
 
     /// Time of the last measurement.
@@ -516,8 +537,15 @@ impl Tracker {
             let (center, velocity) = kf.predict(at);
             let center = if predict { center } else { self.measured[k] };
             let (position_sd, velocity_sd) = kf.uncertainty(at);
-            let estimate =
-                ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd, spread: 0.0 };
+            let estimate = ObstacleEstimate {
+                center,
+                velocity,
+                radius: self.radii[k],
+                position_sd,
+                velocity_sd,
+                drift: kf.drift(),
+                spread: 0.0,
+            };
             Some((estimate, kf.position_covariance(at)))
         })
     }
@@ -680,8 +708,15 @@ impl Tracker {
             } else {
                 let (center, velocity) = kf.predict(t);
                 let (position_sd, velocity_sd) = kf.uncertainty(t);
-                let now =
-                    ObstacleEstimate { center, velocity, radius: self.radii[k], position_sd, velocity_sd, spread: 0.0 };
+                let now = ObstacleEstimate {
+                    center,
+                    velocity,
+                    radius: self.radii[k],
+                    position_sd,
+                    velocity_sd,
+                    drift: kf.drift(),
+                    spread: 0.0,
+                };
                 self.predicted[n] = now;
                 // Without prediction the planner takes the last measurement as it stands (the
                 // paper's E3); the supervisor always judges the predicted one.

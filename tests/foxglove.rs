@@ -37,21 +37,21 @@ async fn foxglove_connects_to_a_running_gateway() {
     assert!(v["server"].as_str().unwrap().starts_with("flowgate "), "{v}");
     assert_eq!(v["subprotocol"], "foxglove.sdk.v1", "{v}");
     // Every channel of the recording, JSON with a JSON Schema.
-    for (topic, schema) in [
-        ("/psd/rx", "flowgate.Input"),
-        ("/can/rx", "flowgate.Input"),
-        ("/gateway/input", "flowgate.Input"),
-        ("/psd/tx", "flowgate.PsdPacket"),
-        ("/can/tx", "flowgate.CanFrame"),
-        ("/cycle", "flowgate.Cycle"),
-        ("/obstacles", "flowgate.Obstacles"),
-        ("/robot/pose", "foxglove.PoseInFrame"),
-        ("/arena", "foxglove.SceneUpdate"),
-        ("/log", "foxglove.Log"),
+    for (topic, schema, encoding, schema_encoding) in [
+        ("/psd/rx", "flowgate.Input", "json", "jsonschema"),
+        ("/can/rx", "flowgate.Input", "json", "jsonschema"),
+        ("/gateway/input", "flowgate.Input", "json", "jsonschema"),
+        ("/psd/tx", "flowgate.PsdPacket", "json", "jsonschema"),
+        ("/can/tx", "flowgate.CanFrame", "json", "jsonschema"),
+        ("/cycle", "flowgate.Cycle", "json", "jsonschema"),
+        ("/obstacles", "flowgate.Obstacles", "json", "jsonschema"),
+        ("/robot/pose", "foxglove.PoseInFrame", "protobuf", "protobuf"),
+        ("/arena", "foxglove.SceneUpdate", "protobuf", "protobuf"),
+        ("/log", "foxglove.Log", "protobuf", "protobuf"),
     ] {
         let ch = &v["channels"][topic];
         assert_eq!(ch["schemaName"], schema, "{topic}: {ch}");
-        assert_eq!((ch["encoding"].as_str(), ch["schemaEncoding"].as_str()), (Some("json"), Some("jsonschema")));
+        assert_eq!((ch["encoding"].as_str(), ch["schemaEncoding"].as_str()), (Some(encoding), Some(schema_encoding)));
     }
     assert_eq!(v["channels"]["/cycle"]["schema"]["properties"]["cycle"]["type"], "integer");
     // The gateway's cycles as they run: consecutive, integers, timestamps rising.
@@ -61,5 +61,13 @@ async fn foxglove_connects_to_a_running_gateway() {
     assert!(v["timestamps_rising"].as_bool().unwrap());
     let pose = &v["messages"]["/robot/pose"][0]["pose"]["position"];
     assert!(pose["x"].as_f64().unwrap().abs() < 2.0 && pose["y"].is_number(), "{pose}");
-    assert!(v["messages"]["/arena"].as_array().unwrap().len() >= 50);
+    // The scene, decoded by Google's protobuf from the descriptors the server advertised:
+    // the arena entity with the robot's disc where its pose is, and the goal.
+    let arenas = v["messages"]["/arena"].as_array().unwrap();
+    assert!(arenas.len() >= 50);
+    let entities = arenas[0]["entities"].as_array().unwrap();
+    let ids: Vec<&str> = entities.iter().map(|e| e["id"].as_str().unwrap()).collect();
+    assert_eq!(ids, ["arena", "goal"]);
+    assert_eq!(entities[0]["frame_id"], "floor");
+    assert!(!entities[0]["cylinders"].as_array().unwrap().is_empty(), "{}", entities[0]);
 }

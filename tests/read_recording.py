@@ -11,7 +11,9 @@ from collections import Counter
 
 import can
 import cantools
+from google.protobuf.json_format import MessageToDict
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 path, telemetry, dbc_path = sys.argv[1], sys.argv[2], sys.argv[3]
 failures = []
@@ -23,13 +25,26 @@ def check(ok, what):
 
 
 with open(path, "rb") as f:
-    reader = make_reader(f)
+    # JSON channels by their own decoding; Foxglove's well-known ones (protobuf) by Foxglove's
+    # decoder for the `mcap` package, from the descriptors in the file.
+    reader = make_reader(f, decoder_factories=[DecoderFactory()])
     summary = reader.get_summary()
     channels = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    encodings = {c.topic: (c.message_encoding, summary.schemas[c.schema_id].encoding) for c in summary.channels.values()}
     metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     messages = {}
     for schema, channel, message in reader.iter_messages(log_time_order=False):
+        if channel.message_encoding == "protobuf":
+            continue
         messages.setdefault(channel.topic, []).append((message.sequence, message.log_time, json.loads(message.data)))
+    f.seek(0)
+    reader = make_reader(f, decoder_factories=[DecoderFactory()])
+    for schema, channel, message, decoded in reader.iter_decoded_messages(
+        topics=["/robot/pose", "/arena", "/log"], log_time_order=False
+    ):
+        messages.setdefault(channel.topic, []).append(
+            (message.sequence, message.log_time, MessageToDict(decoded, preserving_proto_field_name=True))
+        )
 
 expected = {
     "/psd/rx": "flowgate.Input",
@@ -45,6 +60,8 @@ expected = {
 }
 for topic, schema in expected.items():
     check(channels.get(topic) == schema, f"channel {topic} with schema {schema} (have {channels.get(topic)})")
+    want = ("protobuf", "protobuf") if schema.startswith("foxglove.") else ("json", "jsonschema")
+    check(encodings.get(topic) == want, f"channel {topic} encoded {want} (have {encodings.get(topic)})")
 
 # The configuration and the end record.
 check("[planner]" in metadata.get("flowgate", {}).get("config", ""), "the configuration in metadata `flowgate`")
@@ -77,7 +94,28 @@ schema = json.loads(summary.schemas[[c for c in summary.channels.values() if c.t
 integers = [k for k, v in schema["properties"].items() if v["type"] == "integer"]
 check({"cycle", "rx_ns", "e2e_ns", "pulses_left"} <= set(integers), f"/cycle integer fields {integers}")
 check(all(isinstance(c[k], int) for c in cycles for k in integers), "every /cycle integer field an integer")
-check(len(messages.get("/robot/pose", [])) == len(cycles), "one /robot/pose per cycle")
+# The display channels go together, at most 20 times a second (every cycle when slower).
+check(
+    [m[1] for m in messages.get("/robot/pose", [])] == [m[1] for m in messages.get("/arena", [])],
+    "one /robot/pose with each /arena",
+)
+# Each pose, decoded from protobuf, is its cycle's position (the pose record follows the
+# cycle it was estimated in; protobuf leaves out zero fields).
+poses = {m[0]: m[2] for m in messages.get("/robot/pose", [])}
+placed = [c for c in cycles if c["cycle"] in poses]
+check(
+    len(placed) > 0
+    and all(
+        abs(poses[c["cycle"]]["pose"]["position"].get("x", 0.0) - c["x"]) < 1e-3
+        and abs(poses[c["cycle"]]["pose"]["position"].get("y", 0.0) - c["y"]) < 1e-3
+        for c in placed
+        if c["x"] == c["x"]
+    ),
+    "each /robot/pose at its cycle's position",
+)
+check(all(m[2]["frame_id"] == "floor" for m in messages.get("/robot/pose", [])), "poses in the floor frame")
+logs = [m[2] for m in messages.get("/log", [])]
+check(len(logs) > 0 and all(l["level"] == "INFO" and l["name"] == "flowgate" for l in logs), "/log entries at INFO")
 # The arena is drawn at most 20 times a second (every cycle when slower).
 arena = [m[1] for m in messages.get("/arena", [])]
 check(len(arena) > 0 and all(b - a >= 50_000_000 for a, b in zip(arena, arena[1:])), "/arena at most every 50 ms")

@@ -74,6 +74,11 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     let (x0, x1) = (seen["first"][0].as_f64().unwrap(), seen["second"][0].as_f64().unwrap());
     assert!(x1 - x0 > 0.02, "the robot marker moved {x0} -> {x1}: {seen}");
     assert_eq!(seen["obstacles"], 1);
+    // The final screen against what the gateway reports: its cycle count, and the robot
+    // within the goal's tolerance (5 cm) of it.
+    let final_ = &seen["final"];
+    assert_eq!(final_["link"], "run ended: its last state", "{seen}");
+    assert!(final_["goal"].as_f64().unwrap() <= 0.05, "{seen}");
     let png = std::fs::read(&shot).unwrap();
     assert!(png.starts_with(b"\x89PNG") && png.len() > 10_000, "a screenshot of {} bytes", png.len());
 
@@ -81,5 +86,11 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     let mut text = String::new();
     demo.stdout.take().unwrap().read_to_string(&mut text).unwrap();
     assert!(status.success() && text.contains("goal reached, no contact"), "{text}");
+    let reported: u64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("cycles")?.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no cycle count in the report: {text}"));
+    assert_eq!(final_["cycles"].as_u64(), Some(reported), "the page's count against the report's: {seen}");
+    assert_eq!(final_["histogram_cycles"].as_u64(), Some(reported), "{seen}");
     let _ = std::fs::remove_dir_all(&dir);
 }

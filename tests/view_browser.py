@@ -4,8 +4,10 @@ run drives, and check the page as a person would see it.
 Usage: view_browser.py URL SCREENSHOT.png
 Starts Chromium first and prints "ready" (the caller starts the run then, so a slow browser
 start never misses it), waits for the view to answer, waits for the page to draw the robot, then for the robot marker to move; checks the state,
-the obstacles with their planning circles, the streamlines and the latency bars; saves a
-screenshot. Prints a JSON summary; exits 1 naming what failed.
+the obstacles with their planning circles, the streamlines, the latency bars, the axes in
+metres and the numbers beside them; saves a screenshot. Then waits for the run to end and
+reads the final screen: the state and its reason kept, the numbers, the header's cycle
+count against the histogram's. Prints a JSON summary; exits 1 naming what failed.
 """
 import json
 import sys
@@ -62,9 +64,44 @@ try:
         failures.append("an empty latency histogram")
     if path < 2:
         failures.append("no path drawn")
+    # The axes: ticks in metres along both edges, and their titles.
+    axes = driver.execute_script("""
+        const ticks = c => [...document.querySelectorAll('#axes text.tick.' + c)].map(t => parseFloat(t.textContent));
+        return { x: ticks('x'), y: ticks('y'),
+                 titles: [...document.querySelectorAll('#axes text.title')].map(t => t.textContent) };""")
+    if len(axes["x"]) < 3 or len(axes["y"]) < 2 or sorted(axes["titles"]) != ["x (m)", "y (m)"]:
+        failures.append(f"axes {axes}")
+    # The numbers beside the drawing agree with the drawing (the pose in metres).
+    live = driver.execute_script("""
+        const v = id => document.getElementById(id).textContent;
+        const r = document.getElementById('robot');
+        return { x: v('n-x'), marker_x: r.dataset.x, goal: v('n-goal'), speed: v('n-speed'),
+                 clearance: v('n-clearance'), obstacle_speeds: v('n-obstacle-speeds') };""")
+    if live["x"] == "-" or abs(float(live["x"]) - float(live["marker_x"])) > 0.0006:
+        failures.append(f"the position {live['x']} against the marker's {live['marker_x']}")
+    for key in ("goal", "speed", "clearance", "obstacle_speeds"):
+        if live[key] == "-":
+            failures.append(f"no {key} shown while running")
     driver.save_screenshot(shot)
+    # The run ends: the page keeps its last state, says so, and its counts agree.
+    try:
+        WebDriverWait(driver, 60, poll_frequency=0.2).until(
+            lambda d: d.find_element(By.ID, "link").text.startswith(("run ended", "disconnected")))
+    except Exception:
+        failures.append("the page never saw the run end")
+    final = driver.execute_script("""
+        const v = id => document.getElementById(id).textContent;
+        const caption = document.getElementById('latency-caption');
+        return { state: document.getElementById('state').dataset.state, reason: v('reason'), link: v('link'),
+                 cycles: parseInt(v('cycles')), histogram_cycles: caption ? parseInt(caption.dataset.cycles) : null,
+                 goal: parseFloat(v('n-goal')), x: parseFloat(v('n-x')) };""")
+    if final["state"] != "stopped" or final["reason"] != "goal reached":
+        failures.append(f"final state {final['state']} ({final['reason']})")
+    if final["cycles"] != final["histogram_cycles"]:
+        failures.append(f"header {final['cycles']} cycles, histogram {final['histogram_cycles']}")
     out = {"first": first, "second": second, "state": state, "obstacles": obstacles,
-           "streamlines": streamlines, "latency_cycles": counted, "path_points": path}
+           "streamlines": streamlines, "latency_cycles": counted, "path_points": path,
+           "axes": axes, "live": live, "final": final}
 finally:
     driver.quit()
 out["failures"] = failures

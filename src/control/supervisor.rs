@@ -823,6 +823,7 @@ mod tests {
                         radius,
                         position_sd,
                         velocity_sd,
+                        drift: Point::from_polar(speed, course),
                         spread: 0.0,
                     })
                     .collect();

@@ -113,6 +113,10 @@ pub struct PlannerConfig {
     /// the zone the supervisor guards instead of into it (where it would be slowed).
     pub clearance: f64,
     pub tie_break: Option<TieBreak>,
+    /// Anticipation horizon in a lane, s (0: off): each moving obstacle is planned at the
+    /// edge, on the robot's side, of the band its drift sweeps while the robot passes it,
+    /// at most this far ahead (see [`anticipate`]). Not used in free space.
+    pub anticipation: f64,
 }
 
 /// An obstacle as estimated by tracking, at the time the command will act.
@@ -127,6 +131,9 @@ pub struct ObstacleEstimate {
     pub position_sd: f64,
     /// One standard deviation of `velocity` along its worst direction, m/s.
     pub velocity_sd: f64,
+    /// Its velocity averaged over the last second or so, m/s: steadier than `velocity`,
+    /// which follows each sample, and what a look seconds ahead goes by (anticipation).
+    pub drift: Point,
     /// How fast the region it may occupy grows beyond `radius`, m/s: 0 for a tracked
     /// obstacle; the top obstacle speed for one unseen inside the view, whose `radius`
     /// is then how far it may have gone since it was last seen (a region, not a body).
@@ -136,7 +143,7 @@ pub struct ObstacleEstimate {
 impl ObstacleEstimate {
     /// An obstacle known exactly (a scripted one, a test's).
     pub const fn exact(center: Point, velocity: Point, radius: f64) -> Self {
-        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0, spread: 0.0 }
+        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0, drift: velocity, spread: 0.0 }
     }
 }
 
@@ -213,6 +220,10 @@ impl Planner {
         let mut flags = PlanFlags::default();
         let to_goal = input.goal - input.position;
         let left = if to_goal.length() > 0.0 { Point::i() * to_goal / to_goal.length() } else { Point::default() };
+        // In free space the field's doublets already bend the robot round a crossing
+        // obstacle, and planning it ahead of itself costs more than it saves (the crowd and
+        // E6 sweeps); in a lane the side is everything.
+        let horizon = if matches!(self.config.space, Space::Lane { .. }) { self.config.anticipation } else { 0.0 };
         for o in input.obstacles {
             let speed = o.velocity.length();
             let mut r0 = o.radius + input.robot_radius;
@@ -223,8 +234,10 @@ impl Planner {
                 let room = (input.position - o.center).length().min((input.goal - o.center).length()) - SHRUNK_GAP;
                 r0 = r0.min(room.max(0.0));
             }
+            let anticipation = anticipate(horizon, self.config.max_speed, input, o);
+            let anticipated = o.center + anticipation.shift;
             let mut p = PlanObstacle {
-                center: o.center,
+                center: anticipated,
                 velocity: o.velocity,
                 radius: self.config.margin.radius(r0, speed, input.delay)
                     + self.config.uncertainty_sigmas * o.position_sd
@@ -233,7 +246,9 @@ impl Planner {
             if let Some(tb) = self.config.tie_break {
                 let shift = tie_break_shift(&tb, input.position, input.goal, &p);
                 if shift > 0.0 {
-                    p.center += left * shift;
+                    // Keep right, unless the obstacle's drift chose the left.
+                    let away = if anticipation.pass_left { -left } else { left };
+                    p.center += away * shift;
                     p.radius += shift;
                     flags.tie_break = true;
                 }
@@ -243,7 +258,7 @@ impl Planner {
             // circle shrunk to just short of it, never below what covers the true circle
             // (the supervisor guards what the margin gives up). Inside the true circle they
             // stay invalid: a robot there is in contact, a goal there cannot be reached.
-            let cover = r0 + (p.center - o.center).length();
+            let cover = r0 + (p.center - anticipated).length();
             for point in [input.position, input.goal] {
                 let distance = (point - p.center).length();
                 if distance <= p.radius && distance > cover {
@@ -295,6 +310,61 @@ impl Planner {
         Ok(Plan { field: v, velocity, flags })
     }
 }
+
+/// Where obstacle `o` is planned relative to its estimate, for a robot heading for the goal
+/// at `speed`. Over the window in which the robot would be abreast of the obstacle (from the
+/// moment their circles first overlap along the robot's way to when they last do, at most
+/// `horizon` ahead), the obstacle's motion across that way sweeps a band; the robot passes
+/// on the side of the band that asks the smaller sideways move of it, and the obstacle is
+/// planned at the band's edge on that side. An obstacle drifting across the robot's way is
+/// thus passed behind, on the side it leaves, and planned where it will be nearest the robot
+/// while they pass. The shift is across the robot's way, never along it; it is nothing for an
+/// obstacle beside or behind the robot, or one that would then cover the goal.
+fn anticipate(horizon: f64, speed: f64, input: &PlanInput<'_>, o: &ObstacleEstimate) -> Anticipation {
+    let to_goal = input.goal - input.position;
+    let none = Anticipation { shift: Point::default(), pass_left: false };
+    if horizon <= 0.0 || o.spread > 0.0 || to_goal.length() == 0.0 {
+        return none;
+    }
+    let way = to_goal / to_goal.length();
+    let left = Point::i() * way;
+    let relative = o.center - input.position;
+    let (ahead, aside) = ((relative * way.conj()).re, (relative * way.conj()).im);
+    let (v_along, v_across) = ((o.drift * way.conj()).re, (o.drift * way.conj()).im);
+    let reach = o.radius + input.robot_radius;
+    let closing = speed - v_along;
+    if closing <= 0.0 || ahead <= 0.0 {
+        return none;
+    }
+    let first = ((ahead - reach) / closing).clamp(0.0, horizon);
+    let last = ((ahead + reach) / closing).min(horizon);
+    let (at_first, at_last) = (aside + v_across * first, aside + v_across * last);
+    // Passing with the obstacle on the right asks the robot to get left of the band's
+    // left edge; with it on the left, right of the band's right edge.
+    let (left_edge, right_edge) = (at_first.max(at_last), at_first.min(at_last));
+    let pass_left = left_edge + reach < reach - right_edge && left_edge - right_edge > SIDED_BAND;
+    let planned = if pass_left { left_edge } else { right_edge };
+    let shift = left * (planned - aside);
+    if (input.goal - o.center - shift).length() <= reach {
+        return none;
+    }
+    Anticipation { shift, pass_left }
+}
+
+/// What anticipation makes of one obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Anticipation {
+    /// From its estimate to where it is planned, m.
+    shift: Point,
+    /// Its drift across the robot's way has the robot pass it on the left (its band is
+    /// wider than [`SIDED_BAND`], and leaves the robot less to do on that side); the
+    /// symmetric-case tie-break then breaks the tie toward the left too.
+    pass_left: bool,
+}
+
+/// How wide an obstacle's band must be for its drift to choose the left side, m (below
+/// it, the keep-right rule of the tie-break stands).
+const SIDED_BAND: f64 = 0.01;
 
 /// How far the tie-break shifts obstacle `o`'s planning circle for a robot at `z`.
 fn tie_break_shift(tb: &TieBreak, z: Point, goal: Point, o: &PlanObstacle) -> f64 {

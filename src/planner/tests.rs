@@ -246,6 +246,7 @@ fn planner(tie_break: Option<TieBreak>) -> Planner {
         uncertainty_sigmas: 1.0,
         clearance: 0.0,
         tie_break,
+        anticipation: 0.0,
     })
 }
 
@@ -272,6 +273,47 @@ fn tie_break_breaks_the_symmetric_case() {
     let tb = planner(Some(TieBreak::default())).plan(&off).unwrap();
     assert!(!tb.flags.tie_break);
     assert_eq!(tb.velocity, planner(None).plan(&off).unwrap().velocity);
+}
+
+/// In a lane, an obstacle coming head-on and drifting to one side is passed on the side it
+/// leaves: the robot is steered toward that side while still far off, where the field on
+/// the obstacle as it stands (anticipation off) keeps right whatever the drift. With no
+/// drift, anticipation changes nothing and the tie-break keeps right; in free space it is
+/// not used.
+#[test]
+fn a_drifting_obstacle_in_a_lane_is_passed_on_the_side_it_leaves() {
+    let lane = |anticipation| {
+        Planner::new(PlannerConfig {
+            space: Space::Lane { half_width: 0.2 },
+            anticipation,
+            ..*planner(Some(TieBreak::default())).config()
+        })
+    };
+    let plan = |planner: &Planner, drift_y: f64| {
+        let obstacles = [ObstacleEstimate::exact(Point::new(0.3, 0.02), Point::new(-0.056, drift_y), 0.07)];
+        let input = PlanInput {
+            position: Point::new(-0.3, 0.0),
+            goal: Point::new(0.6, 0.0),
+            robot_radius: 0.07,
+            obstacles: &obstacles,
+            delay: 0.0,
+        };
+        planner.plan(&input).unwrap().velocity
+    };
+    let (on, off) = (lane(3.0), lane(0.0));
+    // Drifting toward the robot's right (−y): passed on its left (+y), though it starts a
+    // little left of the robot's way.
+    assert!(plan(&off, -0.02).im < 0.0, "{}", plan(&off, -0.02));
+    assert!(plan(&on, -0.02).im > 0.0, "{}", plan(&on, -0.02));
+    // Drifting toward the left: passed on the right, turning harder than on the obstacle
+    // as it stands.
+    assert!(plan(&on, 0.02).im < 2.0 * plan(&off, 0.02).im, "{} {}", plan(&on, 0.02), plan(&off, 0.02));
+    // No drift: as without anticipation.
+    assert_eq!(plan(&on, 0.0), plan(&off, 0.0));
+    // Free space: not used.
+    let free =
+        |anticipation| Planner::new(PlannerConfig { anticipation, ..*planner(Some(TieBreak::default())).config() });
+    assert_eq!(plan(&free(3.0), -0.02), plan(&free(0.0), -0.02));
 }
 
 #[test]

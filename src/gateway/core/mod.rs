@@ -694,7 +694,9 @@ impl<K: StageClock> Core<K> {
     /// What the last cycle believed: the robot's pose, the goal, each obstacle with its
     /// covariance and planning radius. Reads only (a recording takes one per command).
     pub fn scene(&self, now: HostTime) -> SceneRecord {
-        let mut scene = SceneRecord { cycle: self.counters.cycles, at: now, ..SceneRecord::default() };
+        // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
+        let cycle = self.counters.cycles.saturating_sub(1);
+        let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
         let Some((pose, delay)) = self.last_estimate else { return scene };
         let goal = self.control.config().goal;
         scene.pose = [pose.position.re, pose.position.im, pose.heading];

@@ -1,4 +1,4 @@
-//! Foxglove live: the recording's channels (src/gateway/shell/recording.rs), the same JSON
+//! Foxglove live: the recording's channels (src/gateway/shell/recording.rs), the same
 //! messages with the same schemas, served over the Foxglove WebSocket protocol
 //! (`foxglove.websocket.v1`) by the Foxglove SDK's server, so Foxglove connects to a
 //! running gateway as it opens a recording (`[operator] foxglove`, `demo --foxglove`).
@@ -44,16 +44,16 @@ impl Live {
         self.server.port()
     }
 
-    /// Advertise a channel of JSON messages with a `jsonschema` schema.
+    /// Advertise a channel with its schema and message encoding.
     pub fn add_channel(
         &mut self,
         topic: &'static str,
-        schema_name: &str,
-        schema: &[u8],
+        schema: Schema,
+        message_encoding: &str,
     ) -> Result<(), foxglove::FoxgloveError> {
         let channel = ChannelBuilder::new(topic)
-            .message_encoding("json")
-            .schema(Schema::new(schema_name, "jsonschema", schema.to_vec()))
+            .message_encoding(message_encoding)
+            .schema(schema)
             .context(&self.context)
             .build_raw()?;
         self.channels.insert(topic, channel);

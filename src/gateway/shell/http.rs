@@ -1,5 +1,7 @@
 //! Just enough HTTP/1.1 for the gateway's read-only pages (`/metrics`, the live view): one
-//! GET per connection, a bounded request head, every step under the caller's deadline.
+//! GET per connection, a bounded request head parsed by `httparse` (hyper's parser), every
+//! step under the caller's deadline. A whole HTTP stack would bring routing, keep-alive and
+//! bodies that two read-only pages never use; the head is the only untrusted input.
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
@@ -16,25 +18,33 @@ pub enum Asked {
     Other,
 }
 
-/// Read a request head. `None`: the client closed or sent more than `MAX_HEAD` bytes
-/// before its end.
+/// Headers read at most (more: the request is refused as malformed).
+const MAX_HEADERS: usize = 32;
+
+/// Read a request head. `None`: the client closed, sent more than `MAX_HEAD` bytes before
+/// its end, or sent something that is not an HTTP/1.x request head.
 pub async fn read_request(stream: &mut TcpStream) -> std::io::Result<Option<Asked>> {
     let mut head = Vec::with_capacity(512);
     let mut buf = [0u8; 512];
-    while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+    loop {
         let n = stream.read(&mut buf).await?;
         if n == 0 || head.len() + n > MAX_HEAD {
             return Ok(None);
         }
         head.extend_from_slice(&buf[..n]);
+        let mut headers = [httparse::EMPTY_HEADER; MAX_HEADERS];
+        let mut request = httparse::Request::new(&mut headers);
+        match request.parse(&head) {
+            Ok(httparse::Status::Partial) => continue,
+            Err(_) => return Ok(None),
+            Ok(httparse::Status::Complete(_)) => {
+                return Ok(Some(match (request.method, request.path) {
+                    (Some("GET"), Some(target)) => Asked::Get(target.split('?').next().unwrap_or("/").to_string()),
+                    _ => Asked::Other,
+                }));
+            }
+        }
     }
-    let line = head.split(|&b| b == b'\r').next().unwrap_or_default();
-    let line = String::from_utf8_lossy(line);
-    let mut parts = line.split(' ');
-    Ok(Some(match (parts.next(), parts.next()) {
-        (Some("GET"), Some(target)) => Asked::Get(target.split('?').next().unwrap_or("/").to_string()),
-        _ => Asked::Other,
-    }))
 }
 
 /// A whole reply, then close.

@@ -584,6 +584,16 @@ impl Io {
         if let Some(task) = self.can_opening.take() {
             task.abort();
         }
+        // The final state for `/metrics` and the view (whose last frame then shows the
+        // same cycle count in its header and its histogram).
+        if let Some((_, next)) = &mut self.services.metrics {
+            *next = HostTime::ZERO;
+        }
+        if let Some((_, next)) = &mut self.services.view {
+            *next = HostTime::ZERO;
+        }
+        self.publish_metrics(core);
+        self.publish_view(core);
         let dropped = self.services.recorder.dropped();
         let timing = std::mem::take(&mut self.timing);
         let files = self.services.finish().await;

@@ -17,8 +17,11 @@
 //!
 //! The CAN-frame and event records the text telemetry writes too live here.
 //!
-//! JSON everywhere (`jsonschema` schemas), so Foxglove draws the arena and plots any field
-//! without set-up, and any MCAP reader can check it.
+//! The well-known channels (`/robot/pose`, `/arena`, `/log`) are Foxglove's own schemas in
+//! full, protobuf-encoded with the Foxglove SDK's types, their descriptors in the file, so
+//! Foxglove draws them without set-up and any MCAP reader with protobuf support decodes
+//! them. flowgate's own channels are JSON with a `jsonschema` schema naming each field's
+//! type, so Foxglove plots any field and any MCAP reader can check it.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -27,6 +30,11 @@ use std::path::{Path, PathBuf};
 
 use flowgate_protocol::psd::{self, Packet};
 use flowgate_protocol::{CanFrame, CanId};
+use foxglove::messages::{
+    ArrowPrimitive, Color, CylinderPrimitive, Duration, LinePrimitive, Log, Pose, PoseInFrame, Quaternion, SceneEntity,
+    SceneUpdate, Timestamp, Vector3,
+};
+use foxglove::{Encode, Schema};
 use serde_json::{json, Value};
 
 use super::foxglove::Live;
@@ -49,6 +57,12 @@ pub const GATEWAY_INPUT: &str = "/gateway/input";
 pub const PSD_TX: &str = "/psd/tx";
 pub const CAN_TX: &str = "/can/tx";
 pub const CYCLE: &str = "/cycle";
+/// Per-cycle channels.
+pub const OBSTACLES: &str = "/obstacles";
+pub const POSE: &str = "/robot/pose";
+/// The scene, at most every [`ARENA_EVERY_NS`].
+pub const ARENA: &str = "/arena";
+pub const LOG: &str = "/log";
 
 fn hex(bytes: &[u8]) -> String {
     use std::fmt::Write as _;
@@ -65,7 +79,7 @@ fn unhex(text: &str) -> Option<Vec<u8>> {
     (0..text.len()).step_by(2).map(|i| u8::from_str_radix(text.get(i..i + 2)?, 16).ok()).collect()
 }
 
-/// A CAN frame as JSON: id, whether extended or remote, data in hex, and candump's text.
+/// A CAN frame as JSON: id, whether extended or remote, length, data in hex.
 pub fn frame_json(frame: &CanFrame) -> Value {
     let (id, extended) = match frame.id() {
         CanId::Standard(id) => (u32::from(id), false),
@@ -77,7 +91,6 @@ pub fn frame_json(frame: &CanFrame) -> Value {
         "remote": frame.is_remote(),
         "dlc": frame.dlc(),
         "data": hex(frame.data()),
-        "candump": format!("{frame:?}"),
     })
 }
 
@@ -235,8 +248,28 @@ fn object_schema(title: &str, properties: &[(&str, &str)]) -> Vec<u8> {
     serde_json::to_vec(&json!({ "title": title, "type": "object", "properties": props })).unwrap_or_default()
 }
 
-/// Every channel: topic, schema name, schema (JSON Schema).
-fn channel_table() -> [(&'static str, &'static str, Vec<u8>); 10] {
+/// A channel's topic, schema and message encoding.
+struct ChannelSpec {
+    topic: &'static str,
+    schema: Schema,
+    message_encoding: &'static str,
+}
+
+/// A channel of JSON messages with a JSON Schema.
+fn json_channel(topic: &'static str, schema_name: &str, schema: Vec<u8>) -> ChannelSpec {
+    ChannelSpec { topic, schema: Schema::new(schema_name, "jsonschema", schema), message_encoding: "json" }
+}
+
+/// A channel of one of Foxglove's well-known messages, protobuf-encoded, with the SDK's
+/// descriptor of it.
+fn foxglove_channel<M: Encode>(topic: &'static str) -> std::io::Result<ChannelSpec> {
+    let schema =
+        M::get_schema().ok_or_else(|| std::io::Error::other(format!("the Foxglove SDK has no schema for {topic}")))?;
+    Ok(ChannelSpec { topic, schema, message_encoding: "protobuf" })
+}
+
+/// Every channel.
+fn channel_table() -> std::io::Result<[ChannelSpec; 10]> {
     let input_schema = object_schema(
         "flowgate.Input",
         &[("seq", "integer"), ("t_ns", "integer"), ("kind", "string"), ("bytes", "string"), ("event", "string")],
@@ -246,18 +279,46 @@ fn channel_table() -> [(&'static str, &'static str, Vec<u8>); 10] {
         &[("id", "integer"), ("extended", "boolean"), ("remote", "boolean"), ("data", "string")],
     );
     let cycle_props: Vec<(&str, &str)> = CycleRecord::CSV_HEADER.split(',').map(|c| (c, cycle_field_type(c))).collect();
-    [
-        (PSD_RX, "flowgate.Input", input_schema.clone()),
-        (CAN_RX, "flowgate.Input", input_schema.clone()),
-        (GATEWAY_INPUT, "flowgate.Input", input_schema),
-        (PSD_TX, "flowgate.PsdPacket", object_schema("flowgate.PsdPacket", &[("seq", "integer"), ("wire", "string")])),
-        (CAN_TX, "flowgate.CanFrame", frame_schema),
-        (CYCLE, "flowgate.Cycle", object_schema("flowgate.Cycle", &cycle_props)),
-        ("/obstacles", "flowgate.Obstacles", object_schema("flowgate.Obstacles", &[("obstacles", "array")])),
-        ("/robot/pose", "foxglove.PoseInFrame", object_schema("foxglove.PoseInFrame", &[("pose", "object")])),
-        ("/arena", "foxglove.SceneUpdate", object_schema("foxglove.SceneUpdate", &[("entities", "array")])),
-        ("/log", "foxglove.Log", object_schema("foxglove.Log", &[("message", "string"), ("level", "integer")])),
-    ]
+    Ok([
+        json_channel(PSD_RX, "flowgate.Input", input_schema.clone()),
+        json_channel(CAN_RX, "flowgate.Input", input_schema.clone()),
+        json_channel(GATEWAY_INPUT, "flowgate.Input", input_schema),
+        json_channel(
+            PSD_TX,
+            "flowgate.PsdPacket",
+            object_schema(
+                "flowgate.PsdPacket",
+                &[("t_ns", "integer"), ("seq", "integer"), ("message", "string"), ("wire", "string")],
+            ),
+        ),
+        json_channel(CAN_TX, "flowgate.CanFrame", frame_schema),
+        json_channel(CYCLE, "flowgate.Cycle", object_schema("flowgate.Cycle", &cycle_props)),
+        json_channel(OBSTACLES, "flowgate.Obstacles", obstacles_schema()),
+        foxglove_channel::<PoseInFrame>(POSE)?,
+        foxglove_channel::<SceneUpdate>(ARENA)?,
+        foxglove_channel::<Log>(LOG)?,
+    ])
+}
+
+/// `/obstacles`: each tracked obstacle as the planner saw it.
+fn obstacles_schema() -> Vec<u8> {
+    let pair = json!({ "type": "array", "items": { "type": "number" }, "minItems": 2, "maxItems": 2 });
+    let obstacle = json!({
+        "type": "object",
+        "properties": {
+            "position": pair, "velocity": pair,
+            "covariance": { "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3,
+                            "description": "xx, xy, yy, m²" },
+            "planning_radius": { "type": "number" }, "radius": { "type": "number" }
+        }
+    });
+    let timestamp =
+        json!({ "type": "object", "properties": { "sec": { "type": "integer" }, "nsec": { "type": "integer" } } });
+    serde_json::to_vec(&json!({
+        "title": "flowgate.Obstacles", "type": "object",
+        "properties": { "timestamp": timestamp, "obstacles": { "type": "array", "items": obstacle } }
+    }))
+    .unwrap_or_default()
 }
 
 /// The JSON type of a `/cycle` field: its times and counts are integers.
@@ -286,6 +347,32 @@ fn shortest(v: f32) -> f64 {
     v.to_string().parse().unwrap_or(0.0)
 }
 
+/// The frame every pose and entity is in: the floor's, in metres.
+const FRAME: &str = "floor";
+
+/// A pose on the floor at height `z`, turned `heading` rad about the vertical.
+fn floor_pose(x: f64, y: f64, heading: f64, z: f64) -> Pose {
+    Pose {
+        position: Some(Vector3 { x, y, z }),
+        orientation: Some(Quaternion { x: 0.0, y: 0.0, z: (heading / 2.0).sin(), w: (heading / 2.0).cos() }),
+    }
+}
+
+fn rgba([r, g, b, a]: [f64; 4]) -> Color {
+    Color { r, g, b, a }
+}
+
+/// A disc (a flat cylinder) of radius `r` and height `h` standing on the floor at `(x, y)`.
+fn disc(x: f64, y: f64, r: f64, h: f64, color: [f64; 4]) -> CylinderPrimitive {
+    CylinderPrimitive {
+        pose: Some(floor_pose(x, y, 0.0, h / 2.0)),
+        size: Some(Vector3 { x: 2.0 * r, y: 2.0 * r, z: h }),
+        bottom_scale: 1.0,
+        top_scale: 1.0,
+        color: Some(rgba(color)),
+    }
+}
+
 fn io_error(e: mcap::McapError) -> std::io::Error {
     std::io::Error::other(e)
 }
@@ -299,14 +386,17 @@ impl McapSink {
             None => None,
         };
         let mut channels = BTreeMap::new();
-        for (topic, schema, data) in channel_table() {
+        for spec in channel_table()? {
             if let Some((_, writer)) = &mut writer {
-                let schema_id = writer.add_schema(schema, "jsonschema", &data).map_err(io_error)?;
-                let id = writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(io_error)?;
-                channels.insert(topic, id);
+                let schema_id =
+                    writer.add_schema(&spec.schema.name, &spec.schema.encoding, &spec.schema.data).map_err(io_error)?;
+                let id = writer
+                    .add_channel(schema_id, spec.topic, spec.message_encoding, &BTreeMap::new())
+                    .map_err(io_error)?;
+                channels.insert(spec.topic, id);
             }
             if let Some(live) = &mut live {
-                live.add_channel(topic, schema, &data).map_err(std::io::Error::other)?;
+                live.add_channel(spec.topic, spec.schema, spec.message_encoding).map_err(std::io::Error::other)?;
             }
         }
         if let Some((_, writer)) = &mut writer {
@@ -356,13 +446,24 @@ impl McapSink {
 
     fn put(&mut self, topic: &str, sequence: u32, host_ns: u64, value: &Value) -> std::io::Result<()> {
         let data = serde_json::to_vec(value).map_err(std::io::Error::other)?;
+        self.put_bytes(topic, sequence, host_ns, &data)
+    }
+
+    /// Put one of Foxglove's well-known messages.
+    fn put_message<M: Encode>(&mut self, topic: &str, sequence: u32, host_ns: u64, message: &M) -> std::io::Result<()> {
+        let mut data = Vec::with_capacity(message.encoded_len().unwrap_or(256));
+        message.encode(&mut data).map_err(|e| std::io::Error::other(e.to_string()))?;
+        self.put_bytes(topic, sequence, host_ns, &data)
+    }
+
+    fn put_bytes(&mut self, topic: &str, sequence: u32, host_ns: u64, data: &[u8]) -> std::io::Result<()> {
         let log_time = self.setup.origin_unix_ns.saturating_add(host_ns);
         if let Some(live) = &self.live {
-            live.log(topic, log_time, &data);
+            live.log(topic, log_time, data);
         }
         let (Some((_, writer)), Some(&channel_id)) = (&mut self.file, self.channels.get(topic)) else { return Ok(()) };
         let header = mcap::records::MessageHeader { channel_id, sequence, log_time, publish_time: log_time };
-        writer.write_to_known_channel(&header, &data).map_err(io_error)?;
+        writer.write_to_known_channel(&header, data).map_err(io_error)?;
         self.messages += 1;
         Ok(())
     }
@@ -432,20 +533,30 @@ impl McapSink {
 
     pub fn event(&mut self, e: &EventRecord) -> std::io::Result<()> {
         let at_ns = (e.at_s * 1e9) as u64;
-        let stamp = self.stamp(at_ns);
-        // foxglove.Log: level 2 is INFO.
-        let v = json!({ "timestamp": stamp, "level": 2, "message": e.text, "name": "flowgate", "file": "", "line": 0 });
-        self.put("/log", 0, at_ns, &v)
+        let log = Log {
+            timestamp: Some(self.stamp(at_ns)),
+            level: foxglove::messages::log::Level::Info as i32,
+            message: e.text.clone(),
+            name: "flowgate".into(),
+            file: String::new(),
+            line: 0,
+        };
+        self.put_message(LOG, 0, at_ns, &log)
     }
 
-    fn stamp(&self, host_ns: u64) -> Value {
+    /// A host time as a Foxglove timestamp (since the Unix epoch).
+    fn stamp(&self, host_ns: u64) -> Timestamp {
+        let t = self.setup.origin_unix_ns.saturating_add(host_ns);
+        Timestamp::new((t / 1_000_000_000).min(u64::from(u32::MAX)) as u32, (t % 1_000_000_000) as u32)
+    }
+
+    fn stamp_json(&self, host_ns: u64) -> Value {
         let t = self.setup.origin_unix_ns.saturating_add(host_ns);
         json!({ "sec": t / 1_000_000_000, "nsec": t % 1_000_000_000 })
     }
 
     pub fn scene(&mut self, s: &SceneRecord) -> std::io::Result<()> {
         let at = s.at.as_nanos();
-        let stamp = self.stamp(at);
         let obstacles: Vec<Value> = s
             .obstacles()
             .iter()
@@ -457,71 +568,80 @@ impl McapSink {
                 })
             })
             .collect();
-        self.put("/obstacles", s.cycle as u32, at, &json!({ "timestamp": stamp, "obstacles": obstacles }))?;
-        let [x, y, heading] = s.pose.map(round6);
-        let orientation =
-            json!({ "x": 0.0, "y": 0.0, "z": round6((heading / 2.0).sin()), "w": round6((heading / 2.0).cos()) });
-        let pose = json!({ "timestamp": stamp, "frame_id": "floor", "pose": { "position": { "x": x, "y": y, "z": 0.0 }, "orientation": orientation } });
-        self.put("/robot/pose", s.cycle as u32, at, &pose)?;
+        self.put(OBSTACLES, s.cycle as u32, at, &json!({ "timestamp": self.stamp_json(at), "obstacles": obstacles }))?;
+        // The display channels at a display's rate (`/cycle` has every cycle's position).
         if self.arena_at.is_some_and(|last| at < last + ARENA_EVERY_NS) {
             return Ok(());
         }
         self.arena_at = Some(at);
-        self.put("/arena", s.cycle as u32, at, &self.arena(s, &stamp))
+        let [x, y, heading] = s.pose;
+        let pose = PoseInFrame {
+            timestamp: Some(self.stamp(at)),
+            frame_id: FRAME.into(),
+            pose: Some(floor_pose(x, y, heading, 0.0)),
+        };
+        self.put_message(POSE, s.cycle as u32, at, &pose)?;
+        let arena = self.arena(s, self.stamp(at));
+        self.put_message(ARENA, s.cycle as u32, at, &arena)
     }
 
-    /// The arena as one Foxglove scene entity: walls, goal, obstacles (body and planning
-    /// circle, velocity arrow), the robot.
-    fn arena(&self, s: &SceneRecord, stamp: &Value) -> Value {
-        let identity = json!({ "x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0 });
-        let disc = |x: f64, y: f64, r: f64, h: f64, rgba: [f64; 4]| {
-            json!({
-                "pose": { "position": { "x": x, "y": y, "z": h / 2.0 }, "orientation": identity },
-                "size": { "x": 2.0 * r, "y": 2.0 * r, "z": h },
-                "bottom_scale": 1.0, "top_scale": 1.0,
-                "color": { "r": rgba[0], "g": rgba[1], "b": rgba[2], "a": rgba[3] }
-            })
-        };
-        let mut cylinders =
-            vec![disc(round6(s.pose[0]), round6(s.pose[1]), self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
+    /// The arena as Foxglove scene entities: `arena` (the robot, each obstacle's planning
+    /// circle and velocity arrow, the lane walls) and `goal`.
+    fn arena(&self, s: &SceneRecord, stamp: Timestamp) -> SceneUpdate {
+        let mut cylinders = vec![disc(s.pose[0], s.pose[1], self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
         let mut arrows = Vec::new();
         for o in s.obstacles() {
-            let [x, y] = o.position.map(micro);
-            cylinders.push(disc(x, y, micro(o.planning_radius), 0.01, [0.9, 0.5, 0.1, 0.25]));
-            let [vx, vy] = o.velocity.map(micro);
+            let [x, y] = o.position.map(f64::from);
+            cylinders.push(disc(x, y, f64::from(o.planning_radius), 0.01, [0.9, 0.5, 0.1, 0.25]));
+            let [vx, vy] = o.velocity.map(f64::from);
             let speed = vx.hypot(vy);
             if speed > 1e-3 {
-                let yaw = vy.atan2(vx);
-                arrows.push(json!({
-                    "pose": { "position": { "x": x, "y": y, "z": 0.06 }, "orientation": { "x": 0.0, "y": 0.0, "z": round6((yaw / 2.0).sin()), "w": round6((yaw / 2.0).cos()) } },
-                    "shaft_length": round6(speed), "shaft_diameter": 0.01, "head_length": 0.03, "head_diameter": 0.03,
-                    "color": { "r": 0.9, "g": 0.2, "b": 0.1, "a": 1.0 }
-                }));
+                arrows.push(ArrowPrimitive {
+                    pose: Some(floor_pose(x, y, vy.atan2(vx), 0.06)),
+                    shaft_length: speed,
+                    shaft_diameter: 0.01,
+                    head_length: 0.03,
+                    head_diameter: 0.03,
+                    color: Some(rgba([0.9, 0.2, 0.1, 1.0])),
+                });
             }
         }
-        let mut lines = Vec::new();
-        if let Some(h) = self.setup.lane_half_width {
-            for wall in [-h, h] {
-                lines.push(json!({
-                    "type": 0, "pose": { "position": { "x": 0.0, "y": 0.0, "z": 0.0 }, "orientation": identity },
-                    "thickness": 0.01, "scale_invariant": false,
-                    "points": [{ "x": -10.0, "y": wall, "z": 0.0 }, { "x": 10.0, "y": wall, "z": 0.0 }],
-                    "color": { "r": 0.2, "g": 0.2, "b": 0.2, "a": 1.0 }, "colors": [], "indices": []
-                }));
-            }
-        }
+        let lines = self
+            .setup
+            .lane_half_width
+            .map(|h| {
+                [-h, h].map(|wall| LinePrimitive {
+                    r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
+                    pose: Some(floor_pose(0.0, 0.0, 0.0, 0.0)),
+                    thickness: 0.01,
+                    scale_invariant: false,
+                    points: vec![
+                        foxglove::messages::Point3 { x: -10.0, y: wall, z: 0.0 },
+                        foxglove::messages::Point3 { x: 10.0, y: wall, z: 0.0 },
+                    ],
+                    color: Some(rgba([0.2, 0.2, 0.2, 1.0])),
+                    colors: Vec::new(),
+                    indices: Vec::new(),
+                })
+            })
+            .into_iter()
+            .flatten()
+            .collect();
+        let entity = |id: &str| SceneEntity {
+            timestamp: Some(stamp),
+            frame_id: FRAME.into(),
+            id: id.into(),
+            lifetime: Some(Duration::new(0, 0)),
+            ..Default::default()
+        };
         let goal = disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0]);
-        json!({ "deletions": [], "entities": [{
-            "timestamp": stamp, "frame_id": "floor", "id": "arena", "lifetime": { "sec": 0, "nsec": 0 },
-            "frame_locked": false, "metadata": [],
-            "arrows": arrows, "cubes": [], "spheres": [], "cylinders": cylinders, "lines": lines,
-            "triangles": [], "texts": [], "models": [],
-        }, {
-            "timestamp": stamp, "frame_id": "floor", "id": "goal", "lifetime": { "sec": 0, "nsec": 0 },
-            "frame_locked": false, "metadata": [],
-            "arrows": [], "cubes": [], "spheres": [], "cylinders": [goal], "lines": [],
-            "triangles": [], "texts": [], "models": [],
-        }] })
+        SceneUpdate {
+            deletions: Vec::new(),
+            entities: vec![
+                SceneEntity { arrows, cylinders, lines, ..entity("arena") },
+                SceneEntity { cylinders: vec![goal], ..entity("goal") },
+            ],
+        }
     }
 
     /// Close the file: the end record says how many inputs the loop took (`taken`) and how

@@ -80,6 +80,10 @@ impl Services {
         if let Some(task) = self.socket.take() {
             task.abort();
         }
+        // The view's last frame, marked ended, goes out before the process can end.
+        if let Some((view, _)) = self.view.take() {
+            view.close().await;
+        }
         // Dropping the recorder closes the writer's queue: it writes what is left and ends.
         drop(self.recorder);
         match self.writer {

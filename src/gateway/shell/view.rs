@@ -1,5 +1,8 @@
-//! The live view (`[operator] view = ADDR`, `flowgate run --view ADDR`): a page that draws
-//! the arena as the gateway sees it, updated by server-sent events.
+//! The live view (`[operator] view = ADDR`, `flowgate run --view ADDR`): an operator's
+//! screen. It draws the arena as the gateway sees it, on axes in metres, and gives the
+//! numbers beside it (pose, distance to the goal, clearance, the robot's and each obstacle's
+//! speed, the state with its reason), updated by server-sent events. When the run ends it
+//! sends a last frame marked `ended` and the page keeps showing it.
 //!
 //! The loop only publishes: about 20 times a second it puts a copy of its scene (a
 //! [`SceneRecord`], no allocation) into a `watch` channel. Everything else runs on a thread
@@ -26,6 +29,7 @@ use super::metrics;
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::State;
 use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
+use crate::time::HostTime;
 
 /// How often the loop publishes its scene.
 pub const PUBLISH_EVERY: Duration = Duration::from_millis(50);
@@ -37,6 +41,14 @@ const CLIENT_DEADLINE: Duration = Duration::from_secs(2);
 const MAX_CLIENTS: usize = 8;
 /// Path points kept (a point every 5 mm of travel; the oldest go first).
 const MAX_PATH: usize = 4000;
+
+/// Rendered scenes the robot's speed is reckoned over: half a second's worth at
+/// [`RENDER_EVERY`].
+const SPEED_OVER: usize = 6;
+/// How long the view keeps serving after its last frame, so clients take it.
+const FINAL_GRACE: Duration = Duration::from_millis(300);
+/// How long closing the view waits for its thread to send the last frame.
+const CLOSE_DEADLINE: Duration = Duration::from_secs(2);
 
 /// The view thread's nice value (the loop keeps the process's, 0 or SCHED_FIFO).
 const VIEW_NICE: i32 = 10;
@@ -72,11 +84,22 @@ pub struct ViewPublisher {
     tx: watch::Sender<ViewSnapshot>,
     /// Frames the view's clients skipped (for `/metrics`).
     pub dropped: Arc<AtomicU64>,
+    /// Said by the view's thread once its last frame is out.
+    done: tokio::sync::oneshot::Receiver<()>,
 }
 
 impl ViewPublisher {
     pub fn publish(&self, snapshot: ViewSnapshot) {
         self.tx.send_replace(snapshot);
+    }
+
+    /// End the view: it sends its clients a last frame, marked `ended`, of the last scene
+    /// published. Waits for that at most [`CLOSE_DEADLINE`].
+    pub async fn close(self) {
+        drop(self.tx);
+        if tokio::time::timeout(CLOSE_DEADLINE, self.done).await.is_err() {
+            tracing::debug!("the live view did not close within {CLOSE_DEADLINE:?}");
+        }
     }
 }
 
@@ -89,6 +112,7 @@ pub fn start(
     let listener = std::net::TcpListener::bind(addr)?;
     listener.set_nonblocking(true)?;
     let (tx, rx) = watch::channel(ViewSnapshot::default());
+    let (done_tx, done) = tokio::sync::oneshot::channel();
     let dropped = Arc::new(AtomicU64::new(0));
     let counted = dropped.clone();
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
@@ -106,8 +130,9 @@ pub fn start(
                 () = serve(listener, frames_rx, counted) => {}
             }
         });
+        let _ = done_tx.send(());
     })?;
-    Ok(ViewPublisher { tx, dropped })
+    Ok(ViewPublisher { tx, dropped, done })
 }
 
 /// Make a frame from each new scene, at most every [`RENDER_EVERY`]; ends when the loop's
@@ -120,8 +145,21 @@ async fn render(
 ) {
     let mut path: Vec<[f64; 2]> = Vec::with_capacity(MAX_PATH);
     let mut seq = 0;
+    let mut last: Option<ViewSnapshot> = None;
+    let mut speed = None;
+    // The robot's speed over the last half second: a pose differenced over 0.1 s carries
+    // the camera's millimetre of noise as a centimetre a second or more.
+    let mut recent: std::collections::VecDeque<(HostTime, [f64; 3])> =
+        std::collections::VecDeque::with_capacity(SPEED_OVER);
     loop {
         if scenes.changed().await.is_err() {
+            // The run is over: its last scene once more, marked so, for the page to keep.
+            if let Some(snapshot) = last {
+                seq += 1;
+                let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq, speed, true);
+                frames.send_replace(Frame { seq, json: json.into() });
+                tokio::time::sleep(FINAL_GRACE).await;
+            }
             return;
         }
         let snapshot = *scenes.borrow_and_update();
@@ -135,8 +173,19 @@ async fn render(
                 path.push([x, y]);
             }
         }
+        if last.is_none_or(|b| snapshot.scene.cycle > b.scene.cycle) {
+            if recent.len() == SPEED_OVER {
+                recent.pop_front();
+            }
+            recent.push_back((snapshot.scene.at, snapshot.scene.pose));
+            if let (Some(&(t0, [x0, y0, _])), true) = (recent.front(), recent.len() > 1) {
+                let dt = snapshot.scene.at.since(t0).as_secs_f64();
+                speed = (dt > 0.0).then(|| (x - x0).hypot(y - y0) / dt);
+            }
+        }
+        last = Some(snapshot);
         seq += 1;
-        let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq);
+        let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq, speed, false);
         frames.send_replace(Frame { seq, json: json.into() });
         tokio::time::sleep(RENDER_EVERY).await;
     }
@@ -162,7 +211,39 @@ fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
     Some(field)
 }
 
-fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &metrics::Snapshot, seq: u64) -> String {
+/// What the operator reads beside the drawing: the pose, the distance to the goal, the
+/// clearance (the smallest gap between the robot's and an obstacle's footprints, as the
+/// gateway estimates them), the robot's speed over the last frames (`None` until two
+/// cycles apart) and each obstacle's.
+fn numbers(s: &SceneRecord, setup: &ViewSetup, speed: Option<f64>) -> serde_json::Value {
+    let [x, y, heading] = s.pose;
+    let robot = Point::new(x, y);
+    let clearance = s
+        .obstacles()
+        .iter()
+        .map(|o| {
+            let centre = Point::new(f64::from(o.position[0]), f64::from(o.position[1]));
+            (robot - centre).norm() - setup.robot_radius - f64::from(o.radius)
+        })
+        .reduce(f64::min);
+    let obstacle_speeds: Vec<f64> =
+        s.obstacles().iter().map(|o| f64::from(o.velocity[0]).hypot(f64::from(o.velocity[1]))).collect();
+    json!({
+        "x": x, "y": y, "heading_deg": heading.to_degrees(),
+        "goal_distance": (robot - Point::new(s.goal[0], s.goal[1])).norm(),
+        "clearance": clearance, "speed": speed, "obstacle_speeds": obstacle_speeds,
+    })
+}
+
+fn frame_json(
+    v: &ViewSnapshot,
+    setup: &ViewSetup,
+    path: &[[f64; 2]],
+    stats: &metrics::Snapshot,
+    seq: u64,
+    speed: Option<f64>,
+    ended: bool,
+) -> String {
     let s = &v.scene;
     let bounds = drawing_bounds(s, setup, path);
     let lines = streamline_points(s, setup, path, bounds);
@@ -175,7 +256,10 @@ fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &me
         "seq": seq,
         "state": v.state.to_string(),
         "state_name": v.state.name(),
+        "reason": v.state.reason().map(|r| r.to_string()),
+        "ended": ended,
         "cycles": v.cycles,
+        "numbers": numbers(s, setup, speed),
         "t": s.at.secs(),
         "robot": { "p": [s.pose[0], s.pose[1]], "heading": s.pose[2], "radius": setup.robot_radius },
         "goal": s.goal,
@@ -187,7 +271,8 @@ fn frame_json(v: &ViewSnapshot, setup: &ViewSetup, path: &[[f64; 2]], stats: &me
         "latency": {
             "histogram": latency_buckets(&stats.e2e_ns),
             "cycles": stats.e2e_ns.len(),
-            "deadline_misses": stats.deadline_misses
+            "deadline_misses": stats.deadline_misses,
+            "as_of_s": stats.uptime_s
         },
     })
     .to_string()
@@ -333,6 +418,7 @@ mod tests {
             uncertainty_sigmas: 0.0,
             clearance: 0.0,
             tie_break: None,
+            anticipation: 0.0,
         };
         ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3) }
     }
@@ -349,10 +435,18 @@ mod tests {
         };
         let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
         let stats = metrics::Snapshot::empty(0.0);
-        let text = frame_json(&v, &setup(), &[[-0.6, 0.0], [-0.5, 0.0]], &stats, 7);
+        let text = frame_json(&v, &setup(), &[[-0.6, 0.0], [-0.5, 0.0]], &stats, 7, Some(0.12), false);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
         assert_eq!(f["seq"], 7);
         assert_eq!(f["state_name"], "running");
+        assert_eq!((f["ended"].as_bool(), f["reason"].is_null()), (Some(false), true));
+        // The numbers: 1.1 m to the goal; 0.5 m between centres less both radii.
+        let n = &f["numbers"];
+        assert!((n["goal_distance"].as_f64().unwrap() - 1.1).abs() < 1e-12, "{n}");
+        let gap = (0.5f64).hypot(0.02) - 0.05 - 0.05;
+        assert!((n["clearance"].as_f64().unwrap() - gap).abs() < 1e-6, "{n}");
+        assert_eq!(n["speed"], 0.12);
+        assert!((n["obstacle_speeds"][0].as_f64().unwrap() - 0.05).abs() < 1e-6, "{n}");
         assert_eq!(f["obstacles"][0]["planning_radius"].as_f64().unwrap() as f32, 0.12);
         let lines = f["streamlines"].as_array().unwrap();
         assert_eq!(lines.len(), 17);
@@ -364,6 +458,23 @@ mod tests {
             }
         }
         assert_eq!(f["latency"]["histogram"].as_array().unwrap().len(), metrics::BUCKETS_S.len());
+    }
+
+    /// A stopped gateway's frame says why, and the last one says the run ended.
+    #[test]
+    fn a_final_frame_keeps_the_state_and_its_reason() {
+        let scene = SceneRecord { pose: [0.6, 0.0, 0.0], goal: [0.6, 0.0], ..SceneRecord::default() };
+        let v = ViewSnapshot {
+            scene,
+            state: State::Stopped(crate::gateway::core::safety::StopReason::GoalReached),
+            cycles: 10,
+        };
+        let f: serde_json::Value =
+            serde_json::from_str(&frame_json(&v, &setup(), &[], &metrics::Snapshot::empty(0.0), 9, None, true))
+                .unwrap();
+        assert_eq!((f["state_name"].as_str(), f["reason"].as_str()), (Some("stopped"), Some("goal reached")));
+        assert_eq!(f["ended"], true);
+        assert!(f["numbers"]["clearance"].is_null() && f["numbers"]["speed"].is_null());
     }
 
     /// The drawn field is the one the robot follows: with the robot between an obstacle and
