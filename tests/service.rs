@@ -40,7 +40,8 @@ fn next(socket: &UnixDatagram, within: Duration) -> Option<String> {
     socket.set_read_timeout(Some(within)).unwrap();
     let mut buf = [0u8; 512];
     let n = socket.recv(&mut buf).ok()?;
-    Some(String::from_utf8_lossy(&buf[..n]).into_owned())
+    // One message, its assignments a line each (the last line's newline is optional).
+    Some(String::from_utf8_lossy(&buf[..n]).trim_end_matches('\n').to_owned())
 }
 
 /// READY once the controller streams, STATUS with the state, WATCHDOG from the loop at a

@@ -1,5 +1,7 @@
-//! The systemd service manager's notification protocol (`sd_notify(3)`), spoken directly: one
-//! datagram per message to the unix socket named by `NOTIFY_SOCKET`.
+//! The systemd service manager's notification protocol (`sd_notify(3)`), sent with the
+//! `sd-notify` crate: one datagram per message to the unix socket named by `NOTIFY_SOCKET`.
+//! Here: the environment checked at start (a clear error for a bad one), the watchdog's
+//! pace, and what to say when.
 //!
 //! - `READY=1` once the controller streams: the gateway is up and may be armed.
 //! - `STATUS=...` with the safety state, on every change (`systemctl status` shows it).
@@ -11,23 +13,15 @@
 //! Without `NOTIFY_SOCKET` (not started by systemd) there is nothing to tell, and nothing is
 //! sent. A failed send is counted, never fatal: the watchdog is systemd's to judge.
 
-use std::os::unix::net::UnixDatagram;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-/// Where the messages go.
-#[derive(Debug)]
-enum Address {
-    Path(PathBuf),
-    /// Linux's abstract namespace (`@name` in `NOTIFY_SOCKET`).
-    Abstract(Vec<u8>),
-}
+use sd_notify::NotifyState;
 
 /// The gateway's line to systemd.
 #[derive(Debug)]
 pub struct Notifier {
-    socket: UnixDatagram,
-    address: Address,
+    /// `NOTIFY_SOCKET`, checked: an absolute path, or `@name` in Linux's abstract namespace.
+    socket: String,
     /// How often to send `WATCHDOG=1` (a quarter of systemd's interval), if it asked.
     watchdog_every: Option<Duration>,
     next_watchdog: Instant,
@@ -43,8 +37,6 @@ pub enum NotifyError {
     BadSocket(String),
     #[error("WATCHDOG_USEC={0}: expected a positive number of microseconds")]
     BadWatchdog(String),
-    #[error("creating the notification socket: {0}")]
-    Socket(#[from] std::io::Error),
 }
 
 impl Notifier {
@@ -62,13 +54,9 @@ impl Notifier {
         pid: u32,
     ) -> Result<Option<Self>, NotifyError> {
         let Some(socket) = socket.filter(|s| !s.is_empty()) else { return Ok(None) };
-        let address = if let Some(name) = socket.strip_prefix('@') {
-            Address::Abstract(name.as_bytes().to_vec())
-        } else if socket.starts_with('/') {
-            Address::Path(PathBuf::from(&socket))
-        } else {
+        if !(socket.starts_with('/') || socket.len() > 1 && socket.starts_with('@')) {
             return Err(NotifyError::BadSocket(socket));
-        };
+        }
         let for_us = watchdog_pid.is_none_or(|p| p.trim().parse::<u32>() == Ok(pid));
         let watchdog_every = match watchdog_usec.filter(|_| for_us) {
             None => None,
@@ -77,29 +65,16 @@ impl Notifier {
                 _ => return Err(NotifyError::BadWatchdog(v)),
             },
         };
-        Ok(Some(Self {
-            socket: UnixDatagram::unbound()?,
-            address,
-            watchdog_every,
-            next_watchdog: Instant::now(),
-            ready: false,
-            failed: 0,
-        }))
+        Ok(Some(Self { socket, watchdog_every, next_watchdog: Instant::now(), ready: false, failed: 0 }))
     }
 
-    fn send(&mut self, message: &str) {
-        let sent = match &self.address {
-            Address::Path(p) => self.socket.send_to(message.as_bytes(), p),
-            Address::Abstract(name) => {
-                use std::os::linux::net::SocketAddrExt as _;
-                std::os::unix::net::SocketAddr::from_abstract_name(name)
-                    .and_then(|a| self.socket.send_to_addr(message.as_bytes(), &a))
-            }
-        };
-        if let Err(e) = sent {
+    /// Send one message (the crate reads `NOTIFY_SOCKET` again, which [`Notifier::new`]
+    /// checked; a message a few times a second at most, never per sample).
+    fn send(&mut self, message: &[NotifyState<'_>]) {
+        if let Err(e) = sd_notify::notify(message) {
             // Said once, counted always: a watchdog that cannot be fed is systemd's to judge.
             if self.failed == 0 {
-                tracing::warn!("systemd notification not delivered: {e} (further failures counted)");
+                tracing::warn!("systemd notification to {} not delivered: {e} (further failures counted)", self.socket);
             }
             self.failed += 1;
         }
@@ -108,18 +83,18 @@ impl Notifier {
     /// The controller streams: the gateway is ready (once).
     pub fn ready(&mut self, state: &str) {
         if !std::mem::replace(&mut self.ready, true) {
-            self.send(&format!("READY=1\nSTATUS={state}"));
+            self.send(&[NotifyState::Ready, NotifyState::Status(state)]);
         }
     }
 
     /// The safety state changed.
     pub fn status(&mut self, state: &str) {
-        self.send(&format!("STATUS={state}"));
+        self.send(&[NotifyState::Status(state)]);
     }
 
     /// An orderly stop of the service has begun.
     pub fn stopping(&mut self) {
-        self.send("STOPPING=1");
+        self.send(&[NotifyState::Stopping]);
     }
 
     /// The loop went round at `now`: feed the watchdog if it is due. Cheap when it is not
@@ -128,7 +103,7 @@ impl Notifier {
         if let Some(every) = self.watchdog_every {
             if now >= self.next_watchdog {
                 self.next_watchdog = now + every;
-                self.send("WATCHDOG=1");
+                self.send(&[NotifyState::Watchdog]);
             }
         }
     }
@@ -162,16 +137,21 @@ mod tests {
         assert_eq!(n.watchdog_every, Some(Duration::from_millis(500)), "a quarter of the interval");
         let other = notifier("/run/x", Some("2000000"), Some("7")).unwrap().unwrap();
         assert_eq!(other.watchdog_every, None, "the watchdog is another process's");
-        assert!(matches!(notifier("@flowgate", None, None).unwrap().unwrap().address, Address::Abstract(_)));
+        assert!(notifier("@flowgate", None, None).unwrap().is_some());
+        assert!(matches!(notifier("@", None, None), Err(NotifyError::BadSocket(_))));
     }
 
+    /// On a real datagram socket, as systemd listens (the crate takes the socket from the
+    /// environment: no other test of this binary reads `NOTIFY_SOCKET`).
     #[test]
     fn messages_arrive_and_the_watchdog_is_paced() {
+        use std::os::unix::net::UnixDatagram;
         let dir = std::env::temp_dir().join(format!("flowgate-notify-unit-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("notify");
         let _ = std::fs::remove_file(&path);
         let listener = UnixDatagram::bind(&path).unwrap();
+        std::env::set_var("NOTIFY_SOCKET", &path);
         listener.set_nonblocking(true).unwrap();
         let mut n = notifier(path.to_str().unwrap(), Some("400000"), None).unwrap().unwrap();
         let recv = || {
@@ -181,17 +161,17 @@ mod tests {
         };
         n.ready("idle");
         n.ready("idle");
-        assert_eq!(recv(), "READY=1\nSTATUS=idle");
+        assert_eq!(recv(), "READY=1\nSTATUS=idle\n");
         let t0 = Instant::now();
         n.alive(t0);
         n.alive(t0 + Duration::from_millis(99));
-        assert_eq!(recv(), "WATCHDOG=1");
+        assert_eq!(recv(), "WATCHDOG=1\n");
         assert_eq!(n.next_due(), Some(t0 + Duration::from_millis(100)));
         n.alive(t0 + Duration::from_millis(100));
-        assert_eq!(recv(), "WATCHDOG=1");
+        assert_eq!(recv(), "WATCHDOG=1\n");
         n.status("armed");
         n.stopping();
-        assert_eq!((recv(), recv()), ("STATUS=armed".into(), "STOPPING=1".into()));
+        assert_eq!((recv(), recv()), ("STATUS=armed\n".into(), "STOPPING=1\n".into()));
         assert!(listener.recv(&mut [0u8; 16]).is_err(), "nothing else: one READY, two watchdogs");
         assert_eq!(n.failed, 0);
         let _ = std::fs::remove_dir_all(&dir);
