@@ -87,7 +87,7 @@ pub struct OperatorConfig {
     /// The group that may use it (by name, from /etc/group); default: the gateway's own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub group: Option<String>,
-    /// Serve `/metrics` (Prometheus text) here, e.g. `127.0.0.1:9187`; none = not served.
+    /// Serve `/metrics` (OpenMetrics text, for Prometheus) here, e.g. `127.0.0.1:9187`; none = not served.
     /// Read-only; keep it on loopback unless the network is the lab's own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metrics: Option<std::net::SocketAddr>,

@@ -56,7 +56,10 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
         tokio::time::sleep(Duration::from_millis(250)).await; // polling the endpoint for progress
         let Some(reply) = scrape(addr, "/metrics") else { continue };
         let (head, body) = reply.split_once("\r\n\r\n").unwrap();
-        assert!(head.starts_with("HTTP/1.1 200 OK") && head.contains("text/plain; version=0.0.4"), "{head}");
+        assert!(
+            head.starts_with("HTTP/1.1 200 OK") && head.contains("application/openmetrics-text; version=1.0.0"),
+            "{head}"
+        );
         families = parse(body);
         if value(&families, "flowgate_cycles", "flowgate_cycles_total", None) >= 100.0 {
             break;
@@ -103,7 +106,8 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
     assert_eq!(faults("board_e_stop"), 0.0);
     assert_eq!(families["flowgate_faults"]["samples"].as_array().unwrap().len(), 28, "{families}");
     assert_eq!(families["flowgate_stops"]["samples"].as_array().unwrap().len(), 5, "{families}");
-    assert_eq!(value(&families, "flowgate_build_info", "flowgate_build_info", Some(("version", "0.1.0"))), 1.0);
+    assert_eq!(families["flowgate_build"]["type"], "info");
+    assert_eq!(value(&families, "flowgate_build", "flowgate_build_info", Some(("version", "0.1.0"))), 1.0);
     // The process, as Prometheus's client libraries name it.
     assert!(value(&families, "process_cpu_seconds", "process_cpu_seconds_total", None) > 0.0, "{families}");
     assert!(value(&families, "process_resident_memory_bytes", "process_resident_memory_bytes", None) > 1e6);

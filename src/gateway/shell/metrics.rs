@@ -1,5 +1,6 @@
-//! `/metrics`: the gateway's counters and cycle latency in the Prometheus text format
-//! (version 0.0.4), for the monitoring a lab already runs.
+//! `/metrics`: the gateway's counters and cycle latency in the OpenMetrics text format
+//! (which Prometheus scrapes), encoded by Prometheus's own Rust client (`prometheus-client`),
+//! for the monitoring a lab already runs.
 //!
 //! The loop never serves a scrape itself. About once a second it publishes a [`Snapshot`]
 //! (its counters, its state and a copy of its latency histogram: one allocation a second,
@@ -7,11 +8,17 @@
 //! request. A slow or stuck client costs the loop nothing, and a scrape is at most a second
 //! old.
 
-use std::fmt::Write as _;
+use std::fmt;
 use std::sync::Arc;
 use std::time::Duration;
 
 use hdrhistogram::Histogram;
+use prometheus_client::collector::Collector;
+use prometheus_client::encoding::{DescriptorEncoder, EncodeMetric, MetricEncoder, NoLabelSet};
+use prometheus_client::metrics::counter::ConstCounter;
+use prometheus_client::metrics::gauge::ConstGauge;
+use prometheus_client::metrics::MetricType;
+use prometheus_client::registry::Registry;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 
@@ -68,173 +75,246 @@ impl Snapshot {
 /// Every state's name ([`State::name`]), for the one-hot state gauge.
 const STATES: [&str; 6] = ["idle", "armed", "running", "stopping", "stopped", "fault"];
 
-/// The snapshot in the Prometheus text format.
-pub fn render(s: &Snapshot) -> String {
-    let mut out = String::with_capacity(4096);
-    write_counters(&mut out, s);
-    write_stops(&mut out, s);
-    write_gauges(&mut out, s);
-    write_latency(&mut out, &s.e2e_ns);
-    write_stages(&mut out, &s.stages);
-    write_process(&mut out, s.start_time_s);
+/// The HTTP content type of [`render`]'s text.
+pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+
+/// The snapshot in the OpenMetrics text format (Prometheus scrapes it as it is), encoded
+/// by Prometheus's own Rust client.
+pub fn render(snapshot: Arc<Snapshot>) -> String {
+    let mut registry = Registry::default();
+    registry.register_collector(Box::new(Scrape(snapshot)));
+    let mut out = String::with_capacity(8192);
+    // Writing into a String cannot fail.
+    let _ = prometheus_client::encoding::text::encode(&mut out, &registry);
     out
 }
 
-/// The counters of everything unusual, each a `_total` family.
-fn write_counters(out: &mut String, s: &Snapshot) {
-    let c = &s.counters;
-    let mut counter = |name: &str, help: &str, samples: &[(&str, u64)]| {
-        let _ = writeln!(out, "# HELP flowgate_{name}_total {help}");
-        let _ = writeln!(out, "# TYPE flowgate_{name}_total counter");
-        for (labels, v) in samples {
-            let _ = writeln!(out, "flowgate_{name}_total{labels} {v}");
-        }
-    };
-    counter("cycles", "Control cycles run (commands computed).", &[("", c.cycles)]);
-    counter("samples", "PSD samples received.", &[("", c.samples)]);
-    counter(
-        "deadline_misses",
-        "Cycles whose end-to-end latency exceeded the control period.",
-        &[("", s.deadline_misses)],
-    );
-    counter(
-        "psd_discarded",
-        "Controller packets and samples discarded, by why.",
-        &[
-            ("{why=\"bad_frame\"}", c.bad_serial_frames),
-            ("{why=\"duplicate\"}", c.psd_duplicates),
-            ("{why=\"out_of_order\"}", c.psd_out_of_order),
-            ("{why=\"unsynced\"}", c.samples_unsynced),
-            ("{why=\"from_future\"}", c.samples_from_future),
-            ("{why=\"unscheduled\"}", c.samples_unscheduled),
-            ("{why=\"frame_repeated\"}", c.frames_repeated),
-        ],
-    );
-    counter("psd_packets_lost", "Controller packets lost (sequence gaps).", &[("", c.psd_packets_lost)]);
-    counter("frames_lost", "Time-division frames that never ended.", &[("", c.frames_lost)]);
-    counter("serial_dropped_bytes", "Serial bytes dropped while resynchronising.", &[("", c.serial_dropped_bytes)]);
-    counter(
-        "reconnects",
-        "Links lost and opened again.",
-        &[("{link=\"serial\"}", c.serial_reconnects), ("{link=\"can\"}", c.can_reconnects)],
-    );
-    counter(
-        "can_ignored",
-        "CAN frames and events ignored, by why.",
-        &[
-            ("{why=\"foreign\"}", c.can_foreign),
-            ("{why=\"undecodable\"}", c.can_undecodable),
-            ("{why=\"error_frame\"}", c.can_error_frames),
-            ("{why=\"tx_refused\"}", c.can_tx_refused),
-            ("{why=\"error_passive\"}", c.can_error_passive),
-        ],
-    );
-    counter(
-        "board_seq_errors",
-        "Sequence errors the motor board counted in our commands.",
-        &[("", c.board_seq_errors)],
-    );
-    counter("poses_implausible", "Robot poses discarded as implausible.", &[("", c.poses_implausible)]);
-    counter("planner_invalid", "Cycles the planner could not command.", &[("", c.planner_invalid)]);
-    counter(
-        "supervisor_interventions",
-        "Cycles whose command the safety supervisor changed, by how.",
-        &[("{how=\"slowed\"}", c.supervisor_slowed), ("{how=\"braking\"}", c.supervisor_braking)],
-    );
-    counter(
-        "obstacle_outran_robot",
-        "Cycles in which an obstacle outran what the robot can deliver.",
-        &[("", c.obstacle_outran_robot)],
-    );
-    counter(
-        "goal_occupied",
-        "Cycles the robot held still while the goal was inside an obstacle's planning circle.",
-        &[("", c.goal_occupied)],
-    );
-    counter(
-        "planner_flags",
-        "Cycles whose plan raised a planner flag, by flag.",
-        &[
-            ("{flag=\"saturated\"}", c.planner_saturated),
-            ("{flag=\"tie_break\"}", c.planner_tie_break),
-            ("{flag=\"margin_shrunk\"}", c.planner_margin_shrunk),
-            ("{flag=\"unclosed_at_a_wall\"}", c.planner_unclosed_at_a_wall),
-        ],
-    );
-    counter("telemetry_dropped", "Telemetry records dropped (queue full).", &[("", c.telemetry_dropped)]);
+/// One scrape's metrics, all read from one snapshot.
+#[derive(Debug)]
+struct Scrape(Arc<Snapshot>);
 
-    counter("view_frames_dropped", "Live-view frames a slow client skipped.", &[("", s.view_frames_dropped)]);
-}
-
-/// Faults and orderly stops, by reason.
-fn write_stops(out: &mut String, s: &Snapshot) {
-    for (family, help, faults) in
-        [("faults", "Faults (latched until reset), by reason.", true), ("stops", "Orderly stops, by reason.", false)]
-    {
-        let _ = writeln!(out, "# HELP flowgate_{family}_total {help}");
-        let _ = writeln!(out, "# TYPE flowgate_{family}_total counter");
-        // Every reason from the start, at 0 until it happens: a rate() over it is defined.
-        for reason in StopReason::ALL.iter().filter(|r| r.is_fault() == faults) {
-            let name = reason.snake_name();
-            let n = s.stops.iter().find(|(r, ..)| *r == name).map_or(0, |(.., n)| *n);
-            let _ = writeln!(out, "flowgate_{family}_total{{reason=\"{name}\"}} {n}");
+impl Collector for Scrape {
+    fn encode(&self, mut encoder: DescriptorEncoder<'_>) -> fmt::Result {
+        let s = &*self.0;
+        encode_counters(&mut encoder, s)?;
+        encode_stops(&mut encoder, s)?;
+        encode_gauges(&mut encoder, s)?;
+        let family = encoder.encode_descriptor(
+            "flowgate_cycle_latency_seconds",
+            "End-to-end cycle latency: serial frame read to CAN write done.",
+            None,
+            MetricType::Histogram,
+        )?;
+        Buckets { histogram: &s.e2e_ns, bounds: &BUCKETS_S }.encode(family)?;
+        let mut family = encoder.encode_descriptor(
+            "flowgate_stage_seconds",
+            "Each stage of a cycle: how long it took.",
+            None,
+            MetricType::Histogram,
+        )?;
+        for (stage, h) in Stage::ALL.iter().zip(&s.stages) {
+            Buckets { histogram: h, bounds: &STAGE_BUCKETS_S }
+                .encode(family.encode_family(&[("stage", stage.name())])?)?;
         }
+        encode_process(&mut encoder, s.start_time_s)
     }
 }
 
-/// The safety state and the uptime.
-fn write_gauges(out: &mut String, s: &Snapshot) {
-    let _ = writeln!(out, "# HELP flowgate_state The safety state (1 for the current one).");
-    let _ = writeln!(out, "# TYPE flowgate_state gauge");
+/// A counter of one sample.
+fn counter(encoder: &mut DescriptorEncoder<'_>, name: &str, help: &str, value: u64) -> fmt::Result {
+    ConstCounter::new(value).encode(encoder.encode_descriptor(name, help, None, MetricType::Counter)?)
+}
+
+/// A counter family with a sample for each value of the label `key`.
+fn counter_by(
+    encoder: &mut DescriptorEncoder<'_>,
+    name: &str,
+    help: &str,
+    key: &str,
+    samples: &[(&str, u64)],
+) -> fmt::Result {
+    let mut family = encoder.encode_descriptor(name, help, None, MetricType::Counter)?;
+    samples.iter().try_for_each(|&(value, v)| ConstCounter::new(v).encode(family.encode_family(&[(key, value)])?))
+}
+
+/// The counters of everything unusual (`_total` each).
+fn encode_counters(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Result {
+    let c = &s.counters;
+    counter(encoder, "flowgate_cycles", "Control cycles run (commands computed).", c.cycles)?;
+    counter(encoder, "flowgate_samples", "PSD samples received.", c.samples)?;
+    counter(
+        encoder,
+        "flowgate_deadline_misses",
+        "Cycles whose end-to-end latency exceeded the control period.",
+        s.deadline_misses,
+    )?;
+    counter_by(
+        encoder,
+        "flowgate_psd_discarded",
+        "Controller packets and samples discarded, by why.",
+        "why",
+        &[
+            ("bad_frame", c.bad_serial_frames),
+            ("duplicate", c.psd_duplicates),
+            ("out_of_order", c.psd_out_of_order),
+            ("unsynced", c.samples_unsynced),
+            ("from_future", c.samples_from_future),
+            ("unscheduled", c.samples_unscheduled),
+            ("frame_repeated", c.frames_repeated),
+        ],
+    )?;
+    counter(encoder, "flowgate_psd_packets_lost", "Controller packets lost (sequence gaps).", c.psd_packets_lost)?;
+    counter(encoder, "flowgate_frames_lost", "Time-division frames that never ended.", c.frames_lost)?;
+    counter(
+        encoder,
+        "flowgate_serial_dropped_bytes",
+        "Serial bytes dropped while resynchronising.",
+        c.serial_dropped_bytes,
+    )?;
+    counter_by(
+        encoder,
+        "flowgate_reconnects",
+        "Links lost and opened again.",
+        "link",
+        &[("serial", c.serial_reconnects), ("can", c.can_reconnects)],
+    )?;
+    counter_by(
+        encoder,
+        "flowgate_can_ignored",
+        "CAN frames and events ignored, by why.",
+        "why",
+        &[
+            ("foreign", c.can_foreign),
+            ("undecodable", c.can_undecodable),
+            ("error_frame", c.can_error_frames),
+            ("tx_refused", c.can_tx_refused),
+            ("error_passive", c.can_error_passive),
+        ],
+    )?;
+    counter(
+        encoder,
+        "flowgate_board_seq_errors",
+        "Sequence errors the motor board counted in our commands.",
+        c.board_seq_errors,
+    )?;
+    counter(encoder, "flowgate_poses_implausible", "Robot poses discarded as implausible.", c.poses_implausible)?;
+    counter(encoder, "flowgate_planner_invalid", "Cycles the planner could not command.", c.planner_invalid)?;
+    counter_by(
+        encoder,
+        "flowgate_supervisor_interventions",
+        "Cycles whose command the safety supervisor changed, by how.",
+        "how",
+        &[("slowed", c.supervisor_slowed), ("braking", c.supervisor_braking)],
+    )?;
+    counter(
+        encoder,
+        "flowgate_obstacle_outran_robot",
+        "Cycles in which an obstacle outran what the robot can deliver.",
+        c.obstacle_outran_robot,
+    )?;
+    counter(
+        encoder,
+        "flowgate_goal_occupied",
+        "Cycles the robot held still while the goal was inside an obstacle's planning circle.",
+        c.goal_occupied,
+    )?;
+    counter_by(
+        encoder,
+        "flowgate_planner_flags",
+        "Cycles whose plan raised a planner flag, by flag.",
+        "flag",
+        &[
+            ("saturated", c.planner_saturated),
+            ("tie_break", c.planner_tie_break),
+            ("margin_shrunk", c.planner_margin_shrunk),
+            ("unclosed_at_a_wall", c.planner_unclosed_at_a_wall),
+        ],
+    )?;
+    counter(encoder, "flowgate_telemetry_dropped", "Telemetry records dropped (queue full).", c.telemetry_dropped)?;
+    counter(encoder, "flowgate_view_frames_dropped", "Live-view frames a slow client skipped.", s.view_frames_dropped)
+}
+
+/// Faults and orderly stops, by reason: every reason from the start, at 0 until it
+/// happens, so a rate() over it is defined.
+fn encode_stops(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Result {
+    for (family, help, faults) in [
+        ("flowgate_faults", "Faults (latched until reset), by reason.", true),
+        ("flowgate_stops", "Orderly stops, by reason.", false),
+    ] {
+        let names: Vec<String> =
+            StopReason::ALL.iter().filter(|r| r.is_fault() == faults).map(|r| r.snake_name()).collect();
+        let samples: Vec<(&str, u64)> = names
+            .iter()
+            .map(|name| (name.as_str(), s.stops.iter().find(|(r, ..)| r == name).map_or(0, |(.., n)| *n)))
+            .collect();
+        counter_by(encoder, family, help, "reason", &samples)?;
+    }
+    Ok(())
+}
+
+/// The safety state, the uptime and the build.
+fn encode_gauges(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Result {
+    let mut state = encoder.encode_descriptor(
+        "flowgate_state",
+        "The safety state (1 for the current one).",
+        None,
+        MetricType::Gauge,
+    )?;
     let now = s.state.name();
     for st in STATES {
-        let _ = writeln!(out, "flowgate_state{{state=\"{st}\"}} {}", u8::from(st == now));
+        ConstGauge::new(i64::from(st == now)).encode(state.encode_family(&[("state", st)])?)?;
     }
-    let _ = writeln!(out, "# HELP flowgate_uptime_seconds Seconds since the gateway started.");
-    let _ = writeln!(out, "# TYPE flowgate_uptime_seconds gauge");
-    let _ = writeln!(out, "flowgate_uptime_seconds {:.3}", s.uptime_s);
+    let uptime = encoder.encode_descriptor(
+        "flowgate_uptime_seconds",
+        "Seconds since the gateway started.",
+        None,
+        MetricType::Gauge,
+    )?;
+    ConstGauge::new(s.uptime_s).encode(uptime)?;
     let commit = env!("FLOWGATE_COMMIT").trim_start_matches("commit ");
-    let _ = writeln!(out, "# HELP flowgate_build_info The build: version and git commit (always 1).");
-    let _ = writeln!(out, "# TYPE flowgate_build_info gauge");
-    let _ = writeln!(out, "flowgate_build_info{{version=\"{}\",commit=\"{commit}\"}} 1", env!("CARGO_PKG_VERSION"));
+    let mut build =
+        encoder.encode_descriptor("flowgate_build", "The build: version and git commit.", None, MetricType::Info)?;
+    build.encode_info(&[("version", env!("CARGO_PKG_VERSION")), ("commit", commit)])
 }
 
-/// Cumulative buckets of `h` (ns) at `bounds` (s), with `labels` before `le`.
-fn write_buckets(out: &mut String, name: &str, labels: &str, h: &Histogram<u64>, bounds: &[f64]) {
-    for le in bounds {
-        let bound_ns = (le * 1e9) as u64;
-        let count: u64 =
-            h.iter_recorded().filter(|v| v.value_iterated_to() <= bound_ns).map(|v| v.count_at_value()).sum();
-        let _ = writeln!(out, "{name}_bucket{{{labels}le=\"{le}\"}} {count}");
+/// An hdrhistogram of ns as a Prometheus histogram of seconds with these bucket bounds.
+#[derive(Debug)]
+struct Buckets<'a> {
+    histogram: &'a Histogram<u64>,
+    bounds: &'a [f64],
+}
+
+impl EncodeMetric for Buckets<'_> {
+    fn encode(&self, mut encoder: MetricEncoder<'_>) -> fmt::Result {
+        let h = self.histogram;
+        let mut below = 0;
+        // Each bucket's own count (the encoder sums them), then the rest in +Inf.
+        let mut buckets: Vec<(f64, u64)> = self
+            .bounds
+            .iter()
+            .map(|&le| {
+                let bound_ns = (le * 1e9) as u64;
+                let n: u64 =
+                    h.iter_recorded().filter(|v| v.value_iterated_to() <= bound_ns).map(|v| v.count_at_value()).sum();
+                let own = n - below;
+                below = n;
+                (le, own)
+            })
+            .collect();
+        buckets.push((f64::MAX, h.len() - below));
+        let sum_s =
+            h.iter_recorded().map(|v| v.value_iterated_to() as f64 * v.count_at_value() as f64).sum::<f64>() / 1e9;
+        encoder.encode_histogram::<NoLabelSet>(sum_s, h.len(), &buckets, None)
     }
-    let _ = writeln!(out, "{name}_bucket{{{labels}le=\"+Inf\"}} {}", h.len());
-    let sum_s: f64 =
-        h.iter_recorded().map(|v| v.value_iterated_to() as f64 * v.count_at_value() as f64).sum::<f64>() / 1e9;
-    let braces = labels.trim_end_matches(',');
-    let braces = if braces.is_empty() { String::new() } else { format!("{{{braces}}}") };
-    let _ = writeln!(out, "{name}_sum{braces} {sum_s}");
-    let _ = writeln!(out, "{name}_count{braces} {}", h.len());
-}
 
-/// Each stage's duration as a cumulative histogram, by stage.
-fn write_stages(out: &mut String, stages: &[Histogram<u64>; Stage::COUNT]) {
-    let _ = writeln!(out, "# HELP flowgate_stage_seconds Each stage of a cycle: how long it took.");
-    let _ = writeln!(out, "# TYPE flowgate_stage_seconds histogram");
-    for (stage, h) in Stage::ALL.iter().zip(stages) {
-        write_buckets(out, "flowgate_stage_seconds", &format!("stage=\"{}\",", stage.name()), h, &STAGE_BUCKETS_S);
+    fn metric_type(&self) -> MetricType {
+        MetricType::Histogram
     }
 }
 
 /// The process's own figures, as Prometheus's client libraries name them (read from /proc
 /// when scraped, never by the loop).
-fn write_process(out: &mut String, start_time_s: f64) {
-    let mut gauge = |name: &str, kind: &str, help: &str, v: Option<f64>| {
-        if let Some(v) = v {
-            let _ = writeln!(out, "# HELP {name} {help}");
-            let _ = writeln!(out, "# TYPE {name} {kind}");
-            let _ = writeln!(out, "{name} {v}");
-        }
-    };
+fn encode_process(encoder: &mut DescriptorEncoder<'_>, start_time_s: f64) -> fmt::Result {
     let stat = std::fs::read_to_string("/proc/self/stat").ok();
     // Fields after the command's closing parenthesis: utime and stime are the 12th and 13th.
     let cpu = stat.as_deref().and_then(|s| {
@@ -242,32 +322,32 @@ fn write_process(out: &mut String, start_time_s: f64) {
         let ticks = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
         Some(ticks / rustix::param::clock_ticks_per_second() as f64)
     });
-    gauge("process_cpu_seconds_total", "counter", "User and system CPU time spent, s.", cpu);
+    if let Some(cpu) = cpu {
+        let family = encoder.encode_descriptor(
+            "process_cpu_seconds",
+            "User and system CPU time spent, s.",
+            None,
+            MetricType::Counter,
+        )?;
+        ConstCounter::new(cpu).encode(family)?;
+    }
     let rss = std::fs::read_to_string("/proc/self/status").ok().and_then(|s| {
         let kib = s.lines().find_map(|l| l.strip_prefix("VmRSS:"))?.trim().trim_end_matches("kB").trim();
         Some(kib.parse::<f64>().ok()? * 1024.0)
     });
-    gauge("process_resident_memory_bytes", "gauge", "Resident memory, bytes.", rss);
     let fds = std::fs::read_dir("/proc/self/fd").ok().map(|d| d.count() as f64);
-    gauge("process_open_fds", "gauge", "Open file descriptors.", fds);
     let max_fds = rustix::process::getrlimit(rustix::process::Resource::Nofile).current.map(|n| n as f64);
-    gauge("process_max_fds", "gauge", "The most file descriptors it may open.", max_fds);
-    gauge(
-        "process_start_time_seconds",
-        "gauge",
-        "When the gateway started, s since the Unix epoch.",
-        Some(start_time_s),
-    );
-}
-
-/// The end-to-end latency as a cumulative histogram.
-fn write_latency(out: &mut String, h: &Histogram<u64>) {
-    let _ = writeln!(
-        out,
-        "# HELP flowgate_cycle_latency_seconds End-to-end cycle latency: serial frame read to CAN write done."
-    );
-    let _ = writeln!(out, "# TYPE flowgate_cycle_latency_seconds histogram");
-    write_buckets(out, "flowgate_cycle_latency_seconds", "", h, &BUCKETS_S);
+    for (name, help, value) in [
+        ("process_resident_memory_bytes", "Resident memory, bytes.", rss),
+        ("process_open_fds", "Open file descriptors.", fds),
+        ("process_max_fds", "The most file descriptors it may open.", max_fds),
+        ("process_start_time_seconds", "When the gateway started, s since the Unix epoch.", Some(start_time_s)),
+    ] {
+        if let Some(v) = value {
+            ConstGauge::new(v).encode(encoder.encode_descriptor(name, help, None, MetricType::Gauge)?)?;
+        }
+    }
+    Ok(())
 }
 
 /// Serve `/metrics` on `listener` from the latest snapshot, until the channel closes.
@@ -276,19 +356,19 @@ pub async fn serve(listener: TcpListener, snapshots: watch::Receiver<Arc<Snapsho
         let Ok((stream, _)) = listener.accept().await else { continue };
         let latest = snapshots.borrow().clone();
         tokio::spawn(async move {
-            if let Err(e) = tokio::time::timeout(CLIENT_DEADLINE, answer(stream, &latest)).await {
+            if let Err(e) = tokio::time::timeout(CLIENT_DEADLINE, answer(stream, latest)).await {
                 tracing::debug!("metrics client: {e}");
             }
         });
     }
 }
 
-async fn answer(mut stream: TcpStream, snapshot: &Snapshot) -> std::io::Result<()> {
+async fn answer(mut stream: TcpStream, snapshot: Arc<Snapshot>) -> std::io::Result<()> {
     match http::read_request(&mut stream).await? {
         None => Ok(()),
         Some(Asked::Get(path)) if path == "/metrics" => {
             let body = render(snapshot);
-            http::reply(&mut stream, "200 OK", "text/plain; version=0.0.4; charset=utf-8", body.as_bytes()).await
+            http::reply(&mut stream, "200 OK", CONTENT_TYPE, body.as_bytes()).await
         }
         Some(Asked::Get(_)) => {
             http::reply(&mut stream, "404 Not Found", "text/plain", b"only /metrics is served here\n").await
@@ -317,7 +397,7 @@ mod tests {
             view_frames_dropped: 3,
             ..Snapshot::empty(1_700_000_000.0)
         };
-        let text = render(&s);
+        let text = render(Arc::new(s));
         assert!(text.contains("flowgate_cycles_total 4\n"), "{text}");
         assert!(text.contains("flowgate_faults_total{reason=\"pose_lost\"} 2\n"), "{text}");
         assert!(text.contains("flowgate_stops_total{reason=\"goal_reached\"} 1\n"), "{text}");
@@ -332,8 +412,9 @@ mod tests {
         assert!(text.contains("flowgate_faults_total{reason=\"heartbeat_lost\"} 0\n"), "{text}");
         assert!(text.contains("flowgate_stops_total{reason=\"shutdown\"} 0\n"), "{text}");
         assert!(text.contains("flowgate_build_info{version=\""), "{text}");
-        assert!(text.contains("flowgate_stage_seconds_bucket{stage=\"plan\",le=\"0.000001\"} 0\n"), "{text}");
-        assert!(text.contains("process_start_time_seconds 1700000000\n"), "{text}");
+        assert!(text.contains("flowgate_stage_seconds_bucket{le=\"0.000001\",stage=\"plan\"} 0\n"), "{text}");
+        assert!(text.contains("process_start_time_seconds 1700000000.0\n"), "{text}");
         assert!(text.contains("process_open_fds "), "{text}");
+        assert!(text.ends_with("# EOF\n"), "an OpenMetrics exposition ends so: {text}");
     }
 }
