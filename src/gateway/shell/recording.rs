@@ -7,11 +7,12 @@
 //!   failing, operator requests, ticks, shutdown). The MCAP `sequence` of an input is its
 //!   index over all three, so a replay merges them back and sees any gap;
 //! - what the gateway sent: `/psd/tx` (packets to the controller), `/can/tx` (frames);
-//! - per cycle: `/cycle` (the timing record: every stage, the command, the state),
-//!   `/obstacles` (position, velocity, covariance, planning radius), `/robot/pose`
-//!   (`foxglove.PoseInFrame`), `/arena` (`foxglove.SceneUpdate`: lane walls, goal,
-//!   obstacles with their planning circles, the robot), and `/log` (`foxglove.Log`: state
-//!   changes, operator requests and answers);
+//! - per cycle: `/cycle` (the timing record: every stage, the command, the state) and
+//!   `/obstacles` (position, velocity, covariance, planning radius);
+//! - for the eye, at most every [`ARENA_EVERY_NS`]: `/robot/pose` (`foxglove.PoseInFrame`)
+//!   and `/arena` (`foxglove.SceneUpdate`: lane walls, goal, obstacles with their planning
+//!   circles, the robot); and `/log` (`foxglove.Log`: state changes, operator requests and
+//!   answers);
 //! - metadata `flowgate`: the configuration the run used (TOML), the version, the clock's
 //!   origin; `flowgate.end`: how many inputs and records were written and dropped.
 //!
