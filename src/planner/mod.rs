@@ -115,7 +115,7 @@ pub struct PlannerConfig {
     pub tie_break: Option<TieBreak>,
     /// Anticipation horizon in a lane, s (0: off): each moving obstacle is planned at the
     /// edge, on the robot's side, of the band its drift sweeps while the robot passes it,
-    /// at most this far ahead (see [`anticipate`]). Not used in free space.
+    /// at most this far ahead (`anticipate` in this module). Not used in free space.
     pub anticipation: f64,
 }
 

@@ -94,7 +94,7 @@ impl ViewPublisher {
     }
 
     /// End the view: it sends its clients a last frame, marked `ended`, of the last scene
-    /// published. Waits for that at most [`CLOSE_DEADLINE`].
+    /// published. Waits for that at most `CLOSE_DEADLINE` (2 s).
     pub async fn close(self) {
         drop(self.tx);
         if tokio::time::timeout(CLOSE_DEADLINE, self.done).await.is_err() {
