@@ -216,7 +216,8 @@ def main():
             watchdogs = 0
             notify.settimeout(1.0)
             while watchdogs < 3:
-                if notify.recv(512).decode() == "WATCHDOG=1":
+                # A message is newline-separated assignments; the last newline is optional.
+                if notify.recv(512).decode().rstrip("\n") == "WATCHDOG=1":
                     watchdogs += 1
             print(f"watchdog fed {watchdogs} times, each within 1 s (half of WatchdogSec)")
             r = run([flowgate, "ctl", "--socket", sock, "status"])
