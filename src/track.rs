@@ -220,6 +220,14 @@ impl ConstantVelocityKf {
         (self.position + self.velocity * dt, self.velocity)
     }
 
+    /// The obstacle of this radius as this filter predicts it at `t`, with its
+    /// uncertainty and drift.
+    pub fn estimate(&self, radius: f64, t: f64) -> ObstacleEstimate {
+        let (center, velocity) = self.predict(t);
+        let (position_sd, velocity_sd) = self.uncertainty(t);
+        ObstacleEstimate { center, velocity, radius, position_sd, velocity_sd, drift: self.drift, spread: 0.0 }
+    }
+
     /// The velocity smoothed over [`DRIFT_TIME_CONSTANT`], m/s.
     pub fn drift(&self) -> Point {
         self.drift
@@ -534,19 +542,9 @@ impl Tracker {
             if let Some(region) = self.settings.occluded_region(kf, self.radii[k], t) {
                 return Some((region, kf.position_covariance(kf.time())));
             }
-            let (center, velocity) = kf.predict(at);
-            let center = if predict { center } else { self.measured[k] };
-            let (position_sd, velocity_sd) = kf.uncertainty(at);
-            let estimate = ObstacleEstimate {
-                center,
-                velocity,
-                radius: self.radii[k],
-                position_sd,
-                velocity_sd,
-                drift: kf.drift(),
-                spread: 0.0,
-            };
-            Some((estimate, kf.position_covariance(at)))
+            let estimate = kf.estimate(self.radii[k], at);
+            let center = if predict { estimate.center } else { self.measured[k] };
+            Some((ObstacleEstimate { center, ..estimate }, kf.position_covariance(at)))
         })
     }
 
@@ -706,17 +704,7 @@ impl Tracker {
                 self.predicted[n] = region;
                 self.estimates[n] = region;
             } else {
-                let (center, velocity) = kf.predict(t);
-                let (position_sd, velocity_sd) = kf.uncertainty(t);
-                let now = ObstacleEstimate {
-                    center,
-                    velocity,
-                    radius: self.radii[k],
-                    position_sd,
-                    velocity_sd,
-                    drift: kf.drift(),
-                    spread: 0.0,
-                };
+                let now = kf.estimate(self.radii[k], t);
                 self.predicted[n] = now;
                 // Without prediction the planner takes the last measurement as it stands (the
                 // paper's E3); the supervisor always judges the predicted one.
