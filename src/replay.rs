@@ -77,8 +77,12 @@ impl Recording {
             .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
         let mut topics: BTreeMap<u16, String> = BTreeMap::new();
         let mut config = None;
+        let mut origin_unix_ns = 0u64;
         let mut end = None;
-        let mut inputs = Vec::new();
+        // Each input's JSON with its header's full sequence number and log time: the times
+        // become host times once the clock's origin is known.
+        let mut input_messages: Vec<(usize, String, serde_json::Value, u64, u64)> = Vec::new();
+        let mut last_seq: Option<u64> = None;
         let mut can_sent = Vec::new();
         let mut truncated = None;
         let mut index = 0usize;
@@ -99,6 +103,7 @@ impl Recording {
                 }
                 mcap::records::Record::Metadata(m) if m.name == recording::METADATA => {
                     config = m.metadata.get("config").cloned();
+                    origin_unix_ns = m.metadata.get("origin_unix_ns").and_then(|v| v.parse().ok()).unwrap_or(0);
                 }
                 mcap::records::Record::Metadata(m) if m.name == recording::METADATA_END => {
                     let count = |k: &str| m.metadata.get(k).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
@@ -116,7 +121,13 @@ impl Recording {
                     }
                     let value: serde_json::Value = serde_json::from_slice(&data).map_err(|e| bad(e.to_string()))?;
                     if is_input {
-                        inputs.push(recording::input_from_json(&value).map_err(bad)?);
+                        // MCAP's sequence is 32 bits; inputs are written in order, so the
+                        // full count is the last one moved on by the (wrapping) difference.
+                        let seq = last_seq.map_or(u64::from(header.sequence), |last| {
+                            last + u64::from(header.sequence.wrapping_sub(last as u32))
+                        });
+                        last_seq = Some(seq);
+                        input_messages.push((index, topic.clone(), value, seq, header.log_time));
                     } else {
                         let frame = frame_from_json(&value).ok_or_else(|| bad("not a CAN frame".into()))?;
                         let written = value.get("written").and_then(serde_json::Value::as_bool).unwrap_or(true);
@@ -126,7 +137,19 @@ impl Recording {
                 _ => {}
             }
         }
-        let config_toml = config.ok_or(ReplayError::NotFlowgate { path: name, what: "configuration metadata" })?;
+        let config_toml =
+            config.ok_or(ReplayError::NotFlowgate { path: name.clone(), what: "configuration metadata" })?;
+        let mut inputs = Vec::with_capacity(input_messages.len());
+        for (index, topic, value, seq, log_time) in input_messages {
+            let at = HostTime::from_nanos(log_time.saturating_sub(origin_unix_ns));
+            let input = recording::input_from_json(&value, seq, at).map_err(|why| ReplayError::BadMessage {
+                path: name.clone(),
+                index,
+                topic,
+                why,
+            })?;
+            inputs.push(input);
+        }
         // The three input channels interleave in the file by write order, which is `seq`
         // order already; sorting makes that a guarantee rather than an assumption.
         inputs.sort_by_key(|i| i.seq);
@@ -504,6 +527,12 @@ impl RecordingInfo {
         Ok(info)
     }
 
+    /// The chunks' bytes as stored: the messages, which grow with the run (the rest of a
+    /// file, written once, is the schemas, metadata and summary).
+    pub fn chunk_bytes(&self) -> u64 {
+        self.chunks.iter().map(|c| c.2).sum()
+    }
+
     /// Seconds from the first message to the last.
     pub fn duration(&self) -> f64 {
         match (self.start_ns, self.end_ns) {
@@ -524,8 +553,9 @@ impl std::fmt::Display for RecordingInfo {
         if self.cycles > 0 {
             writeln!(
                 f,
-                "cycles       {} ({:.0} bytes of file a cycle)",
+                "cycles       {} ({:.0} bytes of messages a cycle; {:.0} of file with the schemas, metadata and index)",
                 self.cycles,
+                self.chunk_bytes() as f64 / self.cycles as f64,
                 self.bytes as f64 / self.cycles as f64
             )?;
         }

@@ -84,6 +84,10 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     // write): read, summarised and replayed to the same frames.
     let (ok, text) = flowgate(&["record", "info", mcap.to_str().unwrap()]);
     assert!(ok && text.contains(" zstd: ") && text.contains("whole"), "{text}");
+    // A cycle at T = 20 ms takes at most 300 bytes of messages (about 280: docs/recording.md);
+    // the schemas, metadata and index are written once.
+    let per_cycle = figure(&text, "cycles", "bytes of messages a cycle");
+    assert!(per_cycle <= 300.0, "{per_cycle} bytes a cycle:\n{text}");
     for compression in ["zstd", "lz4"] {
         let rewritten = dir.join(format!("python-{compression}.mcap"));
         let out = Command::new(&python)

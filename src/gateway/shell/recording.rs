@@ -7,9 +7,9 @@
 //!   failing, operator requests, ticks, shutdown). The MCAP `sequence` of an input is its
 //!   index over all three, so a replay merges them back and sees any gap;
 //! - what the gateway sent: `/psd/tx` (packets to the controller), `/can/tx` (frames);
-//! - per cycle: `/cycle` (the timing record: every stage, the command, the state) and
-//!   `/obstacles` (position, velocity, covariance, planning radius);
-//! - for the eye, at most every [`ARENA_EVERY_NS`]: `/robot/pose` (`foxglove.PoseInFrame`)
+//! - per cycle: `/cycle` (the timing record: every stage, the command, the state);
+//! - for the eye, at most every [`ARENA_EVERY_NS`]: `/obstacles` (position, velocity,
+//!   covariance, planning radius), `/robot/pose` (`foxglove.PoseInFrame`)
 //!   and `/arena` (`foxglove.SceneUpdate`: lane walls, goal, obstacles with their planning
 //!   circles, the robot); and `/log` (`foxglove.Log`: state changes, operator requests and
 //!   answers);
@@ -106,9 +106,11 @@ pub fn frame_from_json(v: &Value) -> Option<CanFrame> {
     }
 }
 
-/// An input record as JSON (its channel comes from [`input_channel`]).
+/// An input record as JSON (its channel comes from [`input_channel`]). Its sequence number
+/// and host time go in the MCAP message header (`sequence`, and `log_time` less the
+/// clock's origin), not here: per message they would be a tenth of a compressed recording.
 pub fn input_json(r: &InputRecord) -> Value {
-    let mut v = json!({ "seq": r.seq, "t_ns": r.at.as_nanos(), "kind": r.input.as_input().kind() });
+    let mut v = json!({ "kind": r.input.as_input().kind() });
     let extra = match &r.input {
         RecordedInput::PsdBytes { len, bytes } => json!({ "bytes": hex(&bytes[..usize::from(*len)]) }),
         RecordedInput::Can(event) => match event {
@@ -139,11 +141,19 @@ pub fn input_channel(input: &RecordedInput) -> &'static str {
     }
 }
 
-/// An input record back from its JSON; the error says what is wrong with it.
-pub fn input_from_json(v: &Value) -> Result<InputRecord, String> {
+/// An input record back from its JSON and its message header's sequence number and host
+/// time; the error says what is wrong with it. A recording that carries `seq` and `t_ns`
+/// in each message (flowgate 0.1 before the header held them) is read by those.
+pub fn input_from_json(v: &Value, seq: u64, at: HostTime) -> Result<InputRecord, String> {
     let field = |name: &str| v.get(name).ok_or_else(|| format!("no `{name}`"));
-    let seq = field("seq")?.as_u64().ok_or("`seq` is not a count")?;
-    let at = HostTime::from_nanos(field("t_ns")?.as_u64().ok_or("`t_ns` is not a count")?);
+    let seq = match v.get("seq") {
+        Some(s) => s.as_u64().ok_or("`seq` is not a count")?,
+        None => seq,
+    };
+    let at = match v.get("t_ns") {
+        Some(t) => HostTime::from_nanos(t.as_u64().ok_or("`t_ns` is not a count")?),
+        None => at,
+    };
     let kind = field("kind")?.as_str().ok_or("`kind` is not text")?;
     let flag = |name: &str| field(name).and_then(|f| f.as_bool().ok_or_else(|| format!("`{name}` is not a boolean")));
     let input = match kind {
@@ -209,6 +219,8 @@ pub struct McapSink {
     cycles: u64,
     /// When `/arena` was last drawn (host ns): at most [`ARENA_EVERY_NS`] apart.
     arena_at: Option<u64>,
+    /// When the still entities (lane walls, goal) were last drawn, and the goal drawn.
+    still_at: Option<(u64, [f64; 2])>,
     flushed: std::time::Instant,
 }
 
@@ -218,12 +230,17 @@ const CHUNK_BYTES: u64 = 256 * 1024;
 /// well under a millisecond of the writer thread's time.
 const COMPRESSION_LEVEL: u32 = 9;
 /// How often the writer closes the current chunk, so a reader sees it even if the gateway
-/// is killed later.
-const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
+/// is killed later. Two seconds: a chunk twice as long compresses a few percent better.
+const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(2);
 
-/// `/arena` is for the eye: 20 updates a second at most (each is kilobytes of JSON; the
-/// per-cycle channels keep every cycle).
-pub const ARENA_EVERY_NS: u64 = 50_000_000;
+/// The display channels (`/obstacles`, `/robot/pose`, `/arena`) are for the eye: 10 updates
+/// a second at most, the live view's frame rate (`/cycle` keeps every cycle, and a replay
+/// recomputes every cycle's estimates). At 20 they would be a sixth of the recording.
+pub const ARENA_EVERY_NS: u64 = 100_000_000;
+/// The still entities (lane walls, goal) are drawn again once a second, and when the goal
+/// moves: Foxglove keeps an entity until it is replaced, and a client that joins live or
+/// seeks in a recording has them within a second.
+pub const STILL_EVERY_NS: u64 = 1_000_000_000;
 
 impl std::fmt::Debug for McapSink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -279,7 +296,11 @@ fn channel_table() -> std::io::Result<[ChannelSpec; 10]> {
         "flowgate.CanFrame",
         &[("id", "integer"), ("extended", "boolean"), ("remote", "boolean"), ("data", "string")],
     );
-    let cycle_props: Vec<(&str, &str)> = CycleRecord::CSV_HEADER.split(',').map(|c| (c, cycle_field_type(c))).collect();
+    let cycle_props: Vec<(&str, &str)> = CycleRecord::CSV_HEADER
+        .split(',')
+        .filter(|c| !CYCLE_DERIVED.contains(c))
+        .map(|c| (c, cycle_field_type(c)))
+        .collect();
     Ok([
         json_channel(PSD_RX, "flowgate.Input", input_schema.clone()),
         json_channel(CAN_RX, "flowgate.Input", input_schema.clone()),
@@ -322,6 +343,10 @@ fn obstacles_schema() -> Vec<u8> {
     .unwrap_or_default()
 }
 
+/// Columns of `cycles.csv` that `/cycle` leaves out, each exactly another's sum:
+/// `can_done_ns` is `rx_ns + e2e_ns` (0 when no frame was written, as `e2e_ns`).
+const CYCLE_DERIVED: [&str; 1] = ["can_done_ns"];
+
 /// The JSON type of a `/cycle` field: its times and counts are integers.
 fn cycle_field_type(name: &str) -> &'static str {
     match name {
@@ -331,21 +356,17 @@ fn cycle_field_type(name: &str) -> &'static str {
     }
 }
 
-/// A length or an orientation's component to a micrometre (a millionth): finer than the
-/// camera resolves, and a third of the digits of a full `f64` in the file.
-fn round6(v: f64) -> f64 {
-    (v * 1e6).round() / 1e6
+/// An `f32` of the scene to `places` decimals: a position to 10 µm and a speed to 0.1 mm/s
+/// are finer than the camera resolves, and the digits past them would be most of the
+/// compressed channel.
+fn decimals(v: f32, places: i32) -> f64 {
+    let scale = 10f64.powi(places);
+    (f64::from(v) * scale).round() / scale
 }
 
-/// An `f32` of the scene, to a micrometre.
-fn micro(v: f32) -> f64 {
-    round6(f64::from(v))
-}
-
-/// An `f32` as the shortest decimal that reads back as it (a variance of 1.38e-5 m², not
-/// its `f64` widening's twenty digits).
-fn shortest(v: f32) -> f64 {
-    v.to_string().parse().unwrap_or(0.0)
+/// An `f32` to three significant digits (a variance of 1.38e-5 m²).
+fn significant3(v: f32) -> f64 {
+    format!("{v:.2e}").parse().unwrap_or(0.0)
 }
 
 /// The frame every pose and entity is in: the floor's, in metres.
@@ -418,6 +439,7 @@ impl McapSink {
             messages: 0,
             cycles: 0,
             arena_at: None,
+            still_at: None,
             flushed: std::time::Instant::now(),
         })
     }
@@ -427,8 +449,8 @@ impl McapSink {
             std::fs::create_dir_all(dir)?;
         }
         let file = BufWriter::new(File::create(path)?);
-        // Small chunks, and a flush each second (`flush_if_due`): a gateway killed outright
-        // loses at most about the last second of its recording.
+        // Small chunks, and a flush every two seconds (`flush_if_due`): a gateway killed
+        // outright loses at most about the last two seconds of its recording.
         let compression = match setup.compression {
             RecordCompression::Zstd => Some(mcap::Compression::Zstd),
             RecordCompression::Lz4 => Some(mcap::Compression::Lz4),
@@ -520,6 +542,7 @@ impl McapSink {
         let fields: serde_json::Map<String, Value> = CycleRecord::CSV_HEADER
             .split(',')
             .zip(text.trim_end().split(','))
+            .filter(|(name, _)| !CYCLE_DERIVED.contains(name))
             .map(|(name, value)| {
                 let v = match cycle_field_type(name) {
                     "integer" => value.parse::<i64>().map_or_else(|_| json!(value), |x| json!(x)),
@@ -557,24 +580,25 @@ impl McapSink {
     }
 
     pub fn scene(&mut self, s: &SceneRecord) -> std::io::Result<()> {
+        // For the eye, at a display's rate (`/cycle` has every cycle's position, and a
+        // replay recomputes every cycle's estimates from the inputs).
         let at = s.at.as_nanos();
+        if self.arena_at.is_some_and(|last| at < last + ARENA_EVERY_NS) {
+            return Ok(());
+        }
+        self.arena_at = Some(at);
         let obstacles: Vec<Value> = s
             .obstacles()
             .iter()
             .map(|o| {
                 json!({
-                    "position": o.position.map(micro), "velocity": o.velocity.map(micro),
-                    "covariance": o.covariance.map(shortest), "planning_radius": micro(o.planning_radius),
-                    "radius": micro(o.radius)
+                    "position": o.position.map(|v| decimals(v, 5)), "velocity": o.velocity.map(|v| decimals(v, 4)),
+                    "covariance": o.covariance.map(significant3), "planning_radius": decimals(o.planning_radius, 5),
+                    "radius": decimals(o.radius, 5)
                 })
             })
             .collect();
         self.put(OBSTACLES, s.cycle as u32, at, &json!({ "timestamp": self.stamp_json(at), "obstacles": obstacles }))?;
-        // The display channels at a display's rate (`/cycle` has every cycle's position).
-        if self.arena_at.is_some_and(|last| at < last + ARENA_EVERY_NS) {
-            return Ok(());
-        }
-        self.arena_at = Some(at);
         let [x, y, heading] = s.pose;
         let pose = PoseInFrame {
             timestamp: Some(self.stamp(at)),
@@ -582,13 +606,18 @@ impl McapSink {
             pose: Some(floor_pose(x, y, heading, 0.0)),
         };
         self.put_message(POSE, s.cycle as u32, at, &pose)?;
-        let arena = self.arena(s, self.stamp(at));
+        let still = self.still_at.is_none_or(|(last, goal)| at >= last + STILL_EVERY_NS || goal != s.goal);
+        if still {
+            self.still_at = Some((at, s.goal));
+        }
+        let arena = self.arena(s, self.stamp(at), still);
         self.put_message(ARENA, s.cycle as u32, at, &arena)
     }
 
     /// The arena as Foxglove scene entities: `arena` (the robot, each obstacle's planning
-    /// circle and velocity arrow, the lane walls) and `goal`.
-    fn arena(&self, s: &SceneRecord, stamp: Timestamp) -> SceneUpdate {
+    /// circle and velocity arrow), and with `still` the lane's walls (`lane`, in a lane) and
+    /// the `goal`.
+    fn arena(&self, s: &SceneRecord, stamp: Timestamp, still: bool) -> SceneUpdate {
         let mut cylinders = vec![disc(s.pose[0], s.pose[1], self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
         let mut arrows = Vec::new();
         for o in s.obstacles() {
@@ -607,7 +636,7 @@ impl McapSink {
                 });
             }
         }
-        let lines = self
+        let lines: Vec<LinePrimitive> = self
             .setup
             .lane_half_width
             .map(|h| {
@@ -635,14 +664,15 @@ impl McapSink {
             lifetime: Some(Duration::new(0, 0)),
             ..Default::default()
         };
-        let goal = disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0]);
-        SceneUpdate {
-            deletions: Vec::new(),
-            entities: vec![
-                SceneEntity { arrows, cylinders, lines, ..entity("arena") },
-                SceneEntity { cylinders: vec![goal], ..entity("goal") },
-            ],
+        let mut entities = vec![SceneEntity { arrows, cylinders, ..entity("arena") }];
+        if still {
+            if !lines.is_empty() {
+                entities.push(SceneEntity { lines, ..entity("lane") });
+            }
+            let goal = disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0]);
+            entities.push(SceneEntity { cylinders: vec![goal], ..entity("goal") });
         }
+        SceneUpdate { deletions: Vec::new(), entities }
     }
 
     /// Close the file: the end record says how many inputs the loop took (`taken`) and how
@@ -741,19 +771,30 @@ mod tests {
                 input: RecordedInput::of(input),
             };
             let text = serde_json::to_string(&input_json(&record)).unwrap();
-            let back = input_from_json(&serde_json::from_str(&text).unwrap()).unwrap();
+            let back = input_from_json(&serde_json::from_str(&text).unwrap(), record.seq, record.at).unwrap();
             assert_eq!(back, record, "{text}");
             assert_eq!(back.input.as_input(), input);
         }
     }
 
     #[test]
+    fn an_input_that_carries_its_own_sequence_and_time_is_read_by_them() {
+        let v = serde_json::json!({ "seq": 9, "t_ns": 700, "kind": "tick" });
+        let r = input_from_json(&v, 3, HostTime::from_nanos(5)).unwrap();
+        assert_eq!((r.seq, r.at), (9, HostTime::from_nanos(700)));
+        let r = input_from_json(&serde_json::json!({ "kind": "tick" }), 3, HostTime::from_nanos(5)).unwrap();
+        assert_eq!((r.seq, r.at), (3, HostTime::from_nanos(5)));
+    }
+
+    #[test]
     fn a_damaged_input_is_refused_saying_what_is_wrong() {
-        let bad = |text: &str| input_from_json(&serde_json::from_str(text).unwrap()).unwrap_err();
-        assert_eq!(bad(r#"{"seq":1,"kind":"tick"}"#), "no `t_ns`");
-        assert_eq!(bad(r#"{"seq":1,"t_ns":5,"kind":"psd_bytes","bytes":"0g"}"#), "`bytes` is not hex");
-        assert_eq!(bad(r#"{"seq":1,"t_ns":5,"kind":"warp"}"#), "unknown input `warp`");
-        let long = format!(r#"{{"seq":1,"t_ns":5,"kind":"psd_bytes","bytes":"{}"}}"#, "00".repeat(PSD_CHUNK + 1));
+        let bad =
+            |text: &str| input_from_json(&serde_json::from_str(text).unwrap(), 1, HostTime::from_nanos(5)).unwrap_err();
+        assert_eq!(bad(r#"{"seq":1,"t_ns":-5,"kind":"tick"}"#), "`t_ns` is not a count");
+        assert_eq!(bad(r#"{"bytes":"0g"}"#), "no `kind`");
+        assert_eq!(bad(r#"{"kind":"psd_bytes","bytes":"0g"}"#), "`bytes` is not hex");
+        assert_eq!(bad(r#"{"kind":"warp"}"#), "unknown input `warp`");
+        let long = format!(r#"{{"kind":"psd_bytes","bytes":"{}"}}"#, "00".repeat(PSD_CHUNK + 1));
         assert_eq!(bad(&long), format!("{} bytes in one read: at most {PSD_CHUNK}", PSD_CHUNK + 1));
     }
 }
