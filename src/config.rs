@@ -63,6 +63,12 @@ pub struct RealtimeConfig {
     /// about (spin_us + 1 ms) / T of a core (`flowgate bench` measures it).
     #[serde(default)]
     pub spin_us: u32,
+    /// With the low-latency mode: as each window opens, run the cycle's code (decode,
+    /// calibration, tracking, the plan, the supervisor, encoding) once on the last state and
+    /// discard the result, so that code and its data are in cache when the frame comes
+    /// ([`crate::gateway::Core::rehearse`]). Off by default.
+    #[serde(default)]
+    pub warm_up: bool,
     /// Run the control loop on these CPUs only (e.g. `[3]`, a core kept free with
     /// `isolcpus=`); empty = anywhere (default).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -359,7 +365,22 @@ pub struct SafetyConfig {
     /// grows.
     #[serde(default = "default_max_obstacle_speed")]
     pub max_obstacle_speed: f64,
+    /// Stop, "stalled (no progress)", when the robot has moved less than
+    /// `stall_progress_m` in this long while driving, ms.
+    #[serde(default = "default_stall_window")]
+    pub stall_window_ms: u32,
+    #[serde(default = "default_stall_progress")]
+    pub stall_progress_m: f64,
 }
+
+fn default_stall_window() -> u32 {
+    (StallConfig::default().window * 1e3) as u32
+}
+fn default_stall_progress() -> f64 {
+    StallConfig::default().min_progress
+}
+/// The longest stall window: an hour.
+const MAX_STALL_WINDOW_MS: u32 = 3_600_000;
 
 fn default_occlusion_timeout() -> u32 {
     1000
@@ -395,6 +416,8 @@ impl Default for SafetyConfig {
             pose_tolerance_m: default_pose_tolerance(),
             occlusion_timeout_ms: default_occlusion_timeout(),
             max_obstacle_speed: default_max_obstacle_speed(),
+            stall_window_ms: default_stall_window(),
+            stall_progress_m: default_stall_progress(),
         }
     }
 }
@@ -659,6 +682,15 @@ impl SafetyConfig {
                 format!("must be 0-{MAX_OBSTACLE_SPEED} m/s, is {}", self.max_obstacle_speed),
             );
         }
+        if !(100..=MAX_STALL_WINDOW_MS).contains(&self.stall_window_ms) {
+            return invalid(
+                "safety.stall_window_ms",
+                format!("must be 100-{MAX_STALL_WINDOW_MS} ms, is {}", self.stall_window_ms),
+            );
+        }
+        if !(self.stall_progress_m.is_finite() && self.stall_progress_m > 0.0 && self.stall_progress_m <= 1.0) {
+            return invalid("safety.stall_progress_m", format!("must be 0-1 m, is {}", self.stall_progress_m));
+        }
         // Without samples or a fresh pose the gateway sends no command, and the board stops
         // by itself after its command timeout. The gateway's own watchdog must fire first,
         // with a cycle to spare, so the stop is named by its cause (serial, pose), not as a
@@ -715,6 +747,12 @@ impl RealtimeConfig {
                     self.spin_us,
                     sample_period.as_micros()
                 ),
+            );
+        }
+        if self.warm_up && self.spin_us == 0 {
+            return invalid(
+                "realtime.warm_up",
+                "warms the cycle up as the low-latency window opens: set realtime.spin_us too",
             );
         }
         if self.fifo_priority > 99 {
@@ -881,6 +919,7 @@ impl GatewayConfig {
             goal: self.goal,
             operator: self.operator.clone(),
             spin: (!spin.is_zero()).then_some(spin),
+            warm_up: self.realtime.warm_up,
             realtime: self.realtime.settings(),
             config: self.clone(),
         })
@@ -988,7 +1027,10 @@ impl GatewayConfig {
             goal: self.goal.map_or(Point::default(), |g| Point::new(g.position[0], g.position[1])),
             goal_tolerance: self.goal.map_or(default_tolerance(), |g| g.tolerance),
             robot_radius: robot,
-            stall: StallConfig::default(),
+            stall: StallConfig {
+                window: f64::from(self.safety.stall_window_ms) * 1e-3,
+                min_progress: self.safety.stall_progress_m,
+            },
             supervisor: Some(supervisor),
             goal_wait: p.goal_wait,
             evasion: p.evasion,
@@ -1082,6 +1124,8 @@ pub struct Rig {
     pub operator: OperatorConfig,
     /// The low-latency mode's polling window either side of the next frame (`None`: off).
     pub spin: Option<Duration>,
+    /// Rehearse the cycle as each low-latency window opens (`[realtime] warm_up`).
+    pub warm_up: bool,
     /// CPU affinity, `SCHED_FIFO` and locked memory, applied at start.
     pub realtime: RealtimeSettings,
     /// The configuration this rig was built from (a recording keeps it as TOML, so a
@@ -1107,6 +1151,14 @@ mod tests {
         let supervisor = SupervisorConfig::new(1.0, 0.1, 0.07, 0.02, None);
         assert!((default_clearance() - 2.0 * supervisor.keep_out()).abs() < 1e-12);
         assert!(default_uncertainty_sigmas() >= supervisor.sigmas);
+    }
+
+    #[test]
+    fn the_stall_check_is_the_configured_one() {
+        let r = rig(EXAMPLE).unwrap();
+        assert_eq!((r.control.stall.window, r.control.stall.min_progress), (3.0, 0.01), "the defaults");
+        let r = rig(&EXAMPLE.replace("stall_window_ms = 3000 ", "stall_window_ms = 3600000 ")).unwrap();
+        assert_eq!(r.control.stall.window, 3600.0);
     }
 
     #[test]
@@ -1147,8 +1199,11 @@ mod tests {
             ("command_timeout_ms = 200", "command_timeout_ms = 166", "safety.pose_timeout_ms"),
             ("slot_us = 4000", "slot_us = 70000", "schedule.slot_us"),
             ("pose_tolerance_m = 0.02", "pose_tolerance_m = nan", "safety.pose_tolerance_m"),
+            ("stall_window_ms = 3000 ", "stall_window_ms = 50 ", "safety.stall_window_ms"),
+            ("stall_progress_m = 0.01 ", "stall_progress_m = 0 ", "safety.stall_progress_m"),
             // The low-latency window, twice over, must fit in T = 17 ms or the loop never sleeps.
             ("spin_us = 0 ", "spin_us = 8500 ", "realtime.spin_us"),
+            ("warm_up = false ", "warm_up = true ", "realtime.warm_up"),
             ("fifo_priority = 0 ", "fifo_priority = 100 ", "realtime.fifo_priority"),
             ("max_speed = 0.15 ", "max_speed = 0.26 ", "robot.max_speed"),
             ("microsteps = 8", "microsteps = 4000000000", "drive.microsteps"),

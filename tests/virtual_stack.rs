@@ -74,6 +74,21 @@ fn the_same_seed_gives_byte_identical_telemetry() {
     assert_ne!(a.cycles_csv, c.cycles_csv, "another seed, other noise");
 }
 
+/// The low-latency mode's warm-up (`[realtime] warm_up`, `Core::rehearse`) runs the cycle's
+/// work on the last state and throws it away: rehearsed at every event of a run, far more
+/// often than a rig does, it changes nothing. The same `cycles.csv` and `can.log`, byte for
+/// byte, in the lane (E2) and in free space with two moving obstacles (E6).
+#[test]
+fn a_rehearsal_changes_nothing() {
+    for name in ["e2-lane-head-on.toml", "e6-two-moving.toml"] {
+        let plain = sim::run(&scenario(name), options());
+        let rehearsed = sim::run(&scenario(name), Options { rehearse: true, ..options() });
+        assert_eq!(plain.outcome, Outcome::Goal, "{name}");
+        assert!(plain.report.counters.cycles > 300, "{name}");
+        assert_eq!(plain.telemetry.unwrap(), rehearsed.telemetry.unwrap(), "{name}: the same bytes");
+    }
+}
+
 /// The period is exact on the rig path: E2's 20 ms frame is 20.000 ms, not 19.998.
 #[test]
 fn the_control_period_is_exact() {

@@ -90,6 +90,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     // The paper's rate, with the low-latency mode and the real-time settings beside it.
     if args.spin_us > 0 {
         phases[0].also.push(Mode { spin_us: args.spin_us, ..Mode::default() });
+        phases[0].also.push(Mode { spin_us: args.spin_us, warm_up: true, ..Mode::default() });
     }
     if args.fifo_priority > 0 {
         let realtime =

@@ -173,6 +173,26 @@ impl ControlStep {
         StepOutput { outrun, ..self.decide(t, estimate, outrun) }
     }
 
+    /// The work of [`step`](Self::step) on `estimate` (the plan, the wheel speeds, the
+    /// supervisor's check), its result discarded and no state changed: the field it builds
+    /// into is the step's scratch, which every plan rebuilds from nothing. Run just before a
+    /// frame is due, it brings the step's code and data into cache.
+    pub fn rehearse(&mut self, estimate: &Estimate<'_>) {
+        let input = PlanInput {
+            position: estimate.position,
+            goal: self.config.goal,
+            robot_radius: self.config.robot_radius,
+            obstacles: estimate.obstacles,
+            delay: estimate.delay,
+        };
+        if let Ok(plan) = self.planner.plan_in(&input, &mut self.field) {
+            let proposed = wheel_speeds(plan.velocity, estimate.facing, &self.config.drive);
+            if let Some(cfg) = &self.config.supervisor {
+                std::hint::black_box(supervise(cfg, estimate, proposed));
+            }
+        }
+    }
+
     fn decide(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool) -> StepOutput {
         let position = estimate.position;
         if (position - self.config.goal).length() <= self.config.goal_tolerance {

@@ -65,6 +65,9 @@ pub struct Options {
     /// Keep every input handed to the core, as a recording's input channels keep them
     /// ([`Episode::inputs`]): replayed into a fresh core, they give the same outputs.
     pub record_inputs: bool,
+    /// Rehearse the cycle ([`Core::rehearse`], the low-latency mode's warm-up) at every
+    /// event of the run, far more often than a rig does: it must change nothing.
+    pub rehearse: bool,
 }
 
 /// The gateway's CAN link in the virtual rig.
@@ -496,6 +499,9 @@ impl<K: StageClock> VirtualRig<K> {
             self.world.step(dt);
         }
         self.t = next;
+        if self.options.rehearse {
+            self.core.rehearse(HostTime::from_nanos(self.t));
+        }
         self.faults_due();
         self.firmware_poll();
         self.deliver();

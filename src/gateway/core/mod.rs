@@ -1288,6 +1288,42 @@ impl<K: StageClock> Core<K> {
     /// The frame's samples into the tracker, in floor coordinates on the host clock. A
     /// sample stamped after `now` (beyond a period of clock tolerance) is discarded and
     /// counted: one future stamp would otherwise make every later, true one look old.
+    /// Run the cycle's work once on the last state and discard it, so that its code and
+    /// data are in cache when the next frame comes (`[realtime] warm_up`: the shell calls it
+    /// as each low-latency window opens, about a frame's worth of work ahead). A packet is
+    /// encoded and decoded, a point calibrated, the state estimated, the control step
+    /// planned and supervised, a velocity frame built. It is not an input: nothing the next
+    /// cycle computes depends on it (the tracker's estimate and the plan's field are
+    /// scratch, rebuilt every cycle), so a replay without rehearsals is the run's, byte for
+    /// byte (`a_rehearsal_changes_nothing`). Only in Running, where cycles plan.
+    pub fn rehearse(&mut self, now: HostTime) {
+        if !self.safety.state().may_move() {
+            return;
+        }
+        let sample = flowgate_protocol::psd::Sample {
+            frame: 0,
+            slot: 0,
+            led: self.rig.robot_front,
+            t_ctrl_us: 0,
+            x: 0,
+            y: 0,
+            intensity: 0,
+            flags: flowgate_protocol::psd::SampleFlags(0),
+        };
+        let mut wire = [0u8; flowgate_protocol::psd::MAX_WIRE_LEN];
+        if let Ok(n) = Packet::new(0, Message::Sample(sample)).encode(&mut wire) {
+            // Without its closing `0x00`, as the stream hands a frame over.
+            let _ = std::hint::black_box(Packet::decode(&wire[..n - 1]));
+        }
+        std::hint::black_box(self.rig.calibration.to_floor(0.0, 0.0));
+        let (period, wheel_base) = (self.rig.sample_period.as_secs_f64(), self.rig.control.drive.wheel_base);
+        if let Some(tracked) = self.tracker.estimate(now.secs(), period, wheel_base) {
+            self.control.rehearse(&tracked.estimate);
+        }
+        let message = MotorMessage::Velocity { node: self.rig.node, left: 0, right: 0, seq: self.velocity_seq };
+        let _ = std::hint::black_box(message.to_frame());
+    }
+
     fn track_frame(&mut self, now: HostTime) {
         let clock = self.psd.clock();
         let latest = now + self.rig.sample_period;

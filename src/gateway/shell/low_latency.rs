@@ -38,6 +38,8 @@ pub struct SpinWindow {
     period_ns: Option<f64>,
     /// Long intervals in a row: a gap, or the stream slowed down for good.
     long_intervals: u8,
+    /// The frame (its due time) the cycle was last warmed up for ([`SpinWindow::warm_due`]).
+    warmed_for: Option<Instant>,
 }
 
 /// The runtime's timers wake no sooner than their deadline and up to a millisecond later
@@ -54,7 +56,7 @@ const SLOWER_AFTER: u8 = 3;
 
 impl SpinWindow {
     pub fn new(spin: Duration) -> Self {
-        Self { spin, last_frame: None, period_ns: None, long_intervals: 0 }
+        Self { spin, last_frame: None, period_ns: None, long_intervals: 0, warmed_for: None }
     }
 
     /// A frame ended at `now` (its last byte was read).
@@ -97,6 +99,19 @@ impl SpinWindow {
         } else {
             Wait::Sleep
         }
+    }
+}
+
+impl SpinWindow {
+    /// Whether to warm the cycle up at `now` (`[realtime] warm_up`): once a window, as it
+    /// opens for polling.
+    pub fn warm_due(&mut self, now: Instant) -> bool {
+        let due = self.next_due();
+        if self.wait(now) == Wait::Poll && due != self.warmed_for {
+            self.warmed_for = due;
+            return true;
+        }
+        false
     }
 }
 
@@ -144,6 +159,21 @@ mod tests {
         assert_eq!(w.wait(wake), Wait::Poll);
         assert_eq!(w.wait(due + MS / 2), Wait::Poll);
         assert_eq!(w.wait(due + MS), Wait::Sleep, "an empty window ends the polling");
+    }
+
+    #[test]
+    fn the_cycle_is_warmed_up_once_a_window_as_it_opens() {
+        let t0 = Instant::now();
+        let mut w = SpinWindow::new(MS / 2);
+        w.frame(t0);
+        w.frame(t0 + 17 * MS);
+        let wake = t0 + 34 * MS - MS / 2 - TIMER_GRANULARITY;
+        assert!(!w.warm_due(t0 + 20 * MS), "not before the window");
+        assert!(w.warm_due(wake), "as it opens");
+        assert!(!w.warm_due(wake + MS / 4), "once");
+        w.frame(t0 + 34 * MS);
+        assert!(!w.warm_due(t0 + 35 * MS));
+        assert!(w.warm_due(t0 + 51 * MS - MS / 2 - TIMER_GRANULARITY), "and again for the next frame");
     }
 
     #[test]

@@ -166,6 +166,8 @@ struct Io {
     sample_period: Duration,
     /// The low-latency mode's window, when it is on.
     spin: Option<SpinWindow>,
+    /// Rehearse the cycle as each window opens (`[realtime] warm_up`).
+    warm_up: bool,
     /// Where the operator's stats window starts (`ctl stats --reset`); none: the run's start.
     stats_from: Option<Timing>,
     /// systemd's notification socket, when it started the gateway.
@@ -196,6 +198,7 @@ impl Io {
             progress,
             sample_period: rig.sample_period,
             spin: rig.spin.map(SpinWindow::new),
+            warm_up: rig.warm_up,
             stats_from: None,
             notifier,
         }
@@ -307,7 +310,13 @@ impl Io {
                 self.feed(core, self.now(), Input::Tick);
             }
             Event::Request(cmd) => self.answer(core, cmd),
-            Event::Spin => {}
+            Event::Spin => {
+                // Warm-up: the cycle's work once, as the window opens (`[realtime] warm_up`).
+                let now = std::time::Instant::now();
+                if self.warm_up && self.spin.as_mut().is_some_and(|s| s.warm_due(now)) {
+                    core.rehearse(self.now());
+                }
+            }
             Event::Shutdown => self.shut_down(core, controls),
         }
     }

@@ -43,6 +43,10 @@ pub struct Phase {
     /// The gateway's real-time settings in this phase (CPU affinity, SCHED_FIFO, locked
     /// memory), if any; its null gateway then runs with them too.
     pub realtime: Option<String>,
+    /// The gateway rehearsed its cycle as each low-latency window opened (`[realtime]
+    /// warm_up`; its null gateway has no cycle to rehearse).
+    #[serde(default)]
+    pub warm_up: bool,
     /// The gateway recorded the run to MCAP in this phase (its null gateway records nothing).
     #[serde(default)]
     pub recording: bool,
@@ -87,6 +91,9 @@ pub struct Floor {
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Mode {
     pub spin_us: u32,
+    /// With the low-latency window: rehearse the cycle as each window opens
+    /// (`[realtime] warm_up`).
+    pub warm_up: bool,
     pub realtime: RealtimeSettings,
     /// Record the run to MCAP (`[telemetry] record`): what recording costs the loop.
     pub record: bool,
@@ -99,6 +106,7 @@ impl Mode {
     fn label(&self) -> Option<String> {
         let parts: Vec<&str> = [
             (self.spin_us > 0, "low-latency"),
+            (self.warm_up, "warm-up"),
             (!self.realtime.is_empty(), "real-time"),
             (self.record, "recording"),
             (self.view, "view"),
@@ -232,7 +240,10 @@ fn proc_stat(dir: &str) -> (f64, f64) {
 /// The gateway's configuration for the bench. Its watchdogs are set long (30 s, the board's
 /// timeout beyond them as the config requires): it idles while the null gateway has its
 /// turn, and under emulation (vcan in the VM) a turn can stretch; the watchdogs themselves
-/// are tested in tests/fault_table.rs. Its control socket answers the bench's `stats`.
+/// are tested in tests/fault_table.rs. So is its stall check, set to an hour here: the
+/// bench's robot swings to and fro whatever the gateway commands, and after an idle turn it
+/// may be back within a centimetre of where it was, which a rig's robot would not be.
+/// Its control socket answers the bench's `stats`.
 fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &Mode) -> String {
     let h = flowgate_sim::calibration::CameraModel::default().homography;
     // The schedule's period only bounds the low-latency window (twice it must fit in T);
@@ -251,11 +262,12 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
          [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nnode = {}\n\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
-         [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nocclusion_timeout_ms = 31000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\n\
-         [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
+         [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nocclusion_timeout_ms = 31000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\nstall_window_ms = 3600000\n\
+         [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\nwarm_up = {}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
         psd.display(),
         node.get(),
         socket.display(),
+        mode.warm_up,
         rt.cpus,
         rt.fifo_priority.unwrap_or(0),
         rt.lock_memory,
@@ -557,6 +569,7 @@ impl PairTally {
         Ok(Phase {
             name,
             spin_us: (mode.spin_us > 0).then_some(mode.spin_us),
+            warm_up: mode.warm_up,
             realtime: (!mode.realtime.is_empty()).then(|| mode.realtime.to_string()),
             recording: mode.record,
             view: mode.view,
@@ -777,6 +790,9 @@ impl std::fmt::Display for BenchReport {
             let mut how = Vec::new();
             if let Some(us) = p.spin_us {
                 how.push(format!("[realtime] spin_us = {us} (its null gateway polling the same way)"));
+            }
+            if p.warm_up {
+                how.push("warm_up = true (the cycle rehearsed as each window opens)".to_string());
             }
             if let Some(rt) = &p.realtime {
                 how.push(format!("real-time settings {rt} (its null gateway with them too)"));
