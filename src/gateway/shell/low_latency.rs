@@ -38,8 +38,9 @@ pub struct SpinWindow {
     period_ns: Option<f64>,
     /// Long intervals in a row: a gap, or the stream slowed down for good.
     long_intervals: u8,
-    /// The frame (its due time) the cycle was last warmed up for ([`SpinWindow::warm_due`]).
-    warmed_for: Option<Instant>,
+    /// When the cycle was last warmed up, and for which frame (its due time)
+    /// ([`SpinWindow::warm_due`]).
+    warmed: Option<(Instant, Option<Instant>)>,
 }
 
 /// The runtime's timers wake no sooner than their deadline and up to a millisecond later
@@ -56,7 +57,7 @@ const SLOWER_AFTER: u8 = 3;
 
 impl SpinWindow {
     pub fn new(spin: Duration) -> Self {
-        Self { spin, last_frame: None, period_ns: None, long_intervals: 0, warmed_for: None }
+        Self { spin, last_frame: None, period_ns: None, long_intervals: 0, warmed: None }
     }
 
     /// A frame ended at `now` (its last byte was read).
@@ -103,17 +104,28 @@ impl SpinWindow {
 }
 
 impl SpinWindow {
-    /// Whether to warm the cycle up at `now` (`[realtime] warm_up`): once a window, as it
-    /// opens for polling.
+    /// Whether to warm the cycle up at `now` (`[realtime] warm_up`): as the window opens,
+    /// then every [`WARM_EVERY`] while it polls. The loop spends the window's CPU anyway;
+    /// a rehearsal (about a cycle's work, a few µs) keeps the cycle's code and data in the
+    /// caches the polling would otherwise slowly evict.
     pub fn warm_due(&mut self, now: Instant) -> bool {
         let due = self.next_due();
-        if self.wait(now) == Wait::Poll && due != self.warmed_for {
-            self.warmed_for = due;
-            return true;
+        if self.wait(now) != Wait::Poll {
+            return false;
         }
-        false
+        let fresh = match self.warmed {
+            Some((at, warmed_for)) => warmed_for != due || now >= at + WARM_EVERY,
+            None => true,
+        };
+        if fresh {
+            self.warmed = Some((now, due));
+        }
+        fresh
     }
 }
+
+/// How often a polling window rehearses the cycle.
+pub const WARM_EVERY: Duration = Duration::from_micros(250);
 
 impl Wait {
     /// Carry it out in an async loop, beside the loop's inputs: returns after one yield to
@@ -162,7 +174,7 @@ mod tests {
     }
 
     #[test]
-    fn the_cycle_is_warmed_up_once_a_window_as_it_opens() {
+    fn the_cycle_is_warmed_up_as_the_window_opens_and_while_it_polls() {
         let t0 = Instant::now();
         let mut w = SpinWindow::new(MS / 2);
         w.frame(t0);
@@ -170,9 +182,10 @@ mod tests {
         let wake = t0 + 34 * MS - MS / 2 - TIMER_GRANULARITY;
         assert!(!w.warm_due(t0 + 20 * MS), "not before the window");
         assert!(w.warm_due(wake), "as it opens");
-        assert!(!w.warm_due(wake + MS / 4), "once");
+        assert!(!w.warm_due(wake + WARM_EVERY / 2), "not again at once");
+        assert!(w.warm_due(wake + WARM_EVERY), "then every WARM_EVERY");
         w.frame(t0 + 34 * MS);
-        assert!(!w.warm_due(t0 + 35 * MS));
+        assert!(!w.warm_due(t0 + 35 * MS), "not between windows");
         assert!(w.warm_due(t0 + 51 * MS - MS / 2 - TIMER_GRANULARITY), "and again for the next frame");
     }
 

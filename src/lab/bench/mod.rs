@@ -708,7 +708,7 @@ impl std::fmt::Display for BenchReport {
         )?;
         writeln!(
             f,
-            "{:<30} {:>9} {:>9} {:>7} {:>7} {:>7} {:>7} {:>8} {:>7} {:>6} {:>13} {:>26} {:>5} {:>9}",
+            "{:<38} {:>9} {:>9} {:>7} {:>7} {:>7} {:>7} {:>8} {:>7} {:>6} {:>13} {:>26} {:>5} {:>9}",
             "phase",
             "samples/s",
             "cycles",
@@ -738,7 +738,7 @@ impl std::fmt::Display for BenchReport {
                 p.floor.map_or("-".into(), |fl| (p.cycles_sent - fl.commands_received.min(p.cycles_sent)).to_string());
             writeln!(
                 f,
-                "{:<30} {:>9.0} {:>9} {:>7} {:>7.2} {:>7.0} {:>7.0} {:>8.0} {:>7.0} {:>6.1} {:>4.1}/{:>4.1}/{:>4.1} {:>26} {:>5} {:>9.2}",
+                "{:<38} {:>9.0} {:>9} {:>7} {:>7.2} {:>7.0} {:>7.0} {:>8.0} {:>7.0} {:>6.1} {:>4.1}/{:>4.1}/{:>4.1} {:>26} {:>5} {:>9.2}",
                 p.name,
                 p.samples_per_s,
                 p.cycles_sent,
@@ -758,20 +758,20 @@ impl std::fmt::Display for BenchReport {
             )?;
         }
         writeln!(f, "\nwhat flowgate adds: the gateway's latency minus its floor's, quantile by quantile (µs)")?;
-        writeln!(f, "{:<30} {:>8} {:>8} {:>8}", "phase", "p50", "p99", "p99.9")?;
+        writeln!(f, "{:<38} {:>8} {:>8} {:>8}", "phase", "p50", "p99", "p99.9")?;
         for p in &self.phases {
             if let Some(a) = &p.added_us {
-                writeln!(f, "{:<30} {:>8.0} {:>8.0} {:>8.0}", p.name, a.p50, a.p99, a.p999)?;
+                writeln!(f, "{:<38} {:>8.0} {:>8.0} {:>8.0}", p.name, a.p50, a.p99, a.p999)?;
             }
         }
         writeln!(f, "\nthe gateway's stages, as its loop measured them (µs, p50 / p99)")?;
-        write!(f, "{:<30}", "phase")?;
+        write!(f, "{:<38}", "phase")?;
         for s in self.phases.first().map_or(&[][..], |p| &p.stages[..]) {
             write!(f, " {:>15}", s.stage)?;
         }
         writeln!(f)?;
         for p in &self.phases {
-            write!(f, "{:<30}", p.name)?;
+            write!(f, "{:<38}", p.name)?;
             for s in &p.stages {
                 write!(f, " {:>15}", format!("{:.2} / {:.2}", s.p50_us, s.p99_us))?;
             }
