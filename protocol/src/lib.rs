@@ -8,6 +8,7 @@
 //! | [`psd`]   | host <-> PSD camera controller, serial | COBS, 0x00 delimiter, CRC-16/IBM-3740 |
 //! | [`motor`] | gateway <-> pulse-motor boards, CAN    | CAN 2.0A, 11-bit ids, node ids 1-15  |
 //! | [`slcan`] | host <-> USB-CAN adapter, serial       | LAWICEL ASCII lines, CR / BEL        |
+//! | [`canopen`] | gateway <-> CiA 402 drives, CAN      | CANopen (CiA 301), node ids 1-127    |
 //!
 //! Every message is a plain Rust value (a "repr", after smoltcp) with `parse` from bytes and
 //! `emit` into a caller's buffer. The byte layouts are drawn in `protocol/README.md` and in
@@ -31,6 +32,7 @@
 #![forbid(unsafe_code)]
 
 pub mod can;
+pub mod canopen;
 pub mod cobs;
 pub mod crc;
 pub mod motor;

@@ -527,8 +527,8 @@ mod tests {
         assert_eq!(MotorMessage::parse(&rtr), Err(MotorError::Remote(0x701)));
     }
 
-    /// Found by the `motor_decode` fuzz target: -2^23 fits the i24 field but not the
-    /// protocol's symmetric rate range, so it must be refused on parse as on emit.
+    /// Found by fuzzing motor frames: -2^23 fits the i24 field but not the protocol's
+    /// symmetric rate range, so it must be refused on parse as on emit.
     #[test]
     fn parse_refuses_the_one_rate_emit_cannot_write() {
         for id in [0x101, 0x281] {

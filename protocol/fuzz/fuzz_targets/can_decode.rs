@@ -1,6 +1,7 @@
-//! Motor frames: any id, flags and payload; never panic; whatever parses re-emits on the
-//! same id and parses back equal.
+//! CAN frames, for both CAN protocols (the motor boards' and CANopen's): any id, flags and
+//! payload; never panic; whatever parses re-emits on the same id and parses back equal.
 #![no_main]
+use flowgate_protocol::canopen::CanOpenMessage;
 use flowgate_protocol::motor::MotorMessage;
 use flowgate_protocol::{CanFrame, CanId};
 use libfuzzer_sys::fuzz_target;
@@ -19,5 +20,10 @@ fuzz_target!(|data: &[u8]| {
         let again = msg.to_frame().expect("a parsed message re-emits");
         assert_eq!(again.id(), frame.id());
         assert_eq!(MotorMessage::parse(&again), Ok(msg));
+    }
+    if let Ok(msg) = CanOpenMessage::parse(&frame) {
+        let again = msg.to_frame().expect("a parsed message re-emits");
+        assert_eq!(again.id(), frame.id());
+        assert_eq!(CanOpenMessage::parse(&again), Ok(msg));
     }
 });

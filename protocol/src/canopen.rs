@@ -1,0 +1,992 @@
+//! CANopen (CiA 301) as a CiA 402 drive speaks it: the frames a gateway exchanges with
+//! off-the-shelf stepper and servo drives (Nanotec, Trinamic, Maxon EPOS, Faulhaber, ...),
+//! and the drive profile's state machine.
+//!
+//! ## Identifiers (the predefined connection set)
+//!
+//! CAN 2.0A, 11-bit identifiers: a function code in the high four bits, the node id
+//! (1-127) in the low seven.
+//!
+//! | COB-ID        | object               | dir            | DLC | payload (little-endian)                          |
+//! |---------------|----------------------|----------------|-----|--------------------------------------------------|
+//! | `0x000`       | NMT                  | master -> all  | 2   | `[0]` command, `[1]` node (0: every node)         |
+//! | `0x080`       | SYNC                 | master -> all  | 0   |                                                  |
+//! | `0x080 + n`   | EMCY                 | n -> master    | 8   | `[0..2]` error code, `[2]` error register, `[3..8]` vendor |
+//! | `0x180 + n` … `0x480 + n` | TPDO1-4  | n -> master    | 0-8 | as mapped                                        |
+//! | `0x200 + n` … `0x500 + n` | RPDO1-4  | master -> n    | 0-8 | as mapped                                        |
+//! | `0x580 + n`   | SDO response         | n -> master    | 8   | `[0]` command, `[1..3]` index, `[3]` subindex, `[4..8]` data |
+//! | `0x600 + n`   | SDO request          | master -> n    | 8   | the same                                         |
+//! | `0x700 + n`   | heartbeat / boot-up  | n -> master    | 1   | `[0]` NMT state; `0x00` is the boot-up message    |
+//!
+//! SDO transfers here are expedited (at most four bytes, one frame each way): every object
+//! a gateway writes to configure a drive and reads back fits. A segmented or block
+//! transfer is refused by [`CanOpenMessage::parse`] as unsupported, not misread.
+//!
+//! ## The CiA 402 state machine
+//!
+//! A drive reports its state in the statusword (0x6041) and is moved by the controlword
+//! (0x6040): switch on disabled → (shutdown) → ready to switch on → (switch on) → switched
+//! on → (enable operation) → operation enabled, which is the only state in which the drive
+//! follows a target. A fault goes to *fault* through *fault reaction active*; a *fault
+//! reset* (a rising edge of controlword bit 7) returns it to switch on disabled. *Quick
+//! stop* brakes on the quick-stop deceleration (0x6085). [`DriveState::from_statusword`]
+//! decodes the state, [`DriveState::towards_operation`] says which command takes a drive
+//! one step on the way to operation enabled.
+//!
+//! ## No-panic contract
+//!
+//! [`CanOpenMessage::parse`] accepts any [`CanFrame`] and returns a [`CanOpenError`] for a
+//! frame it does not know or cannot read.
+
+use crate::can::{CanFrame, CanId};
+use crate::psd::byte_enum;
+use crate::wire::{Reader, Writer};
+
+/// A CANopen node id, 1 to 127.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct NodeId(u8);
+
+impl NodeId {
+    pub const MIN: u8 = 1;
+    pub const MAX: u8 = 127;
+    /// A node id, or `None` outside 1..=127.
+    pub const fn new(id: u8) -> Option<Self> {
+        if id >= Self::MIN && id <= Self::MAX {
+            Some(Self(id))
+        } else {
+            None
+        }
+    }
+    pub const fn get(self) -> u8 {
+        self.0
+    }
+}
+
+/// Function codes of the predefined connection set: the COB-ID less the node id.
+pub mod cob {
+    pub const NMT: u16 = 0x000;
+    pub const SYNC: u16 = 0x080;
+    pub const EMCY: u16 = 0x080;
+    pub const TPDO1: u16 = 0x180;
+    pub const RPDO1: u16 = 0x200;
+    pub const SDO_RESPONSE: u16 = 0x580;
+    pub const SDO_REQUEST: u16 = 0x600;
+    pub const HEARTBEAT: u16 = 0x700;
+}
+
+/// The objects of the dictionary a gateway uses on a CiA 402 drive (index, and the
+/// subindex where it is not 0).
+pub mod object {
+    /// Error register (u8).
+    pub const ERROR_REGISTER: u16 = 0x1001;
+    /// Consumer heartbeat time: sub 1.. = node << 16 | time ms (u32).
+    pub const CONSUMER_HEARTBEAT_TIME: u16 = 0x1016;
+    /// Producer heartbeat time, ms (u16).
+    pub const PRODUCER_HEARTBEAT_TIME: u16 = 0x1017;
+    /// RPDO1's communication parameters (sub 1: COB-ID u32, sub 2: transmission type u8);
+    /// RPDO n is `+ n - 1`.
+    pub const RPDO1_COMMUNICATION: u16 = 0x1400;
+    /// RPDO1's mapping (sub 0: count u8, sub 1..: index << 16 | sub << 8 | bits, u32).
+    pub const RPDO1_MAPPING: u16 = 0x1600;
+    pub const TPDO1_COMMUNICATION: u16 = 0x1800;
+    pub const TPDO1_MAPPING: u16 = 0x1A00;
+    /// Error code of the last fault (u16).
+    pub const ERROR_CODE: u16 = 0x603F;
+    /// Controlword (u16).
+    pub const CONTROLWORD: u16 = 0x6040;
+    /// Statusword (u16).
+    pub const STATUSWORD: u16 = 0x6041;
+    /// Quick stop option code (i16).
+    pub const QUICK_STOP_OPTION: u16 = 0x605A;
+    /// Modes of operation (i8), and what the drive runs (i8).
+    pub const MODES_OF_OPERATION: u16 = 0x6060;
+    pub const MODES_OF_OPERATION_DISPLAY: u16 = 0x6061;
+    /// Position actual value (i32, increments).
+    pub const POSITION_ACTUAL: u16 = 0x6064;
+    /// Velocity actual value (i32, velocity units).
+    pub const VELOCITY_ACTUAL: u16 = 0x606C;
+    /// Profile acceleration and deceleration (u32, velocity units per second).
+    pub const PROFILE_ACCELERATION: u16 = 0x6083;
+    pub const PROFILE_DECELERATION: u16 = 0x6084;
+    /// Quick stop deceleration (u32).
+    pub const QUICK_STOP_DECELERATION: u16 = 0x6085;
+    /// Target velocity (i32, velocity units), followed in profile velocity mode.
+    pub const TARGET_VELOCITY: u16 = 0x60FF;
+}
+
+/// Modes of operation (0x6060): profile velocity.
+pub const PROFILE_VELOCITY_MODE: i8 = 3;
+
+byte_enum! {
+    /// An NMT command (`0x000`, byte 0).
+    NmtCommand {
+        Start = 0x01,
+        Stop = 0x02,
+        EnterPreOperational = 0x80,
+        ResetNode = 0x81,
+        ResetCommunication = 0x82,
+    }
+}
+
+byte_enum! {
+    /// A node's NMT state, as its heartbeat carries it (`0x00` is the boot-up message).
+    NmtState {
+        BootUp = 0x00,
+        Stopped = 0x04,
+        Operational = 0x05,
+        PreOperational = 0x7F,
+    }
+}
+
+/// Who an NMT command is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum NmtTarget {
+    All,
+    Node(NodeId),
+}
+
+/// An expedited SDO's data: one to four bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct SdoData {
+    bytes: [u8; 4],
+    len: u8,
+}
+
+impl SdoData {
+    /// One to four bytes; `None` otherwise.
+    pub fn new(data: &[u8]) -> Option<Self> {
+        if data.is_empty() || data.len() > 4 {
+            return None;
+        }
+        let mut bytes = [0; 4];
+        bytes[..data.len()].copy_from_slice(data);
+        Some(Self { bytes, len: data.len() as u8 })
+    }
+    pub fn u8(v: u8) -> Self {
+        Self { bytes: [v, 0, 0, 0], len: 1 }
+    }
+    pub fn i8(v: i8) -> Self {
+        Self::u8(v as u8)
+    }
+    pub fn u16(v: u16) -> Self {
+        let [a, b] = v.to_le_bytes();
+        Self { bytes: [a, b, 0, 0], len: 2 }
+    }
+    pub fn u32(v: u32) -> Self {
+        Self { bytes: v.to_le_bytes(), len: 4 }
+    }
+    pub fn i32(v: i32) -> Self {
+        Self::u32(v as u32)
+    }
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes[..usize::from(self.len)]
+    }
+    /// The value, zero-extended to 32 bits (an object's natural reading whatever its size).
+    pub fn value(&self) -> u32 {
+        u32::from_le_bytes(self.bytes)
+    }
+}
+
+/// An SDO request, client (the gateway) to server (the drive): `0x600 + n`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SdoRequest {
+    /// Write `data` to `index:sub` (an expedited initiate-download).
+    Download {
+        index: u16,
+        sub: u8,
+        data: SdoData,
+    },
+    /// Read `index:sub` (an initiate-upload).
+    Upload {
+        index: u16,
+        sub: u8,
+    },
+    Abort {
+        index: u16,
+        sub: u8,
+        code: u32,
+    },
+}
+
+/// An SDO response, server to client: `0x580 + n`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SdoResponse {
+    /// The write was done.
+    Downloaded {
+        index: u16,
+        sub: u8,
+    },
+    /// The object's value (an expedited initiate-upload response).
+    Uploaded {
+        index: u16,
+        sub: u8,
+        data: SdoData,
+    },
+    Abort {
+        index: u16,
+        sub: u8,
+        code: u32,
+    },
+}
+
+impl SdoRequest {
+    pub const fn object(&self) -> (u16, u8) {
+        match *self {
+            Self::Download { index, sub, .. } | Self::Upload { index, sub } | Self::Abort { index, sub, .. } => {
+                (index, sub)
+            }
+        }
+    }
+}
+
+impl SdoResponse {
+    pub const fn object(&self) -> (u16, u8) {
+        match *self {
+            Self::Downloaded { index, sub } | Self::Uploaded { index, sub, .. } | Self::Abort { index, sub, .. } => {
+                (index, sub)
+            }
+        }
+    }
+}
+
+/// What an SDO abort code means (CiA 301, 7.2.4.3.17), for messages.
+pub fn sdo_abort_text(code: u32) -> &'static str {
+    match code {
+        0x0503_0000 => "toggle bit not alternated",
+        0x0504_0000 => "SDO protocol timed out",
+        0x0504_0001 => "command specifier not valid or unknown",
+        0x0601_0000 => "unsupported access to an object",
+        0x0601_0001 => "attempt to read a write-only object",
+        0x0601_0002 => "attempt to write a read-only object",
+        0x0602_0000 => "object does not exist in the object dictionary",
+        0x0604_0041 => "object cannot be mapped to the PDO",
+        0x0604_0042 => "the mapped objects would exceed the PDO length",
+        0x0604_0043 => "general parameter incompatibility",
+        0x0607_0010 => "data type does not match, length of service parameter does not match",
+        0x0609_0011 => "subindex does not exist",
+        0x0609_0030 => "value range of parameter exceeded",
+        0x0609_0031 => "value of parameter written too high",
+        0x0609_0032 => "value of parameter written too low",
+        0x0800_0000 => "general error",
+        0x0800_0020 => "data cannot be transferred or stored to the application",
+        0x0800_0021 => "data cannot be transferred because of local control",
+        0x0800_0022 => "data cannot be transferred in the present device state",
+        _ => "unknown abort code",
+    }
+}
+
+/// An emergency message (`0x080 + n`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Emcy {
+    /// CiA 301 / CiA 402 error code; 0x0000 is "error reset or no error".
+    pub error_code: u16,
+    /// The error register (0x1001) as sent.
+    pub error_register: u8,
+    pub vendor: [u8; 5],
+}
+
+impl Emcy {
+    /// What the error code means, by the codes a CiA 402 drive sends and else by class.
+    pub fn describe(&self) -> &'static str {
+        match self.error_code {
+            0x0000 => "error reset or no error",
+            0x2310 => "continuous over-current",
+            0x3210 => "DC link over-voltage",
+            0x3220 => "DC link under-voltage",
+            0x4210 => "excess temperature device",
+            0x5441 => "enable input inactive",
+            0x7121 => "motor blocked",
+            0x8110 => "CAN overrun (objects lost)",
+            0x8120 => "CAN in error passive mode",
+            0x8130 => "life guard or heartbeat error",
+            0x8140 => "recovered from bus off",
+            0x8611 => "following error",
+            0x8612 => "reference limit",
+            code => match code >> 12 {
+                0x1 => "generic error",
+                0x2 => "current",
+                0x3 => "voltage",
+                0x4 => "temperature",
+                0x5 => "device hardware",
+                0x6 => "device software",
+                0x7 => "additional modules",
+                0x8 => "monitoring",
+                0x9 => "external error",
+                0xF => "device specific",
+                _ => "unknown error code",
+            },
+        }
+    }
+}
+
+/// A frame of a CANopen network, as a gateway sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum CanOpenMessage {
+    Nmt {
+        command: NmtCommand,
+        target: NmtTarget,
+    },
+    Sync,
+    Emcy {
+        node: NodeId,
+        emcy: Emcy,
+    },
+    /// A heartbeat, or with [`NmtState::BootUp`] the boot-up message.
+    Heartbeat {
+        node: NodeId,
+        state: NmtState,
+    },
+    SdoRequest {
+        node: NodeId,
+        request: SdoRequest,
+    },
+    SdoResponse {
+        node: NodeId,
+        response: SdoResponse,
+    },
+    /// A process data object: `number` 1-4, as mapped.
+    Pdo {
+        direction: PdoDirection,
+        number: u8,
+        node: NodeId,
+        data: PdoData,
+    },
+}
+
+/// Which way a PDO goes, from the drive's side: a drive transmits TPDOs, receives RPDOs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PdoDirection {
+    Transmit,
+    Receive,
+}
+
+/// A PDO's bytes: zero to eight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct PdoData {
+    bytes: [u8; 8],
+    len: u8,
+}
+
+impl PdoData {
+    /// Up to eight bytes; `None` for more.
+    pub fn new(data: &[u8]) -> Option<Self> {
+        let mut bytes = [0; 8];
+        bytes.get_mut(..data.len())?.copy_from_slice(data);
+        Some(Self { bytes, len: data.len() as u8 })
+    }
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes[..usize::from(self.len)]
+    }
+}
+
+/// Why a frame is not a CANopen message this module reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum CanOpenError {
+    #[error("extended or remote frame: CANopen uses standard data frames")]
+    NotStandardData,
+    #[error("COB-ID 0x{0:03X} is no object of the predefined connection set")]
+    UnknownCobId(u16),
+    #[error("COB-ID 0x{cob_id:03X}: {len} data bytes, expected {expected}")]
+    BadLength { cob_id: u16, len: usize, expected: usize },
+    #[error("NMT command 0x{0:02X} unknown")]
+    UnknownNmtCommand(u8),
+    #[error("NMT node {0} out of range")]
+    BadNmtNode(u8),
+    #[error("heartbeat state 0x{0:02X} unknown")]
+    UnknownNmtState(u8),
+    #[error("SDO command 0x{0:02X}: segmented and block transfers are not supported, only expedited")]
+    UnsupportedSdo(u8),
+    #[error("SDO command 0x{0:02X} unknown")]
+    UnknownSdoCommand(u8),
+}
+
+/// SDO command bytes (CiA 301 7.2.4.3): the command specifier in bits 7-5; for an expedited
+/// transfer `e` (bit 1) and `s` (bit 0) set and the unused bytes `n` in bits 3-2.
+mod sdo {
+    pub const DOWNLOAD_EXPEDITED: u8 = 0x23; // ccs 1, e, s; | (4 - len) << 2
+    pub const UPLOAD: u8 = 0x40; // ccs 2
+    pub const UPLOADED_EXPEDITED: u8 = 0x43; // scs 2, e, s; | (4 - len) << 2
+    pub const DOWNLOADED: u8 = 0x60; // scs 3
+    pub const ABORT: u8 = 0x80;
+    /// Command specifier: bits 7-5.
+    pub const fn specifier(cmd: u8) -> u8 {
+        cmd >> 5
+    }
+    /// An expedited transfer with its size given: `e` and `s`.
+    pub const fn expedited_sized(cmd: u8) -> bool {
+        cmd & 0x03 == 0x03
+    }
+    /// Data bytes of an expedited, sized transfer.
+    pub const fn len(cmd: u8) -> usize {
+        4 - ((cmd >> 2) & 0x03) as usize
+    }
+}
+
+impl CanOpenMessage {
+    /// Read a frame.
+    pub fn parse(frame: &CanFrame) -> Result<Self, CanOpenError> {
+        let CanId::Standard(id) = frame.id() else { return Err(CanOpenError::NotStandardData) };
+        if frame.is_remote() {
+            return Err(CanOpenError::NotStandardData);
+        }
+        let data = frame.data();
+        let length = |expected: usize| {
+            if data.len() == expected {
+                Ok(())
+            } else {
+                Err(CanOpenError::BadLength { cob_id: id, len: data.len(), expected })
+            }
+        };
+        let (function, node) = (id & 0x780, (id & 0x7F) as u8);
+        if id == cob::NMT {
+            length(2)?;
+            let command = NmtCommand::from_u8(data[0]).ok_or(CanOpenError::UnknownNmtCommand(data[0]))?;
+            let target = match data[1] {
+                0 => NmtTarget::All,
+                n => NmtTarget::Node(NodeId::new(n).ok_or(CanOpenError::BadNmtNode(n))?),
+            };
+            return Ok(Self::Nmt { command, target });
+        }
+        if id == cob::SYNC {
+            length(0)?;
+            return Ok(Self::Sync);
+        }
+        let Some(node) = NodeId::new(node) else { return Err(CanOpenError::UnknownCobId(id)) };
+        match function {
+            cob::EMCY => {
+                length(8)?;
+                let mut r = Reader::new(data);
+                let error_code = r.u16().ok_or(CanOpenError::BadLength { cob_id: id, len: data.len(), expected: 8 })?;
+                let error_register = data[2];
+                let mut vendor = [0; 5];
+                vendor.copy_from_slice(&data[3..8]);
+                Ok(Self::Emcy { node, emcy: Emcy { error_code, error_register, vendor } })
+            }
+            cob::HEARTBEAT => {
+                length(1)?;
+                let state = NmtState::from_u8(data[0]).ok_or(CanOpenError::UnknownNmtState(data[0]))?;
+                Ok(Self::Heartbeat { node, state })
+            }
+            cob::SDO_REQUEST => {
+                length(8)?;
+                Ok(Self::SdoRequest { node, request: parse_request(data)? })
+            }
+            cob::SDO_RESPONSE => {
+                length(8)?;
+                Ok(Self::SdoResponse { node, response: parse_response(data)? })
+            }
+            0x180..=0x500 => {
+                let (direction, number) = match function {
+                    0x180 | 0x280 | 0x380 | 0x480 => (PdoDirection::Transmit, ((function - 0x180) / 0x100 + 1) as u8),
+                    _ => (PdoDirection::Receive, ((function - 0x200) / 0x100 + 1) as u8),
+                };
+                let data =
+                    PdoData::new(data).ok_or(CanOpenError::BadLength { cob_id: id, len: data.len(), expected: 8 })?;
+                Ok(Self::Pdo { direction, number, node, data })
+            }
+            _ => Err(CanOpenError::UnknownCobId(id)),
+        }
+    }
+
+    /// The frame for this message. `None` for a PDO `number` outside 1-4.
+    pub fn to_frame(&self) -> Option<CanFrame> {
+        let mut buf = [0u8; 8];
+        let (id, len) = match *self {
+            Self::Nmt { command, target } => {
+                buf[0] = command as u8;
+                buf[1] = match target {
+                    NmtTarget::All => 0,
+                    NmtTarget::Node(n) => n.get(),
+                };
+                (cob::NMT, 2)
+            }
+            Self::Sync => (cob::SYNC, 0),
+            Self::Emcy { node, emcy } => {
+                let mut w = Writer::new(&mut buf);
+                w.u16(emcy.error_code)?;
+                w.u8(emcy.error_register)?;
+                w.put(&emcy.vendor)?;
+                (cob::EMCY + u16::from(node.get()), 8)
+            }
+            Self::Heartbeat { node, state } => {
+                buf[0] = state as u8;
+                (cob::HEARTBEAT + u16::from(node.get()), 1)
+            }
+            Self::SdoRequest { node, request } => {
+                let (cmd, (index, sub), payload) = match request {
+                    SdoRequest::Download { index, sub, data } => {
+                        (sdo::DOWNLOAD_EXPEDITED | ((4 - data.len) << 2), (index, sub), data.bytes)
+                    }
+                    SdoRequest::Upload { index, sub } => (sdo::UPLOAD, (index, sub), [0; 4]),
+                    SdoRequest::Abort { index, sub, code } => (sdo::ABORT, (index, sub), code.to_le_bytes()),
+                };
+                sdo_frame(&mut buf, cmd, index, sub, payload)?;
+                (cob::SDO_REQUEST + u16::from(node.get()), 8)
+            }
+            Self::SdoResponse { node, response } => {
+                let (cmd, (index, sub), payload) = match response {
+                    SdoResponse::Downloaded { index, sub } => (sdo::DOWNLOADED, (index, sub), [0; 4]),
+                    SdoResponse::Uploaded { index, sub, data } => {
+                        (sdo::UPLOADED_EXPEDITED | ((4 - data.len) << 2), (index, sub), data.bytes)
+                    }
+                    SdoResponse::Abort { index, sub, code } => (sdo::ABORT, (index, sub), code.to_le_bytes()),
+                };
+                sdo_frame(&mut buf, cmd, index, sub, payload)?;
+                (cob::SDO_RESPONSE + u16::from(node.get()), 8)
+            }
+            Self::Pdo { direction, number, node, data } => {
+                if !(1..=4).contains(&number) {
+                    return None;
+                }
+                let base = match direction {
+                    PdoDirection::Transmit => cob::TPDO1,
+                    PdoDirection::Receive => cob::RPDO1,
+                };
+                buf[..usize::from(data.len)].copy_from_slice(data.bytes());
+                (base + 0x100 * u16::from(number - 1) + u16::from(node.get()), usize::from(data.len))
+            }
+        };
+        CanFrame::new(CanId::Standard(id), &buf[..len]).ok()
+    }
+}
+
+fn sdo_frame(buf: &mut [u8; 8], cmd: u8, index: u16, sub: u8, payload: [u8; 4]) -> Option<()> {
+    let mut w = Writer::new(buf);
+    w.u8(cmd)?;
+    w.u16(index)?;
+    w.u8(sub)?;
+    w.put(&payload)
+}
+
+/// The object and the four data bytes of an SDO frame (eight bytes, checked by the caller).
+fn sdo_fields(data: &[u8]) -> (u8, u16, u8, [u8; 4]) {
+    let mut payload = [0; 4];
+    payload.copy_from_slice(&data[4..8]);
+    (data[0], u16::from_le_bytes([data[1], data[2]]), data[3], payload)
+}
+
+fn parse_request(data: &[u8]) -> Result<SdoRequest, CanOpenError> {
+    let (cmd, index, sub, payload) = sdo_fields(data);
+    match sdo::specifier(cmd) {
+        1 if sdo::expedited_sized(cmd) => {
+            let data = SdoData::new(&payload[..sdo::len(cmd)]).ok_or(CanOpenError::UnknownSdoCommand(cmd))?;
+            Ok(SdoRequest::Download { index, sub, data })
+        }
+        1 => Err(CanOpenError::UnsupportedSdo(cmd)),
+        2 => Ok(SdoRequest::Upload { index, sub }),
+        4 => Ok(SdoRequest::Abort { index, sub, code: u32::from_le_bytes(payload) }),
+        0 | 3 | 5 | 6 => Err(CanOpenError::UnsupportedSdo(cmd)),
+        _ => Err(CanOpenError::UnknownSdoCommand(cmd)),
+    }
+}
+
+fn parse_response(data: &[u8]) -> Result<SdoResponse, CanOpenError> {
+    let (cmd, index, sub, payload) = sdo_fields(data);
+    match sdo::specifier(cmd) {
+        2 if sdo::expedited_sized(cmd) => {
+            let data = SdoData::new(&payload[..sdo::len(cmd)]).ok_or(CanOpenError::UnknownSdoCommand(cmd))?;
+            Ok(SdoResponse::Uploaded { index, sub, data })
+        }
+        2 => Err(CanOpenError::UnsupportedSdo(cmd)),
+        3 => Ok(SdoResponse::Downloaded { index, sub }),
+        4 => Ok(SdoResponse::Abort { index, sub, code: u32::from_le_bytes(payload) }),
+        0 | 1 | 5 | 6 => Err(CanOpenError::UnsupportedSdo(cmd)),
+        _ => Err(CanOpenError::UnknownSdoCommand(cmd)),
+    }
+}
+
+/// The states of the CiA 402 drive state machine, as the statusword shows them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DriveState {
+    NotReadyToSwitchOn,
+    SwitchOnDisabled,
+    ReadyToSwitchOn,
+    SwitchedOn,
+    OperationEnabled,
+    QuickStopActive,
+    FaultReactionActive,
+    Fault,
+}
+
+/// Statusword bits beside the state's.
+pub mod statusword {
+    pub const VOLTAGE_ENABLED: u16 = 1 << 4;
+    pub const WARNING: u16 = 1 << 7;
+    pub const REMOTE: u16 = 1 << 9;
+    pub const TARGET_REACHED: u16 = 1 << 10;
+    pub const INTERNAL_LIMIT_ACTIVE: u16 = 1 << 11;
+    /// In profile velocity mode: the speed is zero (bit 12); in position modes the
+    /// following error (bit 13) is set when it exceeds its window.
+    pub const SPEED_ZERO: u16 = 1 << 12;
+    pub const FOLLOWING_ERROR: u16 = 1 << 13;
+}
+
+impl DriveState {
+    /// The state a statusword shows (CiA 402 table of bits 0-3, 5 and 6). Every statusword
+    /// maps to one of the eight states.
+    pub const fn from_statusword(sw: u16) -> Self {
+        match (sw & 0x4F, sw & 0x6F) {
+            (0x00, _) => Self::NotReadyToSwitchOn,
+            (0x40, _) => Self::SwitchOnDisabled,
+            (0x0F, _) => Self::FaultReactionActive,
+            (0x08, _) => Self::Fault,
+            (_, 0x21) => Self::ReadyToSwitchOn,
+            (_, 0x23) => Self::SwitchedOn,
+            (_, 0x27) => Self::OperationEnabled,
+            (_, 0x07) => Self::QuickStopActive,
+            // Bit patterns the table leaves undefined read as the nearest safe state: not
+            // yet ready, so the gateway commands nothing.
+            _ => Self::NotReadyToSwitchOn,
+        }
+    }
+
+    /// The statusword's state bits for this state (a simulated drive's report).
+    pub const fn statusword_bits(self) -> u16 {
+        match self {
+            Self::NotReadyToSwitchOn => 0x00,
+            Self::SwitchOnDisabled => 0x40,
+            Self::ReadyToSwitchOn => 0x21,
+            Self::SwitchedOn => 0x23,
+            Self::OperationEnabled => 0x27,
+            Self::QuickStopActive => 0x07,
+            Self::FaultReactionActive => 0x0F,
+            Self::Fault => 0x08,
+        }
+    }
+
+    /// The command that takes a drive one step towards operation enabled from here, or
+    /// `None` where there is nothing to send: already there, or a state the drive leaves
+    /// by itself (not ready to switch on, fault reaction active). A fault is reset; a quick
+    /// stop is left through switch on disabled, as CiA 402 requires.
+    pub const fn towards_operation(self) -> Option<DriveCommand> {
+        match self {
+            Self::SwitchOnDisabled => Some(DriveCommand::Shutdown),
+            Self::ReadyToSwitchOn => Some(DriveCommand::SwitchOn),
+            Self::SwitchedOn => Some(DriveCommand::EnableOperation),
+            Self::QuickStopActive => Some(DriveCommand::DisableVoltage),
+            Self::Fault => Some(DriveCommand::FaultReset),
+            Self::OperationEnabled | Self::NotReadyToSwitchOn | Self::FaultReactionActive => None,
+        }
+    }
+
+    /// Whether the drive follows a target (and so holds power on the motor).
+    pub const fn is_enabled(self) -> bool {
+        matches!(self, Self::OperationEnabled)
+    }
+}
+
+/// A controlword command (CiA 402 device control).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DriveCommand {
+    /// To ready to switch on.
+    Shutdown,
+    /// To switched on.
+    SwitchOn,
+    /// To operation enabled (from switched on, or from ready to switch on in one step).
+    EnableOperation,
+    /// Back to switched on, the motor held without following.
+    DisableOperation,
+    /// To switch on disabled: power off the motor.
+    DisableVoltage,
+    /// Brake on the quick stop deceleration, then (by the quick stop option code) to switch
+    /// on disabled.
+    QuickStop,
+    /// From fault to switch on disabled (bit 7; it acts on the rising edge, so the command
+    /// sent before it must not have had bit 7 set).
+    FaultReset,
+}
+
+impl DriveCommand {
+    pub const fn controlword(self) -> u16 {
+        match self {
+            Self::Shutdown => 0x0006,
+            Self::SwitchOn | Self::DisableOperation => 0x0007,
+            Self::EnableOperation => 0x000F,
+            Self::DisableVoltage => 0x0000,
+            Self::QuickStop => 0x0002,
+            Self::FaultReset => 0x0080,
+        }
+    }
+
+    /// The command a controlword gives a drive in `state`, by the transitions CiA 402
+    /// allows from there; `None`: none applies, the drive stays.
+    pub const fn decode(controlword: u16, state: DriveState) -> Option<Self> {
+        use DriveState as S;
+        let (bits, reset) = (controlword & 0x0F, controlword & 0x80 != 0);
+        // Bit 7 acts in a fault only; elsewhere the other bits say what to do.
+        if matches!(state, S::Fault) {
+            return if reset { Some(Self::FaultReset) } else { None };
+        }
+        match (bits & 0x02 == 0, bits & 0x06 == 0x02, state) {
+            // Bit 1 (enable voltage) clear: disable voltage, from any powered state.
+            (true, _, S::ReadyToSwitchOn | S::SwitchedOn | S::OperationEnabled | S::QuickStopActive) => {
+                Some(Self::DisableVoltage)
+            }
+            // Bit 2 (quick stop) clear with bit 1 set: quick stop.
+            (false, true, S::OperationEnabled) => Some(Self::QuickStop),
+            (false, true, S::ReadyToSwitchOn | S::SwitchedOn) => Some(Self::DisableVoltage),
+            _ => match (bits, state) {
+                (0x6 | 0xE, S::SwitchOnDisabled | S::SwitchedOn | S::OperationEnabled) => Some(Self::Shutdown),
+                (0x7, S::ReadyToSwitchOn) => Some(Self::SwitchOn),
+                (0x7, S::OperationEnabled) => Some(Self::DisableOperation),
+                (0xF, S::ReadyToSwitchOn | S::SwitchedOn | S::QuickStopActive) => Some(Self::EnableOperation),
+                _ => None,
+            },
+        }
+    }
+}
+
+/// The RPDO1 flowgate maps on a drive: controlword (0x6040, u16) then target velocity
+/// (0x60FF, i32), six bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct VelocityCommand {
+    pub controlword: u16,
+    pub target_velocity: i32,
+}
+
+/// The TPDO1 flowgate maps on a drive: statusword (0x6041, u16) then velocity actual
+/// (0x606C, i32), six bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct VelocityReport {
+    pub statusword: u16,
+    pub velocity_actual: i32,
+}
+
+impl VelocityCommand {
+    pub const LEN: usize = 6;
+    pub fn data(&self) -> PdoData {
+        let mut b = [0u8; 8];
+        b[..2].copy_from_slice(&self.controlword.to_le_bytes());
+        b[2..6].copy_from_slice(&self.target_velocity.to_le_bytes());
+        PdoData { bytes: b, len: Self::LEN as u8 }
+    }
+    /// `None` unless exactly six bytes.
+    pub fn parse(data: &PdoData) -> Option<Self> {
+        (data.len as usize == Self::LEN).then_some(())?;
+        let mut r = Reader::new(data.bytes());
+        Some(Self { controlword: r.u16()?, target_velocity: r.i32()? })
+    }
+}
+
+impl VelocityReport {
+    pub const LEN: usize = 6;
+    pub fn data(&self) -> PdoData {
+        let mut b = [0u8; 8];
+        b[..2].copy_from_slice(&self.statusword.to_le_bytes());
+        b[2..6].copy_from_slice(&self.velocity_actual.to_le_bytes());
+        PdoData { bytes: b, len: Self::LEN as u8 }
+    }
+    /// `None` unless exactly six bytes.
+    pub fn parse(data: &PdoData) -> Option<Self> {
+        (data.len as usize == Self::LEN).then_some(())?;
+        let mut r = Reader::new(data.bytes());
+        Some(Self { statusword: r.u16()?, velocity_actual: r.i32()? })
+    }
+}
+
+/// A PDO mapping entry (the value written to 0x1600/0x1A00 sub n): object, sub, bits.
+pub const fn mapping_entry(index: u16, sub: u8, bits: u8) -> u32 {
+    (index as u32) << 16 | (sub as u32) << 8 | bits as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(n: u8) -> NodeId {
+        NodeId::new(n).unwrap()
+    }
+
+    fn round_trip(m: CanOpenMessage) -> CanFrame {
+        let f = m.to_frame().unwrap();
+        assert_eq!(CanOpenMessage::parse(&f), Ok(m), "{f:?}");
+        f
+    }
+
+    #[test]
+    fn the_predefined_connection_set() {
+        let f = round_trip(CanOpenMessage::Nmt { command: NmtCommand::Start, target: NmtTarget::Node(node(5)) });
+        assert_eq!((f.id(), f.data()), (CanId::Standard(0x000), &[0x01, 5][..]));
+        let f = round_trip(CanOpenMessage::Nmt { command: NmtCommand::ResetNode, target: NmtTarget::All });
+        assert_eq!(f.data(), &[0x81, 0]);
+        assert_eq!(round_trip(CanOpenMessage::Sync).id(), CanId::Standard(0x080));
+        let f = round_trip(CanOpenMessage::Heartbeat { node: node(5), state: NmtState::Operational });
+        assert_eq!((f.id(), f.data()), (CanId::Standard(0x705), &[0x05][..]));
+        let boot = CanFrame::new(CanId::Standard(0x77F), &[0]).unwrap();
+        assert_eq!(
+            CanOpenMessage::parse(&boot),
+            Ok(CanOpenMessage::Heartbeat { node: node(127), state: NmtState::BootUp })
+        );
+        let emcy = Emcy { error_code: 0x3220, error_register: 0x05, vendor: [1, 2, 3, 4, 5] };
+        let f = round_trip(CanOpenMessage::Emcy { node: node(2), emcy });
+        assert_eq!((f.id(), f.data()), (CanId::Standard(0x082), &[0x20, 0x32, 0x05, 1, 2, 3, 4, 5][..]));
+        assert_eq!(emcy.describe(), "DC link under-voltage");
+        let f = round_trip(CanOpenMessage::Pdo {
+            direction: PdoDirection::Receive,
+            number: 1,
+            node: node(2),
+            data: VelocityCommand { controlword: 0x000F, target_velocity: -1000 }.data(),
+        });
+        assert_eq!((f.id(), f.data()), (CanId::Standard(0x202), &[0x0F, 0, 0x18, 0xFC, 0xFF, 0xFF][..]));
+        let f = round_trip(CanOpenMessage::Pdo {
+            direction: PdoDirection::Transmit,
+            number: 2,
+            node: node(2),
+            data: PdoData::new(&[1, 2, 3, 4]).unwrap(),
+        });
+        assert_eq!(f.id(), CanId::Standard(0x282));
+    }
+
+    /// Expedited SDO bytes as CiA 301 gives them, e.g. writing 3 (profile velocity) to
+    /// 0x6060:00 is `2F 60 60 00 03 00 00 00`, and its answer `60 60 60 00 00 00 00 00`.
+    #[test]
+    fn expedited_sdo_bytes() {
+        let write = SdoRequest::Download {
+            index: object::MODES_OF_OPERATION,
+            sub: 0,
+            data: SdoData::i8(PROFILE_VELOCITY_MODE),
+        };
+        let f = round_trip(CanOpenMessage::SdoRequest { node: node(3), request: write });
+        assert_eq!((f.id(), f.data()), (CanId::Standard(0x603), &[0x2F, 0x60, 0x60, 0, 3, 0, 0, 0][..]));
+        let done = SdoResponse::Downloaded { index: object::MODES_OF_OPERATION, sub: 0 };
+        let f = round_trip(CanOpenMessage::SdoResponse { node: node(3), response: done });
+        assert_eq!((f.id(), f.data()), (CanId::Standard(0x583), &[0x60, 0x60, 0x60, 0, 0, 0, 0, 0][..]));
+        let write = SdoRequest::Download { index: 0x1017, sub: 0, data: SdoData::u16(100) };
+        assert_eq!(
+            CanOpenMessage::SdoRequest { node: node(3), request: write }.to_frame().unwrap().data(),
+            &[0x2B, 0x17, 0x10, 0, 100, 0, 0, 0]
+        );
+        let write = SdoRequest::Download { index: 0x6083, sub: 0, data: SdoData::u32(5000) };
+        assert_eq!(
+            CanOpenMessage::SdoRequest { node: node(3), request: write }.to_frame().unwrap().data(),
+            &[0x23, 0x83, 0x60, 0, 0x88, 0x13, 0, 0]
+        );
+        let read = SdoRequest::Upload { index: object::STATUSWORD, sub: 0 };
+        assert_eq!(
+            round_trip(CanOpenMessage::SdoRequest { node: node(3), request: read }).data(),
+            &[0x40, 0x41, 0x60, 0, 0, 0, 0, 0]
+        );
+        let value = SdoResponse::Uploaded { index: object::STATUSWORD, sub: 0, data: SdoData::u16(0x0637) };
+        let f = round_trip(CanOpenMessage::SdoResponse { node: node(3), response: value });
+        assert_eq!(f.data(), &[0x4B, 0x41, 0x60, 0, 0x37, 0x06, 0, 0]);
+        let abort = SdoResponse::Abort { index: 0x2000, sub: 1, code: 0x0602_0000 };
+        let f = round_trip(CanOpenMessage::SdoResponse { node: node(3), response: abort });
+        assert_eq!(f.data(), &[0x80, 0x00, 0x20, 1, 0, 0, 2, 6]);
+        assert_eq!(sdo_abort_text(0x0602_0000), "object does not exist in the object dictionary");
+    }
+
+    #[test]
+    fn what_is_not_read_is_refused_by_name() {
+        let f = |id: u16, data: &[u8]| CanOpenMessage::parse(&CanFrame::new(CanId::Standard(id), data).unwrap());
+        // A segmented upload's initiate response (no `e`): not misread as a value.
+        assert_eq!(f(0x583, &[0x41, 0x08, 0x10, 0, 20, 0, 0, 0]), Err(CanOpenError::UnsupportedSdo(0x41)));
+        assert_eq!(f(0x583, &[0xE0, 0, 0, 0, 0, 0, 0, 0]), Err(CanOpenError::UnknownSdoCommand(0xE0)));
+        assert_eq!(f(0x583, &[0x60, 0, 0]), Err(CanOpenError::BadLength { cob_id: 0x583, len: 3, expected: 8 }));
+        assert_eq!(f(0x000, &[0x07, 1]), Err(CanOpenError::UnknownNmtCommand(7)));
+        assert_eq!(f(0x000, &[0x01, 200]), Err(CanOpenError::BadNmtNode(200)));
+        assert_eq!(f(0x705, &[0x33]), Err(CanOpenError::UnknownNmtState(0x33)));
+        assert_eq!(f(0x780, &[0]), Err(CanOpenError::UnknownCobId(0x780)));
+        assert_eq!(f(0x105, &[]), Err(CanOpenError::UnknownCobId(0x105)));
+        let ext = CanFrame::new(CanId::Extended(0x705), &[5]).unwrap();
+        assert_eq!(CanOpenMessage::parse(&ext), Err(CanOpenError::NotStandardData));
+    }
+
+    /// Every CAN frame id and payload length parses or is refused, never a panic; what
+    /// parses is emitted as a frame that parses to the same message (an expedited SDO's
+    /// unused bytes, which CiA 301 leaves undefined, are emitted as zeros).
+    #[test]
+    fn any_frame_parses_or_is_refused() {
+        for id in 0..=0x7FF_u16 {
+            for len in 0..=8usize {
+                for data in [[0x2F, 0x40, 0x60, 0, 0x55, 0xAA, 0x0F, 0xF0], [0x05, 0x02, 0, 0, 0, 0, 0, 0]] {
+                    let frame = CanFrame::new(CanId::Standard(id), &data[..len]).unwrap();
+                    if let Ok(m) = CanOpenMessage::parse(&frame) {
+                        let again = m.to_frame().expect("a parsed message has a frame");
+                        assert_eq!(again.id(), frame.id());
+                        assert_eq!(CanOpenMessage::parse(&again), Ok(m), "{m:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// The statusword table of CiA 402, with the bits beside the state's set (voltage,
+    /// remote, target reached) to show they do not move it.
+    #[test]
+    fn statuswords_decode_to_their_states() {
+        use DriveState as S;
+        let noise = statusword::VOLTAGE_ENABLED | statusword::REMOTE | statusword::TARGET_REACHED;
+        for (sw, state) in [
+            (0x0000, S::NotReadyToSwitchOn),
+            (0x0040, S::SwitchOnDisabled),
+            (0x0021, S::ReadyToSwitchOn),
+            (0x0023, S::SwitchedOn),
+            (0x0027, S::OperationEnabled),
+            (0x0007, S::QuickStopActive),
+            (0x000F, S::FaultReactionActive),
+            (0x0008, S::Fault),
+        ] {
+            assert_eq!(DriveState::from_statusword(sw), state, "{sw:#06x}");
+            assert_eq!(DriveState::from_statusword(sw | noise), state, "{sw:#06x} with other bits");
+            assert_eq!(DriveState::from_statusword(state.statusword_bits()), state);
+        }
+        assert_eq!(DriveState::from_statusword(0x0637), S::OperationEnabled);
+    }
+
+    /// From every state, following `towards_operation` through the transitions the
+    /// controlword gives reaches operation enabled (the states the drive leaves by itself
+    /// aside).
+    #[test]
+    fn the_way_to_operation_enabled() {
+        use DriveState as S;
+        let after = |cmd: DriveCommand, state: S| match (cmd, state) {
+            (DriveCommand::Shutdown, _) => S::ReadyToSwitchOn,
+            (DriveCommand::SwitchOn | DriveCommand::DisableOperation, _) => S::SwitchedOn,
+            (DriveCommand::EnableOperation, _) => S::OperationEnabled,
+            (DriveCommand::DisableVoltage | DriveCommand::FaultReset, _) => S::SwitchOnDisabled,
+            (DriveCommand::QuickStop, _) => S::QuickStopActive,
+        };
+        for start in [S::SwitchOnDisabled, S::ReadyToSwitchOn, S::SwitchedOn, S::QuickStopActive, S::Fault] {
+            let (mut state, mut steps) = (start, 0);
+            while let Some(cmd) = state.towards_operation() {
+                assert_eq!(DriveCommand::decode(cmd.controlword(), state), Some(cmd), "{cmd:?} from {state:?}");
+                state = after(cmd, state);
+                steps += 1;
+                assert!(steps <= 4, "from {start:?}");
+            }
+            assert_eq!(state, S::OperationEnabled, "from {start:?}");
+        }
+        assert_eq!(S::NotReadyToSwitchOn.towards_operation(), None);
+        assert_eq!(S::FaultReactionActive.towards_operation(), None);
+    }
+
+    #[test]
+    fn controlwords_decode_by_the_state_they_meet() {
+        use DriveState as S;
+        let qs = DriveCommand::QuickStop.controlword();
+        assert_eq!(DriveCommand::decode(qs, S::OperationEnabled), Some(DriveCommand::QuickStop));
+        assert_eq!(DriveCommand::decode(qs, S::SwitchedOn), Some(DriveCommand::DisableVoltage));
+        assert_eq!(DriveCommand::decode(0x0000, S::OperationEnabled), Some(DriveCommand::DisableVoltage));
+        assert_eq!(DriveCommand::decode(0x0007, S::OperationEnabled), Some(DriveCommand::DisableOperation));
+        assert_eq!(DriveCommand::decode(0x000F, S::ReadyToSwitchOn), Some(DriveCommand::EnableOperation));
+        assert_eq!(DriveCommand::decode(0x000F, S::SwitchOnDisabled), None, "enable needs shutdown first");
+        assert_eq!(
+            DriveCommand::decode(0x0080, S::OperationEnabled),
+            Some(DriveCommand::DisableVoltage),
+            "outside a fault bit 7 is ignored: the other bits disable the voltage"
+        );
+        assert_eq!(DriveCommand::decode(0x000F, S::Fault), None, "a fault leaves only by its reset");
+        assert_eq!(DriveCommand::decode(0x008F, S::Fault), Some(DriveCommand::FaultReset));
+    }
+
+    #[test]
+    fn the_velocity_pdos() {
+        let c = VelocityCommand { controlword: 0x000F, target_velocity: 123_456 };
+        assert_eq!(VelocityCommand::parse(&c.data()), Some(c));
+        let r = VelocityReport { statusword: 0x0637, velocity_actual: -42 };
+        assert_eq!(VelocityReport::parse(&r.data()), Some(r));
+        assert_eq!(VelocityReport::parse(&PdoData::new(&[1, 2, 3]).unwrap()), None);
+        assert_eq!(mapping_entry(object::TARGET_VELOCITY, 0, 32), 0x60FF_0020);
+        assert_eq!(mapping_entry(object::CONTROLWORD, 0, 16), 0x6040_0010);
+    }
+}
