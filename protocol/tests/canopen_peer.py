@@ -1,0 +1,110 @@
+"""CANopen's own Python stack (`canopen`) as the peer of flowgate's CANopen codec.
+
+Three parts, printed as one JSON object:
+
+- `server`: the frames given on the command line (candump-style `ID#HEX`, SDO requests
+  encoded by flowgate) handed to a `canopen.LocalNode` as a CiA 402 drive's object
+  dictionary would hold them; its SDO server's answers, and the values it then holds.
+- `client`: `canopen`'s own SDO client (a `RemoteNode`) writing and reading the same
+  objects of that node over a loopback bus; every frame both sides sent.
+- `p402`: `canopen`'s CiA 402 tables (statusword masks, controlword codes).
+
+Usage: canopen_peer.py NODE FRAME...
+"""
+import json
+import sys
+
+import canopen
+from canopen import objectdictionary as od
+from canopen.profiles.p402 import State402
+
+node_id = int(sys.argv[1])
+frames = sys.argv[2:]
+
+
+def drive_dictionary():
+    """The objects flowgate configures and reads on a drive, with their CiA 402 types."""
+    d = od.ObjectDictionary()
+    for index, name, data_type, value in [
+        (0x1017, "Producer heartbeat time", od.UNSIGNED16, 0),
+        (0x6040, "Controlword", od.UNSIGNED16, 0),
+        (0x6041, "Statusword", od.UNSIGNED16, 0x0637),
+        (0x6060, "Modes of operation", od.INTEGER8, 0),
+        (0x6083, "Profile acceleration", od.UNSIGNED32, 0),
+        (0x6084, "Profile deceleration", od.UNSIGNED32, 0),
+        (0x6085, "Quick stop deceleration", od.UNSIGNED32, 0),
+        (0x60FF, "Target velocity", od.INTEGER32, 0),
+    ]:
+        var = od.ODVariable(name, index, 0)
+        var.data_type = data_type
+        var.access_type = "rw"
+        var.default = value
+        d.add_object(var)
+    return d
+
+
+class Loopback:
+    """A bus joining networks: every frame sent is kept and handed to each of them."""
+
+    def __init__(self):
+        self.networks = []
+        self.sent = []
+        self.periodic = []
+
+    def send(self, msg, timeout=None):
+        self.sent.append(f"{msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}")
+        for network in self.networks:
+            network.notify(msg.arbitration_id, bytearray(msg.data), 0.0)
+
+    def send_periodic(self, msg, period, duration=None, store_task=True):
+        """A producer started on the bus (the heartbeat): kept, not run."""
+        self.periodic.append({"frame": f"{msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}", "period_s": period})
+        return Stopped()
+
+
+class Stopped:
+    def stop(self):
+        pass
+
+    def modify_data(self, msg):
+        pass
+
+
+def networks_with(*nodes):
+    """One network per node, all on one loopback bus."""
+    bus = Loopback()
+    for n in nodes:
+        network = canopen.Network()
+        network.bus = bus
+        network.add_node(n)
+        bus.networks.append(network)
+    return bus
+
+
+# The drive as a LocalNode: flowgate's requests in, its answers out.
+drive = canopen.LocalNode(node_id, drive_dictionary())
+bus = networks_with(drive)
+for frame in frames:
+    cob_id, data = frame.split("#")
+    bus.networks[0].notify(int(cob_id, 16), bytearray.fromhex(data), 0.0)
+server = {
+    "answers": list(bus.sent),
+    "values": {f"{i:04X}": drive.sdo[i].raw for i in (0x1017, 0x6060, 0x6083, 0x60FF)},
+    "producers": bus.periodic,
+}
+
+# canopen's own client against the same kind of drive: the frames both ways.
+drive = canopen.LocalNode(node_id, drive_dictionary())
+remote = canopen.RemoteNode(node_id, drive_dictionary())
+bus = networks_with(drive, remote)
+remote.sdo[0x6060].raw = 3
+remote.sdo[0x6083].raw = 5000
+remote.sdo[0x60FF].raw = -1000
+statusword = remote.sdo[0x6041].raw
+client = {"frames": list(bus.sent), "statusword": statusword}
+
+p402 = {
+    "statusword_masks": {name: list(mask_value) for name, mask_value in State402.SW_MASK.items()},
+    "controlwords": State402.CW_COMMANDS_CODE,
+}
+print(json.dumps({"server": server, "client": client, "p402": p402}))
