@@ -3,44 +3,33 @@
 Three parts, printed as one JSON object:
 
 - `server`: the frames given on the command line (candump-style `ID#HEX`, SDO requests
-  encoded by flowgate) handed to a `canopen.LocalNode` as a CiA 402 drive's object
-  dictionary would hold them; its SDO server's answers, and the values it then holds.
+  encoded by flowgate) handed to a `canopen.LocalNode` whose object dictionary is
+  protocol/cia402-drive.eds; its SDO server's answers, and the values it then holds.
 - `client`: `canopen`'s own SDO client (a `RemoteNode`) writing and reading the same
   objects of that node over a loopback bus; every frame both sides sent.
 - `p402`: `canopen`'s CiA 402 tables (statusword masks, controlword codes).
+- `eds`: the PDO mappings and device type of protocol/cia402-drive.eds as `canopen` reads
+  them.
 
 Usage: canopen_peer.py NODE FRAME...
 """
 import json
+import os
 import sys
 
 import canopen
-from canopen import objectdictionary as od
 from canopen.profiles.p402 import State402
 
 node_id = int(sys.argv[1])
 frames = sys.argv[2:]
 
 
+EDS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "cia402-drive.eds")
+
+
 def drive_dictionary():
-    """The objects flowgate configures and reads on a drive, with their CiA 402 types."""
-    d = od.ObjectDictionary()
-    for index, name, data_type, value in [
-        (0x1017, "Producer heartbeat time", od.UNSIGNED16, 0),
-        (0x6040, "Controlword", od.UNSIGNED16, 0),
-        (0x6041, "Statusword", od.UNSIGNED16, 0x0637),
-        (0x6060, "Modes of operation", od.INTEGER8, 0),
-        (0x6083, "Profile acceleration", od.UNSIGNED32, 0),
-        (0x6084, "Profile deceleration", od.UNSIGNED32, 0),
-        (0x6085, "Quick stop deceleration", od.UNSIGNED32, 0),
-        (0x60FF, "Target velocity", od.INTEGER32, 0),
-    ]:
-        var = od.ODVariable(name, index, 0)
-        var.data_type = data_type
-        var.access_type = "rw"
-        var.default = value
-        d.add_object(var)
-    return d
+    """The objects flowgate configures and reads on a drive: protocol/cia402-drive.eds."""
+    return canopen.import_od(EDS, node_id)
 
 
 class Loopback:
@@ -103,8 +92,23 @@ remote.sdo[0x60FF].raw = -1000
 statusword = remote.sdo[0x6041].raw
 client = {"frames": list(bus.sent), "statusword": statusword}
 
+dictionary = drive_dictionary()
+
+
+def mapping(index):
+    """A PDO mapping's entries, as the EDS gives them."""
+    return [dictionary[index][k].default for k in range(1, dictionary[index][0].default + 1)]
+
+
+eds = {
+    "rpdo1": mapping(0x1600),
+    "tpdo1": mapping(0x1A00),
+    "rpdo1_cob_id": dictionary[0x1400][1].default,
+    "tpdo1_cob_id": dictionary[0x1800][1].default,
+    "device_type": dictionary[0x1000].default,
+}
 p402 = {
     "statusword_masks": {name: list(mask_value) for name, mask_value in State402.SW_MASK.items()},
     "controlwords": State402.CW_COMMANDS_CODE,
 }
-print(json.dumps({"server": server, "client": client, "p402": p402}))
+print(json.dumps({"server": server, "client": client, "p402": p402, "eds": eds}))

@@ -2,8 +2,9 @@
 //! protocol/tests/canopen_peer.py): SDO requests encoded here are served by a
 //! `canopen.LocalNode` holding a CiA 402 drive's objects, which takes the values and
 //! answers in frames this codec reads; `canopen`'s own SDO client and server exchange frames
-//! this codec reads as the same transfers; and `canopen`'s CiA 402 tables (statusword masks,
-//! controlword codes) agree with this crate's.
+//! this codec reads as the same transfers; `canopen`'s CiA 402 tables (statusword masks,
+//! controlword codes) agree with this crate's; and `canopen` loads protocol/cia402-drive.eds,
+//! the drive's dictionary both nodes run on, with the PDO mappings this crate encodes.
 
 use std::collections::BTreeMap;
 use std::process::Command;
@@ -126,6 +127,19 @@ fn canopen_serves_our_requests_and_we_read_its_frames() {
         assert_eq!(DriveState::from_statusword(value), state, "{name}");
         assert_eq!(state.statusword_bits() & mask, value, "{name}");
     }
+    // The EDS: the velocity PDOs as this crate lays them out, on node 3's COB-IDs, and a
+    // CiA 402 (0x192) stepper drive.
+    let eds = &v["eds"];
+    assert_eq!(
+        eds["rpdo1"],
+        serde_json::json!([mapping_entry(object::CONTROLWORD, 0, 16), mapping_entry(object::TARGET_VELOCITY, 0, 32)])
+    );
+    assert_eq!(
+        eds["tpdo1"],
+        serde_json::json!([mapping_entry(object::STATUSWORD, 0, 16), mapping_entry(object::VELOCITY_ACTUAL, 0, 32)])
+    );
+    assert_eq!((eds["rpdo1_cob_id"].as_u64(), eds["tpdo1_cob_id"].as_u64()), (Some(0x203), Some(0x183)));
+    assert_eq!(eds["device_type"].as_u64().unwrap() & 0xFFFF, 402);
     let controlwords = &v["p402"]["controlwords"];
     for (name, command) in [
         ("READY TO SWITCH ON", DriveCommand::Shutdown),
