@@ -752,35 +752,44 @@ pub struct VelocityReport {
     pub velocity_actual: i32,
 }
 
+/// The layout both velocity PDOs share: a 16-bit word (controlword or statusword), then a
+/// signed 32-bit velocity.
+const WORD_AND_VELOCITY_LEN: usize = 6;
+
+fn word_and_velocity(word: u16, velocity: i32) -> PdoData {
+    let mut bytes = [0u8; 8];
+    let mut w = Writer::new(&mut bytes);
+    // Six bytes into eight: cannot fail.
+    let _ = w.u16(word).and_then(|()| w.i32(velocity));
+    PdoData { bytes, len: WORD_AND_VELOCITY_LEN as u8 }
+}
+
+/// `None` unless exactly six bytes.
+fn parse_word_and_velocity(data: &PdoData) -> Option<(u16, i32)> {
+    (usize::from(data.len) == WORD_AND_VELOCITY_LEN).then_some(())?;
+    let mut r = Reader::new(data.bytes());
+    Some((r.u16()?, r.i32()?))
+}
+
 impl VelocityCommand {
-    pub const LEN: usize = 6;
+    pub const LEN: usize = WORD_AND_VELOCITY_LEN;
     pub fn data(&self) -> PdoData {
-        let mut b = [0u8; 8];
-        b[..2].copy_from_slice(&self.controlword.to_le_bytes());
-        b[2..6].copy_from_slice(&self.target_velocity.to_le_bytes());
-        PdoData { bytes: b, len: Self::LEN as u8 }
+        word_and_velocity(self.controlword, self.target_velocity)
     }
     /// `None` unless exactly six bytes.
     pub fn parse(data: &PdoData) -> Option<Self> {
-        (data.len as usize == Self::LEN).then_some(())?;
-        let mut r = Reader::new(data.bytes());
-        Some(Self { controlword: r.u16()?, target_velocity: r.i32()? })
+        parse_word_and_velocity(data).map(|(controlword, target_velocity)| Self { controlword, target_velocity })
     }
 }
 
 impl VelocityReport {
-    pub const LEN: usize = 6;
+    pub const LEN: usize = WORD_AND_VELOCITY_LEN;
     pub fn data(&self) -> PdoData {
-        let mut b = [0u8; 8];
-        b[..2].copy_from_slice(&self.statusword.to_le_bytes());
-        b[2..6].copy_from_slice(&self.velocity_actual.to_le_bytes());
-        PdoData { bytes: b, len: Self::LEN as u8 }
+        word_and_velocity(self.statusword, self.velocity_actual)
     }
     /// `None` unless exactly six bytes.
     pub fn parse(data: &PdoData) -> Option<Self> {
-        (data.len as usize == Self::LEN).then_some(())?;
-        let mut r = Reader::new(data.bytes());
-        Some(Self { statusword: r.u16()?, velocity_actual: r.i32()? })
+        parse_word_and_velocity(data).map(|(statusword, velocity_actual)| Self { statusword, velocity_actual })
     }
 }
 

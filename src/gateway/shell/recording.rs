@@ -143,7 +143,7 @@ pub fn input_channel(input: &RecordedInput) -> &'static str {
 
 /// An input record back from its JSON and its message header's sequence number and host
 /// time; the error says what is wrong with it. A recording that carries `seq` and `t_ns`
-/// in each message (flowgate 0.1 before the header held them) is read by those.
+/// in the message itself is read by those.
 pub fn input_from_json(v: &Value, seq: u64, at: HostTime) -> Result<InputRecord, String> {
     let field = |name: &str| v.get(name).ok_or_else(|| format!("no `{name}`"));
     let seq = match v.get("seq") {
