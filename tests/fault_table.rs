@@ -36,6 +36,8 @@ enum Link {
     Psd,
     Slcan,
     SocketCan,
+    /// CAN over SLCAN to two CiA 402 drives (nodes 1 and 2) in place of the board.
+    CanOpen,
 }
 
 impl Link {
@@ -44,6 +46,7 @@ impl Link {
             Self::Psd => "PSD serial",
             Self::Slcan => "CAN (SLCAN)",
             Self::SocketCan => "CAN (SocketCAN)",
+            Self::CanOpen => "CAN (CiA 402 drives)",
         }
     }
 }
@@ -59,7 +62,13 @@ enum Budget {
     Board,
     /// The gateway cannot reach the board: the board's command timeout stops it, plus a cycle.
     BoardTimeout,
+    /// The gateway's quick stop brakes the drives on their quick-stop deceleration: from the
+    /// wheels' top speed, plus a cycle.
+    QuickStop,
 }
+
+/// The CiA 402 drives' quick stop from the wheels' top speed (0.25 m/s at 4 m/s²), ms.
+const QUICK_STOP_MS: f64 = 62.5;
 
 impl Budget {
     fn text(self) -> String {
@@ -68,6 +77,7 @@ impl Budget {
             Self::Cycle => format!("rest within {T_MS:.0} ms of the fault"),
             Self::Board => "1 ms (the board stops itself)".into(),
             Self::BoardTimeout => format!("{BOARD_MS:.0} ms board command timeout + {T_MS:.0} ms"),
+            Self::QuickStop => format!("{QUICK_STOP_MS:.1} ms quick stop + {T_MS:.0} ms"),
         }
     }
 
@@ -78,6 +88,7 @@ impl Budget {
             Self::Cycle => fault + T_MS,
             Self::Board => 1.0,
             Self::BoardTimeout => BOARD_MS + T_MS,
+            Self::QuickStop => fault + QUICK_STOP_MS + T_MS,
         }
     }
 }
@@ -417,6 +428,41 @@ fn table() -> Vec<Row> {
             .reset_refused_until(3.0),
         ]);
     }
+    let drive = Link::CanOpen;
+    rows.extend([
+        row(
+            drive,
+            "loss",
+            "the left drive's heartbeat stops from 2 s to 3 s",
+            &["heartbeat_stop_at=2.0", "heartbeat_resume_at=3.0"],
+            fault(R::DriveHeartbeatLost { node: NODE }, 301.9, 324.7, Watchdog("heartbeat", HEARTBEAT_MS)),
+        )
+        .until(3.0),
+        row(
+            drive,
+            "masquerade",
+            "the left drive reboots",
+            &["board_reboot_at=2.0"],
+            fault(R::DriveRebooted { node: NODE }, 0.1, 13.0, QuickStop),
+        )
+        .until(2.0),
+        row(
+            drive,
+            "(drive)",
+            "the left drive's DC link under-voltage from 2 s to 2.5 s",
+            &["drive_undervoltage=[2.0, 2.5]"],
+            fault(R::DriveEmergency { node: NODE, code: 0x3220 }, 0.2, 13.0, QuickStop),
+        )
+        .until(2.5),
+        row(
+            drive,
+            "(drive)",
+            "the left wheel blocked from 2 s to 2.5 s",
+            &["drive_blocked=[2.0, 2.5]"],
+            fault(R::DriveEmergency { node: NODE, code: 0x8611 }, 50.2, 64.0, QuickStop),
+        )
+        .until(2.5),
+    ]);
     rows
 }
 
@@ -545,7 +591,7 @@ fn scenario(row: &Row) -> Scenario {
 
 fn options(row: &Row) -> Options {
     let can = if row.link == Link::SocketCan { CanTransport::SocketCan } else { CanTransport::Slcan };
-    Options { truth_samples: true, telemetry: true, can, ..Options::default() }
+    Options { truth_samples: true, telemetry: true, can, cia402: row.link == Link::CanOpen, ..Options::default() }
 }
 
 fn run(row: &Row) -> Episode {

@@ -138,6 +138,18 @@ pub struct FaultPlan {
     pub bus_off_at: Option<f64>,
     #[serde(default = "default_bus_off")]
     pub bus_off_s: f64,
+    /// CiA 402 drives: the left wheel's drive loses its DC link over `[from_s, to_s)`:
+    /// under-voltage (EMCY 0x3220), the wheel stops at once, fault resets refused meanwhile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_undervoltage: Option<[f64; 2]>,
+    /// CiA 402 drives: the left wheel is blocked over `[from_s, to_s)`: a target it cannot
+    /// reach for 50 ms is a following error (EMCY 0x8611), fault resets refused meanwhile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_blocked: Option<[f64; 2]>,
+    /// CiA 402 drives: the left wheel's drive never answers an SDO on this object (its
+    /// index, e.g. `0x6085`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_ignores_object: Option<u16>,
 }
 
 fn default_burst() -> usize {
@@ -202,6 +214,8 @@ impl FaultPlan {
             ("adapter_bus_off", self.adapter_bus_off),
             ("can_loss_during", self.can_loss_during),
             ("board_estop", self.board_estop),
+            ("drive_undervoltage", self.drive_undervoltage),
+            ("drive_blocked", self.drive_blocked),
         ] {
             if let Some([from, to]) = w {
                 if !(from.is_finite() && to.is_finite() && from >= 0.0 && from <= to) {

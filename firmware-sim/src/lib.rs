@@ -10,8 +10,10 @@
 //! complex plane, and so does the world, to keep one convention.
 
 pub mod calibration;
+pub mod cia402_drive;
 pub mod faults;
 pub mod motor_board;
+pub mod motors;
 pub mod psd_controller;
 pub mod rig;
 pub mod scenario;

@@ -69,6 +69,7 @@ pub mod cob {
     pub const EMCY: u16 = 0x080;
     pub const TPDO1: u16 = 0x180;
     pub const RPDO1: u16 = 0x200;
+    pub const TPDO2: u16 = 0x280;
     pub const SDO_RESPONSE: u16 = 0x580;
     pub const SDO_REQUEST: u16 = 0x600;
     pub const HEARTBEAT: u16 = 0x700;
@@ -88,8 +89,12 @@ pub mod object {
     pub const RPDO1_COMMUNICATION: u16 = 0x1400;
     /// RPDO1's mapping (sub 0: count u8, sub 1..: index << 16 | sub << 8 | bits, u32).
     pub const RPDO1_MAPPING: u16 = 0x1600;
+    /// TPDO1's communication parameters (sub 1: COB-ID u32, sub 2: transmission type u8,
+    /// sub 5: event timer ms u16); TPDO n is `+ n - 1`.
     pub const TPDO1_COMMUNICATION: u16 = 0x1800;
     pub const TPDO1_MAPPING: u16 = 0x1A00;
+    pub const TPDO2_COMMUNICATION: u16 = 0x1801;
+    pub const TPDO2_MAPPING: u16 = 0x1A01;
     /// Error code of the last fault (u16).
     pub const ERROR_CODE: u16 = 0x603F;
     /// Controlword (u16).
@@ -105,6 +110,8 @@ pub mod object {
     pub const POSITION_ACTUAL: u16 = 0x6064;
     /// Velocity actual value (i32, velocity units).
     pub const VELOCITY_ACTUAL: u16 = 0x606C;
+    /// Max profile velocity (u32, velocity units): the drive clamps its target to it.
+    pub const MAX_PROFILE_VELOCITY: u16 = 0x607F;
     /// Profile acceleration and deceleration (u32, velocity units per second).
     pub const PROFILE_ACCELERATION: u16 = 0x6083;
     pub const PROFILE_DECELERATION: u16 = 0x6084;
@@ -116,6 +123,18 @@ pub mod object {
 
 /// Modes of operation (0x6060): profile velocity.
 pub const PROFILE_VELOCITY_MODE: i8 = 3;
+
+/// A PDO's COB-ID (sub 1 of its communication parameters) with this bit set: the PDO does
+/// not exist (is not sent or taken), as its mapping must be while it is written.
+pub const PDO_INVALID: u32 = 1 << 31;
+
+/// Transmission type 255 (sub 2): event-driven, by the device profile (a CiA 402 drive
+/// sends on a change of its statusword) and by the event timer (sub 5).
+pub const TRANSMISSION_EVENT: u8 = 255;
+
+/// Quick stop option code 2 (0x605A): brake on the quick-stop deceleration, then switch on
+/// disabled (the motor unpowered once at rest).
+pub const QUICK_STOP_THEN_DISABLE: i16 = 2;
 
 byte_enum! {
     /// An NMT command (`0x000`, byte 0).
@@ -172,6 +191,9 @@ impl SdoData {
         let [a, b] = v.to_le_bytes();
         Self { bytes: [a, b, 0, 0], len: 2 }
     }
+    pub fn i16(v: i16) -> Self {
+        Self::u16(v as u16)
+    }
     pub fn u32(v: u32) -> Self {
         Self { bytes: v.to_le_bytes(), len: 4 }
     }
@@ -180,6 +202,10 @@ impl SdoData {
     }
     pub fn bytes(&self) -> &[u8] {
         &self.bytes[..usize::from(self.len)]
+    }
+    /// How many bytes (1-4).
+    pub fn size(&self) -> usize {
+        usize::from(self.len)
     }
     /// The value, zero-extended to 32 bits (an object's natural reading whatever its size).
     pub fn value(&self) -> u32 {
@@ -672,6 +698,20 @@ impl DriveState {
     /// Whether the drive follows a target (and so holds power on the motor).
     pub const fn is_enabled(self) -> bool {
         matches!(self, Self::OperationEnabled)
+    }
+
+    /// The state's name as CiA 402 gives it.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::NotReadyToSwitchOn => "not ready to switch on",
+            Self::SwitchOnDisabled => "switch on disabled",
+            Self::ReadyToSwitchOn => "ready to switch on",
+            Self::SwitchedOn => "switched on",
+            Self::OperationEnabled => "operation enabled",
+            Self::QuickStopActive => "quick stop active",
+            Self::FaultReactionActive => "fault reaction active",
+            Self::Fault => "fault",
+        }
     }
 }
 

@@ -141,7 +141,17 @@ impl Scenario {
 
     /// The typed rig of this scenario with its CAN link at `can` (a valid endpoint URL).
     pub fn rig_on(&self, can: &str) -> Rig {
-        let mut rig = self.gateway_config(Path::new("/dev/null"), can, None).validate().expect("checked when loaded");
+        self.rig_with(can, false)
+    }
+
+    /// The typed rig, its motors the simulator's CiA 402 drives (nodes 1 and 2) when
+    /// `cia402`.
+    pub fn rig_with(&self, can: &str, cia402: bool) -> Rig {
+        let mut config = self.gateway_config(Path::new("/dev/null"), can, None);
+        if cia402 {
+            config.use_cia402(crate::config::Cia402Section::with_nodes(1, 2));
+        }
+        let mut rig = config.validate().expect("checked when loaded");
         if !self.supervised {
             rig.control.supervisor = None;
         }
@@ -187,7 +197,8 @@ impl Scenario {
                 k1: cam.k1,
                 counts: cam.counts,
             },
-            can: CanConfig { endpoint: can.to_string(), node: 1 },
+            can: CanConfig { endpoint: can.to_string(), protocol: Default::default(), node: 1 },
+            cia402: None,
             drive: DriveSection {
                 wheel_radius: r.wheel_radius,
                 steps_per_rev: r.steps_per_rev,

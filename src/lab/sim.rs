@@ -23,7 +23,7 @@ use flowgate_protocol::slcan::{Bitrate, Command, Line as _, MAX_LINE_LEN};
 use flowgate_protocol::CanFrame;
 use flowgate_sim::calibration::CameraModel;
 use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
-use flowgate_sim::motor_board::MotorBoard;
+use flowgate_sim::motors::{MotorKind, Motors};
 use flowgate_sim::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};
 use flowgate_sim::truth::{TruthRecord, SAMPLE_PERIOD};
 use flowgate_sim::world::World;
@@ -68,6 +68,10 @@ pub struct Options {
     /// Rehearse the cycle ([`Core::rehearse`], the low-latency mode's warm-up) at every
     /// event of the run, far more often than a rig does: it must change nothing.
     pub rehearse: bool,
+    /// The motors are two CiA 402 drives (nodes 1 and 2, `[cia402]` at its defaults), not
+    /// the PCL-80K-like board. They do not play the board's own faults
+    /// ([`Motors::unplayed`]).
+    pub cia402: bool,
 }
 
 /// The gateway's CAN link in the virtual rig.
@@ -270,7 +274,7 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     world: World,
     spec: ControllerSpec,
     controller: PsdController,
-    board: MotorBoard,
+    board: Motors,
     adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
     core: Core<K>,
     /// The inputs handed to the core, and the CAN frames it asked for, when kept.
@@ -344,16 +348,21 @@ impl<K: StageClock> VirtualRig<K> {
             seed: scenario.sensing.seed,
             faults: plan.clone(),
         };
-        let node = flowgate_protocol::motor::NodeId::new(1).expect("node 1");
+        let kind = if options.cia402 {
+            let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
+            MotorKind::Cia402 { left: node(1), right: node(2) }
+        } else {
+            MotorKind::Board(flowgate_protocol::motor::NodeId::new(1).expect("node 1"))
+        };
         let mut world = World::new(scenario);
         let mut controller = spec.build();
-        let mut board = MotorBoard::new(node, plan.clone());
+        let mut board = Motors::new(kind, &plan);
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
         board.boot(0.0, &mut world, &mut can_out);
         let mut gateway_rig = match options.can {
-            CanTransport::Slcan => scenario.rig(),
-            CanTransport::SocketCan => scenario.rig_on("socketcan:vcan0"),
+            CanTransport::Slcan => scenario.rig_with("slcan:/dev/null", options.cia402),
+            CanTransport::SocketCan => scenario.rig_with("socketcan:vcan0", options.cia402),
         };
         if let Some(adjust) = options.adjust_rig {
             adjust(&mut gateway_rig);
@@ -565,14 +574,18 @@ impl<K: StageClock> VirtualRig<K> {
         }
         if t >= self.next_foreign {
             self.next_foreign += 0.1;
-            self.can_out.extend(flowgate_sim::rig::foreign_frames(self.board.node()));
+            if let Some(node) = self.board.board_node() {
+                self.can_out.extend(flowgate_sim::rig::foreign_frames(node));
+            }
         }
         if t >= self.next_master {
             // Another device on the bus commands our board: both the board and the host see it.
             self.next_master += flowgate_sim::rig::SECOND_MASTER_PERIOD;
-            let frame = flowgate_sim::rig::second_master_command(self.board.node());
-            self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
-            self.can_out.push(frame);
+            if let Some(node) = self.board.board_node() {
+                let frame = flowgate_sim::rig::second_master_command(node);
+                self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+                self.can_out.push(frame);
+            }
         }
     }
 

@@ -226,6 +226,27 @@ impl World {
         self.axes[RIGHT].set_target(rates[RIGHT]);
     }
 
+    /// One axis's target rate (one CiA 402 drive a wheel), clamped to its limit.
+    pub fn command_axis(&mut self, axis: usize, rate: i32) {
+        if let Some(a) = self.axes.get_mut(axis) {
+            a.set_target(rate);
+        }
+    }
+
+    /// One axis's ramp and rate limit.
+    pub fn configure_axis(&mut self, axis: usize, config: AxisConfig) {
+        if let Some(a) = self.axes.get_mut(axis) {
+            a.set_config(config);
+        }
+    }
+
+    /// Stop one axis at once (its drive lost power, or its wheel is blocked).
+    pub fn stop_axis(&mut self, axis: usize) {
+        if let Some(a) = self.axes.get_mut(axis) {
+            a.stop_now();
+        }
+    }
+
     /// Set both axes' ramp and rate limit (pulses).
     pub fn configure_axes(&mut self, config: AxisConfig) {
         self.axes.iter_mut().for_each(|a| a.set_config(config));

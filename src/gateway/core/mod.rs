@@ -59,6 +59,7 @@ use flowgate_protocol::motor::{BoardState, EStopReason, FaultBits, MotorMessage,
 use flowgate_protocol::psd::{FaultCode, Message, Packet};
 use flowgate_protocol::CanFrame;
 
+pub mod cia402;
 pub mod counter_window;
 mod counters;
 pub mod input;
@@ -73,12 +74,13 @@ pub use input::{Answer, Input};
 pub use psd_session::SetupError;
 pub use safety::{State, StopReason};
 
-use crate::config::Rig;
+use crate::config::{Motors, Rig};
 use crate::control::{ControlStep, StepStatus, Supervision};
 use crate::link::CanEvent;
 use crate::planner::Space;
 use crate::time::{CtrlTime, HostTime};
 use crate::track::{Implausible, Pose, Tracker};
+use cia402::{Cia402Master, Heard};
 use counter_window::{CounterWindow, Verdict};
 use operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
 use psd_session::{PsdSession, SessionEvent};
@@ -215,6 +217,8 @@ pub struct Core<K: StageClock> {
     control: ControlStep,
     safety: Safety,
     board: BoardView,
+    /// The CiA 402 drives, when the rig has them instead of a board (`can.protocol`).
+    cia402: Option<Cia402Master>,
     /// Per LED id: this frame's sample.
     frame: [Option<RawSample>; 256],
     out: VecDeque<Output>,
@@ -289,6 +293,10 @@ impl<K: StageClock> Core<K> {
             control: ControlStep::new(rig.control),
             safety: Safety::default(),
             board: BoardView::default(),
+            cia402: match rig.motors {
+                Motors::Pcl80k => None,
+                Motors::Cia402(settings) => Some(Cia402Master::new(settings)),
+            },
             frame: [None; 256],
             out: VecDeque::with_capacity(64),
             counters: Counters::default(),
@@ -384,8 +392,7 @@ impl<K: StageClock> Core<K> {
         let state = self.state();
         if is_active(state) {
             next = next.min(self.last_sample + self.rig.safety.sample_timeout);
-            let heard = self.board.last_heartbeat.map_or(self.armed_at, |h| h.max(self.armed_at));
-            next = next.min(heard + self.rig.safety.heartbeat_timeout).min(self.psd.sync_deadline());
+            next = next.min(self.heartbeat_deadline().0).min(self.psd.sync_deadline());
         }
         if state == State::Running {
             next = next.min(self.pose_deadline());
@@ -399,7 +406,29 @@ impl<K: StageClock> Core<K> {
         if let Some(at) = self.keep_alive_due() {
             next = next.min(at);
         }
+        if let Some(m) = &self.cia402 {
+            next = next.min(m.deadline());
+        }
         next
+    }
+
+    /// When the motors' heartbeat watchdog fires, and for which node: the board's, or the
+    /// drive heard longest ago (each counted from the arm at the earliest).
+    fn heartbeat_deadline(&self) -> (HostTime, u8) {
+        let from = |heard: Option<HostTime>| heard.map_or(self.armed_at, |h| h.max(self.armed_at));
+        let (heard, node) = match &self.cia402 {
+            None => (from(self.board.last_heartbeat), self.rig.node.get()),
+            Some(m) => {
+                let [l, r] = m.heard().map(from);
+                let [ln, rn] = m.nodes().map(|n| n.get());
+                if r < l {
+                    (r, rn)
+                } else {
+                    (l, ln)
+                }
+            }
+        };
+        (heard + self.rig.safety.heartbeat_timeout, node)
     }
 
     /// When an enabled but idle board (Armed, Stopping) needs a zero command to keep its
@@ -407,7 +436,8 @@ impl<K: StageClock> Core<K> {
     /// commands as they come; this covers a pipeline that delivers none yet (a long sensing
     /// delay, the first pose still on its way).
     fn keep_alive_due(&self) -> Option<HostTime> {
-        let idle_enabled = matches!(self.state(), State::Armed | State::Stopping(_));
+        // CiA 402 drives have no command timeout: they watch the gateway's heartbeat.
+        let idle_enabled = matches!(self.state(), State::Armed | State::Stopping(_)) && self.cia402.is_none();
         let half = Duration::from_millis(u64::from(self.rig.board.command_timeout_ms)) / 2;
         self.last_command.filter(|_| idle_enabled).map(|last| last + half)
     }
@@ -597,8 +627,16 @@ impl<K: StageClock> Core<K> {
                 // Accepted whatever the state. In a fault the board was e-stopped already; it
                 // hears the operator's e-stop again all the same.
                 if matches!(state, State::Fault(_)) {
-                    let target = Target::Node(self.rig.node);
-                    self.send(MotorMessage::EStop { target, reason: EStopReason::Operator });
+                    match &mut self.cia402 {
+                        None => {
+                            let target = Target::Node(self.rig.node);
+                            self.send(MotorMessage::EStop { target, reason: EStopReason::Operator });
+                        }
+                        Some(m) => {
+                            let out = &mut self.out;
+                            m.quick_stop(&mut |f| out.push_back(Output::Can(f)));
+                        }
+                    }
                 } else {
                     self.stop(now, StopReason::OperatorEStop);
                 }
@@ -612,10 +650,13 @@ impl<K: StageClock> Core<K> {
                             self.tracker.drop_obstacle(k);
                         }
                     }
-                    self.send(MotorMessage::Nmt {
-                        target: Target::Node(self.rig.node),
-                        command: NmtCommand::FaultReset,
-                    });
+                    // CiA 402 drives are reset on the way to operation enabled at the next arm.
+                    if self.cia402.is_none() {
+                        self.send(MotorMessage::Nmt {
+                            target: Target::Node(self.rig.node),
+                            command: NmtCommand::FaultReset,
+                        });
+                    }
                     // The PSD session starts afresh: sequence numbers, frame counter and clock
                     // taken anew, so no baseline a fault left behind outlives the reset.
                     if !self.psd.is_down() {
@@ -760,7 +801,10 @@ impl<K: StageClock> Core<K> {
     /// Whether a fault's cause persists now.
     fn cause_present(&self, now: HostTime, reason: StopReason) -> bool {
         let s = &self.rig.safety;
-        let heard = self.board.last_heartbeat.is_some_and(|h| now < h + s.heartbeat_timeout);
+        let heard = match &self.cia402 {
+            None => self.board.last_heartbeat.is_some_and(|h| now < h + s.heartbeat_timeout),
+            Some(m) => m.heard().iter().all(|h| h.is_some_and(|h| now < h + s.heartbeat_timeout)),
+        };
         let sampling = !self.psd.is_down() && now < self.last_sample + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
@@ -768,7 +812,7 @@ impl<K: StageClock> Core<K> {
             StopReason::PoseLost => {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
-            StopReason::HeartbeatLost { .. } => !heard,
+            StopReason::HeartbeatLost { .. } | StopReason::DriveHeartbeatLost { .. } => !heard,
             // The reset forgets the occluded track: the obstacle is absent until seen again
             // (and a required one refuses the arm until then).
             StopReason::ObstacleOccluded { .. } => false,
@@ -797,8 +841,14 @@ impl<K: StageClock> Core<K> {
     /// Time passed: heartbeats, retries, watchdogs, the end of an orderly stop.
     fn tick(&mut self, now: HostTime) {
         if now >= self.next_heartbeat {
-            let state = self.state().wire();
-            self.send(MotorMessage::GatewayHeartbeat { state });
+            match &self.cia402 {
+                None => self.send(MotorMessage::GatewayHeartbeat { state: self.state().wire() }),
+                Some(m) => {
+                    if let Some(f) = m.heartbeat() {
+                        self.out.push_back(Output::Can(f));
+                    }
+                }
+            }
             self.next_heartbeat = now + HEARTBEAT_PERIOD;
             // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
             if self.rig.can.polls_status() {
@@ -819,6 +869,9 @@ impl<K: StageClock> Core<K> {
             self.out.push_back(Output::OpenCan);
         }
         if let Some(reason) = self.watchdog(now) {
+            self.stop(now, reason);
+        }
+        if let Some(reason) = self.cia402.as_mut().and_then(|m| m.tick(now)) {
             self.stop(now, reason);
         }
         self.check_at_rest(now);
@@ -853,7 +906,7 @@ impl<K: StageClock> Core<K> {
             return None;
         }
         let s = &self.rig.safety;
-        let heard = self.board.last_heartbeat.map_or(self.armed_at, |h| h.max(self.armed_at));
+        let (heartbeat_deadline, heartbeat_node) = self.heartbeat_deadline();
         // Each fires at its deadline, the very time `next_deadline` asks to be ticked.
         if now >= self.last_sample + s.sample_timeout {
             Some(StopReason::SamplesStopped)
@@ -875,8 +928,11 @@ impl<K: StageClock> Core<K> {
             })
         } else if let Some(k) = self.occlusion_deadline().filter(|&(at, _)| state == State::Running && now >= at) {
             Some(StopReason::ObstacleOccluded { led: self.rig.obstacles[k.1].led })
-        } else if now >= heard + s.heartbeat_timeout {
-            Some(StopReason::HeartbeatLost { node: self.rig.node.get() })
+        } else if now >= heartbeat_deadline {
+            Some(match self.cia402 {
+                None => StopReason::HeartbeatLost { node: heartbeat_node },
+                Some(_) => StopReason::DriveHeartbeatLost { node: heartbeat_node },
+            })
         } else if now >= self.psd.sync_deadline() {
             Some(StopReason::ClockUnsynced)
         } else {
@@ -1141,6 +1197,7 @@ impl<K: StageClock> Core<K> {
         let (robot_radius, wheel_base) = (self.rig.control.robot_radius, self.rig.control.drive.wheel_base);
         let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
         // The tracker's estimate borrows it: decide inside, act on the decision after.
+        let motors_ready = self.motors_ready();
         let (pose, delay, clearance, step, track_ns, plan_start, ready) = {
             let Some(tracked) =
                 self.tracker.estimate(t, period, wheel_base).filter(|tr| t - tr.pose_valid_at < pose_timeout)
@@ -1150,10 +1207,8 @@ impl<K: StageClock> Core<K> {
                 return;
             };
             let track_ns = self.clock.now_ns().saturating_sub(track_start);
-            let ready = self.safety.state() == State::Armed
-                && self.start_requested
-                && !self.goals.is_empty()
-                && self.board.state == Some(BoardState::Enabled);
+            let ready =
+                self.safety.state() == State::Armed && self.start_requested && !self.goals.is_empty() && motors_ready;
             if ready {
                 self.safety.ready(t);
             }
@@ -1320,8 +1375,21 @@ impl<K: StageClock> Core<K> {
         if let Some(tracked) = self.tracker.estimate(now.secs(), period, wheel_base) {
             self.control.rehearse(&tracked.estimate);
         }
-        let message = MotorMessage::Velocity { node: self.rig.node, left: 0, right: 0, seq: self.velocity_seq };
-        let _ = std::hint::black_box(message.to_frame());
+        match &self.cia402 {
+            None => {
+                let message = MotorMessage::Velocity { node: self.rig.node, left: 0, right: 0, seq: self.velocity_seq };
+                let _ = std::hint::black_box(message.to_frame());
+            }
+            Some(m) => m.rehearse(),
+        }
+    }
+
+    /// The motors follow commands: the board Enabled, or both drives in operation enabled.
+    fn motors_ready(&self) -> bool {
+        match &self.cia402 {
+            None => self.board.state == Some(BoardState::Enabled),
+            Some(m) => m.ready(),
+        }
     }
 
     fn track_frame(&mut self, now: HostTime) {
@@ -1394,12 +1462,23 @@ impl<K: StageClock> Core<K> {
 
     fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
         let encode_start = self.clock.now_ns();
-        let message =
-            MotorMessage::Velocity { node: self.rig.node, left: pulses[0], right: pulses[1], seq: self.velocity_seq };
+        let frame = match &self.cia402 {
+            None => {
+                let (node, seq) = (self.rig.node, self.velocity_seq);
+                MotorMessage::Velocity { node, left: pulses[0], right: pulses[1], seq }.to_frame().ok()
+            }
+            // One RPDO a drive: the left one goes first, the cycle's record closes on the right.
+            Some(m) => match m.command(pulses) {
+                [Some(left), right @ Some(_)] => {
+                    self.out.push_back(Output::Can(left));
+                    right
+                }
+                _ => None,
+            },
+        };
         self.velocity_seq = self.velocity_seq.wrapping_add(1);
-        let frame = message.to_frame();
         record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
-        let Ok(frame) = frame else {
+        let Some(frame) = frame else {
             // Pulse rates come from the drive model clamped to the wheel limit, which the
             // config keeps in range; a frame that cannot be built is a planner fault.
             self.stop(now, StopReason::PlannerInvalid);
@@ -1415,6 +1494,24 @@ impl<K: StageClock> Core<K> {
 
     fn can_frame(&mut self, now: HostTime, frame: &CanFrame) {
         self.counters.can_frames_in += 1;
+        if let Some(m) = &mut self.cia402 {
+            let active = is_active(self.safety.state());
+            let out = &mut self.out;
+            let (heard, stop) = m.frame(now, frame, active, &mut |f| out.push_back(Output::Can(f)));
+            match heard {
+                Heard::Ours => {}
+                Heard::Foreign => self.counters.can_foreign += 1,
+                Heard::Undecodable => self.counters.can_undecodable += 1,
+            }
+            if let Some(reason) = stop {
+                if let StopReason::SecondMaster { .. } = reason {
+                    self.second_master_heard = Some(now);
+                }
+                self.stop(now, reason);
+            }
+            self.check_at_rest(now);
+            return;
+        }
         match MotorMessage::parse(frame) {
             Ok(m) if m.node() == Some(self.rig.node) => match m {
                 MotorMessage::Heartbeat { state, .. } => {
@@ -1492,10 +1589,21 @@ impl<K: StageClock> Core<K> {
 
     fn check_at_rest(&mut self, now: HostTime) {
         if let (State::Stopping(_), Some(since)) = (self.state(), self.stopping_since) {
-            if self.board.rates == [0, 0] || now >= since + STOP_GRACE {
+            let at_rest = match &self.cia402 {
+                None => self.board.rates == [0, 0],
+                Some(m) => m.at_rest(),
+            };
+            if at_rest || now >= since + STOP_GRACE {
                 self.safety.at_rest(now.secs());
                 self.stopping_since = None;
-                self.send(MotorMessage::Nmt { target: Target::Node(self.rig.node), command: NmtCommand::Disable });
+                match &mut self.cia402 {
+                    None => self
+                        .send(MotorMessage::Nmt { target: Target::Node(self.rig.node), command: NmtCommand::Disable }),
+                    Some(m) => {
+                        let out = &mut self.out;
+                        m.disable(&mut |f| out.push_back(Output::Can(f)));
+                    }
+                }
                 self.state_changed(now);
             }
         }
@@ -1511,6 +1619,13 @@ impl<K: StageClock> Core<K> {
         let node = self.rig.node;
         match action {
             Action::None => {}
+            Action::EnableBoard if self.cia402.is_some() => {
+                self.enable_sent = now;
+                if let Some(m) = &mut self.cia402 {
+                    let out = &mut self.out;
+                    m.arm(now, &mut |f| out.push_back(Output::Can(f)));
+                }
+            }
             Action::EnableBoard => {
                 self.enable_sent = now;
                 let b = self.rig.board;
@@ -1531,7 +1646,13 @@ impl<K: StageClock> Core<K> {
                 } else {
                     EStopReason::GatewayFault
                 };
-                self.send(MotorMessage::EStop { target: Target::Node(node), reason });
+                match &mut self.cia402 {
+                    None => self.send(MotorMessage::EStop { target: Target::Node(node), reason }),
+                    Some(m) => {
+                        let out = &mut self.out;
+                        m.quick_stop(&mut |f| out.push_back(Output::Can(f)));
+                    }
+                }
                 self.stopping_since = None;
                 self.tracker.forget_pose();
                 self.tracker.halted(); // the boards stop at once: dead reckoning starts from rest

@@ -11,6 +11,7 @@
 //! tests only). Motion is commanded only in `Running`. A fault never clears itself: the
 //! operator resets it, which is refused while its cause persists, and then arms again.
 
+use flowgate_protocol::canopen::DriveState;
 use flowgate_protocol::motor::GatewayState;
 
 /// Why the gateway stopped or faulted.
@@ -99,11 +100,48 @@ pub enum StopReason {
         node: u8,
     },
     PlannerInvalid,
+    /// A CiA 402 drive's heartbeat stopped for longer than `safety.heartbeat_timeout_ms`.
+    DriveHeartbeatLost {
+        node: u8,
+    },
+    /// A CiA 402 drive sent its boot-up message while the gateway drove it.
+    DriveRebooted {
+        node: u8,
+    },
+    /// A CiA 402 drive did not answer an SDO within `cia402.sdo_timeout_ms`.
+    DriveSdoTimeout {
+        node: u8,
+        index: u16,
+        sub: u8,
+    },
+    /// A CiA 402 drive refused an SDO (its abort code).
+    DriveSdoAbort {
+        node: u8,
+        index: u16,
+        sub: u8,
+        code: u32,
+    },
+    /// A CiA 402 drive did not reach operation enabled within `cia402.enable_timeout_ms` of
+    /// the arm (the state it stayed in).
+    DriveNotEnabled {
+        node: u8,
+        state: DriveState,
+    },
+    /// A CiA 402 drive sent an emergency (its error code).
+    DriveEmergency {
+        node: u8,
+        code: u16,
+    },
+    /// A CiA 402 drive left operation enabled by itself (its statusword's state).
+    DriveLeftOperation {
+        node: u8,
+        state: DriveState,
+    },
 }
 
 impl StopReason {
     /// One of each reason (the LED or node 0): every label `/metrics` carries from the start.
-    pub const ALL: [StopReason; 33] = [
+    pub const ALL: [StopReason; 40] = [
         Self::GoalReached,
         Self::Stalled,
         Self::Operator,
@@ -137,6 +175,13 @@ impl StopReason {
         Self::BoardEStop { node: 0 },
         Self::BoardNotEnabled { node: 0 },
         Self::PlannerInvalid,
+        Self::DriveHeartbeatLost { node: 0 },
+        Self::DriveRebooted { node: 0 },
+        Self::DriveSdoTimeout { node: 0, index: 0, sub: 0 },
+        Self::DriveSdoAbort { node: 0, index: 0, sub: 0, code: 0 },
+        Self::DriveNotEnabled { node: 0, state: DriveState::NotReadyToSwitchOn },
+        Self::DriveEmergency { node: 0, code: 0 },
+        Self::DriveLeftOperation { node: 0, state: DriveState::NotReadyToSwitchOn },
     ];
 
     /// Whether this is a fault (stop at once, latch) rather than an orderly stop.
@@ -224,6 +269,29 @@ impl std::fmt::Display for StopReason {
             Self::BoardEStop { node } => return write!(f, "e-stop latched by motor board {node} (its e-stop input)"),
             Self::BoardNotEnabled { node } => return write!(f, "motor board {node} did not enable"),
             Self::PlannerInvalid => "planner refused its input",
+            Self::DriveHeartbeatLost { node } => return write!(f, "drive {node} heartbeat lost"),
+            Self::DriveRebooted { node } => return write!(f, "drive {node} rebooted (boot-up message)"),
+            Self::DriveSdoTimeout { node, index, sub } => {
+                return write!(f, "drive {node} did not answer SDO 0x{index:04X}:{sub} within cia402.sdo_timeout_ms")
+            }
+            Self::DriveSdoAbort { node, index, sub, code } => {
+                let why = flowgate_protocol::canopen::sdo_abort_text(*code);
+                return write!(f, "drive {node} refused SDO 0x{index:04X}:{sub}: abort 0x{code:08X} ({why})");
+            }
+            Self::DriveNotEnabled { node, state } => {
+                return write!(
+                    f,
+                    "drive {node} stayed in '{}' (statusword 0x6041), not operation enabled within cia402.enable_timeout_ms",
+                    state.name()
+                )
+            }
+            Self::DriveEmergency { node, code } => {
+                let emcy = flowgate_protocol::canopen::Emcy { error_code: *code, error_register: 0, vendor: [0; 5] };
+                return write!(f, "drive {node} emergency 0x{code:04X} ({})", emcy.describe());
+            }
+            Self::DriveLeftOperation { node, state } => {
+                return write!(f, "drive {node} left operation enabled for '{}'", state.name())
+            }
         })
     }
 }

@@ -1,0 +1,436 @@
+//! The gateway's side of two CiA 402 drives (one a wheel), as a state machine of the core:
+//! frames and time in, frames out, a deadline. docs/cia402.md says what it writes and why.
+//!
+//! At the arm, for each drive at once: NMT enter pre-operational; the configuration by
+//! expedited SDO, one write at a time, each answered within `cia402.sdo_timeout_ms`
+//! ([`configuration`]); NMT start. Then the drive's statusword (TPDO1) is answered by the
+//! controlword that takes it one step towards operation enabled, with a zero target, until
+//! both drives are there, within `cia402.enable_timeout_ms` of the arm. Each cycle sends
+//! one RPDO1 a drive (controlword enable operation, target velocity); there is no SYNC.
+//! An e-stop sends quick stop; at rest after an orderly stop, shutdown (the motor
+//! unpowered). The drives consume the gateway's heartbeat (0x1016) and stop by
+//! themselves when it stops; the core watches theirs.
+
+use std::time::Duration;
+
+use flowgate_protocol::canopen::{
+    self, object, CanOpenMessage, DriveCommand, DriveState, NmtCommand, NmtState, NmtTarget, NodeId, PdoData,
+    PdoDirection, SdoData, SdoRequest, SdoResponse, VelocityCommand, VelocityReport,
+};
+use flowgate_protocol::CanFrame;
+
+use super::safety::StopReason;
+use crate::config::Cia402Settings;
+use crate::time::HostTime;
+
+/// How long a drive may miss the gateway's heartbeat before it stops by itself (0x1016): three
+/// of the gateway's periods.
+pub const CONSUMER_TIME_MS: u32 = 300;
+
+/// One configuration write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SdoWrite {
+    pub index: u16,
+    pub sub: u8,
+    pub data: SdoData,
+}
+
+/// What the gateway writes to a drive at each arm, in order: heartbeats, the mode and its
+/// ramps, then each PDO's mapping (invalidated, cleared, entries, count, transmission,
+/// valid again).
+pub fn configuration(settings: &Cia402Settings, node: NodeId) -> Vec<SdoWrite> {
+    let n = u32::from(node.get());
+    let w = |index, sub, data| SdoWrite { index, sub, data };
+    let consumer = u32::from(settings.gateway.get()) << 16 | CONSUMER_TIME_MS;
+    let mut writes = vec![
+        w(object::PRODUCER_HEARTBEAT_TIME, 0, SdoData::u16(settings.heartbeat_ms)),
+        w(object::CONSUMER_HEARTBEAT_TIME, 1, SdoData::u32(consumer)),
+        w(object::MODES_OF_OPERATION, 0, SdoData::i8(canopen::PROFILE_VELOCITY_MODE)),
+        w(object::MAX_PROFILE_VELOCITY, 0, SdoData::u32(settings.max_velocity)),
+        w(object::PROFILE_ACCELERATION, 0, SdoData::u32(settings.accel)),
+        w(object::PROFILE_DECELERATION, 0, SdoData::u32(settings.accel)),
+        w(object::QUICK_STOP_DECELERATION, 0, SdoData::u32(settings.quick_stop_decel)),
+        w(object::QUICK_STOP_OPTION, 0, SdoData::i16(canopen::QUICK_STOP_THEN_DISABLE)),
+    ];
+    let pdos: [(u16, u16, u16, &[(u16, u8)], Option<u16>); 3] = [
+        (
+            object::RPDO1_COMMUNICATION,
+            object::RPDO1_MAPPING,
+            canopen::cob::RPDO1,
+            &[(object::CONTROLWORD, 16), (object::TARGET_VELOCITY, 32)],
+            None,
+        ),
+        (
+            object::TPDO1_COMMUNICATION,
+            object::TPDO1_MAPPING,
+            canopen::cob::TPDO1,
+            &[(object::STATUSWORD, 16), (object::VELOCITY_ACTUAL, 32)],
+            Some(settings.report_ms),
+        ),
+        (
+            object::TPDO2_COMMUNICATION,
+            object::TPDO2_MAPPING,
+            canopen::cob::TPDO2,
+            &[(object::POSITION_ACTUAL, 32)],
+            Some(settings.report_ms),
+        ),
+    ];
+    for (communication, mapping, cob, entries, timer) in pdos {
+        let cob_id = u32::from(cob) + n;
+        writes.push(w(communication, 1, SdoData::u32(cob_id | canopen::PDO_INVALID)));
+        writes.push(w(mapping, 0, SdoData::u8(0)));
+        for (k, &(index, bits)) in entries.iter().enumerate() {
+            writes.push(w(mapping, k as u8 + 1, SdoData::u32(canopen::mapping_entry(index, 0, bits))));
+        }
+        writes.push(w(mapping, 0, SdoData::u8(entries.len() as u8)));
+        writes.push(w(communication, 2, SdoData::u8(canopen::TRANSMISSION_EVENT)));
+        if let Some(ms) = timer {
+            writes.push(w(communication, 5, SdoData::u16(ms)));
+        }
+        writes.push(w(communication, 1, SdoData::u32(cob_id)));
+    }
+    writes
+}
+
+/// Where the drives are in the gateway's eyes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Not armed: nothing is sent but heartbeats.
+    Idle,
+    /// Configuring and enabling, since the arm.
+    Enabling { since: HostTime },
+    /// Both in operation enabled: cycles command them.
+    Enabled,
+    /// Quick stop sent (an e-stop).
+    QuickStop,
+}
+
+/// What the gateway knows of one drive.
+#[derive(Debug, Clone)]
+struct Drive {
+    node: NodeId,
+    writes: Vec<SdoWrite>,
+    /// The next configuration write, and when the one outstanding was sent.
+    step: usize,
+    sent: Option<HostTime>,
+    started: bool,
+    heard: Option<HostTime>,
+    statusword: Option<u16>,
+    velocity: i32,
+    position: Option<i32>,
+    /// The last controlword sent (a fault reset needs bit 7's rising edge).
+    controlword: u16,
+}
+
+impl Drive {
+    fn state(&self) -> Option<DriveState> {
+        self.statusword.map(DriveState::from_statusword)
+    }
+    fn enabled(&self) -> bool {
+        self.state().is_some_and(DriveState::is_enabled)
+    }
+    fn configured(&self) -> bool {
+        self.step >= self.writes.len()
+    }
+}
+
+/// The gateway's side of the two drives.
+#[derive(Debug, Clone)]
+pub struct Cia402Master {
+    settings: Cia402Settings,
+    drives: [Drive; 2],
+    phase: Phase,
+}
+
+/// What a frame from the bus was, for the core's counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Heard {
+    /// From one of our drives (or our own kind of traffic): taken.
+    Ours,
+    /// A CANopen frame of another node.
+    Foreign,
+    /// Not CANopen.
+    Undecodable,
+}
+
+impl Cia402Master {
+    pub fn new(settings: Cia402Settings) -> Self {
+        let drive = |node| Drive {
+            node,
+            writes: configuration(&settings, node),
+            step: 0,
+            sent: None,
+            started: false,
+            heard: None,
+            statusword: None,
+            velocity: 0,
+            position: None,
+            controlword: 0,
+        };
+        Self { drives: [drive(settings.left), drive(settings.right)], settings, phase: Phase::Idle }
+    }
+
+    /// The drives' node ids, left then right.
+    pub fn nodes(&self) -> [NodeId; 2] {
+        [self.drives[0].node, self.drives[1].node]
+    }
+
+    /// Both drives follow their targets: cycles may command them.
+    pub fn ready(&self) -> bool {
+        self.phase == Phase::Enabled
+    }
+
+    /// Both drives report zero velocity.
+    pub fn at_rest(&self) -> bool {
+        self.drives.iter().all(|d| d.velocity == 0)
+    }
+
+    /// The drives' actual velocities (pulses a second) and positions, as last reported.
+    pub fn actual(&self) -> [(i32, Option<i32>); 2] {
+        self.drives
+            .each_ref()
+            .map(|d| ((f64::from(d.velocity) / self.settings.velocity_scale).round() as i32, d.position))
+    }
+
+    /// When each drive was last heard (heartbeat or boot-up).
+    pub fn heard(&self) -> [Option<HostTime>; 2] {
+        self.drives.each_ref().map(|d| d.heard)
+    }
+
+    /// Arm: configure both drives afresh and take them to operation enabled.
+    pub fn arm(&mut self, now: HostTime, send: &mut impl FnMut(CanFrame)) {
+        self.phase = Phase::Enabling { since: now };
+        for d in &mut self.drives {
+            d.step = 0;
+            d.started = false;
+            d.statusword = None;
+            let nmt = CanOpenMessage::Nmt { command: NmtCommand::EnterPreOperational, target: NmtTarget::Node(d.node) };
+            emit(send, nmt);
+            Self::next_write(d, now, send);
+        }
+    }
+
+    fn next_write(d: &mut Drive, now: HostTime, send: &mut impl FnMut(CanFrame)) {
+        match d.writes.get(d.step) {
+            Some(&SdoWrite { index, sub, data }) => {
+                d.sent = Some(now);
+                emit(
+                    send,
+                    CanOpenMessage::SdoRequest { node: d.node, request: SdoRequest::Download { index, sub, data } },
+                );
+            }
+            None => {
+                d.sent = None;
+                d.started = true;
+                emit(send, CanOpenMessage::Nmt { command: NmtCommand::Start, target: NmtTarget::Node(d.node) });
+            }
+        }
+    }
+
+    /// One cycle's command: an RPDO1 a drive, `pulses` a second each (left, right).
+    pub fn command(&self, pulses: [i32; 2]) -> [Option<CanFrame>; 2] {
+        let cw = DriveCommand::EnableOperation.controlword();
+        [0, 1].map(|k| {
+            let v = (f64::from(pulses[k]) * self.settings.velocity_scale).round() as i32;
+            rpdo(self.drives[k].node, cw, v)
+        })
+    }
+
+    /// An e-stop: quick stop on both drives (their quick-stop deceleration, then switch on
+    /// disabled).
+    pub fn quick_stop(&mut self, send: &mut impl FnMut(CanFrame)) {
+        self.phase = Phase::QuickStop;
+        for d in &mut self.drives {
+            d.controlword = DriveCommand::QuickStop.controlword();
+            if let Some(f) = rpdo(d.node, d.controlword, 0) {
+                send(f);
+            }
+        }
+    }
+
+    /// At rest after an orderly stop: shutdown (ready to switch on, the motor unpowered).
+    pub fn disable(&mut self, send: &mut impl FnMut(CanFrame)) {
+        self.phase = Phase::Idle;
+        for d in &mut self.drives {
+            d.controlword = DriveCommand::Shutdown.controlword();
+            if let Some(f) = rpdo(d.node, d.controlword, 0) {
+                send(f);
+            }
+        }
+    }
+
+    /// The gateway's heartbeat (operational: it is the master).
+    pub fn heartbeat(&self) -> Option<CanFrame> {
+        CanOpenMessage::Heartbeat { node: self.settings.gateway, state: NmtState::Operational }.to_frame()
+    }
+
+    /// When [`Cia402Master::tick`] next has something to do.
+    pub fn deadline(&self) -> HostTime {
+        let mut next = HostTime::NEVER;
+        if let Phase::Enabling { since } = self.phase {
+            next = next.min(since + self.settings.enable_timeout);
+            for d in &self.drives {
+                if let Some(sent) = d.sent {
+                    next = next.min(sent + self.settings.sdo_timeout);
+                }
+            }
+        }
+        next
+    }
+
+    /// Timeouts due by `now`: an unanswered SDO, names its node and object; drives not
+    /// enabled in time, the first such and its state.
+    pub fn tick(&mut self, now: HostTime) -> Option<StopReason> {
+        let Phase::Enabling { since } = self.phase else { return None };
+        for d in &self.drives {
+            if let (Some(sent), Some(w)) = (d.sent, d.writes.get(d.step)) {
+                if now >= sent + self.settings.sdo_timeout {
+                    return Some(StopReason::DriveSdoTimeout { node: d.node.get(), index: w.index, sub: w.sub });
+                }
+            }
+        }
+        if now >= since + self.settings.enable_timeout {
+            let d = self.drives.iter().find(|d| !d.enabled())?;
+            let state = d.state().unwrap_or(DriveState::NotReadyToSwitchOn);
+            return Some(StopReason::DriveNotEnabled { node: d.node.get(), state });
+        }
+        None
+    }
+
+    /// A frame from the bus at `now`. `active`: the gateway is armed, running or stopping
+    /// (a drive's fault then stops it). Returns what it was and the stop it calls for.
+    pub fn frame(
+        &mut self,
+        now: HostTime,
+        frame: &CanFrame,
+        active: bool,
+        send: &mut impl FnMut(CanFrame),
+    ) -> (Heard, Option<StopReason>) {
+        let Ok(message) = CanOpenMessage::parse(frame) else { return (Heard::Undecodable, None) };
+        let Some(k) = message_node(&message).and_then(|n| self.drives.iter().position(|d| d.node == n)) else {
+            return match message {
+                // The bus's master traffic (our own heartbeat's kind, another node's NMT, SYNC).
+                CanOpenMessage::Nmt { .. } | CanOpenMessage::Sync => (Heard::Ours, None),
+                _ => (Heard::Foreign, None),
+            };
+        };
+        let node = self.drives[k].node.get();
+        let stop = match message {
+            CanOpenMessage::Heartbeat { state, .. } => {
+                self.drives[k].heard = Some(now);
+                (state == NmtState::BootUp && active).then_some(StopReason::DriveRebooted { node })
+            }
+            CanOpenMessage::Emcy { emcy, .. } => {
+                (emcy.error_code != 0 && active).then_some(StopReason::DriveEmergency { node, code: emcy.error_code })
+            }
+            CanOpenMessage::SdoResponse { response, .. } => self.sdo_answer(now, k, response, send),
+            CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 1, data, .. } => {
+                self.status(k, data, active, send)
+            }
+            CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 2, data, .. } => {
+                if let [a, b, c, d] = *data.bytes() {
+                    self.drives[k].position = Some(i32::from_le_bytes([a, b, c, d]));
+                }
+                None
+            }
+            // Nobody else may command our drives: we never hear our own frames.
+            CanOpenMessage::Pdo { direction: PdoDirection::Receive, .. } | CanOpenMessage::SdoRequest { .. } => {
+                Some(StopReason::SecondMaster { node })
+            }
+            _ => None,
+        };
+        (Heard::Ours, stop)
+    }
+
+    fn sdo_answer(
+        &mut self,
+        now: HostTime,
+        k: usize,
+        response: SdoResponse,
+        send: &mut impl FnMut(CanFrame),
+    ) -> Option<StopReason> {
+        let d = &mut self.drives[k];
+        let expected = d.sent.and(d.writes.get(d.step)).map(|w| (w.index, w.sub));
+        if expected != Some(response.object()) || !matches!(self.phase, Phase::Enabling { .. }) {
+            return None; // late, or not ours: the timeout judges the one outstanding
+        }
+        match response {
+            SdoResponse::Downloaded { .. } => {
+                d.step += 1;
+                Self::next_write(d, now, send);
+                None
+            }
+            SdoResponse::Abort { index, sub, code } => {
+                d.sent = None;
+                Some(StopReason::DriveSdoAbort { node: d.node.get(), index, sub, code })
+            }
+            SdoResponse::Uploaded { .. } => None,
+        }
+    }
+
+    /// TPDO1: statusword and velocity. While enabling, answer with the next controlword; once
+    /// enabled, a drive that leaves operation enabled stops the gateway.
+    fn status(&mut self, k: usize, data: PdoData, active: bool, send: &mut impl FnMut(CanFrame)) -> Option<StopReason> {
+        let report = VelocityReport::parse(&data)?;
+        let d = &mut self.drives[k];
+        d.statusword = Some(report.statusword);
+        d.velocity = report.velocity_actual;
+        let state = DriveState::from_statusword(report.statusword);
+        match self.phase {
+            Phase::Enabling { .. } if d.configured() && d.started => {
+                if let Some(command) = state.towards_operation() {
+                    let mut cw = command.controlword();
+                    // A fault reset acts on bit 7's rising edge: clear it first if it was set.
+                    if command == DriveCommand::FaultReset && d.controlword & 0x80 != 0 {
+                        cw = DriveCommand::DisableVoltage.controlword();
+                    }
+                    d.controlword = cw;
+                    if let Some(f) = rpdo(d.node, cw, 0) {
+                        send(f);
+                    }
+                }
+                if self.drives.iter().all(Drive::enabled) {
+                    self.phase = Phase::Enabled;
+                }
+                None
+            }
+            Phase::Enabled if active && !state.is_enabled() => {
+                Some(StopReason::DriveLeftOperation { node: d.node.get(), state })
+            }
+            _ => None,
+        }
+    }
+
+    /// A frame like a cycle's, built and dropped (the low-latency mode's rehearsal).
+    pub fn rehearse(&self) {
+        let _ = std::hint::black_box(self.command([0, 0]));
+    }
+
+    /// The SDO timeout, for messages.
+    pub fn sdo_timeout(&self) -> Duration {
+        self.settings.sdo_timeout
+    }
+}
+
+/// The node a drive's message is from (or to).
+fn message_node(message: &CanOpenMessage) -> Option<NodeId> {
+    match *message {
+        CanOpenMessage::Heartbeat { node, .. }
+        | CanOpenMessage::Emcy { node, .. }
+        | CanOpenMessage::SdoRequest { node, .. }
+        | CanOpenMessage::SdoResponse { node, .. }
+        | CanOpenMessage::Pdo { node, .. } => Some(node),
+        CanOpenMessage::Nmt { .. } | CanOpenMessage::Sync => None,
+    }
+}
+
+fn rpdo(node: NodeId, controlword: u16, target_velocity: i32) -> Option<CanFrame> {
+    let data = VelocityCommand { controlword, target_velocity }.data();
+    CanOpenMessage::Pdo { direction: PdoDirection::Receive, number: 1, node, data }.to_frame()
+}
+
+fn emit(send: &mut impl FnMut(CanFrame), message: CanOpenMessage) {
+    if let Some(f) = message.to_frame() {
+        send(f);
+    }
+}
