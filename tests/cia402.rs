@@ -50,3 +50,75 @@ fn e2_with_cia402_drives_reaches_the_goal() {
     assert_eq!(starts, 2);
     assert!(rpdos as u64 >= e.report.counters.cycles, "{rpdos}");
 }
+
+/// A drive that never answers one configuration write faults the arm, naming the node and
+/// the object, one SDO timeout after the write; nothing moves.
+#[test]
+fn an_unanswered_sdo_faults_the_arm_naming_node_and_object() {
+    let e = sim::run(&scenario("e1-standing-obstacle.toml", &["drive_ignores_object=0x6085"]), options());
+    let reason = StopReason::DriveSdoTimeout { node: 1, index: 0x6085, sub: 0 };
+    assert_eq!(e.report.final_state, State::Fault(reason), "{}", e.report);
+    assert_eq!(reason.to_string(), "drive 1 did not answer SDO 0x6085:0 within cia402.sdo_timeout_ms");
+    let (armed, faulted) = (transition(&e, State::Armed), transition(&e, State::Fault(reason)));
+    // The quick-stop deceleration is the seventh write: six round trips, then 100 ms.
+    let waited = faulted - armed;
+    assert!((0.100..0.110).contains(&waited), "faulted {:.1} ms after the arm", waited * 1e3);
+    assert_eq!(e.truth.summary.path_length, 0.0, "the robot moved");
+}
+
+/// A drive that cannot leave its fault (its DC link low through the arm) is named with the
+/// state it stayed in, one enable timeout after the arm.
+#[test]
+fn a_drive_that_stays_faulted_is_named_with_its_state() {
+    let e = sim::run(&scenario("e1-standing-obstacle.toml", &["drive_undervoltage=[0.0, 30.0]"]), options());
+    let reason = StopReason::DriveNotEnabled { node: 1, state: DriveState::Fault };
+    assert_eq!(e.report.final_state, State::Fault(reason), "{}", e.report);
+    assert_eq!(
+        reason.to_string(),
+        "drive 1 stayed in 'fault' (statusword 0x6041), not operation enabled within cia402.enable_timeout_ms"
+    );
+    let waited = transition(&e, State::Fault(reason)) - transition(&e, State::Armed);
+    assert!((waited - 1.0).abs() < 1e-3, "faulted {waited:.4} s after the arm");
+    assert_eq!(e.truth.summary.path_length, 0.0, "the robot moved");
+}
+
+/// The operator's e-stop quick-stops both drives (controlword 0x0002 in their RPDO); the
+/// drives brake and end switch on disabled; reset, arm and start take the robot on to its
+/// goal.
+#[test]
+fn an_operator_estop_quick_stops_both_drives_and_the_way_back_reaches_the_goal() {
+    let s = scenario("e1-standing-obstacle.toml", &[]);
+    let mut rig = VirtualRig::new(&s, options());
+    rig.run_until(2.0);
+    assert_eq!(rig.core().state(), State::Running);
+    let sent = rig_can_sent(&rig).len();
+    rig.request(&Request::EStop).unwrap();
+    let quick_stops: Vec<u8> = rig_can_sent(&rig)[sent..]
+        .iter()
+        .filter_map(|f| match CanOpenMessage::parse(f).ok()? {
+            CanOpenMessage::Pdo { direction: PdoDirection::Receive, node, data, .. } => {
+                (VelocityCommand::parse(&data)?.controlword == 0x0002).then_some(node.get())
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(quick_stops, [1, 2]);
+    rig.run_until(2.5);
+    assert_eq!(rig.core().state(), State::Fault(StopReason::OperatorEStop));
+    assert_eq!(rig.world().wheel_speeds(), [0.0, 0.0], "at rest within half a second");
+    let goal = flowgate::gateway::operator::Goal { position: s.goal.position, tolerance: s.goal.tolerance };
+    for request in [Request::Reset, Request::Arm, Request::Goal { goals: vec![goal] }, Request::Start] {
+        rig.request(&request).unwrap();
+    }
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    assert_eq!(e.motion_outside_running, 0);
+}
+
+fn transition(e: &flowgate::lab::sim::Episode, state: State) -> f64 {
+    e.report.transitions.iter().find(|(_, s)| *s == state).map(|(t, _)| *t).unwrap_or_else(|| panic!("never {state}"))
+}
+
+fn rig_can_sent(rig: &VirtualRig) -> &[flowgate_protocol::CanFrame] {
+    rig.can_sent()
+}

@@ -442,6 +442,10 @@ impl<K: StageClock> VirtualRig<K> {
     pub fn world(&self) -> &World {
         &self.world
     }
+    /// The CAN frames the core asked for so far, with [`Options::record_inputs`].
+    pub fn can_sent(&self) -> &[CanFrame] {
+        &self.can_sent
+    }
     /// Virtual time, s.
     pub fn time(&self) -> f64 {
         secs(self.t)

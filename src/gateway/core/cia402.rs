@@ -434,3 +434,104 @@ fn emit(send: &mut impl FnMut(CanFrame), message: CanOpenMessage) {
         send(f);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Cia402Section, GatewayConfig, Motors};
+
+    fn master() -> Cia402Master {
+        let mut config =
+            GatewayConfig::from_toml(include_str!("../../../rig.example.toml"), "rig").unwrap();
+        config.use_cia402(Cia402Section::with_nodes(3, 4));
+        let Motors::Cia402(settings) = config.validate().unwrap().motors else { panic!("not cia402") };
+        Cia402Master::new(settings)
+    }
+
+    fn node(n: u8) -> NodeId {
+        NodeId::new(n).unwrap()
+    }
+
+    fn answer(m: &mut Cia402Master, t: HostTime, n: u8, response: SdoResponse, out: &mut Vec<CanFrame>) -> Option<StopReason> {
+        let frame = CanOpenMessage::SdoResponse { node: node(n), response }.to_frame().unwrap();
+        m.frame(t, &frame, true, &mut |f| out.push(f)).1
+    }
+
+    fn requests(out: &[CanFrame]) -> Vec<(u8, u16, u8)> {
+        out.iter()
+            .filter_map(|f| match CanOpenMessage::parse(f).ok()? {
+                CanOpenMessage::SdoRequest { node, request } => Some((node.get(), request.object().0, request.object().1)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Each write goes once its predecessor is answered; a late or foreign answer moves
+    /// nothing; an abort names the node, the object and the code.
+    #[test]
+    fn configuration_goes_write_by_write_and_an_abort_is_named() {
+        let mut m = master();
+        let mut out = Vec::new();
+        let t = HostTime::from_nanos(1_000_000);
+        m.arm(t, &mut |f| out.push(f));
+        assert_eq!(requests(&out), [(3, 0x1017, 0), (4, 0x1017, 0)]);
+        out.clear();
+        // An answer for another object: ignored, the write stays outstanding.
+        assert_eq!(answer(&mut m, t, 3, SdoResponse::Downloaded { index: 0x6060, sub: 0 }, &mut out), None);
+        assert!(out.is_empty());
+        assert_eq!(answer(&mut m, t, 3, SdoResponse::Downloaded { index: 0x1017, sub: 0 }, &mut out), None);
+        assert_eq!(requests(&out), [(3, 0x1016, 1)]);
+        let abort = SdoResponse::Abort { index: 0x1016, sub: 1, code: 0x0609_0030 };
+        let reason = answer(&mut m, t, 3, abort, &mut out).unwrap();
+        assert_eq!(reason, StopReason::DriveSdoAbort { node: 3, index: 0x1016, sub: 1, code: 0x0609_0030 });
+        assert_eq!(reason.to_string(), "drive 3 refused SDO 0x1016:1: abort 0x06090030 (value range of parameter exceeded)");
+        // Drive 4's first write times out one SDO timeout after it was sent.
+        assert_eq!(m.deadline(), t + m.sdo_timeout());
+        assert_eq!(m.tick(t + m.sdo_timeout()), Some(StopReason::DriveSdoTimeout { node: 4, index: 0x1017, sub: 0 }));
+    }
+
+    /// The configuration a drive gets: heartbeats, mode, ramps, then the three PDOs mapped
+    /// as protocol/cia402-drive.eds has them.
+    #[test]
+    fn the_configuration_maps_the_pdos_of_the_eds() {
+        let m = master();
+        let writes = &m.drives[0].writes;
+        assert_eq!(writes.len(), 30);
+        let find = |index, sub| writes.iter().filter(move |w| (w.index, w.sub) == (index, sub)).map(|w| w.data.value());
+        assert_eq!(find(0x1016, 1).collect::<Vec<_>>(), [127 << 16 | CONSUMER_TIME_MS]);
+        assert_eq!(find(0x6060, 0).collect::<Vec<_>>(), [3]);
+        assert_eq!(find(0x1600, 1).collect::<Vec<_>>(), [0x6040_0010]);
+        assert_eq!(find(0x1600, 2).collect::<Vec<_>>(), [0x60FF_0020]);
+        assert_eq!(find(0x1A00, 2).collect::<Vec<_>>(), [0x606C_0020]);
+        assert_eq!(find(0x1A01, 1).collect::<Vec<_>>(), [0x6064_0020]);
+        // Each PDO invalid while mapped, valid (its predefined COB-ID) after.
+        assert_eq!(find(0x1400, 1).collect::<Vec<_>>(), [0x8000_0203, 0x203]);
+        assert_eq!(find(0x1801, 1).collect::<Vec<_>>(), [0x8000_0283, 0x283]);
+    }
+
+    /// From a fault, the reset goes out on bit 7's rising edge: a controlword with bit 7
+    /// clear first if the last one had it set.
+    #[test]
+    fn a_fault_reset_is_an_edge() {
+        let mut m = master();
+        let mut out = Vec::new();
+        let t = HostTime::from_nanos(0);
+        m.arm(t, &mut |f| out.push(f));
+        for d in &mut m.drives {
+            d.step = d.writes.len();
+            d.started = true;
+        }
+        let report = |sw| {
+            let data = VelocityReport { statusword: sw, velocity_actual: 0 }.data();
+            CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 1, node: node(3), data }.to_frame().unwrap()
+        };
+        let mut controlwords = Vec::new();
+        for _ in 0..3 {
+            out.clear();
+            m.frame(t, &report(0x0008), true, &mut |f| out.push(f));
+            let Ok(CanOpenMessage::Pdo { data, .. }) = CanOpenMessage::parse(&out[0]) else { panic!() };
+            controlwords.push(VelocityCommand::parse(&data).unwrap().controlword);
+        }
+        assert_eq!(controlwords, [0x0080, 0x0000, 0x0080]);
+    }
+}

@@ -485,7 +485,14 @@ mod tests {
                 | StopReason::BoardFault { .. }
                 | StopReason::BoardEStop { .. }
                 | StopReason::BoardNotEnabled { .. }
-                | StopReason::PlannerInvalid => {}
+                | StopReason::PlannerInvalid
+                | StopReason::DriveHeartbeatLost { .. }
+                | StopReason::DriveRebooted { .. }
+                | StopReason::DriveSdoTimeout { .. }
+                | StopReason::DriveSdoAbort { .. }
+                | StopReason::DriveNotEnabled { .. }
+                | StopReason::DriveEmergency { .. }
+                | StopReason::DriveLeftOperation { .. } => {}
             }
         }
     }
