@@ -39,6 +39,10 @@ struct Args {
     /// The motor board's node id (1-15).
     #[arg(long, default_value_t = 1)]
     node: u8,
+    /// The motors: one PCL-80K-like board (`pcl80k`, at --node) or one CiA 402 drive a
+    /// wheel (`cia402`, the left at node 1, the right at node 2).
+    #[arg(long, default_value = "pcl80k", value_parser = ["pcl80k", "cia402"])]
+    drive: String,
     /// A camera model (TOML: homography, k1, counts); default: the standard one.
     #[arg(long, value_name = "FILE")]
     camera: Option<PathBuf>,
@@ -74,6 +78,10 @@ fn main() -> Result<()> {
         *link = Some(l);
     }
     config.node = NodeId::new(args.node).with_context(|| format!("--node {}: node ids are 1-15", args.node))?;
+    if args.drive == "cia402" {
+        let node = |n| flowgate_protocol::canopen::NodeId::new(n).context("node ids are 1-127");
+        config.cia402 = Some([node(1)?, node(2)?]);
+    }
     if let Some(path) = args.camera {
         let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
         config.camera = toml::from_str::<CameraModel>(&text).with_context(|| format!("camera {}", path.display()))?;

@@ -36,7 +36,7 @@ use tokio_util::codec::{Encoder, FramedRead};
 
 use crate::calibration::CameraModel;
 use crate::faults::{CanFaults, FaultPlan, SerialFaults};
-use crate::motor_board::MotorBoard;
+use crate::motors::{MotorKind, Motors};
 use crate::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};
 use crate::scenario::Scenario;
 use crate::slcan_adapter::SlcanAdapter;
@@ -81,6 +81,8 @@ pub struct RigConfig {
     pub psd: SerialEndpoint,
     pub can: CanEndpoint,
     pub node: NodeId,
+    /// CiA 402 drives at these nodes (left, right) in place of the board at `node`.
+    pub cia402: Option<[flowgate_protocol::canopen::NodeId; 2]>,
     pub faults: FaultPlan,
     /// PSD position noise, counts (σ).
     pub noise_counts: f64,
@@ -101,6 +103,7 @@ impl RigConfig {
             psd: SerialEndpoint::Pty { link: None },
             can: CanEndpoint::SlcanPty { link: None },
             node: NodeId::new(1).expect("node 1"),
+            cia402: None,
             faults,
             noise_counts: 1.0,
             seed,
@@ -120,6 +123,18 @@ pub enum RigError {
     SocketCan { interface: String, source: std::io::Error },
     #[error("cannot start the simulator's thread: {0}")]
     Thread(std::io::Error),
+    #[error("{0}")]
+    Unplayed(String),
+}
+
+impl RigConfig {
+    /// The motor firmware's kind.
+    pub fn motor_kind(&self) -> MotorKind {
+        match self.cia402 {
+            Some([left, right]) => MotorKind::Cia402 { left, right },
+            None => MotorKind::Board(self.node),
+        }
+    }
 }
 
 /// A rig running on a thread of its own, with its own runtime: its firmware keeps the pace
@@ -313,6 +328,9 @@ enum Bus {
 
 /// Start the rig. Returns once its endpoints exist, so a host can open them at once.
 pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
+    if let Some(key) = Motors::unplayed(config.motor_kind(), &config.faults) {
+        return Err(RigError::Unplayed(format!("{key}: played by the PCL-80K-like board only, not by CiA 402 drives")));
+    }
     let mut links = Vec::new();
     let mut keep_alive: Vec<std::fs::File> = Vec::new();
     let mut psd_keep = None;
@@ -449,7 +467,7 @@ async fn run(
     let mut world = World::new(&config.scenario);
     let mut controller =
         PsdController::new(config.camera, config.leds, config.noise_counts, config.seed, config.faults.clone());
-    let mut board = MotorBoard::new(config.node, config.faults.clone());
+    let mut board = Motors::new(config.motor_kind(), &config.faults);
     let mut serial_faults = SerialFaults::new(&config.faults);
     let mut can_faults = CanFaults::new(&config.faults);
     let mut bursts: VecDeque<f64> = config.faults.serial_burst_at.iter().copied().collect();

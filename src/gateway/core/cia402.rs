@@ -441,8 +441,7 @@ mod tests {
     use crate::config::{Cia402Section, GatewayConfig, Motors};
 
     fn master() -> Cia402Master {
-        let mut config =
-            GatewayConfig::from_toml(include_str!("../../../rig.example.toml"), "rig").unwrap();
+        let mut config = GatewayConfig::from_toml(include_str!("../../../rig.example.toml"), "rig").unwrap();
         config.use_cia402(Cia402Section::with_nodes(3, 4));
         let Motors::Cia402(settings) = config.validate().unwrap().motors else { panic!("not cia402") };
         Cia402Master::new(settings)
@@ -452,7 +451,13 @@ mod tests {
         NodeId::new(n).unwrap()
     }
 
-    fn answer(m: &mut Cia402Master, t: HostTime, n: u8, response: SdoResponse, out: &mut Vec<CanFrame>) -> Option<StopReason> {
+    fn answer(
+        m: &mut Cia402Master,
+        t: HostTime,
+        n: u8,
+        response: SdoResponse,
+        out: &mut Vec<CanFrame>,
+    ) -> Option<StopReason> {
         let frame = CanOpenMessage::SdoResponse { node: node(n), response }.to_frame().unwrap();
         m.frame(t, &frame, true, &mut |f| out.push(f)).1
     }
@@ -460,7 +465,9 @@ mod tests {
     fn requests(out: &[CanFrame]) -> Vec<(u8, u16, u8)> {
         out.iter()
             .filter_map(|f| match CanOpenMessage::parse(f).ok()? {
-                CanOpenMessage::SdoRequest { node, request } => Some((node.get(), request.object().0, request.object().1)),
+                CanOpenMessage::SdoRequest { node, request } => {
+                    Some((node.get(), request.object().0, request.object().1))
+                }
                 _ => None,
             })
             .collect()
@@ -484,7 +491,10 @@ mod tests {
         let abort = SdoResponse::Abort { index: 0x1016, sub: 1, code: 0x0609_0030 };
         let reason = answer(&mut m, t, 3, abort, &mut out).unwrap();
         assert_eq!(reason, StopReason::DriveSdoAbort { node: 3, index: 0x1016, sub: 1, code: 0x0609_0030 });
-        assert_eq!(reason.to_string(), "drive 3 refused SDO 0x1016:1: abort 0x06090030 (value range of parameter exceeded)");
+        assert_eq!(
+            reason.to_string(),
+            "drive 3 refused SDO 0x1016:1: abort 0x06090030 (value range of parameter exceeded)"
+        );
         // Drive 4's first write times out one SDO timeout after it was sent.
         assert_eq!(m.deadline(), t + m.sdo_timeout());
         assert_eq!(m.tick(t + m.sdo_timeout()), Some(StopReason::DriveSdoTimeout { node: 4, index: 0x1017, sub: 0 }));
@@ -523,7 +533,9 @@ mod tests {
         }
         let report = |sw| {
             let data = VelocityReport { statusword: sw, velocity_actual: 0 }.data();
-            CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 1, node: node(3), data }.to_frame().unwrap()
+            CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 1, node: node(3), data }
+                .to_frame()
+                .unwrap()
         };
         let mut controlwords = Vec::new();
         for _ in 0..3 {
