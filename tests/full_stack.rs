@@ -17,6 +17,32 @@ fn scenario(name: &str) -> Scenario {
     Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap()
 }
 
+/// E2 through `flowgate demo --drive cia402`: the simulator's two CiA 402 drives over an
+/// SLCAN pty, configured by SDO, started by NMT and commanded by RPDO, reach the goal.
+#[test]
+fn e2_through_the_demo_with_cia402_drives() {
+    let out = std::env::temp_dir().join(format!("flowgate-demo-cia402-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let result = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--drive", "cia402", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    assert!(result.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&result.stderr));
+    assert!(stdout.contains("CiA 402 drives") && stdout.contains("goal reached, no contact"), "{stdout}");
+    let can = std::fs::read_to_string(out.join("can.log")).unwrap();
+    let count = |prefix: &str| can.lines().filter(|l| l.contains(&format!(" slcan0 {prefix}"))).count();
+    // Both drives: 30 configuration writes each, an NMT start each, and an RPDO a cycle each
+    // with controlword enable operation (0x000F).
+    assert_eq!((count("601#"), count("602#")), (30, 30), "SDO writes");
+    assert_eq!((count("000#0101"), count("000#0102")), (1, 1), "NMT starts");
+    let cycles = std::fs::read_to_string(out.join("cycles.csv")).unwrap().lines().count() - 1;
+    assert!(count("201#0F00") >= cycles && count("202#0F00") >= cycles, "{cycles} cycles");
+    assert_eq!(count("101#"), 0, "no PCL-80K-like velocity frame");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 /// E2 through the `flowgate demo` command a newcomer runs: it succeeds and writes its files.
 #[test]
 fn e2_through_the_demo_command() {

@@ -108,6 +108,7 @@ async fn e2_over_socketcan_agrees_with_candump_and_cantools() {
     let run = demo::run(
         &scenario("e2-lane-head-on.toml"),
         &format!("socketcan:{iface}"),
+        demo::DemoDrive::Pcl80k,
         demo::Outputs { dir: Some(dir.clone()), ..demo::Outputs::default() },
         |_| {},
     )
@@ -142,7 +143,7 @@ async fn e1_running_for(iface: &str, t: f64) -> tokio::task::JoinHandle<Result<d
     let url = format!("socketcan:{iface}");
     let run = tokio::spawn(async move {
         let mut sent = false;
-        demo::run(&s, &url, demo::Outputs::default(), move |p| {
+        demo::run(&s, &url, demo::DemoDrive::Pcl80k, demo::Outputs::default(), move |p| {
             if !sent && p.state == flowgate::gateway::State::Running && p.t > t {
                 sent = true;
                 let _ = tx.send(());

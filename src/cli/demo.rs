@@ -16,6 +16,9 @@ pub struct DemoArgs {
     /// The CAN endpoint: `slcan-pty` (default), or `socketcan:vcan0` where vcan exists.
     #[arg(long, default_value = "slcan-pty")]
     can: String,
+    /// The motors: one PCL-80K-like board (default), or one CiA 402 drive a wheel.
+    #[arg(long, value_enum, default_value = "pcl80k")]
+    drive: demo::DemoDrive,
     /// Where to write trajectory.svg, trace.json, cycles.csv, can.log, truth.json.
     #[arg(long, value_name = "DIR", default_value = "out/demo")]
     out: PathBuf,
@@ -38,7 +41,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = std::fs::canonicalize(&args.out)?;
-    say!("flowgate demo: {} (simulator + gateway over ptys, CAN {})", scenario.name, args.can);
+    let motors = match args.drive {
+        demo::DemoDrive::Pcl80k => "a PCL-80K-like board",
+        demo::DemoDrive::Cia402 => "CiA 402 drives",
+    };
+    say!("flowgate demo: {} (simulator + gateway over ptys, CAN {}, {motors})", scenario.name, args.can);
     if let Some(addr) = args.view {
         say!("live view      http://{addr}/ (read-only; it ends with the run)");
     }
@@ -49,6 +56,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let run = runtime.block_on(demo::run(
         &scenario,
         &args.can,
+        args.drive,
         demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view, foxglove: args.foxglove },
         |p| {
             say!(

@@ -56,15 +56,30 @@ pub struct Outputs {
     pub foxglove: Option<std::net::SocketAddr>,
 }
 
+/// The motors of the demo's rig.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum DemoDrive {
+    /// One PCL-80K-like board for both wheels.
+    #[default]
+    Pcl80k,
+    /// One CiA 402 drive a wheel (nodes 1 and 2, `[cia402]` at its defaults).
+    Cia402,
+}
+
 /// Run `scenario` with the simulator and the gateway until the gateway stops (goal, fault)
 /// or the scenario's time limit. `on_progress` is called about twice a second.
 pub async fn run(
     scenario: &Scenario,
     can: &str,
+    drive: DemoDrive,
     outputs: Outputs,
     mut on_progress: impl FnMut(&Progress),
 ) -> Result<DemoRun, DemoError> {
     let mut rig_cfg = RigConfig::new(scenario.sim.clone());
+    if drive == DemoDrive::Cia402 {
+        let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
+        rig_cfg.cia402 = Some([node(1), node(2)]);
+    }
     let can_url = match can.parse::<CanEndpoint>().map_err(DemoError::Endpoint)? {
         CanEndpoint::SocketCan { interface } => {
             rig_cfg.can = CanEndpoint::SocketCan { interface: interface.clone() };
@@ -80,6 +95,9 @@ pub async fn run(
         can_url
     };
     let mut config = scenario.gateway_config(&handle.psd_path, &can_url, outputs.dir);
+    if drive == DemoDrive::Cia402 {
+        config.use_cia402(crate::config::Cia402Section::with_nodes(1, 2));
+    }
     config.telemetry.record = outputs.record;
     config.operator.view = outputs.view;
     config.operator.foxglove = outputs.foxglove;
