@@ -35,6 +35,9 @@ use crate::world::{AxisConfig, World};
 
 /// Device type (0x1000): CiA 402, a drive.
 const DEVICE_TYPE: u32 = 0x0004_0192;
+/// Supported drive modes (0x6502): bit 2, profile velocity, only.
+const SUPPORTED_DRIVE_MODES: u16 = 0x6502;
+const PROFILE_VELOCITY_SUPPORTED: u32 = 1 << 2;
 /// How long a target may stay unreached on a blocked wheel before the following error.
 pub const FOLLOWING_ERROR_TIMEOUT: f64 = 0.05;
 /// A max profile velocity no axis reaches before one is written, pulses/s.
@@ -403,6 +406,7 @@ impl Cia402Drive {
         let plain = |data: SdoData| if sub == 0 { Ok(data) } else { Err(abort::NO_SUBINDEX) };
         match index {
             0x1000 => plain(SdoData::u32(DEVICE_TYPE)),
+            SUPPORTED_DRIVE_MODES => plain(SdoData::u32(PROFILE_VELOCITY_SUPPORTED)),
             object::ERROR_REGISTER => plain(SdoData::u8(self.error_register)),
             object::PRODUCER_HEARTBEAT_TIME => plain(SdoData::u16(self.producer_ms)),
             object::CONSUMER_HEARTBEAT_TIME => match sub {
@@ -443,7 +447,9 @@ impl Cia402Drive {
         let size = |n: usize| if data.size() == n { Ok(data.value()) } else { Err(abort::LENGTH) };
         let plain = |n: usize| if sub == 0 { size(n) } else { Err(abort::NO_SUBINDEX) };
         match index {
-            0x1000 | object::ERROR_REGISTER | object::ERROR_CODE | object::STATUSWORD => Err(abort::READ_ONLY),
+            0x1000 | SUPPORTED_DRIVE_MODES | object::ERROR_REGISTER | object::ERROR_CODE | object::STATUSWORD => {
+                Err(abort::READ_ONLY)
+            }
             object::MODES_OF_OPERATION_DISPLAY | object::POSITION_ACTUAL | object::VELOCITY_ACTUAL => {
                 Err(abort::READ_ONLY)
             }

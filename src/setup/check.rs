@@ -2,10 +2,12 @@
 //!
 //! It goes through the rig in the order the gateway meets it (the config and its
 //! cross-checks, the serial port, the PSD controller's identity, schedule, clock and
-//! stream, the CAN interface, the motor board's heartbeat and config) and says of each
+//! stream, the CAN interface, the motor board's heartbeat and config, or each CiA 402
+//! drive's identity and state) and says of each
 //! PASS, WARN or FAIL, naming the device or the config key. A step that cannot be reached
 //! because an earlier one failed is SKIP, with the reason. It never enables a board: the
-//! only frame it sends to one is the config the gateway sends before every enable.
+//! only frame it sends to one is the config the gateway sends before every enable; a CiA
+//! 402 drive it only reads (SDO uploads).
 
 use std::fmt;
 use std::path::Path;
@@ -15,7 +17,7 @@ use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage, NodeId};
 use tokio::time::{timeout_at, Instant};
 
 use super::psd_client::{PsdClient, PsdClientError};
-use crate::config::{ConfigError, GatewayConfig, Rig};
+use crate::config::{Cia402Settings, ConfigError, GatewayConfig, Motors, Rig};
 use crate::gateway::psd_session::MAX_RTT;
 use crate::gateway::SetupError;
 use crate::link::{open_can, CanError, CanEvent, CanLink, CanUrl, SerialError};
@@ -114,6 +116,8 @@ const CAN_IF: &str = "CAN interface";
 const HEARTBEAT: &str = "board heartbeat";
 const OTHERS: &str = "no other master";
 const BOARD_CONFIG: &str = "board config";
+const LEFT_DRIVE: &str = "left drive";
+const RIGHT_DRIVE: &str = "right drive";
 
 const PSD_ITEMS: [&str; 6] = [ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC, STREAM, LEDS];
 const BOARD_ITEMS: [&str; 3] = [HEARTBEAT, OTHERS, BOARD_CONFIG];
@@ -424,6 +428,10 @@ async fn check_can(rig: &Rig, report: &mut Report) {
         _ => report.pass(CAN_IF, &endpoint, format!("up, no error frames in {} ms", LISTEN.as_millis())),
     }
 
+    if let Motors::Cia402(settings) = rig.motors {
+        check_drives(&mut link, &settings, &endpoint, report).await;
+        return;
+    }
     // The board's heartbeat and state.
     let others = if heard.other_nodes.is_empty() {
         "no other node heard".to_string()
@@ -483,6 +491,95 @@ async fn check_can(rig: &Rig, report: &mut Report) {
     match configure_board(&mut link, rig).await {
         Ok(detail) => report.pass(BOARD_CONFIG, &board, detail),
         Err(why) => report.fail(BOARD_CONFIG, &board, why),
+    }
+}
+
+/// Each CiA 402 drive, read by SDO only: its device type (CiA 402), its supported drive
+/// modes (profile velocity) and its state (not faulted, not already enabled by another
+/// master). Then whether another master speaks to them.
+async fn check_drives(link: &mut CanLink, settings: &Cia402Settings, endpoint: &str, report: &mut Report) {
+    use flowgate_protocol::canopen::{object, DriveState};
+    let mut others = 0;
+    for (item, node) in [(LEFT_DRIVE, settings.left), (RIGHT_DRIVE, settings.right)] {
+        let subject = format!("{endpoint}, node {}", node.get());
+        let mut verdict = async || -> Result<String, String> {
+            let device = sdo_upload(link, settings, node, 0x1000, &mut others).await?;
+            if device & 0xFFFF != 402 {
+                return Err(format!("device type 0x{device:08X}: not a CiA 402 drive"));
+            }
+            let modes = sdo_upload(link, settings, node, 0x6502, &mut others).await?;
+            if modes & 0x4 == 0 {
+                return Err(format!("supported drive modes 0x{modes:08X}: no profile velocity (bit 2)"));
+            }
+            let sw = sdo_upload(link, settings, node, object::STATUSWORD, &mut others).await? as u16;
+            match DriveState::from_statusword(sw) {
+                DriveState::Fault | DriveState::FaultReactionActive => Err(format!(
+                    "statusword 0x{sw:04X}: in fault (error code at 0x603F); clear the cause, the arm resets it"
+                )),
+                DriveState::OperationEnabled => {
+                    Err(format!("statusword 0x{sw:04X}: already operation enabled: is another master driving it?"))
+                }
+                state => Ok(format!("CiA 402, profile velocity supported, statusword 0x{sw:04X} ({})", state.name())),
+            }
+        };
+        match verdict().await {
+            Ok(detail) => report.pass(item, &subject, detail),
+            Err(why) => report.fail(item, &subject, why),
+        }
+    }
+    if others > 0 {
+        report.fail(
+            OTHERS,
+            endpoint,
+            format!("{others} RPDOs, SDO requests or gateway heartbeats from another master"),
+        );
+    } else {
+        report.pass(OTHERS, endpoint, "no other master heard while the drives were read");
+    }
+}
+
+/// Read `index`:0 of drive `node` (an expedited SDO upload) within the SDO timeout, counting
+/// frames of another master heard meanwhile.
+async fn sdo_upload(
+    link: &mut CanLink,
+    settings: &Cia402Settings,
+    node: flowgate_protocol::canopen::NodeId,
+    index: u16,
+    others: &mut u32,
+) -> Result<u32, String> {
+    use flowgate_protocol::canopen::{sdo_abort_text, CanOpenMessage, PdoDirection, SdoRequest, SdoResponse};
+    let request = CanOpenMessage::SdoRequest { node, request: SdoRequest::Upload { index, sub: 0 } };
+    let frame = request.to_frame().ok_or("the request does not encode")?;
+    let end = Instant::now() + settings.sdo_timeout;
+    timeout_at(end, link.send(frame))
+        .await
+        .map_err(|_| format!("SDO 0x{index:04X}:0 not sent within cia402.sdo_timeout_ms"))?
+        .map_err(|e| e.to_string())?;
+    let ours = [settings.left, settings.right];
+    loop {
+        let event = timeout_at(end, link.recv()).await.map_err(|_| {
+            format!("no answer to SDO 0x{index:04X}:0 within cia402.sdo_timeout_ms (powered? node id? bitrate?)")
+        })?;
+        let CanEvent::Frame(f) = event.map_err(|e| e.to_string())? else { continue };
+        match CanOpenMessage::parse(&f) {
+            Ok(CanOpenMessage::SdoResponse { node: n, response }) if n == node && response.object() == (index, 0) => {
+                return match response {
+                    SdoResponse::Uploaded { data, .. } => Ok(data.value()),
+                    SdoResponse::Abort { code, .. } => {
+                        Err(format!("SDO 0x{index:04X}:0 aborted: 0x{code:08X} ({})", sdo_abort_text(code)))
+                    }
+                    SdoResponse::Downloaded { .. } => Err(format!("SDO 0x{index:04X}:0 answered as a write")),
+                };
+            }
+            Ok(CanOpenMessage::Pdo { direction: PdoDirection::Receive, node: n, .. })
+            | Ok(CanOpenMessage::SdoRequest { node: n, .. })
+                if ours.contains(&n) =>
+            {
+                *others += 1
+            }
+            Ok(CanOpenMessage::Heartbeat { node: n, .. }) if n == settings.gateway => *others += 1,
+            _ => {}
+        }
     }
 }
 

@@ -335,7 +335,7 @@ impl Cia402Master {
             }
             // Nobody else may command our drives: we never hear our own frames.
             CanOpenMessage::Pdo { direction: PdoDirection::Receive, .. } | CanOpenMessage::SdoRequest { .. } => {
-                Some(StopReason::SecondMaster { node })
+                Some(StopReason::DriveSecondMaster { node })
             }
             _ => None,
         };

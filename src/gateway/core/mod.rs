@@ -821,7 +821,7 @@ impl<K: StageClock> Core<K> {
             StopReason::BoardEStop { .. } => !heard || self.board.faults.contains(FaultBits::ESTOP_INPUT),
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link_up,
             // Two masters must never drive one board: refused while the other is heard.
-            StopReason::SecondMaster { .. } => {
+            StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {
                 self.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout)
             }
             // The reset clears the board's latched fault; a driver fault that persists
@@ -1504,7 +1504,7 @@ impl<K: StageClock> Core<K> {
                 Heard::Undecodable => self.counters.can_undecodable += 1,
             }
             if let Some(reason) = stop {
-                if let StopReason::SecondMaster { .. } = reason {
+                if let StopReason::DriveSecondMaster { .. } = reason {
                     self.second_master_heard = Some(now);
                 }
                 self.stop(now, reason);

@@ -108,6 +108,10 @@ pub enum StopReason {
     DriveRebooted {
         node: u8,
     },
+    /// Another device sent an RPDO or an SDO request to one of our CiA 402 drives.
+    DriveSecondMaster {
+        node: u8,
+    },
     /// A CiA 402 drive did not answer an SDO within `cia402.sdo_timeout_ms`.
     DriveSdoTimeout {
         node: u8,
@@ -141,7 +145,7 @@ pub enum StopReason {
 
 impl StopReason {
     /// One of each reason (the LED or node 0): every label `/metrics` carries from the start.
-    pub const ALL: [StopReason; 40] = [
+    pub const ALL: [StopReason; 41] = [
         Self::GoalReached,
         Self::Stalled,
         Self::Operator,
@@ -177,6 +181,7 @@ impl StopReason {
         Self::PlannerInvalid,
         Self::DriveHeartbeatLost { node: 0 },
         Self::DriveRebooted { node: 0 },
+        Self::DriveSecondMaster { node: 0 },
         Self::DriveSdoTimeout { node: 0, index: 0, sub: 0 },
         Self::DriveSdoAbort { node: 0, index: 0, sub: 0, code: 0 },
         Self::DriveNotEnabled { node: 0, state: DriveState::NotReadyToSwitchOn },
@@ -271,6 +276,7 @@ impl std::fmt::Display for StopReason {
             Self::PlannerInvalid => "planner refused its input",
             Self::DriveHeartbeatLost { node } => return write!(f, "drive {node} heartbeat lost"),
             Self::DriveRebooted { node } => return write!(f, "drive {node} rebooted (boot-up message)"),
+            Self::DriveSecondMaster { node } => return write!(f, "another device commands drive {node}"),
             Self::DriveSdoTimeout { node, index, sub } => {
                 return write!(f, "drive {node} did not answer SDO 0x{index:04X}:{sub} within cia402.sdo_timeout_ms")
             }
@@ -488,6 +494,7 @@ mod tests {
                 | StopReason::PlannerInvalid
                 | StopReason::DriveHeartbeatLost { .. }
                 | StopReason::DriveRebooted { .. }
+                | StopReason::DriveSecondMaster { .. }
                 | StopReason::DriveSdoTimeout { .. }
                 | StopReason::DriveSdoAbort { .. }
                 | StopReason::DriveNotEnabled { .. }
