@@ -1,6 +1,6 @@
 //! The benchmark harness itself works: a short run of the real gateway process, its null
-//! gateway (its own process) and the low-latency pair answers every frame with exactly one
-//! command and reports sane figures. No timing is asserted here;
+//! gateway (its own process) and each other row's pair (low-latency, real-time, recording,
+//! CiA 402 drives) answers every frame with exactly one command and reports sane figures. No timing is asserted here;
 //! performance is measured by `flowgate bench`, not by tests.
 
 use flowgate::gateway::realtime::RealtimeSettings;
@@ -15,6 +15,7 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
         Mode { spin_us: 500, ..Mode::default() },
         Mode { realtime: RealtimeSettings { cpus: vec![0], ..RealtimeSettings::default() }, ..Mode::default() },
         Mode { record: true, ..Mode::default() },
+        Mode { cia402: true, ..Mode::default() },
     ];
     let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true, also }];
     let report = flowgate::lab::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
@@ -56,8 +57,15 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     let n = recording.can_sent.len().min(replayed.can.len());
     assert!(n > 100);
     assert_eq!(flowgate::replay::first_difference(&recording.can_sent[..n], &replayed.can[..n]), None);
+    // The CiA 402 row: its gateway configures the bench's drives by SDO, and each frame's
+    // command is its second RPDO; its null gateway sends two RPDOs too.
+    let drives = &report.phases[4];
+    assert_eq!((drives.name.as_str(), drives.cia402), ("smoke, CiA 402", true));
+    assert_eq!((drives.cycles_sent, drives.commands_received), (100, 100));
+    assert_eq!(drives.floor.expect("its own floor").commands_received, 100);
+    assert!(report.wire_per_cycle_cia402_us > report.wire_per_cycle_us);
     assert!(report.gateway_states.iter().all(|s| !s.starts_with("fault")), "{:?}", report.gateway_states);
-    assert_eq!(report.other_states.len(), 3);
+    assert_eq!(report.other_states.len(), 4);
     for (name, states) in &report.other_states {
         assert!(states.iter().all(|s| !s.starts_with("fault")) && !states.is_empty(), "{name}: {states:?}");
     }

@@ -36,6 +36,10 @@ pub struct BenchArgs {
     /// 1 kHz, where its CPU shows), and with the live view served too (`--view`).
     #[arg(long)]
     no_recording_row: bool,
+    /// Leave out the rows with CiA 402 drives (two RPDOs a cycle, at the paper's rate and
+    /// at 1 kHz: the latency to the second RPDO beside the board's velocity frame).
+    #[arg(long)]
+    no_cia402_row: bool,
     /// Where to write bench.json.
     #[arg(long, value_name = "DIR", default_value = "out/bench")]
     out: PathBuf,
@@ -101,6 +105,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
         phases[0].also.push(Mode { record: true, ..Mode::default() });
         phases[0].also.push(Mode { record: true, view: true, ..Mode::default() });
         phases[1].also.push(Mode { record: true, ..Mode::default() });
+    }
+    if !args.no_cia402_row {
+        phases[0].also.push(Mode { cia402: true, ..Mode::default() });
+        phases[1].also.push(Mode { cia402: true, ..Mode::default() });
     }
     let names: Vec<&str> = phases.iter().map(|p| p.name).collect();
     say!("bench: phases {} ({}), bench.json to {}", names.join(", "), args.can, args.out.display());

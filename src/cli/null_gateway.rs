@@ -32,6 +32,10 @@ pub struct NullGatewayArgs {
     /// Lock memory, as the gateway's `[realtime] lock_memory`.
     #[arg(long)]
     lock_memory: bool,
+    /// Answer each frame with an RPDO1 to each of these two CiA 402 nodes (LEFT,RIGHT),
+    /// as the gateway's CiA 402 backend does.
+    #[arg(long, value_name = "LEFT,RIGHT", value_delimiter = ',')]
+    cia402_drives: Option<Vec<u8>>,
 }
 
 pub fn run(args: NullGatewayArgs) -> Result<()> {
@@ -42,7 +46,17 @@ pub fn run(args: NullGatewayArgs) -> Result<()> {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     // On the thread that runs the loop, before it starts, as the gateway does.
     realtime::apply(&realtime)?;
-    runtime.block_on(serve(&args.psd, &can, spin, || {
+    let drives = match args.cia402_drives.as_deref() {
+        None => None,
+        Some(&[left, right]) => {
+            let node = |n| {
+                flowgate_protocol::canopen::NodeId::new(n).ok_or_else(|| anyhow!("--cia402-drives: {n} is not 1-127"))
+            };
+            Some([node(left)?, node(right)?])
+        }
+        Some(other) => return Err(anyhow!("--cia402-drives: two node ids, got {other:?}")),
+    };
+    runtime.block_on(serve(&args.psd, &can, spin, drives, || {
         let mut out = std::io::stdout().lock();
         let _ = writeln!(out, "{READY}");
         let _ = out.flush();

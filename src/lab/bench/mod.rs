@@ -17,6 +17,7 @@ mod peers;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use flowgate_protocol::canopen;
 use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage, NodeId};
 use flowgate_protocol::psd;
 use hdrhistogram::Histogram;
@@ -24,7 +25,7 @@ use serde::Serialize;
 
 use null_gateway::NullGatewayProcess;
 use pace::Pacer;
-use peers::{CanSide, Controller, Stamped, ToBus};
+use peers::{CanSide, Commands, Controller, Stamped, ToBus};
 
 use crate::gateway::realtime::RealtimeSettings;
 use crate::gateway::telemetry::StageSummary;
@@ -53,6 +54,9 @@ pub struct Phase {
     /// The gateway served the live view in this phase.
     #[serde(default)]
     pub view: bool,
+    /// The gateway commanded CiA 402 drives (two RPDOs a cycle) in this phase.
+    #[serde(default)]
+    pub cia402: bool,
     /// Time-division frames per second the controller sent.
     pub frame_rate_hz: f64,
     pub samples_per_s: f64,
@@ -99,6 +103,9 @@ pub struct Mode {
     pub record: bool,
     /// Serve the live view (`[operator] view`, a free loopback port): what it costs the loop.
     pub view: bool,
+    /// Command two CiA 402 drives (an RPDO each a cycle) instead of a PCL-80K-like board;
+    /// the latency is to the second RPDO, and the null gateway sends two frames too.
+    pub cia402: bool,
 }
 
 impl Mode {
@@ -110,6 +117,7 @@ impl Mode {
             (!self.realtime.is_empty(), "real-time"),
             (self.record, "recording"),
             (self.view, "view"),
+            (self.cia402, "CiA 402"),
         ]
         .into_iter()
         .filter_map(|(on, name)| on.then_some(name))
@@ -166,6 +174,10 @@ pub struct Wire {
     pub command_frame_us: f64,
     /// The same command as an SLCAN line over a `BAUD` serial link, µs.
     pub command_slcan_us: f64,
+    /// A cycle's command to CiA 402 drives: two RPDO1s (DLC 6) on CAN, and as two SLCAN
+    /// lines, µs.
+    pub cia402_frames_us: f64,
+    pub cia402_slcan_us: f64,
     /// One whole time-division frame as the bench sends it (two samples and the frame end)
     /// at `BAUD`, µs, and the sample rate the PSD line can carry at most that way.
     pub psd_frame_us: f64,
@@ -175,8 +187,11 @@ pub struct Wire {
 impl Wire {
     pub fn new() -> Self {
         let sample = psd::SAMPLE_WIRE_LEN as f64 * 10.0 / f64::from(BAUD) * 1e6;
-        let can_bits = 1 + 11 + 3 + 4 + 8 * 7 + 15 + 3 + 7 + 3; // SOF id RTR/IDE/r0 DLC data CRC ACK EOF IFS
-        let slcan_line = 1 + 3 + 1 + 14 + 1;
+        // SOF id RTR/IDE/r0 DLC data CRC ACK EOF IFS, and `t` id DLC data CR.
+        let can_bits = |data: u32| 1 + 11 + 3 + 4 + 8 * data + 15 + 3 + 7 + 3;
+        let slcan_line = |data: u32| 1 + 3 + 1 + 2 * data + 1;
+        let serial_us = |bytes: u32| f64::from(bytes) * 10.0 / f64::from(BAUD) * 1e6;
+        let can_us = |bits: u32| f64::from(bits) / f64::from(CAN_BITRATE) * 1e6;
         let mut wire = [0u8; psd::MAX_WIRE_LEN];
         let frame_end = psd::Packet::new(0, psd::Message::FrameEnd { frame: 0, t_ctrl_us: 0, samples: 2 })
             .encode(&mut wire)
@@ -184,8 +199,10 @@ impl Wire {
         let psd_frame_us = (2 * psd::SAMPLE_WIRE_LEN + frame_end) as f64 * 10.0 / f64::from(BAUD) * 1e6;
         Self {
             sample_frame_us: sample,
-            command_frame_us: f64::from(can_bits) / f64::from(CAN_BITRATE) * 1e6,
-            command_slcan_us: f64::from(slcan_line) * 10.0 / f64::from(BAUD) * 1e6,
+            command_frame_us: can_us(can_bits(7)),
+            command_slcan_us: serial_us(slcan_line(7)),
+            cia402_frames_us: 2.0 * can_us(can_bits(6)),
+            cia402_slcan_us: 2.0 * serial_us(slcan_line(6)),
             psd_frame_us,
             psd_max_samples_per_s: 2.0 * 1e6 / psd_frame_us,
         }
@@ -204,6 +221,8 @@ pub struct BenchReport {
     /// The wire time the latency is compared with: one sample frame plus one command on this
     /// transport (an SLCAN line, or a CAN frame), µs.
     pub wire_per_cycle_us: f64,
+    /// The same with CiA 402 drives: one sample frame plus two RPDOs, µs.
+    pub wire_per_cycle_cia402_us: f64,
     pub wire: Wire,
     pub phases: Vec<Phase>,
     /// The highest rate sustained, with every slower phase, with no lost command and under
@@ -244,7 +263,7 @@ fn proc_stat(dir: &str) -> (f64, f64) {
 /// bench's robot swings to and fro whatever the gateway commands, and after an idle turn it
 /// may be back within a centimetre of where it was, which a rig's robot would not be.
 /// Its control socket answers the bench's `stats`.
-fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &Mode) -> String {
+fn rig_toml(psd: &Path, can_endpoint: &str, motors: &BenchMotors, socket: &Path, mode: &Mode) -> String {
     let h = flowgate_sim::calibration::CameraModel::default().homography;
     // The schedule's period only bounds the low-latency window (twice it must fit in T);
     // the bench streams at its own rates.
@@ -252,6 +271,21 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
     let slot_us = 500.max(spin_us + 100);
     let rt = &mode.realtime;
     let view = if mode.view { "view = \"127.0.0.1:0\"\n" } else { "" };
+    // CiA 402 drives: the bench answers their configuration at once, but under emulation
+    // (vcan in the VM) a turn of the null gateway may hold it up.
+    let (node, protocol, cia402) = match *motors {
+        BenchMotors::Board(node) => (node.get(), "pcl80k", String::new()),
+        BenchMotors::Cia402 { left, right, gateway } => (
+            1,
+            "cia402",
+            format!(
+                "[cia402]\nleft_node = {}\nright_node = {}\ngateway_node = {}\nsdo_timeout_ms = 5000\nenable_timeout_ms = 30000\n",
+                left.get(),
+                right.get(),
+                gateway.get()
+            ),
+        ),
+    };
     let record = if mode.record {
         format!("[telemetry]\nrecord = \"{}\"\n", socket.with_extension("mcap").display())
     } else {
@@ -259,13 +293,12 @@ fn rig_toml(psd: &Path, can_endpoint: &str, node: NodeId, socket: &Path, mode: &
     };
     format!(
         "[serial]\nport = \"{}\"\n[leds]\nrobot_front = 1\nrobot_rear = 2\nfront_offset = 0.035\nrear_offset = 0.035\n\
-         [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nnode = {}\n\
+         [schedule]\nslot_us = {slot_us}\n[calibration]\nhomography = {h:?}\n[can]\nendpoint = \"{can_endpoint}\"\nprotocol = \"{protocol}\"\nnode = {node}\n{cia402}\
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nocclusion_timeout_ms = 31000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\nstall_window_ms = 3600000\n\
          [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\nwarm_up = {}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
         psd.display(),
-        node.get(),
         socket.display(),
         mode.warm_up,
         rt.cpus,
@@ -289,7 +322,7 @@ impl GatewayProcess {
         target: &mut Target,
         workdir: &Path,
         name: &str,
-        node: NodeId,
+        motors: BenchMotors,
         mode: &Mode,
     ) -> std::io::Result<Self> {
         let config = workdir.join(format!("{name}.toml"));
@@ -298,7 +331,7 @@ impl GatewayProcess {
         let sockets = std::env::temp_dir().join(format!("flowgate-bench-{}", std::process::id()));
         std::fs::create_dir_all(&sockets)?;
         let socket = sockets.join(format!("{name}.sock"));
-        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, node, &socket, mode))?;
+        std::fs::write(&config, rig_toml(&target.controller.path, &target.can.endpoint, &motors, &socket, mode))?;
         let log = workdir.join(format!("{name}.log"));
         let mut child = tokio::process::Command::new(exe)
             .args(["run", "--arm", "--config"])
@@ -307,7 +340,7 @@ impl GatewayProcess {
             .kill_on_drop(true)
             .spawn()?;
         target.proc_dir = format!("/proc/{}", child.id().unwrap_or(0));
-        let board = (target.can.board(), node);
+        let board = (target.can.board(), motors);
         let started = Instant::now();
         let mut pacer = Pacer::new(Duration::from_millis(20));
         let mut commands = 0;
@@ -379,8 +412,9 @@ struct Target {
 }
 
 impl Target {
-    fn new(transport: &Transport, poll_can: bool) -> std::io::Result<Self> {
-        Ok(Self { controller: Controller::new()?, can: can_side(transport)?, proc_dir: String::new(), poll_can })
+    fn new(transport: &Transport, poll_can: bool, commands: Commands) -> std::io::Result<Self> {
+        let can = can_side(transport, commands)?;
+        Ok(Self { controller: Controller::new()?, can, proc_dir: String::new(), poll_can })
     }
 }
 
@@ -484,28 +518,77 @@ async fn block(
     Ok(())
 }
 
-/// A gateway's motor board: the bus it is on, and its node id.
-type Board = (ToBus, NodeId);
-
-/// Heartbeats and an Enabled status, as a live board sends them.
-fn board_alive((can, node): &Board) {
-    let node = *node;
-    can.send(MotorMessage::Heartbeat { node, state: BoardState::Enabled });
-    can.send(MotorMessage::Status {
-        node,
-        state: BoardState::Enabled,
-        faults: FaultBits(0),
-        last_seq: 0,
-        seq_errors: 0,
-    });
+/// A gateway's motors: a board at its node id, or two CiA 402 drives. On a shared bus (vcan)
+/// each gateway has its own, or each would see the other commanding its motors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum BenchMotors {
+    Board(NodeId),
+    Cia402 { left: canopen::NodeId, right: canopen::NodeId, gateway: canopen::NodeId },
 }
 
-fn can_side(transport: &Transport) -> std::io::Result<CanSide> {
-    match transport {
-        Transport::SlcanPty => Ok(CanSide::slcan()),
-        Transport::SocketCan { interface } => CanSide::socketcan(interface),
+impl BenchMotors {
+    /// The motors of the gateway numbered `n` (1-15): the board at `n`, or drives at
+    /// 0x20 + 2n and 0x21 + 2n with the gateway's heartbeat at 0x60 + n.
+    fn of(n: u8, cia402: bool) -> Self {
+        let node = |id| canopen::NodeId::new(id).expect("1-127");
+        if cia402 {
+            Self::Cia402 { left: node(0x20 + 2 * n), right: node(0x21 + 2 * n), gateway: node(0x60 + n) }
+        } else {
+            Self::Board(NodeId::new(n).expect("1-15"))
+        }
+    }
+
+    /// What the bench reads as a cycle's command of these motors.
+    fn commands(self) -> Commands {
+        match self {
+            Self::Board(_) => Commands::Board,
+            Self::Cia402 { left, right, .. } => Commands::Cia402 { left, right },
+        }
     }
 }
+
+/// A gateway's motors: the bus they are on, and which they are.
+type Board = (ToBus, BenchMotors);
+
+/// Heartbeats and an Enabled status, as a live board sends them; or each drive's heartbeat
+/// and its statusword in operation enabled (TPDO1), at rest.
+fn board_alive((can, motors): &Board) {
+    match *motors {
+        BenchMotors::Board(node) => {
+            can.send(MotorMessage::Heartbeat { node, state: BoardState::Enabled });
+            can.send(MotorMessage::Status {
+                node,
+                state: BoardState::Enabled,
+                faults: FaultBits(0),
+                last_seq: 0,
+                seq_errors: 0,
+            });
+        }
+        BenchMotors::Cia402 { left, right, .. } => {
+            use canopen::{CanOpenMessage, DriveState, NmtState, PdoDirection, VelocityReport};
+            let statusword = DriveState::OperationEnabled.statusword_bits() | canopen::statusword::REMOTE;
+            for node in [left, right] {
+                let data = VelocityReport { statusword, velocity_actual: 0 }.data();
+                for m in [
+                    CanOpenMessage::Heartbeat { node, state: NmtState::Operational },
+                    CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 1, node, data },
+                ] {
+                    can.send_frame(m.to_frame().expect("valid"));
+                }
+            }
+        }
+    }
+}
+
+fn can_side(transport: &Transport, commands: Commands) -> std::io::Result<CanSide> {
+    match transport {
+        Transport::SlcanPty => Ok(CanSide::slcan(commands)),
+        Transport::SocketCan { interface } => CanSide::socketcan(interface, commands),
+    }
+}
+
+/// The null gateway's drives when it plays a CiA 402 row's floor.
+const NULL_DRIVES: [u8; 2] = [0x70, 0x71];
 
 /// How long each target runs before the next takes over: short enough that all see the
 /// same moments of a noisy host, and far inside the idle gateway's watchdogs.
@@ -515,9 +598,7 @@ const BLOCK: Duration = Duration::from_millis(500);
 struct Pair {
     gateway: Target,
     process: GatewayProcess,
-    /// Its board's node: on a shared bus (vcan) each gateway has its own, or each would
-    /// see the other commanding its board.
-    node: NodeId,
+    motors: BenchMotors,
     floor: Target,
     null: NullGatewayProcess,
 }
@@ -528,18 +609,20 @@ impl Pair {
         transport: &Transport,
         workdir: &Path,
         name: &str,
-        node: NodeId,
+        motors: BenchMotors,
         mode: &Mode,
     ) -> std::io::Result<Self> {
         let polls = mode.spin_us > 0;
-        let mut floor = Target::new(transport, polls)?;
+        let null_drives = mode.cia402.then(|| NULL_DRIVES.map(|n| canopen::NodeId::new(n).expect("1-127")));
+        let null_commands = null_drives.map_or(Commands::Board, |[left, right]| Commands::Cia402 { left, right });
+        let mut floor = Target::new(transport, polls, null_commands)?;
         let spin = polls.then(|| Duration::from_micros(u64::from(mode.spin_us)));
-        let null =
-            NullGatewayProcess::start(exe, &floor.controller.path, &floor.can.endpoint, spin, &mode.realtime).await?;
+        let (psd, can) = (&floor.controller.path, &floor.can.endpoint);
+        let null = NullGatewayProcess::start(exe, psd, can, spin, &mode.realtime, null_drives).await?;
         floor.proc_dir = null.proc_dir();
-        let mut gateway = Target::new(transport, polls)?;
-        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, node, mode).await?;
-        Ok(Self { gateway, process, node, floor, null })
+        let mut gateway = Target::new(transport, polls, motors.commands())?;
+        let process = GatewayProcess::start(exe, &mut gateway, workdir, name, motors, mode).await?;
+        Ok(Self { gateway, process, motors, floor, null })
     }
 
     /// The gateway's states over its run.
@@ -573,6 +656,7 @@ impl PairTally {
             realtime: (!mode.realtime.is_empty()).then(|| mode.realtime.to_string()),
             recording: mode.record,
             view: mode.view,
+            cia402: mode.cia402,
             frame_rate_hz: g.sent as f64 / g.elapsed_s,
             samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
             cycles_sent: g.sent,
@@ -605,10 +689,10 @@ pub async fn run(
     workdir: &Path,
 ) -> std::io::Result<BenchReport> {
     std::fs::create_dir_all(workdir)?;
-    // Nodes 1 and 3 for the gateways; the null gateways command node 2.
-    let node = |n| NodeId::new(n).expect("1-15");
+    // The gateways' motors are numbered 1, then 3 on (`BenchMotors::of`); the null gateways
+    // command node 2, or drives 0x70 and 0x71.
     let plain = Mode::default();
-    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", node(1), &plain).await?;
+    let mut main = Pair::start(gateway_exe, transport, workdir, "gateway", BenchMotors::of(1, false), &plain).await?;
     let mut report_phases = Vec::new();
     let mut other_states = Vec::new();
     for spec in phases {
@@ -617,12 +701,13 @@ pub async fn run(
         for (k, mode) in spec.also.iter().enumerate() {
             let label = mode.label().unwrap_or_else(|| "again".into());
             let file = format!("gateway-{}", label.replace([' ', '+'], "-"));
-            let pair = Pair::start(gateway_exe, transport, workdir, &file, node(3 + k as u8), mode).await?;
+            let motors = BenchMotors::of(3 + k as u8, mode.cia402);
+            let pair = Pair::start(gateway_exe, transport, workdir, &file, motors, mode).await?;
             others.push((pair, mode, format!("{}, {label}", spec.name)));
         }
         let boards: Vec<Board> = std::iter::once(&main)
             .chain(others.iter().map(|(p, ..)| p))
-            .map(|p| (p.gateway.can.board(), p.node))
+            .map(|p| (p.gateway.can.board(), p.motors))
             .collect();
         let period = Duration::from_secs_f64(1.0 / spec.frame_rate_hz);
         let per_block = ((BLOCK.as_secs_f64() * spec.frame_rate_hz) as u64).clamp(1, spec.cycles);
@@ -663,7 +748,9 @@ pub async fn run(
     let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
         let mut latency_phases: Vec<&Phase> = report_phases
             .iter()
-            .filter(|p| p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording && !p.view)
+            .filter(|p| {
+                p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording && !p.view && !p.cia402
+            })
             .collect();
         latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
         latency_phases
@@ -682,6 +769,11 @@ pub async fn run(
                 Transport::SlcanPty => wire.command_slcan_us,
                 Transport::SocketCan { .. } => wire.command_frame_us,
             },
+        wire_per_cycle_cia402_us: wire.sample_frame_us
+            + match transport {
+                Transport::SlcanPty => wire.cia402_slcan_us,
+                Transport::SocketCan { .. } => wire.cia402_frames_us,
+            },
         wire,
         phases: report_phases,
         sustained_samples_per_s: sustained,
@@ -692,14 +784,25 @@ pub async fn run(
     })
 }
 
+impl BenchReport {
+    /// The wire time a phase's latency is compared with.
+    fn wire_for(&self, p: &Phase) -> f64 {
+        if p.cia402 {
+            self.wire_per_cycle_cia402_us
+        } else {
+            self.wire_per_cycle_us
+        }
+    }
+}
+
 impl std::fmt::Display for BenchReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let w = &self.wire;
         writeln!(f, "flowgate bench over {}", self.transport)?;
         writeln!(
             f,
-            "wire: one sample frame {:.0} µs at {} baud; one command frame {:.0} µs on CAN at {} bit/s ({:.0} µs as an SLCAN line)",
-            w.sample_frame_us, BAUD, w.command_frame_us, CAN_BITRATE, w.command_slcan_us
+            "wire: one sample frame {:.0} µs at {} baud; one command frame {:.0} µs on CAN at {} bit/s ({:.0} µs as an SLCAN line); CiA 402: two RPDOs {:.0} µs ({:.0} µs as SLCAN lines)",
+            w.sample_frame_us, BAUD, w.command_frame_us, CAN_BITRATE, w.command_slcan_us, w.cia402_frames_us, w.cia402_slcan_us
         )?;
         writeln!(
             f,
@@ -754,7 +857,7 @@ impl std::fmt::Display for BenchReport {
                 p.rss_mb[2],
                 floor,
                 floor_lost,
-                p.latency_us.p50 / self.wire_per_cycle_us
+                p.latency_us.p50 / self.wire_for(p)
             )?;
         }
         writeln!(f, "\nwhat flowgate adds: the gateway's latency minus its floor's, quantile by quantile (µs)")?;
@@ -782,8 +885,8 @@ impl std::fmt::Display for BenchReport {
         writeln!(f, "floor: the same rate through a null gateway (its own process, same endpoints, no work): the pty, scheduler and CAN transport alone")?;
         writeln!(
             f,
-            "p50/wire: median gateway-added latency over the wire time of one sample frame plus one command ({:.0} µs)",
-            self.wire_per_cycle_us
+            "p50/wire: median gateway-added latency over the wire time of one sample frame plus one command ({:.0} µs; with CiA 402 drives, plus two RPDOs: {:.0} µs)",
+            self.wire_per_cycle_us, self.wire_per_cycle_cia402_us
         )?;
         writeln!(f, "gateway states: {}", self.gateway_states.join(" -> "))?;
         for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording || p.view) {
@@ -832,6 +935,9 @@ mod tests {
         assert!((w.sample_frame_us - 330.0 / 0.9216).abs() < 1e-9);
         assert!((w.command_frame_us - 103.0).abs() < 1e-9);
         assert!((w.command_slcan_us - 200.0 / 0.9216).abs() < 1e-9);
+        // Two RPDO1s of 6 data bytes: 95 bits each on CAN, `t2016` + 12 hex + CR as SLCAN.
+        assert!((w.cia402_frames_us - 190.0).abs() < 1e-9);
+        assert!((w.cia402_slcan_us - 360.0 / 0.9216).abs() < 1e-9);
         // Two 33-byte samples and a 21-byte frame end (13-byte payload, protocol/README.md).
         assert!((w.psd_frame_us - 870.0 / 0.9216).abs() < 1e-9);
         assert!((w.psd_max_samples_per_s - 2.0 * 92_160.0 / 87.0).abs() < 1e-6);

@@ -14,6 +14,7 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use bytes::BytesMut;
+use flowgate_protocol::canopen;
 use flowgate_protocol::codec::PsdCodec;
 use flowgate_protocol::motor::{MotorMessage, NodeId};
 use flowgate_protocol::psd::{Message, Packet};
@@ -28,7 +29,15 @@ use crate::link::{open_can, open_serial, CanUrl};
 pub const READY: &str = "null gateway ready";
 
 /// Serve until the PSD line or the CAN link closes; `ready` is called once both are open.
-pub async fn serve(psd_path: &Path, can: &CanUrl, spin: Option<Duration>, ready: impl FnOnce()) -> std::io::Result<()> {
+/// With `cia402`, each frame end is answered with an RPDO1 to each of the two drives instead
+/// of one velocity frame, as the gateway's CiA 402 backend sends.
+pub async fn serve(
+    psd_path: &Path,
+    can: &CanUrl,
+    spin: Option<Duration>,
+    cia402: Option<[canopen::NodeId; 2]>,
+    ready: impl FnOnce(),
+) -> std::io::Result<()> {
     let mut psd = open_serial(psd_path, super::BAUD).map_err(std::io::Error::other)?;
     let mut can = open_can(can).await.map_err(std::io::Error::other)?;
     ready();
@@ -51,9 +60,25 @@ pub async fn serve(psd_path: &Path, can: &CanUrl, spin: Option<Duration>, ready:
                         if let Some(w) = &mut window {
                             w.frame(std::time::Instant::now());
                         }
-                        let m = MotorMessage::Velocity { node, left: 0, right: 0, seq };
-                        seq = seq.wrapping_add(1);
-                        can.send(m.to_frame().expect("valid")).await.map_err(std::io::Error::other)?;
+                        match cia402 {
+                            None => {
+                                let m = MotorMessage::Velocity { node, left: 0, right: 0, seq };
+                                seq = seq.wrapping_add(1);
+                                can.send(m.to_frame().expect("valid")).await.map_err(std::io::Error::other)?;
+                            }
+                            Some(drives) => {
+                                for drive in drives {
+                                    let data = canopen::VelocityCommand { controlword: 0x000F, target_velocity: 0 }.data();
+                                    let m = canopen::CanOpenMessage::Pdo {
+                                        direction: canopen::PdoDirection::Receive,
+                                        number: 1,
+                                        node: drive,
+                                        data,
+                                    };
+                                    can.send(m.to_frame().expect("valid")).await.map_err(std::io::Error::other)?;
+                                }
+                            }
+                        }
                     }
                 }
             }
@@ -82,6 +107,7 @@ impl NullGatewayProcess {
         can_endpoint: &str,
         spin: Option<Duration>,
         realtime: &RealtimeSettings,
+        cia402: Option<[canopen::NodeId; 2]>,
     ) -> std::io::Result<Self> {
         let mut cmd = tokio::process::Command::new(exe);
         cmd.arg("null-gateway").arg("--psd").arg(psd_path).args(["--can", can_endpoint]);
@@ -96,6 +122,9 @@ impl NullGatewayProcess {
         }
         if realtime.lock_memory {
             cmd.arg("--lock-memory");
+        }
+        if let Some([left, right]) = cia402 {
+            cmd.args(["--cia402-drives", &format!("{},{}", left.get(), right.get())]);
         }
         // Its errors go to the bench's stderr, where the user sees them.
         let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).kill_on_drop(true).spawn()?;

@@ -12,6 +12,7 @@ use rustix::event::{PollFd, PollFlags};
 use rustix::time::Timespec;
 
 use bytes::{Bytes, BytesMut};
+use flowgate_protocol::canopen;
 use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec};
 use flowgate_protocol::motor::MotorMessage;
 use flowgate_protocol::psd::{self, Info, Message, Packet, Sample, SampleFlags};
@@ -20,8 +21,51 @@ use flowgate_protocol::CanFrame;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_util::codec::Decoder;
 
-/// A velocity command seen on the bus: when it became readable, and its seq.
+/// A velocity command seen on the bus: when it became readable, and its seq (for CiA 402
+/// drives, a count of commands).
 pub type Stamped = (Instant, u8);
+
+/// What the bench takes as a cycle's command on the bus, and what it answers as a drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Commands {
+    /// A PCL-80K-like board's velocity frame.
+    Board,
+    /// CiA 402 drives: a cycle's command is complete with the right drive's RPDO1 (the
+    /// left's goes first). Every SDO write to either drive is answered at once, as a drive
+    /// answers its configuration.
+    Cia402 { left: canopen::NodeId, right: canopen::NodeId },
+}
+
+impl Commands {
+    /// Whether `frame` completes a cycle's command (and its seq), and a drive's answer to it.
+    fn read(&self, frame: &CanFrame, count: &mut u8) -> (Option<u8>, Option<CanFrame>) {
+        match *self {
+            Self::Board => match MotorMessage::parse(frame) {
+                Ok(MotorMessage::Velocity { seq, .. }) => (Some(seq), None),
+                _ => (None, None),
+            },
+            Self::Cia402 { left, right } => match canopen::CanOpenMessage::parse(frame) {
+                Ok(canopen::CanOpenMessage::Pdo {
+                    direction: canopen::PdoDirection::Receive, number: 1, node, ..
+                }) if node == right => {
+                    *count = count.wrapping_add(1);
+                    (Some(*count), None)
+                }
+                Ok(canopen::CanOpenMessage::SdoRequest {
+                    node,
+                    request: canopen::SdoRequest::Download { index, sub, .. },
+                }) if node == left || node == right => {
+                    let answer = canopen::CanOpenMessage::SdoResponse {
+                        node,
+                        response: canopen::SdoResponse::Downloaded { index, sub },
+                    };
+                    (None, answer.to_frame())
+                }
+                _ => (None, None),
+            },
+        }
+    }
+}
 
 /// The scripted PSD controller on the master side of a pty: the bench writes its frames
 /// when they are due ([`Controller::frame`]), and its own thread answers the gateway's
@@ -237,7 +281,7 @@ enum Bus {
 impl CanSide {
     /// A scripted SLCAN adapter with a board behind it, on a new pty, served by its own
     /// thread and runtime so each command is stamped the moment its line is readable.
-    pub fn slcan() -> Self {
+    pub fn slcan(kind: Commands) -> Self {
         let (setup_tx, setup_rx) = mpsc::channel();
         let (cmd_tx, commands) = mpsc::channel();
         let (polling, mut poll_rx) = tokio::sync::watch::channel(false);
@@ -258,6 +302,7 @@ impl CanSide {
                 let mut buf = BytesMut::new();
                 let mut codec = SlcanAdapterCodec::new();
                 let mut chunk = [0u8; 4096];
+                let mut count = 0u8;
                 loop {
                     let poll = *poll_rx.borrow_and_update();
                     let n = tokio::select! {
@@ -275,10 +320,16 @@ impl CanSide {
                     while let Ok(Some(item)) = codec.decode(&mut buf) {
                         let reply: &'static [u8] = match item {
                             Ok(Command::Transmit(f)) => {
-                                if let Ok(MotorMessage::Velocity { seq, .. }) = MotorMessage::parse(&f) {
+                                let (seq, answer) = kind.read(&f, &mut count);
+                                if let Some(seq) = seq {
                                     if cmd_tx.send((now, seq)).is_err() {
                                         return;
                                     }
+                                }
+                                if let Some(answer) = answer {
+                                    let _ = out_tx.send(Bytes::from_static(b"z\r"));
+                                    let _ = out_tx.send(slcan_line(answer));
+                                    continue;
                                 }
                                 b"z\r"
                             }
@@ -303,7 +354,7 @@ impl CanSide {
 
     /// A raw socket on a SocketCAN interface (vcan0, can0): a blocking reader thread stamps
     /// each velocity command as `read(2)` returns it.
-    pub fn socketcan(interface: &str) -> std::io::Result<Self> {
+    pub fn socketcan(interface: &str, kind: Commands) -> std::io::Result<Self> {
         use socketcan::Socket as _;
         let socket = Arc::new(
             socketcan::CanSocket::open(interface)
@@ -311,6 +362,7 @@ impl CanSide {
         );
         let (cmd_tx, commands) = mpsc::channel();
         let reader = Arc::clone(&socket);
+        let mut count = 0u8;
         std::thread::spawn(move || loop {
             let f = match reader.read_frame() {
                 Ok(f) => f,
@@ -323,10 +375,14 @@ impl CanSide {
             };
             let now = Instant::now();
             let Ok(frame) = CanFrame::try_from(&f) else { continue };
-            if let Ok(MotorMessage::Velocity { seq, .. }) = MotorMessage::parse(&frame) {
+            let (seq, answer) = kind.read(&frame, &mut count);
+            if let Some(seq) = seq {
                 if cmd_tx.send((now, seq)).is_err() {
                     return;
                 }
+            }
+            if let Some(answer) = answer {
+                let _ = reader.write_frame(&socketcan::CanFrame::from(answer));
             }
         });
         Ok(Self {
@@ -357,15 +413,24 @@ impl CanSide {
     }
 }
 
+/// A received frame as the adapter hands it to the host.
+fn slcan_line(frame: CanFrame) -> Bytes {
+    let mut line = [0u8; flowgate_protocol::slcan::MAX_LINE_LEN];
+    let n = Response::Frame { frame, timestamp_ms: None }.emit(&mut line).expect("fits");
+    Bytes::copy_from_slice(&line[..n])
+}
+
 impl ToBus {
     /// Put a message on the bus as the board.
     pub fn send(&self, m: MotorMessage) {
-        let frame: CanFrame = m.to_frame().expect("valid");
+        self.send_frame(m.to_frame().expect("valid"));
+    }
+
+    /// Put a frame on the bus (as a drive).
+    pub fn send_frame(&self, frame: CanFrame) {
         match &self.0 {
             Bus::Slcan(out) => {
-                let mut line = [0u8; flowgate_protocol::slcan::MAX_LINE_LEN];
-                let n = Response::Frame { frame, timestamp_ms: None }.emit(&mut line).expect("fits");
-                let _ = out.send(Bytes::copy_from_slice(&line[..n]));
+                let _ = out.send(slcan_line(frame));
             }
             Bus::SocketCan(socket) => {
                 use socketcan::Socket as _;
