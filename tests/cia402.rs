@@ -10,7 +10,9 @@ use flowgate::gateway::{State, StopReason};
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
-use flowgate_protocol::canopen::{CanOpenMessage, DriveState, NmtCommand, PdoDirection, SdoRequest, VelocityCommand};
+use flowgate_protocol::canopen::{
+    CanOpenMessage, DriveState, NmtCommand, NmtTarget, PdoDirection, SdoRequest, VelocityCommand,
+};
 
 fn scenario(name: &str, faults: &[&str]) -> Scenario {
     let mut s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap();
@@ -48,6 +50,7 @@ fn e2_with_cia402_drives_reaches_the_goal() {
         .count();
     println!("{}; {sdos} SDO writes, {starts} NMT starts, {rpdos} moving RPDOs", e.report);
     assert_eq!(starts, 2);
+    state_machine_first(&messages);
     assert!(rpdos as u64 >= e.report.counters.cycles, "{rpdos}");
 }
 
@@ -113,6 +116,50 @@ fn an_operator_estop_quick_stops_both_drives_and_the_way_back_reaches_the_goal()
     let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
     assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
     assert_eq!(e.motion_outside_running, 0);
+}
+
+/// Each drive hears no RPDO before its NMT start, and then the state machine's steps in
+/// order (shutdown, switch on, enable operation) before any cycle's command: a cycle's
+/// enable operation sent early would jump a step, or a step sent late undo one.
+fn state_machine_first(messages: &[CanOpenMessage]) {
+    for node in [1u8, 2] {
+        let mut started = false;
+        let mut controlwords: Vec<u16> = Vec::new();
+        for m in messages {
+            match m {
+                CanOpenMessage::Nmt { command: NmtCommand::Start, target: NmtTarget::Node(n) } if n.get() == node => {
+                    started = true
+                }
+                CanOpenMessage::Pdo { direction: PdoDirection::Receive, node: n, data, .. } if n.get() == node => {
+                    assert!(started, "an RPDO to drive {node} before its NMT start");
+                    let cw = VelocityCommand::parse(data).unwrap().controlword;
+                    if controlwords.last() != Some(&cw) {
+                        controlwords.push(cw);
+                    }
+                }
+                _ => {}
+            }
+        }
+        assert_eq!(controlwords[..3], [0x0006, 0x0007, 0x000F], "drive {node}: {controlwords:04X?}");
+    }
+}
+
+/// Armed by the operator while the robot's poses already flow, so that cycles come while
+/// the drives are configured and enabled: they send nothing until both are in operation
+/// enabled.
+#[test]
+fn cycles_wait_for_the_drives_to_be_enabled() {
+    let s = scenario("e1-standing-obstacle.toml", &[]);
+    let mut rig = VirtualRig::new(&s, Options { wait_for_operator: true, ..options() });
+    rig.run_until(1.0);
+    let goal = flowgate::gateway::operator::Goal { position: s.goal.position, tolerance: s.goal.tolerance };
+    for request in [Request::Arm, Request::Goal { goals: vec![goal] }, Request::Start] {
+        rig.request(&request).unwrap();
+    }
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
+    let messages: Vec<CanOpenMessage> = e.can_sent.iter().filter_map(|f| CanOpenMessage::parse(f).ok()).collect();
+    state_machine_first(&messages);
 }
 
 fn transition(e: &flowgate::lab::sim::Episode, state: State) -> f64 {

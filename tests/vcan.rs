@@ -136,6 +136,39 @@ async fn e2_over_socketcan_agrees_with_candump_and_cantools() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// E2 over SocketCAN with the simulator's CiA 402 drives: the goal without contact, and on
+/// the bus as candump saw it, each drive's 30 configuration writes answered, an NMT start
+/// each, and an RPDO a cycle to each.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn e2_over_socketcan_with_cia402_drives() {
+    let Some(iface) = vcan("e2_over_socketcan_with_cia402_drives") else { return };
+    let dir = temp("e2-cia402");
+    let capture = dir.join("candump.log");
+    let dump = candump(&iface, &capture).await;
+    let run = demo::run(
+        &scenario("e2-lane-head-on.toml"),
+        &format!("socketcan:{iface}"),
+        demo::DemoDrive::Cia402,
+        demo::Outputs { dir: Some(dir.clone()), ..demo::Outputs::default() },
+        |_| {},
+    )
+    .await
+    .expect("demo over vcan");
+    stop(dump);
+    let log = std::fs::read_to_string(&capture).unwrap();
+    // On failure, the state machine's first exchanges as the bus saw them.
+    let ids = [" 000#", " 181#", " 182#", " 201#", " 202#"];
+    let first: Vec<&str> = log.lines().filter(|l| ids.iter().any(|id| l.contains(id))).take(60).collect();
+    assert!(run.reached_goal && !run.contact, "{}\n{:?}\n{}", run.report, run.truth.summary, first.join("\n"));
+    let bus = frames(&log);
+    let count = |id: u32| bus.iter().filter(|f| f.id().raw() == id).count();
+    assert_eq!((count(0x601), count(0x602)), (30, 30), "SDO requests");
+    assert_eq!((count(0x581), count(0x582)), (30, 30), "SDO answers");
+    let cycles = run.report.counters.cycles as usize;
+    assert!(count(0x201) >= cycles && count(0x202) >= cycles, "{cycles} cycles");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Start E1 over SocketCAN on `iface`; return once the gateway has been running past `t` s.
 async fn e1_running_for(iface: &str, t: f64) -> tokio::task::JoinHandle<Result<demo::DemoRun, demo::DemoError>> {
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();

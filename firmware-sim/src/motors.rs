@@ -21,7 +21,7 @@ pub enum MotorKind {
 /// The motor firmware.
 #[derive(Debug)]
 pub enum Motors {
-    Board(MotorBoard),
+    Board(Box<MotorBoard>),
     Cia402(Box<[Cia402Drive; 2]>),
 }
 
@@ -33,7 +33,7 @@ impl Motors {
     /// board's own faults: [`Motors::unplayed`] names them, for a caller to refuse.
     pub fn new(kind: MotorKind, plan: &FaultPlan) -> Self {
         match kind {
-            MotorKind::Board(node) => Self::Board(MotorBoard::new(node, plan.clone())),
+            MotorKind::Board(node) => Self::Board(Box::new(MotorBoard::new(node, plan.clone()))),
             MotorKind::Cia402 { left, right } => Self::Cia402(Box::new([
                 Cia402Drive::new(left, LEFT, Some(plan.clone())),
                 Cia402Drive::new(right, RIGHT, None),

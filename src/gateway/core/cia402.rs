@@ -35,6 +35,44 @@ pub struct SdoWrite {
     pub data: SdoData,
 }
 
+/// A PDO as the gateway maps it on a drive.
+struct PdoLayout {
+    communication: u16,
+    mapping: u16,
+    /// The COB-ID less the node id.
+    cob: u16,
+    /// Each mapped object and its size in bits, in order.
+    entries: &'static [(u16, u8)],
+    /// A TPDO: sent on the drive's event timer (`cia402.report_ms`) as well.
+    event_timer: bool,
+}
+
+/// RPDO1 (controlword, target velocity), TPDO1 (statusword, velocity actual), TPDO2
+/// (position actual): the layout of protocol/cia402-drive.eds.
+const PDOS: [PdoLayout; 3] = [
+    PdoLayout {
+        communication: object::RPDO1_COMMUNICATION,
+        mapping: object::RPDO1_MAPPING,
+        cob: canopen::cob::RPDO1,
+        entries: &[(object::CONTROLWORD, 16), (object::TARGET_VELOCITY, 32)],
+        event_timer: false,
+    },
+    PdoLayout {
+        communication: object::TPDO1_COMMUNICATION,
+        mapping: object::TPDO1_MAPPING,
+        cob: canopen::cob::TPDO1,
+        entries: &[(object::STATUSWORD, 16), (object::VELOCITY_ACTUAL, 32)],
+        event_timer: true,
+    },
+    PdoLayout {
+        communication: object::TPDO2_COMMUNICATION,
+        mapping: object::TPDO2_MAPPING,
+        cob: canopen::cob::TPDO2,
+        entries: &[(object::POSITION_ACTUAL, 32)],
+        event_timer: true,
+    },
+];
+
 /// What the gateway writes to a drive at each arm, in order: heartbeats, the mode and its
 /// ramps, then each PDO's mapping (invalidated, cleared, entries, count, transmission,
 /// valid again).
@@ -52,42 +90,19 @@ pub fn configuration(settings: &Cia402Settings, node: NodeId) -> Vec<SdoWrite> {
         w(object::QUICK_STOP_DECELERATION, 0, SdoData::u32(settings.quick_stop_decel)),
         w(object::QUICK_STOP_OPTION, 0, SdoData::i16(canopen::QUICK_STOP_THEN_DISABLE)),
     ];
-    let pdos: [(u16, u16, u16, &[(u16, u8)], Option<u16>); 3] = [
-        (
-            object::RPDO1_COMMUNICATION,
-            object::RPDO1_MAPPING,
-            canopen::cob::RPDO1,
-            &[(object::CONTROLWORD, 16), (object::TARGET_VELOCITY, 32)],
-            None,
-        ),
-        (
-            object::TPDO1_COMMUNICATION,
-            object::TPDO1_MAPPING,
-            canopen::cob::TPDO1,
-            &[(object::STATUSWORD, 16), (object::VELOCITY_ACTUAL, 32)],
-            Some(settings.report_ms),
-        ),
-        (
-            object::TPDO2_COMMUNICATION,
-            object::TPDO2_MAPPING,
-            canopen::cob::TPDO2,
-            &[(object::POSITION_ACTUAL, 32)],
-            Some(settings.report_ms),
-        ),
-    ];
-    for (communication, mapping, cob, entries, timer) in pdos {
-        let cob_id = u32::from(cob) + n;
-        writes.push(w(communication, 1, SdoData::u32(cob_id | canopen::PDO_INVALID)));
-        writes.push(w(mapping, 0, SdoData::u8(0)));
-        for (k, &(index, bits)) in entries.iter().enumerate() {
-            writes.push(w(mapping, k as u8 + 1, SdoData::u32(canopen::mapping_entry(index, 0, bits))));
+    for pdo in &PDOS {
+        let cob_id = u32::from(pdo.cob) + n;
+        writes.push(w(pdo.communication, 1, SdoData::u32(cob_id | canopen::PDO_INVALID)));
+        writes.push(w(pdo.mapping, 0, SdoData::u8(0)));
+        for (k, &(index, bits)) in pdo.entries.iter().enumerate() {
+            writes.push(w(pdo.mapping, k as u8 + 1, SdoData::u32(canopen::mapping_entry(index, 0, bits))));
         }
-        writes.push(w(mapping, 0, SdoData::u8(entries.len() as u8)));
-        writes.push(w(communication, 2, SdoData::u8(canopen::TRANSMISSION_EVENT)));
-        if let Some(ms) = timer {
-            writes.push(w(communication, 5, SdoData::u16(ms)));
+        writes.push(w(pdo.mapping, 0, SdoData::u8(pdo.entries.len() as u8)));
+        writes.push(w(pdo.communication, 2, SdoData::u8(canopen::TRANSMISSION_EVENT)));
+        if pdo.event_timer {
+            writes.push(w(pdo.communication, 5, SdoData::u16(settings.report_ms)));
         }
-        writes.push(w(communication, 1, SdoData::u32(cob_id)));
+        writes.push(w(pdo.communication, 1, SdoData::u32(cob_id)));
     }
     writes
 }
@@ -227,7 +242,8 @@ impl Cia402Master {
         }
     }
 
-    /// One cycle's command: an RPDO1 a drive, `pulses` a second each (left, right).
+    /// One cycle's command: an RPDO1 a drive, `pulses` a second each (left, right). Only
+    /// once [`Cia402Master::ready`]: before, the state machine's controlwords alone go out.
     pub fn command(&self, pulses: [i32; 2]) -> [Option<CanFrame>; 2] {
         let cw = DriveCommand::EnableOperation.controlword();
         [0, 1].map(|k| {
@@ -317,8 +333,21 @@ impl Cia402Master {
         let node = self.drives[k].node.get();
         let stop = match message {
             CanOpenMessage::Heartbeat { state, .. } => {
-                self.drives[k].heard = Some(now);
-                (state == NmtState::BootUp && active).then_some(StopReason::DriveRebooted { node })
+                let d = &mut self.drives[k];
+                d.heard = Some(now);
+                match (state, self.phase) {
+                    // Booted while being configured (powered up with the gateway, or reset):
+                    // nothing it was told holds, and nothing moves yet: configure it afresh.
+                    (NmtState::BootUp, Phase::Enabling { .. }) => {
+                        d.step = 0;
+                        d.started = false;
+                        d.statusword = None;
+                        Self::next_write(d, now, send);
+                        None
+                    }
+                    (NmtState::BootUp, _) if active => Some(StopReason::DriveRebooted { node }),
+                    _ => None,
+                }
             }
             CanOpenMessage::Emcy { emcy, .. } => {
                 (emcy.error_code != 0 && active).then_some(StopReason::DriveEmergency { node, code: emcy.error_code })
@@ -517,6 +546,24 @@ mod tests {
         // Each PDO invalid while mapped, valid (its predefined COB-ID) after.
         assert_eq!(find(0x1400, 1).collect::<Vec<_>>(), [0x8000_0203, 0x203]);
         assert_eq!(find(0x1801, 1).collect::<Vec<_>>(), [0x8000_0283, 0x283]);
+    }
+
+    /// A drive that boots while being configured (powered up with the gateway) is configured
+    /// afresh; once enabled, a boot-up is a fault naming it.
+    #[test]
+    fn a_boot_up_restarts_the_configuration_until_enabled() {
+        let mut m = master();
+        let mut out = Vec::new();
+        let t = HostTime::from_nanos(0);
+        m.arm(t, &mut |f| out.push(f));
+        answer(&mut m, t, 3, SdoResponse::Downloaded { index: 0x1017, sub: 0 }, &mut out);
+        assert_eq!(m.drives[0].step, 1);
+        out.clear();
+        let boot = CanOpenMessage::Heartbeat { node: node(3), state: NmtState::BootUp }.to_frame().unwrap();
+        assert_eq!(m.frame(t, &boot, true, &mut |f| out.push(f)).1, None);
+        assert_eq!(requests(&out), [(3, 0x1017, 0)], "the first write again");
+        m.phase = Phase::Enabled;
+        assert_eq!(m.frame(t, &boot, true, &mut |f| out.push(f)).1, Some(StopReason::DriveRebooted { node: 3 }));
     }
 
     /// From a fault, the reset goes out on bit 7's rising edge: a controlword with bit 7

@@ -1461,6 +1461,11 @@ impl<K: StageClock> Core<K> {
     }
 
     fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
+        // Until both CiA 402 drives are in operation enabled, the state machine's controlwords
+        // alone go to them: a cycle's enable-operation RPDO would jump a step (or undo one).
+        if self.cia402.as_ref().is_some_and(|m| !m.ready()) {
+            return;
+        }
         let encode_start = self.clock.now_ns();
         let frame = match &self.cia402 {
             None => {
