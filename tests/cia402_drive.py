@@ -159,7 +159,8 @@ while not done.is_set() and time.monotonic() < deadline and steps:
         configured = all((0x1801, 1) in d.writes and d.node.nmt.state == "OPERATIONAL" for d in drives)
         enabled = all("OPERATION ENABLED" in d.path for d in drives)
         moving = all(d.moving >= 10 for d in drives)
-        shutdown = moving and all(d.state == "READY TO SWITCH ON" for d in drives)
+        # Switched off, then NMT stopped, as the gateway ends.
+        shutdown = moving and all(d.state == "READY TO SWITCH ON" and d.node.nmt.state == "STOPPED" for d in drives)
     reached = dict(zip(["configured", "enabled", "moving", "shutdown"], [configured, enabled, moving, shutdown]))
     # In order: a step is said once those before it were.
     while steps and reached[steps[0]]:
@@ -180,6 +181,7 @@ summary = {
     "consumer": left.writes.get((0x1016, 1)),
     "producer_ms": left.writes.get((0x1017, 0)),
     "paths": [d.path for d in drives],
+    "nmt": [d.node.nmt.state for d in drives],
     "gateway_heartbeats": len(gateway_heartbeats),
     "gateway_state": gateway_heartbeats[-1].hex() if gateway_heartbeats else None,
 }

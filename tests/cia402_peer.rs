@@ -83,6 +83,7 @@ async fn flowgate_commands_python_canopen_drives() {
         "READY TO SWITCH ON"
     ]);
     assert_eq!(s["paths"], serde_json::json!([path, path]));
+    assert_eq!(s["nmt"], serde_json::json!(["STOPPED", "STOPPED"]), "NMT stop as the gateway ends");
     // The run lasts a few hundred milliseconds: a heartbeat every 100 ms.
     assert!(s["gateway_heartbeats"].as_u64().unwrap() >= 2, "{s}");
     assert_eq!(s["gateway_state"], "05", "operational");

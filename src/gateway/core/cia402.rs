@@ -264,20 +264,36 @@ impl Cia402Master {
         }
     }
 
-    /// At rest after an orderly stop: shutdown (ready to switch on, the motor unpowered).
-    pub fn disable(&mut self, send: &mut impl FnMut(CanFrame)) {
+    /// At rest after an orderly stop: shutdown (ready to switch on, the motor unpowered). When
+    /// the gateway is ending (`stop_nodes`), NMT stop too: no PDO reaches the drives after it.
+    pub fn disable(&mut self, stop_nodes: bool, send: &mut impl FnMut(CanFrame)) {
         self.phase = Phase::Idle;
         for d in &mut self.drives {
             d.controlword = DriveCommand::Shutdown.controlword();
             if let Some(f) = rpdo(d.node, d.controlword, 0) {
                 send(f);
             }
+            if stop_nodes {
+                emit(send, CanOpenMessage::Nmt { command: NmtCommand::Stop, target: NmtTarget::Node(d.node) });
+            }
         }
     }
 
-    /// The gateway's heartbeat (operational: it is the master).
-    pub fn heartbeat(&self) -> Option<CanFrame> {
-        CanOpenMessage::Heartbeat { node: self.settings.gateway, state: NmtState::Operational }.to_frame()
+    /// The gateway's heartbeat (operational: it is the master). After an e-stop, with each
+    /// heartbeat the quick stop again to every drive not yet seen out of operation enabled:
+    /// a drive has no command timeout, so a lost quick stop must not leave it running while
+    /// the heartbeat it watches goes on.
+    pub fn heartbeat(&mut self, send: &mut impl FnMut(CanFrame)) {
+        emit(send, CanOpenMessage::Heartbeat { node: self.settings.gateway, state: NmtState::Operational });
+        if self.phase == Phase::QuickStop {
+            for d in &self.drives {
+                if d.state().is_none_or(DriveState::is_enabled) {
+                    if let Some(f) = rpdo(d.node, DriveCommand::QuickStop.controlword(), 0) {
+                        send(f);
+                    }
+                }
+            }
+        }
     }
 
     /// When [`Cia402Master::tick`] next has something to do.
@@ -564,6 +580,39 @@ mod tests {
         assert_eq!(requests(&out), [(3, 0x1017, 0)], "the first write again");
         m.phase = Phase::Enabled;
         assert_eq!(m.frame(t, &boot, true, &mut |f| out.push(f)).1, Some(StopReason::DriveRebooted { node: 3 }));
+    }
+
+    /// After an e-stop, each heartbeat repeats the quick stop to a drive still in operation
+    /// enabled (its first may have been lost), and stops once it has left.
+    #[test]
+    fn the_quick_stop_is_repeated_until_the_drive_leaves_operation() {
+        let mut m = master();
+        let mut out = Vec::new();
+        m.phase = Phase::Enabled;
+        for d in &mut m.drives {
+            d.statusword = Some(DriveState::OperationEnabled.statusword_bits());
+        }
+        m.quick_stop(&mut |f| out.push(f));
+        let quick_stops = |out: &[CanFrame]| {
+            out.iter()
+                .filter_map(|f| match CanOpenMessage::parse(f).ok()? {
+                    CanOpenMessage::Pdo { direction: PdoDirection::Receive, node, data, .. } => {
+                        (VelocityCommand::parse(&data)?.controlword == 0x0002).then_some(node.get())
+                    }
+                    _ => None,
+                })
+                .collect::<Vec<u8>>()
+        };
+        assert_eq!(quick_stops(&out), [3, 4]);
+        out.clear();
+        m.drives[1].statusword = Some(DriveState::SwitchOnDisabled.statusword_bits());
+        m.heartbeat(&mut |f| out.push(f));
+        assert_eq!(quick_stops(&out), [3], "drive 4 has left operation enabled");
+        out.clear();
+        m.drives[0].statusword = Some(DriveState::QuickStopActive.statusword_bits());
+        m.heartbeat(&mut |f| out.push(f));
+        assert_eq!(quick_stops(&out), Vec::<u8>::new());
+        assert_eq!(out.len(), 1, "the heartbeat alone");
     }
 
     /// From a fault, the reset goes out on bit 7's rising edge: a controlword with bit 7

@@ -841,12 +841,11 @@ impl<K: StageClock> Core<K> {
     /// Time passed: heartbeats, retries, watchdogs, the end of an orderly stop.
     fn tick(&mut self, now: HostTime) {
         if now >= self.next_heartbeat {
-            match &self.cia402 {
+            match &mut self.cia402 {
                 None => self.send(MotorMessage::GatewayHeartbeat { state: self.state().wire() }),
                 Some(m) => {
-                    if let Some(f) = m.heartbeat() {
-                        self.out.push_back(Output::Can(f));
-                    }
+                    let out = &mut self.out;
+                    m.heartbeat(&mut |f| out.push_back(Output::Can(f)));
                 }
             }
             self.next_heartbeat = now + HEARTBEAT_PERIOD;
@@ -1606,7 +1605,7 @@ impl<K: StageClock> Core<K> {
                         .send(MotorMessage::Nmt { target: Target::Node(self.rig.node), command: NmtCommand::Disable }),
                     Some(m) => {
                         let out = &mut self.out;
-                        m.disable(&mut |f| out.push_back(Output::Can(f)));
+                        m.disable(self.shutdown, &mut |f| out.push_back(Output::Can(f)));
                     }
                 }
                 self.state_changed(now);

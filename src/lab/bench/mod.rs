@@ -889,7 +889,11 @@ impl std::fmt::Display for BenchReport {
             self.wire_per_cycle_us, self.wire_per_cycle_cia402_us
         )?;
         writeln!(f, "gateway states: {}", self.gateway_states.join(" -> "))?;
-        for p in self.phases.iter().filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording || p.view) {
+        for p in self
+            .phases
+            .iter()
+            .filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording || p.view || p.cia402)
+        {
             let mut how = Vec::new();
             if let Some(us) = p.spin_us {
                 how.push(format!("[realtime] spin_us = {us} (its null gateway polling the same way)"));
@@ -905,6 +909,12 @@ impl std::fmt::Display for BenchReport {
             }
             if p.view {
                 how.push("the live view served (`--view`)".to_string());
+            }
+            if p.cia402 {
+                how.push(
+                    "two CiA 402 drives (an RPDO each a cycle; the latency to the second; its null gateway sends two)"
+                        .to_string(),
+                );
             }
             let states =
                 self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));
