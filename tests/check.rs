@@ -54,13 +54,25 @@ fn dir(name: &str) -> PathBuf {
 
 /// The simulator with `faults` (key=value), and the gateway config for it.
 async fn sim(faults: &[&str]) -> (RigHandle, GatewayConfig) {
+    sim_with(faults, false).await
+}
+
+/// The same with CiA 402 drives (nodes 1 and 2) in place of the board when `cia402`.
+async fn sim_with(faults: &[&str], cia402: bool) -> (RigHandle, GatewayConfig) {
     let s = e1();
     let mut rig = RigConfig::new(s.sim.clone());
+    if cia402 {
+        let node = |n| flowgate_protocol::canopen::NodeId::new(n).unwrap();
+        rig.cia402 = Some([node(1), node(2)]);
+    }
     let settings: Vec<String> = faults.iter().map(|f| f.to_string()).collect();
     rig.faults = rig.faults.with_settings(&settings).unwrap();
     let handle = flowgate_sim::rig::start(rig).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let cfg = s.gateway_config(&handle.psd_path, &can, None);
+    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
+    if cia402 {
+        cfg.use_cia402(flowgate::config::Cia402Section::with_nodes(1, 2));
+    }
     (handle, cfg)
 }
 
@@ -370,25 +382,10 @@ async fn the_gateway_does_not_start_without_its_real_time_settings() {
     );
 }
 
-/// The simulator with CiA 402 drives (nodes 1 and 2) and `faults`, and the gateway config.
-async fn sim_cia402(faults: &[&str]) -> (RigHandle, GatewayConfig) {
-    let s = e1();
-    let mut rig = RigConfig::new(s.sim.clone());
-    let node = |n| flowgate_protocol::canopen::NodeId::new(n).unwrap();
-    rig.cia402 = Some([node(1), node(2)]);
-    let settings: Vec<String> = faults.iter().map(|f| f.to_string()).collect();
-    rig.faults = rig.faults.with_settings(&settings).unwrap();
-    let handle = flowgate_sim::rig::start(rig).await.unwrap();
-    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
-    cfg.use_cia402(flowgate::config::Cia402Section::with_nodes(1, 2));
-    (handle, cfg)
-}
-
 /// CiA 402 drives are read by SDO: device type, profile velocity supported, state.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cia402_drives_are_read_and_pass() {
-    let (handle, cfg) = sim_cia402(&[]).await;
+    let (handle, cfg) = sim_with(&[], true).await;
     let out = check("cia402", &cfg);
     handle.stop().await;
     assert!(out.ok, "{}", out.stdout);
@@ -406,12 +403,12 @@ async fn cia402_drives_are_read_and_pass() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_faulted_or_absent_drive_fails_by_node() {
-    let (handle, cfg) = sim_cia402(&["drive_undervoltage=[0.0, 60.0]"]).await;
+    let (handle, cfg) = sim_with(&["drive_undervoltage=[0.0, 60.0]"], true).await;
     let out = check("cia402-fault", &cfg);
     handle.stop().await;
     out.fails_only("left drive", &["node 1", "in fault"]);
 
-    let (handle, mut cfg) = sim_cia402(&[]).await;
+    let (handle, mut cfg) = sim_with(&[], true).await;
     cfg.cia402.as_mut().unwrap().right_node = 5;
     let out = check("cia402-absent", &cfg);
     handle.stop().await;

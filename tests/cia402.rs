@@ -94,9 +94,9 @@ fn an_operator_estop_quick_stops_both_drives_and_the_way_back_reaches_the_goal()
     let mut rig = VirtualRig::new(&s, options());
     rig.run_until(2.0);
     assert_eq!(rig.core().state(), State::Running);
-    let sent = rig_can_sent(&rig).len();
+    let sent = rig.can_sent().len();
     rig.request(&Request::EStop).unwrap();
-    let quick_stops: Vec<u8> = rig_can_sent(&rig)[sent..]
+    let quick_stops: Vec<u8> = rig.can_sent()[sent..]
         .iter()
         .filter_map(|f| match CanOpenMessage::parse(f).ok()? {
             CanOpenMessage::Pdo { direction: PdoDirection::Receive, node, data, .. } => {
@@ -164,8 +164,4 @@ fn cycles_wait_for_the_drives_to_be_enabled() {
 
 fn transition(e: &flowgate::lab::sim::Episode, state: State) -> f64 {
     e.report.transitions.iter().find(|(_, s)| *s == state).map(|(t, _)| *t).unwrap_or_else(|| panic!("never {state}"))
-}
-
-fn rig_can_sent(rig: &VirtualRig) -> &[flowgate_protocol::CanFrame] {
-    rig.can_sent()
 }

@@ -128,7 +128,6 @@ struct Drive {
     /// The next configuration write, and when the one outstanding was sent.
     step: usize,
     sent: Option<HostTime>,
-    started: bool,
     heard: Option<HostTime>,
     statusword: Option<u16>,
     velocity: i32,
@@ -175,7 +174,6 @@ impl Cia402Master {
             writes: configuration(&settings, node),
             step: 0,
             sent: None,
-            started: false,
             heard: None,
             statusword: None,
             velocity: 0,
@@ -217,7 +215,6 @@ impl Cia402Master {
         self.phase = Phase::Enabling { since: now };
         for d in &mut self.drives {
             d.step = 0;
-            d.started = false;
             d.statusword = None;
             let nmt = CanOpenMessage::Nmt { command: NmtCommand::EnterPreOperational, target: NmtTarget::Node(d.node) };
             emit(send, nmt);
@@ -236,7 +233,6 @@ impl Cia402Master {
             }
             None => {
                 d.sent = None;
-                d.started = true;
                 emit(send, CanOpenMessage::Nmt { command: NmtCommand::Start, target: NmtTarget::Node(d.node) });
             }
         }
@@ -356,7 +352,6 @@ impl Cia402Master {
                     // nothing it was told holds, and nothing moves yet: configure it afresh.
                     (NmtState::BootUp, Phase::Enabling { .. }) => {
                         d.step = 0;
-                        d.started = false;
                         d.statusword = None;
                         Self::next_write(d, now, send);
                         None
@@ -422,7 +417,8 @@ impl Cia402Master {
         d.velocity = report.velocity_actual;
         let state = DriveState::from_statusword(report.statusword);
         match self.phase {
-            Phase::Enabling { .. } if d.configured() && d.started => {
+            // Configured means started: the NMT start follows the last write at once.
+            Phase::Enabling { .. } if d.configured() => {
                 if let Some(command) = state.towards_operation() {
                     let mut cw = command.controlword();
                     // A fault reset acts on bit 7's rising edge: clear it first if it was set.
@@ -625,7 +621,6 @@ mod tests {
         m.arm(t, &mut |f| out.push(f));
         for d in &mut m.drives {
             d.step = d.writes.len();
-            d.started = true;
         }
         let report = |sw| {
             let data = VelocityReport { statusword: sw, velocity_actual: 0 }.data();
