@@ -184,6 +184,10 @@ pub struct Field {
     /// Some circle reaching a wall was left unclosed, its closure taking in the robot or the
     /// goal (see `in_lane`): its series is the less exact arc fit.
     unclosed_at_a_wall: bool,
+    /// Where the lane series are fitted, kept across rebuilds (see
+    /// [`multipole::Workspace`]); made with a lane's field, so that a control cycle's
+    /// rebuild does not allocate.
+    fit_work: Option<Box<multipole::Workspace>>,
 }
 
 /// One obstacle's lane series: its frame, and its coefficients for the sink terms (scaled
@@ -207,8 +211,9 @@ impl Field {
         Ok(field)
     }
 
-    /// A field with no obstacles, to [`rebuild`](Self::rebuild) into. Cheap: the lane series'
-    /// storage is left unwritten.
+    /// A field with no obstacles, to [`rebuild`](Self::rebuild) into. The lane series'
+    /// storage is left unwritten; a lane's field makes its fit workspace here (about 90 kB,
+    /// once), so that rebuilding it never allocates.
     pub fn empty(space: Space, sink: Sink) -> Self {
         Self {
             space,
@@ -220,6 +225,7 @@ impl Field {
             sink_images: [Point::default(); MAX_OBSTACLES],
             lane_series: ArrayVec::new(),
             unclosed_at_a_wall: false,
+            fit_work: matches!(space, Space::Lane { .. }).then(multipole::Workspace::new),
         }
     }
 
@@ -285,10 +291,12 @@ impl Field {
         }
         let n = obstacles.len();
         if let Space::Lane { half_width } = space {
+            let mut work = self.fit_work.take().unwrap_or_else(multipole::Workspace::new);
             for k in 0..n {
-                let fitted = self.fit_lane_series(k, n, half_width);
+                let fitted = self.fit_lane_series(k, n, half_width, &mut work);
                 self.lane_series.push(fitted);
             }
+            self.fit_work = Some(work);
         }
         self.n = n;
         Ok(())
@@ -297,7 +305,7 @@ impl Field {
     /// Fit obstacle `k`'s multipole series: on its circle the normal flow of the sink terms
     /// becomes zero, and that of the motion terms (every obstacle's doublet, the other
     /// doublets' images in this circle) becomes the obstacle's own normal speed.
-    fn fit_lane_series(&self, k: usize, n: usize, half_width: f64) -> LaneSeries {
+    fn fit_lane_series(&self, k: usize, n: usize, half_width: f64, work: &mut multipole::Workspace) -> LaneSeries {
         let space = self.space;
         let o = self.obstacles[k];
         let series = Series::new(half_width, o.center, o.radius);
@@ -306,11 +314,11 @@ impl Field {
         let orders = multipole::orders_for(rho, series.real());
         let regularisation = if rho >= 1.0 { multipole::WALL_REGULARISATION } else { 0.0 };
         let mut points = [(Point::default(), Point::default()); POINTS];
-        let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, &mut points);
+        let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, work, &mut points);
         let (mut sink_target, mut motion_target, mut source_flow) = ([0.0; POINTS], [0.0; POINTS], [0.0; POINTS]);
         for (j, &(z, normal)) in points[..m].iter().enumerate() {
-            let sink_flow =
-                space.sink(z, self.sink.goal) + space.sink(z, self.sink_images[k]) - space.sink(z, o.center);
+            let source = space.sink(z, o.center);
+            let sink_flow = space.sink(z, self.sink.goal) + space.sink(z, self.sink_images[k]) - source;
             let mut motion_flow = Point::default();
             for (i, other) in self.obstacles[..n].iter().enumerate() {
                 motion_flow += space.doublet(z, other.center, self.moments[i]);
@@ -321,11 +329,18 @@ impl Field {
                 }
             }
             sink_target[j] = -(sink_flow * normal).re;
-            source_flow[j] = -(space.sink(z, o.center) * normal).re;
+            source_flow[j] = -(source * normal).re;
             motion_target[j] = (o.velocity * normal.conj()).re - (motion_flow * normal).re;
         }
-        let [sink_fit, motion_fit] =
-            multipole::fit(&series, orders, &points, m, &source_flow, [&sink_target, &motion_target], regularisation);
+        let [sink_fit, motion_fit] = multipole::fit(
+            &series,
+            orders,
+            &points[..m],
+            &source_flow[..m],
+            [&sink_target[..m], &motion_target[..m]],
+            regularisation,
+            work,
+        );
         LaneSeries { series, sink_fit, motion_fit }
     }
 

@@ -27,10 +27,10 @@
 //! regularisation, without which the arc's nearly dependent orders take huge cancelling
 //! coefficients whose rounding shows on the walls.
 //!
-//! The fit is a dense Householder QR on fixed arrays: no allocation, about
-//! `3 orders · (2 orders)²` flops per obstacle each time the field is built (10 to 130 µs
-//! here), shared by the two right-hand sides (the goal sink's flow and the obstacles'
-//! motion).
+//! The fit is a dense Householder QR in a [`Workspace`] the field keeps from one build to the
+//! next (no allocation, nothing cleared): about `3 orders · (2 orders)²` flops per obstacle
+//! each time the field is built (10 to 130 µs here), shared by the two right-hand sides (the
+//! goal sink's flow and the obstacles' motion).
 
 use crate::Point;
 
@@ -243,6 +243,51 @@ pub fn orders_for(rho: f64, real: bool) -> usize {
     ((AIM.ln() / rho.ln()).ceil() as usize).clamp(1, cap)
 }
 
+/// The most points [`collocation`] spaces round a circle (half of them in the lane, for a
+/// circle centred on a wall at its most orders).
+const CIRCLE_POINTS: usize = POINTS_PER_ORDER_ON_A_WALL * ORDERS;
+
+/// What one fit works in, kept from one build of the field to the next: the least-squares
+/// system (about 85 kB, which a fresh one would clear each time) and the unit circle's
+/// points for the last count asked for (the same count from cycle to cycle, while the orders
+/// stay).
+#[derive(Clone)]
+pub struct Workspace {
+    a: [f64; ROWS * UNKNOWNS],
+    b: [[f64; ROWS]; 2],
+    /// How many points `circle` holds, 0 before the first fit.
+    circle_points: usize,
+    circle: [Point; CIRCLE_POINTS],
+}
+
+impl std::fmt::Debug for Workspace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Workspace").field("circle_points", &self.circle_points).finish_non_exhaustive()
+    }
+}
+
+impl Workspace {
+    pub fn new() -> Box<Self> {
+        Box::new(Self {
+            a: [0.0; ROWS * UNKNOWNS],
+            b: [[0.0; ROWS]; 2],
+            circle_points: 0,
+            circle: [Point::default(); CIRCLE_POINTS],
+        })
+    }
+
+    /// `points` unit vectors evenly round the circle, at half-steps from the `x` axis.
+    fn unit_circle(&mut self, points: usize) -> &[Point] {
+        if self.circle_points != points {
+            for (j, n) in self.circle[..points].iter_mut().enumerate() {
+                *n = Point::from_polar(1.0, std::f64::consts::TAU * (j as f64 + 0.5) / points as f64);
+            }
+            self.circle_points = points;
+        }
+        &self.circle[..points]
+    }
+}
+
 /// The collocation points for `orders` on a circle of radius `r` at `a` that lie inside the
 /// lane (`at_a_wall`: the circle reaches a wall, and gets denser points): `(z, unit
 /// normal)` into `out`; returns how many.
@@ -252,6 +297,7 @@ pub fn collocation(
     r: f64,
     orders: usize,
     at_a_wall: bool,
+    work: &mut Workspace,
     out: &mut [(Point, Point); POINTS],
 ) -> usize {
     let per_order = if centred_on_a_wall(h, a) {
@@ -263,8 +309,7 @@ pub fn collocation(
     };
     let points = per_order * orders.clamp(1, ORDERS);
     let mut m = 0;
-    for j in 0..points {
-        let n = Point::from_polar(1.0, std::f64::consts::TAU * (j as f64 + 0.5) / points as f64);
+    for &n in work.unit_circle(points) {
         let z = a + n * r;
         if z.im.abs() < h * (1.0 - 1e-9) && m < out.len() {
             out[m] = (z, n);
@@ -274,22 +319,23 @@ pub fn collocation(
     m
 }
 
-/// Fit the series' coefficients so that, at the `m` collocation points, the normal flow of
-/// the series plus a source at the centre (whose unit normal flow there is `source_flow`)
-/// equals `targets` (two right-hand sides), by least squares. The source carries the net
+/// Fit the series' coefficients so that, at the collocation `points` (at most [`POINTS`]),
+/// the normal flow of the series plus a source at the centre (whose unit normal flow there
+/// is `source_flow`) equals `targets` (two right-hand sides), by least squares. The source carries the net
 /// flux a circle across a wall sweeps through its part in the lane as it moves (zero for
 /// a circle clear of the walls, where the fit finds it so). Orders beyond
 /// what the points can determine stay zero.
 pub fn fit(
     series: &Series,
     orders: usize,
-    points: &[(Point, Point); POINTS],
-    m: usize,
-    source_flow: &[f64; POINTS],
-    targets: [&[f64; POINTS]; 2],
+    points: &[(Point, Point)],
+    source_flow: &[f64],
+    targets: [&[f64]; 2],
     regularisation: f64,
+    work: &mut Workspace,
 ) -> [Fitted; 2] {
     let mut out = [Fitted::default(); 2];
+    let m = points.len();
     // Keep the system over-determined (at least 1.5 rows an unknown): a circle mostly
     // beyond a wall has few points in the lane.
     let real = series.real;
@@ -304,13 +350,10 @@ pub fn fit(
     let rows = if regularisation > 0.0 { m + p } else { m };
     // Column-major with a stride of the rows in use: a[col * rows + row]. Column 2(n-1) is
     // Re c_n, 2(n-1)+1 is Im c_n (for a real series, column n-1 is Re c_n), the last the
-    // source. The QR sweeps only the part in use
-    // (a wall circle's fit uses a fifth of the buffer), but the buffer is still cleared
-    // whole each fit: a workspace kept across cycles would spare that.
-    let mut buffer = [0.0; ROWS * UNKNOWNS];
-    let a = &mut buffer[..rows * p];
+    // source. Every entry in use is written below, so the workspace is not cleared.
+    let a = &mut work.a[..rows * p];
     let mut flows = [(Point::default(), Point::default()); ORDERS];
-    for (row, &(z, normal)) in points[..m].iter().enumerate() {
+    for (row, &(z, normal)) in points.iter().enumerate() {
         series.terms(z, orders, &mut flows);
         for (n, (re, im)) in flows[..orders].iter().enumerate() {
             a[per_order * n * rows + row] = (re * normal).re;
@@ -320,9 +363,10 @@ pub fn fit(
         }
     }
     a[(p - 1) * rows..(p - 1) * rows + m].copy_from_slice(&source_flow[..m]);
-    let mut b = [[0.0; ROWS]; 2];
+    let b = &mut work.b;
     for (b, t) in b.iter_mut().zip(targets) {
         b[..m].copy_from_slice(&t[..m]);
+        b[m..rows].fill(0.0);
     }
     // Tikhonov rows (target zero): `regularisation` times each column's norm. On an arc (a
     // circle across a wall) the high orders are nearly dependent, and an unregularised fit
@@ -358,7 +402,7 @@ pub fn fit(
         for col in tail.chunks_exact_mut(rows) {
             reflect(v, vnorm2, &mut col[k..m]);
         }
-        for rhs in &mut b {
+        for rhs in b.iter_mut() {
             reflect(v, vnorm2, &mut rhs[k..m]);
         }
     }

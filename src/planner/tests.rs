@@ -572,3 +572,43 @@ fn the_drawn_field_is_the_planned_one() {
     assert!(!field.unclosed_at_a_wall() && !planner.plan(&away).unwrap().flags.unclosed_at_a_wall);
     assert_eq!(field.velocity(away.position).unwrap(), planner.plan(&away).unwrap().field);
 }
+
+/// A field rebuilt in place (its fit workspace kept from the build before, uncleared) is
+/// the field built afresh, bit for bit, whatever the build before fitted: each of the
+/// three kinds of series (a circle clear of the walls, one closed against a wall, one
+/// left unclosed at a wall with its regularised arc fit) after each of the others.
+#[test]
+fn a_rebuilt_field_is_the_fresh_one() {
+    let (h, goal) = (0.2, Point::new(1.0, 0.0));
+    // By the wall, between it and a circle across it: closing that circle would take it in.
+    let robot = Point::new(0.1, 0.19);
+    let circle = |x: f64, y: f64, r: f64| PlanObstacle {
+        center: Point::new(x, y),
+        velocity: Point::new(-0.05, 0.01),
+        radius: r,
+    };
+    let scenes: [&[PlanObstacle]; 4] = [
+        &[circle(0.3, 0.0, 0.08)],                           // clear of the walls
+        &[circle(0.6, 0.08, 0.11)],                          // closed against the wall
+        &[circle(0.0, 0.15, 0.08)],                          // across the wall, left unclosed
+        &[circle(0.3, -0.05, 0.06), circle(0.5, 0.1, 0.09)], // two at once
+    ];
+    let space = Space::Lane { half_width: h };
+    let fresh = |obstacles: &[PlanObstacle]| {
+        let mut field = Field::empty(space, sink(goal));
+        field.rebuild_clear_of(space, sink(goal), obstacles, Some(robot)).unwrap();
+        field
+    };
+    assert!(fresh(scenes[2]).unclosed_at_a_wall() && !fresh(scenes[1]).unclosed_at_a_wall());
+    let probes = [Point::new(-0.3, 0.05), Point::new(0.3, 0.19), Point::new(0.7, -0.15), Point::new(0.1, -0.1)];
+    for before in scenes {
+        for after in scenes {
+            let mut field = fresh(before);
+            field.rebuild_clear_of(space, sink(goal), after, Some(robot)).unwrap();
+            let expected = fresh(after);
+            for z in probes {
+                assert_eq!(field.eval(z), expected.eval(z), "{after:?} after {before:?} at {z}");
+            }
+        }
+    }
+}
