@@ -277,6 +277,9 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     board: Motors,
     adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
     core: Core<K>,
+    /// The core's next deadline, asked for once after each input rather than at each of the
+    /// dozen or so events of a cycle (see [`feed`]).
+    core_deadline: HostTime,
     /// The inputs handed to the core, and the CAN frames it asked for, when kept.
     inputs: Option<Vec<InputRecord>>,
     can_sent: Vec<CanFrame>,
@@ -375,6 +378,7 @@ impl<K: StageClock> VirtualRig<K> {
         let mut rig = Self {
             t: 0,
             core: Core::new(gateway_rig, clock),
+            core_deadline: HostTime::ZERO,
             inputs: options.record_inputs.then(Vec::new),
             can_sent: Vec::new(),
             serial_faults: SerialFaults::new(&plan),
@@ -422,6 +426,7 @@ impl<K: StageClock> VirtualRig<K> {
             announced: State::Idle,
             motion_outside_running: 0,
         };
+        rig.core_deadline = rig.core.next_deadline();
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
         if options.can == CanTransport::Slcan {
             for cmd in [Command::Close, Command::SetBitrate(adapter_bitrate), Command::Open] {
@@ -476,7 +481,7 @@ impl<K: StageClock> VirtualRig<K> {
 
     /// Hand the core one input now: the one way into it, as the shell's.
     fn feed(&mut self, input: Input<'_>) -> Option<Answer> {
-        feed(&mut self.core, &mut self.inputs, HostTime::from_nanos(self.t), input)
+        feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, HostTime::from_nanos(self.t), input)
     }
 
     /// An operator's request now, and the core's answer.
@@ -514,12 +519,13 @@ impl<K: StageClock> VirtualRig<K> {
         self.t = next;
         if self.options.rehearse {
             self.core.rehearse(HostTime::from_nanos(self.t));
+            self.core_deadline = self.core.next_deadline();
         }
         self.faults_due();
         self.firmware_poll();
         self.deliver();
         let now = HostTime::from_nanos(self.t);
-        if now >= self.core.next_deadline() {
+        if now >= self.core_deadline() {
             self.feed(Input::Tick);
         }
         self.drain_core();
@@ -527,9 +533,17 @@ impl<K: StageClock> VirtualRig<K> {
         self.observe();
     }
 
+    /// The core's next deadline (the core changes only through [`feed`] and a rehearsal).
+    fn core_deadline(&self) -> HostTime {
+        debug_assert_eq!(self.core_deadline, self.core.next_deadline(), "the core changed outside `feed`");
+        self.core_deadline
+    }
+
     fn next_event(&self) -> u64 {
-        let mut next = self.core.next_deadline().as_nanos().min(self.t + MAX_STEP_NS);
-        let mut at = |s: f64| next = next.min(ns(s));
+        // The firmware's and the faults' times in seconds, their soonest taken to whole
+        // nanoseconds once (`ns` keeps their order).
+        let mut soonest = f64::INFINITY;
+        let mut at = |s: f64| soonest = soonest.min(s);
         if !self.psd_gone {
             at(self.controller.next_event());
         }
@@ -540,21 +554,21 @@ impl<K: StageClock> VirtualRig<K> {
         at(self.vanish.map_or(f64::INFINITY, |(gone, back)| if self.psd_gone { back } else { gone }));
         at(self.next_foreign);
         at(self.next_master);
-        for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
-            next = next.min(w.next());
-        }
-        next = next.min(self.host_tx.next()).min(self.host_rx_frames.next());
         if let Some([from, to]) = self.plan.adapter_bus_off {
             let t = self.time();
-            next = next.min(ns(if t < from {
+            at(if t < from {
                 from
             } else if t < to {
                 to
             } else {
                 f64::INFINITY
-            }));
+            });
         }
-        next
+        let mut next = self.core_deadline().as_nanos().min(self.t + MAX_STEP_NS).min(ns(soonest));
+        for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
+            next = next.min(w.next());
+        }
+        next.min(self.host_tx.next()).min(self.host_rx_frames.next())
     }
 
     /// The serial device vanishing and coming back; foreign traffic on the bus.
@@ -665,7 +679,7 @@ impl<K: StageClock> VirtualRig<K> {
         while self.to_host.take(self.t, &mut self.scratch) {
             // In reads of at most a chunk, as the shell's.
             for chunk in self.scratch.chunks(PSD_CHUNK) {
-                feed(&mut self.core, &mut self.inputs, now, Input::PsdBytes(chunk));
+                feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::PsdBytes(chunk));
             }
         }
         while self.can_down.take(self.t, &mut self.scratch) {
@@ -710,7 +724,7 @@ impl<K: StageClock> VirtualRig<K> {
                     if let (CanEvent::Frame(frame), Some(tel)) = (event, &mut self.telemetry) {
                         let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
                     }
-                    feed(&mut self.core, &mut self.inputs, now, Input::Can(event));
+                    feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::Can(event));
                 }
             }
         }
@@ -861,13 +875,16 @@ impl<K: StageClock> VirtualRig<K> {
 fn feed<K: StageClock>(
     core: &mut Core<K>,
     log: &mut Option<Vec<InputRecord>>,
+    deadline: &mut HostTime,
     now: HostTime,
     input: Input<'_>,
 ) -> Option<Answer> {
     if let Some(log) = log {
         log.push(InputRecord { seq: log.len() as u64, at: now, input: RecordedInput::of(input) });
     }
-    core.handle(now, input)
+    let answer = core.handle(now, input);
+    *deadline = core.next_deadline();
+    answer
 }
 
 /// Run `scenario` through the whole stack in virtual time, deterministically.
