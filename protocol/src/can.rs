@@ -8,6 +8,32 @@ pub const MAX_STANDARD_ID: u16 = 0x7FF;
 /// Largest extended (29-bit) identifier.
 pub const MAX_EXTENDED_ID: u32 = 0x1FFF_FFFF;
 
+/// A node id type on a bus, `$min..=$max`: made only through `new`, which refuses the rest.
+macro_rules! node_id {
+    ($(#[$m:meta])* $name:ident, $min:literal..=$max:literal) => {
+        $(#[$m])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        pub struct $name(u8);
+
+        impl $name {
+            pub const MIN: u8 = $min;
+            pub const MAX: u8 = $max;
+            #[doc = concat!("A node id, or `None` outside ", stringify!($min), "..=", stringify!($max), ".")]
+            pub const fn new(id: u8) -> Option<Self> {
+                if id >= Self::MIN && id <= Self::MAX {
+                    Some(Self(id))
+                } else {
+                    None
+                }
+            }
+            pub const fn get(self) -> u8 {
+                self.0
+            }
+        }
+    };
+}
+pub(crate) use node_id;
+
 /// A CAN identifier: 11-bit standard or 29-bit extended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum CanId {

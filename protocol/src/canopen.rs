@@ -38,28 +38,13 @@
 //! [`CanOpenMessage::parse`] accepts any [`CanFrame`] and returns a [`CanOpenError`] for a
 //! frame it does not know or cannot read.
 
-use crate::can::{CanFrame, CanId};
+use crate::can::{node_id, CanFrame, CanId};
 use crate::psd::byte_enum;
 use crate::wire::{Reader, Writer};
 
-/// A CANopen node id, 1 to 127.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct NodeId(u8);
-
-impl NodeId {
-    pub const MIN: u8 = 1;
-    pub const MAX: u8 = 127;
-    /// A node id, or `None` outside 1..=127.
-    pub const fn new(id: u8) -> Option<Self> {
-        if id >= Self::MIN && id <= Self::MAX {
-            Some(Self(id))
-        } else {
-            None
-        }
-    }
-    pub const fn get(self) -> u8 {
-        self.0
-    }
+node_id! {
+    /// A CANopen node id, 1 to 127.
+    NodeId, 1..=127
 }
 
 /// Function codes of the predefined connection set: the COB-ID less the node id.

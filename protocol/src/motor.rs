@@ -49,7 +49,7 @@
 //! [`MotorMessage::parse`] accepts any [`CanFrame`] and returns a [`MotorError`] for a
 //! frame it does not know.
 
-use crate::can::{CanFrame, CanId};
+use crate::can::{node_id, CanFrame, CanId};
 use crate::psd::byte_enum;
 use crate::wire::{Reader, Writer};
 
@@ -71,24 +71,9 @@ pub mod function {
     pub const HEARTBEAT: u16 = 0x70;
 }
 
-/// A motor board's node id, 1 to 15.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct NodeId(u8);
-
-impl NodeId {
-    pub const MIN: u8 = 1;
-    pub const MAX: u8 = 15;
-    /// A node id, or `None` outside 1..=15.
-    pub const fn new(id: u8) -> Option<Self> {
-        if id >= Self::MIN && id <= Self::MAX {
-            Some(Self(id))
-        } else {
-            None
-        }
-    }
-    pub const fn get(self) -> u8 {
-        self.0
-    }
+node_id! {
+    /// A motor board's node id, 1 to 15.
+    NodeId, 1..=15
 }
 
 /// Who a broadcastable command is for.
