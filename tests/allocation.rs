@@ -1,8 +1,8 @@
 //! The per-sample path allocates nothing. The whole stack in virtual time (the gateway
 //! core, and the simulated controller, adapter, motor board, wires and world around it)
-//! runs four seconds of cycles with the robot driving round its obstacle, and a global allocator counts
-//! every heap allocation the thread makes meanwhile: there must be none. Its own test
-//! binary, so that the counting allocator serves nothing else.
+//! runs four seconds of cycles with the robot driving round its obstacle, and a global
+//! allocator counts every heap allocation the thread makes meanwhile: there must be none.
+//! Its own test binary, so that the counting allocator serves nothing else.
 
 // The counting allocator below implements `GlobalAlloc`, an unsafe trait: it hands every call
 // to the system allocator unchanged.
