@@ -55,12 +55,15 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static ALLOCATOR: Counting = Counting;
 
+fn load(name: &str) -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap()
+}
+
 /// Run `scenario` until 2 s in (armed, started, driving, its buffers at their size), then
 /// count allocations until 6 s, the robot still on its way; returns them, the cycles run
 /// meanwhile and the cycles four seconds hold at the scenario's period.
 fn steady_seconds(scenario: &str, options: Options) -> (u64, u64, u64) {
-    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(scenario)).unwrap();
-    let mut rig = VirtualRig::new(&s, options);
+    let mut rig = VirtualRig::new(&load(scenario), options);
     rig.run_until(2.0);
     assert_eq!(rig.core().state(), State::Running, "{scenario}: not running at 2 s");
     let (cycles, before) = (rig.core().counters().cycles, allocations());
@@ -75,8 +78,7 @@ fn steady_seconds(scenario: &str, options: Options) -> (u64, u64, u64) {
 #[test]
 fn the_counter_sees_allocations() {
     let before = allocations();
-    let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
-    let mut rig = VirtualRig::new(&s, Options::default());
+    let mut rig = VirtualRig::new(&load("e1-standing-obstacle.toml"), Options::default());
     rig.run_until(0.5);
     assert!(allocations() - before > 10, "{} allocations", allocations() - before);
 }
