@@ -5,8 +5,8 @@
 use std::path::Path;
 use std::time::Instant;
 
-use flowgate::gateway::telemetry::CycleRecord;
-use flowgate::gateway::StageClock;
+use flowgate::gateway::core::StageClock;
+use flowgate::gateway::shell::telemetry::CycleRecord;
 use flowgate::lab::offline::{self, sweep, Mode};
 use flowgate::lab::sim::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;

@@ -10,13 +10,17 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use flowgate::gateway::{self, Controls, Progress};
+use flowgate::gateway;
+
+use flowgate::gateway::core::Progress;
+
+use flowgate::gateway::shell::Controls;
 use flowgate::lab::Scenario;
 use tokio::sync::watch;
 
 const CLIENTS: usize = 4;
 
-async fn once(s: &Scenario, flood: bool) -> (gateway::Report, f64) {
+async fn once(s: &Scenario, flood: bool) -> (gateway::shell::Report, f64) {
     let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.expect("rig");
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().expect("slcan").display());
     let dir = std::env::temp_dir().join(format!("flowgate-flood-{}-{flood}", std::process::id()));
@@ -27,7 +31,7 @@ async fn once(s: &Scenario, flood: bool) -> (gateway::Report, f64) {
     let rig = cfg.rig("bench").expect("rig config");
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress) = watch::channel(Progress::default());
-    let gw = tokio::spawn(gateway::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));
+    let gw = tokio::spawn(gateway::shell::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));
     let running = Arc::new(AtomicBool::new(true));
     let served = Arc::new(AtomicU64::new(0));
     let started = Instant::now();

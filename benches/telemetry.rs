@@ -5,7 +5,7 @@
 //! cargo bench --bench telemetry
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use flowgate::gateway::telemetry::{CycleRecord, Timing};
+use flowgate::gateway::shell::telemetry::{CycleRecord, Timing};
 
 fn bench(c: &mut Criterion) {
     let mut timing = Timing::default();

@@ -3,7 +3,7 @@
 //!
 //! Modules follow the data flow of one sample cycle:
 //! [`link`] (serial and CAN transports) -> [`gateway`] (the core: PSD session, tracking,
-//! control, safety; and the tokio shell) -> [`calib`] (PSD counts to floor) -> [`track`]
+//! control, safety; and the tokio shell) -> [`calibration`] (PSD counts to floor) -> [`track`]
 //! (robot pose and obstacle motion) -> [`control`] and [`planner`] (navigation function,
 //! wheel speeds, pulse rates), on [`geometry`]'s lengths and rotations. [`config`] parses the rig once into a typed [`config::Rig`];
 //! [`time`] keeps host and controller clocks apart. [`setup`] holds the tools of a rig's
@@ -11,7 +11,7 @@
 //! in virtual and real time, sweeps, plots, the benchmark) are behind the `lab` feature, so
 //! the deployed gateway never contains the simulator.
 
-pub mod calib;
+pub mod calibration;
 pub mod config;
 pub mod control;
 pub mod gateway;

@@ -1,7 +1,7 @@
 //! Replay of an MCAP recording through the gateway core (`flowgate replay`).
 //!
 //! A recording holds every input the core took, with its host time (see
-//! [`crate::gateway::recording`]). The replay hands them to a fresh core in the same order
+//! [`crate::gateway::shell::recording`]). The replay hands them to a fresh core in the same order
 //! at the same times, in virtual time: no clock, no I/O. With the recorded configuration the
 //! core asks for the same CAN frames, byte for byte, and the replay checks that it does. With
 //! another configuration (a what-if) it reports where the commands part and how far apart
@@ -16,9 +16,9 @@ use flowgate_protocol::CanFrame;
 use serde::Serialize;
 
 use crate::config::{GatewayConfig, Rig};
-use crate::gateway::input::InputRecord;
-use crate::gateway::recording::{self, frame_from_json};
-use crate::gateway::{Core, NoClock, Output};
+use crate::gateway::core::input::InputRecord;
+use crate::gateway::core::{Core, NoClock, Output};
+use crate::gateway::shell::recording::{self, frame_from_json};
 use crate::planner::Space;
 use crate::svg::{Axes, Svg};
 use crate::time::HostTime;
@@ -39,6 +39,8 @@ pub enum ReplayError {
     BadSet(String),
     #[error("--set {key}: {why}")]
     SetFailed { key: String, why: String },
+    #[error("the recorded run gave no velocity command: nothing to compare")]
+    NoCommands,
 }
 
 /// What the gateway sent on CAN in a recording, in order, and whether it was written (the
@@ -259,6 +261,69 @@ pub fn run(rig: Rig, inputs: &[InputRecord]) -> Replayed {
         take(&mut core);
     }
     Replayed { can, commands, final_state: core.state().to_string(), elapsed: started.elapsed().as_secs_f64() }
+}
+
+/// A replay with the recorded configuration, held against the frames the recording says the
+/// gateway sent.
+#[derive(Debug, Clone)]
+pub struct Verification {
+    pub replayed: Replayed,
+    /// Frames the recording says were sent, and how many of them were written (the link may
+    /// have been down).
+    pub recorded: usize,
+    pub written: usize,
+    /// The recording holds every input the gateway took. One that is not whole ends at an
+    /// arbitrary point (its last inputs' frames may be missing), so only the first
+    /// `compared` frames are compared.
+    pub whole: bool,
+    pub compared: usize,
+    /// The first frame that differs, if any.
+    pub difference: Option<Divergence>,
+}
+
+impl Verification {
+    /// The replay reproduced the whole run, byte for byte.
+    pub fn reproduced(&self) -> bool {
+        self.whole && self.difference.is_none()
+    }
+}
+
+/// A what-if: the recorded inputs through another configuration, both command streams
+/// dead-reckoned from the first measured pose, and both paths drawn.
+#[derive(Debug, Clone)]
+pub struct WhatIf {
+    pub replayed: Replayed,
+    pub diff: CommandDiff,
+    pub svg: String,
+}
+
+impl Recording {
+    /// Replay with the recorded configuration and compare the CAN frames.
+    pub fn verify(&self) -> Result<Verification, ReplayError> {
+        let replayed = run(self.config()?.rig("the recorded configuration")?, &self.inputs);
+        let whole = self.is_whole();
+        let compared = if whole { self.can_sent.len() } else { self.can_sent.len().min(replayed.can.len()) };
+        let again = if whole { &replayed.can[..] } else { &replayed.can[..compared] };
+        let difference = first_difference(&self.can_sent[..compared], again);
+        let written = self.can_sent.iter().filter(|f| f.written).count();
+        Ok(Verification { recorded: self.can_sent.len(), written, whole, compared, difference, replayed })
+    }
+
+    /// Replay with `rig` instead of the recorded configuration; `title` heads the drawing.
+    pub fn what_if(&self, rig: Rig, title: &str) -> Result<WhatIf, ReplayError> {
+        let (pulses_per_metre, wheel_base) = (rig.control.drive.pulses_per_metre(), rig.control.drive.wheel_base);
+        let space = rig.control.planner.space;
+        let recorded = run(self.config()?.rig("the recorded configuration")?, &self.inputs);
+        let replayed = run(rig, &self.inputs);
+        let first = recorded.commands.first().copied().ok_or(ReplayError::NoCommands)?;
+        let (start, heading) = (Point::new(first.x, first.y), first.heading);
+        let path_a = dead_reckon(&recorded.commands, start, heading, pulses_per_metre, wheel_base);
+        let path_b = dead_reckon(&replayed.commands, start, heading, pulses_per_metre, wheel_base);
+        let diff = diff_commands(&recorded.commands, &replayed.commands, (&path_a, &path_b), first.t);
+        let measured: Vec<Point> = recorded.commands.iter().map(|c| Point::new(c.x, c.y)).collect();
+        let svg = paths_svg(&measured, &path_a, &path_b, space, title);
+        Ok(WhatIf { replayed, diff, svg })
+    }
 }
 
 /// Where two runs' CAN frames first differ.

@@ -12,7 +12,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
 
-use flowgate::gateway::State;
+use flowgate::gateway::core::State;
 use flowgate::lab::sim::{CanTransport, Options, VirtualRig};
 use flowgate::lab::Scenario;
 

@@ -3,7 +3,7 @@
 //! CiA 402 drives) answers every frame with exactly one command and reports sane figures. No timing is asserted here;
 //! performance is measured by `flowgate bench`, not by tests.
 
-use flowgate::gateway::realtime::RealtimeSettings;
+use flowgate::gateway::shell::realtime::RealtimeSettings;
 use flowgate::lab::bench::{Mode, PhaseSpec, Transport};
 
 #[tokio::test(flavor = "current_thread")]

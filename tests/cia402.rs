@@ -5,8 +5,8 @@
 
 use std::path::Path;
 
-use flowgate::gateway::operator::Request;
-use flowgate::gateway::{State, StopReason};
+use flowgate::gateway::core::operator::Request;
+use flowgate::gateway::core::{State, StopReason};
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
@@ -109,7 +109,7 @@ fn an_operator_estop_quick_stops_both_drives_and_the_way_back_reaches_the_goal()
     rig.run_until(2.5);
     assert_eq!(rig.core().state(), State::Fault(StopReason::OperatorEStop));
     assert_eq!(rig.world().wheel_speeds(), [0.0, 0.0], "at rest within half a second");
-    let goal = flowgate::gateway::operator::Goal { position: s.goal.position, tolerance: s.goal.tolerance };
+    let goal = flowgate::gateway::core::operator::Goal { position: s.goal.position, tolerance: s.goal.tolerance };
     for request in [Request::Reset, Request::Arm, Request::Goal { goals: vec![goal] }, Request::Start] {
         rig.request(&request).unwrap();
     }
@@ -152,7 +152,7 @@ fn cycles_wait_for_the_drives_to_be_enabled() {
     let s = scenario("e1-standing-obstacle.toml", &[]);
     let mut rig = VirtualRig::new(&s, Options { wait_for_operator: true, ..options() });
     rig.run_until(1.0);
-    let goal = flowgate::gateway::operator::Goal { position: s.goal.position, tolerance: s.goal.tolerance };
+    let goal = flowgate::gateway::core::operator::Goal { position: s.goal.position, tolerance: s.goal.tolerance };
     for request in [Request::Arm, Request::Goal { goals: vec![goal] }, Request::Start] {
         rig.request(&request).unwrap();
     }

@@ -11,7 +11,9 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use flowgate::config::Cia402Section;
-use flowgate::gateway::{self, Controls, Progress, State};
+use flowgate::gateway;
+use flowgate::gateway::core::{Progress, State};
+use flowgate::gateway::shell::Controls;
 use flowgate::lab::Scenario;
 use flowgate_sim::rig::{self, RigConfig};
 use tokio::sync::{mpsc, watch};
@@ -48,8 +50,11 @@ async fn flowgate_commands_python_canopen_drives() {
     config.use_cia402(Cia402Section::with_nodes(1, 2));
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, progress_rx) = watch::channel(Progress::default());
-    let gw =
-        tokio::spawn(gateway::run(config.rig("cia402 peer").unwrap(), Controls::new(stop_rx, true), Some(progress_tx)));
+    let gw = tokio::spawn(gateway::shell::run(
+        config.rig("cia402 peer").unwrap(),
+        Controls::new(stop_rx, true),
+        Some(progress_tx),
+    ));
 
     for step in ["configured", "enabled", "moving"] {
         let line = next_line().await;
@@ -66,7 +71,7 @@ async fn flowgate_commands_python_canopen_drives() {
     std::io::Read::read_to_string(&mut drives.stderr.take().unwrap(), &mut stderr).unwrap();
     let status = drives.wait().unwrap();
     assert!(status.success(), "{status}: {summary}\n{stderr}");
-    assert_eq!(report.final_state, State::Stopped(flowgate::gateway::StopReason::Shutdown), "{report}");
+    assert_eq!(report.final_state, State::Stopped(flowgate::gateway::core::StopReason::Shutdown), "{report}");
 
     let s: serde_json::Value = serde_json::from_str(summary.strip_prefix("summary ").unwrap()).unwrap();
     assert_eq!(s["mode"], 3, "profile velocity");

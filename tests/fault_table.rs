@@ -10,9 +10,9 @@
 
 use std::path::Path;
 
-use flowgate::gateway::operator::{Goal, Request};
-use flowgate::gateway::telemetry::CycleRecord;
-use flowgate::gateway::{State, StopReason};
+use flowgate::gateway::core::operator::{Goal, Request};
+use flowgate::gateway::core::{State, StopReason};
+use flowgate::gateway::shell::telemetry::CycleRecord;
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, CanTransport, Episode, Options, VirtualRig};
 use flowgate::lab::Scenario;

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use flowgate::gateway::State;
+use flowgate::gateway::core::State;
 use flowgate::lab::Scenario;
 use flowgate_sim::truth::TruthRecord;
 
@@ -251,9 +251,11 @@ async fn a_second_gateway_process_is_refused_as_an_ordinary_user() {
 /// carries on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
-    use flowgate::gateway::control_socket::{Command, Peer};
-    use flowgate::gateway::operator::Request;
-    use flowgate::gateway::{self, Controls, Progress};
+    use flowgate::gateway;
+    use flowgate::gateway::core::operator::Request;
+    use flowgate::gateway::core::Progress;
+    use flowgate::gateway::shell::control_socket::{Command, Peer};
+    use flowgate::gateway::shell::Controls;
     use flowgate_sim::rig::{RigConfig, SerialEndpoint};
     let mut s = scenario("e1-standing-obstacle.toml");
     s.faults = s.faults.with_settings(&["serial_vanish_at=2.0".into(), "serial_vanish_s=0.6".into()]).unwrap();
@@ -270,7 +272,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     let (progress_tx, mut progress) = tokio::sync::watch::channel(Progress::default());
     let controls = Controls::new(stop_rx, true);
     let operator = controls.sender();
-    let gw = tokio::spawn(gateway::run(rig, controls, Some(progress_tx)));
+    let gw = tokio::spawn(gateway::shell::run(rig, controls, Some(progress_tx)));
     // The operator's request, as the control socket would pass it on.
     let ask = |request: Request| {
         let operator = operator.clone();
@@ -309,7 +311,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     let truth = handle.stop().await;
     // The first fault latches: the board's own command timeout (commands stop with the
     // samples) or the gateway's serial or sample watchdog, whichever fires first.
-    use flowgate::gateway::StopReason;
+    use flowgate::gateway::core::StopReason;
     let faults: Vec<State> =
         report.transitions.iter().map(|(_, s)| *s).filter(|s| matches!(s, State::Fault(_))).collect();
     assert_eq!(faults.len(), 1, "{:?}", report.transitions);

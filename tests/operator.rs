@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
-use flowgate::gateway::operator::{Goal, Refusal, Request};
-use flowgate::gateway::{State, StopReason};
+use flowgate::gateway::core::operator::{Goal, Refusal, Request};
+use flowgate::gateway::core::{State, StopReason};
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{Options, VirtualRig};
 use flowgate::lab::Scenario;

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use flowgate::gateway::input::RecordedInput;
+use flowgate::gateway::core::input::RecordedInput;
 use flowgate::replay::{self, Recording};
 
 fn root() -> &'static Path {
@@ -120,7 +120,7 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     let mut damaged = Recording::read(&mcap).unwrap();
     assert!(damaged.is_whole());
     let start = damaged.inputs.iter().find(|i| i.seq == 1000).unwrap().at;
-    let gap = |i: &flowgate::gateway::input::InputRecord| {
+    let gap = |i: &flowgate::gateway::core::input::InputRecord| {
         matches!(i.input, RecordedInput::PsdBytes { .. }) && i.at >= start && i.at.since(start).as_millis() < 250
     };
     let before = damaged.inputs.len();

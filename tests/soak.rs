@@ -12,8 +12,8 @@
 use std::path::Path;
 
 use flowgate::config::Goal;
-use flowgate::gateway::operator::Request;
-use flowgate::gateway::State;
+use flowgate::gateway::core::operator::Request;
+use flowgate::gateway::core::State;
 use flowgate::lab::sim::{CanTransport, Options, VirtualRig};
 use flowgate::lab::Scenario;
 
@@ -65,7 +65,7 @@ fn soak(can: CanTransport, cycles: u64, seed: u64) -> (u64, u64, u64, u64) {
         if state != last_state {
             match state {
                 State::Fault(_) => faults_seen += 1,
-                State::Stopped(flowgate::gateway::StopReason::GoalReached) => goals += 1,
+                State::Stopped(flowgate::gateway::core::StopReason::GoalReached) => goals += 1,
                 _ => {}
             }
             last_state = state;

@@ -196,7 +196,7 @@ async fn e1_running_for(iface: &str, t: f64) -> tokio::task::JoinHandle<Result<d
     let run = tokio::spawn(async move {
         let mut sent = false;
         demo::run(&s, &url, demo::DemoDrive::Pcl80k, demo::Outputs::default(), move |p| {
-            if !sent && p.state == flowgate::gateway::State::Running && p.t > t {
+            if !sent && p.state == flowgate::gateway::core::State::Running && p.t > t {
                 sent = true;
                 let _ = tx.send(());
             }
@@ -218,7 +218,7 @@ async fn cansend_estop_and_malformed_frames() {
     }
     cansend(&iface, "001#01"); // e-stop node 1, reason operator
     let r = run.await.unwrap().expect("both sides survive");
-    assert!(matches!(r.report.final_state, flowgate::gateway::State::Fault(_)), "{}", r.report);
+    assert!(matches!(r.report.final_state, flowgate::gateway::core::State::Fault(_)), "{}", r.report);
     assert!(r.report.counters.can_undecodable >= 2, "{:?}", r.report.counters);
     // The board stopped at once: the truth's last samples are at rest.
     let last = r.truth.samples.last().unwrap();
@@ -233,7 +233,7 @@ async fn a_bus_off_error_frame_faults_the_gateway() {
     // CAN_ERR_FLAG | CAN_ERR_BUSOFF, as a controller driver would report it.
     cansend(&iface, "20000040#0000000000000000");
     let r = run.await.unwrap().expect("both sides survive");
-    assert_eq!(r.report.stop_reason, Some(flowgate::gateway::StopReason::BusOff), "{}", r.report);
+    assert_eq!(r.report.stop_reason, Some(flowgate::gateway::core::StopReason::BusOff), "{}", r.report);
     assert!(r.report.counters.can_error_frames >= 1);
 }
 
@@ -257,7 +257,7 @@ async fn an_interface_set_down_is_named_as_such() {
     assert!(ok, "ip link set {iface} down");
     let r = run.await.unwrap().expect("both sides survive");
     drop(up_again);
-    assert_eq!(r.report.stop_reason, Some(flowgate::gateway::StopReason::CanInterfaceDown), "{}", r.report);
+    assert_eq!(r.report.stop_reason, Some(flowgate::gateway::core::StopReason::CanInterfaceDown), "{}", r.report);
 }
 
 /// `flowgate bench --can socketcan:IFACE` works end to end: the gateway process and the null

@@ -6,9 +6,9 @@
 use std::path::Path;
 use std::time::Duration;
 
-use flowgate::gateway::operator::{Refusal, Request};
-use flowgate::gateway::telemetry::CycleRecord;
-use flowgate::gateway::{State, StopReason};
+use flowgate::gateway::core::operator::{Refusal, Request};
+use flowgate::gateway::core::{State, StopReason};
+use flowgate::gateway::shell::telemetry::CycleRecord;
 use flowgate::lab::offline::Outcome;
 use flowgate::lab::sim::{self, Episode, Options, VirtualRig};
 use flowgate::lab::Scenario;

@@ -9,7 +9,7 @@
 use flowgate::config::{GatewayConfig, Goal, Rig};
 use flowgate::gateway::operator::Request;
 use flowgate::gateway::{Core, Input, NoClock, Output, State};
-use flowgate::link::CanEvent;
+use flowgate::gateway::core::input::CanEvent;
 use flowgate::time::HostTime;
 use flowgate_protocol::motor::MotorMessage;
 use flowgate_protocol::{cobs, crc, CanFrame, CanId};

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use flowgate::gateway::realtime::RealtimeSettings;
+use flowgate::gateway::shell::realtime::RealtimeSettings;
 use flowgate::lab::bench::{Mode, PhaseSpec, Transport};
 
 #[derive(Args, Debug)]

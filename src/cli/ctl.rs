@@ -12,8 +12,8 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use flowgate::config::GatewayConfig;
-use flowgate::gateway::operator::{Goal, Request};
-use flowgate::gateway::telemetry::{write_stage_table, StageSummary};
+use flowgate::gateway::core::operator::{Goal, Request};
+use flowgate::gateway::shell::telemetry::{write_stage_table, StageSummary};
 use serde::Deserialize as _;
 
 #[derive(Args, Debug)]

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use flowgate::lab::offline::{self, Outcome};
+use flowgate::gateway::core::Progress;
+use flowgate::lab::Outcome;
 use flowgate::lab::{demo, Scenario};
 
 #[derive(Args, Debug)]
@@ -34,6 +35,19 @@ pub struct DemoArgs {
     foxglove: Option<std::net::SocketAddr>,
 }
 
+/// One line of the run's progress, about twice a second.
+fn say_progress(p: &Progress) {
+    say!(
+        "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
+        p.t,
+        p.state.name(),
+        p.goal_distance,
+        p.clearance.map_or("-".into(), |c| format!("{:.3} m", c)),
+        p.e2e_us,
+        p.cycles
+    );
+}
+
 pub fn run(args: DemoArgs) -> Result<()> {
     let scenario = match &args.scenario {
         Some(path) => Scenario::load(path)?,
@@ -58,28 +72,16 @@ pub fn run(args: DemoArgs) -> Result<()> {
         &args.can,
         args.drive,
         demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view, foxglove: args.foxglove },
-        |p| {
-            say!(
-                "  t={:>5.1}s  {:<8} goal {:>6.3} m  clearance {:>8}  cycle latency {:>6.0} µs  cycles {}",
-                p.t,
-                p.state.name(),
-                p.goal_distance,
-                p.clearance.map_or("-".into(), |c| format!("{:.3} m", c)),
-                p.e2e_us,
-                p.cycles
-            );
-        },
+        say_progress,
     ))?;
     let t = &run.truth.summary;
     say!();
     say!(
         "outcome          {}",
-        if run.contact {
-            "COLLISION"
-        } else if run.reached_goal {
-            "goal reached, no contact"
-        } else {
-            "goal not reached"
+        match run.outcome() {
+            Outcome::Collision => "COLLISION",
+            Outcome::Goal => "goal reached, no contact",
+            _ => "goal not reached",
         }
     );
     say!(
@@ -89,47 +91,13 @@ pub fn run(args: DemoArgs) -> Result<()> {
         t.duration
     );
     say!("{}", run.report);
-    // The trajectory from the world's truth.
-    let trace: Vec<offline::TraceRow> = run
-        .truth
-        .samples
-        .iter()
-        .map(|s| offline::TraceRow {
-            t: s.t,
-            pose: flowgate::track::Pose { position: flowgate::Point::new(s.x, s.y), heading: s.heading },
-            command: flowgate::Point::default(),
-            speed: 0.5 * (s.wheel_speeds[0] + s.wheel_speeds[1]),
-            obstacles: s.obstacles.iter().map(|o| flowgate::Point::new(o[0], o[1])).collect(),
-        })
-        .collect();
-    let mut summary = offline::run(&scenario, false).summary;
-    summary.outcome = if run.contact {
-        Outcome::Collision
-    } else if run.reached_goal {
-        Outcome::Goal
-    } else {
-        Outcome::Timeout
-    };
-    summary.min_obstacle_clearance = t.min_obstacle_clearance;
-    summary.end_time = t.duration;
-    let live = offline::Run { summary, trace, cost: offline::CycleCost::default() };
-    std::fs::write(out.join("trajectory.svg"), flowgate::lab::report::trajectory_svg(&scenario, &live))?;
-    run.truth.write(&out.join("truth.json"))?;
-    std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&run.report)?)?;
-    say!(
-        "\nwrote {}/{{trajectory.svg,trace.json,cycles.csv,can.log,events.jsonl,truth.json,report.json}}",
-        out.display()
-    );
-    if let Some(rec) = &run.report.files.recording {
-        say!(
-            "recorded {} ({} inputs, {} cycles): flowgate replay {} plays it back",
-            args.record.as_ref().map_or(String::new(), |p| p.display().to_string()),
-            rec.inputs,
-            rec.cycles,
-            args.record.as_ref().map_or(String::new(), |p| p.display().to_string())
-        );
+    run.write_files(&scenario, &out)?;
+    say!("\nwrote {}/{}", out.display(), demo::DEMO_FILES);
+    if let (Some(rec), Some(path)) = (&run.report.files.recording, &args.record) {
+        let path = path.display();
+        say!("recorded {path} ({} inputs, {} cycles): flowgate replay {path} plays it back", rec.inputs, rec.cycles);
     }
-    if run.contact || !run.reached_goal {
+    if run.outcome() != Outcome::Goal {
         anyhow::bail!("the demo run did not reach the goal cleanly");
     }
     Ok(())

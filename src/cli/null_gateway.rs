@@ -7,9 +7,9 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Result};
 use clap::Args;
-use flowgate::gateway::realtime::{self, RealtimeSettings};
+use flowgate::config::CanUrl;
+use flowgate::gateway::shell::realtime::{self, RealtimeSettings};
 use flowgate::lab::bench::null_gateway::{serve, READY};
-use flowgate::link::CanUrl;
 
 #[derive(Args, Debug)]
 pub struct NullGatewayArgs {

@@ -63,51 +63,56 @@ pub fn run(args: PlanArgs) -> Result<()> {
     scenario.supervised = !args.unsupervised;
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
     if let Some(n) = args.sweep {
-        if n == 0 {
-            bail!("--sweep needs at least one episode");
-        }
-        if n as u64 > sweep::MAX_EPISODES {
-            bail!(
-                "--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)",
-                sweep::MAX_EPISODES
-            );
-        }
-        let started = std::time::Instant::now();
-        std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-        let path = if let Some(shard) = args.shard {
-            let episodes = sweep::run_shard(&scenario, n as u64, args.seed, args.threads, mode, shard);
-            let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
-            say!("shard {shard} of the sweep of {n}:");
-            say!("{report}");
-            say!("  ({} episodes in {:.1} s)", episodes.len(), started.elapsed().as_secs_f64());
-            let file = sweep::ShardFile {
-                scenario: scenario.name.clone(),
-                mode,
-                supervised: scenario.supervised,
-                seed: args.seed,
-                sweep_episodes: n as u64,
-                shard,
-                episodes,
-            };
-            let path = out.join("shard.json");
-            std::fs::write(&path, serde_json::to_string(&file)?)?;
-            path
-        } else {
-            let report = sweep::sweep(&scenario, n, args.seed, args.threads, mode);
-            say!("{report}");
-            say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
-            let path = out.join("sweep.json");
-            std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
-            path
-        };
-        say!("  wrote {}", path.display());
-        return Ok(());
+        return sweep_command(&args, &scenario, n, &out, mode);
     }
     let run = one(&scenario, mode, Some(&out))?;
     say!("{}  ({mode})", report::one_line(&run));
     write_outputs(&scenario, &run, &out)?;
     let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
     say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
+    Ok(())
+}
+
+/// `--sweep N`: the episodes around the scenario, or one shard of them (`--shard i/n`).
+fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mode: Mode) -> Result<()> {
+    if n == 0 {
+        bail!("--sweep needs at least one episode");
+    }
+    if n as u64 > sweep::MAX_EPISODES {
+        bail!(
+            "--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)",
+            sweep::MAX_EPISODES
+        );
+    }
+    let started = std::time::Instant::now();
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let path = if let Some(shard) = args.shard {
+        let episodes = sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, shard);
+        let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
+        say!("shard {shard} of the sweep of {n}:");
+        say!("{report}");
+        say!("  ({} episodes in {:.1} s)", episodes.len(), started.elapsed().as_secs_f64());
+        let file = sweep::ShardFile {
+            scenario: scenario.name.clone(),
+            mode,
+            supervised: scenario.supervised,
+            seed: args.seed,
+            sweep_episodes: n as u64,
+            shard,
+            episodes,
+        };
+        let path = out.join("shard.json");
+        std::fs::write(&path, serde_json::to_string(&file)?)?;
+        path
+    } else {
+        let report = sweep::sweep(scenario, n, args.seed, args.threads, mode);
+        say!("{report}");
+        say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
+        let path = out.join("sweep.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+        path
+    };
+    say!("  wrote {}", path.display());
     Ok(())
 }
 
@@ -162,7 +167,7 @@ fn stem(path: &Path) -> String {
 fn write_outputs(scenario: &Scenario, run: &offline::Run, out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&run.summary)?)?;
-    std::fs::write(out.join("trajectory.svg"), report::trajectory_svg(scenario, run))?;
+    std::fs::write(out.join("trajectory.svg"), report::trajectory_svg(scenario, &run.trace, (&run.summary).into()))?;
     std::fs::write(out.join("history.svg"), report::history_svg(scenario, run))?;
     Ok(())
 }

@@ -10,7 +10,9 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use flowgate::config::GatewayConfig;
-use flowgate::gateway::{self, Controls, Progress};
+use flowgate::gateway;
+use flowgate::gateway::core::Progress;
+use flowgate::gateway::shell::Controls;
 use tokio::signal::unix::{signal, SignalKind};
 use tokio::sync::watch;
 
@@ -44,7 +46,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     let mut rig = config.rig(&args.config.display().to_string())?;
     if let Some(out_dir) = &rig.telemetry.out_dir {
-        let dir = flowgate::gateway::telemetry::run_directory(out_dir, std::time::SystemTime::now())
+        let dir = flowgate::gateway::shell::telemetry::run_directory(out_dir, std::time::SystemTime::now())
             .with_context(|| format!("telemetry.out_dir = {}: making this run's directory", out_dir.display()))?;
         rig.telemetry.out_dir = Some(dir);
     }
@@ -61,7 +63,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         let mut terminate = signal(SignalKind::terminate())?;
         let (stop_tx, stop_rx) = watch::channel(false);
         let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-        let mut gateway = tokio::spawn(gateway::run(rig, Controls::new(stop_rx, args.arm), Some(progress_tx)));
+        let mut gateway = tokio::spawn(gateway::shell::run(rig, Controls::new(stop_rx, args.arm), Some(progress_tx)));
         let mut last_state = None;
         let report = loop {
             tokio::select! {

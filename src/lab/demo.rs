@@ -2,16 +2,22 @@
 //! ptys (SLCAN on a pty by default, or SocketCAN where vcan exists). `flowgate demo` and
 //! the full-stack tests use it; runs are judged by the simulator's world truth.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use flowgate_sim::rig::{self, CanEndpoint, RigConfig};
 use flowgate_sim::truth::TruthRecord;
 use tokio::sync::watch;
 
-use super::Scenario;
+use super::offline::TraceRow;
+use super::report::{trajectory_svg, Ending};
+use super::{Outcome, Scenario};
+use crate::track::Pose;
+use crate::Point;
 use crate::config::ConfigError;
-use crate::gateway::{self, Controls, GatewayError, Progress, Report};
+use crate::gateway;
+use crate::gateway::core::Progress;
+use crate::gateway::shell::{Controls, GatewayError, Report};
 
 /// The scenario the demo runs by default (E2, the lane head-on).
 pub const DEFAULT_SCENARIO: &str = include_str!("../../scenarios/e2-lane-head-on.toml");
@@ -27,6 +33,43 @@ pub struct DemoRun {
     /// Whether the robot ended within the goal tolerance (+1 cm for the stop ramp).
     pub reached_goal: bool,
     pub contact: bool,
+}
+
+/// The files a demo run writes beside the gateway's telemetry.
+pub const DEMO_FILES: &str = "{trajectory.svg,trace.json,cycles.csv,can.log,events.jsonl,truth.json,report.json}";
+
+impl DemoRun {
+    /// How the run ended, judged by the world's truth.
+    pub fn outcome(&self) -> Outcome {
+        if self.contact {
+            Outcome::Collision
+        } else if self.reached_goal {
+            Outcome::Goal
+        } else {
+            Outcome::Timeout
+        }
+    }
+
+    /// The robot's and the obstacles' true paths, as the plots take them.
+    pub fn trace(&self) -> Vec<TraceRow> {
+        let rows = self.truth.samples.iter().map(|s| TraceRow {
+            t: s.t,
+            pose: Pose { position: Point::new(s.x, s.y), heading: s.heading },
+            command: Point::default(),
+            speed: 0.5 * (s.wheel_speeds[0] + s.wheel_speeds[1]),
+            obstacles: s.obstacles.iter().map(|o| Point::new(o[0], o[1])).collect(),
+        });
+        rows.collect()
+    }
+
+    /// `trajectory.svg`, `truth.json` and `report.json` into `dir`.
+    pub fn write_files(&self, scenario: &Scenario, dir: &Path) -> std::io::Result<()> {
+        let t = &self.truth.summary;
+        let ending = Ending { outcome: self.outcome(), min_obstacle_clearance: t.min_obstacle_clearance, end_time: t.duration };
+        std::fs::write(dir.join("trajectory.svg"), trajectory_svg(scenario, &self.trace(), ending))?;
+        self.truth.write(&dir.join("truth.json"))?;
+        std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(&self.report)?)
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -104,7 +147,7 @@ pub async fn run(
     let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-    let gw = tokio::spawn(gateway::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));
+    let gw = tokio::spawn(gateway::shell::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));
     let limit = tokio::time::Instant::now() + Duration::from_secs_f64(scenario.time_limit);
     let mut ticker = tokio::time::interval(Duration::from_millis(500));
     loop {

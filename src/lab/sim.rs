@@ -30,11 +30,13 @@ use flowgate_sim::world::World;
 use tokio_util::codec::Decoder as _;
 
 use super::{Outcome, Scenario};
-use crate::gateway::input::{InputRecord, RecordedInput, PSD_CHUNK};
-use crate::gateway::operator::{Refusal, Request, Status};
-use crate::gateway::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
-use crate::gateway::{Answer, Core, Input, NoClock, Output, Report, SetupError, StageClock, State};
-use crate::link::{slcan_event, CanEvent};
+use crate::gateway::core::input::CanEvent;
+use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
+use crate::gateway::core::operator::{Refusal, Request, Status};
+use crate::gateway::core::{Answer, Core, Input, NoClock, Output, SetupError, StageClock, State};
+use crate::gateway::shell::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
+use crate::gateway::shell::Report;
+use crate::link::slcan_event;
 use crate::time::HostTime;
 
 /// The PSD line's and the SLCAN adapter's serial rate, baud.
@@ -372,7 +374,7 @@ impl<K: StageClock> VirtualRig<K> {
         }
         // The shell opens the adapter at the rig's bitrate; the simulated bus runs at 1 Mbit/s.
         let adapter_bitrate = match &gateway_rig.can {
-            crate::link::CanUrl::Slcan { bitrate, .. } => Bitrate::from_bps(*bitrate).unwrap_or(Bitrate::M1),
+            crate::config::CanUrl::Slcan { bitrate, .. } => Bitrate::from_bps(*bitrate).unwrap_or(Bitrate::M1),
             _ => Bitrate::M1,
         };
         let mut rig = Self {
@@ -843,8 +845,8 @@ impl<K: StageClock> VirtualRig<K> {
         let contact = summary.first_contact.is_some();
         let outcome = match self.core.state() {
             _ if contact => Outcome::Collision,
-            State::Stopped(crate::gateway::StopReason::GoalReached) if reached_goal => Outcome::Goal,
-            State::Stopped(crate::gateway::StopReason::Stalled) => Outcome::Stall,
+            State::Stopped(crate::gateway::core::StopReason::GoalReached) if reached_goal => Outcome::Goal,
+            State::Stopped(crate::gateway::core::StopReason::Stalled) => Outcome::Stall,
             State::Fault(_) => Outcome::Fault,
             State::Stopped(_) | State::Stopping(_) => Outcome::Stopped,
             _ => Outcome::Timeout,

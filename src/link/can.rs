@@ -1,11 +1,11 @@
-//! CAN backends: SocketCAN and SLCAN, one enum ([`CanLink`]) chosen by a URL ([`CanUrl`]).
-
-use std::path::PathBuf;
-use std::str::FromStr;
+//! CAN backends: SocketCAN and SLCAN, one enum ([`CanLink`]) chosen by a URL ([`crate::config::CanUrl`]).
 
 use bytes::BytesMut;
 use flowgate_protocol::codec::{SlcanHostCodec, StreamError};
 use flowgate_protocol::slcan::{self, Bitrate, Command, Line as _, Response};
+
+use crate::config::CanUrl;
+use crate::gateway::core::input::CanEvent;
 use flowgate_protocol::CanFrame;
 use futures_util::StreamExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -13,67 +13,6 @@ use tokio_util::codec::Decoder;
 
 #[cfg(feature = "lab")]
 use super::memory::{MemoryBus, MemoryLink};
-
-/// A CAN endpoint, parsed from its URL.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum CanUrl {
-    /// `socketcan:IFACE`
-    SocketCan { interface: String },
-    /// `slcan:PATH[?bitrate=BPS][&baud=BAUD]`
-    Slcan { path: PathBuf, bitrate: u32, baud: u32 },
-    /// `memory`: an in-process bus ([`super::memory`]), only in builds with the lab tools
-    /// (tests); the deployed gateway's parser does not know it.
-    #[cfg(feature = "lab")]
-    Memory,
-}
-
-impl CanUrl {
-    /// Whether the link's state must be polled (an SLCAN adapter says nothing unasked).
-    pub fn polls_status(&self) -> bool {
-        matches!(self, Self::Slcan { .. })
-    }
-}
-
-impl FromStr for CanUrl {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let bad = |why: &str| format!("CAN endpoint `{s}`: {why} (expected socketcan:IFACE or slcan:PATH?bitrate=BPS)");
-        let (scheme, rest) = s.split_once(':').map_or((s, ""), |(a, b)| (a, b));
-        match scheme {
-            "socketcan" if rest.is_empty() => Err(bad("no interface named (socketcan:can0)")),
-            "socketcan" if rest.starts_with('/') || rest.contains(['/', ' ', '?', ':']) || rest.len() > 15 => {
-                Err(bad(&format!("`{rest}` is not an interface name (socketcan:can0, not socketcan://can0)")))
-            }
-            "socketcan" => Ok(Self::SocketCan { interface: rest.to_string() }),
-            "slcan" if rest.is_empty() || rest.starts_with('?') => {
-                Err(bad("no serial port named (slcan:/dev/ttyACM0)"))
-            }
-            "slcan" => {
-                let (path, query) = rest.split_once('?').unwrap_or((rest, ""));
-                let (mut bitrate, mut baud) = (1_000_000, 921_600);
-                for kv in query.split('&').filter(|kv| !kv.is_empty()) {
-                    let (k, v) = kv.split_once('=').ok_or_else(|| bad(&format!("`{kv}` is not key=value")))?;
-                    let v: u32 = v.parse().map_err(|_| bad(&format!("`{v}` is not a number")))?;
-                    match k {
-                        "bitrate" => bitrate = v,
-                        "baud" => baud = v,
-                        _ => return Err(bad(&format!("unknown option `{k}`"))),
-                    }
-                }
-                if baud == 0 {
-                    return Err(bad("baud must be positive"));
-                }
-                if Bitrate::from_bps(bitrate).is_none() {
-                    return Err(bad(&format!("bitrate {bitrate} is not one of SLCAN's S0-S8")));
-                }
-                Ok(Self::Slcan { path: path.into(), bitrate, baud })
-            }
-            #[cfg(feature = "lab")]
-            "memory" => Ok(Self::Memory),
-            _ => Err(bad("unknown scheme")),
-        }
-    }
-}
 
 #[derive(Debug, thiserror::Error)]
 pub enum CanError {
@@ -93,30 +32,6 @@ pub enum CanError {
     Timeout { what: &'static str },
     #[error("CAN I/O: {0}")]
     Io(#[from] std::io::Error),
-}
-
-/// What a CAN link delivers: frames, and what else the bus says.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CanEvent {
-    Frame(CanFrame),
-    /// A SocketCAN error frame; `bus_off` when the controller went bus-off.
-    ErrorFrame {
-        bus_off: bool,
-    },
-    /// A line from an SLCAN adapter that did not parse.
-    Garbled,
-    /// An SLCAN adapter refused a line (BEL): after the channel is open, a transmit.
-    TransmitRefused,
-    /// An SLCAN adapter's status flags (`F`). LAWICEL has no bus-off flag: a bus error (bit 7)
-    /// with the transmit FIFO full (bit 1) is the adapter's controller no longer sending,
-    /// which is what bus-off means to the gateway.
-    AdapterStatus {
-        bus_off: bool,
-        error_passive: bool,
-    },
-    /// The SocketCAN interface went down or away (`ip link set down`, a `slcand` that
-    /// exited, a USB adapter pulled): not the bus, the host's own interface.
-    InterfaceDown,
 }
 
 /// LAWICEL status flags (`F` reply): transmit FIFO full, error passive, bus error.
@@ -331,32 +246,5 @@ impl SlcanLink {
 impl std::fmt::Debug for SlcanLink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("SlcanLink")
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn parses_urls() {
-        assert_eq!("socketcan:vcan0".parse::<CanUrl>(), Ok(CanUrl::SocketCan { interface: "vcan0".into() }));
-        assert_eq!(
-            "slcan:/dev/ttyACM0?bitrate=500000".parse::<CanUrl>(),
-            Ok(CanUrl::Slcan { path: "/dev/ttyACM0".into(), bitrate: 500_000, baud: 921_600 })
-        );
-        assert!("slcan:/dev/x?bitrate=123".parse::<CanUrl>().unwrap_err().contains("S0-S8"));
-        assert!("slcan:/dev/x?speed=1".parse::<CanUrl>().unwrap_err().contains("unknown option `speed`"));
-        assert!("can0".parse::<CanUrl>().unwrap_err().contains("unknown scheme"));
-        for (url, why) in [
-            ("socketcan:", "no interface named"),
-            ("socketcan://can0", "is not an interface name"),
-            ("slcan:", "no serial port named"),
-            ("slcan:?bitrate=1000000", "no serial port named"),
-            ("slcan:/dev/x?baud=0", "baud must be positive"),
-        ] {
-            let err = url.parse::<CanUrl>().unwrap_err();
-            assert!(err.contains(why), "{url}: {err}");
-        }
     }
 }

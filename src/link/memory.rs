@@ -7,7 +7,8 @@ use std::sync::{Arc, Mutex};
 use flowgate_protocol::CanFrame;
 use tokio::sync::broadcast;
 
-use super::{CanError, CanEvent};
+use super::CanError;
+use crate::gateway::core::input::CanEvent;
 
 /// An in-process CAN bus for unit tests: every attached link sees every other's frames.
 #[derive(Clone)]

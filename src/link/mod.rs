@@ -1,7 +1,7 @@
 //! Links to the rig: the PSD controller's serial line and the motor boards' CAN bus.
 //!
 //! CAN backends sit behind one enum, [`CanLink`], selected by a URL-like string
-//! ([`CanUrl`]): `socketcan:can0` or `slcan:/dev/ttyACM0?bitrate=1000000`; builds with the
+//! ([`crate::config::CanUrl`]): `socketcan:can0` or `slcan:/dev/ttyACM0?bitrate=1000000`; builds with the
 //! lab tools also know `memory`, an in-process bus for tests.
 
 mod can;
@@ -9,5 +9,5 @@ mod can;
 pub mod memory;
 mod serial;
 
-pub use can::{interface_down, open_can, slcan_event, CanError, CanEvent, CanLink, CanUrl, SlcanLink, SocketCanLink};
+pub use can::{interface_down, open_can, slcan_event, CanError, CanLink, SlcanLink, SocketCanLink};
 pub use serial::{open_serial, SerialError};

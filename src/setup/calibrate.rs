@@ -1,10 +1,11 @@
 //! `flowgate calibrate`: the camera calibration from an LED placed at known floor points.
 //!
 //! The pieces without I/O live here: averaging one point's samples (weak and saturated
-//! ones rejected), the fit ([`crate::calib::Calibration::fit_with_distortion`]), the residual plot, and
+//! ones rejected), the fit ([`crate::calibration::Calibration::fit_with_distortion`]), the residual plot, and
 //! writing the `[calibration]` section back into the user's `rig.toml` with `toml_edit`,
-//! so their comments and layout stay. The prompts and the streaming are the CLI's
-//! (`src/cli/calibrate.rs`), over [`PsdClient`].
+//! so their comments and layout stay. [`measure_points`] runs the session over a
+//! [`PsdClient`], asking the person at the rig through a [`Prompt`] (the CLI's terminal, or
+//! a test's script); [`Calibrated`] reports the fit and writes it back.
 
 use std::path::Path;
 use std::time::Duration;
@@ -14,7 +15,7 @@ use flowgate_protocol::psd::{Sample, SampleFlags};
 use tokio::time::Instant;
 
 use super::psd_client::{PsdClient, PsdClientError};
-use crate::calib::{CalibError, Fit};
+use crate::calibration::{CalibError, Fit};
 use crate::svg::{Axes, Svg};
 
 /// Samples skipped after the stream starts (the LED's first frame).
@@ -50,6 +51,12 @@ pub enum CalibrateError {
     Points { path: String, why: String },
     #[error("{path}: cannot write the calibration back: {why}")]
     WriteBack { path: String, why: String },
+    #[error("calibration ended before the fit: nothing written")]
+    Ended,
+    #[error("the prompt: {0}")]
+    Prompt(#[from] std::io::Error),
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
 }
 
 /// Average the samples of one point, rejecting weak and saturated ones.
@@ -195,7 +202,7 @@ pub fn residual_svg(floor: &[[f64; 2]], fit: &Fit) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::Calibration;
+    use crate::calibration::Calibration;
 
     fn sample(x: i32, y: i32, flags: u8) -> Sample {
         Sample { frame: 0, slot: 0, led: 9, t_ctrl_us: 0, x, y, intensity: 3000, flags: SampleFlags(flags) }
@@ -242,4 +249,187 @@ mod tests {
         let back: toml::Table = toml::from_str(&out).unwrap();
         assert_eq!(back["calibration"]["homography"][0][0].as_float().unwrap(), fit.homography[0][0]);
     }
+}
+
+/// The person at the rig, as the session asks them.
+pub trait Prompt {
+    /// Show `question` and read one line of answer (`None` at the end of input).
+    fn ask(&mut self, question: &str) -> std::io::Result<Option<String>>;
+    /// Tell them something.
+    fn say(&mut self, line: &str);
+}
+
+/// What to measure: which LED, how many samples a point, one frame's period, and the floor
+/// points (`None`: typed one by one).
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub led: u8,
+    pub samples: usize,
+    pub period: Duration,
+    pub points: Option<Vec<[f64; 2]>>,
+}
+
+/// Measure each floor point: before each, the person places the LED and presses Enter
+/// (`s` skips the point, `q` or the end of input ends the session: [`CalibrateError::Ended`]).
+/// A point whose samples are unusable is offered again.
+pub async fn measure_points(
+    client: &mut PsdClient,
+    plan: &Plan,
+    prompt: &mut impl Prompt,
+) -> Result<Vec<([f64; 2], Reading)>, CalibrateError> {
+    let mut measured = Vec::new();
+    let mut k = 0;
+    while let Some(floor) = next_point(plan, k, prompt)? {
+        k += 1;
+        if let Some(reading) = measure_point(client, plan, floor, prompt).await? {
+            measured.push((floor, reading));
+        }
+    }
+    Ok(measured)
+}
+
+/// The `k`th floor point: planned, or typed (an empty line: done).
+fn next_point(plan: &Plan, k: usize, prompt: &mut impl Prompt) -> Result<Option<[f64; 2]>, CalibrateError> {
+    if let Some(points) = &plan.points {
+        return Ok(points.get(k).copied());
+    }
+    loop {
+        let question = format!("point {}: floor position `X Y` in metres (empty line: done)", k + 1);
+        let Some(line) = prompt.ask(&question)? else { return Ok(None) };
+        if line.is_empty() {
+            return Ok(None);
+        }
+        match parse_point(&line) {
+            Ok(p) => return Ok(Some(p)),
+            Err(why) => prompt.say(&why),
+        }
+    }
+}
+
+/// One point, asked for until measured or skipped (`None`).
+async fn measure_point(
+    client: &mut PsdClient,
+    plan: &Plan,
+    floor: [f64; 2],
+    prompt: &mut impl Prompt,
+) -> Result<Option<Reading>, CalibrateError> {
+    let led = plan.led;
+    let mut question = format!("Put LED {led} at ({:.3}, {:.3}) m, then press Enter (s: skip, q: quit)", floor[0], floor[1]);
+    loop {
+        match prompt.ask(&question)?.as_deref() {
+            None | Some("q") => return Err(CalibrateError::Ended),
+            Some("s") => {
+                prompt.say(&format!("point ({:.3}, {:.3}) skipped", floor[0], floor[1]));
+                return Ok(None);
+            }
+            Some(_) => {}
+        }
+        client.configure().await?;
+        let result = measure(client, led, plan.samples, plan.period).await;
+        client.pause().await?;
+        match result {
+            Ok(r) => {
+                prompt.say(&format!(
+                    "point ({:.3}, {:.3}): raw ({:.1}, {:.1}) counts, spread {:.2}, {} samples used ({} weak, {} saturated)",
+                    floor[0], floor[1], r.raw[0], r.raw[1], r.spread, r.used, r.weak, r.saturated
+                ));
+                return Ok(Some(r));
+            }
+            Err(e @ (CalibrateError::Unusable { .. } | CalibrateError::NoSamples { .. })) => {
+                prompt.say(&format!("point ({:.3}, {:.3}) rejected: {e}", floor[0], floor[1]));
+                question = "Enter to measure it again (s: skip, q: quit)".to_string();
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// A typed floor point, `X Y` in metres.
+pub fn parse_point(line: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> =
+        line.split_whitespace().map(str::parse).collect::<Result<_, _>>().map_err(|e| format!("`{line}`: {e}"))?;
+    match v[..] {
+        [x, y] if x.is_finite() && y.is_finite() && x.abs() < 100.0 && y.abs() < 100.0 => Ok([x, y]),
+        _ => Err(format!("`{line}`: expected two numbers, `X Y`, in metres")),
+    }
+}
+
+/// The measured points and the fit through them.
+#[derive(Debug, Clone)]
+pub struct Calibrated {
+    pub measured: Vec<([f64; 2], Reading)>,
+    pub fit: Fit,
+}
+
+impl Calibrated {
+    /// Fit the homography and the lens distortion through the measured points.
+    pub fn fit(measured: Vec<([f64; 2], Reading)>, counts: u16) -> Result<Self, CalibrateError> {
+        let fit = crate::calibration::Calibration::fit_with_distortion(&self_pairs(&measured), counts)?;
+        Ok(Self { measured, fit })
+    }
+
+    /// The report: each point's floor and raw position and residual, then the summary.
+    pub fn report(&self) -> Vec<String> {
+        let mut lines = vec!["point  floor x (m)  floor y (m)  raw x  raw y  residual (mm)".to_string()];
+        for (i, ((floor, r), res)) in self.measured.iter().zip(&self.fit.residuals).enumerate() {
+            let mm = 1e3 * res[0].hypot(res[1]);
+            lines.push(format!(
+                "{:>5}  {:>11.3}  {:>11.3}  {:>5.0}  {:>5.0}  {mm:>13.3}",
+                i + 1,
+                floor[0],
+                floor[1],
+                r.raw[0],
+                r.raw[1]
+            ));
+        }
+        let (centre, side) = crate::calibration::span(&self_pairs(&self.measured));
+        let f = &self.fit;
+        lines.push(format!(
+            "RMS residual {:.3} mm over {} points ({:.2} counts); k1 = {:.5}; noise gain {:.2}; calibrated square {:.2} m about ({:.2}, {:.2})",
+            1e3 * f.rms_m,
+            self.measured.len(),
+            f.rms_counts,
+            f.k1,
+            f.noise_gain,
+            side,
+            centre[0],
+            centre[1]
+        ));
+        lines
+    }
+
+    /// The residual plot (SVG).
+    pub fn residual_svg(&self) -> String {
+        let floors: Vec<[f64; 2]> = self.measured.iter().map(|(f, _)| *f).collect();
+        residual_svg(&floors, &self.fit)
+    }
+
+    /// Write `[calibration]` into the config at `path` (whose text is `text`), keeping its
+    /// comments and layout; the previous file is kept beside it as `.toml.bak`, which is
+    /// returned. What is written must load as a rig before it replaces the user's file.
+    pub fn save(&self, path: &Path, text: &str, led: u8) -> Result<std::path::PathBuf, CalibrateError> {
+        let origin = path.display().to_string();
+        let f = &self.fit;
+        let note = format!(
+            "fitted by flowgate calibrate: {} points, LED {led}, RMS {:.3} mm, k1 {:.5}",
+            self.measured.len(),
+            1e3 * f.rms_m,
+            f.k1
+        );
+        let write_back_error = |why: String| CalibrateError::WriteBack { path: origin.clone(), why };
+        let new_text = write_back(text, f, &note).map_err(write_back_error)?;
+        crate::config::GatewayConfig::from_toml(&new_text, &origin)?.rig(&origin)?;
+        let io = |what: &str, e: std::io::Error| write_back_error(format!("{what}: {e}"));
+        let backup = path.with_extension("toml.bak");
+        std::fs::copy(path, &backup).map_err(|e| io("keeping the previous file", e))?;
+        let tmp = path.with_extension("toml.new");
+        std::fs::write(&tmp, &new_text).map_err(|e| io("writing", e))?;
+        std::fs::rename(&tmp, path).map_err(|e| io("replacing", e))?;
+        Ok(backup)
+    }
+}
+
+/// (raw, floor) pairs, as the fit takes them.
+fn self_pairs(measured: &[([f64; 2], Reading)]) -> Vec<([f64; 2], [f64; 2])> {
+    measured.iter().map(|(floor, r)| (r.raw, *floor)).collect()
 }

@@ -17,10 +17,12 @@ use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage, NodeId};
 use tokio::time::{timeout_at, Instant};
 
 use super::psd_client::{PsdClient, PsdClientError};
+use crate::config::CanUrl;
 use crate::config::{Cia402Settings, ConfigError, GatewayConfig, Motors, Rig};
-use crate::gateway::psd_session::MAX_RTT;
-use crate::gateway::SetupError;
-use crate::link::{open_can, CanError, CanEvent, CanLink, CanUrl, SerialError};
+use crate::gateway::core::input::CanEvent;
+use crate::gateway::core::psd_session::MAX_RTT;
+use crate::gateway::core::SetupError;
+use crate::link::{open_can, CanError, CanLink, SerialError};
 
 /// Verdict of one line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -152,7 +154,7 @@ pub async fn check(config: &Path) -> Report {
     config_cross_checks(&rig, &mut report);
     // Applied to this process as the gateway applies them to its own: a refusal here is the
     // refusal `flowgate run` would meet, with the same message.
-    match crate::gateway::realtime::apply(&rig.realtime) {
+    match crate::gateway::shell::realtime::apply(&rig.realtime) {
         Ok(()) if rig.realtime.is_empty() => report.pass(REALTIME, "realtime", "none asked for"),
         Ok(()) => report.pass(REALTIME, "realtime", format!("{}: granted", rig.realtime)),
         Err(e) => report.fail(REALTIME, "realtime", e.to_string()),

@@ -11,9 +11,9 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{timeout_at, Instant};
 
 use crate::config::SerialConfig;
-use crate::gateway::counter_window::Verdict;
-use crate::gateway::psd_session::{PsdSession, SessionEvent, RETRY_AFTER, TRIES};
-use crate::gateway::SetupError;
+use crate::gateway::core::counter_window::Verdict;
+use crate::gateway::core::psd_session::{PsdSession, SessionEvent, RETRY_AFTER, TRIES};
+use crate::gateway::core::SetupError;
 use crate::link::{open_serial, SerialError};
 use crate::time::HostTime;
 

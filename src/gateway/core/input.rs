@@ -6,12 +6,37 @@
 //! reads no clock and no I/O of its own, that reproduces every decision it made: the CAN
 //! frames it asked for, byte for byte.
 
+use flowgate_protocol::CanFrame;
+
 use super::operator::{Refusal, Request, Status};
-use crate::link::CanEvent;
 use crate::time::HostTime;
 
 /// The most bytes one PSD read hands the core, and one input record holds.
 pub const PSD_CHUNK: usize = 256;
+
+/// What a CAN link delivers: frames, and what else the bus says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CanEvent {
+    Frame(CanFrame),
+    /// A SocketCAN error frame; `bus_off` when the controller went bus-off.
+    ErrorFrame {
+        bus_off: bool,
+    },
+    /// A line from an SLCAN adapter that did not parse.
+    Garbled,
+    /// An SLCAN adapter refused a line (BEL): after the channel is open, a transmit.
+    TransmitRefused,
+    /// An SLCAN adapter's status flags (`F`). LAWICEL has no bus-off flag: a bus error (bit 7)
+    /// with the transmit FIFO full (bit 1) is the adapter's controller no longer sending,
+    /// which is what bus-off means to the gateway.
+    AdapterStatus {
+        bus_off: bool,
+        error_passive: bool,
+    },
+    /// The SocketCAN interface went down or away (`ip link set down`, a `slcand` that
+    /// exited, a USB adapter pulled): not the bus, the host's own interface.
+    InterfaceDown,
+}
 
 /// One input to the core.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -297,46 +297,14 @@ impl PsdSession {
 
     /// A packet from the controller.
     pub fn on_packet(&mut self, now: HostTime, packet: &Packet, send: &mut impl FnMut(Packet)) -> SessionEvent {
-        // A reply names its request twice: by seq, and by the host time it echoes.
-        if let (Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us }, Some((seq, sent))) =
-            (packet.message, self.resync)
-        {
-            if request_seq == seq && host_time_us == sent.as_nanos() / 1000 {
-                self.resync = None;
-                let rtt = now.since(sent);
-                self.round_trip = Some(rtt);
-                if rtt > MAX_RTT {
-                    return SessionEvent::Resynced { accepted: false };
-                }
-                let offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
-                let step_ns = offset.as_nanos() - self.offset.as_nanos();
-                if step_ns.unsigned_abs() > self.step_bound_ns(now, rtt) {
-                    let again = std::mem::replace(&mut self.stepped, true);
-                    self.next_resync = now + STEP_RECHECK;
-                    let step_us =
-                        i64::try_from(step_ns / 1000).unwrap_or(if step_ns < 0 { i64::MIN } else { i64::MAX });
-                    return SessionEvent::ClockStep { step_us, again };
-                }
-                self.stepped = false;
-                self.take_offset(offset, now, rtt);
-                return SessionEvent::Resynced { accepted: true };
-            }
+        if let Some(event) = self.resync_reply(now, packet) {
+            return event;
         }
         let Phase::Setup { step, seq, sent, .. } = self.phase else { return SessionEvent::Pass };
         let next = match (step, packet.message) {
             (Step::Info, Message::Info { request_seq, info }) if request_seq == seq => {
                 self.info = Some(info);
-                // Identity: a controller that cannot run this schedule, or reads another
-                // PSD, or stamps in other units, is not the configured one.
-                let problem = if usize::from(info.max_leds) < self.schedule.slots().len() {
-                    Some("it drives fewer LEDs than the schedule has")
-                } else if info.psd_counts != [self.counts; 2] {
-                    Some("its PSD's counts differ from calibration.counts")
-                } else if info.clock_hz != 1_000_000 {
-                    Some("its timestamps are not in microseconds")
-                } else {
-                    None
-                };
+                let problem = self.identity_problem(&info);
                 if let Some(why) = problem {
                     self.phase = Phase::Down;
                     return SessionEvent::Failed(SetupError::Identity(why));
@@ -372,6 +340,47 @@ impl PsdSession {
         };
         self.request(now, next, 1, send);
         SessionEvent::Consumed
+    }
+
+    /// The answer to a periodic time sync, if `packet` is it. A reply names its request
+    /// twice: by seq, and by the host time it echoes.
+    fn resync_reply(&mut self, now: HostTime, packet: &Packet) -> Option<SessionEvent> {
+        let Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us } = packet.message else { return None };
+        let (seq, sent) = self.resync?;
+        if request_seq != seq || host_time_us != sent.as_nanos() / 1000 {
+            return None;
+        }
+        self.resync = None;
+        let rtt = now.since(sent);
+        self.round_trip = Some(rtt);
+        if rtt > MAX_RTT {
+            return Some(SessionEvent::Resynced { accepted: false });
+        }
+        let offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+        let step_ns = offset.as_nanos() - self.offset.as_nanos();
+        if step_ns.unsigned_abs() > self.step_bound_ns(now, rtt) {
+            let again = std::mem::replace(&mut self.stepped, true);
+            self.next_resync = now + STEP_RECHECK;
+            let step_us = i64::try_from(step_ns / 1000).unwrap_or(if step_ns < 0 { i64::MIN } else { i64::MAX });
+            return Some(SessionEvent::ClockStep { step_us, again });
+        }
+        self.stepped = false;
+        self.take_offset(offset, now, rtt);
+        Some(SessionEvent::Resynced { accepted: true })
+    }
+
+    /// Identity: a controller that cannot run this schedule, or reads another PSD, or stamps
+    /// in other units, is not the configured one.
+    fn identity_problem(&self, info: &Info) -> Option<&'static str> {
+        if usize::from(info.max_leds) < self.schedule.slots().len() {
+            Some("it drives fewer LEDs than the schedule has")
+        } else if info.psd_counts != [self.counts; 2] {
+            Some("its PSD's counts differ from calibration.counts")
+        } else if info.clock_hz != 1_000_000 {
+            Some("its timestamps are not in microseconds")
+        } else {
+            None
+        }
     }
 
     fn take_offset(&mut self, offset: ClockOffset, now: HostTime, rtt: Duration) {

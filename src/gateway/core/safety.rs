@@ -232,9 +232,10 @@ impl std::fmt::Display for State {
     }
 }
 
-impl std::fmt::Display for StopReason {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
+impl StopReason {
+    /// The text of a reason that carries no data.
+    fn fixed_text(&self) -> Option<&'static str> {
+        Some(match self {
             Self::GoalReached => "goal reached",
             Self::GoalBlocked => "goal inside an obstacle's planning circle for longer than planner.goal_wait",
             Self::OperatorEStop => "operator emergency stop",
@@ -247,45 +248,56 @@ impl std::fmt::Display for StopReason {
             Self::SamplesStopped => "no samples from the PSD controller",
             Self::SerialGarbled => "garbled serial frames beyond budget",
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
-            Self::UnscheduledLed { led } => {
-                return write!(f, "samples of LED {led}, not in the schedule's slot, beyond budget")
-            }
             Self::FrameCounterJump => "PSD frame counter jumped beyond its window, beyond budget",
             Self::ClockJumped => "PSD controller's clock jumped (beyond the 1000 ppm drift bound)",
             Self::ControllerFault => "the PSD controller reports a fault",
             Self::ControllerReset => "the PSD controller rebooted",
             Self::SerialLost => "serial device lost",
-            Self::HeartbeatLost { node } => return write!(f, "motor board {node} heartbeat lost"),
             Self::ClockUnsynced => "controller clock unsynchronised (time sync round trips too long)",
-            Self::BoardSequence { node } => {
-                return write!(f, "motor board {node} counts lost or foreign commands beyond budget")
-            }
             Self::CanTransmitRefused => "CAN adapter refuses to transmit beyond budget",
             Self::CanLinkLost => "CAN link lost",
             Self::CanInterfaceDown => "CAN interface went down",
-            Self::BoardReboot { node } => return write!(f, "motor board {node} rebooted"),
-            Self::SecondMaster { node } => return write!(f, "another device commands motor board {node}"),
-            Self::ObstacleOccluded { led } => {
-                return write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
-            }
             Self::BusOff => "CAN bus-off",
-            Self::BoardBusOff { node } => return write!(f, "motor board {node} CAN bus-off"),
-            Self::BoardFault { node } => return write!(f, "motor board {node} fault"),
-            Self::BoardEStop { node } => return write!(f, "e-stop latched by motor board {node} (its e-stop input)"),
-            Self::BoardNotEnabled { node } => return write!(f, "motor board {node} did not enable"),
             Self::PlannerInvalid => "planner refused its input",
-            Self::DriveHeartbeatLost { node } => return write!(f, "drive {node} heartbeat lost"),
-            Self::DriveRebooted { node } => return write!(f, "drive {node} rebooted (boot-up message)"),
-            Self::DriveSecondMaster { node } => return write!(f, "another device commands drive {node}"),
+            _ => return None,
+        })
+    }
+}
+
+impl std::fmt::Display for StopReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(text) = self.fixed_text() {
+            return f.write_str(text);
+        }
+        match self {
+            Self::UnscheduledLed { led } => {
+                write!(f, "samples of LED {led}, not in the schedule's slot, beyond budget")
+            }
+            Self::HeartbeatLost { node } => write!(f, "motor board {node} heartbeat lost"),
+            Self::BoardSequence { node } => {
+                write!(f, "motor board {node} counts lost or foreign commands beyond budget")
+            }
+            Self::BoardReboot { node } => write!(f, "motor board {node} rebooted"),
+            Self::SecondMaster { node } => write!(f, "another device commands motor board {node}"),
+            Self::ObstacleOccluded { led } => {
+                write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
+            }
+            Self::BoardBusOff { node } => write!(f, "motor board {node} CAN bus-off"),
+            Self::BoardFault { node } => write!(f, "motor board {node} fault"),
+            Self::BoardEStop { node } => write!(f, "e-stop latched by motor board {node} (its e-stop input)"),
+            Self::BoardNotEnabled { node } => write!(f, "motor board {node} did not enable"),
+            Self::DriveHeartbeatLost { node } => write!(f, "drive {node} heartbeat lost"),
+            Self::DriveRebooted { node } => write!(f, "drive {node} rebooted (boot-up message)"),
+            Self::DriveSecondMaster { node } => write!(f, "another device commands drive {node}"),
             Self::DriveSdoTimeout { node, index, sub } => {
-                return write!(f, "drive {node} did not answer SDO 0x{index:04X}:{sub} within cia402.sdo_timeout_ms")
+                write!(f, "drive {node} did not answer SDO 0x{index:04X}:{sub} within cia402.sdo_timeout_ms")
             }
             Self::DriveSdoAbort { node, index, sub, code } => {
                 let why = flowgate_protocol::canopen::sdo_abort_text(*code);
-                return write!(f, "drive {node} refused SDO 0x{index:04X}:{sub}: abort 0x{code:08X} ({why})");
+                write!(f, "drive {node} refused SDO 0x{index:04X}:{sub}: abort 0x{code:08X} ({why})")
             }
             Self::DriveNotEnabled { node, state } => {
-                return write!(
+                write!(
                     f,
                     "drive {node} stayed in '{}' (statusword 0x6041), not operation enabled within cia402.enable_timeout_ms",
                     state.name()
@@ -293,12 +305,13 @@ impl std::fmt::Display for StopReason {
             }
             Self::DriveEmergency { node, code } => {
                 let emcy = flowgate_protocol::canopen::Emcy { error_code: *code, error_register: 0, vendor: [0; 5] };
-                return write!(f, "drive {node} emergency 0x{code:04X} ({})", emcy.describe());
+                write!(f, "drive {node} emergency 0x{code:04X} ({})", emcy.describe())
             }
             Self::DriveLeftOperation { node, state } => {
-                return write!(f, "drive {node} left operation enabled for '{}'", state.name())
+                write!(f, "drive {node} left operation enabled for '{}'", state.name())
             }
-        })
+            _ => Ok(()),
+        }
     }
 }
 
@@ -352,6 +365,11 @@ impl State {
     }
     pub fn may_move(self) -> bool {
         self == State::Running
+    }
+
+    /// The motors are enabled (or being stopped): the watchdogs are armed.
+    pub fn is_active(self) -> bool {
+        matches!(self, State::Armed | State::Running | State::Stopping(_))
     }
 }
 

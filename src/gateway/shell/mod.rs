@@ -44,8 +44,10 @@ use telemetry::{CanRecord, Record, Timing};
 use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
 use super::core::operator::Request;
 use super::core::{Core, Output, Progress, SetupError, StageClock, State};
+use crate::config::CanUrl;
 use crate::config::Rig;
-use crate::link::{open_can, open_serial, CanError, CanEvent, CanLink, CanUrl, SerialError};
+use crate::gateway::core::input::CanEvent;
+use crate::link::{open_can, open_serial, CanError, CanLink, SerialError};
 use crate::time::HostTime;
 
 /// Deadline of one write to the PSD line (a few frames at 921600 baud take well under 1 ms).

@@ -40,10 +40,10 @@ use serde_json::{json, Value};
 
 use super::foxglove::Live;
 use crate::config::RecordCompression;
+use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::timing::CycleRecord;
-use crate::link::CanEvent;
 use crate::time::HostTime;
 
 /// The metadata record holding the configuration.

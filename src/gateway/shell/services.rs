@@ -16,8 +16,8 @@ use super::foxglove::Live;
 use super::recording::{McapSink, RecordingSetup};
 use super::telemetry::{self, Recorder, Sinks, WrittenFiles};
 use super::{metrics, unix_now, view, GatewayError};
+use crate::config::CanUrl;
 use crate::config::Rig;
-use crate::link::CanUrl;
 use crate::planner::Space;
 use crate::time::HostTime;
 

@@ -404,7 +404,7 @@ async fn client(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::scene::ObstacleView;
+    use crate::gateway::core::scene::ObstacleView;
     use crate::planner::Space;
 
     fn setup() -> ViewSetup {

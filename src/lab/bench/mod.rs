@@ -27,8 +27,8 @@ use null_gateway::NullGatewayProcess;
 use pace::Pacer;
 use peers::{CanSide, Commands, Controller, Stamped, ToBus};
 
-use crate::gateway::realtime::RealtimeSettings;
-use crate::gateway::telemetry::StageSummary;
+use crate::gateway::shell::realtime::RealtimeSettings;
+use crate::gateway::shell::telemetry::StageSummary;
 
 /// The PSD line's baud rate and the CAN bitrate the wire times are stated for.
 pub const BAUD: u32 = 921_600;

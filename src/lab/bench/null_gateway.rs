@@ -21,9 +21,10 @@ use flowgate_protocol::psd::{Message, Packet};
 use tokio::io::{AsyncBufReadExt, AsyncReadExt as _};
 use tokio_util::codec::Decoder;
 
-use crate::gateway::low_latency::{SpinWindow, Wait};
-use crate::gateway::realtime::RealtimeSettings;
-use crate::link::{open_can, open_serial, CanUrl};
+use crate::config::CanUrl;
+use crate::gateway::shell::low_latency::{SpinWindow, Wait};
+use crate::gateway::shell::realtime::RealtimeSettings;
+use crate::link::{open_can, open_serial};
 
 /// What the process prints once both endpoints are open.
 pub const READY: &str = "null gateway ready";

@@ -21,7 +21,7 @@ use serde::Serialize;
 pub use super::Outcome;
 use super::Scenario;
 use crate::control::{ControlStep, StepStatus, Supervision};
-use crate::gateway::{State, StopReason};
+use crate::gateway::core::{State, StopReason};
 use crate::planner::MAX_OBSTACLES;
 use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
 

@@ -4,7 +4,8 @@ use std::fmt::Write as _;
 
 use crate::Point;
 
-use crate::lab::offline::Run;
+use crate::lab::offline::{Run, Summary, TraceRow};
+use crate::lab::Outcome;
 use crate::lab::Scenario;
 use crate::planner::{streamlines, Field, ObstacleEstimate, PlanInput, Planner};
 use crate::svg::{Axes, Svg};
@@ -35,11 +36,26 @@ pub fn start_field(s: &Scenario) -> Option<Field> {
     Planner::new(config.planner).field(&input).ok().map(|(f, _)| f)
 }
 
+/// How a run ended, as a plot's title says it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ending {
+    pub outcome: Outcome,
+    /// Smallest true gap to an obstacle, m.
+    pub min_obstacle_clearance: Option<f64>,
+    pub end_time: f64,
+}
+
+impl From<&Summary> for Ending {
+    fn from(s: &Summary) -> Self {
+        Self { outcome: s.outcome, min_obstacle_clearance: s.min_obstacle_clearance, end_time: s.end_time }
+    }
+}
+
 /// `trajectory.svg`: walls, streamlines at the start, obstacles' paths with their circles at
 /// intervals, the robot's path and the goal.
-pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
-    let mut pts: Vec<Point> = run.trace.iter().map(|r| r.pose.position).collect();
-    pts.extend(run.trace.iter().flat_map(|r| r.obstacles.iter().copied()));
+pub fn trajectory_svg(s: &Scenario, trace: &[TraceRow], ending: Ending) -> String {
+    let mut pts: Vec<Point> = trace.iter().map(|r| r.pose.position).collect();
+    pts.extend(trace.iter().flat_map(|r| r.obstacles.iter().copied()));
     pts.push(s.goal());
     pts.push(s.robot_start());
     let pad = 0.1 + s.obstacles.iter().map(|o| o.radius).fold(s.robot.radius, f64::max);
@@ -54,9 +70,9 @@ pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
     let title = format!(
         "{} | outcome: {} | min clearance {} | t = {:.1} s",
         s.name,
-        run.summary.outcome,
-        run.summary.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1} mm", c * 1e3)),
-        run.summary.end_time
+        ending.outcome,
+        ending.min_obstacle_clearance.map_or("-".into(), |c| format!("{:.1} mm", c * 1e3)),
+        ending.end_time
     );
     svg.text(svg.width / 2.0, 22.0, &title, "middle", 14.0, "#000");
 
@@ -77,18 +93,18 @@ pub fn trajectory_svg(s: &Scenario, run: &Run) -> String {
     // Obstacles: path, and circles about every second (solid: true radius).
     let every = (1.0 / s.sensing.sample_time).round().max(1.0) as usize;
     for (k, o) in s.obstacles.iter().enumerate() {
-        let path: Vec<Point> = run.trace.iter().map(|r| r.obstacles[k]).collect();
+        let path: Vec<Point> = trace.iter().map(|r| r.obstacles[k]).collect();
         ax.polyline(&mut svg, &path, OBSTACLE, 1.5, Some("4 3"));
-        for (i, row) in run.trace.iter().enumerate().filter(|(i, _)| i % every == 0) {
+        for (i, row) in trace.iter().enumerate().filter(|(i, _)| i % every == 0) {
             ax.circle(&mut svg, row.obstacles[k], o.radius, OBSTACLE, 0.8, 0.08);
             if i % (5 * every) == 0 {
                 ax.label(&mut svg, row.obstacles[k], &format!("{:.0}s", row.t), OBSTACLE);
             }
         }
     }
-    let path: Vec<Point> = run.trace.iter().map(|r| r.pose.position).collect();
+    let path: Vec<Point> = trace.iter().map(|r| r.pose.position).collect();
     ax.polyline(&mut svg, &path, ROBOT, 2.0, None);
-    for (_, row) in run.trace.iter().enumerate().filter(|(i, _)| i % (5 * every) == 0) {
+    for (_, row) in trace.iter().enumerate().filter(|(i, _)| i % (5 * every) == 0) {
         ax.circle(&mut svg, row.pose.position, s.robot.radius, ROBOT, 0.8, 0.05);
         ax.label(&mut svg, row.pose.position, &format!("{:.0}s", row.t), ROBOT);
     }

@@ -19,9 +19,11 @@ use flowgate_protocol::motor::{NodeId, MAX_U24};
 use flowgate_protocol::psd::{LedSlot, Schedule, MAX_SCHEDULE_LEDS};
 use serde::{Deserialize, Serialize};
 
-use crate::calib::Calibration;
+mod can_url;
+pub use can_url::CanUrl;
+
+use crate::calibration::Calibration;
 use crate::control::{ControlConfig, StallConfig, SupervisorConfig};
-use crate::link::CanUrl;
 use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
 pub use crate::track::TrackingSettings;
@@ -70,7 +72,7 @@ pub struct RealtimeConfig {
     /// With the low-latency mode: as each window opens, run the cycle's code (decode,
     /// calibration, tracking, the plan, the supervisor, encoding) once on the last state and
     /// discard the result, so that code and its data are in cache when the frame comes
-    /// ([`crate::gateway::Core::rehearse`]). Off by default.
+    /// ([`crate::gateway::core::Core::rehearse`]). Off by default.
     #[serde(default)]
     pub warm_up: bool,
     /// Run the control loop on these CPUs only (e.g. `[3]`, a core kept free with
@@ -1348,7 +1350,7 @@ pub struct Rig {
 mod tests {
     use super::*;
 
-    const EXAMPLE: &str = include_str!("../rig.example.toml");
+    const EXAMPLE: &str = include_str!("../../rig.example.toml");
 
     fn rig(text: &str) -> Result<Rig, ConfigError> {
         GatewayConfig::from_toml(text, "rig.toml")?.rig("rig.toml")

@@ -19,8 +19,8 @@ use flowgate_protocol::canopen::{
 };
 use flowgate_protocol::CanFrame;
 
-use super::safety::StopReason;
 use crate::config::Cia402Settings;
+use crate::gateway::core::safety::StopReason;
 use crate::time::HostTime;
 
 /// How long a drive may miss the gateway's heartbeat before it stops by itself (0x1016): three
@@ -482,7 +482,7 @@ mod tests {
     use crate::config::{Cia402Section, GatewayConfig, Motors};
 
     fn master() -> Cia402Master {
-        let mut config = GatewayConfig::from_toml(include_str!("../../../rig.example.toml"), "rig").unwrap();
+        let mut config = GatewayConfig::from_toml(include_str!("../../../../rig.example.toml"), "rig").unwrap();
         config.use_cia402(Cia402Section::with_nodes(3, 4));
         let Motors::Cia402(settings) = config.validate().unwrap().motors else { panic!("not cia402") };
         Cia402Master::new(settings)

@@ -1,0 +1,322 @@
+//! One time-division frame's cycle: the frame's samples into the tracker (floor coordinates,
+//! host clock), the estimate, the control step (plan, supervise, wheel speeds, pulse rates)
+//! while Running, and one command to the motors with its timing record.
+
+use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
+
+use super::timing::CycleRecord;
+use super::{Core, Output, StageClock, State, StopReason};
+use crate::control::{StepOutput, StepStatus, Supervision};
+use crate::planner::PlannerError;
+use crate::time::{ClockOffset, CtrlTime, HostTime};
+use crate::track::Pose;
+use crate::Point;
+
+/// What the tracker and the control step made of a frame.
+struct Decision {
+    pose: Pose,
+    delay: f64,
+    clearance: Option<f64>,
+    /// The control step's output, in Running.
+    step: Option<StepOutput>,
+    /// The gateway went from Armed to Running this cycle.
+    started: bool,
+    track_ns: u64,
+    plan_start: u64,
+}
+
+impl<K: StageClock> Core<K> {
+    /// One time-division frame is complete: track, decide, command.
+    pub(super) fn cycle(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
+        let track_start = self.clock.now_ns();
+        if let Some(from) = self.stages.checks_from.take() {
+            self.stages.checks_ns += track_start.saturating_sub(from);
+        }
+        // This frame's decode and checks, whether or not it ends in a command.
+        let decode_ns = std::mem::take(&mut self.stages.decode_ns);
+        let checks_ns = std::mem::take(&mut self.stages.checks_ns);
+        self.track_frame(now);
+        // No fresh pose: no command (the pose watchdog stops a running robot; the keep-alive
+        // feeds a board that waits for its first pose).
+        let Some(d) = self.decide(now, track_start) else { return };
+        if d.started {
+            self.state_changed(now);
+        }
+        self.last_estimate = Some((d.pose, d.delay));
+        self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
+        let (pulses, wheels) = match d.step {
+            Some(out) => self.carry_out(now, out),
+            None => ([0; 2], (0.0, 0.0)),
+        };
+        let plan_ns = self.clock.now_ns().saturating_sub(d.plan_start);
+        // Commands go out in Running (motion), Armed and Stopping (zero, keeping the
+        // enabled board's command timeout fed).
+        if !matches!(self.state(), State::Running | State::Armed | State::Stopping(_)) {
+            return;
+        }
+        self.tracker.commanded(now.secs(), wheels.0, wheels.1);
+        let record = CycleRecord {
+            decode_ns,
+            checks_ns,
+            track_ns: d.track_ns,
+            plan_ns,
+            ..self.record(now, frame_no, end, pulses, d.delay, d.pose.position)
+        };
+        self.command(now, pulses, record, d.pose.position);
+    }
+
+    /// The estimate at `now`, the start once everything is ready, and the control step in
+    /// Running. `None` without a fresh pose.
+    fn decide(&mut self, now: HostTime, track_start: u64) -> Option<Decision> {
+        let t = now.secs();
+        let period = self.rig.sample_period.as_secs_f64();
+        let wheel_base = self.rig.control.drive.wheel_base;
+        let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
+        let motors_ready = self.motors.ready();
+        let m = &self.mission;
+        let ready = m.start_requested && !m.goals.is_empty() && motors_ready;
+        // The tracker's estimate borrows it: decide inside, act on the decision after.
+        let tracked = self.tracker.estimate(t, period, wheel_base).filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
+        let track_ns = self.clock.now_ns().saturating_sub(track_start);
+        let started = ready && self.safety.state() == State::Armed;
+        if started {
+            self.safety.ready(t);
+        }
+        let plan_start = self.clock.now_ns();
+        let step = self.safety.state().may_move().then(|| self.control.step(t, &tracked.estimate));
+        let (pose, delay) = (tracked.estimate.pose(), tracked.estimate.delay);
+        Some(Decision { pose, delay, clearance: tracked.clearance, step, started, track_ns, plan_start })
+    }
+
+    /// Count what the step saw and act on its status; the pulses and wheel speeds to command.
+    fn carry_out(&mut self, now: HostTime, out: StepOutput) -> ([i32; 2], (f64, f64)) {
+        let t = now.secs();
+        let c = &mut self.counters;
+        c.obstacle_outran_robot += u64::from(out.outrun);
+        c.obstacle_occluded_cycles += u64::from(self.tracker.tracked().any(|k| self.tracker.obstacle_occluded(k, t)));
+        if let Some(plan) = out.plan {
+            let f = plan.flags;
+            c.planner_saturated += u64::from(f.saturated);
+            c.planner_tie_break += u64::from(f.tie_break);
+            c.planner_margin_shrunk += u64::from(f.margin_shrunk);
+            c.planner_unclosed_at_a_wall += u64::from(f.unclosed_at_a_wall);
+        }
+        if out.status != StepStatus::Driving {
+            self.step_stopped(now, out.status);
+            return ([0; 2], (0.0, 0.0));
+        }
+        match out.supervision {
+            Supervision::Passed => {}
+            Supervision::Slowed { .. } => c.supervisor_slowed += 1,
+            Supervision::Braking { .. } => c.supervisor_braking += 1,
+            Supervision::Evaded { .. } => c.supervisor_evaded += 1,
+        }
+        (out.pulses, (out.wheels.left, out.wheels.right))
+    }
+
+    /// The step did not drive: the goal reached, a stall, an occupied goal, a refusal.
+    fn step_stopped(&mut self, now: HostTime, status: StepStatus) {
+        match status {
+            StepStatus::Driving => {}
+            StepStatus::AtGoal => self.goal_reached(now),
+            StepStatus::Stalled => self.stop(now, StopReason::Stalled),
+            StepStatus::GoalOccupied { index, since } => {
+                self.counters.goal_occupied += 1;
+                if since == now.secs() {
+                    let led = self.obstacle_led(index);
+                    tracing::warn!("goal inside obstacle LED {led}'s planning circle: holding still until it passes");
+                }
+            }
+            StepStatus::GoalBlocked { index } => {
+                let wait = self.control.config().goal_wait;
+                let led = self.obstacle_led(index);
+                tracing::warn!("goal inside obstacle LED {led}'s planning circle for {wait} s: stopping");
+                self.stop(now, StopReason::GoalBlocked);
+            }
+            StepStatus::Invalid(e) => {
+                self.counters.planner_invalid += 1;
+                match e {
+                    PlannerError::InsideObstacle { index }
+                    | PlannerError::GoalInsideObstacle { index }
+                    | PlannerError::BadRadius { index } => {
+                        tracing::error!("planner: {e} (obstacle LED {})", self.obstacle_led(index));
+                    }
+                    _ => tracing::error!("planner: {e}"),
+                }
+                self.stop(now, StopReason::PlannerInvalid);
+            }
+        }
+    }
+
+    /// The LED of the obstacle the planner and the supervisor call `index` (they number
+    /// the tracked obstacles only).
+    fn obstacle_led(&self, index: usize) -> u8 {
+        self.tracker.tracked().nth(index).map_or(u8::MAX, |k| self.rig.obstacles[k].led)
+    }
+
+    /// A cycle's record, its stage timings left at zero.
+    fn record(
+        &mut self,
+        now: HostTime,
+        frame: u32,
+        end: CtrlTime,
+        pulses: [i32; 2],
+        delay: f64,
+        at: Point,
+    ) -> CycleRecord {
+        CycleRecord {
+            cycle: self.counters.cycles,
+            frame,
+            t_ctrl_us: end.0,
+            rx_ns: now.as_nanos(),
+            period_ns: self.watch.last_command.map_or(0, |lc| now.since(lc).as_nanos() as u64),
+            delay_s: delay,
+            state: self.state(),
+            pulses,
+            x: at.re,
+            y: at.im,
+            goal_distance: (self.control.config().goal - at).norm(),
+            ..CycleRecord::default()
+        }
+    }
+
+    /// A goal is reached: on to the next in the queue, or stop.
+    fn goal_reached(&mut self, now: HostTime) {
+        self.mission.goals.pop_front();
+        match self.mission.goals.front() {
+            Some(next) => {
+                tracing::info!("goal reached; next goal ({}, {})", next.position[0], next.position[1]);
+                self.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
+            }
+            None => {
+                self.mission.start_requested = false;
+                self.stop(now, StopReason::GoalReached);
+            }
+        }
+    }
+
+    /// The frame's samples into the tracker, in floor coordinates on the host clock. A
+    /// sample stamped after `now` (beyond a period of clock tolerance) is discarded and
+    /// counted: one future stamp would otherwise make every later, true one look old.
+    fn track_frame(&mut self, now: HostTime) {
+        let clock = self.psd.clock();
+        let latest = now + self.rig.sample_period;
+        let robot = [self.rig.robot_front, self.rig.robot_rear];
+        if self.frame.discard_future(clock, latest, &self.rig.schedule, robot, &mut self.counters) {
+            self.watch.robot_from_future = Some(now);
+        }
+        self.observe_robot(now, clock);
+        self.observe_obstacles(now, clock);
+        self.frame.clear(&self.rig.schedule);
+    }
+
+    /// The robot's two LEDs into a pose, if plausible.
+    fn observe_robot(&mut self, now: HostTime, clock: ClockOffset) {
+        let (Some(f), Some(r)) = (self.frame.usable(self.rig.robot_front), self.frame.usable(self.rig.robot_rear))
+        else {
+            return;
+        };
+        let cal = &self.rig.calibration;
+        let (Some(fp), Some(rp)) =
+            (cal.to_floor(f64::from(f.x), f64::from(f.y)), cal.to_floor(f64::from(r.x), f64::from(r.y)))
+        else {
+            return;
+        };
+        let at = clock.to_host(f.at.midpoint(r.at)).secs();
+        let reach = self.rig.control.drive.max_wheel_speed;
+        match self.tracker.plausible(at, fp, rp, reach, self.rig.safety.pose_tolerance) {
+            Ok(()) => {
+                self.watch.implausible = None;
+                self.watch.robot_arrived = now;
+                self.tracker.observe_robot(at, fp, rp);
+            }
+            Err(e) => {
+                self.counters.poses_implausible += 1;
+                if self.watch.implausible.is_none() {
+                    tracing::warn!("robot pose discarded: {e}");
+                }
+                self.watch.implausible = Some(e);
+            }
+        }
+    }
+
+    /// Each obstacle's LED into its track; an obstacle unseen past the pose timeout and
+    /// carried beyond the view's edge has left it.
+    fn observe_obstacles(&mut self, now: HostTime, clock: ClockOffset) {
+        let t = now.secs();
+        let cal = self.rig.calibration;
+        for (k, o) in self.rig.obstacles.iter().enumerate() {
+            let tracked = self.tracker.obstacle_time(k).is_some();
+            let seen = self.frame.usable(o.led).and_then(|s| {
+                let p = cal.to_floor(f64::from(s.x), f64::from(s.y))?;
+                Some((p, clock.to_host(s.at).secs()))
+            });
+            if let Some((p, at)) = seen {
+                if self.tracker.observe_obstacle(k, at, p) && !tracked {
+                    self.counters.obstacles_entered_view += 1;
+                    let led = o.led;
+                    tracing::info!(led, "obstacle LED {led} came into view at ({:.3}, {:.3}) m", p.re, p.im);
+                }
+            } else if self.tracker.obstacle_occluded(k, t) {
+                // Unseen past the pose timeout: gone out of the view if its filter carries it
+                // beyond the edge by now (it was at the edge, heading out); otherwise occluded,
+                // and avoided as a region until it is seen again or the timeout faults.
+                let beyond = self.tracker.obstacle_prediction(k, t).is_some_and(|p| !cal.in_view(p));
+                if beyond {
+                    self.tracker.drop_obstacle(k);
+                    self.counters.obstacles_left_view += 1;
+                    tracing::info!(led = o.led, "obstacle LED {} left the view: track dropped", o.led);
+                }
+            }
+        }
+    }
+
+    /// The cycle's command to the motors, with its record.
+    fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
+        if !self.motors.takes_commands() {
+            return;
+        }
+        let encode_start = self.clock.now_ns();
+        let frame = self.motors.command(pulses, &mut self.out.can());
+        record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
+        let Ok(frame) = frame else {
+            // Pulse rates come from the drive model clamped to the wheel limit, which the
+            // config keeps in range; a frame that cannot be built is a planner fault.
+            self.stop(now, StopReason::PlannerInvalid);
+            return;
+        };
+        self.watch.last_command = Some(now);
+        self.counters.cycles += 1;
+        self.progress.t = now.secs();
+        self.progress.cycles = self.counters.cycles;
+        self.progress.goal_distance = (self.control.config().goal - position).norm();
+        self.out.push(Output::Command { frame, record });
+    }
+
+    /// Run the cycle's work once on the last state and discard it, so that its code and
+    /// data are in cache when the next frame comes (`[realtime] warm_up`: the shell calls it
+    /// as each low-latency window opens, about a frame's worth of work ahead). A packet is
+    /// encoded and decoded, a point calibrated, the state estimated, the control step
+    /// planned and supervised, a velocity frame built. It is not an input: nothing the next
+    /// cycle computes depends on it (the tracker's estimate and the plan's field are
+    /// scratch, rebuilt every cycle), so a replay without rehearsals is the run's, byte for
+    /// byte (`a_rehearsal_changes_nothing`). Only in Running, where cycles plan.
+    pub fn rehearse(&mut self, now: HostTime) {
+        if !self.safety.state().may_move() {
+            return;
+        }
+        let led = self.rig.robot_front;
+        let sample = Sample { frame: 0, slot: 0, led, t_ctrl_us: 0, x: 0, y: 0, intensity: 0, flags: SampleFlags(0) };
+        let mut wire = [0u8; MAX_WIRE_LEN];
+        if let Ok(n) = Packet::new(0, Message::Sample(sample)).encode(&mut wire) {
+            // Without its closing `0x00`, as the stream hands a frame over.
+            let _ = std::hint::black_box(Packet::decode(&wire[..n - 1]));
+        }
+        std::hint::black_box(self.rig.calibration.to_floor(0.0, 0.0));
+        let (period, wheel_base) = (self.rig.sample_period.as_secs_f64(), self.rig.control.drive.wheel_base);
+        if let Some(tracked) = self.tracker.estimate(now.secs(), period, wheel_base) {
+            self.control.rehearse(&tracked.estimate);
+        }
+        self.motors.rehearse();
+    }
+}

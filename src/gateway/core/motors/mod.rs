@@ -1,0 +1,221 @@
+//! The motors as the core drives them: one PCL-80K-like board for both wheels
+//! ([`board`]), or one CiA 402 drive a wheel ([`cia402`]), behind one type, so the core asks
+//! the same things of either and never branches on which it has.
+
+pub mod board;
+pub mod cia402;
+
+use flowgate_protocol::motor::EStopReason;
+use flowgate_protocol::CanFrame;
+
+use super::counters::Counters;
+use super::safety::{State, StopReason};
+use crate::config::{Motors, Rig};
+use crate::time::HostTime;
+use board::BoardMaster;
+use cia402::{Cia402Master, Heard};
+
+/// The gateway's side of the motors the rig has (`can.protocol`).
+#[derive(Debug)]
+pub enum MotorMaster {
+    Board(BoardMaster),
+    Cia402(Cia402Master),
+}
+
+/// What a frame from the motors asks of the core.
+#[derive(Debug, Default, Clone, Copy, PartialEq)]
+pub struct FrameEffect {
+    /// Stop for this reason.
+    pub stop: Option<StopReason>,
+    /// Another master was heard commanding our motors.
+    pub second_master: bool,
+    /// Send the enable again (an armed board still reports Disabled).
+    pub enable_again: bool,
+    /// The motors reported their rates: check whether an orderly stop has come to rest.
+    pub settle: bool,
+}
+
+impl MotorMaster {
+    pub fn new(rig: &Rig) -> Self {
+        match rig.motors {
+            Motors::Pcl80k => Self::Board(BoardMaster::new(rig.node, rig.board)),
+            Motors::Cia402(settings) => Self::Cia402(Cia402Master::new(settings)),
+        }
+    }
+
+    /// The motors follow commands: the board Enabled, or both drives in operation enabled.
+    pub fn ready(&self) -> bool {
+        match self {
+            Self::Board(b) => b.ready(),
+            Self::Cia402(m) => m.ready(),
+        }
+    }
+
+    pub fn at_rest(&self) -> bool {
+        match self {
+            Self::Board(b) => b.at_rest(),
+            Self::Cia402(m) => m.at_rest(),
+        }
+    }
+
+    /// The board, which stops by itself when commands stop coming (its command timeout) and
+    /// so needs zero commands while enabled and idle. CiA 402 drives watch the gateway's
+    /// heartbeat instead.
+    pub fn board(&self) -> Option<&BoardMaster> {
+        match self {
+            Self::Board(b) => Some(b),
+            Self::Cia402(_) => None,
+        }
+    }
+
+    /// The operator armed: the board's retries and heartbeat are counted afresh.
+    pub fn armed(&mut self) {
+        if let Self::Board(b) = self {
+            b.armed();
+        }
+    }
+
+    /// Take the motors to where they follow commands (the board: reset, configure, enable;
+    /// the drives: configure afresh and step to operation enabled).
+    pub fn enable(&mut self, now: HostTime, send: &mut impl FnMut(CanFrame)) {
+        match self {
+            Self::Board(b) => b.enable(now, send),
+            Self::Cia402(m) => m.arm(now, send),
+        }
+    }
+
+    pub fn emergency_stop(&mut self, reason: EStopReason, send: &mut impl FnMut(CanFrame)) {
+        match self {
+            Self::Board(b) => b.emergency_stop(reason, send),
+            Self::Cia402(m) => m.quick_stop(send),
+        }
+    }
+
+    /// At rest after an orderly stop (`ending`: the gateway is shutting down).
+    pub fn disable(&mut self, ending: bool, send: &mut impl FnMut(CanFrame)) {
+        match self {
+            Self::Board(b) => b.disable(send),
+            Self::Cia402(m) => m.disable(ending, send),
+        }
+    }
+
+    /// The operator reset a fault. CiA 402 drives are reset on the way to operation enabled
+    /// at the next arm; the board has its latched faults cleared now.
+    pub fn fault_reset(&mut self, send: &mut impl FnMut(CanFrame)) {
+        if let Self::Board(b) = self {
+            b.fault_reset(send);
+        }
+    }
+
+    pub fn heartbeat(&mut self, state: State, send: &mut impl FnMut(CanFrame)) {
+        match self {
+            Self::Board(b) => b.heartbeat(state, send),
+            Self::Cia402(m) => m.heartbeat(send),
+        }
+    }
+
+    /// One cycle's command. The CiA 402 drives get one RPDO each: the left one goes out
+    /// through `send`, the right one closes the cycle. `Err`: the frame could not be built
+    /// (a planner fault).
+    pub fn command(&mut self, pulses: [i32; 2], send: &mut impl FnMut(CanFrame)) -> Result<CanFrame, ()> {
+        match self {
+            Self::Board(b) => b.command(pulses).ok_or(()),
+            Self::Cia402(m) => match m.command(pulses) {
+                [Some(left), Some(right)] => {
+                    send(left);
+                    Ok(right)
+                }
+                _ => Err(()),
+            },
+        }
+    }
+
+    /// Whether the cycle's command may go out now: the drives take only the state machine's
+    /// controlwords until both are in operation enabled (a cycle's enable-operation RPDO
+    /// would jump a step, or undo one). The board takes commands whenever it is enabled.
+    pub fn takes_commands(&self) -> bool {
+        match self {
+            Self::Board(_) => true,
+            Self::Cia402(m) => m.ready(),
+        }
+    }
+
+    /// When [`MotorMaster::tick`] next has something to do.
+    pub fn deadline(&self) -> HostTime {
+        match self {
+            Self::Board(_) => HostTime::NEVER,
+            Self::Cia402(m) => m.deadline(),
+        }
+    }
+
+    pub fn tick(&mut self, now: HostTime) -> Option<StopReason> {
+        match self {
+            Self::Board(_) => None,
+            Self::Cia402(m) => m.tick(now),
+        }
+    }
+
+    /// When the motors' heartbeat watchdog fires, and what it is named: the board's, or the
+    /// drive heard longest ago (each counted from the arm at the earliest).
+    pub fn heartbeat_deadline(&self, armed_at: HostTime, timeout: std::time::Duration) -> (HostTime, StopReason) {
+        let from = |heard: Option<HostTime>| heard.map_or(armed_at, |h| h.max(armed_at));
+        match self {
+            Self::Board(b) => (from(b.last_heartbeat()) + timeout, StopReason::HeartbeatLost { node: b.node().get() }),
+            Self::Cia402(m) => {
+                let [l, r] = m.heard().map(from);
+                let [ln, rn] = m.nodes().map(|n| n.get());
+                let (heard, node) = if r < l { (r, rn) } else { (l, ln) };
+                (heard + timeout, StopReason::DriveHeartbeatLost { node })
+            }
+        }
+    }
+
+    /// Every motor was heard within `timeout` of `now`.
+    pub fn heard_within(&self, now: HostTime, timeout: std::time::Duration) -> bool {
+        match self {
+            Self::Board(b) => b.last_heartbeat().is_some_and(|h| now < h + timeout),
+            Self::Cia402(m) => m.heard().iter().all(|h| h.is_some_and(|h| now < h + timeout)),
+        }
+    }
+
+    /// Whether the board still latches the fault bit behind `reason` (the drives report no
+    /// bus or e-stop bits).
+    pub fn latched(&self, reason: StopReason) -> bool {
+        match self {
+            Self::Board(b) => b.latched(reason),
+            Self::Cia402(_) => false,
+        }
+    }
+
+    /// A frame from the bus at `now`, in gateway state `state`.
+    pub fn frame(
+        &mut self,
+        now: HostTime,
+        frame: &CanFrame,
+        state: State,
+        counters: &mut Counters,
+        send: &mut impl FnMut(CanFrame),
+    ) -> FrameEffect {
+        match self {
+            Self::Board(b) => b.frame(now, frame, state, counters),
+            Self::Cia402(m) => {
+                let (heard, stop) = m.frame(now, frame, state.is_active(), send);
+                match heard {
+                    Heard::Ours => {}
+                    Heard::Foreign => counters.can_foreign += 1,
+                    Heard::Undecodable => counters.can_undecodable += 1,
+                }
+                let second_master = matches!(stop, Some(StopReason::DriveSecondMaster { .. }));
+                FrameEffect { stop, second_master, enable_again: false, settle: true }
+            }
+        }
+    }
+
+    /// A frame like a cycle's, built and dropped (the low-latency mode's rehearsal).
+    pub fn rehearse(&self) {
+        match self {
+            Self::Board(b) => b.rehearse(),
+            Self::Cia402(m) => m.rehearse(),
+        }
+    }
+}

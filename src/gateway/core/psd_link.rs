@@ -1,0 +1,215 @@
+//! The PSD controller's serial link as the core sees it: bytes in, decoded into packets,
+//! each checked against the controller's sequence; the session's packets (handshake, time
+//! sync) to [`PsdSession`](super::psd_session::PsdSession), samples and frame ends to the
+//! [`FrameAssembler`](super::frame::FrameAssembler), whose good frames run the cycle; the
+//! controller's faults named. Discards are counted, and beyond their budget a named fault.
+
+use flowgate_protocol::codec::StreamError;
+use flowgate_protocol::psd::{FaultCode, Message, Packet};
+
+use super::counter_window::Verdict;
+use super::frame::{Ended, Taken};
+use super::operator::Refusal;
+use super::psd_session::SessionEvent;
+use super::{Core, Output, StageClock, StopReason, REOPEN_EVERY};
+use crate::time::{CtrlTime, HostTime};
+
+impl<K: StageClock> Core<K> {
+    /// The PSD line opened: configure the controller.
+    pub(super) fn psd_connected(&mut self, now: HostTime) {
+        self.links.psd_reopen_at = HostTime::NEVER;
+        self.psd.connect(now, &mut self.out.psd());
+    }
+
+    /// The PSD line failed (read error, end of file, write timeout): a serial fault.
+    pub(super) fn psd_lost(&mut self, now: HostTime) {
+        if self.links.psd_reopen_at == HostTime::NEVER {
+            self.links.psd_reopen_at = now + REOPEN_EVERY;
+        }
+        self.psd.down();
+        self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
+        self.stop(now, StopReason::SerialLost);
+    }
+
+    /// Bytes read from the PSD line at `now`.
+    pub(super) fn psd_bytes(&mut self, now: HostTime, bytes: &[u8]) {
+        if self.psd.is_down() {
+            return;
+        }
+        self.psd.feed(bytes);
+        loop {
+            let started = self.clock.now_ns();
+            let item = self.psd.next_item();
+            let decoded = self.clock.now_ns();
+            self.stages.decode_ns += decoded.saturating_sub(started);
+            match item {
+                None => break,
+                Some(Err(e)) => self.bad_frame(now, e),
+                Some(Ok(packet)) => {
+                    // A frame end's checks end where its cycle starts (`cycle` takes them).
+                    self.stages.checks_from = Some(decoded);
+                    self.packet(now, packet);
+                    if let Some(from) = self.stages.checks_from.take() {
+                        self.stages.checks_ns += self.clock.now_ns().saturating_sub(from);
+                    }
+                }
+            }
+        }
+        self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
+    }
+
+    fn bad_frame(&mut self, now: HostTime, e: StreamError<flowgate_protocol::psd::Error>) {
+        self.counters.bad_serial_frames += 1;
+        tracing::debug!("bad serial frame: {e}");
+        if self.links.bad_frames.exceeded(now) {
+            self.stop_if_active(now, StopReason::SerialGarbled);
+        }
+    }
+
+    /// A packet discarded for its place in the sequence or the schedule: counted (by the
+    /// caller), and against the budget.
+    fn sequence_error(&mut self, now: HostTime) {
+        if self.links.sequence_errors.exceeded(now) {
+            self.stop_if_active(now, StopReason::PsdSequence);
+        }
+    }
+
+    /// The controller's sequence: duplicates and replays are discarded, gaps counted.
+    fn in_sequence(&mut self, now: HostTime, packet: &Packet) -> bool {
+        if let Message::Fault { code: FaultCode::Reset, .. } = packet.message {
+            self.psd.forget_sequence(); // a rebooted controller counts from zero
+        }
+        let c = &mut self.counters;
+        match self.psd.sequence(packet.seq) {
+            Verdict::Next => return true,
+            Verdict::Gap(n) => {
+                c.psd_packets_lost += u64::from(n);
+                return true;
+            }
+            Verdict::Rebased => {
+                c.psd_seq_rebased += 1;
+                let seq = packet.seq;
+                tracing::warn!(seq, "PSD controller's sequence numbers moved: following them from {seq}");
+                return true;
+            }
+            Verdict::Repeat => c.psd_duplicates += 1,
+            Verdict::Old => c.psd_out_of_order += 1,
+            Verdict::Jump => c.psd_seq_jumps += 1,
+        }
+        self.sequence_error(now);
+        false
+    }
+
+    fn packet(&mut self, now: HostTime, packet: Packet) {
+        if !self.in_sequence(now, &packet) {
+            return;
+        }
+        let event = self.psd.on_packet(now, &packet, &mut self.out.psd());
+        if self.session_event(now, event) {
+            return;
+        }
+        let timed = matches!(packet.message, Message::Sample(_) | Message::FrameEnd { .. });
+        if timed && !self.psd.is_streaming() {
+            // Before time sync its stamps mean nothing on our clock: discard, and count.
+            self.counters.samples_unsynced += 1;
+            return;
+        }
+        self.message(now, packet.message);
+    }
+
+    /// What the session made of a packet; whether it consumed the packet.
+    fn session_event(&mut self, now: HostTime, event: SessionEvent) -> bool {
+        match event {
+            SessionEvent::Pass => return false,
+            SessionEvent::Consumed => {}
+            SessionEvent::Failed(e) => self.out.push(Output::SetupFailed(e)),
+            SessionEvent::Streaming => self.streaming(now),
+            SessionEvent::Resynced { accepted: true } => self.counters.time_syncs += 1,
+            SessionEvent::Resynced { accepted: false } => self.counters.time_syncs_rejected += 1,
+            SessionEvent::ClockStep { step_us, again } => {
+                self.counters.time_syncs_implausible += 1;
+                if again {
+                    tracing::error!(
+                        step_us,
+                        "PSD controller's clock jumped by {step_us} µs (confirmed by a second sync)"
+                    );
+                    self.stop_if_active(now, StopReason::ClockJumped);
+                } else {
+                    tracing::warn!(
+                        step_us,
+                        "time sync refused: the controller's clock moved {step_us} µs, beyond drift; checking again"
+                    );
+                }
+            }
+        }
+        true
+    }
+
+    /// The controller is configured and streams: frames start afresh; a reconnect is
+    /// counted; `--arm` arms and starts now.
+    fn streaming(&mut self, now: HostTime) {
+        self.watch.last_sample = now;
+        self.frame.restart(&self.rig.schedule);
+        if self.links.streamed && !std::mem::take(&mut self.links.rehandshake) {
+            self.counters.serial_reconnects += 1;
+            self.progress.serial_reconnects = self.counters.serial_reconnects;
+        }
+        self.links.streamed = true;
+        if let Some(info) = self.psd.info() {
+            tracing::info!(firmware = ?info.firmware, max_leds = info.max_leds, "PSD controller streaming");
+        }
+        self.out.push(Output::Streaming);
+        if std::mem::take(&mut self.mission.arm_at_start) {
+            let result = match self.rig.goal {
+                Some(goal) => self.arm_and_start(now, goal),
+                None => Err(Refusal::NoGoal),
+            };
+            if let Err(e) = result {
+                tracing::error!("arming at start: {e}");
+            }
+        }
+    }
+
+    /// A packet past the session's checks: a sample, a frame's end, a controller's fault.
+    fn message(&mut self, now: HostTime, message: Message) {
+        match message {
+            Message::Sample(s) => match self.frame.sample(now, &s, &self.rig.schedule, &mut self.counters) {
+                Taken::Yes => self.watch.last_sample = now,
+                Taken::Unscheduled { over_budget } => {
+                    if over_budget {
+                        self.stop_if_active(now, StopReason::UnscheduledLed { led: s.led });
+                    }
+                }
+            },
+            Message::FrameEnd { frame, t_ctrl_us, samples } => {
+                match self.frame.end(now, frame, samples, &self.rig.schedule, &mut self.counters) {
+                    Ended::Cycle => self.cycle(now, frame, CtrlTime(t_ctrl_us)),
+                    Ended::Repeated => self.sequence_error(now),
+                    Ended::Jumped { over_budget: true } => self.stop_if_active(now, StopReason::FrameCounterJump),
+                    Ended::Jumped { over_budget: false } => {}
+                }
+            }
+            Message::Fault { code: FaultCode::Reset, .. } => {
+                // The controller rebooted (or announces its boot while we configure it): its
+                // schedule and clock are gone. A robot driving on it stops, named for it (a
+                // quick reconfigure must not hide a reboot); the controller is configured
+                // again so an operator can reset and arm.
+                if self.psd.restart(now, &mut self.out.psd()) {
+                    tracing::warn!("PSD controller reset; reconfiguring");
+                    self.stop_if_active(now, StopReason::ControllerReset);
+                }
+            }
+            Message::Fault { code: FaultCode::Overrun, .. } => {
+                // Samples lost inside the controller: loss, counted against the budget.
+                self.counters.controller_overruns += 1;
+                self.sequence_error(now);
+            }
+            Message::Fault { code, detail } => {
+                self.counters.controller_faults += 1;
+                tracing::error!("PSD controller fault {code:?} (detail {detail})");
+                self.stop_if_active(now, StopReason::ControllerFault);
+            }
+            _ => {} // heartbeats
+        }
+    }
+}

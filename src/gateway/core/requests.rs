@@ -1,0 +1,263 @@
+//! The operator's requests: arm, start, stop, e-stop, reset, goals, and the queries. A
+//! refusal says exactly why and changes nothing.
+
+use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
+use super::scene::{ObstacleView, SceneRecord};
+use super::{Answer, Core, StageClock, State, StopReason};
+use crate::planner::Space;
+use crate::time::HostTime;
+use crate::Point;
+
+impl<K: StageClock> Core<K> {
+    /// An operator's request and its answer: the status comes with a query or an accepted
+    /// request.
+    pub(super) fn answer(&mut self, now: HostTime, request: &Request) -> Answer {
+        let result = self.request(now, request);
+        let status = (request.is_query() || result.is_ok()).then(|| self.status(now));
+        Answer { result, status }
+    }
+
+    /// An operator's request at `now`. Refusals say exactly why and change nothing.
+    pub(super) fn request(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
+        match request {
+            Request::Status | Request::Stats { .. } => Ok(()),
+            Request::Arm => self.arm(now),
+            Request::Start => self.start(),
+            Request::Stop => self.stop_request(now, false),
+            Request::Cancel => self.stop_request(now, true),
+            Request::EStop => self.estop(now),
+            Request::Reset => self.reset(now),
+            Request::Goal { goals } => self.set_goals(now, goals),
+        }
+    }
+
+    fn arm(&mut self, now: HostTime) -> Result<(), Refusal> {
+        let state = self.state();
+        match state {
+            State::Idle | State::Stopped(_) => {}
+            State::Fault(_) => return Err(Refusal::Faulted(state)),
+            _ => return Err(Refusal::Already(state)),
+        }
+        let unseen =
+            self.rig.obstacles.iter().enumerate().find(|&(k, o)| o.required && self.tracker.obstacle_time(k).is_none());
+        if let Some((index, o)) = unseen {
+            return Err(Refusal::RequiredObstacleUnseen { led: o.led, index });
+        }
+        let action = self.safety.arm(now.secs());
+        self.watch.armed_at = now;
+        self.watch.last_sample = now;
+        self.motors.armed();
+        self.mission.start_requested = false;
+        self.act(now, action);
+        Ok(())
+    }
+
+    fn start(&mut self) -> Result<(), Refusal> {
+        let state = self.state();
+        match state {
+            State::Armed if self.mission.goals.is_empty() => Err(Refusal::NoGoal),
+            State::Armed => {
+                self.mission.start_requested = true;
+                Ok(())
+            }
+            State::Running => Err(Refusal::Already(state)),
+            State::Fault(_) => Err(Refusal::Faulted(state)),
+            _ => Err(Refusal::NotArmed(state)),
+        }
+    }
+
+    /// Stop in order (`cancel`: and forget the goals).
+    fn stop_request(&mut self, now: HostTime, cancel: bool) -> Result<(), Refusal> {
+        if cancel {
+            self.mission.goals.clear();
+        }
+        self.mission.start_requested = false;
+        if matches!(self.state(), State::Running | State::Armed) {
+            self.stop(now, StopReason::Operator);
+        }
+        Ok(())
+    }
+
+    /// Accepted whatever the state. In a fault the motors were e-stopped already; they hear
+    /// the operator's e-stop again all the same.
+    fn estop(&mut self, now: HostTime) -> Result<(), Refusal> {
+        self.mission.start_requested = false;
+        if matches!(self.state(), State::Fault(_)) {
+            self.motors.emergency_stop(flowgate_protocol::motor::EStopReason::Operator, &mut self.out.can());
+        } else {
+            self.stop(now, StopReason::OperatorEStop);
+        }
+        Ok(())
+    }
+
+    /// Leave a fault whose cause is gone.
+    fn reset(&mut self, now: HostTime) -> Result<(), Refusal> {
+        let state = self.state();
+        let State::Fault(reason) = state else { return Err(Refusal::NotFaulted(state)) };
+        if self.cause_present(now, reason) {
+            return Err(Refusal::CauseStillPresent(reason));
+        }
+        if let StopReason::ObstacleOccluded { led } = reason {
+            if let Some(k) = self.rig.obstacles.iter().position(|o| o.led == led) {
+                self.tracker.drop_obstacle(k);
+            }
+        }
+        self.motors.fault_reset(&mut self.out.can());
+        // The PSD session starts afresh: sequence numbers, frame counter and clock taken
+        // anew, so no baseline a fault left behind outlives the reset.
+        if !self.psd.is_down() {
+            self.psd.connect(now, &mut self.out.psd());
+            self.frame.forget_counter();
+            self.watch.robot_from_future = None;
+            self.links.rehandshake = true;
+        }
+        self.safety.reset(now.secs());
+        self.state_changed(now);
+        Ok(())
+    }
+
+    /// Arm, set `goal` and start (`--arm`).
+    pub(super) fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
+        self.request(now, &Request::Arm)?;
+        self.request(now, &Request::Goal { goals: vec![goal] })?;
+        self.request(now, &Request::Start)
+    }
+
+    /// Whether a fault's cause persists now.
+    fn cause_present(&self, now: HostTime, reason: StopReason) -> bool {
+        let s = &self.rig.safety;
+        let heard = self.motors.heard_within(now, s.heartbeat_timeout);
+        let sampling = !self.psd.is_down() && now < self.watch.last_sample + s.sample_timeout;
+        match reason {
+            StopReason::SerialLost => self.psd.is_down(),
+            StopReason::SamplesStopped | StopReason::SerialGarbled => !sampling,
+            StopReason::PoseLost => {
+                !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
+            }
+            StopReason::HeartbeatLost { .. } | StopReason::DriveHeartbeatLost { .. } => !heard,
+            // The reset forgets the occluded track: the obstacle is absent until seen again
+            // (and a required one refuses the arm until then).
+            StopReason::ObstacleOccluded { .. } => false,
+            StopReason::BusOff | StopReason::BoardBusOff { .. } | StopReason::BoardEStop { .. } => {
+                !heard || self.motors.latched(reason)
+            }
+            StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.links.can_up,
+            // Two masters must never drive one board: refused while the other is heard.
+            StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {
+                self.links.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout)
+            }
+            // The reset clears the board's latched fault; a driver fault that persists
+            // faults the gateway again once it runs.
+            _ => false,
+        }
+    }
+
+    /// What the gateway knows now: state, goals, pose, obstacles.
+    pub(super) fn status(&mut self, now: HostTime) -> Status {
+        let period = self.rig.sample_period.as_secs_f64();
+        let (wheel_base, robot, margin) =
+            (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
+        let tracked: Vec<usize> = self.tracker.tracked().collect();
+        let (pose, obstacles) = match self.tracker.estimate(now.secs(), period, wheel_base) {
+            Some(tr) => {
+                let p = tr.estimate.pose();
+                let delay = tr.estimate.delay;
+                let obstacles = tr
+                    .estimate
+                    .obstacles
+                    .iter()
+                    .zip(tracked)
+                    .map(|(o, k)| ObstacleStatus {
+                        led: self.rig.obstacles[k].led,
+                        occluded: o.spread > 0.0,
+                        position: [o.center.re, o.center.im],
+                        velocity: [o.velocity.re, o.velocity.im],
+                        planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
+                    })
+                    .collect();
+                (Some([p.position.re, p.position.im, p.heading]), obstacles)
+            }
+            None => (None, Vec::new()),
+        };
+        Status {
+            state: self.state(),
+            last_stop: self.safety.history.iter().rev().find_map(|(_, s)| s.reason()),
+            goals: self.mission.goals.iter().copied().collect(),
+            pose,
+            obstacles,
+            absent: (0..self.rig.obstacles.len())
+                .filter(|&k| self.tracker.obstacle_time(k).is_none())
+                .map(|k| self.rig.obstacles[k].led)
+                .collect(),
+            cycles: self.counters.cycles,
+            latency_us: None,
+            stages: None,
+        }
+    }
+
+    /// What the last cycle believed: the robot's pose, the goal, each obstacle with its
+    /// covariance and planning radius. Reads only (a recording takes one per command).
+    pub fn scene(&self, now: HostTime) -> SceneRecord {
+        // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
+        let cycle = self.counters.cycles.saturating_sub(1);
+        let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
+        let Some((pose, delay)) = self.last_estimate else { return scene };
+        let goal = self.control.config().goal;
+        scene.pose = [pose.position.re, pose.position.im, pose.heading];
+        scene.goal = [goal.re, goal.im];
+        let (robot, margin) = (self.rig.control.robot_radius, self.rig.control.planner.margin);
+        for (view, (o, cov)) in scene.obstacles.iter_mut().zip(self.tracker.obstacles_at(now.secs())) {
+            *view = ObstacleView {
+                position: [o.center.re as f32, o.center.im as f32],
+                velocity: [o.velocity.re as f32, o.velocity.im as f32],
+                covariance: cov.map(|c| c as f32),
+                planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay) as f32,
+                radius: o.radius as f32,
+            };
+            scene.count += 1;
+        }
+        scene
+    }
+
+    /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,
+    /// outside every obstacle's planning circle now.
+    pub(super) fn set_goals(&mut self, now: HostTime, goals: &[Goal]) -> Result<(), Refusal> {
+        if goals.is_empty() {
+            return Err(Refusal::EmptyQueue);
+        }
+        if goals.len() > MAX_GOALS {
+            return Err(Refusal::TooManyGoals(goals.len()));
+        }
+        let obstacles = self.status(now).obstacles;
+        for (index, g) in goals.iter().enumerate() {
+            let [x, y] = g.position;
+            let bad = |why: String| Refusal::BadGoal { index, x, y, why };
+            let at = Point::new(x, y);
+            if !(x.is_finite() && y.is_finite() && g.tolerance.is_finite() && g.tolerance > 0.0) {
+                return Err(bad("position and tolerance must be finite, the tolerance positive".into()));
+            }
+            if !self.rig.calibration.in_view(at) {
+                return Err(bad(format!("outside the calibrated arena: {}", self.rig.calibration.view_extent())));
+            }
+            if let Space::Lane { half_width } = self.rig.control.planner.space {
+                if y.abs() >= half_width {
+                    return Err(bad(format!("outside the lane (|y| >= {half_width} m)")));
+                }
+            }
+            for o in &obstacles {
+                let gap = (at - Point::new(o.position[0], o.position[1])).norm();
+                if gap <= o.planning_radius {
+                    return Err(bad(format!(
+                        "inside obstacle LED {}'s planning circle ({gap:.3} m from it, radius {:.3} m)",
+                        o.led, o.planning_radius
+                    )));
+                }
+            }
+        }
+        self.mission.goals.clear();
+        self.mission.goals.extend(goals.iter().copied());
+        let first = goals[0];
+        self.control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
+        Ok(())
+    }
+}

@@ -1,0 +1,365 @@
+//! The core driven by hand, byte by byte and in virtual time: no simulator, no I/O.
+
+use flowgate_protocol::psd::{Info, Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
+
+use super::operator::{Refusal, Request};
+use super::*;
+use crate::config::GatewayConfig;
+use crate::Point;
+
+const CTRL_EPOCH_US: u64 = 5_000_000; // the controller booted 5 s before us
+
+fn core() -> Core<NoClock> {
+    let text = include_str!("../../../rig.example.toml");
+    Core::new(GatewayConfig::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
+}
+
+/// An obstacle LED not seen is absent: the arm proceeds, unless the LED is required.
+#[test]
+fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
+    let mut c = core();
+    assert_eq!(c.request(ms(1), &Request::Arm), Ok(()));
+    let text = include_str!("../../../rig.example.toml").replacen(
+        "{ led = 4, radius = 0.07 }",
+        "{ led = 4, radius = 0.07, required = true }",
+        1,
+    );
+    let mut c = Core::new(GatewayConfig::from_toml(&text, "rig").unwrap().rig("rig").unwrap(), NoClock);
+    let refusal = c.request(ms(1), &Request::Arm).unwrap_err();
+    assert_eq!(refusal, Refusal::RequiredObstacleUnseen { led: 4, index: 1 });
+    assert_eq!(refusal.to_string(), "obstacle LED 4 is required (leds.obstacles[1].required) and has not been seen");
+    assert_eq!(c.state(), State::Idle);
+}
+
+/// Every byte thrown away is counted: a whole megabyte with no delimiter (and the
+/// delimiter that ends it), a garbled frame's bytes with its delimiter.
+#[test]
+fn every_discarded_byte_is_counted() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    let mut run = vec![0x55u8; 1 << 20];
+    run.push(0);
+    for chunk in run.chunks(1024) {
+        c.psd_bytes(ms(1), chunk);
+    }
+    assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1);
+    assert_eq!(c.counters().bad_serial_frames, 1);
+    let mut garbled =
+        bytes(Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Streaming });
+    let i = garbled.len() - 3;
+    garbled[i] ^= if garbled[i] == 0x80 { 0x40 } else { 0x80 };
+    c.psd_bytes(ms(2), &garbled);
+    assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1 + garbled.len() as u64);
+    assert_eq!(c.counters().bad_serial_frames, 2);
+}
+
+/// A SocketCAN interface that goes down is named as such (not bus-off), and its fault
+/// cannot be reset until the link is open again.
+#[test]
+fn an_interface_gone_down_is_named_and_held_until_the_link_reopens() {
+    let mut c = core();
+    c.request(ms(1), &Request::Arm).unwrap();
+    c.can_event(ms(2), CanEvent::InterfaceDown);
+    assert_eq!(c.state(), State::Fault(StopReason::CanInterfaceDown));
+    assert_eq!(StopReason::CanInterfaceDown.to_string(), "CAN interface went down");
+    assert_eq!(c.request(ms(3), &Request::Reset), Err(Refusal::CauseStillPresent(StopReason::CanInterfaceDown)));
+    c.can_reopened();
+    assert_eq!(c.request(ms(4), &Request::Reset), Ok(()));
+    assert_eq!(c.state(), State::Idle);
+}
+
+fn ms(v: u64) -> HostTime {
+    HostTime::from_nanos(v * 1_000_000)
+}
+
+/// The controller's packets, numbered in order as its firmware does.
+fn bytes(message: Message) -> Vec<u8> {
+    use std::sync::atomic::{AtomicU16, Ordering};
+    static SEQ: AtomicU16 = AtomicU16::new(0);
+    let mut wire = [0u8; MAX_WIRE_LEN];
+    let n = Packet::new(SEQ.fetch_add(1, Ordering::Relaxed), message).encode(&mut wire).unwrap();
+    wire[..n].to_vec()
+}
+
+/// Answer every request the core has queued, as a controller would, at `now`.
+fn answer(core: &mut Core<NoClock>, now: HostTime) -> Vec<Output> {
+    let mut other = Vec::new();
+    while let Some(o) = core.poll() {
+        let Output::Psd(p) = o else {
+            other.push(o);
+            continue;
+        };
+        let reply = match p.message {
+            Message::GetInfo => Message::Info {
+                request_seq: p.seq,
+                info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+            },
+            Message::TimeSync { host_time_us } => Message::TimeSyncReply {
+                request_seq: p.seq,
+                host_time_us,
+                t_ctrl_us: now.as_nanos() / 1000 + CTRL_EPOCH_US,
+            },
+            Message::StopStream => continue,
+            m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
+        };
+        core.psd_bytes(now, &bytes(reply));
+    }
+    other
+}
+
+/// A frame of the robot's two LEDs at the floor origin, stamped `stamp_us` on the
+/// controller's clock.
+fn frame(core: &mut Core<NoClock>, now: HostTime, n: u32, stamp_us: u64) {
+    let cal = core.rig().calibration;
+    let mut out = Vec::new();
+    for (slot, led, x) in [(0u8, 1u8, 0.035), (1, 2, -0.035)] {
+        let (rx, ry) = cal.to_raw(Point::new(x, 0.0)).unwrap();
+        let s = Sample {
+            frame: n,
+            slot,
+            led,
+            t_ctrl_us: stamp_us,
+            x: rx.round() as i32,
+            y: ry.round() as i32,
+            intensity: 3000,
+            flags: SampleFlags(0),
+        };
+        out.extend(bytes(Message::Sample(s)));
+    }
+    out.extend(bytes(Message::FrameEnd { frame: n, t_ctrl_us: stamp_us, samples: 2 }));
+    core.psd_bytes(now, &out);
+}
+
+#[test]
+fn the_handshake_syncs_the_clock_and_samples_before_it_are_discarded() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    // A stream already running before the handshake: its stamps mean nothing yet.
+    frame(&mut c, ms(1), 0, CTRL_EPOCH_US + 1000);
+    assert_eq!(c.counters().samples_unsynced, 3);
+    assert_eq!(c.counters().samples, 0);
+    let out = answer(&mut c, ms(2));
+    assert!(out.contains(&Output::Streaming), "{out:?}");
+    assert!(c.psd.is_streaming());
+    // Synced: a frame stamped 1 ms ago is a pose 1 ms old.
+    frame(&mut c, ms(10), 1, 9_000 + CTRL_EPOCH_US);
+    assert_eq!(c.counters().samples, 2);
+    let at = c.tracker.pose_time().unwrap();
+    assert!((at - 0.009).abs() < 1e-6, "{at}");
+}
+
+/// Protocol 2: an answer names its request. An Info or a TimeSyncReply that names
+/// another seq (a late answer to an earlier try) is not taken; the matching one is.
+#[test]
+fn replies_naming_another_request_are_not_taken() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    let mut streaming = false;
+    let mut stale_replies = 0;
+    for step in 1..20 {
+        let now = ms(step);
+        let requests: Vec<Packet> = std::iter::from_fn(|| c.poll())
+            .filter_map(|o| match o {
+                Output::Psd(p) => Some(p),
+                Output::Streaming => {
+                    streaming = true;
+                    None
+                }
+                _ => None,
+            })
+            .collect();
+        for p in requests {
+            let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 };
+            let (stale, good) = match p.message {
+                Message::GetInfo => (
+                    Message::Info { request_seq: p.seq.wrapping_sub(1), info },
+                    Message::Info { request_seq: p.seq, info },
+                ),
+                Message::TimeSync { host_time_us } => {
+                    let t_ctrl_us = now.as_nanos() / 1000 + CTRL_EPOCH_US;
+                    (
+                        Message::TimeSyncReply { request_seq: p.seq.wrapping_add(7), host_time_us, t_ctrl_us },
+                        Message::TimeSyncReply { request_seq: p.seq, host_time_us, t_ctrl_us },
+                    )
+                }
+                m => {
+                    c.psd_bytes(now, &bytes(Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 }));
+                    continue;
+                }
+            };
+            // The stale answer alone moves nothing on; the true one does.
+            // The handshake's step and the clock offset, as the session shows them.
+            let phase = |c: &Core<NoClock>| {
+                let d = format!("{:?}", c.psd);
+                d[d.find("phase:").unwrap()..d.find(", info:").unwrap()].to_string()
+            };
+            let before = phase(&c);
+            c.psd_bytes(now, &bytes(stale));
+            assert_eq!(before, phase(&c), "a reply naming another request was taken");
+            stale_replies += 1;
+            c.psd_bytes(now, &bytes(good));
+        }
+    }
+    assert!(streaming && stale_replies == 2, "{stale_replies}");
+}
+
+#[test]
+fn a_future_stamp_is_discarded_and_does_not_freeze_the_pose() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    // CRC-valid, stamped an hour ahead.
+    frame(&mut c, ms(40), 1, CTRL_EPOCH_US + 3_600_000_000);
+    assert_eq!(c.counters().samples_from_future, 2);
+    frame(&mut c, ms(60), 2, CTRL_EPOCH_US + 59_000);
+    let at = c.tracker.pose_time().unwrap();
+    assert!((at - 0.059).abs() < 1e-6, "the true pose is taken: {at}");
+}
+
+#[test]
+fn a_silent_controller_fails_the_handshake_after_three_tries() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    let mut failed = None;
+    let mut now = ms(0);
+    while failed.is_none() && now < ms(5000) {
+        now = c.next_deadline();
+        c.tick(now);
+        while let Some(o) = c.poll() {
+            if let Output::SetupFailed(e) = o {
+                failed = Some((now, e));
+            }
+        }
+    }
+    let (at, e) = failed.expect("gave up");
+    assert_eq!(e, SetupError::Silent { request: "GetInfo" });
+    assert_eq!(at, ms(1050), "three tries, 350 ms apart");
+}
+
+#[test]
+fn watchdogs_fire_at_their_deadline() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(1), &Request::Arm).unwrap();
+    let expected = ms(1) + c.rig().safety.sample_timeout;
+    assert!(c.next_deadline() <= expected);
+    let mut now = ms(1);
+    while c.state() == State::Armed {
+        now = c.next_deadline();
+        c.tick(now);
+    }
+    // The first to expire: the board's heartbeat (never heard) or the samples.
+    assert!(matches!(c.state(), State::Fault(StopReason::SamplesStopped | StopReason::HeartbeatLost { .. })));
+    assert!(now <= expected, "{now} vs {expected}");
+}
+
+fn commands(c: &mut Core<NoClock>) -> usize {
+    let mut n = 0;
+    while let Some(o) = c.poll() {
+        n += usize::from(matches!(o, Output::Command { .. }));
+    }
+    n
+}
+
+/// The same frame twice (same packets, same frame counter, as a line echoing itself):
+/// one command, the copy discarded and counted.
+#[test]
+fn a_duplicated_frame_gives_one_command() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(1), &Request::Arm).unwrap();
+    commands(&mut c);
+    let cal = c.rig().calibration;
+    let sample = |slot: u8, led: u8, x: f64| {
+        let (rx, ry) = cal.to_raw(Point::new(x, 0.0)).unwrap();
+        Message::Sample(Sample {
+            frame: 7,
+            slot,
+            led,
+            t_ctrl_us: CTRL_EPOCH_US + 19_000,
+            x: rx.round() as i32,
+            y: ry.round() as i32,
+            intensity: 3000,
+            flags: SampleFlags(0),
+        })
+    };
+    let mut wire = Vec::new();
+    for m in [
+        sample(0, 1, 0.035),
+        sample(1, 2, -0.035),
+        Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
+    ] {
+        wire.extend(bytes(m));
+    }
+    c.psd_bytes(ms(20), &wire);
+    c.psd_bytes(ms(20), &wire);
+    assert_eq!(commands(&mut c), 1, "one command for one frame");
+    // The copy of the block: its last packet repeats the last one seen, the two before
+    // it are behind it.
+    assert_eq!((c.counters().psd_duplicates, c.counters().psd_out_of_order), (1, 2));
+    // The same frame again under new sequence numbers (a replayed frame): still no command.
+    for m in [
+        sample(0, 1, 0.035),
+        sample(1, 2, -0.035),
+        Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
+    ] {
+        c.psd_bytes(ms(21), &bytes(m));
+    }
+    assert_eq!(commands(&mut c), 0);
+    assert_eq!(c.counters().frames_repeated, 1);
+}
+
+/// Samples from an LED or slot outside the schedule are discarded; a sample of another
+/// frame is not used for this one; gaps in frames and packets are counted.
+#[test]
+fn samples_are_checked_against_the_schedule_and_their_frame() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    let stray = |frame: u32, slot: u8, led: u8| {
+        Message::Sample(Sample {
+            frame,
+            slot,
+            led,
+            t_ctrl_us: CTRL_EPOCH_US + 1_000,
+            x: 0,
+            y: 0,
+            intensity: 3000,
+            flags: SampleFlags(0),
+        })
+    };
+    c.psd_bytes(ms(2), &bytes(stray(0, 0, 9))); // LED 9 is not scheduled
+    c.psd_bytes(ms(2), &bytes(stray(0, 1, 1))); // LED 1 is slot 0, not 1
+    assert_eq!(c.counters().samples_unscheduled, 2);
+    assert_eq!(c.counters().samples, 0);
+    c.psd_bytes(ms(3), &bytes(stray(4, 0, 1))); // a sample of frame 4 ...
+    c.psd_bytes(ms(3), &bytes(Message::FrameEnd { frame: 5, t_ctrl_us: CTRL_EPOCH_US + 2_000, samples: 2 })); // ... ended as 5
+    assert_eq!(c.counters().frames_lost, 1);
+    assert_eq!(c.counters().frames_incomplete, 1);
+    assert!(c.tracker.pose_time().is_none(), "no pose from another frame's sample");
+    frame(&mut c, ms(40), 9, CTRL_EPOCH_US + 39_000);
+    assert_eq!(c.counters().frames_lost, 1 + 3, "frames 6, 7 and 8 never came");
+}
+
+/// A controller that cannot run the schedule (here: 2 LEDs for a schedule of 4) is not
+/// the configured one: the handshake fails, naming why.
+#[test]
+fn a_controller_of_another_kind_is_refused_at_the_handshake() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    let mut failed = None;
+    while let Some(o) = c.poll() {
+        if let Output::Psd(Packet { seq, message: Message::GetInfo }) = o {
+            let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 2, clock_hz: 1_000_000 };
+            c.psd_bytes(ms(1), &bytes(Message::Info { request_seq: seq, info }));
+        }
+        if let Output::SetupFailed(e) = o {
+            failed = Some(e);
+        }
+    }
+    let e = failed.expect("refused");
+    assert_eq!(e.to_string(), "PSD controller is not the one configured: it drives fewer LEDs than the schedule has");
+}

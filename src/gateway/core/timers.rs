@@ -1,0 +1,210 @@
+//! The core's one timer table: every deadline it keeps, in the order a tick fires them. The
+//! same table gives [`Core::next_deadline`] (the soonest entry) and runs [`Input::Tick`]
+//! (every entry that is due), so a deadline cannot be asked for without being fired, or
+//! fired without being asked for.
+//!
+//! The watchdogs come in the order in which they name a stop: when several expire together
+//! the first names it, and only it fires in that tick.
+//!
+//! [`Input::Tick`]: super::Input::Tick
+
+use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, REOPEN_EVERY, STOP_GRACE};
+use crate::time::HostTime;
+
+/// One entry of the timer table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Timer {
+    /// The gateway's own heartbeat to the motors (and an SLCAN adapter's status poll).
+    Heartbeat,
+    /// The PSD handshake's retries and the periodic time sync.
+    PsdSession,
+    /// Ask for the lost PSD line, or the lost CAN link, again.
+    ReopenPsd,
+    ReopenCan,
+    /// Watchdog: no sample within `safety.sample_timeout` (armed, running or stopping).
+    Samples,
+    /// Watchdog: no fresh robot pose within `safety.pose_timeout` (running).
+    Pose,
+    /// Watchdog: a tracked obstacle unseen for `safety.occlusion_timeout` (running).
+    Occlusion,
+    /// Watchdog: the motors' heartbeat not heard within `safety.heartbeat_timeout`.
+    MotorHeartbeat,
+    /// Watchdog: the controller's clock not synchronised for too long.
+    ClockSync,
+    /// The CiA 402 drives' SDO and enable timeouts.
+    Motors,
+    /// The end of an orderly stop's grace. The stop also ends as soon as the motors are at
+    /// rest, whenever the core is ticked.
+    StopGrace,
+    /// A zero command that keeps an enabled, idle board's command timeout from firing.
+    KeepAlive,
+}
+
+impl Timer {
+    /// The table, in the order a tick fires its entries.
+    pub const TABLE: [Timer; 12] = [
+        Timer::Heartbeat,
+        Timer::PsdSession,
+        Timer::ReopenPsd,
+        Timer::ReopenCan,
+        Timer::Samples,
+        Timer::Pose,
+        Timer::Occlusion,
+        Timer::MotorHeartbeat,
+        Timer::ClockSync,
+        Timer::Motors,
+        Timer::StopGrace,
+        Timer::KeepAlive,
+    ];
+
+    /// Whether the entry is a watchdog (it stops the robot when it fires).
+    pub fn is_watchdog(self) -> bool {
+        matches!(self, Timer::Samples | Timer::Pose | Timer::Occlusion | Timer::MotorHeartbeat | Timer::ClockSync)
+    }
+}
+
+impl<K: StageClock> Core<K> {
+    /// When the core next needs an [`Input::Tick`](super::Input::Tick), whatever else happens.
+    pub fn next_deadline(&self) -> HostTime {
+        Timer::TABLE.iter().map(|&t| self.deadline(t)).min().unwrap_or(HostTime::NEVER)
+    }
+
+    /// When `timer` fires ([`HostTime::NEVER`] while it is not armed).
+    pub fn deadline(&self, timer: Timer) -> HostTime {
+        let state = self.state();
+        let (active, running) = (state.is_active(), state == State::Running);
+        let s = &self.rig.safety;
+        match timer {
+            Timer::Heartbeat => self.watch.next_heartbeat,
+            Timer::PsdSession => self.psd.deadline(),
+            Timer::ReopenPsd => self.links.psd_reopen_at,
+            Timer::ReopenCan => self.links.can_reopen_at,
+            Timer::Samples if active => self.watch.last_sample + s.sample_timeout,
+            Timer::Pose if running => self.pose_deadline(),
+            Timer::Occlusion if running => self.occlusion_deadline().map_or(HostTime::NEVER, |(at, _)| at),
+            Timer::MotorHeartbeat if active => {
+                self.motors.heartbeat_deadline(self.watch.armed_at, s.heartbeat_timeout).0
+            }
+            Timer::ClockSync if active => self.psd.sync_deadline(),
+            Timer::Motors => self.motors.deadline(),
+            Timer::StopGrace => self.watch.stopping_since.map_or(HostTime::NEVER, |since| since + STOP_GRACE),
+            Timer::KeepAlive => self.keep_alive_due().unwrap_or(HostTime::NEVER),
+            _ => HostTime::NEVER,
+        }
+    }
+
+    /// Time passed: fire every entry that is due, in the table's order (one watchdog at most).
+    pub(super) fn tick(&mut self, now: HostTime) {
+        let mut stopped_by_watchdog = false;
+        for timer in Timer::TABLE {
+            let due = match timer {
+                Timer::StopGrace => self.watch.stopping_since.is_some(),
+                _ => now >= self.deadline(timer),
+            };
+            if !due || (timer.is_watchdog() && stopped_by_watchdog) {
+                continue;
+            }
+            stopped_by_watchdog |= timer.is_watchdog();
+            self.fire(timer, now);
+        }
+    }
+
+    fn fire(&mut self, timer: Timer, now: HostTime) {
+        match timer {
+            Timer::Heartbeat => {
+                let state = self.state();
+                self.motors.heartbeat(state, &mut self.out.can());
+                self.watch.next_heartbeat = now + HEARTBEAT_PERIOD;
+                // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
+                if self.rig.can.polls_status() {
+                    self.links.status_polled = now;
+                    self.out.push(Output::PollCanStatus);
+                }
+            }
+            Timer::PsdSession => {
+                let failed = self.psd.tick(now, &mut self.out.psd());
+                if let Some(e) = failed {
+                    self.out.push(Output::SetupFailed(e));
+                }
+            }
+            Timer::ReopenPsd => {
+                self.links.psd_reopen_at = now + REOPEN_EVERY;
+                self.out.push(Output::OpenPsd);
+            }
+            Timer::ReopenCan => {
+                self.links.can_reopen_at = now + REOPEN_EVERY;
+                self.out.push(Output::OpenCan);
+            }
+            Timer::Samples => self.stop(now, StopReason::SamplesStopped),
+            Timer::Pose => self.stop(now, self.pose_lost_cause(now)),
+            Timer::Occlusion => {
+                if let Some((_, k)) = self.occlusion_deadline() {
+                    self.stop(now, StopReason::ObstacleOccluded { led: self.rig.obstacles[k].led });
+                }
+            }
+            Timer::MotorHeartbeat => {
+                let (_, reason) =
+                    self.motors.heartbeat_deadline(self.watch.armed_at, self.rig.safety.heartbeat_timeout);
+                self.stop(now, reason);
+            }
+            Timer::ClockSync => self.stop(now, StopReason::ClockUnsynced),
+            Timer::Motors => {
+                if let Some(reason) = self.motors.tick(now) {
+                    self.stop(now, reason);
+                }
+            }
+            Timer::StopGrace => self.check_at_rest(now),
+            Timer::KeepAlive => {
+                self.watch.last_command = Some(now);
+                if let super::motors::MotorMaster::Board(b) = &mut self.motors {
+                    b.keep_alive(&mut self.out.can());
+                }
+            }
+        }
+    }
+
+    /// Why no fresh pose came, named by the first cause: the line gone quiet; the robot's
+    /// samples stamped in the future (the controller's clock jumped); seen where it cannot
+    /// be; arriving, but too old (delay); or not arriving.
+    fn pose_lost_cause(&self, now: HostTime) -> StopReason {
+        let s = &self.rig.safety;
+        let quiet = now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
+        if quiet {
+            StopReason::SamplesStopped
+        } else if self.watch.robot_from_future.is_some_and(|at| now.since(at) < s.sample_timeout) {
+            StopReason::ClockJumped
+        } else if self.watch.implausible.is_some() {
+            StopReason::PoseImplausible
+        } else if now.since(self.watch.robot_arrived) < s.sample_timeout {
+            StopReason::PoseDelayed
+        } else {
+            StopReason::PoseLost
+        }
+    }
+
+    fn pose_deadline(&self) -> HostTime {
+        let seen = self.tracker.pose_time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
+        seen + self.rig.safety.pose_timeout
+    }
+
+    /// When the longest-unseen tracked obstacle has been occluded too long (counted from
+    /// its last sighting, or the arm if later), and which: the region it may have reached
+    /// keeps growing, and a robot must not drive around a guess for ever. An obstacle never
+    /// seen, or seen leaving the view, has no track and no deadline.
+    fn occlusion_deadline(&self) -> Option<(HostTime, usize)> {
+        self.tracker
+            .tracked()
+            .filter_map(|k| Some((HostTime::from_secs_f64(self.tracker.obstacle_time(k)?).max(self.watch.armed_at), k)))
+            .min_by_key(|&(seen, _)| seen)
+            .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
+    }
+
+    /// When an enabled but idle board (Armed, Stopping) needs a zero command to keep its
+    /// command timeout from firing. Cycles send commands as they come; this covers a pipeline
+    /// that delivers none yet (a long sensing delay, the first pose still on its way).
+    fn keep_alive_due(&self) -> Option<HostTime> {
+        let idle_enabled = matches!(self.state(), State::Armed | State::Stopping(_));
+        let board = self.motors.board().filter(|_| idle_enabled)?;
+        board.keep_alive_due(self.watch.last_command)
+    }
+}
