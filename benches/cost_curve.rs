@@ -13,8 +13,9 @@
 //! the sweep's rate is episodes per CPU second, what each of a sweep's threads runs
 //! (`flowgate plan --sweep N --threads K` runs about K times that).
 
-use flowgate::lab::offline::{self, sweep, Mode, Outcome};
-use flowgate::lab::sim::{self, Options};
+use flowgate::lab::planner_only::{self, Mode, Outcome};
+use flowgate::lab::sweep;
+use flowgate::lab::virtual_rig::{self, Options};
 use flowgate::lab::Scenario;
 use rustix::time::{clock_gettime, ClockId};
 use std::path::Path;
@@ -46,11 +47,11 @@ fn episode(base: &Scenario, i: u64, mode: Mode) -> (u64, bool) {
     let s = sweep::perturb(base, 1, i);
     match mode {
         Mode::PlannerOnly => {
-            let run = offline::run(&s, false);
+            let run = planner_only::run(&s, false);
             (run.summary.cycles, run.summary.outcome == Outcome::Goal)
         }
         Mode::FullStack => {
-            let e = sim::run(&s, Options::default());
+            let e = virtual_rig::run(&s, Options::default());
             ((e.truth.summary.duration / s.sim.sensing.sample_time).round() as u64, e.outcome == Outcome::Goal)
         }
     }

@@ -7,8 +7,9 @@ use std::time::Instant;
 
 use flowgate::gateway::core::StageClock;
 use flowgate::gateway::shell::telemetry::CycleRecord;
-use flowgate::lab::offline::{self, sweep, Mode};
-use flowgate::lab::sim::{self, Options, VirtualRig};
+use flowgate::lab::planner_only::{self, Mode};
+use flowgate::lab::sweep;
+use flowgate::lab::virtual_rig::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
 use rustix::time::{clock_gettime, ClockId};
 
@@ -37,12 +38,12 @@ fn main() {
     let runs = 200;
 
     // One E2 episode through the whole stack, as a sweep runs it.
-    let _ = sim::run(&e2, Options::default());
+    let _ = virtual_rig::run(&e2, Options::default());
     let mut per_episode = Vec::with_capacity(runs);
     let mut simulated = 0.0;
     for _ in 0..runs {
         let start = cpu_ns();
-        let e = sim::run(&e2, Options::default());
+        let e = virtual_rig::run(&e2, Options::default());
         per_episode.push(cpu_ns() - start);
         simulated = e.truth.summary.duration;
     }
@@ -116,10 +117,10 @@ fn main() {
     for (name, base, n) in [("E2 (lane)", &e2, 2000), ("E3b (free space)", &scenario("e3b-delay-margin.toml"), 20000)] {
         let sample = 200;
         let (mut plan_ns, mut commands) = (0.0, 0u64);
-        let mut cost = offline::CycleCost::default();
+        let mut cost = planner_only::CycleCost::default();
         for i in 0..sample {
             let s = sweep::perturb(base, 1, i);
-            let run = offline::run(&s, false);
+            let run = planner_only::run(&s, false);
             plan_ns += run.summary.planner_compute.p50_us * 1e3 * run.summary.cycles as f64;
             commands += run.summary.cycles;
             cost.sense_and_track_ns += run.cost.sense_and_track_ns;

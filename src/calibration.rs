@@ -357,7 +357,7 @@ fn dlt(pairs: &[([f64; 2], [f64; 2])]) -> Option<Matrix3<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use flowgate_sim::calibration::CameraModel;
+    use flowgate_sim::camera::CameraModel;
 
     fn grid() -> Vec<Point> {
         (-2..=2).flat_map(|i| (-2..=2).map(move |j| Point::new(0.15 * f64::from(i), 0.12 * f64::from(j)))).collect()

@@ -13,7 +13,7 @@ use std::cell::Cell;
 use std::path::Path;
 
 use flowgate::gateway::core::State;
-use flowgate::lab::sim::{CanTransport, Options, VirtualRig};
+use flowgate::lab::virtual_rig::{CanTransport, Options, VirtualRig};
 use flowgate::lab::Scenario;
 
 thread_local! {

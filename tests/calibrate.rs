@@ -10,7 +10,7 @@ use std::process::Stdio;
 use flowgate::config::GatewayConfig;
 use flowgate::lab::Scenario;
 use flowgate::Point;
-use flowgate_sim::calibration::CameraModel;
+use flowgate_sim::camera::CameraModel;
 use flowgate_sim::rig::{RigConfig, RigHandle};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 

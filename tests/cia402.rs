@@ -7,8 +7,8 @@ use std::path::Path;
 
 use flowgate::gateway::core::operator::Request;
 use flowgate::gateway::core::{State, StopReason};
-use flowgate::lab::offline::Outcome;
-use flowgate::lab::sim::{self, Options, VirtualRig};
+use flowgate::lab::planner_only::Outcome;
+use flowgate::lab::virtual_rig::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
 use flowgate_protocol::canopen::{
     CanOpenMessage, DriveState, NmtCommand, NmtTarget, PdoDirection, SdoRequest, VelocityCommand,
@@ -26,7 +26,7 @@ fn options() -> Options {
 
 #[test]
 fn e2_with_cia402_drives_reaches_the_goal() {
-    let e = sim::run(&scenario("e2-lane-head-on.toml", &[]), options());
+    let e = virtual_rig::run(&scenario("e2-lane-head-on.toml", &[]), options());
     assert_eq!(e.outcome, Outcome::Goal, "{}\n{:?}", e.report, e.truth.summary);
     assert!(!e.contact && e.reached_goal);
     assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached));
@@ -58,7 +58,7 @@ fn e2_with_cia402_drives_reaches_the_goal() {
 /// the object, one SDO timeout after the write; nothing moves.
 #[test]
 fn an_unanswered_sdo_faults_the_arm_naming_node_and_object() {
-    let e = sim::run(&scenario("e1-standing-obstacle.toml", &["drive_ignores_object=0x6085"]), options());
+    let e = virtual_rig::run(&scenario("e1-standing-obstacle.toml", &["drive_ignores_object=0x6085"]), options());
     let reason = StopReason::DriveSdoTimeout { node: 1, index: 0x6085, sub: 0 };
     assert_eq!(e.report.final_state, State::Fault(reason), "{}", e.report);
     assert_eq!(reason.to_string(), "drive 1 did not answer SDO 0x6085:0 within cia402.sdo_timeout_ms");
@@ -73,7 +73,7 @@ fn an_unanswered_sdo_faults_the_arm_naming_node_and_object() {
 /// state it stayed in, one enable timeout after the arm.
 #[test]
 fn a_drive_that_stays_faulted_is_named_with_its_state() {
-    let e = sim::run(&scenario("e1-standing-obstacle.toml", &["drive_undervoltage=[0.0, 30.0]"]), options());
+    let e = virtual_rig::run(&scenario("e1-standing-obstacle.toml", &["drive_undervoltage=[0.0, 30.0]"]), options());
     let reason = StopReason::DriveNotEnabled { node: 1, state: DriveState::Fault };
     assert_eq!(e.report.final_state, State::Fault(reason), "{}", e.report);
     assert_eq!(
@@ -162,6 +162,6 @@ fn cycles_wait_for_the_drives_to_be_enabled() {
     state_machine_first(&messages);
 }
 
-fn transition(e: &flowgate::lab::sim::Episode, state: State) -> f64 {
+fn transition(e: &flowgate::lab::virtual_rig::Episode, state: State) -> f64 {
     e.report.transitions.iter().find(|(_, s)| *s == state).map(|(t, _)| *t).unwrap_or_else(|| panic!("never {state}"))
 }

@@ -1,9 +1,12 @@
 //! flowgate drives CiA 402 drives it did not write: two canopen `LocalNode`s with a small
-//! drive model (tests/cia402_drive.py, moved by canopen's own CiA 402 tables) behind an SLCAN
+//! drive model (tests/peers/cia402_peer.py, moved by canopen's own CiA 402 tables) behind an SLCAN
 //! adapter on a pty. The gateway, armed at start against the simulator's PSD controller,
 //! configures them by SDO, starts them, takes them to operation enabled, commands them by
 //! RPDO, and at its shutdown brings them to rest and switches them off. What it wrote is
 //! read back from the drives' own dictionaries.
+
+#[path = "support/python.rs"]
+mod python;
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
@@ -21,9 +24,9 @@ use tokio::sync::{mpsc, watch};
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn flowgate_commands_python_canopen_drives() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = std::env::var("FLOWGATE_PYTHON").unwrap_or_else(|_| "python3".into());
+    let python = python::python();
     let mut drives = Command::new(python)
-        .arg(dir.join("tests/cia402_drive.py"))
+        .arg(python::peer("cia402_peer"))
         .arg(dir.join("protocol/cia402-drive.eds"))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

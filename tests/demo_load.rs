@@ -3,8 +3,10 @@
 //! spinning on both CPUs. Its own test binary, so that nothing else of the suite runs
 //! beside it.
 
+#[path = "support/python.rs"]
+mod python;
+
 use std::io::Write;
-use std::path::Path;
 use std::process::{Command, Stdio};
 
 /// The demo keeps its pace on a loaded machine: ten runs of `flowgate demo --view`, each
@@ -18,10 +20,9 @@ fn the_demo_reaches_its_goal_ten_times_in_ten_under_load() {
     let dir = std::env::temp_dir().join(format!("flowgate-view-load-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
-    let python =
-        std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test (it installs selenium)");
+    let python = python::python();
     let mut browser = Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/view_load.py"))
+        .arg(python::peer("demo_load"))
         .arg(format!("http://{addr}/"))
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())

@@ -13,8 +13,8 @@ use std::path::Path;
 use flowgate::gateway::core::operator::{Goal, Request};
 use flowgate::gateway::core::{State, StopReason};
 use flowgate::gateway::shell::telemetry::CycleRecord;
-use flowgate::lab::offline::Outcome;
-use flowgate::lab::sim::{self, CanTransport, Episode, Options, VirtualRig};
+use flowgate::lab::planner_only::Outcome;
+use flowgate::lab::virtual_rig::{self, CanTransport, Episode, Options, VirtualRig};
 use flowgate::lab::Scenario;
 
 /// One cycle of E1, ms.
@@ -595,7 +595,7 @@ fn options(row: &Row) -> Options {
 }
 
 fn run(row: &Row) -> Episode {
-    sim::run(&scenario(row), options(row))
+    virtual_rig::run(&scenario(row), options(row))
 }
 
 /// The way back: the same run to a little after the injected fault is over (and after the
@@ -724,7 +724,7 @@ fn a_silent_line_is_named_for_its_samples_whatever_the_watchdogs() {
         rig.safety.pose_timeout = std::time::Duration::from_millis(80);
         rig.board.command_timeout_ms = 100;
     };
-    let e = sim::run(&s, Options { adjust_rig: Some(adjust), ..Options::default() });
+    let e = virtual_rig::run(&s, Options { adjust_rig: Some(adjust), ..Options::default() });
     assert_eq!(e.report.final_state, State::Fault(StopReason::SamplesStopped), "{}", e.report);
 }
 
@@ -738,7 +738,7 @@ fn an_adapter_at_another_bitrate_than_the_bus_goes_bus_off() {
     let adjust = |rig: &mut flowgate::config::Rig| {
         rig.can = "slcan:/dev/null?bitrate=500000".parse().unwrap();
     };
-    let e = sim::run(&s, Options { adjust_rig: Some(adjust), truth_samples: true, ..Options::default() });
+    let e = virtual_rig::run(&s, Options { adjust_rig: Some(adjust), truth_samples: true, ..Options::default() });
     assert_eq!(e.report.final_state, State::Fault(StopReason::BusOff), "{}", e.report);
     assert_eq!(e.truth.summary.path_length, 0.0, "the robot moved");
     assert_eq!(e.report.counters.can_frames_in, 0, "{}", e.report);

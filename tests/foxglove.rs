@@ -1,20 +1,21 @@
 //! Foxglove live: a real `flowgate run` driving the simulator over ptys serves the
 //! recording's channels over the Foxglove WebSocket protocol, and an independent client
-//! (Python's `websockets`, written from the published protocol: tests/foxglove_client.py)
+//! (Python's `websockets`, written from the published protocol: tests/peers/foxglove.py)
 //! connects, sees every channel advertised with its schema, subscribes, and decodes what the
 //! gateway is doing: its cycles, in order, with integers as integers, and the robot's pose.
 
-use std::path::Path;
+#[path = "support/python.rs"]
+mod python;
+
 use std::process::Command;
 
 mod support;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn foxglove_connects_to_a_running_gateway() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let addr = support::free_loopback_addr();
     let gateway = support::run_on_sim("foxglove", |cfg| cfg.operator.foxglove = Some(addr)).await;
-    let python = std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test");
+    let python = python::python();
     // The client retries nothing: wait for the server to listen.
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
     while std::net::TcpStream::connect(addr).is_err() {
@@ -23,7 +24,7 @@ async fn foxglove_connects_to_a_running_gateway() {
     }
     let out = tokio::task::spawn_blocking(move || {
         Command::new(python)
-            .arg(root.join("tests/foxglove_client.py"))
+            .arg(python::peer("foxglove"))
             .args([&format!("ws://{addr}"), "50", "/cycle", "/robot/pose", "/arena"])
             .output()
             .unwrap()

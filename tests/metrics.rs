@@ -3,8 +3,10 @@
 //! parser): the families are there with their types, the counters count, the state gauge
 //! is one-hot, the latency histogram is cumulative and counts every cycle.
 
+#[path = "support/python.rs"]
+mod python;
+
 use std::io::{Read, Write};
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
@@ -21,14 +23,9 @@ fn scrape(addr: std::net::SocketAddr, path: &str) -> Option<String> {
 }
 
 fn parse(body: &str) -> serde_json::Value {
-    let python = std::env::var("FLOWGATE_PYTHON")
-        .expect("FLOWGATE_PYTHON: run through scripts/test (it installs prometheus_client)");
-    let mut child = Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/parse_metrics.py"))
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let python = python::python();
+    let mut child =
+        Command::new(python).arg(python::peer("metrics")).stdin(Stdio::piped()).stdout(Stdio::piped()).spawn().unwrap();
     child.stdin.take().unwrap().write_all(body.as_bytes()).unwrap();
     let out = child.wait_with_output().unwrap();
     assert!(out.status.success(), "prometheus_client could not parse:\n{body}");

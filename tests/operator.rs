@@ -6,8 +6,8 @@ use std::path::Path;
 
 use flowgate::gateway::core::operator::{Goal, Refusal, Request};
 use flowgate::gateway::core::{State, StopReason};
-use flowgate::lab::offline::Outcome;
-use flowgate::lab::sim::{Options, VirtualRig};
+use flowgate::lab::planner_only::Outcome;
+use flowgate::lab::virtual_rig::{Options, VirtualRig};
 use flowgate::lab::Scenario;
 use flowgate_sim::scenario::Motion;
 

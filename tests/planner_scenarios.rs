@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use flowgate::lab::offline::{self, sweep, Mode, Outcome};
+use flowgate::lab::planner_only::{self, Mode, Outcome};
+use flowgate::lab::sweep;
 use flowgate::lab::Scenario;
 
 fn scenario(name: &str) -> Scenario {
@@ -13,7 +14,7 @@ fn scenario(name: &str) -> Scenario {
 }
 
 fn assert_goal_without_contact(name: &str) {
-    let run = offline::run(&scenario(name), false);
+    let run = planner_only::run(&scenario(name), false);
     let s = &run.summary;
     assert_eq!(s.outcome, Outcome::Goal, "{name}: {s:?}");
     assert!(s.first_contact.is_none(), "{name}: contact at {:?}", s.first_contact);
@@ -37,11 +38,11 @@ fn e2_lane_head_on_reaches_goal() {
 /// hidden; docs/simulation.md quotes the figure.
 #[test]
 fn e2_leaves_its_circle_unclosed_only_while_the_closure_would_take_in_the_goal() {
-    let s = offline::run(&scenario("e2-lane-head-on.toml"), false).summary;
+    let s = planner_only::run(&scenario("e2-lane-head-on.toml"), false).summary;
     assert_eq!(s.unclosed_at_a_wall_cycles, 51, "{s:?}");
     assert_eq!(s.cycles, 411, "{s:?}");
     // Free space never leaves a circle unclosed: there is no wall.
-    let e1 = offline::run(&scenario("e1-standing-obstacle.toml"), false).summary;
+    let e1 = planner_only::run(&scenario("e1-standing-obstacle.toml"), false).summary;
     assert_eq!(e1.unclosed_at_a_wall_cycles, 0);
 }
 
@@ -63,10 +64,10 @@ fn e6_two_moving_reaches_goal() {
 /// Paper Fig. 3: with a 0.6 s delay the robot collides at R = R_0 and succeeds at 1.1 R_0.
 #[test]
 fn e3_delay_collides_without_margin_and_succeeds_with_it() {
-    let a = offline::run(&scenario("e3a-delay-no-margin.toml"), false).summary;
+    let a = planner_only::run(&scenario("e3a-delay-no-margin.toml"), false).summary;
     assert_eq!(a.outcome, Outcome::Collision, "{a:?}");
     assert!(a.first_contact.is_some());
-    let b = offline::run(&scenario("e3b-delay-margin.toml"), false).summary;
+    let b = planner_only::run(&scenario("e3b-delay-margin.toml"), false).summary;
     assert_eq!(b.outcome, Outcome::Goal, "{b:?}");
     assert!(b.min_obstacle_clearance.unwrap() > 0.0);
     // The 1.1 R0 margin and the prediction's uncertainty take in the robot as the obstacle
@@ -82,14 +83,14 @@ fn e3_delay_collides_without_margin_and_succeeds_with_it() {
 fn rear_stagnation_stalls_without_tie_break_and_passes_with_it() {
     let mut s = scenario("e1s-standing-obstacle-symmetric.toml");
     s.planner.tie_break = false;
-    let stuck = offline::run(&s, true);
+    let stuck = planner_only::run(&s, true);
     assert_eq!(stuck.summary.outcome, Outcome::Stall, "{:?}", stuck.summary);
     let last = stuck.trace.last().unwrap().pose.position;
     assert!(last.im.abs() < 1e-3, "stalled on the axis, at {last}");
     assert!((last.re + 0.14).abs() < 0.02, "at the rear stagnation point x = -R, got {last}");
 
     s.planner.tie_break = true;
-    let run = offline::run(&s, true);
+    let run = planner_only::run(&s, true);
     assert_eq!(run.summary.outcome, Outcome::Goal, "{:?}", run.summary);
     assert!(run.summary.tie_break_cycles > 0);
     // Keep right: heading +x, the robot passes the obstacle on the -y side.
@@ -114,17 +115,17 @@ fn head_on_deadlock_is_broken_by_the_tie_break() {
     let defaults = (s.planner.uncertainty_sigmas, s.planner.clearance);
     (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (0.0, 0.0, false);
     s.planner.tie_break = false;
-    let plain = offline::run(&s, true);
+    let plain = planner_only::run(&s, true);
     // It cannot pick a side, turns round to retreat, and the obstacle catches it.
     assert_eq!(plain.summary.outcome, Outcome::Collision, "{:?}", plain.summary);
     assert_eq!(plain.summary.tie_break_cycles, 0);
 
     s.planner.tie_break = true;
-    let broken = offline::run(&s, false).summary;
+    let broken = planner_only::run(&s, false).summary;
     assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
     // And with the defaults, supervised.
     (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (defaults.0, defaults.1, true);
-    let broken = offline::run(&s, false).summary;
+    let broken = planner_only::run(&s, false).summary;
     assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
     assert!(broken.first_contact.is_none());
 }
@@ -133,13 +134,13 @@ fn head_on_deadlock_is_broken_by_the_tie_break() {
 /// E1's standing one and E5's slow one are not.
 #[test]
 fn e7_flags_an_obstacle_faster_than_the_robot() {
-    let s = offline::run(&scenario("e7-obstacle-faster-than-robot.toml"), false).summary;
+    let s = planner_only::run(&scenario("e7-obstacle-faster-than-robot.toml"), false).summary;
     assert!(s.obstacle_faster_than_robot, "{s:?}");
-    let e1 = offline::run(&scenario("e1-standing-obstacle.toml"), false).summary;
+    let e1 = planner_only::run(&scenario("e1-standing-obstacle.toml"), false).summary;
     assert!(!e1.obstacle_faster_than_robot);
     // E5's obstacle at 7 cm/s against 15 cm/s, its estimate with 1 mm of noise: not
     // flagged (the speed alone, OR'd over every cycle, flagged it).
-    let e5 = offline::run(&scenario("e5-moving-and-standing.toml"), false).summary;
+    let e5 = planner_only::run(&scenario("e5-moving-and-standing.toml"), false).summary;
     assert!(!e5.obstacle_faster_than_robot, "{e5:?}");
 }
 
@@ -360,7 +361,7 @@ fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
                 (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (0.0, 0.0, false);
             }
             (s.sensing.position_noise, s.sensing.delay, s.sensing.seed) = (0.001, 0.3, seed);
-            offline::run(&s, false).summary
+            planner_only::run(&s, false).summary
         })
     };
     let grazed = runs(true).filter(|s| s.first_contact.is_some()).count();
@@ -387,13 +388,16 @@ fn the_papers_experiments_end_alike_through_the_whole_stack() {
     assert_eq!(names.len(), 9, "{names:?}");
     for name in &names {
         let s = scenario(name);
-        let planner_only = offline::run(&s, false).summary.outcome;
-        let whole = flowgate::lab::sim::run(&s, flowgate::lab::sim::Options::default());
+        let planner_only = planner_only::run(&s, false).summary.outcome;
+        let whole = flowgate::lab::virtual_rig::run(&s, flowgate::lab::virtual_rig::Options::default());
         let expected = if name.starts_with("e3a") { Outcome::Collision } else { Outcome::Goal };
         assert_eq!(planner_only, expected, "{name} planner-only");
         assert_eq!(whole.outcome, expected, "{name} whole stack: {}", whole.report);
     }
-    let e3b = flowgate::lab::sim::run(&scenario("e3b-delay-margin.toml"), flowgate::lab::sim::Options::default());
+    let e3b = flowgate::lab::virtual_rig::run(
+        &scenario("e3b-delay-margin.toml"),
+        flowgate::lab::virtual_rig::Options::default(),
+    );
     assert_eq!(e3b.report.counters.obstacles_left_view, 1, "{}", e3b.report);
 }
 

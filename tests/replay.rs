@@ -3,6 +3,9 @@
 //! through the gateway core to the same CAN frames, byte for byte; a what-if that differs;
 //! a damaged recording that the comparison catches.
 
+#[path = "support/python.rs"]
+mod python;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -35,10 +38,10 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     assert!(ok && text.contains("goal reached, no contact"), "{text}");
 
     // An independent reader: Python's mcap package, against the text telemetry.
-    let python =
-        std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test (it installs mcap)");
+    let python = python::python();
     let out = Command::new(&python)
-        .arg(root().join("tests/read_recording.py"))
+        .arg(python::peer("replay"))
+        .arg("read")
         .args([&mcap, &dir, &root().join("protocol/motor.dbc")])
         .output()
         .unwrap();
@@ -91,7 +94,8 @@ fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     for compression in ["zstd", "lz4"] {
         let rewritten = dir.join(format!("python-{compression}.mcap"));
         let out = Command::new(&python)
-            .arg(root().join("tests/rewrite_recording.py"))
+            .arg(python::peer("replay"))
+            .arg("rewrite")
             .args([mcap.as_os_str(), rewritten.as_os_str(), compression.as_ref()])
             .output()
             .unwrap();

@@ -14,7 +14,7 @@ use std::path::Path;
 use flowgate::config::Goal;
 use flowgate::gateway::core::operator::Request;
 use flowgate::gateway::core::State;
-use flowgate::lab::sim::{CanTransport, Options, VirtualRig};
+use flowgate::lab::virtual_rig::{CanTransport, Options, VirtualRig};
 use flowgate::lab::Scenario;
 
 fn rss_kib() -> u64 {

@@ -12,9 +12,9 @@
 //! With evasion on, an active contact stays impossible, and an obstacle that would run into
 //! a standing robot finds it gone wherever the supervisor's own model saw an escape.
 
+use flowgate::control::drive::{pulse_rates, wheel_speeds, WheelSpeeds};
 use flowgate::control::{evade, supervise, Supervision, SupervisorConfig};
 use flowgate::lab::Scenario;
-use flowgate::planner::drive::{pulse_rates, wheel_speeds, WheelSpeeds};
 use flowgate::planner::ObstacleEstimate;
 use flowgate::track::{Estimate, Pose};
 use flowgate::Point;
@@ -389,7 +389,8 @@ fn contacts_are_classed_by_the_robots_motion() {
 /// docs/supervisor.md's 10^4-episode figures come from `flowgate plan --planner-only --sweep 10000`.
 #[test]
 fn sweeps_have_no_active_contact_where_obstacles_are_slower() {
-    use flowgate::lab::offline::{sweep, Mode};
+    use flowgate::lab::planner_only::Mode;
+    use flowgate::lab::sweep;
     let load = |name: &str| {
         Scenario::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).unwrap()
     };

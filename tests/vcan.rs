@@ -9,6 +9,9 @@
 //! VM and fails unless every test printed that it ran (`vcan-ran: NAME`). The tests run in
 //! real time: run them one at a time (`--test-threads=1`) under emulation.
 
+#[path = "support/python.rs"]
+mod python;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
@@ -133,13 +136,13 @@ async fn e2_over_socketcan_agrees_with_candump_and_cantools() {
     assert_eq!(on_bus, sent, "candump's velocity frames equal the gateway's can.log");
 
     // cantools reads the candump capture with protocol/motor.dbc.
-    let python = std::env::var("FLOWGATE_PYTHON").unwrap_or_else(|_| "python3".into());
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/decode_candump.py");
+    let python = python::python();
+    let script = python::peer("vcan");
     let dbc = Path::new(env!("CARGO_MANIFEST_DIR")).join("protocol/motor.dbc");
     let out =
         Command::new(python).arg(script).arg(&dbc).arg(&capture).stderr(Stdio::inherit()).output().expect("python");
     assert!(out.status.success(), "cantools check failed: {}", String::from_utf8_lossy(&out.stdout));
-    let decoded: Vec<(i32, i32, u8)> = serde_json::from_slice(&out.stdout).expect("JSON from decode_candump.py");
+    let decoded: Vec<(i32, i32, u8)> = serde_json::from_slice(&out.stdout).expect("JSON from tests/peers/vcan.py");
     assert_eq!(decoded, on_bus, "cantools and the Rust decoder agree");
     let _ = std::fs::remove_dir_all(&dir);
 }

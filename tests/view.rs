@@ -4,8 +4,10 @@
 //! streamlines and the latency histogram, and takes a screenshot. The page's JSON frame and
 //! its refusals are checked over plain HTTP too.
 
+#[path = "support/python.rs"]
+mod python;
+
 use std::io::{Read, Write};
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -25,11 +27,10 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
     // The browser first: Chromium takes seconds to start on a loaded machine, and the demo
     // lasts nine. The script says "ready" with its browser up, then waits for the view.
-    let python =
-        std::env::var("FLOWGATE_PYTHON").expect("FLOWGATE_PYTHON: run through scripts/test (it installs selenium)");
+    let python = python::python();
     let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
     let mut browser = Command::new(python)
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/view_browser.py"))
+        .arg(python::peer("view"))
         .args([&format!("http://{addr}/"), &shot])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

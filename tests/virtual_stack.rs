@@ -9,8 +9,8 @@ use std::time::Duration;
 use flowgate::gateway::core::operator::{Refusal, Request};
 use flowgate::gateway::core::{State, StopReason};
 use flowgate::gateway::shell::telemetry::CycleRecord;
-use flowgate::lab::offline::Outcome;
-use flowgate::lab::sim::{self, Episode, Options, VirtualRig};
+use flowgate::lab::planner_only::Outcome;
+use flowgate::lab::virtual_rig::{self, Episode, Options, VirtualRig};
 use flowgate::lab::Scenario;
 use flowgate_sim::scenario::Motion;
 
@@ -29,7 +29,7 @@ fn options() -> Options {
 }
 
 fn assert_goal(name: &str) {
-    let e = sim::run(&scenario(name), options());
+    let e = virtual_rig::run(&scenario(name), options());
     assert_eq!(e.outcome, Outcome::Goal, "{name}: {}\n{:?}", e.report, e.truth.summary);
     assert!(!e.contact && e.reached_goal);
     assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached));
@@ -64,13 +64,13 @@ fn e6_two_moving_reaches_the_goal() {
 /// One seed, one run: byte-identical `cycles.csv` and `can.log`. Another seed differs.
 #[test]
 fn the_same_seed_gives_byte_identical_telemetry() {
-    let a = sim::run(&scenario("e2-lane-head-on.toml"), options()).telemetry.unwrap();
-    let b = sim::run(&scenario("e2-lane-head-on.toml"), options()).telemetry.unwrap();
+    let a = virtual_rig::run(&scenario("e2-lane-head-on.toml"), options()).telemetry.unwrap();
+    let b = virtual_rig::run(&scenario("e2-lane-head-on.toml"), options()).telemetry.unwrap();
     assert!(a.cycles_csv.len() > 20_000 && a.can_log.len() > 20_000);
     assert_eq!(a, b, "same seed, same bytes");
     let mut other = scenario("e2-lane-head-on.toml");
     other.sensing.seed = 2;
-    let c = sim::run(&other, options()).telemetry.unwrap();
+    let c = virtual_rig::run(&other, options()).telemetry.unwrap();
     assert_ne!(a.cycles_csv, c.cycles_csv, "another seed, other noise");
 }
 
@@ -81,8 +81,8 @@ fn the_same_seed_gives_byte_identical_telemetry() {
 #[test]
 fn a_rehearsal_changes_nothing() {
     for name in ["e2-lane-head-on.toml", "e6-two-moving.toml"] {
-        let plain = sim::run(&scenario(name), options());
-        let rehearsed = sim::run(&scenario(name), Options { rehearse: true, ..options() });
+        let plain = virtual_rig::run(&scenario(name), options());
+        let rehearsed = virtual_rig::run(&scenario(name), Options { rehearse: true, ..options() });
         assert_eq!(plain.outcome, Outcome::Goal, "{name}");
         assert!(plain.report.counters.cycles > 300, "{name}");
         assert_eq!(plain.telemetry.unwrap(), rehearsed.telemetry.unwrap(), "{name}: the same bytes");
@@ -92,7 +92,7 @@ fn a_rehearsal_changes_nothing() {
 /// The period is exact on the rig path: E2's 20 ms frame is 20.000 ms, not 19.998.
 #[test]
 fn the_control_period_is_exact() {
-    let e = sim::run(&scenario("e2-lane-head-on.toml"), options());
+    let e = virtual_rig::run(&scenario("e2-lane-head-on.toml"), options());
     assert_eq!(e.report.sample_time, 0.020);
     let csv = String::from_utf8(e.telemetry.unwrap().cycles_csv).unwrap();
     let col = CycleRecord::column("period_ns").unwrap();
@@ -168,7 +168,7 @@ fn serial_vanishing_faults_reconnects_and_waits_for_rearm() {
 fn a_silent_controller_is_a_startup_failure() {
     let mut s = scenario("e1-standing-obstacle.toml");
     s.faults.serial_drop = 1.0;
-    let e = sim::run(&s, options());
+    let e = virtual_rig::run(&s, options());
     let err = e.setup_error.expect("no setup").to_string();
     assert!(err.contains("did not answer GetInfo"), "{err}");
     let _ = Duration::ZERO;
@@ -190,7 +190,7 @@ fn obstacle_crossing_the_goal(goal_wait: f64) -> Scenario {
 /// does the same.
 #[test]
 fn the_robot_waits_for_an_obstacle_to_leave_the_goal() {
-    let e = sim::run(&obstacle_crossing_the_goal(10.0), options());
+    let e = virtual_rig::run(&obstacle_crossing_the_goal(10.0), options());
     assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
     assert_eq!(e.report.stop_reason, Some(StopReason::GoalReached));
     assert!(!e.contact && e.motion_outside_running == 0);
@@ -203,15 +203,15 @@ fn the_robot_waits_for_an_obstacle_to_leave_the_goal() {
     let still = e.truth.samples.iter().filter(|s| s.t > 2.0 && s.t < 7.0 && s.wheel_speeds == [0.0; 2]).count();
     assert!(still as f64 * 0.02 >= 2.81 - 0.3, "stood still for {still} samples");
 
-    let e = sim::run(&obstacle_crossing_the_goal(0.0), options());
+    let e = virtual_rig::run(&obstacle_crossing_the_goal(0.0), options());
     assert_eq!(e.outcome, Outcome::Stopped, "{}", e.report);
     assert_eq!(e.report.stop_reason, Some(StopReason::GoalBlocked));
     assert!(!e.reached_goal);
 
-    let run = flowgate::lab::offline::run(&obstacle_crossing_the_goal(10.0), false).summary;
+    let run = flowgate::lab::planner_only::run(&obstacle_crossing_the_goal(10.0), false).summary;
     assert_eq!(run.outcome, Outcome::Goal);
     assert!(run.goal_occupied_cycles > 0);
-    let run = flowgate::lab::offline::run(&obstacle_crossing_the_goal(0.0), false).summary;
+    let run = flowgate::lab::planner_only::run(&obstacle_crossing_the_goal(0.0), false).summary;
     assert_eq!(run.outcome, Outcome::Stopped);
 }
 
@@ -222,14 +222,14 @@ fn the_robot_waits_for_an_obstacle_to_leave_the_goal() {
 /// most of the way, and E1 breaks the tie behind its obstacle and has no wall.
 #[test]
 fn the_gateway_counts_the_planners_flags() {
-    let e2 = sim::run(&scenario("e2-lane-head-on.toml"), options());
+    let e2 = virtual_rig::run(&scenario("e2-lane-head-on.toml"), options());
     let c = e2.report.counters;
     assert_eq!(c.planner_unclosed_at_a_wall, 49, "{}", e2.report);
     assert!(c.planner_saturated > c.cycles / 2 && c.planner_tie_break == 0, "{}", e2.report);
-    let e1 = sim::run(&scenario("e1-standing-obstacle.toml"), options());
+    let e1 = virtual_rig::run(&scenario("e1-standing-obstacle.toml"), options());
     let c = e1.report.counters;
     assert!(c.planner_tie_break > 0 && c.planner_unclosed_at_a_wall == 0, "{}", e1.report);
-    let summary = flowgate::lab::offline::Run::from_episode(&scenario("e2-lane-head-on.toml"), &e2).summary;
+    let summary = flowgate::lab::planner_only::Run::from_episode(&scenario("e2-lane-head-on.toml"), &e2).summary;
     assert_eq!(summary.unclosed_at_a_wall_cycles, 49);
     assert_eq!(summary.saturated_cycles, e2.report.counters.planner_saturated);
 }

@@ -9,7 +9,7 @@
 //! Points in the plane are `Complex64` (`x + i y`, metres): the planner works in the
 //! complex plane, and so does the world, to keep one convention.
 
-pub mod calibration;
+pub mod camera;
 pub mod cia402_drive;
 pub mod faults;
 pub mod motor_board;

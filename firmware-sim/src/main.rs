@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Parser;
 use flowgate_protocol::motor::NodeId;
-use flowgate_sim::calibration::CameraModel;
+use flowgate_sim::camera::CameraModel;
 use flowgate_sim::faults::FaultPlan;
 use flowgate_sim::rig::{self, CanEndpoint, RigConfig, SerialEndpoint};
 use flowgate_sim::scenario::Scenario;

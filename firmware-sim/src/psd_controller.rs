@@ -13,7 +13,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-use crate::calibration::CameraModel;
+use crate::camera::CameraModel;
 use crate::faults::FaultPlan;
 use crate::world::World;
 use crate::Point;

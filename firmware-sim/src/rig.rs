@@ -34,7 +34,7 @@ use tokio::time::Instant;
 use tokio_serial::SerialPort as _;
 use tokio_util::codec::{Encoder, FramedRead};
 
-use crate::calibration::CameraModel;
+use crate::camera::CameraModel;
 use crate::faults::{CanFaults, FaultPlan, SerialFaults};
 use crate::motors::{MotorKind, Motors};
 use crate::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};

@@ -33,10 +33,10 @@ pub struct Scenario {
     /// `flowgate-sim --fault key=value` overrides single keys).
     #[serde(default)]
     pub faults: crate::faults::FaultPlan,
-    /// The PSD camera over the floor (default: [`crate::calibration::CameraModel::default`], which sees about
+    /// The PSD camera over the floor (default: [`crate::camera::CameraModel::default`], which sees about
     /// ±0.8 m). A larger arena describes a camera that sees it.
     #[serde(default)]
-    pub camera: crate::calibration::CameraModel,
+    pub camera: crate::camera::CameraModel,
     /// A crowd crossing a circle (CrowdNav's circle crossing): the robot and the obstacles
     /// are placed by [`Scenario::crowd_episode`], afresh for every episode of a sweep.
     #[serde(default)]

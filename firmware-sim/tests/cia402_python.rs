@@ -2,6 +2,9 @@
 //! (`BaseNode402`, with protocol/cia402-drive.eds) through python-can's `slcan` interface
 //! on the simulator's pty.
 
+#[path = "../../tests/support/python.rs"]
+mod python;
+
 mod common;
 
 use common::*;
@@ -15,9 +18,9 @@ async fn python_canopen_drives_the_simulated_cia402_drive() {
     config.cia402 = Some([NodeId::new(1).unwrap(), NodeId::new(2).unwrap()]);
     let rig = rig(config).await;
     let can_path = rig.can_path.clone().expect("slcan pty");
-    let python = std::env::var("FLOWGATE_PYTHON").unwrap_or_else(|_| "python3".into());
+    let python = python::python();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let script = dir.join("tests/cia402_master.py");
+    let script = python::peer("cia402_python");
     let eds = dir.join("../protocol/cia402-drive.eds");
     let out = tokio::task::spawn_blocking(move || Command::new(python).arg(script).arg(can_path).arg(eds).output())
         .await

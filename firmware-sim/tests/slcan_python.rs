@@ -2,6 +2,9 @@
 //! interface on the simulator's pty, with cantools and `protocol/motor.dbc` to build and
 //! read the frames.
 
+#[path = "../../tests/support/python.rs"]
+mod python;
+
 mod common;
 
 use common::*;
@@ -12,9 +15,9 @@ use std::process::Command;
 async fn python_can_slcan_drives_the_board() {
     let rig = rig(RigConfig::new(scenario("e1-standing-obstacle.toml"))).await;
     let can_path = rig.can_path.clone().expect("slcan pty");
-    let python = std::env::var("FLOWGATE_PYTHON").unwrap_or_else(|_| "python3".into());
+    let python = python::python();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let script = dir.join("tests/slcan_board.py");
+    let script = python::peer("slcan_python");
     let dbc = dir.join("../protocol/motor.dbc");
     let out = tokio::task::spawn_blocking(move || Command::new(python).arg(script).arg(can_path).arg(dbc).output())
         .await

@@ -1,20 +1,19 @@
 //! flowgate's CANopen codec against CANopen's own Python stack (`canopen`,
-//! protocol/tests/canopen_peer.py): SDO requests encoded here are served by a
+//! protocol/tests/peers/canopen_peer.py): SDO requests encoded here are served by a
 //! `canopen.LocalNode` holding a CiA 402 drive's objects, which takes the values and
 //! answers in frames this codec reads; `canopen`'s own SDO client and server exchange frames
 //! this codec reads as the same transfers; `canopen`'s CiA 402 tables (statusword masks,
 //! controlword codes) agree with this crate's; and `canopen` loads protocol/cia402-drive.eds,
 //! the drive's dictionary both nodes run on, with the PDO mappings this crate encodes.
 
+#[path = "../../tests/support/python.rs"]
+mod python;
+
 use std::collections::BTreeMap;
 use std::process::Command;
 
 use flowgate_protocol::canopen::*;
 use flowgate_protocol::{CanFrame, CanId};
-
-fn python() -> String {
-    std::env::var("FLOWGATE_PYTHON").unwrap_or_else(|_| "python3".into())
-}
 
 /// `ID#HEX`, as candump writes a standard frame.
 fn candump(f: &CanFrame) -> String {
@@ -49,8 +48,8 @@ fn canopen_serves_our_requests_and_we_read_its_frames() {
         .iter()
         .map(|&request| candump(&CanOpenMessage::SdoRequest { node, request }.to_frame().unwrap()))
         .collect();
-    let out = Command::new(python())
-        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/canopen_peer.py"))
+    let out = Command::new(python::python())
+        .arg(python::peer("canopen_peer"))
         .arg("3")
         .args(&frames)
         .output()

@@ -3,6 +3,9 @@
 //! protocol change). A second test has Python cantools decode frames encoded by the Rust
 //! code with that DBC and agree on every signal value.
 
+#[path = "../../tests/support/python.rs"]
+mod python;
+
 use flowgate_protocol::motor::*;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -293,10 +296,6 @@ fn sample_messages() -> Vec<MotorMessage> {
     out
 }
 
-fn python() -> String {
-    std::env::var("FLOWGATE_PYTHON").unwrap_or_else(|_| "python3".into())
-}
-
 #[test]
 fn cantools_decodes_rust_frames_with_motor_dbc() {
     let mut cases = String::from("[");
@@ -316,8 +315,8 @@ fn cantools_decodes_rust_frames_with_motor_dbc() {
     let cases_path = dir.join("cases.json");
     std::fs::write(&cases_path, cases).unwrap();
 
-    let script = manifest_dir().join("tests/check_dbc.py");
-    let out = Command::new(python())
+    let script = python::peer("dbc");
+    let out = Command::new(python::python())
         .arg(&script)
         .arg(manifest_dir().join("motor.dbc"))
         .arg(&cases_path)

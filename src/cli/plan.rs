@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use flowgate::lab::offline::{self, sweep, Mode};
-use flowgate::lab::{report, sim, Scenario};
+use flowgate::lab::planner_only::{self, Mode};
+use flowgate::lab::sweep;
+use flowgate::lab::{plots, virtual_rig, Scenario};
 
 #[derive(Args, Debug)]
 pub struct PlanArgs {
@@ -66,7 +67,7 @@ pub fn run(args: PlanArgs) -> Result<()> {
         return sweep_command(&args, &scenario, n, &out, mode);
     }
     let run = one(&scenario, mode, Some(&out))?;
-    say!("{}  ({mode})", report::one_line(&run));
+    say!("{}  ({mode})", plots::one_line(&run));
     write_outputs(&scenario, &run, &out)?;
     let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
     say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
@@ -79,10 +80,7 @@ fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mod
         bail!("--sweep needs at least one episode");
     }
     if n as u64 > sweep::MAX_EPISODES {
-        bail!(
-            "--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)",
-            sweep::MAX_EPISODES
-        );
+        bail!("--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)", sweep::MAX_EPISODES);
     }
     let started = std::time::Instant::now();
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -138,19 +136,19 @@ fn merge(dirs: &[PathBuf], out: Option<&Path>) -> Result<()> {
 }
 
 /// One run in `mode`; a full-stack run also leaves its `cycles.csv` and `can.log` in `out`.
-fn one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<offline::Run> {
+fn one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<planner_only::Run> {
     Ok(match mode {
-        Mode::PlannerOnly => offline::run(scenario, out.is_some()),
+        Mode::PlannerOnly => planner_only::run(scenario, out.is_some()),
         Mode::FullStack => {
-            let options = sim::Options { truth_samples: out.is_some(), telemetry: true, ..Default::default() };
-            let episode = sim::run_timed(scenario, options);
+            let options = virtual_rig::Options { truth_samples: out.is_some(), telemetry: true, ..Default::default() };
+            let episode = virtual_rig::run_timed(scenario, options);
             if let Some(e) = episode.setup_error {
                 bail!("{}: the simulated PSD controller could not be configured: {e}", scenario.name);
             }
-            let mut run = offline::Run::from_episode(scenario, &episode);
+            let mut run = planner_only::Run::from_episode(scenario, &episode);
             if let Some(t) = &episode.telemetry {
                 let [p50_us, p99_us, max_us] = t.plan_us();
-                run.summary.planner_compute = offline::ComputeTime { p50_us, p99_us, max_us };
+                run.summary.planner_compute = planner_only::ComputeTime { p50_us, p99_us, max_us };
                 if let Some(out) = out {
                     t.write(out).with_context(|| format!("writing {}", out.display()))?;
                 }
@@ -164,11 +162,11 @@ fn stem(path: &Path) -> String {
     path.file_stem().map_or_else(|| "scenario".into(), |s| s.to_string_lossy().into_owned())
 }
 
-fn write_outputs(scenario: &Scenario, run: &offline::Run, out: &Path) -> Result<()> {
+fn write_outputs(scenario: &Scenario, run: &planner_only::Run, out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&run.summary)?)?;
-    std::fs::write(out.join("trajectory.svg"), report::trajectory_svg(scenario, &run.trace, (&run.summary).into()))?;
-    std::fs::write(out.join("history.svg"), report::history_svg(scenario, run))?;
+    std::fs::write(out.join("trajectory.svg"), plots::trajectory_svg(scenario, &run.trace, (&run.summary).into()))?;
+    std::fs::write(out.join("history.svg"), plots::history_svg(scenario, run))?;
     Ok(())
 }
 

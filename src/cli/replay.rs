@@ -37,7 +37,12 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
         say_raw!("{}", recording.config_toml);
         return Ok(true);
     }
-    say!("recording    {}: {} inputs over {:.1} s", args.recording.display(), recording.inputs.len(), recording.duration());
+    say!(
+        "recording    {}: {} inputs over {:.1} s",
+        args.recording.display(),
+        recording.inputs.len(),
+        recording.duration()
+    );
     say!("             {}", completeness(&recording));
     if recording.inputs.is_empty() {
         say!("             no inputs: nothing to replay");
@@ -104,7 +109,9 @@ fn verify(recording: &Recording) -> Result<bool> {
             "CAN frames   the first {common} of {n} recorded{unwritten}: identical, byte for byte; \
              the rest of the run is not in the recording (exit status 1)"
         ),
-        None => say!("CAN frames   {n} recorded{unwritten}, {} replayed: identical, byte for byte", v.replayed.can.len()),
+        None => {
+            say!("CAN frames   {n} recorded{unwritten}, {} replayed: identical, byte for byte", v.replayed.can.len())
+        }
         Some(d) => say!(
             "CAN frames   {n} recorded, {} replayed: DIFFER at frame {}: recorded {}, replayed {}",
             v.replayed.can.len(),

@@ -23,8 +23,8 @@ mod can_url;
 pub use can_url::CanUrl;
 
 use crate::calibration::Calibration;
+use crate::control::drive::DriveConfig;
 use crate::control::{ControlConfig, StallConfig, SupervisorConfig};
-use crate::planner::drive::DriveConfig;
 use crate::planner::{Margin, PlannerConfig, Space, TieBreak, MAX_OBSTACLES};
 pub use crate::track::TrackingSettings;
 use crate::track::{KalmanConfig, LedGeometry};

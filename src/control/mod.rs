@@ -1,7 +1,8 @@
-//! Control: the per-cycle step (estimate in, pulse rates out) and the safety supervisor
-//! between the planner and the wheels. Pure in time: `t` is an argument, so the same step
+//! Control: the per-cycle step (estimate in, pulse rates out), the safety supervisor
+//! between the planner and the wheels, and the wheels' kinematics ([`drive`]). Pure in time: `t` is an argument, so the same step
 //! runs live, offline, in replay and in benchmarks.
 
+pub mod drive;
 mod step;
 pub mod supervisor;
 

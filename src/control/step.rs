@@ -2,8 +2,8 @@
 //! evasion, and the pulse rates out; with the stall and goal-occupied checks around them.
 
 use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
+use crate::control::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::geometry::Length;
-use crate::planner::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::planner::{Field, ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
 use crate::track::Estimate;
 use crate::Point;

@@ -39,8 +39,8 @@ use crate::Point;
 
 use arrayvec::ArrayVec;
 
+use crate::control::drive::WheelSpeeds;
 use crate::geometry::{rotation, Length};
-use crate::planner::drive::WheelSpeeds;
 use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
 use crate::track::{ramp, Estimate};
 

@@ -9,15 +9,15 @@ use flowgate_sim::rig::{self, CanEndpoint, RigConfig};
 use flowgate_sim::truth::TruthRecord;
 use tokio::sync::watch;
 
-use super::offline::TraceRow;
-use super::report::{trajectory_svg, Ending};
+use super::planner_only::TraceRow;
+use super::plots::{trajectory_svg, Ending};
 use super::{Outcome, Scenario};
-use crate::track::Pose;
-use crate::Point;
 use crate::config::ConfigError;
 use crate::gateway;
 use crate::gateway::core::Progress;
 use crate::gateway::shell::{Controls, GatewayError, Report};
+use crate::track::Pose;
+use crate::Point;
 
 /// The scenario the demo runs by default (E2, the lane head-on).
 pub const DEFAULT_SCENARIO: &str = include_str!("../../scenarios/e2-lane-head-on.toml");
@@ -65,7 +65,8 @@ impl DemoRun {
     /// `trajectory.svg`, `truth.json` and `report.json` into `dir`.
     pub fn write_files(&self, scenario: &Scenario, dir: &Path) -> std::io::Result<()> {
         let t = &self.truth.summary;
-        let ending = Ending { outcome: self.outcome(), min_obstacle_clearance: t.min_obstacle_clearance, end_time: t.duration };
+        let ending =
+            Ending { outcome: self.outcome(), min_obstacle_clearance: t.min_obstacle_clearance, end_time: t.duration };
         std::fs::write(dir.join("trajectory.svg"), trajectory_svg(scenario, &self.trace(), ending))?;
         self.truth.write(&dir.join("truth.json"))?;
         std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(&self.report)?)

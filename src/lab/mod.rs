@@ -4,19 +4,22 @@
 //!
 //! - [`scenario`]: scenario files as the gateway sees them, and the rig config a scenario
 //!   implies (the same [`crate::config::GatewayConfig`] and rules a rig uses);
-//! - [`sim`]: the whole stack in deterministic virtual time: the real gateway core wired to
-//!   the simulator's firmware and world through the real encoders and decoders;
-//! - [`offline`]: the planner-only runner (control step against the world, with a modelled
-//!   sensing chain), and sweeps over either mode;
+//! - [`virtual_rig`]: the whole stack in deterministic virtual time: the real gateway core
+//!   wired to the simulator's firmware and world through the real encoders and decoders;
+//! - [`planner_only`]: the planner-only runner (control step against the world, with a
+//!   modelled sensing chain), and one run of either mode;
+//! - [`sweep`]: many seeded episodes of either mode, sharded and merged;
+//! - [`plots`]: trajectories and histories as SVG;
 //! - [`demo`]: the simulator and the gateway in real time over real ptys;
-//! - [`report`]: plots; [`bench`](mod@bench): the gateway benchmark over ptys and SocketCAN.
+//! - [`bench`](mod@bench): the gateway benchmark over ptys and SocketCAN.
 
 pub mod bench;
 pub mod demo;
-pub mod offline;
-pub mod report;
+pub mod planner_only;
+pub mod plots;
 pub mod scenario;
-pub mod sim;
+pub mod sweep;
+pub mod virtual_rig;
 
 pub use scenario::Scenario;
 

@@ -32,7 +32,6 @@
 //! - **Flags**: tie-break active, margin shrunk, command saturated. (Whether an obstacle
 //!   outruns the robot is judged over time, with hysteresis, in the control step.)
 
-pub mod drive;
 pub mod field;
 pub mod multipole;
 

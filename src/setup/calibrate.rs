@@ -314,7 +314,8 @@ async fn measure_point(
     prompt: &mut impl Prompt,
 ) -> Result<Option<Reading>, CalibrateError> {
     let led = plan.led;
-    let mut question = format!("Put LED {led} at ({:.3}, {:.3}) m, then press Enter (s: skip, q: quit)", floor[0], floor[1]);
+    let mut question =
+        format!("Put LED {led} at ({:.3}, {:.3}) m, then press Enter (s: skip, q: quit)", floor[0], floor[1]);
     loop {
         match prompt.ask(&question)?.as_deref() {
             None | Some("q") => return Err(CalibrateError::Ended),

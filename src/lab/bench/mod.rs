@@ -264,7 +264,7 @@ fn proc_stat(dir: &str) -> (f64, f64) {
 /// may be back within a centimetre of where it was, which a rig's robot would not be.
 /// Its control socket answers the bench's `stats`.
 fn rig_toml(psd: &Path, can_endpoint: &str, motors: &BenchMotors, socket: &Path, mode: &Mode) -> String {
-    let h = flowgate_sim::calibration::CameraModel::default().homography;
+    let h = flowgate_sim::camera::CameraModel::default().homography;
     // The schedule's period only bounds the low-latency window (twice it must fit in T);
     // the bench streams at its own rates.
     let spin_us = mode.spin_us;

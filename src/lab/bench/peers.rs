@@ -76,7 +76,7 @@ pub struct Controller {
     pub path: PathBuf,
     _slave: std::fs::File,
     frame: u32,
-    camera: flowgate_sim::calibration::CameraModel,
+    camera: flowgate_sim::camera::CameraModel,
     /// The robot's swing runs on this clock, continuous across blocks and phases.
     origin: Instant,
     stop: Arc<AtomicBool>,
@@ -213,7 +213,7 @@ impl Controller {
             path,
             _slave: slave,
             frame: 0,
-            camera: flowgate_sim::calibration::CameraModel::default(),
+            camera: flowgate_sim::camera::CameraModel::default(),
             origin: Instant::now(),
             stop,
             responder: Some(responder),

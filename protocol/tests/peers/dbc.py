@@ -1,6 +1,6 @@
 """Decode frames encoded by flowgate's Rust code with cantools and protocol/motor.dbc.
 
-Usage: check_dbc.py MOTOR_DBC CASES_JSON
+Usage: dbc.py MOTOR_DBC CASES_JSON
 CASES_JSON: [{"id": int, "data": hex, "signals": {name: int}}]. For each frame, cantools
 must decode the same signal values, and encoding those values must give the same bytes.
 """

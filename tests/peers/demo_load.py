@@ -1,13 +1,13 @@
 """Keep the gateway's live view open in headless Chromium while runs come and go.
 
-Usage: view_load.py URL
+Usage: demo_load.py URL
 Starts Chromium and prints "ready"; then, for every line on stdin ("run"), waits for the view
 at URL to answer, loads the page (which renders every frame the server sends until the run
 ends) and prints "drawn N" once the page has drawn the robot. Ends at the end of stdin.
 """
 import sys
 
-import chromium
+import _chromium as chromium
 
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait

@@ -1,6 +1,6 @@
 """Decode the velocity commands of a candump -L capture with cantools and motor.dbc.
 
-Usage: decode_candump.py MOTOR_DBC CANDUMP_LOG
+Usage: vcan.py MOTOR_DBC CANDUMP_LOG
 Prints a JSON list of [left, right, seq] for every VELOCITY_N1 frame, in order.
 """
 import json

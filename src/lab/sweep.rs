@@ -20,7 +20,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{Mode, Outcome};
+use super::planner_only::Mode;
+use super::Outcome;
 use crate::lab::Scenario;
 
 /// One episode's perturbation and result.

@@ -4,7 +4,7 @@ use std::fmt::Write as _;
 
 use crate::Point;
 
-use crate::lab::offline::{Run, Summary, TraceRow};
+use crate::lab::planner_only::{Run, Summary, TraceRow};
 use crate::lab::Outcome;
 use crate::lab::Scenario;
 use crate::planner::{streamlines, Field, ObstacleEstimate, PlanInput, Planner};

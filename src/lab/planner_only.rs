@@ -2,10 +2,8 @@
 //! world, in virtual time, with the rig's sensing chain modelled between them (a pure
 //! delay, position noise on each LED, a low-pass filter) and the gateway's own
 //! [`Tracker`] (Kalman filters, delay compensation). Faster than the full stack
-//! ([`super::sim`]), which runs the gateway core through the firmware and the wire
+//! ([`super::virtual_rig`]), which runs the gateway core through the firmware and the wire
 //! protocols; outcomes of both are judged by the world's truth.
-
-pub mod sweep;
 
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -26,7 +24,7 @@ use crate::planner::MAX_OBSTACLES;
 use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
 
 /// Which runner: the whole stack (the gateway core through the firmware and the wire
-/// protocols, [`super::sim`]) or the planner alone against a modelled sensing chain.
+/// protocols, [`super::virtual_rig`]) or the planner alone against a modelled sensing chain.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Mode {
@@ -52,8 +50,8 @@ impl Mode {
                 (r.outcome, r.min_obstacle_clearance, r.contact)
             }
             Mode::FullStack => {
-                let options = super::sim::Options { stop_at_contact: true, ..Default::default() };
-                let e = super::sim::run(s, options);
+                let options = super::virtual_rig::Options { stop_at_contact: true, ..Default::default() };
+                let e = super::virtual_rig::run(s, options);
                 (e.outcome, e.truth.summary.min_obstacle_clearance, e.truth.summary.contact)
             }
         }
@@ -62,7 +60,7 @@ impl Mode {
 
 impl Run {
     /// A full-stack episode as a run for the plots and the table, from the world's truth.
-    pub fn from_episode(s: &Scenario, e: &super::sim::Episode) -> Self {
+    pub fn from_episode(s: &Scenario, e: &super::virtual_rig::Episode) -> Self {
         let t = &e.truth.summary;
         let straight = (s.goal() - s.robot_start()).norm();
         let trace: Vec<TraceRow> = e

@@ -1,6 +1,6 @@
 """Drive the simulated motor board (node 1) with python-can's slcan interface.
 
-Usage: slcan_board.py SLCAN_PTY MOTOR_DBC
+Usage: slcan_python.py SLCAN_PTY MOTOR_DBC
 Prints "ok <step>" per step; exits non-zero on the first failure.
 """
 import sys

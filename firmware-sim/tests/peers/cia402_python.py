@@ -3,7 +3,7 @@ python-can's slcan interface: boot-up, heartbeat, configuration by SDO, the PDO 
 back, the state machine to operation enabled with BaseNode402, a profile velocity, and a
 quick stop to switch on disabled.
 
-Usage: cia402_master.py SLCAN_PTY EDS
+Usage: cia402_python.py SLCAN_PTY EDS
 Prints "ok <step>" per step; exits non-zero on the first failure.
 """
 import sys

@@ -21,7 +21,7 @@ use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec, SlcanHostCodec};
 use flowgate_protocol::psd;
 use flowgate_protocol::slcan::{Bitrate, Command, Line as _, MAX_LINE_LEN};
 use flowgate_protocol::CanFrame;
-use flowgate_sim::calibration::CameraModel;
+use flowgate_sim::camera::CameraModel;
 use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
 use flowgate_sim::motors::{MotorKind, Motors};
 use flowgate_sim::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};

@@ -1,7 +1,7 @@
 """Open the gateway's live view in headless Chromium (Debian's, through chromedriver) while a
 run drives, and check the page as a person would see it.
 
-Usage: view_browser.py URL SCREENSHOT.png
+Usage: view.py URL SCREENSHOT.png
 Starts Chromium first and prints "ready" (the caller starts the run then, so a slow browser
 start never misses it), waits for the view to answer, waits for the page to draw the robot, then for the robot marker to move; checks the state,
 the obstacles with their planning circles, the streamlines, the latency bars, the axes in
@@ -12,7 +12,7 @@ count against the histogram's. Prints a JSON summary; exits 1 naming what failed
 import json
 import sys
 
-import chromium
+import _chromium as chromium
 
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait

@@ -4,7 +4,7 @@ inline schemas, and the older `foxglove.websocket.v1`): connect, read the server
 subscribe to some, decode their binary message frames (JSON, or protobuf with the
 descriptors the server advertised, through Google's `protobuf`), and say what arrived as JSON.
 
-Usage: foxglove_client.py URL MESSAGES TOPIC...   (stops once MESSAGES arrived on each topic)
+Usage: foxglove.py URL MESSAGES TOPIC...   (stops once MESSAGES arrived on each topic)
 """
 import base64
 import json

@@ -4,7 +4,7 @@ heartbeat producer) with a small drive model beside it, moved through the state 
 canopen's own CiA 402 tables (State402). They sit on a python-can virtual bus behind an SLCAN
 adapter played on a pty, which flowgate opens as it would a USB-CAN adapter.
 
-Usage: cia402_drive.py EDS
+Usage: cia402_peer.py EDS
 Prints "pty <path>" once the adapter is up, then "ok <step>" per step and a last line
 "summary <json>"; exits non-zero on the first failure, or after 60 s.
 """
