@@ -138,36 +138,7 @@ impl Calibration {
             }
             j
         };
-        let mut r = residuals(&p);
-        let mut cost = r.norm_squared();
-        let mut lambda = 1e-3;
-        for _ in 0..200 {
-            let j = jacobian(&p);
-            let jtj = j.transpose() * &j;
-            let g = j.transpose() * &r;
-            let mut improved = false;
-            for _ in 0..20 {
-                let mut a = jtj.clone();
-                for d in 0..9 {
-                    a[(d, d)] += lambda * jtj[(d, d)].max(1e-12);
-                }
-                let Some(step) = a.lu().solve(&(-&g)) else { break };
-                let candidate = p + nalgebra::SVector::<f64, 9>::from_iterator(step.iter().copied());
-                let rc = residuals(&candidate);
-                let c = rc.norm_squared();
-                if c.is_finite() && c < cost {
-                    let gain = cost - c;
-                    (p, r, cost) = (candidate, rc, c);
-                    lambda = (lambda / 3.0).max(1e-12);
-                    improved = gain > 1e-12 * cost.max(1e-12);
-                    break;
-                }
-                lambda *= 4.0;
-            }
-            if !improved {
-                break;
-            }
-        }
+        let (p, cost) = levenberg_marquardt(p, &residuals, &jacobian);
         let rms_counts = (cost / points.len() as f64).sqrt();
         let noise_gain = noise_gain(&p, &jacobian(&p), span(points), half);
         if !noise_gain.is_finite() || noise_gain > MAX_NOISE_GAIN {
@@ -264,6 +235,49 @@ impl Calibration {
 /// worst over the square the floor points span (about their centre, side their larger
 /// extent): the parameters' covariance `(JᵀJ)⁻¹` carried to an 11x11 grid over it. Points
 /// along a line leave the square's far side unpinned: a large gain.
+
+type Params = nalgebra::SVector<f64, 9>;
+
+/// Levenberg-Marquardt from `p`: at most 200 steps, each trying up to 20 dampings, until a
+/// step no longer improves the cost. The parameters and their squared residual.
+fn levenberg_marquardt(
+    mut p: Params,
+    residuals: &dyn Fn(&Params) -> nalgebra::DVector<f64>,
+    jacobian: &dyn Fn(&Params) -> DMatrix<f64>,
+) -> (Params, f64) {
+    let mut r = residuals(&p);
+    let mut cost = r.norm_squared();
+    let mut lambda = 1e-3;
+    for _ in 0..200 {
+        let j = jacobian(&p);
+        let jtj = j.transpose() * &j;
+        let g = j.transpose() * &r;
+        let mut improved = false;
+        for _ in 0..20 {
+            let mut a = jtj.clone();
+            for d in 0..9 {
+                a[(d, d)] += lambda * jtj[(d, d)].max(1e-12);
+            }
+            let Some(step) = a.lu().solve(&(-&g)) else { break };
+            let candidate = p + nalgebra::SVector::<f64, 9>::from_iterator(step.iter().copied());
+            let rc = residuals(&candidate);
+            let c = rc.norm_squared();
+            if c.is_finite() && c < cost {
+                let gain = cost - c;
+                (p, r, cost) = (candidate, rc, c);
+                lambda = (lambda / 3.0).max(1e-12);
+                improved = gain > 1e-12 * cost.max(1e-12);
+                break;
+            }
+            lambda *= 4.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (p, cost)
+}
+
 fn noise_gain(p: &nalgebra::SVector<f64, 9>, j: &DMatrix<f64>, square: ([f64; 2], f64), half: f64) -> f64 {
     let Some(cov) = (j.transpose() * j).try_inverse() else { return f64::INFINITY };
     let cov = nalgebra::SMatrix::<f64, 9, 9>::from_iterator(cov.iter().copied());

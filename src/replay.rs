@@ -77,87 +77,21 @@ impl Recording {
         let options = mcap::read::Options::IgnoreEndMagic.into();
         let reader = mcap::read::ChunkFlattener::new_with_options(&bytes, options)
             .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
-        let mut topics: BTreeMap<u16, String> = BTreeMap::new();
-        let mut config = None;
-        let mut origin_unix_ns = 0u64;
-        let mut end = None;
-        // Each input's JSON with its header's full sequence number and log time: the times
-        // become host times once the clock's origin is known.
-        let mut input_messages: Vec<(usize, String, serde_json::Value, u64, u64)> = Vec::new();
-        let mut last_seq: Option<u64> = None;
-        let mut can_sent = Vec::new();
+        let mut gathered = Gathered::default();
         let mut truncated = None;
-        let mut index = 0usize;
         for record in reader {
-            let record = match record {
-                Ok(r) => r,
-                Err(e) if index == 0 && config.is_none() => {
+            match record {
+                Ok(r) => gathered.record(&name, r)?,
+                Err(e) if gathered.index == 0 && gathered.config.is_none() => {
                     return Err(ReplayError::NotMcap { path: name, source: e });
                 }
                 Err(e) => {
                     truncated = Some(e.to_string());
                     break;
                 }
-            };
-            match record {
-                mcap::records::Record::Channel(ch) => {
-                    topics.insert(ch.id, ch.topic);
-                }
-                mcap::records::Record::Metadata(m) if m.name == recording::METADATA => {
-                    config = m.metadata.get("config").cloned();
-                    origin_unix_ns = m.metadata.get("origin_unix_ns").and_then(|v| v.parse().ok()).unwrap_or(0);
-                }
-                mcap::records::Record::Metadata(m) if m.name == recording::METADATA_END => {
-                    let count = |k: &str| m.metadata.get(k).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
-                    end = Some((count("inputs_taken"), count("records_dropped")));
-                }
-                mcap::records::Record::Message { header, data } => {
-                    index += 1;
-                    let Some(topic) = topics.get(&header.channel_id) else { continue };
-                    let bad =
-                        |why: String| ReplayError::BadMessage { path: name.clone(), index, topic: topic.clone(), why };
-                    let is_input =
-                        [recording::PSD_RX, recording::CAN_RX, recording::GATEWAY_INPUT].contains(&topic.as_str());
-                    if !is_input && topic != recording::CAN_TX {
-                        continue;
-                    }
-                    let value: serde_json::Value = serde_json::from_slice(&data).map_err(|e| bad(e.to_string()))?;
-                    if is_input {
-                        // MCAP's sequence is 32 bits; inputs are written in order, so the
-                        // full count is the last one moved on by the (wrapping) difference.
-                        let seq = last_seq.map_or(u64::from(header.sequence), |last| {
-                            last + u64::from(header.sequence.wrapping_sub(last as u32))
-                        });
-                        last_seq = Some(seq);
-                        input_messages.push((index, topic.clone(), value, seq, header.log_time));
-                    } else {
-                        let frame = frame_from_json(&value).ok_or_else(|| bad("not a CAN frame".into()))?;
-                        let written = value.get("written").and_then(serde_json::Value::as_bool).unwrap_or(true);
-                        can_sent.push(SentFrame { frame, written });
-                    }
-                }
-                _ => {}
             }
         }
-        let config_toml =
-            config.ok_or(ReplayError::NotFlowgate { path: name.clone(), what: "configuration metadata" })?;
-        let mut inputs = Vec::with_capacity(input_messages.len());
-        for (index, topic, value, seq, log_time) in input_messages {
-            let at = HostTime::from_nanos(log_time.saturating_sub(origin_unix_ns));
-            let input = recording::input_from_json(&value, seq, at).map_err(|why| ReplayError::BadMessage {
-                path: name.clone(),
-                index,
-                topic,
-                why,
-            })?;
-            inputs.push(input);
-        }
-        // The three input channels interleave in the file by write order, which is `seq`
-        // order already; sorting makes that a guarantee rather than an assumption.
-        inputs.sort_by_key(|i| i.seq);
-        let inputs_missing = inputs.windows(2).map(|w| w[1].seq.saturating_sub(w[0].seq + 1)).sum::<u64>()
-            + inputs.first().map_or(0, |i| i.seq);
-        Ok(Self { config_toml, inputs, can_sent, end, inputs_missing, truncated })
+        gathered.finish(&name, truncated)
     }
 
     /// The recorded configuration, parsed.
@@ -261,6 +195,91 @@ pub fn run(rig: Rig, inputs: &[InputRecord]) -> Replayed {
         take(&mut core);
     }
     Replayed { can, commands, final_state: core.state().to_string(), elapsed: started.elapsed().as_secs_f64() }
+}
+
+/// What reading a recording gathers, record by record.
+#[derive(Debug, Default)]
+struct Gathered {
+    topics: BTreeMap<u16, String>,
+    config: Option<String>,
+    origin_unix_ns: u64,
+    end: Option<(u64, u64)>,
+    /// Each input's JSON with its header's full sequence number and log time: the times
+    /// become host times once the clock's origin is known.
+    input_messages: Vec<(usize, String, serde_json::Value, u64, u64)>,
+    last_seq: Option<u64>,
+    can_sent: Vec<SentFrame>,
+    /// Messages read so far.
+    index: usize,
+}
+
+impl Gathered {
+    fn record(&mut self, name: &str, record: mcap::records::Record<'_>) -> Result<(), ReplayError> {
+        match record {
+            mcap::records::Record::Channel(ch) => {
+                self.topics.insert(ch.id, ch.topic);
+            }
+            mcap::records::Record::Metadata(m) if m.name == recording::METADATA => {
+                self.config = m.metadata.get("config").cloned();
+                self.origin_unix_ns = m.metadata.get("origin_unix_ns").and_then(|v| v.parse().ok()).unwrap_or(0);
+            }
+            mcap::records::Record::Metadata(m) if m.name == recording::METADATA_END => {
+                let count = |k: &str| m.metadata.get(k).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
+                self.end = Some((count("inputs_taken"), count("records_dropped")));
+            }
+            mcap::records::Record::Message { header, data } => self.message(name, &header, &data)?,
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn message(&mut self, name: &str, header: &mcap::records::MessageHeader, data: &[u8]) -> Result<(), ReplayError> {
+        self.index += 1;
+        let index = self.index;
+        let Some(topic) = self.topics.get(&header.channel_id) else { return Ok(()) };
+        let bad = |why: String| ReplayError::BadMessage { path: name.to_string(), index, topic: topic.clone(), why };
+        let is_input = [recording::PSD_RX, recording::CAN_RX, recording::GATEWAY_INPUT].contains(&topic.as_str());
+        if !is_input && topic != recording::CAN_TX {
+            return Ok(());
+        }
+        let value: serde_json::Value = serde_json::from_slice(data).map_err(|e| bad(e.to_string()))?;
+        if is_input {
+            // MCAP's sequence is 32 bits; inputs are written in order, so the full count is
+            // the last one moved on by the (wrapping) difference.
+            let seq = self
+                .last_seq
+                .map_or(u64::from(header.sequence), |last| last + u64::from(header.sequence.wrapping_sub(last as u32)));
+            self.last_seq = Some(seq);
+            self.input_messages.push((index, topic.clone(), value, seq, header.log_time));
+        } else {
+            let frame = frame_from_json(&value).ok_or_else(|| bad("not a CAN frame".into()))?;
+            let written = value.get("written").and_then(serde_json::Value::as_bool).unwrap_or(true);
+            self.can_sent.push(SentFrame { frame, written });
+        }
+        Ok(())
+    }
+
+    fn finish(self, name: &str, truncated: Option<String>) -> Result<Recording, ReplayError> {
+        let path = name.to_string();
+        let config_toml = self.config.ok_or(ReplayError::NotFlowgate { path, what: "configuration metadata" })?;
+        let mut inputs = Vec::with_capacity(self.input_messages.len());
+        for (index, topic, value, seq, log_time) in self.input_messages {
+            let at = HostTime::from_nanos(log_time.saturating_sub(self.origin_unix_ns));
+            let input = recording::input_from_json(&value, seq, at).map_err(|why| ReplayError::BadMessage {
+                path: name.to_string(),
+                index,
+                topic,
+                why,
+            })?;
+            inputs.push(input);
+        }
+        // The three input channels interleave in the file by write order, which is `seq`
+        // order already; sorting makes that a guarantee rather than an assumption.
+        inputs.sort_by_key(|i| i.seq);
+        let inputs_missing = inputs.windows(2).map(|w| w[1].seq.saturating_sub(w[0].seq + 1)).sum::<u64>()
+            + inputs.first().map_or(0, |i| i.seq);
+        Ok(Recording { config_toml, inputs, can_sent: self.can_sent, end: self.end, inputs_missing, truncated })
+    }
 }
 
 /// A replay with the recorded configuration, held against the frames the recording says the

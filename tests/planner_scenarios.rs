@@ -193,6 +193,27 @@ fn plan_command_writes_summary_and_plots() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// A full-stack run that ends in a fault says which, in summary.json and in its line: a
+/// board fault at 2.5 s stops the robot, named by the board's node.
+#[test]
+fn a_full_stack_run_names_its_stop_reason() {
+    let dir = temp_dir("stop-reason");
+    std::fs::create_dir_all(&dir).unwrap();
+    let e1 = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml"))
+        .unwrap();
+    std::fs::write(dir.join("faulted.toml"), format!("{e1}\n[faults]\nboard_fault_at = 2.5\n")).unwrap();
+    let out =
+        flowgate().args(["plan", "--scenario"]).arg(dir.join("faulted.toml")).arg("--out").arg(&dir).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("stop: fault: motor board 1 fault"), "{stdout}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["outcome"], "fault");
+    assert_eq!(summary["stop_reason"], "fault: motor board 1 fault");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn plan_command_refuses_a_bad_scenario_naming_the_key() {
     let dir = temp_dir("bad");

@@ -1,6 +1,6 @@
 //! The whole stack in deterministic virtual time: the gateway core, the simulator's PSD
 //! controller, SLCAN adapter and motor board, and its world, through the real encoders and
-//! decoders (src/lab/sim.rs). Judged by the world's truth. Every figure asserted here is
+//! decoders (src/lab/virtual_rig.rs). Judged by the world's truth. Every figure asserted here is
 //! exact for its seed: docs/architecture.md quotes these assertions.
 
 use std::path::Path;

@@ -565,6 +565,48 @@ impl Context<'_> {
         least
     }
 
+    /// Most cycles nothing is within reach. No wheel goes faster than the fastest of its
+    /// speed now and its command (`fastest`), so the centre travels at most that for `τ`
+    /// (and the step that crosses it), then `u²/2a` braking; a check keeps a step's travel
+    /// more. The path ends by `τ + u/a` and three steps (the one crossing `τ`, the brake's
+    /// last, part-filled one, and one more where that leaves a rounding's worth of speed:
+    /// `stop`), and each obstacle comes at most its speed and growth meanwhile.
+    fn nothing_within_reach(&self, fastest: f64, h: f64, stop: f64, spare: f64) -> bool {
+        let (a, tau) = (self.cfg.wheel_accel, self.cfg.reaction_time);
+        let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
+        let reach = fastest * (tau + 2.0 * h) + fastest * fastest / (2.0 * a) + spare + fastest * h;
+        let near = |hz: &Hazard| match *hz {
+            Hazard::Obstacle { center, speed, keep, growth, .. } => {
+                (center - self.position).length() <= keep + reach + (speed + growth) * stop
+            }
+            Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
+        };
+        !self.hazards.iter().any(near)
+    }
+
+    /// Nor is anything driven into when the robot never moves toward it along the whole
+    /// path, as long as the centre never reverses (each wheel ramps monotonically from its
+    /// speed now to the command, so their slower ends summing to zero or more is enough).
+    /// The turn rate is linear between the moments a wheel reaches its command (the ramp
+    /// lasts until the step that crosses `τ` ends), so it is largest in size at one of them,
+    /// and the brake holds the one it starts with.
+    fn never_moves_toward(&self, target: [f64; 2], h: f64, stop: f64) -> bool {
+        let (a, tau, base) = (self.cfg.wheel_accel, self.cfg.reaction_time, self.cfg.wheel_base);
+        if self.wheels[0].min(target[0]) + self.wheels[1].min(target[1]) < 0.0 {
+            return false;
+        }
+        let ramp_end = tau + h;
+        let turn_rate_at = |t: f64| {
+            let step = a * t.min(ramp_end);
+            (ramp(self.wheels[1], target[1], step) - ramp(self.wheels[0], target[0], step)) / base
+        };
+        let reached = |k: usize| (target[k] - self.wheels[k]).abs() / a;
+        let fastest_turn =
+            [0.0, reached(0), reached(1), ramp_end].iter().fold(0.0f64, |m, &t| m.max(turn_rate_at(t).abs()));
+        let turned = fastest_turn * stop;
+        self.hazards.iter().all(|hz| never_toward(hz, 0.0, self.position, self.facing, stop, turned))
+    }
+
     /// The first hazard `command` drives into along its path (see the module docs).
     fn first_driven_into(&self, command: WheelSpeeds, spare: f64) -> Option<Hazard> {
         self.first_driven_into_by(command, spare, Shortcuts::Taken)
@@ -585,36 +627,9 @@ impl Context<'_> {
         let fastest = self.fastest(command);
         let h = self.path_step(fastest);
         let stop = tau + fastest / a + 3.0 * h;
-        let reach = fastest * (tau + 2.0 * h) + fastest * fastest / (2.0 * a) + spare + fastest * h;
-        let near = |hz: &Hazard| match *hz {
-            Hazard::Obstacle { center, speed, keep, growth, .. } => {
-                (center - self.position).length() <= keep + reach + (speed + growth) * stop
-            }
-            Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
-        };
-        if taken && !self.hazards.iter().any(near) {
-            return None;
-        }
-        // Nor is anything when the robot never moves toward it along the whole path, as long
-        // as the centre never reverses (each wheel ramps monotonically from its speed now to
-        // the command, so their slower ends summing to zero or more is enough). The turn
-        // rate is linear between the moments a wheel reaches its command (the ramp lasts
-        // until the step that crosses `τ` ends), so it is largest in size at one of them,
-        // and the brake holds the one it starts with.
         let target = [command.left, command.right];
-        if taken && self.wheels[0].min(target[0]) + self.wheels[1].min(target[1]) >= 0.0 {
-            let ramp_end = tau + h;
-            let turn_rate_at = |t: f64| {
-                let step = a * t.min(ramp_end);
-                (ramp(self.wheels[1], target[1], step) - ramp(self.wheels[0], target[0], step)) / base
-            };
-            let reached = |k: usize| (target[k] - self.wheels[k]).abs() / a;
-            let fastest_turn =
-                [0.0, reached(0), reached(1), ramp_end].iter().fold(0.0f64, |m, &t| m.max(turn_rate_at(t).abs()));
-            let turned = fastest_turn * stop;
-            if self.hazards.iter().all(|hz| never_toward(hz, 0.0, self.position, self.facing, stop, turned)) {
-                return None;
-            }
+        if taken && (self.nothing_within_reach(fastest, h, stop, spare) || self.never_moves_toward(target, h, stop)) {
+            return None;
         }
         let mut path = Path {
             position: self.position,

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 pub use super::Outcome;
 use super::Scenario;
-use crate::control::{ControlStep, StepStatus, Supervision};
+use crate::control::{ControlStep, StepOutput, StepStatus, Supervision};
 use crate::gateway::core::{State, StopReason};
 use crate::planner::MAX_OBSTACLES;
 use crate::track::{KalmanConfig, LedGeometry, LowPass, Pose, Tracker};
@@ -105,6 +105,10 @@ impl Run {
             margin_shrunk_cycles: e.report.counters.planner_margin_shrunk,
             unclosed_at_a_wall_cycles: e.report.counters.planner_unclosed_at_a_wall,
             obstacle_faster_than_robot: e.report.counters.obstacle_outran_robot > 0,
+            stop_reason: match &e.setup_error {
+                Some(error) => Some(format!("PSD controller setup failed: {error}")),
+                None => e.report.stop_reason.map(|_| e.report.final_state.to_string()),
+            },
         };
         Run { summary, trace, cost: CycleCost::default() }
     }
@@ -164,6 +168,10 @@ pub struct Summary {
     /// Some obstacle outran what the robot can deliver at some point of the run (judged
     /// with hysteresis on its tracked speed): no guarantee.
     pub obstacle_faster_than_robot: bool,
+    /// Why the gateway stopped, as its state says it (`fault: robot pose lost`), in a
+    /// full-stack run; none in a planner-only run, which has no gateway.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stop_reason: Option<String>,
 }
 
 /// One cycle of a recorded run, for the plots.
@@ -283,6 +291,83 @@ enum Keep {
     Trace,
 }
 
+/// What the step did, cycle by cycle, counted for the summary.
+#[derive(Debug, Default)]
+struct Tally {
+    cycles: u64,
+    invalid: u64,
+    saturated: u64,
+    tie_break: u64,
+    shrunk: u64,
+    unclosed: u64,
+    slowed: u64,
+    braking: u64,
+    evaded: u64,
+    goal_occupied: u64,
+    faster: bool,
+}
+
+impl Tally {
+    /// Count one step; the outcome it ends the run with, if any.
+    fn count(&mut self, out: &StepOutput) -> Option<Outcome> {
+        self.cycles += 1;
+        if let Some(plan) = out.plan {
+            self.saturated += u64::from(plan.flags.saturated);
+            self.tie_break += u64::from(plan.flags.tie_break);
+            self.shrunk += u64::from(plan.flags.margin_shrunk);
+            self.unclosed += u64::from(plan.flags.unclosed_at_a_wall);
+        }
+        self.faster |= out.outrun;
+        match out.supervision {
+            Supervision::Passed => {}
+            Supervision::Slowed { .. } => self.slowed += 1,
+            Supervision::Braking { .. } => self.braking += 1,
+            Supervision::Evaded { .. } => self.evaded += 1,
+        }
+        match out.status {
+            StepStatus::AtGoal => return Some(Outcome::Goal),
+            StepStatus::Stalled => return Some(Outcome::Stall),
+            StepStatus::GoalOccupied { .. } => self.goal_occupied += 1,
+            StepStatus::GoalBlocked { .. } => return Some(Outcome::Stopped),
+            StepStatus::Invalid(_) => self.invalid += 1,
+            StepStatus::Driving => {}
+        }
+        None
+    }
+
+    fn summary(self, s: &Scenario, outcome: Outcome, world: &World, compute: &Histogram<u64>) -> Summary {
+        let truth = world.truth();
+        let straight = (s.goal() - s.robot_start()).norm();
+        let us = |q: f64| compute.value_at_quantile(q) as f64 / 1e3;
+        Summary {
+            scenario: s.name.clone(),
+            outcome,
+            end_time: world.time(),
+            time_to_goal: (outcome == Outcome::Goal).then(|| world.time()),
+            min_obstacle_clearance: (!s.obstacles.is_empty()).then_some(truth.min_obstacle_clearance),
+            min_wall_clearance: s.lane.map(|_| truth.min_wall_clearance),
+            first_contact: truth.first_contact,
+            contact: truth.contact,
+            path_length: truth.path_length,
+            path_length_ratio: if straight > 0.0 { truth.path_length / straight } else { 0.0 },
+            peak_wheel_speed: truth.peak_wheel_speed,
+            planner_compute: ComputeTime { p50_us: us(0.5), p99_us: us(0.99), max_us: compute.max() as f64 / 1e3 },
+            cycles: self.cycles,
+            invalid_cycles: self.invalid,
+            supervisor_slowed_cycles: self.slowed,
+            supervisor_braking_cycles: self.braking,
+            supervisor_evaded_cycles: self.evaded,
+            goal_occupied_cycles: self.goal_occupied,
+            saturated_cycles: self.saturated,
+            tie_break_cycles: self.tie_break,
+            margin_shrunk_cycles: self.shrunk,
+            unclosed_at_a_wall_cycles: self.unclosed,
+            obstacle_faster_than_robot: self.faster,
+            stop_reason: None,
+        }
+    }
+}
+
 fn run_with(s: &Scenario, keep: Keep) -> Run {
     let record = keep == Keep::Trace;
     let timed = keep != Keep::Outcome;
@@ -306,10 +391,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         }
     };
     let mut trace = Vec::new();
-    let (mut invalid, mut saturated, mut tie_break, mut shrunk, mut faster, mut cycles) = (0, 0, 0, 0, false, 0u64);
-    let (mut slowed, mut braking, mut goal_occupied, mut unclosed) = (0, 0, 0, 0);
-    let mut evaded = 0;
-
+    let mut tally = Tally::default();
     let outcome = loop {
         let t = world.time();
         let sensing = clock();
@@ -328,39 +410,13 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
             let _ = compute.record(ns);
             cost.control_ns += ns;
         }
-        cycles += 1;
-        if let Some(plan) = out.plan {
-            saturated += u64::from(plan.flags.saturated);
-            tie_break += u64::from(plan.flags.tie_break);
-            shrunk += u64::from(plan.flags.margin_shrunk);
-            unclosed += u64::from(plan.flags.unclosed_at_a_wall);
-        }
-        faster |= out.outrun;
-        match out.supervision {
-            Supervision::Passed => {}
-            Supervision::Slowed { .. } => slowed += 1,
-            Supervision::Braking { .. } => braking += 1,
-            Supervision::Evaded { .. } => evaded += 1,
-        }
-        match out.status {
-            StepStatus::AtGoal => break Outcome::Goal,
-            StepStatus::Stalled => break Outcome::Stall,
-            StepStatus::GoalOccupied { .. } => goal_occupied += 1,
-            StepStatus::GoalBlocked { .. } => break Outcome::Stopped,
-            StepStatus::Invalid(_) => invalid += 1,
-            StepStatus::Driving => {}
+        if let Some(outcome) = tally.count(&out) {
+            break outcome;
         }
         world.command_pulse_rates(out.pulses);
         tracker.commanded(t, out.wheels.left, out.wheels.right);
         if record {
-            let w = world.wheel_speeds();
-            trace.push(TraceRow {
-                t,
-                pose: world.pose().into(),
-                command: out.plan.map_or(Point::default(), |p| p.velocity),
-                speed: 0.5 * (w[0] + w[1]),
-                obstacles: (0..n).map(|k| world.obstacle_position(k, t)).collect(),
-            });
+            trace.push(trace_row(&world, t, &out, n));
         }
         let stepping = clock();
         world.step(t_step);
@@ -372,34 +428,18 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
             break Outcome::Timeout;
         }
     };
-
-    let truth = world.truth();
-    let straight = (s.goal() - s.robot_start()).norm();
-    let us = |q: f64| compute.value_at_quantile(q) as f64 / 1e3;
-    let summary = Summary {
-        scenario: s.name.clone(),
-        outcome,
-        end_time: world.time(),
-        time_to_goal: (outcome == Outcome::Goal).then(|| world.time()),
-        min_obstacle_clearance: (n > 0).then_some(truth.min_obstacle_clearance),
-        min_wall_clearance: s.lane.map(|_| truth.min_wall_clearance),
-        first_contact: truth.first_contact,
-        contact: truth.contact,
-        path_length: truth.path_length,
-        path_length_ratio: if straight > 0.0 { truth.path_length / straight } else { 0.0 },
-        peak_wheel_speed: truth.peak_wheel_speed,
-        planner_compute: ComputeTime { p50_us: us(0.5), p99_us: us(0.99), max_us: compute.max() as f64 / 1e3 },
-        cycles,
-        invalid_cycles: invalid,
-        supervisor_slowed_cycles: slowed,
-        supervisor_braking_cycles: braking,
-        supervisor_evaded_cycles: evaded,
-        goal_occupied_cycles: goal_occupied,
-        saturated_cycles: saturated,
-        tie_break_cycles: tie_break,
-        margin_shrunk_cycles: shrunk,
-        unclosed_at_a_wall_cycles: unclosed,
-        obstacle_faster_than_robot: faster,
-    };
+    let summary = tally.summary(s, outcome, &world, &compute);
     Run { summary, trace, cost }
+}
+
+/// A cycle's row for the plots.
+fn trace_row(world: &World, t: f64, out: &StepOutput, n: usize) -> TraceRow {
+    let w = world.wheel_speeds();
+    TraceRow {
+        t,
+        pose: world.pose().into(),
+        command: out.plan.map_or(Point::default(), |p| p.velocity),
+        speed: 0.5 * (w[0] + w[1]),
+        obstacles: (0..n).map(|k| world.obstacle_position(k, t)).collect(),
+    }
 }

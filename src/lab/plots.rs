@@ -191,5 +191,8 @@ pub fn one_line(run: &Run) -> String {
         s.peak_wheel_speed[0].max(s.peak_wheel_speed[1]) * 1e3,
         s.planner_compute.p99_us
     );
+    if let Some(reason) = &s.stop_reason {
+        let _ = write!(line, " stop: {reason}");
+    }
     line
 }

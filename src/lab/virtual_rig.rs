@@ -329,6 +329,42 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     motion_outside_running: u64,
 }
 
+/// The simulated controller (the scenario's camera, LEDs, noise and faults) and motors.
+fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (ControllerSpec, MotorKind) {
+    let camera = scenario.camera;
+    let spec = ControllerSpec {
+        camera,
+        leds: LedMap::standard(scenario.robot.radius),
+        noise_counts: scenario.sensing.position_noise * counts_per_metre(&camera),
+        seed: scenario.sensing.seed,
+        faults: plan.clone(),
+    };
+    let kind = if options.cia402 {
+        let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
+        MotorKind::Cia402 { left: node(1), right: node(2) }
+    } else {
+        MotorKind::Board(flowgate_protocol::motor::NodeId::new(1).expect("node 1"))
+    };
+    (spec, kind)
+}
+
+/// The gateway's rig for the scenario, and the bitrate the shell opens its SLCAN adapter at
+/// (the simulated bus runs at 1 Mbit/s).
+fn gateway_rig(scenario: &Scenario, options: &Options) -> (crate::config::Rig, Bitrate) {
+    let mut rig = match options.can {
+        CanTransport::Slcan => scenario.rig_with("slcan:/dev/null", options.cia402),
+        CanTransport::SocketCan => scenario.rig_with("socketcan:vcan0", options.cia402),
+    };
+    if let Some(adjust) = options.adjust_rig {
+        adjust(&mut rig);
+    }
+    let bitrate = match &rig.can {
+        crate::config::CanUrl::Slcan { bitrate, .. } => Bitrate::from_bps(*bitrate).unwrap_or(Bitrate::M1),
+        _ => Bitrate::M1,
+    };
+    (rig, bitrate)
+}
+
 impl VirtualRig<NoClock> {
     /// The scenario's rig, deterministic.
     pub fn new(scenario: &Scenario, options: Options) -> Self {
@@ -345,38 +381,14 @@ impl<K: StageClock> VirtualRig<K> {
         if plan.sample_delay_ms == 0.0 {
             plan.sample_delay_ms = scenario.sensing.delay * 1e3;
         }
-        let camera = scenario.camera;
-        let spec = ControllerSpec {
-            camera,
-            leds: LedMap::standard(scenario.robot.radius),
-            noise_counts: scenario.sensing.position_noise * counts_per_metre(&camera),
-            seed: scenario.sensing.seed,
-            faults: plan.clone(),
-        };
-        let kind = if options.cia402 {
-            let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
-            MotorKind::Cia402 { left: node(1), right: node(2) }
-        } else {
-            MotorKind::Board(flowgate_protocol::motor::NodeId::new(1).expect("node 1"))
-        };
+        let (spec, kind) = firmware_spec(scenario, &options, &plan);
         let mut world = World::new(scenario);
         let mut controller = spec.build();
         let mut board = Motors::new(kind, &plan);
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
         board.boot(0.0, &mut world, &mut can_out);
-        let mut gateway_rig = match options.can {
-            CanTransport::Slcan => scenario.rig_with("slcan:/dev/null", options.cia402),
-            CanTransport::SocketCan => scenario.rig_with("socketcan:vcan0", options.cia402),
-        };
-        if let Some(adjust) = options.adjust_rig {
-            adjust(&mut gateway_rig);
-        }
-        // The shell opens the adapter at the rig's bitrate; the simulated bus runs at 1 Mbit/s.
-        let adapter_bitrate = match &gateway_rig.can {
-            crate::config::CanUrl::Slcan { bitrate, .. } => Bitrate::from_bps(*bitrate).unwrap_or(Bitrate::M1),
-            _ => Bitrate::M1,
-        };
+        let (gateway_rig, adapter_bitrate) = gateway_rig(scenario, &options);
         let mut rig = Self {
             t: 0,
             core: Core::new(gateway_rig, clock),

@@ -380,8 +380,22 @@ pub fn fit(
             tikhonov[j] = regularisation * norm;
         }
     }
+    let solutions = least_squares(a, rows, p, b);
+    for (x, fitted) in solutions.iter().zip(&mut out) {
+        for n in 0..orders {
+            fitted.coeffs[n] = if real { Point::new(x[n], 0.0) } else { Point::new(x[2 * n], x[2 * n + 1]) };
+        }
+        fitted.orders = orders;
+        fitted.source = x[p - 1];
+    }
+    out
+}
+
+/// Least squares of the column-major `a` (`rows` by `p`) against both right-hand sides, by
+/// Householder QR applied to them as it goes, then back substitution; a column the points
+/// cannot see stays zero. `a` and `b` are overwritten.
+fn least_squares(a: &mut [f64], rows: usize, p: usize, b: &mut [[f64; ROWS]; 2]) -> [[f64; UNKNOWNS]; 2] {
     let m = rows;
-    // Householder QR, applied to both right-hand sides as it goes.
     let mut diag = [0.0; UNKNOWNS];
     for k in 0..p {
         let (head, tail) = a.split_at_mut((k + 1) * rows);
@@ -406,10 +420,9 @@ pub fn fit(
             reflect(v, vnorm2, &mut rhs[k..m]);
         }
     }
-    // Back substitution R x = Qᵀ b; a column the points cannot see stays zero.
     let scale = diag[..p].iter().fold(0.0f64, |acc, d| acc.max(d.abs()));
-    for (rhs, fitted) in b.iter().zip(&mut out) {
-        let mut x = [0.0; UNKNOWNS];
+    let mut out = [[0.0; UNKNOWNS]; 2];
+    for (rhs, x) in b.iter().zip(&mut out) {
         for k in (0..p).rev() {
             if diag[k].abs() <= 1e-12 * scale {
                 continue;
@@ -417,11 +430,6 @@ pub fn fit(
             let sum: f64 = (k + 1..p).map(|j| a[j * rows + k] * x[j]).sum();
             x[k] = (rhs[k] - sum) / diag[k];
         }
-        for n in 0..orders {
-            fitted.coeffs[n] = if real { Point::new(x[n], 0.0) } else { Point::new(x[2 * n], x[2 * n + 1]) };
-        }
-        fitted.orders = orders;
-        fitted.source = x[p - 1];
     }
     out
 }

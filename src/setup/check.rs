@@ -215,27 +215,7 @@ async fn check_psd(rig: &Rig, report: &mut Report) {
     let handshake = match client.configure().await {
         Ok(h) => h,
         Err(e) => {
-            // The handshake's steps in order: which one failed says which lines passed.
-            let (failed, passed): (&str, &[&'static str]) = match &e {
-                PsdClientError::Setup(SetupError::Silent { request: "GetInfo" }) => (ANSWERS, &[]),
-                PsdClientError::Setup(SetupError::Identity(_)) => (IDENTITY, &[ANSWERS]),
-                PsdClientError::Setup(SetupError::Refused { request: "SetSchedule", .. })
-                | PsdClientError::Setup(SetupError::Silent { request: "SetSchedule" }) => {
-                    (ACCEPTED, &[ANSWERS, IDENTITY])
-                }
-                PsdClientError::Setup(SetupError::Silent { request: "TimeSync" }) => {
-                    (TIME_SYNC, &[ANSWERS, IDENTITY, ACCEPTED])
-                }
-                PsdClientError::Setup(_) => (STREAM, &[ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC]),
-                _ => (ANSWERS, &[]),
-            };
-            for item in passed {
-                report.pass(item, &port, "yes");
-            }
-            let subject = if failed == IDENTITY { format!("{port}, calibration.counts") } else { port.clone() };
-            report.fail(failed, subject, e.to_string());
-            let rest: Vec<&'static str> = PSD_ITEMS.iter().copied().skip_while(|i| *i != failed).skip(1).collect();
-            report.skip(&rest, &port, "the controller's setup failed");
+            handshake_failed(&e, &port, report);
             client.stop().await;
             return;
         }
@@ -281,6 +261,28 @@ async fn check_psd(rig: &Rig, report: &mut Report) {
     }
     watch_stream(rig, &mut client, &port, report).await;
     client.stop().await;
+}
+
+/// The handshake's steps in order: which one failed says which lines passed.
+fn handshake_failed(e: &PsdClientError, port: &str, report: &mut Report) {
+    let (failed, passed): (&str, &[&'static str]) = match e {
+        PsdClientError::Setup(SetupError::Silent { request: "GetInfo" }) => (ANSWERS, &[]),
+        PsdClientError::Setup(SetupError::Identity(_)) => (IDENTITY, &[ANSWERS]),
+        PsdClientError::Setup(SetupError::Refused { request: "SetSchedule", .. })
+        | PsdClientError::Setup(SetupError::Silent { request: "SetSchedule" }) => (ACCEPTED, &[ANSWERS, IDENTITY]),
+        PsdClientError::Setup(SetupError::Silent { request: "TimeSync" }) => {
+            (TIME_SYNC, &[ANSWERS, IDENTITY, ACCEPTED])
+        }
+        PsdClientError::Setup(_) => (STREAM, &[ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC]),
+        _ => (ANSWERS, &[]),
+    };
+    for item in passed {
+        report.pass(item, port, "yes");
+    }
+    let subject = if failed == IDENTITY { format!("{port}, calibration.counts") } else { port.to_string() };
+    report.fail(failed, subject, e.to_string());
+    let rest: Vec<&'static str> = PSD_ITEMS.iter().copied().skip_while(|i| *i != failed).skip(1).collect();
+    report.skip(&rest, port, "the controller's setup failed");
 }
 
 async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mut Report) {
@@ -380,60 +382,63 @@ async fn check_can(rig: &Rig, report: &mut Report) {
         #[cfg(feature = "lab")]
         CanUrl::Memory => "memory".to_string(),
     };
-    if let CanUrl::SocketCan { interface } = &rig.can {
-        if let Err(why) = socketcan_state(interface) {
+    let opened = match open_checked(rig).await {
+        Ok(opened) => opened,
+        Err(why) => {
             report.fail(CAN_IF, &endpoint, why);
             report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
             return;
         }
-    }
-    let mut link = match tokio::time::timeout(CAN_OPEN, open_can(&rig.can)).await {
-        Ok(Ok(link)) => link,
-        Ok(Err(e)) => {
-            report.fail(CAN_IF, &endpoint, can_open_error(e));
-            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
-            return;
-        }
-        Err(_) => {
-            report.fail(CAN_IF, &endpoint, format!("did not open within {} s", CAN_OPEN.as_secs()));
-            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
-            return;
-        }
     };
-    let node = rig.node;
-    let board = format!("{endpoint}, node {}", node.get());
-    let heard = match listen(&mut link, node, rig.can.polls_status()).await {
-        Ok(h) => h,
-        Err(e) => {
-            report.fail(CAN_IF, &endpoint, e.to_string());
-            report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
-            return;
-        }
-    };
-    match (&rig.can, heard.adapter) {
-        (_, _) if heard.error_frames > 0 => report.fail(
-            CAN_IF,
-            &endpoint,
-            format!("{} error frames in {} ms (bus-off: {})", heard.error_frames, LISTEN.as_millis(), heard.bus_off),
-        ),
-        (CanUrl::Slcan { .. }, None) => {
-            report.fail(CAN_IF, &endpoint, "the SLCAN adapter did not report its status flags (F)")
-        }
-        (CanUrl::Slcan { .. }, Some((bus_off, passive))) if bus_off || passive => report.fail(
-            CAN_IF,
-            &endpoint,
-            format!("the adapter's controller is {}", if bus_off { "bus-off" } else { "error-passive" }),
-        ),
-        (CanUrl::Slcan { bitrate, .. }, Some(_)) => {
-            report.pass(CAN_IF, &endpoint, format!("SLCAN adapter open at {bitrate} bit/s, status flags clear"))
-        }
-        _ => report.pass(CAN_IF, &endpoint, format!("up, no error frames in {} ms", LISTEN.as_millis())),
-    }
-
+    let (mut link, heard) = opened;
+    judge_interface(rig, &heard, &endpoint, report);
     if let Motors::Cia402(settings) = rig.motors {
         check_drives(&mut link, &settings, &endpoint, report).await;
         return;
     }
+    check_board(rig, &mut link, &heard, &endpoint, report).await;
+}
+
+/// The CAN link opened (SocketCAN's interface up first), and a while of the bus heard.
+async fn open_checked(rig: &Rig) -> Result<(CanLink, Heard), String> {
+    if let CanUrl::SocketCan { interface } = &rig.can {
+        socketcan_state(interface)?;
+    }
+    let mut link = match tokio::time::timeout(CAN_OPEN, open_can(&rig.can)).await {
+        Ok(Ok(link)) => link,
+        Ok(Err(e)) => return Err(can_open_error(e)),
+        Err(_) => return Err(format!("did not open within {} s", CAN_OPEN.as_secs())),
+    };
+    let heard = listen(&mut link, rig.node, rig.can.polls_status()).await.map_err(|e| e.to_string())?;
+    Ok((link, heard))
+}
+
+/// The interface: error frames, or an SLCAN adapter's status flags.
+fn judge_interface(rig: &Rig, heard: &Heard, endpoint: &str, report: &mut Report) {
+    match (&rig.can, heard.adapter) {
+        (_, _) if heard.error_frames > 0 => report.fail(
+            CAN_IF,
+            endpoint,
+            format!("{} error frames in {} ms (bus-off: {})", heard.error_frames, LISTEN.as_millis(), heard.bus_off),
+        ),
+        (CanUrl::Slcan { .. }, None) => {
+            report.fail(CAN_IF, endpoint, "the SLCAN adapter did not report its status flags (F)")
+        }
+        (CanUrl::Slcan { .. }, Some((bus_off, passive))) if bus_off || passive => report.fail(
+            CAN_IF,
+            endpoint,
+            format!("the adapter's controller is {}", if bus_off { "bus-off" } else { "error-passive" }),
+        ),
+        (CanUrl::Slcan { bitrate, .. }, Some(_)) => {
+            report.pass(CAN_IF, endpoint, format!("SLCAN adapter open at {bitrate} bit/s, status flags clear"))
+        }
+        _ => report.pass(CAN_IF, endpoint, format!("up, no error frames in {} ms", LISTEN.as_millis())),
+    }
+}
+
+/// The board: its heartbeat and state, no other master, and its configuration.
+async fn check_board(rig: &Rig, link: &mut CanLink, heard: &Heard, endpoint: &str, report: &mut Report) {
+    let board = format!("{endpoint}, node {}", rig.node.get());
     // The board's heartbeat and state.
     let others = if heard.other_nodes.is_empty() {
         "no other node heard".to_string()
@@ -477,20 +482,20 @@ async fn check_can(rig: &Rig, report: &mut Report) {
     if heard.foreign_commands > 0 || heard.gateway_heartbeats > 0 {
         report.fail(
             OTHERS,
-            &endpoint,
+            endpoint,
             format!(
                 "{} velocity commands and {} gateway heartbeats from elsewhere on the bus: another gateway is running",
                 heard.foreign_commands, heard.gateway_heartbeats
             ),
         );
     } else {
-        report.pass(OTHERS, &endpoint, "no velocity commands or gateway heartbeats on the bus");
+        report.pass(OTHERS, endpoint, "no velocity commands or gateway heartbeats on the bus");
     }
     if !healthy {
         report.skip(&[BOARD_CONFIG], &board, "the board is not ready");
         return;
     }
-    match configure_board(&mut link, rig).await {
+    match configure_board(link, rig).await {
         Ok(detail) => report.pass(BOARD_CONFIG, &board, detail),
         Err(why) => report.fail(BOARD_CONFIG, &board, why),
     }

@@ -191,6 +191,13 @@ fn encode_counters(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Re
             ("error_passive", c.can_error_passive),
         ],
     )?;
+    encode_control_counters(encoder, s)?;
+    counter(encoder, "flowgate_view_frames_dropped", "Live-view frames a slow client skipped.", s.view_frames_dropped)
+}
+
+/// The counters of the motors, the tracker, the planner and the supervisor.
+fn encode_control_counters(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Result {
+    let c = &s.counters;
     counter(
         encoder,
         "flowgate_board_seq_errors",
@@ -231,7 +238,7 @@ fn encode_counters(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Re
         ],
     )?;
     counter(encoder, "flowgate_telemetry_dropped", "Telemetry records dropped (queue full).", c.telemetry_dropped)?;
-    counter(encoder, "flowgate_view_frames_dropped", "Live-view frames a slow client skipped.", s.view_frames_dropped)
+    Ok(())
 }
 
 /// Faults and orderly stops, by reason: every reason from the start, at 0 until it

@@ -744,44 +744,53 @@ pub async fn run(
         }
     }
     let gateway_states = main.stop().await;
-    // Sustained: the highest rate that passes with every slower latency phase passing too.
-    let sustained_by = |passes: &dyn Fn(&Phase) -> bool| {
-        let mut latency_phases: Vec<&Phase> = report_phases
-            .iter()
-            .filter(|p| {
-                p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording && !p.view && !p.cia402
-            })
-            .collect();
-        latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
-        latency_phases
-            .iter()
-            .take_while(|p| p.commands_received == p.cycles_sent && passes(p))
-            .last()
-            .map_or(0.0, |p| p.samples_per_s)
-    };
-    let sustained = sustained_by(&|p| p.late_percent < 1.0);
-    let sustained_vs_floor = sustained_by(&|p| p.floor.is_some_and(|f| p.late_percent <= f.late_percent + 1.0));
-    let wire = Wire::new();
-    Ok(BenchReport {
-        transport: transport.describe(),
-        wire_per_cycle_us: wire.sample_frame_us
-            + match transport {
-                Transport::SlcanPty => wire.command_slcan_us,
-                Transport::SocketCan { .. } => wire.command_frame_us,
-            },
-        wire_per_cycle_cia402_us: wire.sample_frame_us
-            + match transport {
-                Transport::SlcanPty => wire.cia402_slcan_us,
-                Transport::SocketCan { .. } => wire.cia402_frames_us,
-            },
-        wire,
-        phases: report_phases,
-        sustained_samples_per_s: sustained,
-        sustained_vs_floor_samples_per_s: sustained_vs_floor,
-        gateway_states,
-        other_states,
-        planner_note: "planner per-evaluation figures: cargo bench --bench planner (docs/performance.md)",
-    })
+    Ok(BenchReport::new(transport, report_phases, gateway_states, other_states))
+}
+
+/// Sustained: the highest rate that passes with every slower latency phase passing too.
+fn sustained(phases: &[Phase], passes: &dyn Fn(&Phase) -> bool) -> f64 {
+    let mut latency_phases: Vec<&Phase> = phases
+        .iter()
+        .filter(|p| {
+            p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording && !p.view && !p.cia402
+        })
+        .collect();
+    latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
+    latency_phases
+        .iter()
+        .take_while(|p| p.commands_received == p.cycles_sent && passes(p))
+        .last()
+        .map_or(0.0, |p| p.samples_per_s)
+}
+
+impl BenchReport {
+    fn new(
+        transport: &Transport,
+        phases: Vec<Phase>,
+        gateway_states: Vec<String>,
+        other_states: Vec<(String, Vec<String>)>,
+    ) -> Self {
+        let sustained_samples_per_s = sustained(&phases, &|p| p.late_percent < 1.0);
+        let sustained_vs_floor_samples_per_s =
+            sustained(&phases, &|p| p.floor.is_some_and(|f| p.late_percent <= f.late_percent + 1.0));
+        let wire = Wire::new();
+        let (command, cia402) = match transport {
+            Transport::SlcanPty => (wire.command_slcan_us, wire.cia402_slcan_us),
+            Transport::SocketCan { .. } => (wire.command_frame_us, wire.cia402_frames_us),
+        };
+        BenchReport {
+            transport: transport.describe(),
+            wire_per_cycle_us: wire.sample_frame_us + command,
+            wire_per_cycle_cia402_us: wire.sample_frame_us + cia402,
+            wire,
+            phases,
+            sustained_samples_per_s,
+            sustained_vs_floor_samples_per_s,
+            gateway_states,
+            other_states,
+            planner_note: "planner per-evaluation figures: cargo bench --bench planner (docs/performance.md)",
+        }
+    }
 }
 
 impl BenchReport {
@@ -797,6 +806,15 @@ impl BenchReport {
 
 impl std::fmt::Display for BenchReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.fmt_phases(f)?;
+        self.fmt_added_and_stages(f)?;
+        self.fmt_notes(f)
+    }
+}
+
+impl BenchReport {
+    /// The wire's figures, then a row a phase: rate, losses, latency, CPU, memory, floor.
+    fn fmt_phases(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let w = &self.wire;
         writeln!(f, "flowgate bench over {}", self.transport)?;
         writeln!(
@@ -860,6 +878,11 @@ impl std::fmt::Display for BenchReport {
                 p.latency_us.p50 / self.wire_for(p)
             )?;
         }
+        Ok(())
+    }
+
+    /// What flowgate adds over its floor, and the gateway's stages, a row a phase.
+    fn fmt_added_and_stages(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "\nwhat flowgate adds: the gateway's latency minus its floor's, quantile by quantile (µs)")?;
         writeln!(f, "{:<38} {:>8} {:>8} {:>8}", "phase", "p50", "p99", "p99.9")?;
         for p in &self.phases {
@@ -880,6 +903,11 @@ impl std::fmt::Display for BenchReport {
             }
             writeln!(f)?;
         }
+        Ok(())
+    }
+
+    /// What the columns mean, how each phase's gateway ran, and the sustained rates.
+    fn fmt_notes(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f)?;
         writeln!(f, "lost: frames with no command; late: command after the next frame was due")?;
         writeln!(f, "floor: the same rate through a null gateway (its own process, same endpoints, no work): the pty, scheduler and CAN transport alone")?;
