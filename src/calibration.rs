@@ -231,11 +231,6 @@ impl Calibration {
     }
 }
 
-/// How much one count of noise on each reading moves the fitted model's prediction, at
-/// worst over the square the floor points span (about their centre, side their larger
-/// extent): the parameters' covariance `(JᵀJ)⁻¹` carried to an 11x11 grid over it. Points
-/// along a line leave the square's far side unpinned: a large gain.
-
 type Params = nalgebra::SVector<f64, 9>;
 
 /// Levenberg-Marquardt from `p`: at most 200 steps, each trying up to 20 dampings, until a
@@ -278,6 +273,10 @@ fn levenberg_marquardt(
     (p, cost)
 }
 
+/// How much one count of noise on each reading moves the fitted model's prediction, at
+/// worst over the square the floor points span (about their centre, side their larger
+/// extent): the parameters' covariance `(JᵀJ)⁻¹` carried to an 11x11 grid over it. Points
+/// along a line leave the square's far side unpinned: a large gain.
 fn noise_gain(p: &nalgebra::SVector<f64, 9>, j: &DMatrix<f64>, square: ([f64; 2], f64), half: f64) -> f64 {
     let Some(cov) = (j.transpose() * j).try_inverse() else { return f64::INFINITY };
     let cov = nalgebra::SMatrix::<f64, 9, 9>::from_iterator(cov.iter().copied());

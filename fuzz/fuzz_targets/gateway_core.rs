@@ -7,9 +7,9 @@
 //! the stream, not only the CRC check); CAN frames are any id and payload.
 #![no_main]
 use flowgate::config::{GatewayConfig, Goal, Rig};
-use flowgate::gateway::operator::Request;
-use flowgate::gateway::{Core, Input, NoClock, Output, State};
-use flowgate::gateway::core::input::CanEvent;
+use flowgate::gateway::core::operator::Request;
+use flowgate::gateway::core::{Core, Input, NoClock, Output, State};
+use flowgate::gateway::core::CanEvent;
 use flowgate::time::HostTime;
 use flowgate_protocol::motor::MotorMessage;
 use flowgate_protocol::{cobs, crc, CanFrame, CanId};

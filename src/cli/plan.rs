@@ -83,7 +83,7 @@ fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mod
         bail!("--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)", sweep::MAX_EPISODES);
     }
     let started = std::time::Instant::now();
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let path = if let Some(shard) = args.shard {
         let episodes = sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, shard);
         let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);

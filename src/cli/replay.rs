@@ -50,7 +50,7 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
     }
     let config = match &args.config {
         Some(path) => GatewayConfig::read(path)?,
-        None if args.set.is_empty() => return Ok(verify(&recording)?),
+        None if args.set.is_empty() => return verify(&recording),
         None => {
             let text = replay::apply_sets(&recording.config_toml, &args.set)?;
             GatewayConfig::from_toml(&text, "the recorded configuration with --set")?

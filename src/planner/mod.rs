@@ -2,7 +2,7 @@
 //!
 //! Pure and allocation-free: the same call serves the live gateway, the offline scenario
 //! runner, replay and the benchmarks. The field itself is in [`field`]; the conversion of
-//! the command to wheel speeds and pulse rates (eq. 30) in [`drive`].
+//! the command to wheel speeds and pulse rates (eq. 30) in [`crate::control::drive`].
 //!
 //! On top of the field the planner adds what a real rig needs:
 //! - **Planning radius** `R = a_0 + a_r` grown by a [`Margin`] rule for sensing delay

@@ -279,7 +279,7 @@ impl<K: StageClock> Core<K> {
         let encode_start = self.clock.now_ns();
         let frame = self.motors.command(pulses, &mut self.out.can());
         record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
-        let Ok(frame) = frame else {
+        let Some(frame) = frame else {
             // Pulse rates come from the drive model clamped to the wheel limit, which the
             // config keeps in range; a frame that cannot be built is a planner fault.
             self.stop(now, StopReason::PlannerInvalid);

@@ -48,13 +48,14 @@
 //! decode -> floor coordinates (calibration) -> [`Tracker`] -> control step -> one CAN
 //! velocity frame. The same core runs on the rig, in deterministic virtual time against the
 //! simulator's firmware, in replay and in the benchmarks: that is what makes a
+//! virtual-time test evidence about the rig.
 //!
 //! The core is a dispatcher over its machines, each in its own module, in the order a
 //! sample travels: [`psd_session`] (the controller's handshake, sequence and clock) and
 //! [`frame`] (one time-division frame) on the PSD link ([`psd_link`]); the [`Tracker`] and
-//! the control step ([`cycle`]); the [`safety`] state machine; the motors behind one type
-//! ([`motors`]: a board or CiA 402 drives) on the CAN link ([`can_link`]); the operator's
-//! requests ([`requests`]); and one timer table ([`timers`]) that both gives the next
+//! the control step (`cycle`); the [`safety`] state machine; the motors behind one type
+//! ([`motors`]: a board or CiA 402 drives) on the CAN link (`can_link`); the operator's
+//! requests (`requests`); and one timer table ([`timers`]) that both gives the next
 //! deadline and fires what is due.
 
 use std::collections::VecDeque;

@@ -194,7 +194,8 @@ impl<K: StageClock> Core<K> {
                 // schedule and clock are gone. A robot driving on it stops, named for it (a
                 // quick reconfigure must not hide a reboot); the controller is configured
                 // again so an operator can reset and arm.
-                if self.psd.restart(now, &mut self.out.psd()) {
+                let restarted = self.psd.restart(now, &mut self.out.psd());
+                if restarted {
                     tracing::warn!("PSD controller reset; reconfiguring");
                     self.stop_if_active(now, StopReason::ControllerReset);
                 }

@@ -115,17 +115,17 @@ impl MotorMaster {
     }
 
     /// One cycle's command. The CiA 402 drives get one RPDO each: the left one goes out
-    /// through `send`, the right one closes the cycle. `Err`: the frame could not be built
+    /// through `send`, the right one closes the cycle. `None`: the frame could not be built
     /// (a planner fault).
-    pub fn command(&mut self, pulses: [i32; 2], send: &mut impl FnMut(CanFrame)) -> Result<CanFrame, ()> {
+    pub fn command(&mut self, pulses: [i32; 2], send: &mut impl FnMut(CanFrame)) -> Option<CanFrame> {
         match self {
-            Self::Board(b) => b.command(pulses).ok_or(()),
+            Self::Board(b) => b.command(pulses),
             Self::Cia402(m) => match m.command(pulses) {
-                [Some(left), Some(right)] => {
+                [Some(left), right @ Some(_)] => {
                     send(left);
-                    Ok(right)
+                    right
                 }
-                _ => Err(()),
+                _ => None,
             },
         }
     }
