@@ -34,6 +34,7 @@
 
 pub mod field;
 pub mod multipole;
+pub mod room;
 
 use crate::Point;
 use arrayvec::ArrayVec;

@@ -1,0 +1,657 @@
+//! Rooms: walls, furniture and the camera's edge as no-penetration boundaries of the
+//! navigation function (docs/planner.md, "Rooms").
+//!
+//! The robot's centre moves in the configuration space: every wall (a polyline) and every
+//! static obstacle (a polygon) grown by the robot's radius (their Minkowski sum with a disc,
+//! whose convex corners are arcs), and the camera's view shrunk to where the robot is still
+//! seen. On those boundaries the flow must not cross: `∂φ/∂n = 0`.
+//!
+//! The boundary condition is met by the method of fundamental solutions: unit sources of
+//! the [`Space`] (free, or the lane with its walls in closed form) placed just behind the
+//! boundary, inside the grown furniture or outside the view, whose strengths make the
+//! normal flow vanish at collocation points along it, by least squares. The matrix depends
+//! on the room alone: its pseudo-inverse is taken once, when the room is built. A cycle then
+//! pays one matrix-vector product for each right-hand side.
+//!
+//! A closed room (the view's edge, or walls all round the goal) cannot hold a lone sink:
+//! its flux must come from somewhere. The field closes the balance with a uniform source
+//! over the free area, `Δφ = -2π/A` (velocity `(π/A)(z - z₀)`), so that away from the
+//! goal `φ` is strictly superharmonic: it has no local minimum inside (the minimum
+//! principle) nor on a smooth part of the boundary (Hopf's lemma against `∂φ/∂n = 0`), and
+//! every streamline ends at the goal or at a saddle.
+
+use crate::Point;
+
+use super::field::Space;
+
+/// The room as configured, in floor metres: walls (polylines), static obstacles (closed
+/// polygons) and the region the robot's centre must stay in (the camera's view, already
+/// shrunk by the robot's reach and the inset), if it is a boundary.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RoomShape {
+    pub walls: Vec<Vec<Point>>,
+    pub obstacles: Vec<Vec<Point>>,
+    pub view: Option<Vec<Point>>,
+}
+
+/// What is wrong with a room, naming the item.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RoomError {
+    #[error("`{key}`: {why}")]
+    Shape { key: String, why: String },
+    #[error("`{key}` {at:?} is {why}")]
+    Blocked { key: String, at: [f64; 2], why: String },
+    #[error("the room's boundary is too long to solve in a cycle ({points} collocation points, at most {MAX_POINTS})")]
+    TooLarge { points: usize },
+}
+
+/// The most collocation points a room may have (twice the sources).
+pub const MAX_POINTS: usize = 1600;
+
+impl RoomShape {
+    /// No walls, no obstacles, no view's edge: the field is the [`Space`]'s alone.
+    pub fn is_empty(&self) -> bool {
+        self.walls.is_empty() && self.obstacles.is_empty() && self.view.is_none()
+    }
+
+    /// Check every polyline and polygon: finite points, enough of them, no zero-length
+    /// edge, polygons simple (no edge crossing another).
+    pub fn check(&self) -> Result<(), RoomError> {
+        let bad = |key: String, why: &str| RoomError::Shape { key, why: why.to_string() };
+        for (i, wall) in self.walls.iter().enumerate() {
+            let key = format!("walls[{i}].points");
+            check_points(wall, 2, &key)?;
+            if polyline_self_intersects(wall) {
+                return Err(bad(key, "the wall crosses itself"));
+            }
+        }
+        let polygons = self.obstacles.iter().enumerate().map(|(i, p)| (format!("static_obstacles[{i}].points"), p));
+        let view = self.view.iter().map(|p| ("room.view".to_string(), p));
+        for (key, polygon) in polygons.chain(view) {
+            check_points(polygon, 3, &key)?;
+            let closing = (polygon[0] - polygon[polygon.len() - 1]).norm();
+            if closing == 0.0 {
+                return Err(bad(key, "the last point repeats the first: the polygon closes by itself"));
+            }
+            if polygon_self_intersects(polygon) {
+                return Err(bad(key, "the polygon is not simple: two of its edges cross"));
+            }
+            if signed_area(polygon).abs() < 1e-12 {
+                return Err(bad(key, "the polygon has no area"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The distance from `p` to the nearest wall or static obstacle (0 inside an obstacle),
+    /// and, with a view, to the view's edge (negative outside it): the clearance of a robot
+    /// centre at `p`, before growing by the robot's radius.
+    pub fn distance(&self, p: Point) -> f64 {
+        let mut d = f64::INFINITY;
+        for wall in &self.walls {
+            for s in wall.windows(2) {
+                d = d.min(segment_distance(p, s[0], s[1]));
+            }
+        }
+        for polygon in &self.obstacles {
+            if inside_polygon(p, polygon) {
+                return 0.0;
+            }
+            d = d.min(polygon_edges(polygon).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min));
+        }
+        if let Some(view) = &self.view {
+            let edge = polygon_edges(view).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min);
+            d = d.min(if inside_polygon(p, view) { edge } else { -edge });
+        }
+        d
+    }
+}
+
+fn check_points(points: &[Point], least: usize, key: &str) -> Result<(), RoomError> {
+    let bad = |why: String| RoomError::Shape { key: key.to_string(), why };
+    if points.len() < least {
+        return Err(bad(format!("needs at least {least} points, has {}", points.len())));
+    }
+    if let Some(k) = points.iter().position(|p| !(p.re.is_finite() && p.im.is_finite())) {
+        return Err(bad(format!("point {k} is not finite")));
+    }
+    if let Some(k) = points.windows(2).position(|s| (s[1] - s[0]).norm() < 1e-9) {
+        return Err(bad(format!("the edge from point {k} to point {} has no length", k + 1)));
+    }
+    Ok(())
+}
+
+/// A polygon's edges, closed by the last one.
+fn polygon_edges(polygon: &[Point]) -> impl Iterator<Item = (Point, Point)> + '_ {
+    (0..polygon.len()).map(move |k| (polygon[k], polygon[(k + 1) % polygon.len()]))
+}
+
+/// The polygon's signed area (positive counter-clockwise), m².
+pub fn signed_area(polygon: &[Point]) -> f64 {
+    0.5 * polygon_edges(polygon).map(|(a, b)| a.re * b.im - b.re * a.im).sum::<f64>()
+}
+
+/// Whether `p` lies inside the polygon (even-odd rule).
+pub fn inside_polygon(p: Point, polygon: &[Point]) -> bool {
+    let mut inside = false;
+    for (a, b) in polygon_edges(polygon) {
+        if (a.im > p.im) != (b.im > p.im) {
+            let x = a.re + (p.im - a.im) / (b.im - a.im) * (b.re - a.re);
+            if p.re < x {
+                inside = !inside;
+            }
+        }
+    }
+    inside
+}
+
+/// The distance from `p` to the segment `a`-`b`.
+pub fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
+    let ab = b - a;
+    let t = (((p - a) * ab.conj()).re / ab.norm_sqr()).clamp(0.0, 1.0);
+    (p - (a + ab * t)).norm()
+}
+
+/// Whether the open segments `a`-`b` and `c`-`d` cross or touch.
+fn segments_meet(a: Point, b: Point, c: Point, d: Point) -> bool {
+    let cross = |o: Point, p: Point, q: Point| ((p - o).conj() * (q - o)).im;
+    let (d1, d2) = (cross(c, d, a), cross(c, d, b));
+    let (d3, d4) = (cross(a, b, c), cross(a, b, d));
+    if ((d1 > 0.0) != (d2 > 0.0)) && ((d3 > 0.0) != (d4 > 0.0)) && d1 != 0.0 && d2 != 0.0 && d3 != 0.0 && d4 != 0.0 {
+        return true;
+    }
+    // Collinear overlaps and touching ends.
+    let on = |p: Point, q: Point, r: Point| segment_distance(r, p, q) < 1e-12;
+    on(c, d, a) || on(c, d, b) || on(a, b, c) || on(a, b, d)
+}
+
+fn polygon_self_intersects(polygon: &[Point]) -> bool {
+    let n = polygon.len();
+    let edges: Vec<(Point, Point)> = polygon_edges(polygon).collect();
+    (0..n).any(|i| {
+        (i + 1..n).any(|j| {
+            let adjacent = j == i + 1 || (i == 0 && j == n - 1);
+            !adjacent && segments_meet(edges[i].0, edges[i].1, edges[j].0, edges[j].1)
+        })
+    })
+}
+
+fn polyline_self_intersects(line: &[Point]) -> bool {
+    let n = line.len() - 1;
+    (0..n).any(|i| (i + 2..n).any(|j| segments_meet(line[i], line[i + 1], line[j], line[j + 1])))
+}
+
+/// One panel of the configuration space's boundary: a straight piece from `a` to `b`,
+/// with the unit normal pointing out of the free region (into the grown furniture, or out
+/// of the view). Its midpoint is its collocation point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Panel {
+    pub a: Point,
+    pub b: Point,
+    pub normal: Point,
+}
+
+impl Panel {
+    pub fn mid(&self) -> Point {
+        (self.a + self.b) * 0.5
+    }
+    pub fn length(&self) -> f64 {
+        (self.b - self.a).norm()
+    }
+
+    /// The flow (`u - i v`) at `z` of a unit source density along the panel (each metre of
+    /// it emitting what a unit point source does, `2π`): `(1/t) Log((z - a)/(z - b))`, `t`
+    /// the panel's unit direction. Far from the panel (beyond `FAR` lengths) its point
+    /// source is within 1e-6 of that and much cheaper.
+    #[inline]
+    fn source_flow(&self, z: Point) -> Point {
+        let d = self.b - self.a;
+        let len = d.norm();
+        let rel = z - self.mid();
+        if rel.norm_sqr() > (FAR * len) * (FAR * len) {
+            return len / rel;
+        }
+        let t = d / len;
+        ((z - self.a) / (z - self.b)).ln() / t
+    }
+}
+
+/// Beyond this many panel lengths a panel's flow is taken as its point source's.
+const FAR: f64 = 30.0;
+
+/// The configuration space's boundary as panels of about `spacing` metres: along each grown
+/// wall and obstacle (the arcs at their convex corners included) and along the view's edge,
+/// those whose midpoint lies inside another grown shape or outside the view left out.
+pub fn boundary(shape: &RoomShape, grow: f64, spacing: f64) -> Vec<Panel> {
+    let mut panels = Vec::new();
+    // A curve from its nodes: panels between consecutive nodes, normal from its side.
+    let mut curve = |node: &mut dyn FnMut(f64) -> Point, length: f64, inward: bool| {
+        let n = (length / spacing).ceil().max(1.0) as usize;
+        let nodes: Vec<Point> = (0..=n).map(|k| node(k as f64 / n as f64)).collect();
+        for w in nodes.windows(2) {
+            let t = (w[1] - w[0]) / (w[1] - w[0]).norm();
+            // Walked with the free region on the left: the right is out of it.
+            let right = t * Point::new(0.0, -1.0);
+            panels.push(Panel { a: w[0], b: w[1], normal: if inward { -right } else { right } });
+        }
+    };
+    // A grown polyline or polygon, walked with its inside on the left: its edges shifted by
+    // `grow` to the right, and arcs round its convex corners (left turns). A polyline is
+    // walked there and back, so both sides and both ends (half circles) are covered. The
+    // free region is then on the right: walked backwards, it is on the left.
+    let mut grown = |path: &[Point]| {
+        let n = path.len();
+        for k in 0..n {
+            let (a, b, c) = (path[k], path[(k + 1) % n], path[(k + 2) % n]);
+            let out = (b - a) / (b - a).norm() * Point::new(0.0, -1.0);
+            curve(&mut |s| b + (a - b) * s + out * grow, (b - a).norm(), false);
+            let out2 = (c - b) / (c - b).norm() * Point::new(0.0, -1.0);
+            let mut turn = (out2 * out.conj()).arg();
+            if turn < -std::f64::consts::PI + 1e-9 {
+                turn = std::f64::consts::PI; // a wall's end: the half circle round it
+            }
+            if turn > 0.0 {
+                curve(&mut |s| b + out * Point::from_polar(grow, turn * (1.0 - s)), turn * grow, false);
+            }
+        }
+    };
+    for wall in &shape.walls {
+        let there_and_back: Vec<Point> =
+            wall.iter().chain(wall.iter().rev().skip(1).take(wall.len() - 2)).copied().collect();
+        grown(&there_and_back);
+    }
+    for polygon in &shape.obstacles {
+        let mut ccw = polygon.clone();
+        if signed_area(&ccw) < 0.0 {
+            ccw.reverse();
+        }
+        grown(&ccw);
+    }
+    if let Some(view) = &shape.view {
+        let mut ccw = view.clone();
+        if signed_area(&ccw) < 0.0 {
+            ccw.reverse();
+        }
+        // Counter-clockwise: the free region on the left, out of it on the right.
+        for (a, b) in polygon_edges(&ccw) {
+            curve(&mut |s| a + (b - a) * s, (b - a).norm(), false);
+        }
+    }
+    // Keep what bounds the free region: on no other grown shape's inside, inside the view.
+    // (A chord of an arc sags inside it by a few per cent of the growth.)
+    let furniture = RoomShape { walls: shape.walls.clone(), obstacles: shape.obstacles.clone(), view: None };
+    panels.retain(|p| {
+        let m = p.mid();
+        let clear = furniture.distance(m) >= grow * 0.95;
+        let seen = shape
+            .view
+            .as_ref()
+            .is_none_or(|v| inside_polygon(m, v) || polygon_edges(v).any(|(a, b)| segment_distance(m, a, b) < 1e-9));
+        clear && seen
+    });
+    panels
+}
+
+/// Singular values below this fraction of the largest are dropped from the inverse: a
+/// closed room's system has one direction (the flux through the whole boundary) that no
+/// compatible right-hand side excites.
+const SINGULAR_CUTOFF: f64 = 1e-10;
+
+/// A room solved for its boundary: the panels, and the map from the normal flow to cancel
+/// at their midpoints to their source densities.
+#[derive(Debug, Clone)]
+pub struct Room {
+    shape: RoomShape,
+    grow: f64,
+    panels: Vec<Panel>,
+    /// `panels × panels`, row-major: densities = `solve · (normal flow to cancel)`.
+    solve: Vec<f64>,
+    /// The free region's parts, with each closed part's closure.
+    regions: Regions,
+}
+
+impl Room {
+    /// Solve `shape` grown by `grow` (the robot's radius), with panels of about `spacing`
+    /// metres. `None` for an empty room (free space's own field is exact).
+    pub fn new(shape: &RoomShape, grow: f64, spacing: f64) -> Result<Option<Self>, RoomError> {
+        shape.check()?;
+        if shape.is_empty() {
+            return Ok(None);
+        }
+        let panels = boundary(shape, grow, spacing);
+        if panels.len() > MAX_POINTS {
+            return Err(RoomError::TooLarge { points: panels.len() });
+        }
+        let n = panels.len();
+        let mut a = nalgebra::DMatrix::<f64>::zeros(n, n);
+        for (i, p) in panels.iter().enumerate() {
+            // Each midpoint a hair on the free side, where the panel's own flow is `-π`.
+            let at = p.mid() - p.normal * (1e-9 * p.length());
+            for (j, q) in panels.iter().enumerate() {
+                a[(i, j)] = (q.source_flow(at) * p.normal).re;
+            }
+        }
+        let svd = a.svd(true, true);
+        let largest = svd.singular_values.max();
+        let inverse = svd.pseudo_inverse(largest * SINGULAR_CUTOFF).map_err(|why| RoomError::Shape {
+            key: "room".into(),
+            why: format!("the boundary's system has no inverse: {why}"),
+        })?;
+        let solve: Vec<f64> = (0..n).flat_map(|j| (0..n).map(move |i| (j, i))).map(|(j, i)| inverse[(j, i)]).collect();
+        let regions = Regions::new(shape, grow);
+        let mut room = Self { shape: shape.clone(), grow, panels, solve, regions };
+        for k in 0..room.regions.parts.len() {
+            let part = &room.regions.parts[k];
+            if part.closed {
+                let rhs: Vec<f64> =
+                    room.panels.iter().map(|p| -(closure_flow(part.centroid, p.mid()) * p.normal).re).collect();
+                let mut densities = vec![0.0; n];
+                room.solve_into(&rhs, &mut densities);
+                room.regions.parts[k].closure = Some(densities);
+            }
+        }
+        Ok(Some(room))
+    }
+
+    pub fn shape(&self) -> &RoomShape {
+        &self.shape
+    }
+    pub fn panels(&self) -> &[Panel] {
+        &self.panels
+    }
+
+    /// Whether the free part that `p` lies in is closed (a uniform source balances a sink
+    /// there).
+    pub fn closed_at(&self, p: Point) -> bool {
+        self.regions.part_of(p).is_some_and(|k| self.regions.parts[k].closed)
+    }
+
+    /// The clearance of a robot centre at `p` (see [`clearance`]).
+    pub fn clearance(&self, p: Point) -> f64 {
+        clearance(&self.shape, self.grow, p)
+    }
+
+    /// Whether a robot centre can go from `a` to `b` without meeting the room: both free
+    /// and in one part of the free region (on the room's 1/400 grid).
+    pub fn reachable(&self, a: Point, b: Point) -> bool {
+        let free = self.clearance(a) > 0.0 && self.clearance(b) > 0.0;
+        free && self.regions.part_of(a).is_some() && self.regions.part_of(a) == self.regions.part_of(b)
+    }
+
+    /// The room's own flow towards a unit sink at `goal`: the panels' densities that make
+    /// the sink's flow tangent to the boundary, and in a closed part the uniform source that
+    /// balances the sink, with its own densities. What a cycle keeps of it.
+    pub fn sink_flow(&self, goal: Point, out: &mut RoomSink) {
+        out.densities.resize(self.panels.len(), 0.0);
+        out.rhs.resize(self.panels.len(), 0.0);
+        for (r, p) in out.rhs.iter_mut().zip(&self.panels) {
+            *r = -(Space::Free.sink(p.mid(), goal) * p.normal).re;
+        }
+        self.solve_into(&out.rhs, &mut out.densities);
+        out.goal = goal;
+        out.closure = None;
+        if let Some(part) = self.regions.part_of(goal).map(|k| &self.regions.parts[k]) {
+            if let (true, Some(closure)) = (part.closed, &part.closure) {
+                // The unit sink's 2π of flux, from a uniform source over the part's area.
+                let density = std::f64::consts::TAU / part.area;
+                for (s, c) in out.densities.iter_mut().zip(closure) {
+                    *s += density * c;
+                }
+                out.closure = Some((part.centroid, density));
+            }
+        }
+    }
+
+    /// The flow (`u - i v`) at `z` of a unit sink at the goal in the room: the sink, the
+    /// panels, and the closure.
+    pub fn eval_sink(&self, sink: &RoomSink, z: Point) -> Point {
+        let mut f = Space::Free.sink(z, sink.goal) + self.panels_flow(&sink.densities, z);
+        if let Some((center, density)) = sink.closure {
+            f += closure_flow(center, z) * density;
+        }
+        f
+    }
+
+    /// Densities from normal flows to cancel: `out = solve · rhs`.
+    fn solve_into(&self, rhs: &[f64], out: &mut [f64]) {
+        let n = self.panels.len();
+        for (j, o) in out.iter_mut().enumerate() {
+            let row = &self.solve[j * n..(j + 1) * n];
+            *o = row.iter().zip(rhs).map(|(a, b)| a * b).sum();
+        }
+    }
+
+    /// The flow (`u - i v`) of the panels with these densities at `z`.
+    fn panels_flow(&self, densities: &[f64], z: Point) -> Point {
+        let mut f = Point::default();
+        for (p, &q) in self.panels.iter().zip(densities) {
+            f += p.source_flow(z) * q;
+        }
+        f
+    }
+}
+
+/// A unit sink's flow in a room, solved for one goal (kept across cycles while the goal
+/// stays; its buffers are made once, so solving it again does not allocate).
+#[derive(Debug, Clone, Default)]
+pub struct RoomSink {
+    goal: Point,
+    densities: Vec<f64>,
+    rhs: Vec<f64>,
+    /// A closed part's uniform source: its centre and density.
+    closure: Option<(Point, f64)>,
+}
+
+impl RoomSink {
+    pub fn goal(&self) -> Point {
+        self.goal
+    }
+}
+
+/// The closure's radial flow (`u - i v`) per unit source density: `(1/2) conj(z - z₀)`.
+fn closure_flow(center: Point, z: Point) -> Point {
+    0.5 * (z - center).conj()
+}
+
+/// The free region's connected parts, on a grid over the room's extent (its points and a
+/// margin), made once with the room: which part a point lies in, and each part's area,
+/// centroid and whether it is closed (never reaching the extent's border).
+#[derive(Debug, Clone)]
+struct Regions {
+    lo: Point,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    /// Per cell: 0 where the robot's centre may not be, else its part's number + 1.
+    label: Vec<u16>,
+    parts: Vec<Part>,
+}
+
+#[derive(Debug, Clone)]
+struct Part {
+    area: f64,
+    centroid: Point,
+    closed: bool,
+    /// A closed part's closure: the sources' strengths that make its radial flow tangent at
+    /// the boundary, per unit source density.
+    closure: Option<Vec<f64>>,
+}
+
+/// Cells across the room's larger extent.
+const GRID_CELLS: f64 = 400.0;
+
+impl Regions {
+    fn new(shape: &RoomShape, grow: f64) -> Self {
+        let all: Vec<Point> =
+            shape.walls.iter().chain(&shape.obstacles).chain(shape.view.iter()).flatten().copied().collect();
+        let start = (Point::new(f64::MAX, f64::MAX), Point::new(f64::MIN, f64::MIN));
+        let (lo, hi) = all.iter().fold(start, |(lo, hi), p| {
+            (Point::new(lo.re.min(p.re), lo.im.min(p.im)), Point::new(hi.re.max(p.re), hi.im.max(p.im)))
+        });
+        let margin = 2.0 * grow + 0.05;
+        let (lo, hi) = (lo - Point::new(margin, margin), hi + Point::new(margin, margin));
+        let cell = (hi.re - lo.re).max(hi.im - lo.im) / GRID_CELLS;
+        let nx = ((hi.re - lo.re) / cell).ceil() as usize + 1;
+        let ny = ((hi.im - lo.im) / cell).ceil() as usize + 1;
+        let mut regions = Self { lo, cell, nx, ny, label: vec![0; nx * ny], parts: Vec::new() };
+        let free: Vec<bool> = (0..nx * ny).map(|k| clearance(shape, grow, regions.centre(k)) > 0.0).collect();
+        for seed in 0..nx * ny {
+            if free[seed] && regions.label[seed] == 0 && regions.parts.len() < usize::from(u16::MAX - 1) {
+                let part = regions.flood(seed, &free);
+                regions.parts.push(part);
+            }
+        }
+        regions
+    }
+
+    fn centre(&self, k: usize) -> Point {
+        self.lo + Point::new((k % self.nx) as f64 * self.cell, (k / self.nx) as f64 * self.cell)
+    }
+
+    fn flood(&mut self, seed: usize, free: &[bool]) -> Part {
+        let id = self.parts.len() as u16 + 1;
+        let (nx, ny) = (self.nx, self.ny);
+        let mut stack = vec![seed];
+        self.label[seed] = id;
+        let (mut count, mut sum, mut open) = (0usize, Point::default(), false);
+        while let Some(k) = stack.pop() {
+            let (i, j) = (k % nx, k / nx);
+            count += 1;
+            sum += self.centre(k);
+            open |= i == 0 || j == 0 || i == nx - 1 || j == ny - 1;
+            for (a, b) in [(i.wrapping_sub(1), j), (i + 1, j), (i, j.wrapping_sub(1)), (i, j + 1)] {
+                if a < nx && b < ny && free[b * nx + a] && self.label[b * nx + a] == 0 {
+                    self.label[b * nx + a] = id;
+                    stack.push(b * nx + a);
+                }
+            }
+        }
+        Part { area: count as f64 * self.cell * self.cell, centroid: sum / count as f64, closed: !open, closure: None }
+    }
+
+    /// The part `p` lies in, if any (the nearest cell's). Beyond the grid's extent lies the
+    /// open plane round the room, which the extent's free margin joins into one open part.
+    fn part_of(&self, p: Point) -> Option<usize> {
+        let i = ((p.re - self.lo.re) / self.cell).round();
+        let j = ((p.im - self.lo.im) / self.cell).round();
+        if !(i >= 0.0 && j >= 0.0 && (i as usize) < self.nx && (j as usize) < self.ny) {
+            return self.parts.iter().position(|part| !part.closed);
+        }
+        let label = self.label[j as usize * self.nx + i as usize];
+        (label > 0).then(|| usize::from(label) - 1)
+    }
+}
+
+/// The clearance of a robot centre at `p`: its distance to the nearest grown wall or
+/// obstacle, or to the view's edge (negative where it may not be).
+pub fn clearance(shape: &RoomShape, grow: f64, p: Point) -> f64 {
+    let mut d = f64::INFINITY;
+    for wall in &shape.walls {
+        for s in wall.windows(2) {
+            d = d.min(segment_distance(p, s[0], s[1]));
+        }
+    }
+    for polygon in &shape.obstacles {
+        let edge = polygon_edges(polygon).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min);
+        d = d.min(if inside_polygon(p, polygon) { -edge } else { edge });
+    }
+    let d = d - grow;
+    match &shape.view {
+        Some(view) => {
+            let edge = polygon_edges(view).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min);
+            d.min(if inside_polygon(p, view) { edge } else { -edge })
+        }
+        None => d,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(x: f64, y: f64) -> Point {
+        Point::new(x, y)
+    }
+
+    /// A 2 m square view, a table and a wall with a bend, a 7 cm robot.
+    fn furnished() -> RoomShape {
+        RoomShape {
+            walls: vec![vec![p(-0.3, -1.0), p(-0.3, -0.2), p(0.1, -0.2)]],
+            obstacles: vec![vec![p(0.3, 0.3), p(0.7, 0.3), p(0.7, 0.6), p(0.3, 0.6)]],
+            view: Some(vec![p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)]),
+        }
+    }
+
+    #[test]
+    fn a_bad_room_is_refused_naming_the_item() {
+        let mut shape = furnished();
+        shape.walls.push(vec![p(0.0, 0.0), p(0.0, 0.0), p(0.5, 0.0)]);
+        let e = shape.check().unwrap_err().to_string();
+        assert_eq!(e, "`walls[1].points`: the edge from point 0 to point 1 has no length");
+        let mut shape = furnished();
+        shape.obstacles.push(vec![p(0.0, 0.0), p(0.4, 0.4), p(0.4, 0.0), p(0.0, 0.4)]);
+        let e = shape.check().unwrap_err().to_string();
+        assert_eq!(e, "`static_obstacles[1].points`: the polygon is not simple: two of its edges cross");
+        let mut shape = furnished();
+        shape.obstacles[0].truncate(2);
+        assert!(shape.check().unwrap_err().to_string().contains("needs at least 3 points, has 2"));
+        let mut shape = furnished();
+        shape.walls[0][1] = p(f64::NAN, 0.0);
+        assert!(shape.check().unwrap_err().to_string().contains("`walls[0].points`: point 1 is not finite"));
+        assert!(furnished().check().is_ok());
+    }
+
+    /// The clearance is the robot centre's distance to the grown room; the free region's
+    /// parts say what can be reached: a wall across the view cuts it in two, a doorway in it
+    /// joins them again.
+    #[test]
+    fn reachability_follows_the_walls_and_the_doorways() {
+        let view = vec![p(-1.0, -1.0), p(1.0, -1.0), p(1.0, 1.0), p(-1.0, 1.0)];
+        let cut =
+            RoomShape { walls: vec![vec![p(0.0, -1.2), p(0.0, 1.2)]], obstacles: vec![], view: Some(view.clone()) };
+        let room = Room::new(&cut, 0.07, 0.05).unwrap().unwrap();
+        assert!((room.clearance(p(0.5, 0.0)) - 0.43).abs() < 1e-12, "{}", room.clearance(p(0.5, 0.0)));
+        assert!(room.clearance(p(0.05, 0.0)) < 0.0);
+        assert!(room.reachable(p(0.5, 0.0), p(0.5, 0.8)));
+        assert!(!room.reachable(p(-0.5, 0.0), p(0.5, 0.0)));
+        let door = RoomShape {
+            walls: vec![vec![p(0.0, -1.2), p(0.0, -0.2)], vec![p(0.0, 0.2), p(0.0, 1.2)]],
+            obstacles: vec![],
+            view: Some(view),
+        };
+        let room = Room::new(&door, 0.07, 0.05).unwrap().unwrap();
+        assert!(room.reachable(p(-0.5, 0.0), p(0.5, 0.0)), "a 40 cm doorway passes a 14 cm robot");
+        assert!(room.closed_at(p(0.5, 0.0)));
+        let narrow = RoomShape {
+            walls: vec![vec![p(0.0, -1.2), p(0.0, -0.06)], vec![p(0.0, 0.06), p(0.0, 1.2)]],
+            obstacles: vec![],
+            view: door.view.clone(),
+        };
+        let room = Room::new(&narrow, 0.07, 0.05).unwrap().unwrap();
+        assert!(!room.reachable(p(-0.5, 0.0), p(0.5, 0.0)), "a 12 cm doorway does not");
+    }
+
+    /// The panels' densities make a unit sink's flow tangent at every panel's midpoint, in
+    /// a closed room whose uniform source balances the sink's flux.
+    #[test]
+    fn the_sink_flow_is_tangent_at_every_panel() {
+        let room = Room::new(&furnished(), 0.07, 0.04).unwrap().unwrap();
+        let goal = p(0.5, -0.6);
+        assert!(room.closed_at(goal));
+        let mut sink = RoomSink::default();
+        room.sink_flow(goal, &mut sink);
+        let mut worst: f64 = 0.0;
+        let mut flux = 0.0;
+        for panel in room.panels() {
+            let at = panel.mid() - panel.normal * (1e-9 * panel.length());
+            let f = room.eval_sink(&sink, at);
+            worst = worst.max((f * panel.normal).re.abs());
+            // The sink's and the closure's flux through the boundary, without the panels.
+            let (center, density) = sink.closure.unwrap();
+            let bare = Space::Free.sink(at, goal) + closure_flow(center, at) * density;
+            flux += (bare * panel.normal).re * panel.length();
+        }
+        assert!(worst < 1e-8, "{worst}");
+        assert!(flux.abs() < 0.02 * std::f64::consts::TAU, "the closure balances the sink: {flux}");
+    }
+}
