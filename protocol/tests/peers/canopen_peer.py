@@ -24,7 +24,7 @@ node_id = int(sys.argv[1])
 frames = sys.argv[2:]
 
 
-EDS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "cia402-drive.eds")
+EDS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "cia402-drive.eds")
 
 
 def drive_dictionary():
