@@ -2,7 +2,7 @@
 //! (CAN) that steers a mobile robot around moving obstacles.
 //!
 //! Modules follow the data flow of one sample cycle:
-//! [`link`] (serial and CAN transports) -> [`gateway`] (the core: PSD session, tracking,
+//! [`gateway`] (its shell's links, serial and CAN; the core: PSD session, tracking,
 //! control, safety; and the tokio shell) -> [`calibration`] (PSD counts to floor) -> [`track`]
 //! (robot pose and obstacle motion) -> [`control`] and [`planner`] (navigation function,
 //! wheel speeds, pulse rates), on [`geometry`]'s lengths and rotations. [`config`] parses the rig once into a typed [`config::Rig`];
@@ -18,7 +18,6 @@ pub mod gateway;
 pub mod geometry;
 #[cfg(feature = "lab")]
 pub mod lab;
-pub mod link;
 pub mod planner;
 pub mod replay;
 pub mod setup;

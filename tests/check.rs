@@ -145,7 +145,7 @@ async fn serial_port_missing_or_busy() {
     assert_eq!(out.verdict("board config"), "PASS", "{}", out.stdout);
 
     cfg.serial.port = real.clone();
-    let held = flowgate::link::open_serial(&real, 921_600).unwrap();
+    let held = flowgate::gateway::shell::link::open_serial(&real, 921_600).unwrap();
     let out = check("busy-port", &cfg);
     drop(held);
     handle.stop().await;

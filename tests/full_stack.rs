@@ -167,8 +167,8 @@ async fn sigint_stops_the_wheels() {
 async fn a_second_gateway_on_the_same_port_is_refused() {
     let s = scenario("e1-standing-obstacle.toml");
     let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
-    let first = flowgate::link::open_serial(&handle.psd_path, 921_600).unwrap();
-    let err = flowgate::link::open_serial(&handle.psd_path, 921_600).unwrap_err();
+    let first = flowgate::gateway::shell::link::open_serial(&handle.psd_path, 921_600).unwrap();
+    let err = flowgate::gateway::shell::link::open_serial(&handle.psd_path, 921_600).unwrap_err();
     assert!(err.to_string().contains("in use by another program"), "{err}");
     drop(first);
     // Closing releases the lock at once, unless another test thread of this binary is spawning
@@ -177,9 +177,9 @@ async fn a_second_gateway_on_the_same_port_is_refused() {
     // within a bound, not at the same instant. Seen once in CI under load.
     let deadline = std::time::Instant::now() + Duration::from_secs(5);
     loop {
-        match flowgate::link::open_serial(&handle.psd_path, 921_600) {
+        match flowgate::gateway::shell::link::open_serial(&handle.psd_path, 921_600) {
             Ok(_) => break,
-            Err(flowgate::link::SerialError::Busy { .. }) if std::time::Instant::now() < deadline => {
+            Err(flowgate::gateway::shell::link::SerialError::Busy { .. }) if std::time::Instant::now() < deadline => {
                 tokio::time::sleep(Duration::from_millis(10)).await; // polling a lock held by another process
             }
             Err(e) => panic!("free again: {e}"),

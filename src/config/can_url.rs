@@ -1,5 +1,5 @@
 //! The CAN endpoint a rig names (`can.url`), parsed: `socketcan:IFACE` or
-//! `slcan:PATH?bitrate=BPS`. Configuration only; [`crate::link`] opens it.
+//! `slcan:PATH?bitrate=BPS`. Configuration only; [`crate::gateway::shell::link`] opens it.
 
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -13,7 +13,7 @@ pub enum CanUrl {
     SocketCan { interface: String },
     /// `slcan:PATH[?bitrate=BPS][&baud=BAUD]`
     Slcan { path: PathBuf, bitrate: u32, baud: u32 },
-    /// `memory`: an in-process bus ([`crate::link::memory`]), only in builds with the lab tools
+    /// `memory`: an in-process bus ([`crate::gateway::shell::link::memory`]), only in builds with the lab tools
     /// (tests); the deployed gateway's parser does not know it.
     #[cfg(feature = "lab")]
     Memory,

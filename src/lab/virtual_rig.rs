@@ -34,9 +34,9 @@ use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::core::operator::{Refusal, Request, Status};
 use crate::gateway::core::{Answer, Core, Input, NoClock, Output, SetupError, StageClock, State};
+use crate::gateway::shell::link::slcan_event;
 use crate::gateway::shell::telemetry::{CanRecord, CycleRecord, Timing, WrittenFiles};
 use crate::gateway::shell::Report;
-use crate::link::slcan_event;
 use crate::time::HostTime;
 
 /// The PSD line's and the SLCAN adapter's serial rate, baud.

@@ -22,7 +22,7 @@ use crate::config::{Cia402Settings, ConfigError, GatewayConfig, Motors, Rig};
 use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::psd_session::MAX_RTT;
 use crate::gateway::core::SetupError;
-use crate::link::{open_can, CanError, CanLink, SerialError};
+use crate::gateway::shell::link::{open_can, CanError, CanLink, SerialError};
 
 /// Verdict of one line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -14,7 +14,7 @@ use crate::config::SerialConfig;
 use crate::gateway::core::counter_window::Verdict;
 use crate::gateway::core::psd_session::{PsdSession, SessionEvent, RETRY_AFTER, TRIES};
 use crate::gateway::core::SetupError;
-use crate::link::{open_serial, SerialError};
+use crate::gateway::shell::link::{open_serial, SerialError};
 use crate::time::HostTime;
 
 /// How long one write to the line may take.

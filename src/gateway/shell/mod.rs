@@ -24,6 +24,7 @@ use tokio::time::{timeout, Instant};
 pub mod control_socket;
 pub mod foxglove;
 pub mod http;
+pub mod link;
 pub mod low_latency;
 pub mod metrics;
 pub mod realtime;
@@ -41,13 +42,13 @@ use services::Services;
 use systemd::Notifier;
 use telemetry::{CanRecord, Record, Timing};
 
+use self::link::{open_can, open_serial, CanError, CanLink, SerialError};
 use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
 use super::core::operator::Request;
 use super::core::{Core, Output, Progress, SetupError, StageClock, State};
 use crate::config::CanUrl;
 use crate::config::Rig;
 use crate::gateway::core::input::CanEvent;
-use crate::link::{open_can, open_serial, CanError, CanLink, SerialError};
 use crate::time::HostTime;
 
 /// Deadline of one write to the PSD line (a few frames at 921600 baud take well under 1 ms).
@@ -551,7 +552,7 @@ impl Io {
     /// The CAN link failed: drop it and tell the core, naming an interface that went down
     /// (the core stays faulted until an operator resets it, and asks for the link again).
     fn lose_can<K: StageClock>(&mut self, core: &mut Core<K>) {
-        let down = matches!(&self.can_url, CanUrl::SocketCan { interface } if crate::link::interface_down(interface));
+        let down = matches!(&self.can_url, CanUrl::SocketCan { interface } if self::link::interface_down(interface));
         self.can = None;
         self.feed(core, self.now(), if down { Input::Can(CanEvent::InterfaceDown) } else { Input::CanFailed });
     }

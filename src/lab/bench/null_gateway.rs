@@ -22,9 +22,9 @@ use tokio::io::{AsyncBufReadExt, AsyncReadExt as _};
 use tokio_util::codec::Decoder;
 
 use crate::config::CanUrl;
+use crate::gateway::shell::link::{open_can, open_serial};
 use crate::gateway::shell::low_latency::{SpinWindow, Wait};
 use crate::gateway::shell::realtime::RealtimeSettings;
-use crate::link::{open_can, open_serial};
 
 /// What the process prints once both endpoints are open.
 pub const READY: &str = "null gateway ready";
