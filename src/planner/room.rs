@@ -6,10 +6,10 @@
 //! whose convex corners are arcs), and the camera's view shrunk to where the robot is still
 //! seen. On those boundaries the flow must not cross: `∂φ/∂n = 0`.
 //!
-//! The boundary condition is met by the method of fundamental solutions: unit sources of
-//! the [`Space`] (free, or the lane with its walls in closed form) placed just behind the
-//! boundary, inside the grown furniture or outside the view, whose strengths make the
-//! normal flow vanish at collocation points along it, by least squares. The matrix depends
+//! The boundary is traced where the clearance crosses zero on a grid of the room, as closed
+//! loops with their corners rounded (`contour`), and cut into straight panels. The
+//! boundary condition is met by a panel method: a constant source density on each panel,
+//! whose strengths make the normal flow vanish at the panels' midpoints. The matrix depends
 //! on the room alone: its pseudo-inverse is taken once, when the room is built. A cycle then
 //! pays one matrix-vector product for each right-hand side.
 //!
@@ -83,29 +83,6 @@ impl RoomShape {
             }
         }
         Ok(())
-    }
-
-    /// The distance from `p` to the nearest wall or static obstacle (0 inside an obstacle),
-    /// and, with a view, to the view's edge (negative outside it): the clearance of a robot
-    /// centre at `p`, before growing by the robot's radius.
-    pub fn distance(&self, p: Point) -> f64 {
-        let mut d = f64::INFINITY;
-        for wall in &self.walls {
-            for s in wall.windows(2) {
-                d = d.min(segment_distance(p, s[0], s[1]));
-            }
-        }
-        for polygon in &self.obstacles {
-            if inside_polygon(p, polygon) {
-                return 0.0;
-            }
-            d = d.min(polygon_edges(polygon).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min));
-        }
-        if let Some(view) = &self.view {
-            let edge = polygon_edges(view).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min);
-            d = d.min(if inside_polygon(p, view) { edge } else { -edge });
-        }
-        d
     }
 }
 
