@@ -706,7 +706,7 @@ mod tests {
 
     /// From 10,000 random free points of 100 random furnished rooms, each reachable from its
     /// room's goal, the streamline of the room's sink flow, held 2 mm off the boundary,
-    /// reaches the goal from at least 98% (9,886 here). Those it does not end at a spurious
+    /// reaches the goal from 9,886 (98.9%; the run is seeded). Those it does not end at a spurious
     /// stagnation point on the boundary, near a rounded corner or a junction where the exact
     /// flow is slow and the constant-density panels' normal flow between their midpoints is
     /// not: the exact field has none (docs/planner.md).
@@ -742,6 +742,6 @@ mod tests {
             }
         }
         println!("{reached} of {starts} streamlines reached the goal");
-        assert!(reached * 100 >= starts * 98, "{reached} of {starts}; missed:\n{}", missed.join("\n"));
+        assert!(reached * 10_000 >= starts * 9_886, "{reached} of {starts}; missed:\n{}", missed.join("\n"));
     }
 }
