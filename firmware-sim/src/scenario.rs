@@ -21,6 +21,12 @@ pub struct Scenario {
     /// A lane between walls at `y = ±half_width`; absent for free space.
     #[serde(default)]
     pub lane: Option<LaneSpec>,
+    /// Walls: polylines on the floor, judged against the robot's footprint.
+    #[serde(default)]
+    pub walls: Vec<WallSpec>,
+    /// Static obstacles (shelves, tables): polygons, closed by their last edge.
+    #[serde(default)]
+    pub static_obstacles: Vec<StaticObstacleSpec>,
     pub robot: RobotSpec,
     pub goal: GoalSpec,
     #[serde(default)]
@@ -72,6 +78,21 @@ pub struct LaneSpec {
     /// Half the lane's width `h`, m: the lines at `y = ±h` bound the robot's *centre*
     /// (configuration space, as obstacles' planning radii `a_0 + a_r` include the robot).
     pub half_width: f64,
+}
+
+/// A wall: a polyline, `points = [[x, y], ...]` in floor metres.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct WallSpec {
+    pub points: Vec<[f64; 2]>,
+}
+
+/// A static obstacle: a polygon, `points = [[x, y], ...]` in floor metres, closed by the
+/// edge from its last point back to its first.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StaticObstacleSpec {
+    pub points: Vec<[f64; 2]>,
 }
 
 /// The robot: a differential-drive base with stepper wheels.
@@ -358,6 +379,7 @@ impl Scenario {
                 }
             }
         }
+        self.validate_room()?;
         self.validate_geometry()?;
         let s = &self.sensing;
         positive("sensing.sample_time", s.sample_time)?;
@@ -370,6 +392,43 @@ impl Scenario {
         non_negative("sensing.position_noise", s.position_noise)?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
         self.faults.validate()
+    }
+
+    /// `[[walls]]` and `[[static_obstacles]]`: finite points, enough of them, no edge of no
+    /// length; the robot's start and the goal clear of them by the robot's radius. (The
+    /// gateway checks the rest of a room's shape with its own rules.)
+    fn validate_room(&self) -> Result<(), (String, String)> {
+        let items = self.walls.iter().enumerate().map(|(i, w)| (format!("walls[{i}].points"), &w.points, 2));
+        let polygons = self
+            .static_obstacles
+            .iter()
+            .enumerate()
+            .map(|(i, o)| (format!("static_obstacles[{i}].points"), &o.points, 3));
+        for (key, points, least) in items.chain(polygons) {
+            if points.len() < least {
+                return Err((key, format!("needs at least {least} points, has {}", points.len())));
+            }
+            if let Some(k) = points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+                return Err((key, format!("point {k} is not finite")));
+            }
+            if let Some(k) = points.windows(2).position(|s| point(s[0]) == point(s[1])) {
+                return Err((key, format!("the edge from point {k} to point {} has no length", k + 1)));
+            }
+        }
+        let room = crate::world::Room::new(self);
+        for (key, at) in [("robot.start", self.robot.start), ("goal.position", self.goal.position)] {
+            if let Some(g) = room.gap(point(at), self.robot.radius).filter(|g| g.gap <= 0.0) {
+                let what = match g.with {
+                    crate::world::Touched::StaticObstacle(k) => format!("static_obstacles[{k}]"),
+                    _ => "a wall".to_string(),
+                };
+                return Err((
+                    key.into(),
+                    format!("{at:?} puts the robot against {what} (its radius {} m)", self.robot.radius),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Where things stand at the start: what no run could begin from, or ever end in, is

@@ -26,6 +26,43 @@ pub fn wrap_angle(a: f64) -> f64 {
     }
 }
 
+/// A polygon's edges `(from, to)`, closed by the last one back to the first.
+pub fn polygon_edges(polygon: &[Point]) -> impl Iterator<Item = (Point, Point)> + '_ {
+    (0..polygon.len()).map(move |k| (polygon[k], polygon[(k + 1) % polygon.len()]))
+}
+
+/// The squared distance from `p` to the segment `a`-`b`, m² (a root is the caller's: the
+/// simulator's judge compares squares).
+pub fn segment_distance_sqr(p: Point, a: Point, b: Point) -> f64 {
+    let ab = b - a;
+    let length_sqr = ab.norm_sqr();
+    let t = if length_sqr > 0.0 { ((p - a) * ab.conj()).re / length_sqr } else { 0.0 };
+    (p - (a + ab * t.clamp(0.0, 1.0))).norm_sqr()
+}
+
+/// The point of the segment `a`-`b` nearest `p`.
+pub fn nearest_on_segment(p: Point, a: Point, b: Point) -> Point {
+    let ab = b - a;
+    let length_sqr = ab.norm_sqr();
+    let t = if length_sqr > 0.0 { ((p - a) * ab.conj()).re / length_sqr } else { 0.0 };
+    a + ab * t.clamp(0.0, 1.0)
+}
+
+/// Whether `p` lies inside the polygon (even-odd rule; a point on an edge may fall either
+/// way).
+pub fn inside_polygon(p: Point, polygon: &[Point]) -> bool {
+    let mut inside = false;
+    for (a, b) in polygon_edges(polygon) {
+        if (a.im > p.im) != (b.im > p.im) {
+            let x = a.re + (p.im - a.im) / (b.im - a.im) * (b.re - a.re);
+            if p.re < x {
+                inside = !inside;
+            }
+        }
+    }
+    inside
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -38,6 +75,18 @@ mod tests {
         assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
         assert!((wrap_angle(-3.5 * PI) - 0.5 * PI).abs() < 1e-12);
         assert!((wrap_angle(2.0 * TAU + 0.25) - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn segments_and_polygons() {
+        let (a, b) = (Point::new(0.0, 0.0), Point::new(2.0, 0.0));
+        assert_eq!(segment_distance_sqr(Point::new(1.0, 3.0), a, b), 9.0);
+        assert_eq!(segment_distance_sqr(Point::new(-3.0, 4.0), a, b), 25.0);
+        assert_eq!(nearest_on_segment(Point::new(5.0, 1.0), a, b), b);
+        let square = [Point::new(0.0, 0.0), Point::new(1.0, 0.0), Point::new(1.0, 1.0), Point::new(0.0, 1.0)];
+        assert!(inside_polygon(Point::new(0.5, 0.5), &square));
+        assert!(!inside_polygon(Point::new(1.5, 0.5), &square));
+        assert_eq!(polygon_edges(&square).last(), Some((square[3], square[0])));
     }
 
     proptest::proptest! {

@@ -21,6 +21,7 @@
 //! every streamline ends at the goal or at a saddle.
 
 use crate::Point;
+use flowgate_protocol::plane::{inside_polygon, polygon_edges, segment_distance_sqr};
 
 use super::field::Space;
 
@@ -100,35 +101,14 @@ fn check_points(points: &[Point], least: usize, key: &str) -> Result<(), RoomErr
     Ok(())
 }
 
-/// A polygon's edges, closed by the last one.
-fn polygon_edges(polygon: &[Point]) -> impl Iterator<Item = (Point, Point)> + '_ {
-    (0..polygon.len()).map(move |k| (polygon[k], polygon[(k + 1) % polygon.len()]))
-}
-
 /// The polygon's signed area (positive counter-clockwise), m².
 pub fn signed_area(polygon: &[Point]) -> f64 {
     0.5 * polygon_edges(polygon).map(|(a, b)| a.re * b.im - b.re * a.im).sum::<f64>()
 }
 
-/// Whether `p` lies inside the polygon (even-odd rule).
-pub fn inside_polygon(p: Point, polygon: &[Point]) -> bool {
-    let mut inside = false;
-    for (a, b) in polygon_edges(polygon) {
-        if (a.im > p.im) != (b.im > p.im) {
-            let x = a.re + (p.im - a.im) / (b.im - a.im) * (b.re - a.re);
-            if p.re < x {
-                inside = !inside;
-            }
-        }
-    }
-    inside
-}
-
 /// The distance from `p` to the segment `a`-`b`.
 pub fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
-    let ab = b - a;
-    let t = (((p - a) * ab.conj()).re / ab.norm_sqr()).clamp(0.0, 1.0);
-    (p - (a + ab * t)).norm()
+    segment_distance_sqr(p, a, b).sqrt()
 }
 
 /// Whether the open segments `a`-`b` and `c`-`d` cross or touch.

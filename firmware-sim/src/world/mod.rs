@@ -7,10 +7,12 @@
 mod axis;
 mod obstacle;
 mod robot;
+mod room;
 
 pub use axis::{Axis, AxisConfig};
 pub use obstacle::ObstaclePath;
 pub use robot::{DiffDrive, Motion, Pose};
+pub use room::{Room, RoomGap};
 
 use crate::scenario::Scenario;
 use crate::Point;
@@ -32,6 +34,7 @@ pub struct World {
     robot_radius: f64,
     obstacles: Vec<(ObstaclePath, f64)>,
     lane_half_width: Option<f64>,
+    room: Room,
     truth: Truth,
     /// The judge's running state, kept in the form that is cheapest every millisecond.
     judge: Judge,
@@ -67,8 +70,10 @@ pub const ACTIVE_CONTACT_SPEED: f64 = 0.01;
 pub enum Touched {
     /// Obstacle `k` (its index in the scenario).
     Obstacle(usize),
-    /// A lane line (the lines bound the robot's centre).
+    /// A lane line (the lines bound the robot's centre) or a wall (its footprint).
     Wall,
+    /// Static obstacle `k` (its index in the scenario's `static_obstacles`).
+    StaticObstacle(usize),
 }
 
 /// The first contact of a run, judged at the millisecond it happened.
@@ -88,8 +93,9 @@ pub struct Contact {
 pub struct Truth {
     /// Smallest gap between the robot's footprint and any obstacle's, m (negative: overlap).
     pub min_obstacle_clearance: f64,
-    /// Smallest gap between the robot's centre and a lane line, m (`+inf` in free space).
-    /// The lane bounds the robot's centre, as the planning radii include the robot's radius.
+    /// Smallest gap between the robot and a lane line, a wall or a static obstacle, m
+    /// (`+inf` with none). The lane's lines bound the robot's centre, as the planning radii
+    /// include the robot's radius; walls and static obstacles its footprint.
     pub min_wall_clearance: f64,
     /// When the robot first touched an obstacle or a wall, s.
     pub first_contact: Option<f64>,
@@ -119,6 +125,7 @@ impl World {
             robot_radius: r.radius,
             obstacles: scenario.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect(),
             lane_half_width: scenario.lane.map(|l| l.half_width),
+            room: Room::new(scenario),
             truth: Truth {
                 min_obstacle_clearance: f64::INFINITY,
                 min_wall_clearance: f64::INFINITY,
@@ -193,6 +200,10 @@ impl World {
     }
     pub fn lane_half_width(&self) -> Option<f64> {
         self.lane_half_width
+    }
+    /// The walls and static obstacles.
+    pub fn room(&self) -> &Room {
+        &self.room
     }
     /// Number of obstacles.
     pub fn obstacle_count(&self) -> usize {
@@ -408,7 +419,27 @@ impl World {
                 y0 = y1;
             }
         }
-        true
+        // Off the room's parts the gap changes no faster than the centre moves: it stays
+        // above the end's, less the way travelled (each piece's chord and bow).
+        let mut from = start.position;
+        let way: f64 = pieces
+            .iter()
+            .zip(bows)
+            .map(|(piece, bow)| {
+                let chord = (piece.pose.position - from).norm();
+                from = piece.pose.position;
+                chord + 2.0 * bow
+            })
+            .sum();
+        self.room_quiet(way)
+    }
+
+    /// Whether the room's gap, which is at least the present one less `way` anywhere within
+    /// `way` of the robot, can hold neither a contact nor a new smallest clearance there.
+    fn room_quiet(&self, way: f64) -> bool {
+        let Some(g) = self.room.gap(self.pose.position, self.robot_radius) else { return true };
+        let floor = self.truth.min_wall_clearance.min(g.gap).max(0.0);
+        g.gap - way - CHORD_FUZZ > floor
     }
 
     /// Whether none of the grid's `points - 1` points still to come, evenly between `pose`
@@ -442,7 +473,7 @@ impl World {
                 return false;
             }
         }
-        true
+        self.room_quiet((self.pose.position - pose.position).norm() + 2.0 * bow)
     }
 
     /// Clearances now: to each obstacle (footprints), and to the nearest wall.
@@ -462,7 +493,8 @@ impl World {
     }
 
     fn wall_clearance_at(&self, pose: Pose) -> f64 {
-        self.lane_half_width.map_or(f64::INFINITY, |h| h - pose.position.im.abs())
+        let lane = self.lane_half_width.map_or(f64::INFINITY, |h| h - pose.position.im.abs());
+        self.room.gap(pose.position, self.robot_radius).map_or(lane, |g| g.gap.min(lane))
     }
 
     /// Judge the robot at `pose` at time `t`, a sub-step of the grid.
@@ -500,7 +532,11 @@ impl World {
             let d = self.obstacles[k].0.position(t) - pose.position;
             (Touched::Obstacle(k), d / d.norm())
         } else {
-            (Touched::Wall, Point::new(0.0, pose.position.im.signum()))
+            let lane = self.lane_half_width.map_or(f64::INFINITY, |h| h - pose.position.im.abs());
+            match self.room.gap(pose.position, self.robot_radius).filter(|g| g.gap < lane) {
+                Some(g) => (g.with, g.toward),
+                None => (Touched::Wall, Point::new(0.0, pose.position.im.signum())),
+            }
         };
         let approach_speed = velocity.re * normal.re + velocity.im * normal.im;
         Contact { at: t, with, approach_speed, active: approach_speed > ACTIVE_CONTACT_SPEED }
@@ -670,5 +706,81 @@ mod tests {
             (182, 157, 82_050, 9_959, 120_781),
             "contacts, close, passed over, cut short, steps"
         );
+    }
+
+    /// The same holds in a room: a random scenario's world between two walls with a table,
+    /// where the random drive runs into them (the room's gap bounds what steps pass over).
+    #[test]
+    fn judging_where_it_matters_is_judging_everywhere_in_a_room() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut touched_room = 0;
+        for case in 0..100 {
+            let scenario = loop {
+                let table_x = rng.random_range(-0.3..0.3);
+                let text = random_scenario(&mut rng).replace("[lane]\nhalf_width = 0.2\n", "")
+                    + &format!(
+                        "[[walls]]\npoints = [[-1.0, 0.35], [1.0, 0.35]]\n[[walls]]\npoints = [[-1.0, -0.35], [0.2, -0.35], [0.2, -0.6]]\n\
+                         [[static_obstacles]]\npoints = [[{table_x}, 0.12], [{}, 0.12], [{}, 0.3], [{table_x}, 0.3]]\n",
+                        table_x + 0.2,
+                        table_x + 0.2
+                    );
+                if let Ok(s) = Scenario::from_toml(&text, "random room") {
+                    break s;
+                }
+            };
+            let mut quick = World::new(&scenario);
+            let mut every = quick.clone();
+            let max = quick.axes()[LEFT].config().max_rate as i32;
+            for k in 0..300 {
+                let rates = [rng.random_range(-max / 4..max), rng.random_range(-max / 4..max)];
+                let dt = if k % 7 == 3 { 0.0173 } else { 0.02 };
+                for w in [&mut quick, &mut every] {
+                    w.command_pulse_rates(rates);
+                }
+                quick.step(dt);
+                every.step_judging(dt, Judging::EveryPoint);
+            }
+            let (a, b) = (quick.truth(), every.truth());
+            assert_eq!(a.min_wall_clearance.to_bits(), b.min_wall_clearance.to_bits(), "case {case}");
+            assert_eq!(a.contact, b.contact, "case {case}");
+            touched_room += usize::from(a.contact.is_some_and(|c| !matches!(c.with, Touched::Obstacle(_))));
+        }
+        let passed = PASSED_OVER.with(|steps| steps.get());
+        // 23 of the 100 drives touch a wall or the table first (the seed fixes it).
+        assert!(touched_room >= 20, "the drives reach the walls and the table: {touched_room} of 100");
+        assert!(passed > 0, "and steps away from them are passed over");
+    }
+
+    /// Driven straight into a wall, the robot's first contact is the wall's, active; into a
+    /// table, the table's, named by its index.
+    #[test]
+    fn walls_and_static_obstacles_are_touched_and_named() {
+        let base = "name = \"room\"\ntime_limit = 30\n[robot]\nstart = [0.0, 0.0]\nheading_deg = 90\nradius = 0.07\n\
+                    wheel_base = 0.108\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nmax_wheel_speed = 0.25\n\
+                    wheel_accel = 1.0\nmax_speed = 0.25\n[goal]\nposition = [0.5, 0.0]\n[sensing]\nsample_time = 0.02\n";
+        let run = |room: &str| {
+            let mut world = World::new(&Scenario::from_toml(&format!("{base}{room}"), "room").unwrap());
+            let rate = (0.1 * world.drive.pulses_per_metre) as i32;
+            world.command_pulse_rates([rate, rate]);
+            for _ in 0..200 {
+                world.step(0.02);
+            }
+            world.truth()
+        };
+        let wall = run("[[walls]]\npoints = [[-1.0, 0.3], [1.0, 0.3]]\n");
+        let c = wall.contact.unwrap();
+        assert_eq!(c.with, Touched::Wall);
+        // 23 cm to go at 0.1 m/s, after a 0.1 s ramp at 1 m/s² (half of it lost).
+        assert!(c.active && (c.approach_speed - 0.1).abs() < 1e-3 && (c.at - 2.35).abs() < 0.005, "{c:?}");
+        assert!(wall.min_wall_clearance < 0.0);
+        let table = run("[[static_obstacles]]\npoints = [[-0.2, 0.4], [0.2, 0.4], [0.0, 0.6]]\n");
+        assert_eq!(table.contact.unwrap().with, Touched::StaticObstacle(0));
+        let e = Scenario::from_toml(
+            &format!("{base}[[static_obstacles]]\npoints = [[-0.2, -0.05], [0.2, -0.05], [0.0, 0.2]]\n"),
+            "room",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("robot.start") && e.contains("static_obstacles[0]"), "{e}");
     }
 }
