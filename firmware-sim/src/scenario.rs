@@ -35,6 +35,10 @@ pub struct Scenario {
     /// The gateway's planner settings, not read by the simulator.
     #[serde(default)]
     pub planner: toml::Table,
+    /// The gateway's `[room]` settings (the view's edge as a boundary, the panels), not
+    /// read by the simulator.
+    #[serde(default)]
+    pub room: toml::Table,
     /// Faults the simulator injects when it runs this scenario (all off by default;
     /// `flowgate-sim --fault key=value` overrides single keys).
     #[serde(default)]
@@ -52,7 +56,8 @@ pub struct Scenario {
 /// The robot and `obstacles` non-reactive obstacles on a circle of `circle_radius` about
 /// the origin, each crossing to the opposite side: the robot from (0, -r) to (0, r), each
 /// obstacle from a random point of the circle to its antipode (both jittered), at
-/// `speed_ratio` of the robot's speed limit, then standing there.
+/// `speed_ratio` of the robot's speed limit, then standing there (or, with `walk_on`,
+/// walking on).
 #[derive(Debug, Clone, Copy, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CrowdSpec {
@@ -63,6 +68,10 @@ pub struct CrowdSpec {
     /// The largest offset of each start and each goal from the circle, m, either axis.
     #[serde(default = "default_jitter")]
     pub jitter: f64,
+    /// The obstacles walk on past their antipodes, another diameter, instead of standing
+    /// there (people crossing a room do not stop on the far side of the robot's way).
+    #[serde(default)]
+    pub walk_on: bool,
 }
 
 fn default_jitter() -> f64 {
@@ -302,7 +311,16 @@ impl Scenario {
             s.obstacles.push(ObstacleSpec {
                 radius: c.obstacle_radius,
                 start: [from.re, from.im],
-                motion: Motion::Waypoints { points: vec![[to.re, to.im]], speed, repeat: false },
+                motion: Motion::Waypoints {
+                    points: if c.walk_on {
+                        let beyond = to + (to - from);
+                        vec![[to.re, to.im], [beyond.re, beyond.im]]
+                    } else {
+                        vec![[to.re, to.im]]
+                    },
+                    speed,
+                    repeat: false,
+                },
             });
         }
         s.sensing.seed = rng.random();

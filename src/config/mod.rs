@@ -20,7 +20,9 @@ use flowgate_protocol::psd::{LedSlot, Schedule, MAX_SCHEDULE_LEDS};
 use serde::{Deserialize, Serialize};
 
 mod can_url;
+mod room;
 pub use can_url::CanUrl;
+pub use room::{PointsSection, RoomSection};
 
 use crate::calibration::Calibration;
 use crate::control::drive::DriveConfig;
@@ -50,6 +52,15 @@ pub struct GatewayConfig {
     pub planner: PlannerSettings,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lane: Option<LaneSection>,
+    /// Walls: polylines the robot keeps off (`[[walls]] points = [[x, y], ...]`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub walls: Vec<PointsSection>,
+    /// Static obstacles (shelves, tables): polygons, closed by their last edge.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub static_obstacles: Vec<PointsSection>,
+    /// How the room's boundary is made (the view's edge, the panels).
+    #[serde(default)]
+    pub room: RoomSection,
     #[serde(default)]
     pub safety: SafetyConfig,
     #[serde(default)]
@@ -1059,11 +1070,12 @@ impl GatewayConfig {
         self.validate_goal(&calibration)?;
         self.planner.validate()?;
         self.validate_lane()?;
+        let room = self.room(&calibration)?;
         self.operator.validate()?;
         self.safety.validate(sample_period, self.drive.command_timeout_ms)?;
         self.telemetry.validate()?;
         self.realtime.validate(sample_period)?;
-        let control = self.control_config(sample_period, &calibration);
+        let control = self.control_config(sample_period, &calibration, room);
         let board = self.drive.board_settings(control.drive.pulses_per_metre())?;
         let motors = match (self.can.protocol, &self.cia402) {
             (MotorProtocolName::Pcl80k, None) => Motors::Pcl80k,
@@ -1168,7 +1180,12 @@ impl GatewayConfig {
     }
 
     /// The control settings: the one place a config becomes a [`ControlConfig`].
-    fn control_config(&self, sample_period: Duration, calibration: &Calibration) -> ControlConfig {
+    fn control_config(
+        &self,
+        sample_period: Duration,
+        calibration: &Calibration,
+        room: Option<std::sync::Arc<crate::planner::room::Room>>,
+    ) -> ControlConfig {
         let robot = self.robot.radius;
         let reference_radius = robot + self.leds.obstacles.iter().map(|o| o.radius).fold(robot, f64::max);
         let p = &self.planner;
@@ -1183,7 +1200,9 @@ impl GatewayConfig {
         // Both LEDs in view: the centre keeps the farther LED's offset from the view's edge.
         let led = self.leds.front_offset.max(self.leds.rear_offset);
         supervisor.arena = calibration.inner_rect().map(|[x0, x1, y0, y1]| [x0 + led, x1 - led, y0 + led, y1 - led]);
+        supervisor.room = room.clone();
         ControlConfig {
+            room,
             planner: PlannerConfig {
                 space: self.lane.map_or(Space::Free, |l| Space::Lane { half_width: l.half_width }),
                 cruise_speed: p.cruise_speed,

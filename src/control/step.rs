@@ -4,6 +4,9 @@
 use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
 use crate::control::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::geometry::Length;
+use std::sync::Arc;
+
+use crate::planner::room::Room;
 use crate::planner::{Field, ObstacleEstimate, Plan, PlanInput, Planner, PlannerConfig, PlannerError, MAX_OBSTACLES};
 use crate::track::Estimate;
 use crate::Point;
@@ -23,9 +26,12 @@ impl Default for StallConfig {
 }
 
 /// Everything the control step is configured with.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct ControlConfig {
     pub planner: PlannerConfig,
+    /// The room's walls, static obstacles and view's edge, solved once at load (the
+    /// planner's field keeps to it, the supervisor keeps the robot off it).
+    pub room: Option<Arc<Room>>,
     pub drive: DriveConfig,
     pub goal: Point,
     /// The goal counts as reached within this distance, m.
@@ -141,15 +147,9 @@ pub struct ControlStep {
 
 impl ControlStep {
     pub fn new(config: ControlConfig) -> Self {
-        let planner = Planner::new(config.planner);
-        Self {
-            config,
-            planner,
-            field: Field::empty(config.planner.space, planner.sink(config.goal)),
-            progress_anchor: None,
-            goal_occupied_since: None,
-            envelope: Envelope::default(),
-        }
+        let planner = Planner::in_room(config.planner, config.room.clone());
+        let field = Field::empty(config.planner.space, planner.sink(config.goal));
+        Self { config, planner, field, progress_anchor: None, goal_occupied_since: None, envelope: Envelope::default() }
     }
     /// Drive to a new goal from the next step (progress is judged afresh).
     pub fn set_goal(&mut self, goal: Point, tolerance: f64) {

@@ -21,10 +21,14 @@
 //!   step's travel of both from it (each step is judged at its start), or else be moving
 //!   away from it (or toward it no faster than [`APPROACH_TOLERANCE`]). Once the centre
 //!   has stopped it drives into nothing;
-//! - a lane line: the robot's centre keeps `clearance` and a step's travel from it, or
-//!   moves away from it (at any speed toward it a robot would creep up to the line, its
-//!   estimate cross it, and the planner refuse it: a line does not move, so no stop ever
-//!   needs the tolerance there).
+//! - a line (a lane's line, or the edge of a wall, a static obstacle or the view near the
+//!   robot: the line that touches it, grown by the robot's radius, nearest the robot): the
+//!   robot's centre keeps `clearance` and a step's travel from it, or moves away from it
+//!   (at any speed toward it a robot would creep up to the line, its estimate cross it, and
+//!   the planner refuse it: a line does not move, so no stop ever needs the tolerance
+//!   there). Each such line leaves the whole wall, obstacle or view's outside beyond it
+//!   (a grown segment is convex, and a view is too), so keeping off the lines keeps off
+//!   the room.
 //!
 //! A command that fails is slowed: the largest forward speed that passes with the command's
 //! turn (bisection), else with the turn the wheels hold now (the brake above), else the
@@ -41,11 +45,12 @@ use arrayvec::ArrayVec;
 
 use crate::control::drive::WheelSpeeds;
 use crate::geometry::{rotation, Length};
+use crate::planner::room::Room;
 use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
 use crate::track::{ramp, Estimate};
 
 /// What the supervisor is configured with.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SupervisorConfig {
     /// The boards' acceleration ramp on each wheel, m/s².
     pub wheel_accel: f64,
@@ -64,6 +69,9 @@ pub struct SupervisorConfig {
     /// Where the camera sees the robot's centre, `[x_min, x_max, y_min, y_max]` (m): an
     /// evasion keeps it inside (the promise does not depend on it). `None`: anywhere.
     pub arena: Option<[f64; 4]>,
+    /// The room's walls, static obstacles and view's edge: the robot keeps off them as off
+    /// a lane's lines. `None`: no room.
+    pub room: Option<std::sync::Arc<Room>>,
 }
 
 impl SupervisorConfig {
@@ -77,6 +85,7 @@ impl SupervisorConfig {
             robot_radius,
             reaction_time: 1.5 * period,
             lane_half_width: lane,
+            room: None,
             sigmas: 1.0,
             clearance: 0.002,
             arena: None,
@@ -97,7 +106,8 @@ impl SupervisorConfig {
 pub enum Supervision {
     /// It passed unchanged.
     Passed,
-    /// It was slowed (`hazard`: the obstacle's index, `None` for a lane line).
+    /// It was slowed (`hazard`: the obstacle's index, `None` for a line: a lane's, a wall's,
+    /// a static obstacle's or the view's edge).
     Slowed { hazard: Option<usize> },
     /// Even braking cannot keep the promise under the estimate: the robot brakes.
     Braking { hazard: Option<usize> },
@@ -120,15 +130,16 @@ enum Hazard {
     /// centre now, and how fast that distance grows with the time ahead (its velocity's
     /// uncertainty).
     Obstacle { index: usize, center: Point, velocity: Point, speed: f64, keep: f64, growth: f64 },
-    /// A lane line at `y = side · h`: the centre keeps `keep` from it.
-    Wall { side: f64, keep: f64 },
+    /// A line the centre keeps `keep` from, on the side where `normal · z < offset`
+    /// (`normal` a unit vector pointing across it, away from the robot).
+    Line { normal: Point, offset: f64, keep: f64 },
 }
 
 impl Hazard {
     fn index(&self) -> Option<usize> {
         match self {
             Hazard::Obstacle { index, .. } => Some(*index),
-            Hazard::Wall { .. } => None,
+            Hazard::Line { .. } => None,
         }
     }
 
@@ -137,7 +148,7 @@ impl Hazard {
     /// An obstacle is judged where it is at the step's start, so its reach takes in what
     /// it can close over the step (its speed and its uncertainty's growth): a contact
     /// anywhere in the step is then seen at its start, the last one included.
-    fn driven_into(&self, s: f64, h: f64, position: Point, velocity: Point, half_width: f64, slack: f64) -> bool {
+    fn driven_into(&self, s: f64, h: f64, position: Point, velocity: Point, slack: f64) -> bool {
         match *self {
             Hazard::Obstacle { center, velocity: v, speed, keep, growth, .. } => {
                 let d = center + v * s - position;
@@ -149,7 +160,9 @@ impl Hazard {
                     && toward > 0.0
                     && toward * toward > APPROACH_TOLERANCE * APPROACH_TOLERANCE * distance_sqr
             }
-            Hazard::Wall { side, keep } => half_width - side * position.im < keep + slack && side * velocity.im > 0.0,
+            Hazard::Line { normal, offset, keep } => {
+                offset - dot(normal, position) < keep + slack && dot(normal, velocity) > 0.0
+            }
         }
     }
 }
@@ -182,7 +195,7 @@ pub fn supervise(cfg: &SupervisorConfig, estimate: &Estimate<'_>, proposed: Whee
 fn judged<R>(cfg: &SupervisorConfig, estimate: &Estimate<'_>, f: impl FnOnce(&Context<'_>) -> R) -> R {
     // Filled in place: a kilobyte and more, which a move would copy every verdict.
     let mut hazards = ArrayVec::new();
-    fill_hazards(&mut hazards, cfg, estimate.predicted);
+    fill_hazards(&mut hazards, estimate.position, cfg, estimate.predicted);
     let ctx = Context {
         cfg,
         position: estimate.position,
@@ -339,7 +352,8 @@ struct Context<'a> {
 
 /// What the robot must not drive into: each obstacle, and each lane line.
 fn fill_hazards(
-    hazards: &mut ArrayVec<Hazard, { MAX_OBSTACLES + 2 }>,
+    hazards: &mut ArrayVec<Hazard, { MAX_OBSTACLES + 2 + ROOM_LINES }>,
+    position: Point,
     cfg: &SupervisorConfig,
     obstacles: &[ObstacleEstimate],
 ) {
@@ -353,11 +367,29 @@ fn fill_hazards(
             growth: cfg.sigmas * o.velocity_sd + o.spread,
         });
     }
-    if cfg.lane_half_width.is_some() {
+    if let Some(h) = cfg.lane_half_width {
         for side in [1.0, -1.0] {
-            hazards.push(Hazard::Wall { side, keep: cfg.clearance });
+            hazards.push(Hazard::Line { normal: Point::new(0.0, side), offset: h, keep: cfg.clearance });
         }
     }
+    if let Some(room) = &cfg.room {
+        let mut lines = ArrayVec::<(f64, Point, f64), ROOM_LINES>::new();
+        room.lines_near(position, cfg.robot_radius, ROOM_REACH, &mut lines);
+        for (_, normal, offset) in lines {
+            hazards.push(Hazard::Line { normal, offset, keep: cfg.clearance });
+        }
+    }
+}
+
+/// The most lines of the room the supervisor weighs at once (the nearest).
+pub const ROOM_LINES: usize = 8;
+
+/// How far from the robot's centre the room's edges are weighed, m: beyond any path the
+/// supervisor or an evasion looks along.
+const ROOM_REACH: f64 = 0.5;
+
+fn dot(a: Point, b: Point) -> f64 {
+    a.re * b.re + a.im * b.im
 }
 
 /// Verdicts on the commands neither wheel's ramp reaches within the reaction time. Such a
@@ -470,7 +502,6 @@ impl Context<'_> {
         turn_rate: f64,
         h: f64,
         spare: f64,
-        half_width: f64,
     ) -> bool {
         let a = self.cfg.wheel_accel;
         let left = mean / a + 2.0 * h;
@@ -482,7 +513,7 @@ impl Context<'_> {
                     let reach = keep + margin + growth * (s + left) + speed * left;
                     (center + velocity * s - position).norm_sqr() > reach * reach
                 }
-                Hazard::Wall { side, keep } => half_width - side * position.im > keep + margin,
+                Hazard::Line { normal, offset, keep } => offset - dot(normal, position) > keep + margin,
             };
             far || never_toward(hz, s, position, facing, left, turned)
         })
@@ -507,9 +538,9 @@ impl Context<'_> {
                     let offset = center - self.position;
                     offset.length() - keep < EVASION_NEAR && (velocity.conj() * offset).re > 0.0
                 }
-                Hazard::Wall { side, keep } => self.cfg.lane_half_width.is_some_and(|hw| {
-                    hw - side * self.position.im - keep < EVASION_NEAR_WALL && side * velocity.im > 0.0
-                }),
+                Hazard::Line { normal, offset, keep } => {
+                    offset - dot(normal, self.position) - keep < EVASION_NEAR_WALL && dot(normal, velocity) > 0.0
+                }
             })
     }
 
@@ -540,16 +571,15 @@ impl Context<'_> {
                     Hazard::Obstacle { speed, growth, .. } if which == Ahead::Moving && speed < STANDING + growth => {
                         continue
                     }
-                    Hazard::Wall { .. } if which == Ahead::Moving => continue,
+                    Hazard::Line { .. } if which == Ahead::Moving => continue,
                     Hazard::Obstacle { center, velocity, keep, growth, .. } => {
                         let from = position - (center + velocity * t);
                         closest_approach(from, moved - velocity * EVASION_STEP) - keep - growth * end
                     }
                     // Straight motion toward a line is nearest it at an end.
-                    Hazard::Wall { side, keep } => self
-                        .cfg
-                        .lane_half_width
-                        .map_or(f64::INFINITY, |hw| hw - (side * position.im).max(side * arrived.im) - keep),
+                    Hazard::Line { normal, offset, keep } => {
+                        offset - dot(normal, position).max(dot(normal, arrived)) - keep
+                    }
                 };
                 least = least.min(margin);
             }
@@ -573,13 +603,12 @@ impl Context<'_> {
     /// `stop`), and each obstacle comes at most its speed and growth meanwhile.
     fn nothing_within_reach(&self, fastest: f64, h: f64, stop: f64, spare: f64) -> bool {
         let (a, tau) = (self.cfg.wheel_accel, self.cfg.reaction_time);
-        let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
         let reach = fastest * (tau + 2.0 * h) + fastest * fastest / (2.0 * a) + spare + fastest * h;
         let near = |hz: &Hazard| match *hz {
             Hazard::Obstacle { center, speed, keep, growth, .. } => {
                 (center - self.position).length() <= keep + reach + (speed + growth) * stop
             }
-            Hazard::Wall { side, keep } => half_width - side * self.position.im <= keep + reach,
+            Hazard::Line { normal, offset, keep } => offset - dot(normal, self.position) <= keep + reach,
         };
         !self.hazards.iter().any(near)
     }
@@ -617,7 +646,6 @@ impl Context<'_> {
     fn first_driven_into_by(&self, command: WheelSpeeds, spare: f64, shortcuts: Shortcuts) -> Option<Hazard> {
         let taken = shortcuts == Shortcuts::Taken;
         let (a, tau, base) = (self.cfg.wheel_accel, self.cfg.reaction_time, self.cfg.wheel_base);
-        let half_width = self.cfg.lane_half_width.unwrap_or(f64::INFINITY);
         // Most cycles nothing is within reach. No wheel goes faster than the fastest of its
         // speed now and its command (`u`), so the centre travels at most `u` for `τ` (and
         // the step that crosses it), then `u²/2a` braking; a check keeps a step's travel
@@ -644,7 +672,7 @@ impl Context<'_> {
                 let wheels = path.wheels;
                 let next = [ramp(wheels[0], target[0], a * h), ramp(wheels[1], target[1], a * h)];
                 let omega = 0.5 * (next[1] - next[0] + wheels[1] - wheels[0]) / base;
-                if let Some(hit) = self.step(&mut path, next, omega, h, spare, half_width) {
+                if let Some(hit) = self.step(&mut path, next, omega, h, spare) {
                     return Some(hit);
                 }
             }
@@ -667,13 +695,13 @@ impl Context<'_> {
             // it saved. Any step may ask: it only ends a walk that would pass.
             if taken
                 && k % 4 == 0
-                && self.out_of_reach(path.s, path.position, path.facing, mean, braking_turn, h, spare, half_width)
+                && self.out_of_reach(path.s, path.position, path.facing, mean, braking_turn, h, spare)
             {
                 return None;
             }
             let drop = (a * h).min(mean.max(0.0));
             let next = [path.wheels[0] - drop, path.wheels[1] - drop];
-            if let Some(hit) = self.step(&mut path, next, braking_turn, h, spare, half_width) {
+            if let Some(hit) = self.step(&mut path, next, braking_turn, h, spare) {
                 return Some(hit);
             }
             if path.speed() <= 0.0 {
@@ -689,14 +717,14 @@ impl Context<'_> {
     /// One step of `h` along the path, the wheels going to `next` and the robot turning
     /// at `omega`: the first hazard it drives into over the step, judged at its start.
     #[inline(always)]
-    fn step(&self, path: &mut Path, next: [f64; 2], omega: f64, h: f64, spare: f64, half_width: f64) -> Option<Hazard> {
+    fn step(&self, path: &mut Path, next: [f64; 2], omega: f64, h: f64, spare: f64) -> Option<Hazard> {
         let (wheels, s, position, facing) = (path.wheels, path.s, path.position, path.facing);
         let v = 0.25 * (wheels[0] + next[0] + wheels[1] + next[1]);
         // One step's travel is kept beside the radii: the check runs at the step's ends.
         let slack = v.abs() * h + spare;
         let velocity = facing * v;
         if v > 0.0 {
-            let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, half_width, slack));
+            let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, slack));
             if hit.is_some() {
                 return hit.copied();
             }
@@ -769,7 +797,9 @@ fn never_toward(hazard: &Hazard, s: f64, position: Point, facing: Point, span: f
             let across = d.im * facing.re - d.re * facing.im;
             bound(along, across) + speed * span < -FUZZ
         }
-        Hazard::Wall { side, .. } => bound(side * facing.im, facing.re) < -FUZZ,
+        Hazard::Line { normal, .. } => {
+            bound(dot(normal, facing), normal.re * facing.im - normal.im * facing.re) < -FUZZ
+        }
     }
 }
 
@@ -792,7 +822,7 @@ mod tests {
     impl Scene {
         fn judge<T>(&self, verdict: impl FnOnce(&Context<'_>) -> T) -> T {
             let mut hazards = ArrayVec::new();
-            fill_hazards(&mut hazards, &self.cfg, &self.predicted);
+            fill_hazards(&mut hazards, self.position, &self.cfg, &self.predicted);
             let ctx = Context {
                 cfg: &self.cfg,
                 position: self.position,
@@ -848,7 +878,7 @@ mod tests {
 
     /// A verdict as the hazard it names: its index, and for a line its side.
     fn named(h: Option<Hazard>) -> Option<(Option<usize>, bool)> {
-        h.map(|h| (h.index(), matches!(h, Hazard::Wall { side, .. } if side > 0.0)))
+        h.map(|h| (h.index(), matches!(h, Hazard::Line { normal, .. } if normal.im > 0.0)))
     }
 
     /// The wheels' speeds at each step toward `command`, as the path ramps them.

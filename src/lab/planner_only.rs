@@ -345,7 +345,7 @@ impl Tally {
             end_time: world.time(),
             time_to_goal: (outcome == Outcome::Goal).then(|| world.time()),
             min_obstacle_clearance: (!s.obstacles.is_empty()).then_some(truth.min_obstacle_clearance),
-            min_wall_clearance: s.lane.map(|_| truth.min_wall_clearance),
+            min_wall_clearance: truth.min_wall_clearance.is_finite().then_some(truth.min_wall_clearance),
             first_contact: truth.first_contact,
             contact: truth.contact,
             path_length: truth.path_length,
@@ -374,7 +374,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
     let mut rig = s.rig();
     rig.tracking.kalman = KalmanConfig { measurement_noise: s.sensing.position_noise.max(1e-3), ..rig.tracking.kalman };
     let config = rig.control;
-    let mut control = ControlStep::new(config);
+    let mut control = ControlStep::new(config.clone());
     let mut world = World::new(s);
     let mut sensor = Sensor::new(s);
     let t_step = rig.sample_period.as_secs_f64();

@@ -17,6 +17,8 @@ use crate::config::*;
 pub struct Scenario {
     pub sim: flowgate_sim::scenario::Scenario,
     pub planner: PlannerSettings,
+    /// The gateway's `[room]` settings.
+    pub room: RoomSection,
     /// The safety supervisor checks every command (the default). `false` lets the planner
     /// drive alone, for before-and-after comparisons (`flowgate plan --unsupervised`); a rig
     /// config has no such switch.
@@ -45,6 +47,8 @@ pub enum ScenarioError {
     Sim(#[from] flowgate_sim::scenario::ScenarioError),
     #[error("scenario {path}: [planner]: {source}")]
     Planner { path: String, source: Box<toml::de::Error> },
+    #[error("scenario {path}: [room]: {source}")]
+    Room { path: String, source: Box<toml::de::Error> },
     #[error("scenario {path}: {invalid}")]
     Invalid { path: String, invalid: Invalid },
 }
@@ -69,14 +73,37 @@ impl Scenario {
     pub fn new(sim: flowgate_sim::scenario::Scenario, origin: &str) -> Result<Self, ScenarioError> {
         let planner = PlannerSettings::deserialize(toml::Value::Table(sim.planner.clone()))
             .map_err(|e| ScenarioError::Planner { path: origin.into(), source: Box::new(e) })?;
-        let s = Self { sim, planner, supervised: true };
+        let room = RoomSection::deserialize(toml::Value::Table(sim.room.clone()))
+            .map_err(|e| ScenarioError::Room { path: origin.into(), source: Box::new(e) })?;
+        let s = Self { sim, planner, room, supervised: true };
         let frame_us = s.frame_us().map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         let rig = s
             .config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us)
             .validate()
             .map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         s.robot_in_view(&rig).map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        s.start_reaches_the_goal(&rig).map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         Ok(s)
+    }
+
+    /// In a room, the robot's start must be clear of it and the goal within its reach.
+    fn start_reaches_the_goal(&self, rig: &Rig) -> Result<(), Invalid> {
+        let Some(room) = &rig.control.room else { return Ok(()) };
+        let (start, goal) = (self.robot_start(), self.goal());
+        if let Some(why) = room.blocked_at(start) {
+            return Err(Invalid { key: "robot.start".into(), why: format!("{:?} {why}", self.robot.start) });
+        }
+        if !room.reachable(start, goal) {
+            return Err(Invalid {
+                key: "goal.position".into(),
+                why: format!(
+                    "{:?} is out of the robot's reach from robot.start {:?}: the walls, static obstacles or the view's \
+                     edge close it off",
+                    self.goal.position, self.robot.start
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// The robot must start where the simulated camera sees both its LEDs: a robot it cannot
@@ -212,6 +239,13 @@ impl Scenario {
             goal: Some(Goal { position: self.goal.position, tolerance: self.goal.tolerance }),
             planner: self.planner,
             lane: self.lane.map(|l| LaneSection { half_width: l.half_width }),
+            walls: self.walls.iter().map(|w| PointsSection { points: w.points.clone() }).collect(),
+            static_obstacles: self
+                .static_obstacles
+                .iter()
+                .map(|o| PointsSection { points: o.points.clone() })
+                .collect(),
+            room: self.room,
             // An unseen obstacle's region grows at the fastest any of them can go.
             safety: SafetyConfig {
                 pose_timeout_ms,

@@ -35,7 +35,10 @@ use arrayvec::ArrayVec;
 
 use crate::geometry::Length;
 
+use std::sync::Arc;
+
 use super::multipole::{self, Fitted, Series, ORDERS, POINTS};
+use super::room::{Room, RoomSink};
 
 /// The most obstacles one field holds (fixed arrays: evaluation never allocates).
 pub const MAX_OBSTACLES: usize = 16;
@@ -165,6 +168,10 @@ pub enum FieldError {
     OutsideLane,
     #[error("more than {MAX_OBSTACLES} obstacles")]
     TooManyObstacles,
+    #[error("goal lies outside the room's free region (in a wall or static obstacle grown by the robot, or beyond the view)")]
+    GoalOutsideRoom,
+    #[error("point lies {0:.3} m outside the room's free region")]
+    OutsideRoom(f64),
 }
 
 /// The field for one geometry: obstacles, images and goal fixed, evaluated at any point.
@@ -188,7 +195,29 @@ pub struct Field {
     /// [`multipole::Workspace`]); made with a lane's field, so that a control cycle's
     /// rebuild does not allocate.
     fit_work: Option<Box<multipole::Workspace>>,
+    /// The room's walls, static obstacles and view's edge, with its sink flow solved for
+    /// the goal (kept while the goal stays).
+    room: Option<RoomField>,
 }
+
+/// The room and its unit sink's flow for the present goal.
+#[derive(Debug, Clone)]
+struct RoomField {
+    room: Arc<Room>,
+    sink: RoomSink,
+    solved: bool,
+}
+
+/// A robot closer than this to the room's boundary (or beyond it, up to
+/// [`ROOM_TOLERANCE`]) is steered by the room's flow this far inside, along the boundary's
+/// normal: the panels' flow is not the field's beyond them.
+const ROOM_HOLD: f64 = 0.005;
+
+/// How far beyond the room's boundary (the grown walls and furniture, the view's edge,
+/// their corners rounded) the field still steers the robot back, m. The boundary is grown
+/// by the robot's radius and the supervisor's room, so a centre up to here still clears the
+/// real room; beyond, there is no field.
+pub const ROOM_TOLERANCE: f64 = 0.05;
 
 /// One obstacle's lane series: its frame, and its coefficients for the sink terms (scaled
 /// by K like them) and for the obstacles' motion.
@@ -226,7 +255,26 @@ impl Field {
             lane_series: ArrayVec::new(),
             unclosed_at_a_wall: false,
             fit_work: matches!(space, Space::Lane { .. }).then(multipole::Workspace::new),
+            room: None,
         }
+    }
+
+    /// Put the field in `room` (or in no room). The room's sink flow is solved for the goal
+    /// on the next build, and again only when the goal changes.
+    pub fn set_room(&mut self, room: Option<&Arc<Room>>) {
+        let same = match (&self.room, room) {
+            (Some(a), Some(b)) => Arc::ptr_eq(&a.room, b),
+            (None, None) => true,
+            _ => false,
+        };
+        if !same {
+            self.room = room.map(|r| RoomField { room: Arc::clone(r), sink: RoomSink::default(), solved: false });
+        }
+    }
+
+    /// The room the field is in, if any.
+    pub fn room(&self) -> Option<&Room> {
+        self.room.as_ref().map(|r| &*r.room)
     }
 
     /// Build the field in place, checking the configuration. A field is large in a lane
@@ -261,6 +309,15 @@ impl Field {
             }
             if sink.goal.im.abs() >= half_width {
                 return Err(FieldError::GoalOutsideLane);
+            }
+        }
+        if let Some(r) = &mut self.room {
+            if r.room.depth(sink.goal) <= 0.0 {
+                return Err(FieldError::GoalOutsideRoom);
+            }
+            if !r.solved || r.sink.goal() != sink.goal {
+                r.room.sink_flow(sink.goal, &mut r.sink);
+                r.solved = true;
             }
         }
         self.space = space;
@@ -399,16 +456,44 @@ impl Field {
                 return Err(FieldError::OutsideLane);
             }
         }
-        let space = self.space;
         let r = (z - self.sink.goal).length();
         if r == 0.0 {
             return Ok(Point::default()); // K(0) = 0: at rest on the goal
         }
         let km = self.sink.smoothing(r) * self.sink.strength;
-        let mut f = km * space.sink(z, self.sink.goal);
-        if self.n == 0 {
-            return Ok(f);
+        let Some(room) = &self.room else { return self.eval_obstacles(z, km) };
+        // The room is one more boundary of the gap-distance blend (docs/planner.md, "Rooms").
+        let (depth, inward) = room.room.depth_and_inward(z);
+        if depth < -ROOM_TOLERANCE {
+            return Err(FieldError::OutsideRoom(-depth));
         }
+        let at = if depth < ROOM_HOLD { z + inward * (ROOM_HOLD - depth) } else { z };
+        let room_flow = self.sink.smoothing((at - self.sink.goal).length())
+            * self.sink.strength
+            * room.room.eval_sink(&room.sink, at);
+        let inv_room = depth.max(ROOM_HOLD).recip();
+        if self.n == 0 {
+            return Ok(room_flow);
+        }
+        let (obstacles, total) = self.eval_obstacles_weighed(z, km)?;
+        let w_room = inv_room / (inv_room + total);
+        Ok(room_flow * w_room + obstacles * (1.0 - w_room))
+    }
+
+    /// The field of the sink and the obstacles alone (the lane's walls included).
+    #[inline]
+    fn eval_obstacles(&self, z: Point, km: f64) -> Result<Point, FieldError> {
+        if self.n == 0 {
+            return Ok(km * self.space.sink(z, self.sink.goal));
+        }
+        self.eval_obstacles_weighed(z, km).map(|(f, _)| f)
+    }
+
+    /// The field of the sink and the obstacles, and the sum of their gap-distance weights'
+    /// numerators `Σ 1/gap_k` (what another boundary's weight is set against).
+    fn eval_obstacles_weighed(&self, z: Point, km: f64) -> Result<(Point, f64), FieldError> {
+        let space = self.space;
+        let mut f = km * space.sink(z, self.sink.goal);
         // Gap-distance weights w_k ∝ 1/gap_k.
         let mut inv_gap = [0.0; MAX_OBSTACLES];
         let mut total = 0.0;
@@ -445,7 +530,7 @@ impl Field {
             }
             f += fk * w;
         }
-        Ok(f)
+        Ok((f, total))
     }
 
     /// The velocity command at `z`: `u + i v = conj(F(z))`.

@@ -36,9 +36,12 @@ pub mod field;
 pub mod multipole;
 pub mod room;
 
+use std::sync::Arc;
+
 use crate::Point;
 use arrayvec::ArrayVec;
 pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
+use room::Room;
 
 use crate::geometry::Length;
 
@@ -188,17 +191,26 @@ pub struct Plan {
 pub type PlannerError = FieldError;
 
 /// The planner.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Planner {
     config: PlannerConfig,
+    /// The room's walls, static obstacles and view's edge, solved once ([`room::Room`]).
+    room: Option<Arc<Room>>,
 }
 
 impl Planner {
     pub fn new(config: PlannerConfig) -> Self {
-        Self { config }
+        Self { config, room: None }
+    }
+    /// A planner whose field keeps to `room`.
+    pub fn in_room(config: PlannerConfig, room: Option<Arc<Room>>) -> Self {
+        Self { config, room }
     }
     pub fn config(&self) -> &PlannerConfig {
         &self.config
+    }
+    pub fn room(&self) -> Option<&Arc<Room>> {
+        self.room.as_ref()
     }
 
     /// The sink for a goal.
@@ -285,6 +297,7 @@ impl Planner {
         // Filled in place, never initialised beyond what is planned.
         let mut planned = ArrayVec::new();
         let mut flags = self.plan_obstacles(input, &mut planned)?;
+        field.set_room(self.room.as_ref());
         field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned, Some(input.position))?;
         flags.unclosed_at_a_wall = field.unclosed_at_a_wall();
         Ok(flags)

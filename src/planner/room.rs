@@ -148,6 +148,9 @@ pub struct Panel {
     pub a: Point,
     pub b: Point,
     pub normal: Point,
+    /// The boundary's normals at `a` and `b`: the mean of this panel's and its neighbour's
+    /// there (which side of the boundary a point nearest a panel's end lies on).
+    pub normal_at: [Point; 2],
 }
 
 impl Panel {
@@ -198,10 +201,16 @@ fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, spacing: f64) -> Ve
         contour::orient(&mut points, |p| clearance(shape, grow, p));
         let points = contour::smooth_and_space(&points, ROUNDING, spacing);
         let n = points.len();
+        let normal = |k: usize| {
+            let (a, b) = (points[k % n], points[(k + 1) % n]);
+            (b - a) / (b - a).norm() * Point::new(0.0, -1.0)
+        };
+        let mean = |u: Point, v: Point| (u + v) / (u + v).norm();
         for k in 0..n {
             let (a, b) = (points[k], points[(k + 1) % n]);
-            let normal = (b - a) / (b - a).norm() * Point::new(0.0, -1.0);
-            out.push(Panel { a, b, normal });
+            let here = normal(k);
+            let normal_at = [mean(normal(k + n - 1), here), mean(here, normal(k + 1))];
+            out.push(Panel { a, b, normal: here, normal_at });
         }
     }
     out
@@ -223,6 +232,14 @@ pub struct Room {
     solve: Vec<f64>,
     /// The free region's parts, with each closed part's closure.
     regions: Regions,
+}
+
+/// Two rooms are the same when they were made from the same shape, growth and spacing
+/// (the rest follows from those).
+impl PartialEq for Room {
+    fn eq(&self, other: &Self) -> bool {
+        self.shape == other.shape && self.grow == other.grow && self.panels == other.panels
+    }
 }
 
 impl Room {
@@ -271,6 +288,11 @@ impl Room {
     pub fn shape(&self) -> &RoomShape {
         &self.shape
     }
+    /// How far the walls and static obstacles are grown (the robot's radius and the
+    /// supervisor's room), m.
+    pub fn grow(&self) -> f64 {
+        self.grow
+    }
     pub fn panels(&self) -> &[Panel] {
         &self.panels
     }
@@ -290,17 +312,125 @@ impl Room {
     /// (negative outside it): the distance to the nearest panel, signed by the panels'
     /// winding round `p` (the free region is on each loop's left).
     pub fn depth(&self, p: Point) -> f64 {
-        let mut nearest = f64::INFINITY;
-        let mut winding = 0.0;
-        for panel in &self.panels {
-            nearest = nearest.min(segment_distance(p, panel.a, panel.b));
-            winding += ((panel.b - p) / (panel.a - p)).arg();
+        self.depth_and_inward(p).0
+    }
+
+    /// [`depth`](Self::depth), and the boundary's inward normal (into the free region)
+    /// nearest `p`. Signed by the side of the nearest panel `p` is on (at a panel's end, by
+    /// the boundary's mean normal there), which is exact for a point nearest one panel and
+    /// needs no winding count.
+    pub fn depth_and_inward(&self, p: Point) -> (f64, Point) {
+        let mut best = (f64::INFINITY, 0usize, 0.5);
+        for (k, panel) in self.panels.iter().enumerate() {
+            let ab = panel.b - panel.a;
+            let t = (((p - panel.a) * ab.conj()).re / ab.norm_sqr()).clamp(0.0, 1.0);
+            let d = (p - (panel.a + ab * t)).norm_sqr();
+            if d < best.0 {
+                best = (d, k, t);
+            }
         }
-        if winding > std::f64::consts::PI {
-            nearest
+        let Some(panel) = self.panels.get(best.1) else { return (f64::INFINITY, Point::default()) };
+        let t = best.2;
+        let normal = if t <= 0.0 {
+            panel.normal_at[0]
+        } else if t >= 1.0 {
+            panel.normal_at[1]
         } else {
-            -nearest
+            panel.normal
+        };
+        let q = panel.a + (panel.b - panel.a) * t;
+        let outward = ((p - q) * normal.conj()).re;
+        let depth = best.0.sqrt();
+        (if outward > 0.0 { -depth } else { depth }, -normal)
+    }
+
+    /// The lines that touch the room's parts nearest `p`, each with the part on its far
+    /// side: for a wall's segment or a static obstacle's edge grown by `grow`, the tangent
+    /// at the point nearest `p`; for the view, its edge's own line. Up to `out`'s capacity,
+    /// the nearest first kept, those within `reach` of `p`: `(distance, normal, offset)`
+    /// with `normal` a unit vector from `p` across the line and `offset = normal · z` on
+    /// it. No allocation.
+    pub fn lines_near<const N: usize>(
+        &self,
+        p: Point,
+        grow: f64,
+        reach: f64,
+        out: &mut arrayvec::ArrayVec<(f64, Point, f64), N>,
+    ) {
+        out.clear();
+        let mut keep = |line: (f64, Point, f64)| {
+            if line.0 > reach || !line.0.is_finite() {
+                return;
+            }
+            if out.is_full() {
+                let (k, far) =
+                    out.iter().enumerate().fold((0, f64::MIN), |m, (k, l)| if l.0 > m.1 { (k, l.0) } else { m });
+                if far > line.0 {
+                    out[k] = line;
+                }
+            } else {
+                out.push(line);
+            }
+        };
+        let mut grown = |a: Point, b: Point, inside: bool| {
+            let q = flowgate_protocol::plane::nearest_on_segment(p, a, b);
+            let d = (q - p).norm();
+            if d == 0.0 {
+                return;
+            }
+            let (normal, gap) = if inside { (-(q - p) / d, -d - grow) } else { ((q - p) / d, d - grow) };
+            keep((gap, normal, (normal.conj() * p).re + gap));
+        };
+        for wall in &self.shape.walls {
+            for s in wall.windows(2) {
+                grown(s[0], s[1], false);
+            }
         }
+        for polygon in &self.shape.obstacles {
+            let inside = inside_polygon(p, polygon);
+            for (a, b) in polygon_edges(polygon) {
+                grown(a, b, inside);
+            }
+        }
+        if let Some(view) = &self.shape.view {
+            let turn = if signed_area(view) > 0.0 { Point::new(0.0, -1.0) } else { Point::new(0.0, 1.0) };
+            for (a, b) in polygon_edges(view) {
+                let normal = (b - a) / (b - a).norm() * turn;
+                let offset = (normal.conj() * a).re;
+                keep((offset - (normal.conj() * p).re, normal, offset));
+            }
+        }
+    }
+
+    /// Why a robot's centre cannot be at `p`, naming the item: inside a wall or static
+    /// obstacle grown by the robot (and the supervisor's room), beyond the view's edge, or
+    /// in a corner the field's boundary rounds off. `None` where it can.
+    pub fn blocked_at(&self, p: Point) -> Option<String> {
+        let grow = self.grow;
+        for (i, wall) in self.shape.walls.iter().enumerate() {
+            if let Some(d) =
+                wall.windows(2).map(|s| segment_distance(p, s[0], s[1])).reduce(f64::min).filter(|&d| d <= grow)
+            {
+                return Some(format!("is {d:.3} m from walls[{i}]: the robot's centre keeps {grow:.3} m from a wall"));
+            }
+        }
+        for (i, polygon) in self.shape.obstacles.iter().enumerate() {
+            let d = polygon_edges(polygon).map(|(a, b)| segment_distance(p, a, b)).fold(f64::INFINITY, f64::min);
+            if inside_polygon(p, polygon) {
+                return Some(format!("lies inside static_obstacles[{i}]"));
+            }
+            if d <= grow {
+                return Some(format!(
+                    "is {d:.3} m from static_obstacles[{i}]: the robot's centre keeps {grow:.3} m from it"
+                ));
+            }
+        }
+        if let Some(view) = &self.shape.view {
+            if !inside_polygon(p, view) {
+                return Some("lies beyond the view's edge (less the LEDs' reach and room.view_inset), where the camera may lose the robot".into());
+            }
+        }
+        (self.depth(p) <= 0.0).then(|| "lies in a corner the field's boundary rounds off".to_string())
     }
 
     /// Whether a robot centre can go from `a` to `b` without meeting the room: both free

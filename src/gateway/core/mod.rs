@@ -216,7 +216,7 @@ impl<K: StageClock> Core<K> {
             psd: PsdSession::new(rig.schedule, rig.psd_counts),
             frame: FrameAssembler::new(budget),
             tracker: Tracker::new(rig.tracking, rig.led_geometry, &radii),
-            control: ControlStep::new(rig.control),
+            control: ControlStep::new(rig.control.clone()),
             safety: Safety::default(),
             motors: MotorMaster::new(&rig),
             out: Outbox::new(),

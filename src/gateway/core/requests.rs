@@ -220,6 +220,7 @@ impl<K: StageClock> Core<K> {
     }
 
     /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,
+    /// clear of the room's walls and static obstacles and within the robot's reach there,
     /// outside every obstacle's planning circle now.
     pub(super) fn set_goals(&mut self, now: HostTime, goals: &[Goal]) -> Result<(), Refusal> {
         if goals.is_empty() {
@@ -242,6 +243,19 @@ impl<K: StageClock> Core<K> {
             if let Space::Lane { half_width } = self.rig.control.planner.space {
                 if y.abs() >= half_width {
                     return Err(bad(format!("outside the lane (|y| >= {half_width} m)")));
+                }
+            }
+            if let Some(room) = &self.rig.control.room {
+                if let Some(why) = room.blocked_at(at) {
+                    return Err(bad(why));
+                }
+                let robot = self.last_estimate.map(|(pose, _)| pose.position);
+                if let Some(robot) = robot.filter(|&r| room.blocked_at(r).is_none() && !room.reachable(r, at)) {
+                    return Err(bad(format!(
+                        "out of the robot's reach from ({:.3}, {:.3}): the walls, static obstacles or the view's edge \
+                         close it off",
+                        robot.re, robot.im
+                    )));
                 }
             }
             for o in &obstacles {

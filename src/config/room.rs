@@ -1,0 +1,137 @@
+//! `[[walls]]`, `[[static_obstacles]]` and `[room]`: the room the robot drives in, checked
+//! and solved once at load (docs/planner.md, "Rooms"; docs/configuration.md).
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use super::{invalid, positive, GatewayConfig, Invalid};
+use crate::calibration::Calibration;
+use crate::planner::room::{Room, RoomError, RoomShape};
+use crate::Point;
+
+/// A wall (a polyline) or a static obstacle (a polygon, closed by its last edge), in floor
+/// metres: `points = [[x, y], ...]`.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointsSection {
+    pub points: Vec<[f64; 2]>,
+}
+
+/// How the room's boundary is made.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RoomSection {
+    /// The camera's calibrated view is a boundary: the field keeps the robot's centre
+    /// inside it, `view_inset` in from where the camera still sees both its LEDs.
+    #[serde(default = "default_view_boundary")]
+    pub view_boundary: bool,
+    /// How far inside the view's edge (less the LEDs' reach) the boundary lies, m.
+    #[serde(default = "default_view_inset")]
+    pub view_inset: f64,
+    /// The boundary's panels' length, m: shorter is closer to the room's shape and costs
+    /// more each cycle (docs/planner.md).
+    #[serde(default = "default_panel_spacing")]
+    pub panel_spacing: f64,
+}
+
+impl Default for RoomSection {
+    fn default() -> Self {
+        Self {
+            view_boundary: default_view_boundary(),
+            view_inset: default_view_inset(),
+            panel_spacing: default_panel_spacing(),
+        }
+    }
+}
+
+fn default_view_boundary() -> bool {
+    false
+}
+fn default_view_inset() -> f64 {
+    0.02
+}
+fn default_panel_spacing() -> f64 {
+    0.03
+}
+
+/// The shortest panels a room may ask for, m (a finer boundary than the room's grid, 1/400
+/// of its extent, resolves nothing more).
+const MIN_PANEL_SPACING: f64 = 0.005;
+
+impl From<RoomError> for Invalid {
+    fn from(e: RoomError) -> Self {
+        match e {
+            RoomError::Shape { key, why } => Invalid { key, why },
+            RoomError::Blocked { key, at, why } => Invalid { key, why: format!("{at:?} is {why}") },
+            e @ RoomError::TooLarge { .. } => Invalid { key: "room.panel_spacing".into(), why: e.to_string() },
+        }
+    }
+}
+
+impl GatewayConfig {
+    /// The room's shape as configured: walls, static obstacles, the view's edge (when it
+    /// is a boundary) and, with any of those, a lane's lines as two more walls.
+    pub fn room_shape(&self, calibration: &Calibration) -> Result<RoomShape, Invalid> {
+        let r = &self.room;
+        positive("room.panel_spacing", r.panel_spacing)?;
+        if r.panel_spacing < MIN_PANEL_SPACING {
+            return invalid(
+                "room.panel_spacing",
+                format!("must be at least {MIN_PANEL_SPACING} m, is {}", r.panel_spacing),
+            );
+        }
+        if !(r.view_inset.is_finite() && r.view_inset >= 0.0) {
+            return invalid("room.view_inset", format!("must be >= 0, is {}", r.view_inset));
+        }
+        let points = |s: &PointsSection| s.points.iter().map(|&[x, y]| Point::new(x, y)).collect::<Vec<_>>();
+        let mut shape = RoomShape {
+            walls: self.walls.iter().map(points).collect(),
+            obstacles: self.static_obstacles.iter().map(points).collect(),
+            view: None,
+        };
+        if r.view_boundary {
+            let led = self.leds.front_offset.max(self.leds.rear_offset) + r.view_inset;
+            let Some([x0, x1, y0, y1]) = calibration.inner_rect() else {
+                return invalid("room.view_boundary", "the calibrated view has a corner beyond the horizon");
+            };
+            let (x0, x1, y0, y1) = (x0 + led, x1 - led, y0 + led, y1 - led);
+            if x1 - x0 <= 0.0 || y1 - y0 <= 0.0 {
+                return invalid("room.view_inset", "leaves nothing of the view");
+            }
+            shape.view = Some(vec![Point::new(x0, y0), Point::new(x1, y0), Point::new(x1, y1), Point::new(x0, y1)]);
+        }
+        shape.check()?;
+        if let Some(lane) = self.lane.filter(|_| !shape.is_empty()) {
+            // The lines bound the centre: walls grown by the robot (and the supervisor's
+            // room) lie that much beyond them, along the whole room and a metre more.
+            let all = shape.walls.iter().chain(&shape.obstacles).chain(shape.view.iter()).flatten();
+            let (lo, hi) = all.fold((-1.0f64, 1.0f64), |(lo, hi), p| (lo.min(p.re), hi.max(p.re)));
+            let y = lane.half_width + self.room_growth();
+            for side in [1.0, -1.0] {
+                shape.walls.push(vec![Point::new(lo - 1.0, side * y), Point::new(hi + 1.0, side * y)]);
+            }
+        }
+        Ok(shape)
+    }
+
+    /// How far walls and static obstacles are grown for the robot's centre: its radius and
+    /// the supervisor's room (`planner.clearance`), m.
+    pub fn room_growth(&self) -> f64 {
+        self.robot.radius + self.planner.clearance
+    }
+
+    /// The room, solved (`None` without walls, static obstacles or the view's edge: the
+    /// field of free space or the lane is exact), and the goal, if given, clear of it.
+    pub fn room(&self, calibration: &Calibration) -> Result<Option<Arc<Room>>, Invalid> {
+        let shape = self.room_shape(calibration)?;
+        let Some(room) = Room::new(&shape, self.room_growth(), self.room.panel_spacing)? else { return Ok(None) };
+        if let Some(g) = &self.goal {
+            let at = Point::new(g.position[0], g.position[1]);
+            if let Some(why) = room.blocked_at(at) {
+                return invalid("goal.position", format!("{:?} {why}", g.position));
+            }
+        }
+        Ok(Some(Arc::new(room)))
+    }
+}

@@ -1,0 +1,114 @@
+//! Rooms: walls and static obstacles from the scenario file to the world's truth. A room is
+//! refused at load naming the key and the reason; the field and the supervisor keep the
+//! robot off the shelves of a warehouse aisle, planner-only and through the whole stack; the
+//! supervisor slows a command into a wall and passes one along it.
+
+use std::path::Path;
+
+use flowgate::control::drive::WheelSpeeds;
+use flowgate::control::supervisor::{supervise, Supervision, SupervisorConfig};
+use flowgate::lab::planner_only::{self, Outcome};
+use flowgate::lab::{virtual_rig, Scenario};
+use flowgate::planner::room::{Room, RoomShape};
+use flowgate::track::Estimate;
+use flowgate::Point;
+
+fn aisle_text() -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms/warehouse-aisle.toml")).unwrap()
+}
+
+fn refused(text: &str) -> String {
+    Scenario::from_toml(text, "room").map(|_| ()).unwrap_err().to_string()
+}
+
+/// Every bad room is refused at load, naming the key (and the item's index) and the reason.
+#[test]
+fn a_bad_room_is_refused_naming_the_key() {
+    let aisle = aisle_text();
+    // A shelf whose outline crosses itself.
+    let e = refused(&aisle.replacen(
+        "[[-0.75, 0.2], [-0.15, 0.2], [-0.15, 0.45], [-0.75, 0.45]]",
+        "[[-0.75, 0.2], [-0.15, 0.45], [-0.15, 0.2], [-0.75, 0.45]]",
+        1,
+    ));
+    assert!(e.contains("`static_obstacles[0].points` the polygon is not simple: two of its edges cross"), "{e}");
+    // A wall with an edge of no length.
+    let e = refused(&format!("{aisle}\n[[walls]]\npoints = [[1.0, 1.0], [1.0, 1.0], [1.2, 1.0]]\n"));
+    assert!(e.contains("walls[0].points") && e.contains("the edge from point 0 to point 1 has no length"), "{e}");
+    // The goal on a shelf.
+    let e = refused(&aisle.replace("position = [0.6, 0.0]", "position = [0.5, 0.3]"));
+    assert!(e.contains("goal.position") && e.contains("static_obstacles[1]"), "{e}");
+    // The goal beside a shelf: clear of it by the robot's radius (7 cm), not by that and the
+    // supervisor's room (`planner.clearance`, 6 mm).
+    let e = refused(&aisle.replace("position = [0.6, 0.0]", "position = [0.6, 0.127]"));
+    assert!(e.contains("goal.position") && e.contains("from static_obstacles[1]"), "{e}");
+    // The start against a shelf.
+    let e = refused(&aisle.replace("start = [-0.6, 0.0]", "start = [-0.6, 0.15]"));
+    assert!(e.contains("robot.start") && e.contains("static_obstacles[0]"), "{e}");
+    // With the camera's view as the room's edge, a wall across it: the goal is out of reach.
+    let e = refused(&format!("{aisle}\n[room]\nview_boundary = true\n[[walls]]\npoints = [[0.4, -2.0], [0.4, 2.0]]\n"));
+    assert!(e.contains("goal.position") && e.contains("out of the robot's reach from robot.start"), "{e}");
+    // A [room] key it does not know.
+    let e = refused(&format!("{aisle}\n[room]\nview_edge = true\n"));
+    assert!(e.contains("[room]") && e.contains("view_edge"), "{e}");
+}
+
+/// Down the aisle, with someone coming out of the cross aisle: the goal, no contact with a
+/// shelf or the person, planner-only and through the whole stack.
+#[test]
+fn the_warehouse_aisle_is_driven_without_touching_a_shelf() {
+    let s = Scenario::from_toml(&aisle_text(), "warehouse-aisle").unwrap();
+    assert!(s.rig().control.room.is_some(), "the shelves make a room");
+    let run = planner_only::run(&s, false).summary;
+    assert_eq!(run.outcome, Outcome::Goal, "{run:?}");
+    assert!(run.first_contact.is_none(), "{run:?}");
+    let shelves = run.min_wall_clearance.unwrap();
+    // Between shelves 40 cm apart a 7 cm robot has at most 13 cm each side.
+    assert!(shelves > 0.0 && shelves <= 0.13, "it drove between the shelves, clear of them: {shelves}");
+    let whole = virtual_rig::run(&s, virtual_rig::Options::default());
+    assert_eq!(whole.outcome, Outcome::Goal, "{}", whole.report);
+    let t = &whole.truth.summary;
+    assert!(t.contact.is_none() && t.min_wall_clearance.unwrap() > 0.0, "{t:?}");
+}
+
+/// The robot 1 mm from a wall (its footprint's gap): driving at it is slowed (the hazard a
+/// line, not an obstacle), along it passes; and so at a static obstacle's corner, where
+/// driving away passes.
+#[test]
+fn the_supervisor_keeps_the_robot_off_walls_and_static_obstacles() {
+    let r = 0.07;
+    let shape = RoomShape {
+        walls: vec![vec![Point::new(-2.0, 0.3), Point::new(2.0, 0.3)]],
+        obstacles: vec![vec![
+            Point::new(0.5, -0.5),
+            Point::new(0.9, -0.5),
+            Point::new(0.9, -0.2),
+            Point::new(0.5, -0.2),
+        ]],
+        view: None,
+    };
+    let room = Room::new(&shape, r, 0.03).unwrap().unwrap();
+    let mut cfg = SupervisorConfig::new(1.0, 0.108, r, 0.017, None);
+    cfg.room = Some(std::sync::Arc::new(room));
+    let toward = WheelSpeeds { left: 0.15, right: 0.15 };
+    let by_the_wall = Estimate {
+        position: Point::new(0.0, 0.3 - r - 0.001),
+        facing: Point::from_polar(1.0, 1.5),
+        wheels: [0.0; 2],
+        obstacles: &[],
+        predicted: &[],
+        delay: 0.0,
+    };
+    let (wheels, verdict) = supervise(&cfg, &by_the_wall, toward);
+    assert!(matches!(verdict, Supervision::Slowed { hazard: None }), "{verdict:?}");
+    assert!(wheels.left < 0.05, "{wheels:?}");
+    let along = Estimate { facing: Point::new(1.0, 0.0), ..by_the_wall };
+    assert_eq!(supervise(&cfg, &along, toward).1, Supervision::Passed);
+    // Heading for the table's corner, diagonally, 1 mm from it.
+    let corner = Point::new(0.5, -0.2);
+    let heading = Point::from_polar(1.0, -std::f64::consts::FRAC_PI_4);
+    let at_the_table = Estimate { position: corner - heading * (r + 0.001), facing: heading, ..by_the_wall };
+    assert!(matches!(supervise(&cfg, &at_the_table, toward).1, Supervision::Slowed { hazard: None }));
+    let away = Estimate { facing: -heading, ..at_the_table };
+    assert_eq!(supervise(&cfg, &away, toward).1, Supervision::Passed);
+}
