@@ -33,7 +33,20 @@ pub fn start_field(s: &Scenario) -> Option<Field> {
         obstacles: &obstacles,
         delay: s.sensing.delay + s.sensing.sample_time,
     };
-    Planner::new(config.planner).field(&input).ok().map(|(f, _)| f)
+    Planner::in_room(config.planner, config.room).field(&input).ok().map(|(f, _)| f)
+}
+
+/// The scenario's walls, and its static obstacles closed by their last edge, as lines to
+/// draw.
+fn room_outlines(s: &Scenario) -> Vec<Vec<Point>> {
+    let points = |p: &[[f64; 2]]| p.iter().map(|&[x, y]| Point::new(x, y)).collect::<Vec<_>>();
+    let walls = s.walls.iter().map(|w| points(&w.points));
+    let polygons = s.static_obstacles.iter().map(|o| {
+        let mut outline = points(&o.points);
+        outline.extend(outline.first().copied());
+        outline
+    });
+    walls.chain(polygons).collect()
 }
 
 /// How a run ended, as a plot's title says it.
@@ -58,6 +71,8 @@ pub fn trajectory_svg(s: &Scenario, trace: &[TraceRow], ending: Ending) -> Strin
     pts.extend(trace.iter().flat_map(|r| r.obstacles.iter().copied()));
     pts.push(s.goal());
     pts.push(s.robot_start());
+    let room = room_outlines(s);
+    pts.extend(room.iter().flatten().copied());
     let pad = 0.1 + s.obstacles.iter().map(|o| o.radius).fold(s.robot.radius, f64::max);
     let (mut lo, mut hi) = bounds(&pts, pad);
     if let Some(lane) = s.lane {
@@ -89,6 +104,9 @@ pub fn trajectory_svg(s: &Scenario, trace: &[TraceRow], ending: Ending) -> Strin
         for y in [lane.half_width, -lane.half_width] {
             ax.polyline(&mut svg, &[Point::new(lo.re, y), Point::new(hi.re, y)], "#444", 3.0, None);
         }
+    }
+    for outline in &room {
+        ax.polyline(&mut svg, outline, "#444", 3.0, None);
     }
     // Obstacles: path, and circles about every second (solid: true radius).
     let every = (1.0 / s.sensing.sample_time).round().max(1.0) as usize;
