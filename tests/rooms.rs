@@ -7,8 +7,10 @@ use std::path::Path;
 
 use flowgate::control::drive::WheelSpeeds;
 use flowgate::control::supervisor::{supervise, Supervision, SupervisorConfig};
+use flowgate::gateway::core::operator::{Goal, Refusal, Request};
 use flowgate::lab::planner_only::{self, Outcome};
-use flowgate::lab::{virtual_rig, Scenario};
+use flowgate::lab::virtual_rig::{self, Options, VirtualRig};
+use flowgate::lab::Scenario;
 use flowgate::planner::room::{Room, RoomShape};
 use flowgate::track::Estimate;
 use flowgate::Point;
@@ -65,7 +67,7 @@ fn the_warehouse_aisle_is_driven_without_touching_a_shelf() {
     let shelves = run.min_wall_clearance.unwrap();
     // Between shelves 40 cm apart a 7 cm robot has at most 13 cm each side.
     assert!(shelves > 0.0 && shelves <= 0.13, "it drove between the shelves, clear of them: {shelves}");
-    let whole = virtual_rig::run(&s, virtual_rig::Options::default());
+    let whole = virtual_rig::run(&s, Options::default());
     assert_eq!(whole.outcome, Outcome::Goal, "{}", whole.report);
     let t = &whole.truth.summary;
     assert!(t.contact.is_none() && t.min_wall_clearance.unwrap() > 0.0, "{t:?}");
@@ -111,4 +113,23 @@ fn the_supervisor_keeps_the_robot_off_walls_and_static_obstacles() {
     assert!(matches!(supervise(&cfg, &at_the_table, toward).1, Supervision::Slowed { hazard: None }));
     let away = Estimate { facing: -heading, ..at_the_table };
     assert_eq!(supervise(&cfg, &away, toward).1, Supervision::Passed);
+}
+
+/// `flowgate ctl goal` in a room: a goal on a shelf or beside one is refused naming the
+/// shelf, a free one down the aisle is taken and reached.
+#[test]
+fn the_operator_goal_is_refused_in_furniture_and_taken_in_the_aisle() {
+    let s = Scenario::from_toml(&aisle_text(), "warehouse-aisle").unwrap();
+    let mut rig = VirtualRig::new(&s, Options::default());
+    rig.run_until(0.5);
+    let goal = |x: f64, y: f64| Request::Goal { goals: vec![Goal { position: [x, y], tolerance: 0.02 }] };
+    for (at, says) in [([0.5, 0.3], "lies inside static_obstacles[1]"), ([0.5, 0.13], "from static_obstacles[1]")] {
+        match rig.request(&goal(at[0], at[1])) {
+            Err(Refusal::BadGoal { why, .. }) => assert!(why.contains(says), "{at:?}: {why}"),
+            other => panic!("{at:?}: {other:?}"),
+        }
+    }
+    rig.request(&goal(0.3, 0.0)).unwrap();
+    let e = rig.run(s.time_limit, [0.3, 0.0], 0.02);
+    assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
 }
