@@ -94,6 +94,7 @@ fn four_seconds_of_cycles_allocate_nothing() {
         ("e1-standing-obstacle.toml", "CiA 402", Options { cia402: true, ..Options::default() }),
         ("e1-standing-obstacle.toml", "rehearsing", Options { rehearse: true, ..Options::default() }),
         ("e2-lane-head-on.toml", "SLCAN", Options::default()),
+        ("rooms/warehouse-aisle.toml", "SLCAN, in a room", Options::default()),
     ];
     for (scenario, how, options) in runs {
         let (made, cycles, due) = steady_seconds(scenario, options);

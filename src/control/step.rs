@@ -148,7 +148,9 @@ pub struct ControlStep {
 impl ControlStep {
     pub fn new(config: ControlConfig) -> Self {
         let planner = Planner::in_room(config.planner, config.room.clone());
-        let field = Field::empty(config.planner.space, planner.sink(config.goal));
+        let mut field = Field::empty(config.planner.space, planner.sink(config.goal));
+        // The room's buffers are made here, not in the first cycle.
+        field.set_room(config.room.as_ref());
         Self { config, planner, field, progress_anchor: None, goal_occupied_since: None, envelope: Envelope::default() }
     }
     /// Drive to a new goal from the next step (progress is judged afresh).

@@ -268,7 +268,7 @@ impl Field {
             _ => false,
         };
         if !same {
-            self.room = room.map(|r| RoomField { room: Arc::clone(r), sink: RoomSink::default(), solved: false });
+            self.room = room.map(|r| RoomField { room: Arc::clone(r), sink: RoomSink::for_room(r), solved: false });
         }
     }
 

@@ -505,6 +505,11 @@ pub struct RoomSink {
 }
 
 impl RoomSink {
+    /// Buffers for `room`'s panels, so that solving for a goal never allocates.
+    pub fn for_room(room: &Room) -> Self {
+        let n = room.panels.len();
+        Self { goal: Point::default(), densities: vec![0.0; n], rhs: vec![0.0; n], closure: None }
+    }
     pub fn goal(&self) -> Point {
         self.goal
     }
