@@ -2,11 +2,17 @@
 //! geometry; `plan` is one whole command (images and weights from the current geometry,
 //! margins, tie-break, evaluation, saturation), which is what a control cycle pays.
 //!
+//! `room/plan_32_5` is a whole command in a room of four walls and four heptagonal static
+//! obstacles (32 edges in all) with five moving circles; beside criterion's median it prints
+//! the distribution of 20,000 single commands (p50, p99, p99.9, max).
+//!
 //! cargo bench --bench planner
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
+use flowgate::planner::room::{Room, RoomShape};
 use flowgate::planner::{Field, Margin, ObstacleEstimate, PlanInput, Planner, PlannerConfig, Sink, Space, TieBreak};
 use flowgate::Point;
+use std::sync::Arc;
 
 fn obstacles(n: usize) -> Vec<ObstacleEstimate> {
     (0..n)
@@ -17,8 +23,8 @@ fn obstacles(n: usize) -> Vec<ObstacleEstimate> {
         .collect()
 }
 
-fn planner(space: Space) -> Planner {
-    Planner::new(PlannerConfig {
+fn config(space: Space) -> PlannerConfig {
+    PlannerConfig {
         space,
         cruise_speed: 0.1,
         c1: 20.0,
@@ -29,7 +35,53 @@ fn planner(space: Space) -> Planner {
         clearance: 0.006,
         tie_break: Some(TieBreak::default()),
         anticipation: 0.0,
-    })
+    }
+}
+
+fn planner(space: Space) -> Planner {
+    Planner::new(config(space))
+}
+
+/// A 2 m square room walled by four walls, a heptagonal static obstacle (24 cm across) in
+/// each quarter, grown by a 7 cm robot and the 6 mm clearance, panels of 3 cm (the default).
+fn room() -> Arc<Room> {
+    let p = Point::new;
+    let walls = vec![
+        vec![p(-1.0, -1.0), p(1.0, -1.0)],
+        vec![p(1.0, -1.0), p(1.0, 1.0)],
+        vec![p(1.0, 1.0), p(-1.0, 1.0)],
+        vec![p(-1.0, 1.0), p(-1.0, -1.0)],
+    ];
+    let heptagon =
+        |c: Point| (0..7).map(|k| c + Point::from_polar(0.12, std::f64::consts::TAU * k as f64 / 7.0)).collect();
+    let obstacles = [p(-0.55, 0.6), p(0.55, 0.6), p(-0.55, -0.6), p(0.55, -0.6)].into_iter().map(heptagon).collect();
+    let shape = RoomShape { walls, obstacles, view: None };
+    Arc::new(Room::new(&shape, 0.076, 0.03).unwrap().unwrap())
+}
+
+/// The moving circles of the room case: five crossing its middle.
+fn room_obstacles() -> Vec<ObstacleEstimate> {
+    (0..5)
+        .map(|k| {
+            let x = -0.4 + 0.2 * k as f64;
+            let y = if k % 2 == 0 { 0.15 } else { -0.15 };
+            ObstacleEstimate::exact(Point::new(x, y), Point::new(0.0, if k % 2 == 0 { -0.06 } else { 0.06 }), 0.05)
+        })
+        .collect()
+}
+
+/// The distribution of `n` single calls of `f`, ns: p50, p99, p99.9, max.
+fn distribution(n: usize, mut f: impl FnMut()) -> [f64; 4] {
+    let mut times: Vec<f64> = (0..n)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            f();
+            t.elapsed().as_nanos() as f64
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    let at = |q: f64| times[((n as f64 * q) as usize).min(n - 1)];
+    [at(0.5), at(0.99), at(0.999), times[n - 1]]
 }
 
 fn bench(c: &mut Criterion) {
@@ -63,6 +115,32 @@ fn bench(c: &mut Criterion) {
         });
     }
     plan.finish();
+    let (room, room_obs) = (room(), room_obstacles());
+    let p = Planner::in_room(config(Space::Free), Some(room));
+    let (robot_in, goal_in) = (Point::new(-0.8, 0.02), Point::new(0.8, -0.03));
+    let command = |p: &Planner, field: &mut Field| {
+        let input = PlanInput {
+            position: black_box(robot_in),
+            goal: goal_in,
+            robot_radius: 0.07,
+            obstacles: &room_obs,
+            delay: 0.02,
+        };
+        p.plan_in(&input, field).unwrap()
+    };
+    let mut field = Field::empty(Space::Free, p.sink(goal_in));
+    c.bench_function("room/plan_32_5", |b| b.iter(|| command(&p, &mut field)));
+    let [p50, p99, p999, max] = distribution(20_000, || {
+        black_box(command(&p, &mut field));
+    });
+    println!(
+        "room/plan_32_5: {} panels; single commands p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs",
+        p.room().map_or(0, |r| r.panels().len()),
+        p50 / 1e3,
+        p99 / 1e3,
+        p999 / 1e3,
+        max / 1e3
+    );
     // Field construction alone, for the record.
     let obs: Vec<_> = obstacles(2)
         .iter()
