@@ -428,7 +428,7 @@ fn the_papers_experiments_end_alike_through_the_whole_stack() {
 /// (`planner.evasion = true`, as those files set) the targets hold: 5 obstacles at least
 /// 95% success, no active and at most 2% passive contact; 1 obstacle at least 99%. The
 /// rates are exact for the seed (docs/supervisor.md quotes them). Without evasion the robot,
-/// held in the obstacles' way, is hit in a third of the episodes.
+/// held in the obstacles' way, is hit in two episodes of five.
 #[test]
 fn a_crossing_crowd_is_evaded() {
     let run = |name: &str, mode: Mode| {
@@ -436,9 +436,9 @@ fn a_crossing_crowd_is_evaded() {
         sweep::sweep(&s, 1000, 1, 2, mode)
     };
     for (name, mode, goal, passive) in [
-        ("circle-crossing-5.toml", Mode::PlannerOnly, 0.977, 0.012),
-        ("circle-crossing-5.toml", Mode::FullStack, 0.977, 0.003),
-        ("circle-crossing-1.toml", Mode::PlannerOnly, 1.0, 0.0),
+        ("circle-crossing-5.toml", Mode::PlannerOnly, 0.980, 0.012),
+        ("circle-crossing-5.toml", Mode::FullStack, 0.986, 0.002),
+        ("circle-crossing-1.toml", Mode::PlannerOnly, 0.999, 0.0),
         ("circle-crossing-1.toml", Mode::FullStack, 1.0, 0.0),
     ] {
         let r = run(name, mode);
@@ -453,7 +453,7 @@ fn a_crossing_crowd_is_evaded() {
     let mut without = scenario("crowd/circle-crossing-5.toml");
     without.planner.evasion = false;
     let r = sweep::sweep(&without, 1000, 1, 2, Mode::PlannerOnly);
-    assert!((r.goal_rate - 0.663).abs() < 1e-9 && (r.passive_contact_rate - 0.336).abs() < 1e-9, "{r}");
+    assert!((r.goal_rate - 0.608).abs() < 1e-9 && (r.passive_contact_rate - 0.392).abs() < 1e-9, "{r}");
 }
 
 /// Around E2 (a lane, the obstacle head-on, its course turned up to 20° and its speed

@@ -1,7 +1,7 @@
 //! `[[walls]]`, `[[static_obstacles]]` and `[room]`: the room the robot drives in, checked
 //! and solved once at load (docs/planner.md, "Rooms"; docs/configuration.md).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use serde::{Deserialize, Serialize};
 
@@ -23,9 +23,11 @@ pub struct PointsSection {
 #[serde(deny_unknown_fields)]
 pub struct RoomSection {
     /// The camera's calibrated view is a boundary: the field keeps the robot's centre
-    /// inside it, `view_inset` in from where the camera still sees both its LEDs.
-    #[serde(default = "default_view_boundary")]
-    pub view_boundary: bool,
+    /// inside it, `view_inset` in from where the camera still sees both its LEDs. Unset:
+    /// yes, except in a lane, whose lines bound the robot already and whose exact field a
+    /// blend with the view's edge would only dilute (docs/planner.md, "Rooms").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view_boundary: Option<bool>,
     /// How far inside the view's edge (less the LEDs' reach) the boundary lies, m.
     #[serde(default = "default_view_inset")]
     pub view_inset: f64,
@@ -37,17 +39,10 @@ pub struct RoomSection {
 
 impl Default for RoomSection {
     fn default() -> Self {
-        Self {
-            view_boundary: default_view_boundary(),
-            view_inset: default_view_inset(),
-            panel_spacing: default_panel_spacing(),
-        }
+        Self { view_boundary: None, view_inset: default_view_inset(), panel_spacing: default_panel_spacing() }
     }
 }
 
-fn default_view_boundary() -> bool {
-    false
-}
 fn default_view_inset() -> f64 {
     0.02
 }
@@ -90,7 +85,7 @@ impl GatewayConfig {
             obstacles: self.static_obstacles.iter().map(points).collect(),
             view: None,
         };
-        if r.view_boundary {
+        if r.view_boundary.unwrap_or(self.lane.is_none()) {
             let led = self.leds.front_offset.max(self.leds.rear_offset) + r.view_inset;
             let Some([x0, x1, y0, y1]) = calibration.inner_rect() else {
                 return invalid("room.view_boundary", "the calibrated view has a corner beyond the horizon");
@@ -125,13 +120,35 @@ impl GatewayConfig {
     /// field of free space or the lane is exact), and the goal, if given, clear of it.
     pub fn room(&self, calibration: &Calibration) -> Result<Option<Arc<Room>>, Invalid> {
         let shape = self.room_shape(calibration)?;
-        let Some(room) = Room::new(&shape, self.room_growth(), self.room.panel_spacing)? else { return Ok(None) };
+        let Some(room) = solved(&shape, self.room_growth(), self.room.panel_spacing)? else { return Ok(None) };
         if let Some(g) = &self.goal {
             let at = Point::new(g.position[0], g.position[1]);
             if let Some(why) = room.blocked_at(at) {
                 return invalid("goal.position", format!("{:?} {why}", g.position));
             }
         }
-        Ok(Some(Arc::new(room)))
+        Ok(Some(room))
     }
+}
+
+/// The rooms solved in this process, by what each was made from: a sweep's episodes, and
+/// the rigs the lab tools derive from one scenario, share one room rather than solve it
+/// each time (some 10 ms for a view's edge). Kept few; used at load only.
+static SOLVED: Mutex<Vec<(RoomShape, u64, u64, Arc<Room>)>> = Mutex::new(Vec::new());
+
+/// How many solved rooms [`SOLVED`] keeps.
+const SOLVED_KEPT: usize = 8;
+
+fn solved(shape: &RoomShape, grow: f64, spacing: f64) -> Result<Option<Arc<Room>>, RoomError> {
+    let key = (grow.to_bits(), spacing.to_bits());
+    let mut solved = SOLVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some((_, _, _, room)) = solved.iter().find(|(s, g, h, _)| s == shape && (*g, *h) == key) {
+        return Ok(Some(Arc::clone(room)));
+    }
+    let Some(room) = Room::new(shape, grow, spacing)?.map(Arc::new) else { return Ok(None) };
+    if solved.len() == SOLVED_KEPT {
+        solved.remove(0);
+    }
+    solved.push((shape.clone(), key.0, key.1, Arc::clone(&room)));
+    Ok(Some(room))
 }

@@ -13,8 +13,9 @@
 //! - the path: each wheel ramps at the boards' acceleration `a` from its present speed (the
 //!   tracker's ramp model) toward the command for `τ`, which is exact for the boards; then
 //!   the brake holds the turn and lowers both wheels together, so the centre slows at `a`
-//!   until it stops (the wheels may go on turning the robot on the spot). The pose is
-//!   integrated along it in steps of [`STEP`];
+//!   until it stops, going forward or backing (the wheels may go on turning the robot on
+//!   the spot). The pose is integrated along it in steps of [`STEP`]. Backing up drives
+//!   into what lies behind as driving on does into what lies ahead;
 //! - an obstacle: its predicted centre moves on at its estimated velocity; the robot must
 //!   keep the sum of the radii, `sigmas` standard deviations of the centre, `sigmas`
 //!   standard deviations of the velocity times the time ahead, a fixed `clearance` and one
@@ -484,7 +485,8 @@ impl Context<'_> {
     }
 
     /// Whether a path braking from `position`, `s` seconds ahead, at centre speed `mean`
-    /// in steps of `h`, can no longer come within any hazard's reach: it travels at most
+    /// along `facing` (a backing path gives its facing reversed and its speed's size) in
+    /// steps of `h`, can no longer come within any hazard's reach: it travels at most
     /// `mean²/2a` and a step more, each check keeps a step's travel and `spare` more, it
     /// ends within `mean/a` and two steps (the last drop can leave a rounding's worth of
     /// speed for one more), and each obstacle comes at most its speed and growth
@@ -676,10 +678,13 @@ impl Context<'_> {
                     return Some(hit);
                 }
             }
-            if path.speed() <= 0.0 {
+            if path.speed() == 0.0 {
                 return None; // at rest already (see below)
             }
         }
+        // The way the centre moves as the brake starts: forward (1) or backing (-1). The
+        // brake slows it either way, and either way it may drive into something.
+        let sense = path.speed().signum();
         // Then the brake. It lowers both wheels alike, so it holds the turn rate it starts
         // with (taken once: the wheels' difference, recomputed, would wander by rounding and
         // cost a rotation every step).
@@ -695,16 +700,16 @@ impl Context<'_> {
             // it saved. Any step may ask: it only ends a walk that would pass.
             if taken
                 && k % 4 == 0
-                && self.out_of_reach(path.s, path.position, path.facing, mean, braking_turn, h, spare)
+                && self.out_of_reach(path.s, path.position, path.facing * sense, mean * sense, braking_turn, h, spare)
             {
                 return None;
             }
-            let drop = (a * h).min(mean.max(0.0));
+            let drop = sense * (a * h).min((mean * sense).max(0.0));
             let next = [path.wheels[0] - drop, path.wheels[1] - drop];
             if let Some(hit) = self.step(&mut path, next, braking_turn, h, spare) {
                 return Some(hit);
             }
-            if path.speed() <= 0.0 {
+            if path.speed() * sense <= 0.0 {
                 // Stopped: the centre is at rest (the wheels may still turn it on the
                 // spot), so it drives into nothing from here; the last step's check saw
                 // what the obstacles close over it.
@@ -723,7 +728,8 @@ impl Context<'_> {
         // One step's travel is kept beside the radii: the check runs at the step's ends.
         let slack = v.abs() * h + spare;
         let velocity = facing * v;
-        if v > 0.0 {
+        // Backing up drives into what lies behind as driving on does into what lies ahead.
+        if v != 0.0 {
             let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, slack));
             if hit.is_some() {
                 return hit.copied();
