@@ -134,21 +134,29 @@ impl GatewayConfig {
 /// The rooms solved in this process, by what each was made from: a sweep's episodes, and
 /// the rigs the lab tools derive from one scenario, share one room rather than solve it
 /// each time (some 10 ms for a view's edge). Kept few; used at load only.
-static SOLVED: Mutex<Vec<(RoomShape, u64, u64, Arc<Room>)>> = Mutex::new(Vec::new());
+static SOLVED: Mutex<Vec<Solved>> = Mutex::new(Vec::new());
+
+/// A solved room and what it was made from (the growth and spacing as bits).
+struct Solved {
+    shape: RoomShape,
+    grow: u64,
+    spacing: u64,
+    room: Arc<Room>,
+}
 
 /// How many solved rooms [`SOLVED`] keeps.
 const SOLVED_KEPT: usize = 8;
 
 fn solved(shape: &RoomShape, grow: f64, spacing: f64) -> Result<Option<Arc<Room>>, RoomError> {
-    let key = (grow.to_bits(), spacing.to_bits());
+    let (grow_bits, spacing_bits) = (grow.to_bits(), spacing.to_bits());
     let mut solved = SOLVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if let Some((_, _, _, room)) = solved.iter().find(|(s, g, h, _)| s == shape && (*g, *h) == key) {
-        return Ok(Some(Arc::clone(room)));
+    if let Some(s) = solved.iter().find(|s| s.shape == *shape && s.grow == grow_bits && s.spacing == spacing_bits) {
+        return Ok(Some(Arc::clone(&s.room)));
     }
     let Some(room) = Room::new(shape, grow, spacing)?.map(Arc::new) else { return Ok(None) };
     if solved.len() == SOLVED_KEPT {
         solved.remove(0);
     }
-    solved.push((shape.clone(), key.0, key.1, Arc::clone(&room)));
+    solved.push(Solved { shape: shape.clone(), grow: grow_bits, spacing: spacing_bits, room: Arc::clone(&room) });
     Ok(Some(room))
 }
