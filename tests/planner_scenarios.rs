@@ -71,17 +71,20 @@ fn e3_delay_collides_without_margin_and_succeeds_with_it() {
     assert_eq!(b.outcome, Outcome::Goal, "{b:?}");
     assert!(b.min_obstacle_clearance.unwrap() > 0.0);
     // The 1.1 R0 margin and the prediction's uncertainty take in the robot as the obstacle
-    // passes: 90 of its 736 cycles plan with that circle shrunk short of the robot instead
+    // passes: 90 of its 700 cycles plan with that circle shrunk short of the robot instead
     // of freezing it, and summary.json says so. Without a margin nothing is shrunk.
-    assert_eq!((b.margin_shrunk_cycles, b.cycles), (90, 736), "{b:?}");
+    assert_eq!((b.margin_shrunk_cycles, b.cycles), (90, 700), "{b:?}");
     assert_eq!(a.margin_shrunk_cycles, 0, "{a:?}");
 }
 
 /// Pinned: robot, obstacle and goal collinear. Without the tie-break the robot runs into
-/// the rear stagnation point and stalls; with it, it goes round (keeping right).
+/// the rear stagnation point and stalls; with it, it goes round (keeping right). The pin
+/// is the paper's field in free space: the camera's view is no boundary here (its edges,
+/// not quite symmetric about the axis, would break the tie by themselves).
 #[test]
 fn rear_stagnation_stalls_without_tie_break_and_passes_with_it() {
     let mut s = scenario("e1s-standing-obstacle-symmetric.toml");
+    s.room.view_boundary = Some(false);
     s.planner.tie_break = false;
     let stuck = planner_only::run(&s, true);
     assert_eq!(stuck.summary.outcome, Outcome::Stall, "{:?}", stuck.summary);
@@ -114,7 +117,7 @@ fn head_on_deadlock_is_broken_by_the_tie_break() {
     // about the field.
     let defaults = (s.planner.uncertainty_sigmas, s.planner.clearance);
     (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (0.0, 0.0, false);
-    s.planner.tie_break = false;
+    (s.planner.tie_break, s.room.view_boundary) = (false, Some(false));
     let plain = planner_only::run(&s, true);
     // It cannot pick a side, turns round to retreat, and the obstacle catches it.
     assert_eq!(plain.summary.outcome, Outcome::Collision, "{:?}", plain.summary);
@@ -123,11 +126,19 @@ fn head_on_deadlock_is_broken_by_the_tie_break() {
     s.planner.tie_break = true;
     let broken = planner_only::run(&s, false).summary;
     assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
-    // And with the defaults, supervised.
+    // And with the defaults, supervised (the view's edge a boundary, evasion on): evasion
+    // backs away before the slow obstacle rather than slip past it, and the robot reaches
+    // the goal only once it has gone round, at 29.2 s against 10.2 s without evasion
+    // (docs/supervisor.md, "Evasion").
     (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (defaults.0, defaults.1, true);
+    (s.room.view_boundary, s.time_limit) = (None, 60.0);
     let broken = planner_only::run(&s, false).summary;
     assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
     assert!(broken.first_contact.is_none());
+    assert!((broken.end_time - 29.2).abs() < 0.05, "{broken:?}");
+    s.planner.evasion = Some(false);
+    let unevaded = planner_only::run(&s, false).summary;
+    assert!(unevaded.outcome == Outcome::Goal && (unevaded.end_time - 10.2).abs() < 0.05, "{unevaded:?}");
 }
 
 /// E7: an obstacle faster than the robot's limit is flagged; whatever happens is reported.
@@ -380,6 +391,7 @@ fn noisy_delayed_estimates_do_not_graze_a_standing_obstacle() {
             let mut s = base.clone();
             if paper {
                 (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (0.0, 0.0, false);
+                s.room.view_boundary = Some(false);
             }
             (s.sensing.position_noise, s.sensing.delay, s.sensing.seed) = (0.001, 0.3, seed);
             planner_only::run(&s, false).summary
@@ -424,11 +436,14 @@ fn the_papers_experiments_end_alike_through_the_whole_stack() {
 
 /// The crowd benchmark, CrowdNav's circle crossing in the arena (scenarios/crowd/): the robot
 /// and 5 (or 1) non-reactive obstacles at 2/3 of its speed cross a circle of 0.6 m, placed
-/// afresh for each of 1000 episodes, planner-only and through the whole stack. With evasion
-/// (`planner.evasion = true`, as those files set) the targets hold: 5 obstacles at least
-/// 95% success, no active and at most 2% passive contact; 1 obstacle at least 99%. The
-/// rates are exact for the seed (docs/supervisor.md quotes them). Without evasion the robot,
-/// held in the obstacles' way, is hit in two episodes of five.
+/// afresh for each of 1000 episodes, planner-only and through the whole stack; in the
+/// walk-on crowd, at the robot's cruise speed and on past the far side, with the planner's
+/// defaults alone (evasion on outside a lane, the camera's view a boundary). The targets
+/// hold: 5 obstacles stopping at the far side at least 95% success, the others at least
+/// 99%; no active and at most 2% passive contact; and the walk-on crowd ends no episode in a
+/// fault (the robot is never taken out of the camera's view). The rates are exact for the
+/// seed (docs/supervisor.md quotes them). Without evasion the robot, held in the obstacles'
+/// way, is hit in a fifth of the episodes.
 #[test]
 fn a_crossing_crowd_is_evaded() {
     let run = |name: &str, mode: Mode| {
@@ -436,24 +451,29 @@ fn a_crossing_crowd_is_evaded() {
         sweep::sweep(&s, 1000, 1, 2, mode)
     };
     for (name, mode, goal, passive) in [
-        ("circle-crossing-5.toml", Mode::PlannerOnly, 0.980, 0.012),
-        ("circle-crossing-5.toml", Mode::FullStack, 0.986, 0.002),
+        ("circle-crossing-5.toml", Mode::PlannerOnly, 0.996, 0.001),
+        ("circle-crossing-5.toml", Mode::FullStack, 0.997, 0.0),
         ("circle-crossing-1.toml", Mode::PlannerOnly, 0.999, 0.0),
-        ("circle-crossing-1.toml", Mode::FullStack, 1.0, 0.0),
+        ("circle-crossing-1.toml", Mode::FullStack, 0.999, 0.0),
+        ("circle-crossing-5-walk-on.toml", Mode::PlannerOnly, 0.995, 0.004),
+        ("circle-crossing-5-walk-on.toml", Mode::FullStack, 0.998, 0.001),
     ] {
         let r = run(name, mode);
-        let target = if name.contains("-5") { 0.95 } else { 0.99 };
+        let target = if name.contains("-5.") { 0.95 } else { 0.99 };
         assert!(r.goal_rate >= target && r.passive_contact_rate <= 0.02, "{name} {mode}: {r}");
         assert_eq!(r.active_contact_rate, 0.0, "{name} {mode}: {r}");
+        if name.contains("walk-on") {
+            assert_eq!(r.fault_rate, 0.0, "{name} {mode}: {r}");
+        }
         assert!(
             (r.goal_rate - goal).abs() < 1e-9 && (r.passive_contact_rate - passive).abs() < 1e-9,
             "{name} {mode}: {r}"
         );
     }
     let mut without = scenario("crowd/circle-crossing-5.toml");
-    without.planner.evasion = false;
+    without.planner.evasion = Some(false);
     let r = sweep::sweep(&without, 1000, 1, 2, Mode::PlannerOnly);
-    assert!((r.goal_rate - 0.608).abs() < 1e-9 && (r.passive_contact_rate - 0.392).abs() < 1e-9, "{r}");
+    assert!((r.goal_rate - 0.784).abs() < 1e-9 && (r.passive_contact_rate - 0.215).abs() < 1e-9, "{r}");
 }
 
 /// Around E2 (a lane, the obstacle head-on, its course turned up to 20° and its speed

@@ -133,3 +133,20 @@ fn the_operator_goal_is_refused_in_furniture_and_taken_in_the_aisle() {
     let e = rig.run(s.time_limit, [0.3, 0.0], 0.02);
     assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
 }
+
+/// Round the corner of an L-shaped corridor with someone coming the other way, and through
+/// a doorway someone has just come through: the goal, touching nothing, planner-only and
+/// through the whole stack.
+#[test]
+fn the_corridor_and_the_doorway_are_driven_without_contact() {
+    for name in ["l-corridor.toml", "doorway.toml"] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms").join(name);
+        let s = Scenario::load(&path).unwrap();
+        let run = planner_only::run(&s, false).summary;
+        assert_eq!(run.outcome, Outcome::Goal, "{name}: {run:?}");
+        assert!(run.first_contact.is_none() && run.min_wall_clearance.unwrap() > 0.0, "{name}: {run:?}");
+        let whole = virtual_rig::run(&s, Options::default());
+        assert_eq!(whole.outcome, Outcome::Goal, "{name}: {}", whole.report);
+        assert!(whole.truth.summary.contact.is_none(), "{name}: {:?}", whole.truth.summary);
+    }
+}

