@@ -377,10 +377,15 @@ fn fill_hazards(
         let mut lines = ArrayVec::<(f64, Point, f64), ROOM_LINES>::new();
         room.lines_near(position, cfg.robot_radius, ROOM_REACH, &mut lines);
         for (_, normal, offset) in lines {
-            hazards.push(Hazard::Line { normal, offset, keep: cfg.clearance });
+            hazards.push(Hazard::Line { normal, offset, keep: cfg.clearance + ROOM_ALLOWANCE });
         }
     }
 }
+
+/// What the robot keeps from the room's edges beyond `clearance`, m: the error of its own
+/// estimated position, which a wall, unlike an obstacle, has no uncertainty of its own to
+/// cover (a wall is met straight on, along the estimate's error).
+const ROOM_ALLOWANCE: f64 = 0.003;
 
 /// The most lines of the room the supervisor weighs at once (the nearest).
 pub const ROOM_LINES: usize = 8;

@@ -213,9 +213,28 @@ struct RoomField {
 /// normal: the panels' flow is not the field's beyond them.
 const ROOM_HOLD: f64 = 0.005;
 
-/// Within this distance of the room's boundary, the circles' bending of the flow loses its
-/// part that heads into the boundary, wholly on it, m.
+/// Within this distance of the room's boundary, the field loses its part that heads into
+/// the boundary, wholly on it, m ([`keep_off`]).
 const ROOM_BEND_BAND: f64 = 0.05;
+
+/// The flow `f` (`u - i v`) at a point `depth` inside the room's boundary, whose inward
+/// normal there is `inward`, with what of it heads into the boundary taken out: wholly on
+/// (or beyond) the boundary, not at all from [`ROOM_BEND_BAND`] inside. The circles'
+/// bending is not tangent to the room, and the room's own flow only at the panels'
+/// midpoints: so no term carries the robot into a wall, nor against the supervisor, which
+/// keeps it off the real walls a little inside the field's boundary.
+fn keep_off(f: Point, depth: f64, inward: Point) -> Point {
+    let toward = depth.max(0.0) / ROOM_BEND_BAND;
+    if toward >= 1.0 {
+        return f;
+    }
+    let v = f.conj();
+    let along = (v * inward.conj()).re;
+    if along >= 0.0 {
+        return f;
+    }
+    (v - inward * (along * (1.0 - toward))).conj()
+}
 
 /// How far beyond the room's boundary (the grown walls and furniture, the view's edge,
 /// their corners rounded) the field still steers the robot back, m. The boundary is grown
@@ -476,11 +495,11 @@ impl Field {
             * self.sink.strength
             * room.room.eval_sink(&room.sink, at);
         if self.n == 0 {
-            return Ok(room_flow);
+            return Ok(keep_off(room_flow, depth, inward));
         }
         // The circles bend the room's flow as they bend the sink's: each one's field less
         // the bare sink, and the image in it of the room's own correction, so that its
-        // circle stays a streamline (the circle theorem) ...
+        // circle stays a streamline (the circle theorem).
         let (circles, total) = self.eval_obstacles_weighed(z, km)?;
         let mut bend = circles - km * self.space.sink(z, self.sink.goal);
         for o in &self.obstacles[..self.n] {
@@ -490,17 +509,7 @@ impl Field {
             let image = -r2 / (d * d) * room.room.eval_correction(&room.sink, o.center + r2 / d.conj()).conj();
             bend += image * (km / (gap * total));
         }
-        // ... and near the room's boundary what of the bending heads into it is taken out,
-        // wholly on the boundary, where the room's flow alone is tangent.
-        let toward = depth.max(0.0) / ROOM_BEND_BAND;
-        if toward < 1.0 {
-            let v = bend.conj();
-            let along = (v * inward.conj()).re;
-            if along < 0.0 {
-                bend = (v - inward * (along * (1.0 - toward))).conj();
-            }
-        }
-        Ok(room_flow + bend)
+        Ok(keep_off(room_flow + bend, depth, inward))
     }
 
     /// The field of the sink and the obstacles alone (the lane's walls included).
