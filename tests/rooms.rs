@@ -8,7 +8,8 @@ use std::path::Path;
 use flowgate::control::drive::WheelSpeeds;
 use flowgate::control::supervisor::{supervise, Supervision, SupervisorConfig};
 use flowgate::gateway::core::operator::{Goal, Refusal, Request};
-use flowgate::lab::planner_only::{self, Outcome};
+use flowgate::lab::planner_only::{self, Mode, Outcome};
+use flowgate::lab::sweep;
 use flowgate::lab::virtual_rig::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
 use flowgate::planner::room::{Room, RoomShape};
@@ -148,5 +149,33 @@ fn the_corridor_and_the_doorway_are_driven_without_contact() {
         let whole = virtual_rig::run(&s, Options::default());
         assert_eq!(whole.outcome, Outcome::Goal, "{name}: {}", whole.report);
         assert!(whole.truth.summary.contact.is_none(), "{name}: {:?}", whole.truth.summary);
+    }
+}
+
+/// The rooms' sweeps, 1000 episodes each (seed 1), planner-only and through the whole
+/// stack: goal, active and passive contact, stall and fault rates, exact for the seed
+/// (docs/simulation.md prints them). No episode ends in an active contact, with a person,
+/// a wall or a shelf. The narrow rooms' passive contacts are people on courses the sweep
+/// turned, walking into a robot with nowhere to go.
+#[test]
+fn the_rooms_sweeps_end_as_measured() {
+    // (scenario, mode, goal, passive contact, stall, fault)
+    let rows = [
+        ("warehouse-aisle.toml", Mode::PlannerOnly, 0.840, 0.160, 0.0, 0.0),
+        ("warehouse-aisle.toml", Mode::FullStack, 0.791, 0.206, 0.0, 0.003),
+        ("l-corridor.toml", Mode::PlannerOnly, 0.905, 0.095, 0.0, 0.0),
+        ("l-corridor.toml", Mode::FullStack, 0.924, 0.075, 0.0, 0.001),
+        ("doorway.toml", Mode::PlannerOnly, 0.993, 0.0, 0.007, 0.0),
+        ("doorway.toml", Mode::FullStack, 0.998, 0.0, 0.002, 0.0),
+        ("table-and-crowd.toml", Mode::PlannerOnly, 0.963, 0.016, 0.021, 0.0),
+        ("table-and-crowd.toml", Mode::FullStack, 0.964, 0.010, 0.026, 0.0),
+    ];
+    for (name, mode, goal, passive, stall, fault) in rows {
+        let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms").join(name)).unwrap();
+        let r = sweep::sweep(&s, 1000, 1, 2, mode);
+        assert_eq!(r.active_contact_rate, 0.0, "{name} {mode}: {r}");
+        let measured = [r.goal_rate, r.passive_contact_rate, r.stall_rate, r.fault_rate];
+        let expected = [goal, passive, stall, fault];
+        assert!(measured.iter().zip(expected).all(|(m, e)| (m - e).abs() < 1e-9), "{name} {mode}: {r}");
     }
 }

@@ -236,6 +236,31 @@ fn keep_off(f: Point, depth: f64, inward: Point) -> Point {
     (v - inward * (along * (1.0 - toward))).conj()
 }
 
+impl RoomField {
+    /// [`keep_off`] the field's boundary (the panels, `depth` inside it, `inward` its
+    /// normal there), and then the real room's nearest edge (the walls and furniture grown
+    /// as the field grows them, the view's edge), which the supervisor keeps the robot off:
+    /// near a rounded corner the two differ a little in place and in direction.
+    fn keep_off(&self, f: Point, z: Point, depth: f64, inward: Point) -> Point {
+        let f = keep_off(f, depth, inward);
+        // The real room's edge lies within the rounding's sliver of the field's boundary.
+        if depth > ROOM_BEND_BAND + ROOM_ROUNDING_SLIVER {
+            return f;
+        }
+        let mut nearest = arrayvec::ArrayVec::<(f64, Point, f64), 1>::new();
+        self.room.lines_near(z, self.room.grow(), ROOM_BEND_BAND, &mut nearest);
+        match nearest.first() {
+            Some(&(gap, toward, _)) => keep_off(f, gap, -toward),
+            None => f,
+        }
+    }
+}
+
+/// How far the field's boundary strays inside the real room's edge, at most, m: the
+/// rounding of a room's corners (its sliver, some 2 cm for a right angle), with room to
+/// spare.
+const ROOM_ROUNDING_SLIVER: f64 = 0.05;
+
 /// How far beyond the room's boundary (the grown walls and furniture, the view's edge,
 /// their corners rounded) the field still steers the robot back, m. The boundary is grown
 /// by the robot's radius and the supervisor's room, so a centre up to here still clears the
@@ -495,7 +520,7 @@ impl Field {
             * self.sink.strength
             * room.room.eval_sink(&room.sink, at);
         if self.n == 0 {
-            return Ok(keep_off(room_flow, depth, inward));
+            return Ok(room.keep_off(room_flow, z, depth, inward));
         }
         // The circles bend the room's flow as they bend the sink's: each one's field less
         // the bare sink, and the image in it of the room's own correction, so that its
@@ -509,7 +534,7 @@ impl Field {
             let image = -r2 / (d * d) * room.room.eval_correction(&room.sink, o.center + r2 / d.conj()).conj();
             bend += image * (km / (gap * total));
         }
-        Ok(keep_off(room_flow + bend, depth, inward))
+        Ok(room.keep_off(room_flow + bend, z, depth, inward))
     }
 
     /// The field of the sink and the obstacles alone (the lane's walls included).
