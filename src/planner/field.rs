@@ -360,10 +360,12 @@ impl Field {
             }
         }
         if let Some(r) = &mut self.room {
-            if r.room.depth(sink.goal) <= 0.0 {
-                return Err(FieldError::GoalOutsideRoom);
-            }
+            // Checked and solved when the goal changes; a goal refused stays unsolved, and
+            // is refused again the next time.
             if !r.solved || r.sink.goal() != sink.goal {
+                if r.room.depth(sink.goal) <= 0.0 {
+                    return Err(FieldError::GoalOutsideRoom);
+                }
                 r.room.sink_flow(sink.goal, &mut r.sink);
                 r.solved = true;
             }
