@@ -116,7 +116,9 @@ async fn a_healthy_rig_passes_every_line() {
     assert!(out.line("controller identity").contains("firmware 1.0.0, drives up to 16 LEDs, PSD 4096x4096"));
     assert!(out.line("board heartbeat").contains("node 1"), "{}", out.stdout);
     assert!(out.line("board config").contains("then Disabled, no faults, at rest"), "{}", out.stdout);
-    assert!(out.stdout.contains("all 15 checks passed"), "{}", out.stdout);
+    assert_eq!(out.verdict("goal reachable"), "PASS", "{}", out.stdout);
+    assert!(out.line("goal reachable").contains("[0.35, 0.05] reachable from the robot at (-0.35"), "{}", out.stdout);
+    assert!(out.stdout.contains("all 16 checks passed"), "{}", out.stdout);
 }
 
 #[test]
@@ -239,6 +241,21 @@ fn a_goal_outside_the_arena_fails_the_config() {
         ],
     );
     assert_eq!(out.verdict("serial port"), "SKIP");
+}
+
+/// A goal walled off from where the camera sees the robot: the config is sound (the goal
+/// is clear of the walls), but the robot cannot get there.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_goal_walled_off_from_the_robot_fails() {
+    let (handle, mut cfg) = sim(&[]).await;
+    let ring = [[0.15, -0.15], [0.55, -0.15], [0.55, 0.25], [0.15, 0.25], [0.15, -0.15]];
+    cfg.walls = vec![flowgate::config::PointsSection { points: ring.to_vec() }];
+    let out = check("walled-goal", &cfg);
+    handle.stop().await;
+    out.fails_only(
+        "goal reachable",
+        &["goal.position", "[0.35, 0.05] is out of the robot's reach from (-0.35", "close it off"],
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

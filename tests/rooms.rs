@@ -135,6 +135,24 @@ fn the_operator_goal_is_refused_in_furniture_and_taken_in_the_aisle() {
     assert_eq!(e.outcome, Outcome::Goal, "{}", e.report);
 }
 
+/// `flowgate ctl goal` beyond the corridor's walls: clear of every wall, inside the view,
+/// and out of the robot's reach; refused naming where the robot stands.
+#[test]
+fn the_operator_goal_beyond_the_walls_is_refused_as_out_of_reach() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms/l-corridor.toml");
+    let s = Scenario::load(&path).unwrap();
+    let mut rig = VirtualRig::new(&s, Options::default());
+    rig.run_until(0.5);
+    let goal = Request::Goal { goals: vec![Goal { position: [-0.4, 0.4], tolerance: 0.02 }] };
+    match rig.request(&goal) {
+        Err(Refusal::BadGoal { why, .. }) => {
+            assert!(why.contains("out of the robot's reach from (-0.55"), "{why}");
+            assert!(why.contains("the walls, static obstacles or the view's edge close it off"), "{why}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
 /// Round the corner of an L-shaped corridor with someone coming the other way, and through
 /// a doorway someone has just come through: the goal, touching nothing, planner-only and
 /// through the whole stack.

@@ -1,13 +1,17 @@
-//! The live view in a real browser: `flowgate demo --view ADDR` serves the page while the
-//! robot drives; headless Chromium (Debian's, driven through chromedriver by Selenium) loads
-//! it, sees the robot marker move, the state, the obstacle with its planning circle, the
-//! streamlines and the latency histogram, and takes a screenshot. The page's JSON frame and
-//! its refusals are checked over plain HTTP too.
+//! The live view in a real browser, in a room: `flowgate demo --view ADDR` serves the page
+//! while the robot drives through the doorway scenario; headless Chromium (Debian's, driven
+//! through chromedriver by Selenium) loads it, sees the robot marker move, the state, the
+//! obstacle with its planning circle, the streamlines, the room's walls and view's edge and
+//! the latency histogram, and takes a screenshot. The page's JSON frame and its refusals are
+//! checked over plain HTTP too. The same run serves Foxglove live and records to MCAP: an
+//! independent Foxglove client and Python's `mcap` reader each decode the room from
+//! `/arena` (`foxglove.SceneUpdate`).
 
 #[path = "support/python.rs"]
 mod python;
 
 use std::io::{Read, Write};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -20,8 +24,20 @@ fn get(addr: std::net::SocketAddr, request: &str) -> Option<String> {
     Some(out)
 }
 
+/// Whether `p` is inside the polygon (crossings of a ray to +x).
+fn inside(polygon: &[[f64; 2]], p: [f64; 2]) -> bool {
+    let mut inside = false;
+    for (k, a) in polygon.iter().enumerate() {
+        let b = polygon[(k + 1) % polygon.len()];
+        if (a[1] > p[1]) != (b[1] > p[1]) && p[0] < a[0] + (p[1] - a[1]) / (b[1] - a[1]) * (b[0] - a[0]) {
+            inside = !inside;
+        }
+    }
+    inside
+}
+
 #[test]
-fn the_live_view_draws_the_run_in_headless_chromium() {
+fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
     let dir = std::env::temp_dir().join(format!("flowgate-view-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
@@ -29,7 +45,7 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     // lasts nine. The script says "ready" with its browser up, then waits for the view.
     let python = python::python();
     let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
-    let mut browser = Command::new(python)
+    let mut browser = Command::new(&python)
         .arg(python::peer("view"))
         .args([&format!("http://{addr}/"), &shot])
         .stdout(Stdio::piped())
@@ -44,8 +60,13 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
         browser.stderr.take().unwrap().read_to_string(&mut err).unwrap();
         panic!("the browser did not start: {ready}{err}");
     }
+    let doorway = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms/doorway.toml");
+    let recording = dir.join("run.mcap");
+    let foxglove = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
     let mut demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["demo", "--out", dir.to_str().unwrap(), "--view", &addr.to_string()])
+        .args(["demo", "--scenario", doorway.to_str().unwrap(), "--out", dir.to_str().unwrap()])
+        .args(["--view", &addr.to_string(), "--foxglove", &foxglove.to_string()])
+        .args(["--record", recording.to_str().unwrap()])
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
@@ -60,7 +81,47 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     };
     assert!(frame.starts_with("HTTP/1.1 200 OK") && frame.contains("application/json"), "{frame}");
     let body: serde_json::Value = serde_json::from_str(frame.split_once("\r\n\r\n").unwrap().1).unwrap();
-    assert_eq!(body["lane_half_width"], 0.2);
+    // The doorway's two walls as the scenario gives them, then the view's edge (a loop
+    // around the start and the goal); no lane.
+    assert!(body["lane_half_width"].is_null(), "{body}");
+    let room = body["room"].as_array().unwrap();
+    let kinds: Vec<_> = room.iter().map(|r| (r["kind"].as_str().unwrap(), r["closed"].as_bool().unwrap())).collect();
+    assert_eq!(kinds, [("wall", false), ("wall", false), ("view", true)], "{body}");
+    assert_eq!(room[0]["points"], serde_json::json!([[0.0, -1.0], [0.0, -0.175]]));
+    assert_eq!(room[1]["points"], serde_json::json!([[0.0, 0.175], [0.0, 1.0]]));
+    let view_edge: Vec<[f64; 2]> = serde_json::from_value(room[2]["points"].clone()).unwrap();
+    assert!(inside(&view_edge, [-0.5, 0.35]) && inside(&view_edge, [0.5, -0.35]), "{view_edge:?}");
+
+    // Foxglove live, while the robot drives: the room in `/arena`, as the page has it.
+    let seen_live = Command::new(&python)
+        .arg(python::peer("foxglove"))
+        .args([&format!("ws://{foxglove}"), "25", "/arena"])
+        .output()
+        .unwrap();
+    let live: serde_json::Value = serde_json::from_slice(&seen_live.stdout)
+        .unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&seen_live.stderr)));
+    let live_rooms: Vec<&serde_json::Value> = live["messages"]["/arena"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|a| a["entities"].as_array().unwrap())
+        .filter(|e| e["id"] == "room")
+        .collect();
+    assert!(!live_rooms.is_empty(), "no room in 25 /arena updates: {live}");
+    let live_lines = live_rooms[0]["lines"].as_array().unwrap();
+    assert_eq!(live_lines.len(), 3, "{}", live_rooms[0]);
+    assert_eq!(live_lines[2]["type"], "LINE_LOOP");
+    for (line, item) in live_lines.iter().zip(room) {
+        let drawn: Vec<[f64; 2]> = line["points"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| [p["x"].as_f64().unwrap_or(0.0), p["y"].as_f64().unwrap_or(0.0)])
+            .collect();
+        let page: Vec<[f64; 2]> = serde_json::from_value(item["points"].clone()).unwrap();
+        assert_eq!(drawn.len(), page.len());
+        assert!(drawn.iter().zip(&page).all(|(a, b)| (a[0] - b[0]).abs() < 1e-4 && (a[1] - b[1]).abs() < 1e-4));
+    }
     assert!(get(addr, "POST / HTTP/1.1").unwrap().starts_with("HTTP/1.1 405"), "the view takes no commands");
     assert!(get(addr, "GET /arm HTTP/1.1").unwrap().starts_with("HTTP/1.1 404"));
 
@@ -75,6 +136,14 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
     let (x0, x1) = (seen["first"][0].as_f64().unwrap(), seen["second"][0].as_f64().unwrap());
     assert!(x1 - x0 > 0.02, "the robot marker moved {x0} -> {x1}: {seen}");
     assert_eq!(seen["obstacles"], 1);
+    // The page draws the room: two walls as lines, the view's edge as a loop.
+    let drawn: Vec<(&str, &str, u64)> = seen["room"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| (r["tag"].as_str().unwrap(), r["kind"].as_str().unwrap(), r["points"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(drawn, [("polyline", "wall", 2), ("polyline", "wall", 2), ("polygon", "view", 4)], "{seen}");
     // The final screen against what the gateway reports: its cycle count, and the robot
     // within the goal's tolerance (5 cm) of it.
     let final_ = &seen["final"];
@@ -93,5 +162,21 @@ fn the_live_view_draws_the_run_in_headless_chromium() {
         .unwrap_or_else(|| panic!("no cycle count in the report: {text}"));
     assert_eq!(final_["cycles"].as_u64(), Some(reported), "the page's count against the report's: {seen}");
     assert_eq!(final_["histogram_cycles"].as_u64(), Some(reported), "{seen}");
+
+    // The recording, read by Python's `mcap`: the room in `/arena` about once a second
+    // (Foxglove keeps it between), the same lines as the page's.
+    let out = Command::new(&python).arg(python::peer("replay")).arg("room").arg(&recording).output().unwrap();
+    let recorded: serde_json::Value =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&out.stderr)));
+    let (updates, with_room) = (recorded["updates"].as_u64().unwrap(), recorded["with_room"].as_u64().unwrap());
+    assert!(updates > 50 && with_room >= updates / 12, "{recorded}");
+    assert_eq!(recorded["frame_id"], "floor");
+    let types: Vec<_> = recorded["lines"].as_array().unwrap().iter().map(|l| l["type"].as_str().unwrap()).collect();
+    assert_eq!(types, ["LINE_STRIP", "LINE_STRIP", "LINE_LOOP"], "{recorded}");
+    for (line, item) in recorded["lines"].as_array().unwrap().iter().zip(room) {
+        let drawn: Vec<[f64; 2]> = serde_json::from_value(line["points"].clone()).unwrap();
+        let page: Vec<[f64; 2]> = serde_json::from_value(item["points"].clone()).unwrap();
+        assert!(drawn.iter().zip(&page).all(|(a, b)| (a[0] - b[0]).abs() < 1e-4 && (a[1] - b[1]).abs() < 1e-4));
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

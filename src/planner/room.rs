@@ -51,7 +51,42 @@ pub enum RoomError {
 /// The most collocation points a room may have (twice the sources).
 pub const MAX_POINTS: usize = 1600;
 
+/// What an outline of the room is (for drawing it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutlineKind {
+    /// A wall: an open polyline.
+    Wall,
+    /// A static obstacle: a polygon, closed by its last edge.
+    StaticObstacle,
+    /// The view's edge the robot keeps inside: a polygon, closed by its last edge.
+    View,
+}
+
+impl OutlineKind {
+    /// Whether the outline closes back to its first point.
+    pub fn closed(self) -> bool {
+        self != Self::Wall
+    }
+
+    /// The name a drawing gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Wall => "wall",
+            Self::StaticObstacle => "static_obstacle",
+            Self::View => "view",
+        }
+    }
+}
+
 impl RoomShape {
+    /// Every item of the room with what it is, walls first, then static obstacles, then
+    /// the view's edge: what the live view, Foxglove and the plots draw.
+    pub fn outlines(&self) -> impl Iterator<Item = (OutlineKind, &[Point])> + '_ {
+        let walls = self.walls.iter().map(|w| (OutlineKind::Wall, w.as_slice()));
+        let obstacles = self.obstacles.iter().map(|o| (OutlineKind::StaticObstacle, o.as_slice()));
+        walls.chain(obstacles).chain(self.view.iter().map(|v| (OutlineKind::View, v.as_slice())))
+    }
+
     /// No walls, no obstacles, no view's edge: the field is the [`Space`]'s alone.
     pub fn is_empty(&self) -> bool {
         self.walls.is_empty() && self.obstacles.is_empty() && self.view.is_none()
@@ -137,7 +172,13 @@ fn polygon_self_intersects(polygon: &[Point]) -> bool {
 
 fn polyline_self_intersects(line: &[Point]) -> bool {
     let n = line.len() - 1;
-    (0..n).any(|i| (i + 2..n).any(|j| segments_meet(line[i], line[i + 1], line[j], line[j + 1])))
+    // A wall that ends where it began (a closed ring of walls) meets itself there alone.
+    let closed = n >= 3 && line[0] == line[n];
+    (0..n).any(|i| {
+        (i + 2..n)
+            .filter(|&j| !(closed && i == 0 && j == n - 1))
+            .any(|j| segments_meet(line[i], line[i + 1], line[j], line[j + 1]))
+    })
 }
 
 /// One panel of the configuration space's boundary: a straight piece from `a` to `b`,
@@ -701,6 +742,12 @@ mod tests {
         shape.walls[0][1] = p(f64::NAN, 0.0);
         assert!(shape.check().unwrap_err().to_string().contains("`walls[0].points`: point 1 is not finite"));
         assert!(furnished().check().is_ok());
+        // A ring of walls closes where it began; one that crosses itself on the way is refused.
+        let mut shape = furnished();
+        shape.walls.push(vec![p(0.0, 0.0), p(0.2, 0.0), p(0.2, 0.2), p(0.0, 0.2), p(0.0, 0.0)]);
+        assert!(shape.check().is_ok());
+        shape.walls[1] = vec![p(0.0, 0.0), p(0.2, 0.0), p(0.2, 0.2), p(0.1, -0.1)];
+        assert_eq!(shape.check().unwrap_err().to_string(), "`walls[1].points`: the wall crosses itself");
     }
 
     /// The clearance is the robot centre's distance to the grown room; the free region's

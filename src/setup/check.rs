@@ -2,7 +2,7 @@
 //!
 //! It goes through the rig in the order the gateway meets it (the config and its
 //! cross-checks, the serial port, the PSD controller's identity, schedule, clock and
-//! stream, the CAN interface, the motor board's heartbeat and config, or each CiA 402
+//! stream, the goal's reach from where the robot stands, the CAN interface, the motor board's heartbeat and config, or each CiA 402
 //! drive's identity and state) and says of each
 //! PASS, WARN or FAIL, naming the device or the config key. A step that cannot be reached
 //! because an earlier one failed is SKIP, with the reason. It never enables a board: the
@@ -23,6 +23,7 @@ use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::psd_session::MAX_RTT;
 use crate::gateway::core::SetupError;
 use crate::gateway::shell::link::{open_can, CanError, CanLink, SerialError};
+use crate::Point;
 
 /// Verdict of one line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -114,6 +115,7 @@ const ACCEPTED: &str = "schedule accepted";
 const TIME_SYNC: &str = "time sync";
 const STREAM: &str = "sample stream";
 const LEDS: &str = "LEDs in view";
+const GOAL: &str = "goal reachable";
 const CAN_IF: &str = "CAN interface";
 const HEARTBEAT: &str = "board heartbeat";
 const OTHERS: &str = "no other master";
@@ -121,7 +123,7 @@ const BOARD_CONFIG: &str = "board config";
 const LEFT_DRIVE: &str = "left drive";
 const RIGHT_DRIVE: &str = "right drive";
 
-const PSD_ITEMS: [&str; 6] = [ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC, STREAM, LEDS];
+const PSD_ITEMS: [&str; 7] = [ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC, STREAM, LEDS, GOAL];
 const BOARD_ITEMS: [&str; 3] = [HEARTBEAT, OTHERS, BOARD_CONFIG];
 
 /// How long the stream is watched.
@@ -290,12 +292,20 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
     let mut seen = vec![0u64; leds.len()];
     let mut weak = vec![0u64; leds.len()];
     let mut saturated = vec![0u64; leds.len()];
+    // The robot's LEDs on the floor, as last seen clearly: where the robot stands.
+    let (mut front, mut rear) = (None, None);
     let before = client.tally;
     let start = Instant::now();
     let end = start + STREAM_WATCH;
     loop {
         match client.next_sample(end).await {
             Ok(Some(s)) => {
+                let clear = !s.flags.contains(flowgate_protocol::psd::SampleFlags::WEAK_SIGNAL)
+                    && !s.flags.contains(flowgate_protocol::psd::SampleFlags::SATURATED);
+                if clear && (s.led == rig.robot_front || s.led == rig.robot_rear) {
+                    let at = rig.calibration.to_floor(f64::from(s.x), f64::from(s.y));
+                    *if s.led == rig.robot_front { &mut front } else { &mut rear } = at;
+                }
                 if let Some(k) = leds.iter().position(|&l| l == s.led) {
                     seen[k] += 1;
                     weak[k] += u64::from(s.flags.contains(flowgate_protocol::psd::SampleFlags::WEAK_SIGNAL));
@@ -305,7 +315,7 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
             Ok(None) => break,
             Err(e) => {
                 report.fail(STREAM, port, e.to_string());
-                report.skip(&[LEDS], port, "the stream failed");
+                report.skip(&[LEDS, GOAL], port, "the stream failed");
                 return;
             }
         }
@@ -360,6 +370,49 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
         (true, _) => report.pass(LEDS, leds_key, format!("all {} LEDs seen, none weak or saturated", leds.len())),
         (false, true) => report.fail(LEDS, leds_key, problems.join("; ")),
         (false, false) => report.add(LEDS, leds_key, Verdict::Warn, problems.join("; ")),
+    }
+    let robot = front.zip(rear).and_then(|(f, r)| rig.led_geometry.locate(f, r)).map(|(at, _)| at);
+    check_goal(rig, robot, report);
+}
+
+/// Whether the robot, where the camera sees it, can reach the configured goal: the room's
+/// walls, static obstacles and view's edge may close it off (`ctl goal` judges an
+/// operator's goal the same way).
+fn check_goal(rig: &Rig, robot: Option<Point>, report: &mut Report) {
+    let Some(goal) = &rig.goal else {
+        report.pass(GOAL, "goal", "no [goal]: each operator's goal is checked as it is given (`ctl goal`)");
+        return;
+    };
+    let at = Point::new(goal.position[0], goal.position[1]);
+    let Some(robot) = robot else {
+        report.skip(&[GOAL], "goal.position", "the robot's LEDs were not seen clearly");
+        return;
+    };
+    let from = format!("({:.3}, {:.3})", robot.re, robot.im);
+    let Some(room) = &rig.control.room else {
+        report.pass(
+            GOAL,
+            "goal.position",
+            format!("no walls, static obstacles or view's edge between it and the robot at {from}"),
+        );
+        return;
+    };
+    match room.blocked_at(robot) {
+        Some(why) => report.add(
+            GOAL,
+            "goal.position",
+            Verdict::Warn,
+            format!("the robot at {from} {why}: the field takes it clear first; the goal's reach is not judged from there"),
+        ),
+        None if !room.reachable(robot, at) => report.fail(
+            GOAL,
+            "goal.position",
+            format!(
+                "{:?} is out of the robot's reach from {from}: the walls, static obstacles or the view's edge close it off",
+                goal.position
+            ),
+        ),
+        None => report.pass(GOAL, "goal.position", format!("{:?} reachable from the robot at {from}", goal.position)),
     }
 }
 

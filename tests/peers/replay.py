@@ -6,6 +6,10 @@ Usage:
       Read the recording and check it against the run's text telemetry: cycles.csv, can.log
       (candump -L), and protocol/motor.dbc. Prints a JSON summary; exits 1 naming the first
       check that failed.
+  replay.py room RECORDING.mcap
+      Decode every `/arena` update (foxglove.SceneUpdate, protobuf) and print the room as
+      drawn: how many updates carry the `room` entity, and its lines (type, thickness,
+      points) from the first that does.
   replay.py rewrite IN.mcap OUT.mcap COMPRESSION   (zstd, lz4 or none)
       Re-write the recording with Python's own `mcap` writer, as other tools would: every
       schema, channel, message and metadata record copied; the chunks the Python writer's,
@@ -170,6 +174,30 @@ def read(path, telemetry, dbc_path):
     return 1 if failures else 0
 
 
+def room(path):
+    updates, drawn, lines = 0, 0, None
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _schema, _channel, _message, decoded in reader.iter_decoded_messages(topics=["/arena"]):
+            updates += 1
+            entities = MessageToDict(decoded, preserving_proto_field_name=True)["entities"]
+            rooms = [e for e in entities if e["id"] == "room"]
+            if rooms:
+                drawn += 1
+                if lines is None:
+                    lines = [
+                        {
+                            "type": l.get("type", "LINE_STRIP"),
+                            "thickness": l["thickness"],
+                            "points": [[p.get("x", 0.0), p.get("y", 0.0)] for p in l["points"]],
+                        }
+                        for l in rooms[0]["lines"]
+                    ]
+                    frame = rooms[0]["frame_id"]
+    print(json.dumps({"updates": updates, "with_room": drawn, "frame_id": frame if lines else None, "lines": lines}))
+    return 0
+
+
 def rewrite(source, target, compression):
     kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
     with open(source, "rb") as f_in, open(target, "wb") as f_out:
@@ -195,4 +223,4 @@ def rewrite(source, target, compression):
 
 if __name__ == "__main__":
     job, args = sys.argv[1], sys.argv[2:]
-    sys.exit({"read": read, "rewrite": rewrite}[job](*args))
+    sys.exit({"read": read, "room": room, "rewrite": rewrite}[job](*args))

@@ -4,7 +4,7 @@ run drives, and check the page as a person would see it.
 Usage: view.py URL SCREENSHOT.png
 Starts Chromium first and prints "ready" (the caller starts the run then, so a slow browser
 start never misses it), waits for the view to answer, waits for the page to draw the robot, then for the robot marker to move; checks the state,
-the obstacles with their planning circles, the streamlines, the latency bars, the axes in
+the obstacles with their planning circles, the streamlines, the room's items as drawn, the latency bars, the axes in
 metres and the numbers beside them; saves a screenshot. Then waits for the run to end and
 reads the final screen: the state and its reason kept, the numbers, the header's cycle
 count against the histogram's. Prints a JSON summary; exits 1 naming what failed.
@@ -51,9 +51,11 @@ try:
           streamlines: document.querySelectorAll('#streamlines polyline').length,
           counted: [...document.querySelectorAll('#latency rect.bin')].reduce((s, b) => s + parseInt(b.dataset.count), 0),
           path: (document.getElementById('path').getAttribute('points') || '').split(' ').filter(p => p).length,
+          room: [...document.querySelectorAll('#walls .room')].map(e =>
+            ({ tag: e.tagName, kind: e.classList[1], points: e.getAttribute('points').split(' ').length })),
         };""")
     second, state, counted = tuple(dom["second"]), dom["state"], dom["counted"]
-    obstacles, streamlines, path = dom["obstacles"], dom["streamlines"], dom["path"]
+    obstacles, streamlines, path, room = dom["obstacles"], dom["streamlines"], dom["path"], dom["room"]
     if state not in ("running", "stopping", "stopped"):
         failures.append(f"state {state}")
     if obstacles < 1:
@@ -100,7 +102,7 @@ try:
     if final["cycles"] != final["histogram_cycles"]:
         failures.append(f"header {final['cycles']} cycles, histogram {final['histogram_cycles']}")
     out = {"first": first, "second": second, "state": state, "obstacles": obstacles,
-           "streamlines": streamlines, "latency_cycles": counted, "path_points": path,
+           "streamlines": streamlines, "room": room, "latency_cycles": counted, "path_points": path,
            "axes": axes, "live": live, "final": final}
 finally:
     driver.quit()

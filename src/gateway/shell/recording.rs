@@ -10,8 +10,8 @@
 //! - per cycle: `/cycle` (the timing record: every stage, the command, the state);
 //! - for the eye, at most every [`ARENA_EVERY_NS`]: `/obstacles` (position, velocity,
 //!   covariance, planning radius), `/robot/pose` (`foxglove.PoseInFrame`)
-//!   and `/arena` (`foxglove.SceneUpdate`: lane walls, goal, obstacles with their planning
-//!   circles, the robot); and `/log` (`foxglove.Log`: state changes, operator requests and
+//!   and `/arena` (`foxglove.SceneUpdate`: the lane's lines, the room's walls, static
+//!   obstacles and view's edge, goal, obstacles with their planning circles, the robot); and `/log` (`foxglove.Log`: state changes, operator requests and
 //!   answers);
 //! - metadata `flowgate`: the configuration the run used (TOML), the version, the clock's
 //!   origin; `flowgate.end`: how many inputs and records were written and dropped.
@@ -44,6 +44,7 @@ use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::timing::CycleRecord;
+use crate::planner::room::{OutlineKind, RoomShape};
 use crate::time::HostTime;
 
 /// The metadata record holding the configuration.
@@ -199,6 +200,8 @@ pub struct RecordingSetup {
     pub config_toml: String,
     /// The lane's half-width, when the robot drives in a lane.
     pub lane_half_width: Option<f64>,
+    /// The room's walls, static obstacles and view's edge, when the planner keeps to a room.
+    pub room: Option<RoomShape>,
     pub robot_radius: f64,
     /// Where the host clock's zero is, ns since the Unix epoch (MCAP log times are absolute).
     pub origin_unix_ns: u64,
@@ -392,6 +395,21 @@ fn disc(x: f64, y: f64, r: f64, h: f64, color: [f64; 4]) -> CylinderPrimitive {
         bottom_scale: 1.0,
         top_scale: 1.0,
         color: Some(rgba(color)),
+    }
+}
+
+/// A line on the floor through `points` (a loop back to the first when `closed`).
+fn floor_line(points: &[[f64; 2]], closed: bool, thickness: f64, color: [f64; 4]) -> LinePrimitive {
+    use foxglove::messages::line_primitive::Type;
+    LinePrimitive {
+        r#type: if closed { Type::LineLoop } else { Type::LineStrip } as i32,
+        pose: Some(floor_pose(0.0, 0.0, 0.0, 0.0)),
+        thickness,
+        scale_invariant: false,
+        points: points.iter().map(|&[x, y]| foxglove::messages::Point3 { x, y, z: 0.0 }).collect(),
+        color: Some(rgba(color)),
+        colors: Vec::new(),
+        indices: Vec::new(),
     }
 }
 
@@ -615,8 +633,9 @@ impl McapSink {
     }
 
     /// The arena as Foxglove scene entities: `arena` (the robot, each obstacle's planning
-    /// circle and velocity arrow), and with `still` the lane's walls (`lane`, in a lane) and
-    /// the `goal`.
+    /// circle and velocity arrow), and with `still` the lane's lines (`lane`, in a lane),
+    /// the room (`room`: walls as line strips, static obstacles and the view's edge as line
+    /// loops, in that order) and the `goal`.
     fn arena(&self, s: &SceneRecord, stamp: Timestamp, still: bool) -> SceneUpdate {
         let mut cylinders = vec![disc(s.pose[0], s.pose[1], self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
         let mut arrows = Vec::new();
@@ -636,26 +655,26 @@ impl McapSink {
                 });
             }
         }
-        let lines: Vec<LinePrimitive> = self
+        let lane: Vec<LinePrimitive> = self
             .setup
             .lane_half_width
-            .map(|h| {
-                [-h, h].map(|wall| LinePrimitive {
-                    r#type: foxglove::messages::line_primitive::Type::LineStrip as i32,
-                    pose: Some(floor_pose(0.0, 0.0, 0.0, 0.0)),
-                    thickness: 0.01,
-                    scale_invariant: false,
-                    points: vec![
-                        foxglove::messages::Point3 { x: -10.0, y: wall, z: 0.0 },
-                        foxglove::messages::Point3 { x: 10.0, y: wall, z: 0.0 },
-                    ],
-                    color: Some(rgba([0.2, 0.2, 0.2, 1.0])),
-                    colors: Vec::new(),
-                    indices: Vec::new(),
-                })
-            })
+            .map(|h| [-h, h].map(|y| floor_line(&[[-10.0, y], [10.0, y]], false, 0.01, [0.2, 0.2, 0.2, 1.0])))
             .into_iter()
             .flatten()
+            .collect();
+        let room: Vec<LinePrimitive> = self
+            .setup
+            .room
+            .iter()
+            .flat_map(RoomShape::outlines)
+            .map(|(kind, points)| {
+                let points: Vec<[f64; 2]> = points.iter().map(|p| [p.re, p.im]).collect();
+                match kind {
+                    OutlineKind::Wall => floor_line(&points, false, 0.02, [0.2, 0.2, 0.2, 1.0]),
+                    OutlineKind::StaticObstacle => floor_line(&points, true, 0.015, [0.45, 0.3, 0.15, 1.0]),
+                    OutlineKind::View => floor_line(&points, true, 0.005, [0.5, 0.5, 0.5, 0.6]),
+                }
+            })
             .collect();
         let entity = |id: &str| SceneEntity {
             timestamp: Some(stamp),
@@ -666,8 +685,11 @@ impl McapSink {
         };
         let mut entities = vec![SceneEntity { arrows, cylinders, ..entity("arena") }];
         if still {
-            if !lines.is_empty() {
-                entities.push(SceneEntity { lines, ..entity("lane") });
+            if !lane.is_empty() {
+                entities.push(SceneEntity { lines: lane, ..entity("lane") });
+            }
+            if !room.is_empty() {
+                entities.push(SceneEntity { lines: room, ..entity("room") });
             }
             let goal = disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0]);
             entities.push(SceneEntity { cylinders: vec![goal], ..entity("goal") });

@@ -109,6 +109,7 @@ fn start_view(
         planner: rig.control.planner,
         robot_radius: rig.control.robot_radius,
         lane_half_width: lane_half_width(rig),
+        room: rig.control.room.clone(),
     };
     let publisher = view::start(addr, setup, stats).map_err(|source| GatewayError::View { addr, source })?;
     if !addr.ip().is_loopback() {
@@ -152,6 +153,7 @@ fn start_telemetry(
             let setup = RecordingSetup {
                 config_toml: rig.config.to_toml(),
                 lane_half_width: lane_half_width(rig),
+                room: rig.control.room.as_ref().map(|r| r.shape().clone()),
                 robot_radius: rig.control.robot_radius,
                 origin_unix_ns,
                 compression: rig.telemetry.record_compression,

@@ -7,7 +7,8 @@
 //! The loop only publishes: about 20 times a second it puts a copy of its scene (a
 //! [`SceneRecord`], no allocation) into a `watch` channel. Everything else runs on a thread
 //! of its own, with its own runtime: a renderer turns the latest scene into a frame (JSON:
-//! walls, goal, obstacles with planning circles and velocities, the robot and its path,
+//! the lane's lines and the room's walls, static obstacles and view's edge, goal, obstacles
+//! with planning circles and velocities, the robot and its path,
 //! streamlines of the field, the state, the latency histogram) ten times a second, and the
 //! server hands the latest frame to each client. A client too slow for every frame skips to
 //! the latest; the frames it skipped are counted (`dropped` in each frame, and in
@@ -28,6 +29,7 @@ use super::http::{self, Asked};
 use super::metrics;
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::State;
+use crate::planner::room::{OutlineKind, Room};
 use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
 use crate::time::HostTime;
 
@@ -69,6 +71,8 @@ pub struct ViewSetup {
     pub planner: PlannerConfig,
     pub robot_radius: f64,
     pub lane_half_width: Option<f64>,
+    /// The room the planner keeps to, if any: drawn, and its field streamed.
+    pub room: Option<Arc<Room>>,
 }
 
 /// One frame for the page.
@@ -207,6 +211,7 @@ fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
     // Built as the control step builds it: no circle closed against a wall over the robot.
     let (space, sink) = (setup.planner.space, Planner::new(setup.planner).sink(Point::new(s.goal[0], s.goal[1])));
     let mut field = Field::empty(space, sink);
+    field.set_room(setup.room.as_ref());
     field.rebuild_clear_of(space, sink, &planned[..n], Some(Point::new(s.pose[0], s.pose[1]))).ok()?;
     Some(field)
 }
@@ -264,6 +269,7 @@ fn frame_json(
         "robot": { "p": [s.pose[0], s.pose[1]], "heading": s.pose[2], "radius": setup.robot_radius },
         "goal": s.goal,
         "lane_half_width": setup.lane_half_width,
+        "room": room_json(setup),
         "obstacles": obstacles,
         "path": path,
         "streamlines": lines,
@@ -278,7 +284,22 @@ fn frame_json(
     .to_string()
 }
 
-/// The drawing's extent: the robot, the goal, the obstacles and the path, with a margin.
+/// The room's items as the page draws them: `[{kind, closed, points}]`, walls first.
+fn room_json(setup: &ViewSetup) -> serde_json::Value {
+    let Some(room) = &setup.room else { return json!([]) };
+    let items: Vec<_> = room
+        .shape()
+        .outlines()
+        .map(|(kind, points)| {
+            let points: Vec<[f64; 2]> = points.iter().map(|p| [round(p.re), round(p.im)]).collect();
+            json!({ "kind": kind.name(), "closed": kind.closed(), "points": points })
+        })
+        .collect();
+    json!(items)
+}
+
+/// The drawing's extent: the robot, the goal, the obstacles, the path and the room's walls
+/// and static obstacles (not the view's edge: the drawing follows the robot), with a margin.
 fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, path: &[[f64; 2]]) -> (Point, Point) {
     let robot = Point::new(s.pose[0], s.pose[1]);
     let mut lo = robot;
@@ -296,6 +317,13 @@ fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, path: &[[f64; 2]]) -> (Poi
     }
     if let Some(h) = setup.lane_half_width {
         grow(Point::new(robot.re, 0.0), h);
+    }
+    if let Some(room) = &setup.room {
+        for (_, points) in room.shape().outlines().filter(|(kind, _)| *kind != OutlineKind::View) {
+            for &p in points {
+                grow(p, 0.0);
+            }
+        }
     }
     let pad = Point::new(0.15, 0.15);
     (lo - pad, hi + pad)
@@ -420,7 +448,7 @@ mod tests {
             tie_break: None,
             anticipation: 0.0,
         };
-        ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3) }
+        ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3), room: None }
     }
 
     #[test]
@@ -458,6 +486,47 @@ mod tests {
             }
         }
         assert_eq!(f["latency"]["histogram"].as_array().unwrap().len(), metrics::BUCKETS_S.len());
+    }
+
+    /// In a room the frame carries its items, and the streamlines are the room's: none
+    /// enters the table grown by the robot's radius.
+    #[test]
+    fn a_frame_in_a_room_draws_it_and_streams_around_it() {
+        use crate::planner::room::RoomShape;
+        let square = |c: Point, h: f64| {
+            vec![c + Point::new(-h, -h), c + Point::new(h, -h), c + Point::new(h, h), c + Point::new(-h, h)]
+        };
+        let shape = RoomShape {
+            walls: vec![vec![Point::new(-1.0, 0.6), Point::new(1.0, 0.6)]],
+            obstacles: vec![square(Point::new(0.0, 0.0), 0.15)],
+            view: Some(square(Point::new(0.0, 0.0), 1.2)),
+        };
+        let room = Room::new(&shape, 0.05, 0.03).unwrap().unwrap();
+        let setup = ViewSetup {
+            planner: PlannerConfig { space: Space::Free, ..setup().planner },
+            room: Some(Arc::new(room)),
+            lane_half_width: None,
+            ..setup()
+        };
+        let scene = SceneRecord { pose: [-0.6, 0.05, 0.0], goal: [0.6, 0.0], ..SceneRecord::default() };
+        let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
+        let stats = metrics::Snapshot::empty(0.0);
+        let text = frame_json(&v, &setup, &[[-0.7, 0.05], [-0.6, 0.05]], &stats, 1, None, false);
+        let f: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let kinds: Vec<_> = f["room"].as_array().unwrap().iter().map(|r| r["kind"].as_str().unwrap()).collect();
+        assert_eq!(kinds, ["wall", "static_obstacle", "view"]);
+        assert_eq!(f["room"][1]["points"][2], json!([0.15, 0.15]));
+        assert_eq!(f["room"][1]["closed"], true);
+        let lines = f["streamlines"].as_array().unwrap();
+        let mut points = 0;
+        for p in lines.iter().flat_map(|l| l.as_array().unwrap()) {
+            let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+            // Outside the grown table (less a streamline's step and the rounding).
+            let gap = (x.abs() - 0.15).max(0.0).hypot((y.abs() - 0.15).max(0.0));
+            assert!(gap > 0.05 - 0.011, "a streamline at ({x}, {y}) in the table");
+            points += 1;
+        }
+        assert!(points > 100, "{points} streamline points");
     }
 
     /// A stopped gateway's frame says why, and the last one says the run ended.
