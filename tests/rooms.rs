@@ -13,6 +13,7 @@ use flowgate::lab::sweep;
 use flowgate::lab::virtual_rig::{self, Options, VirtualRig};
 use flowgate::lab::Scenario;
 use flowgate::planner::room::{Room, RoomShape};
+use flowgate::planner::{PlanInput, Planner};
 use flowgate::track::Estimate;
 use flowgate::Point;
 
@@ -151,6 +152,50 @@ fn the_operator_goal_beyond_the_walls_is_refused_as_out_of_reach() {
         }
         other => panic!("{other:?}"),
     }
+}
+
+/// E2's lane as two walls of finite length `±l`: the room's field between them is the
+/// exact lane's in direction, and weaker to the left of the goal by the share of the goal's
+/// flux that now comes round the nearer, right-hand ends (`0.6/l` for a goal 0.6 m along,
+/// with the channels' resistance in proportion to their length). The lane is the limit of
+/// walls without end, reached at that first-order rate.
+#[test]
+fn two_parallel_walls_tend_to_the_exact_lane_as_they_lengthen() {
+    let e2 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e2-lane-head-on.toml")).unwrap();
+    let lane = Scenario::from_toml(&e2, "lane").unwrap();
+    // The walls' faces where the lane's lines are, once grown by the robot and clearance.
+    let y = 0.2 + lane.robot.radius + lane.rig().config.planner.clearance;
+    let field = |s: &Scenario| {
+        let c = s.rig().control;
+        let input =
+            PlanInput { position: s.robot_start(), goal: s.goal(), robot_radius: 0.07, obstacles: &[], delay: 0.02 };
+        Planner::in_room(c.planner, c.room.clone()).field(&input).unwrap().0
+    };
+    let exact = field(&lane);
+    let points = [Point::new(-0.5, 0.0), Point::new(-0.3, 0.1), Point::new(0.0, -0.15), Point::new(-0.5, 0.14)];
+    let mut deficits = Vec::new();
+    for l in [2.0, 4.0, 8.0] {
+        let walls = format!(
+            "[[walls]]\npoints = [[{a}, {y}], [{l}, {y}]]\n[[walls]]\npoints = [[{a}, -{y}], [{l}, -{y}]]\n\
+             [room]\nview_boundary = false\npanel_spacing = 0.06\n",
+            a = -l
+        );
+        let room = field(&Scenario::from_toml(&e2.replace("[lane]\nhalf_width = 0.2\n", &walls), "walls").unwrap());
+        let deficit = |z: Point| {
+            let (a, b) = (exact.velocity(z).unwrap(), room.velocity(z).unwrap());
+            assert!((b / a).arg().abs() < 3e-3, "l = {l}: at {z:?} the lane's {a:?}, the walls' {b:?}");
+            1.0 - b.norm() / a.norm()
+        };
+        let d = deficit(points[0]);
+        for &z in &points[1..] {
+            assert!((deficit(z) - d).abs() < 0.01, "l = {l}: at {z:?} {} against {d}", deficit(z));
+        }
+        assert!(d > 0.0 && d < 0.6 / l + 0.01, "l = {l}: {d}");
+        deficits.push(d);
+    }
+    assert!(deficits[1] < 0.56 * deficits[0] && deficits[2] < 0.56 * deficits[1], "{deficits:?}");
+    assert!(deficits[2] > 0.6 / 8.0 - 0.01, "{deficits:?}");
 }
 
 /// Round the corner of an L-shaped corridor with someone coming the other way, and through
