@@ -169,9 +169,17 @@ fn table() -> Vec<Row> {
             "corruption",
             "5% of bytes corrupted (CRC)",
             &["serial_corrupt=0.05", "serial_corrupt_during=[2.0, 2.8]"][..],
-            fault(R::SerialGarbled, 104.0, 104.1, Cycle),
+            fault(R::SerialGarbled { frames: 1, bytes: 33, over_budget: true }, 104.0, 104.1, Cycle),
         )
         .until(2.8),
+        row(
+            Psd,
+            "corruption",
+            "every byte garbled for 500 ms (a burst of noise)",
+            &["serial_corrupt=1.0", "serial_corrupt_during=[2.0, 2.5]"],
+            fault(R::SerialGarbled { frames: 21, bytes: 381, over_budget: true }, 47.4, 47.5, Cycle),
+        )
+        .until(2.5),
         row(
             Psd,
             "corruption",

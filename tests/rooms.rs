@@ -55,6 +55,11 @@ fn a_bad_room_is_refused_naming_the_key() {
     // A [room] key it does not know.
     let e = refused(&format!("{aisle}\n[room]\nview_edge = true\n"));
     assert!(e.contains("[room]") && e.contains("view_edge"), "{e}");
+    // Corners' panels asked to turn by more than half a radian.
+    let e = refused(&format!("{aisle}\n[room]\ncorner_turn = 0.8\n"));
+    assert!(e.contains("room.corner_turn") && e.contains("must be 0 (off) or 0.01-0.5 rad, is 0.8"), "{e}");
+    // Asked well, it loads.
+    Scenario::from_toml(&format!("{aisle}\n[room]\ncorner_turn = 0.03\n"), "aisle").unwrap();
 }
 
 /// Down the aisle, with someone coming out of the cross aisle: the goal, no contact with a

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{invalid, positive, GatewayConfig, Invalid};
 use crate::calibration::Calibration;
-use crate::planner::room::{Room, RoomError, RoomShape};
+use crate::planner::room::{Panels, Room, RoomError, RoomShape};
 use crate::Point;
 
 /// A wall (a polyline) or a static obstacle (a polygon, closed by its last edge), in floor
@@ -35,11 +35,26 @@ pub struct RoomSection {
     /// more each cycle (docs/planner.md).
     #[serde(default = "default_panel_spacing")]
     pub panel_spacing: f64,
+    /// Where the boundary turns toward the free region (a room's corner, the wedge between a
+    /// wall and a table), shorter panels, so that none turns more than this from the next,
+    /// rad; 0: `panel_spacing` everywhere. 0.03 leaves fewer spurious stalls in corners
+    /// (docs/planner.md, "What the tests assert") for more panels.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub corner_turn: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for RoomSection {
     fn default() -> Self {
-        Self { view_boundary: None, view_inset: default_view_inset(), panel_spacing: default_panel_spacing() }
+        Self {
+            view_boundary: None,
+            view_inset: default_view_inset(),
+            panel_spacing: default_panel_spacing(),
+            corner_turn: 0.0,
+        }
     }
 }
 
@@ -75,6 +90,9 @@ impl GatewayConfig {
                 "room.panel_spacing",
                 format!("must be at least {MIN_PANEL_SPACING} m, is {}", r.panel_spacing),
             );
+        }
+        if !(r.corner_turn == 0.0 || (0.01..=0.5).contains(&r.corner_turn)) {
+            return invalid("room.corner_turn", format!("must be 0 (off) or 0.01-0.5 rad, is {}", r.corner_turn));
         }
         if !(r.view_inset.is_finite() && r.view_inset >= 0.0) {
             return invalid("room.view_inset", format!("must be >= 0, is {}", r.view_inset));
@@ -120,7 +138,11 @@ impl GatewayConfig {
     /// field of free space or the lane is exact), and the goal, if given, clear of it.
     pub fn room(&self, calibration: &Calibration) -> Result<Option<Arc<Room>>, Invalid> {
         let shape = self.room_shape(calibration)?;
-        let Some(room) = solved(&shape, self.room_growth(), self.room.panel_spacing)? else { return Ok(None) };
+        let panels = Panels {
+            spacing: self.room.panel_spacing,
+            corner_turn: (self.room.corner_turn > 0.0).then_some(self.room.corner_turn),
+        };
+        let Some(room) = solved(&shape, self.room_growth(), panels)? else { return Ok(None) };
         if let Some(g) = &self.goal {
             let at = Point::new(g.position[0], g.position[1]);
             if let Some(why) = room.blocked_at(at) {
@@ -140,23 +162,23 @@ static SOLVED: Mutex<Vec<Solved>> = Mutex::new(Vec::new());
 struct Solved {
     shape: RoomShape,
     grow: u64,
-    spacing: u64,
+    panels: Panels,
     room: Arc<Room>,
 }
 
 /// How many solved rooms [`SOLVED`] keeps.
 const SOLVED_KEPT: usize = 8;
 
-fn solved(shape: &RoomShape, grow: f64, spacing: f64) -> Result<Option<Arc<Room>>, RoomError> {
-    let (grow_bits, spacing_bits) = (grow.to_bits(), spacing.to_bits());
+fn solved(shape: &RoomShape, grow: f64, panels: Panels) -> Result<Option<Arc<Room>>, RoomError> {
+    let grow_bits = grow.to_bits();
     let mut solved = SOLVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if let Some(s) = solved.iter().find(|s| s.shape == *shape && s.grow == grow_bits && s.spacing == spacing_bits) {
+    if let Some(s) = solved.iter().find(|s| s.shape == *shape && s.grow == grow_bits && s.panels == panels) {
         return Ok(Some(Arc::clone(&s.room)));
     }
-    let Some(room) = Room::new(shape, grow, spacing)?.map(Arc::new) else { return Ok(None) };
+    let Some(room) = Room::with_panels(shape, grow, panels)?.map(Arc::new) else { return Ok(None) };
     if solved.len() == SOLVED_KEPT {
         solved.remove(0);
     }
-    solved.push(Solved { shape: shape.clone(), grow: grow_bits, spacing: spacing_bits, room: Arc::clone(&room) });
+    solved.push(Solved { shape: shape.clone(), grow: grow_bits, panels, room: Arc::clone(&room) });
     Ok(Some(room))
 }

@@ -181,6 +181,17 @@ fn polyline_self_intersects(line: &[Point]) -> bool {
     })
 }
 
+/// How the boundary is cut into panels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Panels {
+    /// The panels' length, m.
+    pub spacing: f64,
+    /// Where the boundary turns toward the free region (a room's corner, the wedge between
+    /// a wall and a table), panels short enough that none turns more than this from the
+    /// next, rad (down to a twentieth of the spacing). `None`: the spacing everywhere.
+    pub corner_turn: Option<f64>,
+}
+
 /// One panel of the configuration space's boundary: a straight piece from `a` to `b`,
 /// with the unit normal pointing out of the free region (into the grown furniture, or out
 /// of the view). Its midpoint is its collocation point.
@@ -239,7 +250,7 @@ const ROUNDING: f64 = 0.08;
 /// The configuration space's boundary as loops of panels of about `spacing` metres: the zero
 /// set of the clearance on the regions' grid, each loop walked with the free region on its
 /// left and its corners rounded.
-fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, spacing: f64) -> Vec<Panel> {
+fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, panels: Panels) -> Vec<Panel> {
     let mut out = Vec::new();
     for mut points in contour::loops(&regions.clearance, regions.nx, regions.ny, regions.lo, regions.cell) {
         let n = points.len();
@@ -249,7 +260,7 @@ fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, spacing: f64) -> Ve
             continue;
         }
         contour::orient(&mut points, |p| clearance(shape, grow, p));
-        let mut points = contour::smooth_and_space(&points, ROUNDING, spacing);
+        let mut points = contour::smooth_and_space(&points, ROUNDING, panels.spacing, panels.corner_turn);
         // Rounding pulls a point toward its curve's centre: at a room's corner that is into
         // the free region (it gives up a sliver), but round a grown obstacle's convex corner
         // it is into the obstacle, where the supervisor would stop a robot the field let
@@ -313,12 +324,17 @@ impl Room {
     /// Solve `shape` grown by `grow` (the robot's radius), with panels of about `spacing`
     /// metres. `None` for an empty room (free space's own field is exact).
     pub fn new(shape: &RoomShape, grow: f64, spacing: f64) -> Result<Option<Self>, RoomError> {
+        Self::with_panels(shape, grow, Panels { spacing, corner_turn: None })
+    }
+
+    /// [`new`](Self::new), with the panels as `panels` says.
+    pub fn with_panels(shape: &RoomShape, grow: f64, panels: Panels) -> Result<Option<Self>, RoomError> {
         shape.check()?;
         if shape.is_empty() {
             return Ok(None);
         }
         let regions = Regions::new(shape, grow);
-        let panels = boundary(&regions, shape, grow, spacing);
+        let panels = boundary(&regions, shape, grow, panels);
         if panels.len() > MAX_POINTS {
             return Err(RoomError::TooLarge { points: panels.len() });
         }
@@ -711,6 +727,8 @@ pub fn clearance(shape: &RoomShape, grow: f64, p: Point) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::planner::{Field, Sink};
+    use std::sync::Arc;
 
     fn p(x: f64, y: f64) -> Point {
         Point::new(x, y)
@@ -859,23 +877,27 @@ mod tests {
         }
     }
 
-    /// Follow the streamline from `start` in steps of 5 mm (midpoint rule), sliding along
-    /// the boundary where a step would meet it (as the robot's supervisor keeps it off);
-    /// whether it reaches within 2 cm of the goal.
-    fn reaches_the_goal(room: &Room, sink: &RoomSink, start: Point) -> bool {
-        trace(room, sink, start).0
+    /// The navigation field in `room` toward `goal`, no circles: what the robot follows.
+    fn navigation(room: &Room, goal: Point) -> Field {
+        let sink = Sink { goal, strength: 0.01, c1: 20.0, reference_radius: 0.1 };
+        let mut field = Field::empty(Space::Free, sink);
+        field.set_room(Some(&Arc::new(room.clone())));
+        field.rebuild(Space::Free, sink, &[]).unwrap();
+        field
     }
 
-    /// Whether it reached, and where and why it ended.
-    fn trace(room: &Room, sink: &RoomSink, start: Point) -> (bool, Point, &'static str, usize) {
+    /// Follow the field's streamline from `start` in steps of 5 mm (midpoint rule), sliding
+    /// along the boundary where a step would meet it (as the robot's supervisor keeps it
+    /// off): whether it reached within 2 cm of `goal`, and where and why it ended.
+    fn trace(room: &Room, field: &Field, goal: Point, start: Point) -> (bool, Point, &'static str, usize) {
         const STEP: f64 = 0.005;
         let direction = |z: Point| {
-            let v = room.eval_sink(sink, z).conj();
+            let v = field.velocity(z).ok()?;
             (v.norm() > 1e-12).then(|| v / v.norm())
         };
         let mut z = start;
         for k in 0..3000 {
-            if (z - sink.goal()).norm() < 0.02 {
+            if (z - goal).norm() < 0.02 {
                 return (true, z, "goal", k);
             }
             let Some(d1) = direction(z) else { return (false, z, "still", k) };
@@ -899,25 +921,27 @@ mod tests {
     }
 
     /// From 10,000 random free points of 100 random furnished rooms, each reachable from its
-    /// room's goal, the streamline of the room's sink flow, held 2 mm off the boundary,
-    /// reaches the goal from 9,880 (98.8%; the run is seeded). Those it does not end at a spurious
-    /// stagnation point on the boundary, near a rounded corner or a junction where the exact
-    /// flow is slow and the constant-density panels' normal flow between their midpoints is
-    /// not: the exact field has none (docs/planner.md).
+    /// room's goal, the navigation field's streamline (the room's flow, kept off the
+    /// boundary as the planner keeps it), held 2 mm off the boundary, reaches the goal from
+    /// 9,983 (99.83%; the run is seeded). Those it does not stall on the boundary at a
+    /// corner of the free region or beside a junction, where the exact flow is slow or
+    /// parts from the boundary (a saddle) and the constant-density panels' error is not:
+    /// the exact field has no minimum (docs/planner.md).
     #[test]
     fn streamlines_from_random_points_of_random_rooms_reach_the_goal() {
+        // The rooms' panels 2 cm, shorter in the free region's corners (`room.corner_turn`).
+        let panels = Panels { spacing: 0.02, corner_turn: Some(0.03) };
         let mut rng = Random(0x9E37_79B9_7F4A_7C15);
         let (mut starts, mut reached) = (0, 0);
         let mut missed = Vec::new();
         let mut rooms = 0;
         while rooms < 100 {
             let shape = random_room(&mut rng);
-            let room = Room::new(&shape, 0.07, 0.02).unwrap().unwrap();
+            let room = Room::with_panels(&shape, 0.07, panels).unwrap().unwrap();
             let goal = free_point(&mut rng, &room, 0.05);
             assert!(room.closed_at(goal), "every part of a room inside a view is closed");
             rooms += 1;
-            let mut sink = RoomSink::default();
-            room.sink_flow(goal, &mut sink);
+            let field = navigation(&room, goal);
             for _ in 0..100 {
                 let start = loop {
                     let z = free_point(&mut rng, &room, 0.01);
@@ -926,16 +950,18 @@ mod tests {
                     }
                 };
                 starts += 1;
-                if reaches_the_goal(&room, &sink, start) {
+                let (ok, end, why, k) = trace(&room, &field, goal, start);
+                if ok {
                     reached += 1;
                 } else if missed.len() < 10 {
-                    let (_, end, why, k) = trace(&room, &sink, start);
-                    let speed = room.eval_sink(&sink, end).norm();
-                    missed.push(format!("room {rooms}: from {start:.3} to {goal:.3}: {why} after {k} at {end:.3} (depth {:.4}, speed {speed:.2e})", room.depth(end)));
+                    missed.push(format!(
+                        "room {rooms}: from {start:.3} to {goal:.3}: {why} after {k} at {end:.3} (depth {:.4})",
+                        room.depth(end)
+                    ));
                 }
             }
         }
         println!("{reached} of {starts} streamlines reached the goal");
-        assert!(reached * 10_000 >= starts * 9_880, "{reached} of {starts}; missed:\n{}", missed.join("\n"));
+        assert!(reached * 10_000 >= starts * 9_983, "{reached} of {starts}; missed:\n{}", missed.join("\n"));
     }
 }

@@ -336,8 +336,14 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
         1.0 / rig.sample_period.as_secs_f64()
     );
     report.add(STREAM, port, stream_verdict(frames, expected, faults, bad + lost + discarded), detail);
-    // The robot's two LEDs and every required obstacle's must be seen to arm; any other
-    // obstacle out of view is absent until it comes into view: worth a warning.
+    judge_leds(rig, &leds, &seen, &weak, &saturated, report);
+    let robot = front.zip(rear).and_then(|(f, r)| rig.led_geometry.locate(f, r)).map(|(at, _)| at);
+    check_goal(rig, robot, report);
+}
+
+/// The robot's two LEDs and every required obstacle's must be seen to arm; any other
+/// obstacle out of view is absent until it comes into view: worth a warning.
+fn judge_leds(rig: &Rig, leds: &[u8], seen: &[u64], weak: &[u64], saturated: &[u64], report: &mut Report) {
     let mut problems = Vec::new();
     let mut fail = false;
     for (k, &led) in leds.iter().enumerate() {
@@ -371,8 +377,6 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
         (false, true) => report.fail(LEDS, leds_key, problems.join("; ")),
         (false, false) => report.add(LEDS, leds_key, Verdict::Warn, problems.join("; ")),
     }
-    let robot = front.zip(rear).and_then(|(f, r)| rig.led_geometry.locate(f, r)).map(|(at, _)| at);
-    check_goal(rig, robot, report);
 }
 
 /// Whether the robot, where the camera sees it, can reach the configured goal: the room's

@@ -150,6 +150,9 @@ struct Links {
 #[derive(Debug)]
 struct Watch {
     last_sample: HostTime,
+    /// The serial link's bad frames and dropped bytes as counted at the last sample: what
+    /// came since is garbage, and a line that carried only garbage is garbled, not silent.
+    garbage_at_last_sample: (u64, u64),
     armed_at: HostTime,
     /// When the last plausible robot pose arrived (host time, whatever its age).
     robot_arrived: HostTime,
@@ -234,6 +237,7 @@ impl<K: StageClock> Core<K> {
             },
             watch: Watch {
                 last_sample: HostTime::ZERO,
+                garbage_at_last_sample: (0, 0),
                 armed_at: HostTime::ZERO,
                 robot_arrived: HostTime::ZERO,
                 implausible: None,

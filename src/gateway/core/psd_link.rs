@@ -62,7 +62,35 @@ impl<K: StageClock> Core<K> {
         self.counters.bad_serial_frames += 1;
         tracing::debug!("bad serial frame: {e}");
         if self.links.bad_frames.exceeded(now) {
-            self.stop_if_active(now, StopReason::SerialGarbled);
+            self.stop_if_active(now, self.garbled_since_last_sample(true));
+        }
+    }
+
+    /// A sample taken (or the stream or the arm starting afresh) at `now`: the sample
+    /// watchdog starts again, and so does the count of garbage since the last sample.
+    pub(super) fn sampled(&mut self, now: HostTime) {
+        self.watch.last_sample = now;
+        self.watch.garbage_at_last_sample = (self.counters.bad_serial_frames, self.psd.dropped_bytes());
+    }
+
+    /// The serial link garbled: the bad frames and dropped bytes since the last sample.
+    fn garbled_since_last_sample(&self, over_budget: bool) -> StopReason {
+        let (frames, bytes) = self.watch.garbage_at_last_sample;
+        let count = |now: u64, then: u64| u32::try_from(now.saturating_sub(then)).unwrap_or(u32::MAX);
+        StopReason::SerialGarbled {
+            frames: count(self.counters.bad_serial_frames, frames),
+            bytes: count(self.psd.dropped_bytes(), bytes),
+            over_budget,
+        }
+    }
+
+    /// Why no sample came for the sample timeout, named by the first cause: garbage on the
+    /// line since the last sample (noise, a bad cable or baud rate) is the line garbled,
+    /// not the controller silent.
+    pub(super) fn samples_stopped_cause(&self) -> StopReason {
+        match self.garbled_since_last_sample(false) {
+            StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
+            garbled => garbled,
         }
     }
 
@@ -148,7 +176,7 @@ impl<K: StageClock> Core<K> {
     /// The controller is configured and streams: frames start afresh; a reconnect is
     /// counted; `--arm` arms and starts now.
     fn streaming(&mut self, now: HostTime) {
-        self.watch.last_sample = now;
+        self.sampled(now);
         self.frame.restart(&self.rig.schedule);
         if self.links.streamed && !std::mem::take(&mut self.links.rehandshake) {
             self.counters.serial_reconnects += 1;
@@ -174,7 +202,7 @@ impl<K: StageClock> Core<K> {
     fn message(&mut self, now: HostTime, message: Message) {
         match message {
             Message::Sample(s) => match self.frame.sample(now, &s, &self.rig.schedule, &mut self.counters) {
-                Taken::Yes => self.watch.last_sample = now,
+                Taken::Yes => self.sampled(now),
                 Taken::Unscheduled { over_budget } => {
                     if over_budget {
                         self.stop_if_active(now, StopReason::UnscheduledLed { led: s.led });

@@ -45,7 +45,7 @@ impl<K: StageClock> Core<K> {
         }
         let action = self.safety.arm(now.secs());
         self.watch.armed_at = now;
-        self.watch.last_sample = now;
+        self.sampled(now);
         self.motors.armed();
         self.mission.start_requested = false;
         self.act(now, action);
@@ -130,7 +130,7 @@ impl<K: StageClock> Core<K> {
         let sampling = !self.psd.is_down() && now < self.watch.last_sample + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
-            StopReason::SamplesStopped | StopReason::SerialGarbled => !sampling,
+            StopReason::SamplesStopped | StopReason::SerialGarbled { .. } => !sampling,
             StopReason::PoseLost => {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }

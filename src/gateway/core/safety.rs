@@ -32,7 +32,13 @@ pub enum StopReason {
     /// The robot's poses kept arriving, but older than the pose timeout (sensing delay).
     PoseDelayed,
     SamplesStopped,
-    SerialGarbled,
+    /// Garbage on the serial line (bad frames, bytes dropped between frames): bad frames
+    /// beyond budget, or garbage where the samples stopped. The counts since the last sample.
+    SerialGarbled {
+        frames: u32,
+        bytes: u32,
+        over_budget: bool,
+    },
     /// Duplicated, replayed, reordered or far-jumped PSD packets beyond budget.
     PsdSequence,
     /// Samples of an LED the schedule does not have in that slot beyond budget (the last
@@ -156,7 +162,7 @@ impl StopReason {
         Self::PoseImplausible,
         Self::PoseDelayed,
         Self::SamplesStopped,
-        Self::SerialGarbled,
+        Self::SerialGarbled { frames: 0, bytes: 0, over_budget: false },
         Self::PsdSequence,
         Self::UnscheduledLed { led: 0 },
         Self::FrameCounterJump,
@@ -246,7 +252,6 @@ impl StopReason {
             Self::PoseImplausible => "robot pose implausible (LED spacing or jump)",
             Self::PoseDelayed => "robot pose delayed beyond the pose timeout",
             Self::SamplesStopped => "no samples from the PSD controller",
-            Self::SerialGarbled => "garbled serial frames beyond budget",
             Self::PsdSequence => "PSD packets out of sequence beyond budget",
             Self::FrameCounterJump => "PSD frame counter jumped beyond its window, beyond budget",
             Self::ClockJumped => "PSD controller's clock jumped (beyond the 1000 ppm drift bound)",
@@ -270,6 +275,15 @@ impl std::fmt::Display for StopReason {
             return f.write_str(text);
         }
         match self {
+            Self::SerialGarbled { frames, bytes, over_budget } => {
+                let s = |n: &u32| if *n == 1 { "" } else { "s" };
+                let (fs, bs) = (s(frames), s(bytes));
+                let counts = format!("{frames} bad frame{fs}, {bytes} byte{bs} dropped since the last sample");
+                match over_budget {
+                    true => write!(f, "garbled serial frames beyond budget ({counts})"),
+                    false => write!(f, "garbled serial data and no sample through it ({counts})"),
+                }
+            }
             Self::UnscheduledLed { led } => {
                 write!(f, "samples of LED {led}, not in the schedule's slot, beyond budget")
             }
@@ -487,7 +501,7 @@ mod tests {
                 | StopReason::PoseImplausible
                 | StopReason::PoseDelayed
                 | StopReason::SamplesStopped
-                | StopReason::SerialGarbled
+                | StopReason::SerialGarbled { .. }
                 | StopReason::PsdSequence
                 | StopReason::UnscheduledLed { .. }
                 | StopReason::FrameCounterJump

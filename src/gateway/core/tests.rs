@@ -255,6 +255,29 @@ fn watchdogs_fire_at_their_deadline() {
     assert!(now <= expected, "{now} vs {expected}");
 }
 
+/// Garbage where the samples were (noise that never makes a frame): the sample watchdog
+/// names the line garbled, with what came since the last sample, not silent.
+#[test]
+fn garbage_in_place_of_samples_is_named_garbled_not_silent() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(1), &Request::Arm).unwrap();
+    // 3,000 bytes of noise without a frame's end, then one that ends a bad frame.
+    c.psd_bytes(ms(20), &[0x55; 3000]);
+    c.psd_bytes(ms(40), &[0]);
+    while c.state() == State::Armed {
+        let now = c.next_deadline();
+        c.tick(now);
+    }
+    let reason = StopReason::SerialGarbled { frames: 1, bytes: 3001, over_budget: false };
+    assert_eq!(c.state(), State::Fault(reason));
+    assert_eq!(
+        reason.to_string(),
+        "garbled serial data and no sample through it (1 bad frame, 3001 bytes dropped since the last sample)"
+    );
+}
+
 fn commands(c: &mut Core<NoClock>) -> usize {
     let mut n = 0;
     while let Some(o) = c.poll() {

@@ -135,7 +135,7 @@ impl<K: StageClock> Core<K> {
                 self.links.can_reopen_at = now + REOPEN_EVERY;
                 self.out.push(Output::OpenCan);
             }
-            Timer::Samples => self.stop(now, StopReason::SamplesStopped),
+            Timer::Samples => self.stop(now, self.samples_stopped_cause()),
             Timer::Pose => self.stop(now, self.pose_lost_cause(now)),
             Timer::Occlusion => {
                 if let Some((_, k)) = self.occlusion_deadline() {
@@ -170,7 +170,7 @@ impl<K: StageClock> Core<K> {
         let s = &self.rig.safety;
         let quiet = now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
         if quiet {
-            StopReason::SamplesStopped
+            self.samples_stopped_cause()
         } else if self.watch.robot_from_future.is_some_and(|at| now.since(at) < s.sample_timeout) {
             StopReason::ClockJumped
         } else if self.watch.implausible.is_some() {

@@ -100,11 +100,13 @@ pub fn orient(points: &mut [Point], free: impl Fn(Point) -> f64) {
 }
 
 /// Round a closed loop's corners (a moving average over `window` metres of its arc length,
-/// twice) and space its points `spacing` apart.
-pub fn smooth_and_space(points: &[Point], window: f64, spacing: f64) -> Vec<Point> {
-    let fine = resample(points, window / 8.0);
+/// twice) and space its points about `spacing` apart; with `corner_turn`, closer where the
+/// loop turns left ([`grade`]).
+pub fn smooth_and_space(points: &[Point], window: f64, spacing: f64, corner_turn: Option<f64>) -> Vec<Point> {
+    // Graded panels need a finer curve to cut (the same window's average, in more points).
+    let half = if corner_turn.is_some() { 16 } else { 4 };
+    let fine = resample(points, window / (2 * half) as f64);
     let n = fine.len();
-    let half = 4usize;
     if n < 2 * half + 1 {
         return resample(points, spacing);
     }
@@ -116,7 +118,53 @@ pub fn smooth_and_space(points: &[Point], window: f64, spacing: f64) -> Vec<Poin
             *s = sum / (2 * half + 1) as f64;
         }
     }
-    resample(&smooth, spacing)
+    match corner_turn {
+        Some(turn) => grade(&smooth, spacing, turn),
+        None => resample(&smooth, spacing),
+    }
+}
+
+/// The closest the points come in a corner, as a fraction of the spacing.
+const MIN_SPACING: f64 = 0.05;
+
+/// A finely sampled smooth loop's points `spacing` apart, and closer where it turns left
+/// (a corner of the free region, which the loop keeps on its left): there no panel turns
+/// more than `max_turn` (rad) from the next. The exact flow is slow in such a corner, and a
+/// constant density's error, which grows with the panel's length and the turn between
+/// panels, would not be. The points fall where the count `∫ ds / h(s)` crosses a whole
+/// number, `h` the wanted spacing, so they grade smoothly.
+fn grade(fine: &[Point], spacing: f64, max_turn: f64) -> Vec<Point> {
+    let n = fine.len();
+    let length = |k: usize| (fine[(k + 1) % n] - fine[k]).norm();
+    // The wanted spacing on each fine segment, from the turn at its two ends.
+    let wanted: Vec<f64> = (0..n)
+        .map(|k| {
+            let (a, b) = (fine[k], fine[(k + 1) % n]);
+            let turn = |u: Point, v: Point| if u.norm() > 0.0 && v.norm() > 0.0 { (v / u).arg() } else { 0.0 };
+            let here = turn(a - fine[(k + n - 1) % n], b - a).max(0.0) + turn(b - a, fine[(k + 2) % n] - b).max(0.0);
+            let curvature = here / (2.0 * length(k).max(1e-12));
+            if curvature > 0.0 {
+                (max_turn / curvature).clamp(spacing * MIN_SPACING, spacing)
+            } else {
+                spacing
+            }
+        })
+        .collect();
+    let count: f64 = (0..n).map(|k| length(k) / wanted[k]).sum();
+    let panels = (count.round() as usize).max(3);
+    let scale = count / panels as f64;
+    let mut out = Vec::with_capacity(panels);
+    let mut walked = 0.0;
+    for k in 0..n {
+        let step = length(k) / wanted[k] / scale;
+        let mut next = out.len() as f64;
+        while next < walked + step && out.len() < panels {
+            out.push(fine[k] + (fine[(k + 1) % n] - fine[k]) * ((next - walked) / step));
+            next += 1.0;
+        }
+        walked += step;
+    }
+    out
 }
 
 /// A closed loop's points respaced evenly, about `spacing` apart along its length.
