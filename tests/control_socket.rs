@@ -88,8 +88,16 @@ fn run_gateway(config: &Path) -> Gateway {
 /// E1's simulator over real ptys, and in a new directory `flowgate-NAME-PID` a rig config
 /// pointed at it (goals from the operator, a control socket, telemetry there).
 async fn e1_rig(name: &str) -> (flowgate_sim::rig::RigHandle, PathBuf, PathBuf) {
+    e1_rig_with(name, &[]).await
+}
+
+/// The same, the simulator given `faults` (key=value).
+async fn e1_rig_with(name: &str, faults: &[&str]) -> (flowgate_sim::rig::RigHandle, PathBuf, PathBuf) {
     let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
-    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let mut rig = flowgate_sim::rig::RigConfig::new(s.sim.clone());
+    let settings: Vec<String> = faults.iter().map(|f| f.to_string()).collect();
+    rig.faults = rig.faults.with_settings(&settings).unwrap();
+    let handle = flowgate_sim::rig::start(rig).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
     let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -309,5 +317,43 @@ async fn events_survive_a_sigkill() {
     for line in text.lines() {
         serde_json::from_str::<serde_json::Value>(line).unwrap_or_else(|e| panic!("{e}: {line}"));
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The gateway's warnings reach the durable log with their time and fields, as its state
+/// changes do: a time sync the controller's clock answered 80 ms off is refused and noted,
+/// and `flowgate record events --level warning` shows it, and not the run's info.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn warnings_reach_the_durable_log() {
+    let (handle, dir, _socket) = e1_rig_with("notices", &["sync_reply_step=[1.0, 80.0]"]).await;
+    let Gateway { mut child, .. } = run_gateway(&dir.join("rig.toml"));
+    let events = dir.join("telemetry/latest/events.jsonl");
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while !std::fs::read_to_string(&events).unwrap_or_default().contains("clock_step_refused") {
+        assert!(std::time::Instant::now() < deadline, "no refused time sync in {}", events.display());
+        std::thread::sleep(Duration::from_millis(20)); // polling the file, bounded by the deadline
+    }
+    let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
+    assert!(child.wait().unwrap().success());
+    handle.stop().await;
+    let text = std::fs::read_to_string(&events).unwrap();
+    let lines: Vec<serde_json::Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let step = lines.iter().find(|e| e["kind"] == "clock_step_refused").unwrap();
+    assert_eq!(step["level"], "warning", "{step}");
+    assert!(step["t_s"].as_f64().unwrap() > 0.5, "{step}");
+    assert!(step["fields"]["step_us"].as_i64().unwrap().abs() > 50_000, "{step}");
+    assert!(step["text"].as_str().unwrap().starts_with("time sync refused: the controller's clock moved"), "{step}");
+    // The controller's start and the obstacle coming into view are there too, as info.
+    assert!(lines.iter().any(|e| e["kind"] == "streaming" && e["level"] == "info"), "{text}");
+    assert!(lines.iter().any(|e| e["kind"] == "obstacle_entered" && e["fields"]["led"] == 3), "{text}");
+
+    let shown = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["record", "events", dir.join("telemetry/latest").to_str().unwrap(), "--level", "warning"])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&shown.stdout);
+    assert!(shown.status.success(), "{out}{}", String::from_utf8_lossy(&shown.stderr));
+    assert!(out.lines().any(|l| l.contains("warning") && l.contains("clock_step_refused")), "{out}");
+    assert!(!out.contains("streaming") && !out.contains("obstacle_entered"), "{out}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,12 +1,16 @@
 //! `flowgate record info FILE.mcap`: what a recording holds, as `mcap info` says it: its
 //! size and duration, each channel's messages, its chunks' compression, the bytes a cycle
 //! takes, and whether it was cut short. Any MCAP file, compressed or not.
+//!
+//! `flowgate record events DIR`: a run's durable event log (`events.jsonl`): state changes,
+//! operator requests and the gateway's notices, its warnings and errors among them.
 
 use crate::cli::say;
 use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
+use flowgate::gateway::shell::telemetry::read_events;
 use flowgate::replay::RecordingInfo;
 
 #[derive(Args, Debug)]
@@ -25,6 +29,25 @@ enum RecordCommand {
         #[arg(long)]
         json: bool,
     },
+    /// A run's events (its telemetry directory, or its events.jsonl): state changes,
+    /// requests, warnings and errors, each with its time.
+    Events {
+        /// The run's telemetry directory, or its events.jsonl.
+        path: PathBuf,
+        /// Only events at this level or above.
+        #[arg(long, value_enum, default_value = "info")]
+        level: EventLevel,
+        /// Print them as JSON lines, fields and all.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum EventLevel {
+    Info,
+    Warning,
+    Error,
 }
 
 pub fn run(args: RecordArgs) -> Result<bool> {
@@ -38,6 +61,18 @@ pub fn run(args: RecordArgs) -> Result<bool> {
                 say!("{info}");
             }
             Ok(info.truncated.is_none())
+        }
+        RecordCommand::Events { path, level, json } => {
+            let events = read_events(&path)?;
+            let least = level as u8;
+            for e in events.iter().filter(|e| e.rank() >= least) {
+                if json {
+                    say!("{}", serde_json::to_string(e)?);
+                } else {
+                    say!("{:>10.3} s  {:<7}  {:<21}  {}", e.t_s, e.level, e.kind, e.text);
+                }
+            }
+            Ok(true)
         }
     }
 }

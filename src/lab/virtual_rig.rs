@@ -788,6 +788,9 @@ impl<K: StageClock> VirtualRig<K> {
                 Output::OpenPsd => {}
                 // The virtual rig's CAN link is never lost.
                 Output::OpenCan => {}
+                // A sweep's thousands of episodes keep quiet; one run shows them with
+                // `RUST_LOG=debug`.
+                Output::Notice { at, notice } => tracing::debug!(t_s = at.secs(), "{notice}"),
             }
         }
     }

@@ -5,7 +5,7 @@
 use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
 use super::timing::CycleRecord;
-use super::{Core, Output, StageClock, State, StopReason};
+use super::{Core, Notice, Output, StageClock, State, StopReason};
 use crate::control::{StepOutput, StepStatus, Supervision};
 use crate::planner::PlannerError;
 use crate::time::{ClockOffset, CtrlTime, HostTime};
@@ -124,25 +124,24 @@ impl<K: StageClock> Core<K> {
                 self.counters.goal_occupied += 1;
                 if since == now.secs() {
                     let led = self.obstacle_led(index);
-                    tracing::warn!("goal inside obstacle LED {led}'s planning circle: holding still until it passes");
+                    self.notice(now, Notice::GoalOccupied { led });
                 }
             }
             StepStatus::GoalBlocked { index } => {
                 let wait = self.control.config().goal_wait;
                 let led = self.obstacle_led(index);
-                tracing::warn!("goal inside obstacle LED {led}'s planning circle for {wait} s: stopping");
+                self.notice(now, Notice::GoalBlocked { led, wait_s: wait });
                 self.stop(now, StopReason::GoalBlocked);
             }
             StepStatus::Invalid(e) => {
                 self.counters.planner_invalid += 1;
-                match e {
+                let led = match e {
                     PlannerError::InsideObstacle { index }
                     | PlannerError::GoalInsideObstacle { index }
-                    | PlannerError::BadRadius { index } => {
-                        tracing::error!("planner: {e} (obstacle LED {})", self.obstacle_led(index));
-                    }
-                    _ => tracing::error!("planner: {e}"),
-                }
+                    | PlannerError::BadRadius { index } => Some(self.obstacle_led(index)),
+                    _ => None,
+                };
+                self.notice(now, Notice::PlannerRefused { error: e, led });
                 self.stop(now, StopReason::PlannerInvalid);
             }
         }
@@ -185,7 +184,7 @@ impl<K: StageClock> Core<K> {
         self.mission.goals.pop_front();
         match self.mission.goals.front() {
             Some(next) => {
-                tracing::info!("goal reached; next goal ({}, {})", next.position[0], next.position[1]);
+                self.out.push(Output::Notice { at: now, notice: Notice::NextGoal { position: next.position } });
                 self.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
             }
             None => {
@@ -233,7 +232,7 @@ impl<K: StageClock> Core<K> {
             Err(e) => {
                 self.counters.poses_implausible += 1;
                 if self.watch.implausible.is_none() {
-                    tracing::warn!("robot pose discarded: {e}");
+                    self.notice(now, Notice::PoseDiscarded { why: e });
                 }
                 self.watch.implausible = Some(e);
             }
@@ -255,7 +254,8 @@ impl<K: StageClock> Core<K> {
                 if self.tracker.observe_obstacle(k, at, p) && !tracked {
                     self.counters.obstacles_entered_view += 1;
                     let led = o.led;
-                    tracing::info!(led, "obstacle LED {led} came into view at ({:.3}, {:.3}) m", p.re, p.im);
+                    self.out
+                        .push(Output::Notice { at: now, notice: Notice::ObstacleEntered { led, at: [p.re, p.im] } });
                 }
             } else if self.tracker.obstacle_occluded(k, t) {
                 // Unseen past the pose timeout: gone out of the view if its filter carries it
@@ -265,7 +265,7 @@ impl<K: StageClock> Core<K> {
                 if beyond {
                     self.tracker.drop_obstacle(k);
                     self.counters.obstacles_left_view += 1;
-                    tracing::info!(led = o.led, "obstacle LED {} left the view: track dropped", o.led);
+                    self.out.push(Output::Notice { at: now, notice: Notice::ObstacleLeft { led: o.led } });
                 }
             }
         }

@@ -125,7 +125,6 @@ impl FrameAssembler {
             Verdict::Gap(n) => counters.frames_lost += u64::from(n),
             Verdict::Rebased => {
                 counters.frames_rebased += 1;
-                tracing::warn!(frame, "PSD controller's frame counter moved: following it from {frame}");
             }
             Verdict::Repeat | Verdict::Old => {
                 counters.frames_repeated += 1;

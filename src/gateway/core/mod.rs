@@ -74,6 +74,7 @@ mod cycle;
 pub mod frame;
 pub mod input;
 pub mod motors;
+pub mod notice;
 pub mod operator;
 mod output;
 pub mod psd_link;
@@ -86,6 +87,7 @@ pub mod timing;
 
 pub use counters::{Counters, Progress};
 pub use input::{Answer, CanEvent, Input};
+pub use notice::{Level, Notice};
 pub use output::Output;
 pub use psd_session::SetupError;
 pub use safety::{State, StopReason};
@@ -333,6 +335,11 @@ impl<K: StageClock> Core<K> {
         self.act(now, action);
     }
 
+    /// Something for the operator's log, at `now` (the shell logs it and keeps it).
+    fn notice(&mut self, now: HostTime, notice: Notice) {
+        self.out.push(Output::Notice { at: now, notice });
+    }
+
     /// Stop for `reason` if the watchdogs are armed (a budget exceeded while idle is counted,
     /// not a fault).
     fn stop_if_active(&mut self, now: HostTime, reason: StopReason) {
@@ -362,7 +369,7 @@ impl<K: StageClock> Core<K> {
                 self.watch.stopping_since = None;
                 self.tracker.forget_pose();
                 self.tracker.halted(); // the boards stop at once: dead reckoning starts from rest
-                tracing::warn!("emergency stop: {}", self.state());
+                self.notice(now, Notice::EmergencyStop { state: self.state() });
             }
         }
         self.state_changed(now);

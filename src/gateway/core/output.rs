@@ -5,13 +5,14 @@ use std::collections::VecDeque;
 use flowgate_protocol::psd::Packet;
 use flowgate_protocol::CanFrame;
 
+use super::notice::Notice;
 use super::psd_session::SetupError;
 use super::safety::State;
 use super::timing::CycleRecord;
 use crate::time::HostTime;
 
 /// What the core asks of its caller.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Output {
     /// A packet for the PSD controller.
     Psd(Packet),
@@ -38,6 +39,8 @@ pub enum Output {
     /// is open. The core asks again every [`REOPEN_EVERY`](super::REOPEN_EVERY); an attempt
     /// still under way when it does goes on.
     OpenCan,
+    /// Something to log and keep in the durable event log, at `at`.
+    Notice { at: HostTime, notice: Notice },
 }
 
 /// The outputs waiting to be drained, in order (allocated once: a cycle pushes a handful).

@@ -11,7 +11,7 @@ use super::counter_window::Verdict;
 use super::frame::{Ended, Taken};
 use super::operator::Refusal;
 use super::psd_session::SessionEvent;
-use super::{Core, Output, StageClock, StopReason, REOPEN_EVERY};
+use super::{Core, Notice, Output, StageClock, StopReason, REOPEN_EVERY};
 use crate::time::{CtrlTime, HostTime};
 
 impl<K: StageClock> Core<K> {
@@ -117,7 +117,7 @@ impl<K: StageClock> Core<K> {
             Verdict::Rebased => {
                 c.psd_seq_rebased += 1;
                 let seq = packet.seq;
-                tracing::warn!(seq, "PSD controller's sequence numbers moved: following them from {seq}");
+                self.notice(now, Notice::SequenceRebased { seq });
                 return true;
             }
             Verdict::Repeat => c.psd_duplicates += 1,
@@ -157,16 +157,10 @@ impl<K: StageClock> Core<K> {
             SessionEvent::ClockStep { step_us, again } => {
                 self.counters.time_syncs_implausible += 1;
                 if again {
-                    tracing::error!(
-                        step_us,
-                        "PSD controller's clock jumped by {step_us} µs (confirmed by a second sync)"
-                    );
+                    self.notice(now, Notice::ClockJumped { step_us });
                     self.stop_if_active(now, StopReason::ClockJumped);
                 } else {
-                    tracing::warn!(
-                        step_us,
-                        "time sync refused: the controller's clock moved {step_us} µs, beyond drift; checking again"
-                    );
+                    self.notice(now, Notice::ClockStepRefused { step_us });
                 }
             }
         }
@@ -183,9 +177,8 @@ impl<K: StageClock> Core<K> {
             self.progress.serial_reconnects = self.counters.serial_reconnects;
         }
         self.links.streamed = true;
-        if let Some(info) = self.psd.info() {
-            tracing::info!(firmware = ?info.firmware, max_leds = info.max_leds, "PSD controller streaming");
-        }
+        let firmware = self.psd.info().map(|info| info.firmware);
+        self.notice(now, Notice::Streaming { firmware });
         self.out.push(Output::Streaming);
         if std::mem::take(&mut self.mission.arm_at_start) {
             let result = match self.rig.goal {
@@ -193,7 +186,7 @@ impl<K: StageClock> Core<K> {
                 None => Err(Refusal::NoGoal),
             };
             if let Err(e) = result {
-                tracing::error!("arming at start: {e}");
+                self.notice(now, Notice::ArmAtStartRefused(e));
             }
         }
     }
@@ -210,7 +203,12 @@ impl<K: StageClock> Core<K> {
                 }
             },
             Message::FrameEnd { frame, t_ctrl_us, samples } => {
-                match self.frame.end(now, frame, samples, &self.rig.schedule, &mut self.counters) {
+                let rebased = self.counters.frames_rebased;
+                let ended = self.frame.end(now, frame, samples, &self.rig.schedule, &mut self.counters);
+                if self.counters.frames_rebased > rebased {
+                    self.notice(now, Notice::FrameCounterRebased { frame });
+                }
+                match ended {
                     Ended::Cycle => self.cycle(now, frame, CtrlTime(t_ctrl_us)),
                     Ended::Repeated => self.sequence_error(now),
                     Ended::Jumped { over_budget: true } => self.stop_if_active(now, StopReason::FrameCounterJump),
@@ -224,7 +222,7 @@ impl<K: StageClock> Core<K> {
                 // again so an operator can reset and arm.
                 let restarted = self.psd.restart(now, &mut self.out.psd());
                 if restarted {
-                    tracing::warn!("PSD controller reset; reconfiguring");
+                    self.notice(now, Notice::ControllerReset);
                     self.stop_if_active(now, StopReason::ControllerReset);
                 }
             }
@@ -235,7 +233,7 @@ impl<K: StageClock> Core<K> {
             }
             Message::Fault { code, detail } => {
                 self.counters.controller_faults += 1;
-                tracing::error!("PSD controller fault {code:?} (detail {detail})");
+                self.notice(now, Notice::ControllerFault { code, detail });
                 self.stop_if_active(now, StopReason::ControllerFault);
             }
             _ => {} // heartbeats

@@ -140,6 +140,8 @@ fn the_handshake_syncs_the_clock_and_samples_before_it_are_discarded() {
     assert_eq!(c.counters().samples, 0);
     let out = answer(&mut c, ms(2));
     assert!(out.contains(&Output::Streaming), "{out:?}");
+    let streaming = Notice::Streaming { firmware: Some([1, 0, 0]) };
+    assert!(out.iter().any(|o| matches!(o, Output::Notice { notice, .. } if *notice == streaming)), "{out:?}");
     assert!(c.psd.is_streaming());
     // Synced: a frame stamped 1 ms ago is a pose 1 ms old.
     frame(&mut c, ms(10), 1, 9_000 + CTRL_EPOCH_US);

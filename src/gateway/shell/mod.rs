@@ -45,7 +45,7 @@ use telemetry::{CanRecord, Record, Timing};
 use self::link::{open_can, open_serial, CanError, CanLink, SerialError};
 use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
 use super::core::operator::Request;
-use super::core::{Core, Output, Progress, SetupError, StageClock, State};
+use super::core::{Core, Level, Output, Progress, SetupError, StageClock, State};
 use crate::config::CanUrl;
 use crate::config::Rig;
 use crate::gateway::core::input::CanEvent;
@@ -371,6 +371,14 @@ impl Io {
                 }
                 Output::OpenPsd => self.reopen_psd(core),
                 Output::OpenCan => self.reopen_can(),
+                Output::Notice { at, notice } => {
+                    match notice.level() {
+                        Level::Info => tracing::info!("{notice}"),
+                        Level::Warning => tracing::warn!("{notice}"),
+                        Level::Error => tracing::error!("{notice}"),
+                    }
+                    self.services.recorder.record(Record::Event(telemetry::EventRecord::notice(at.secs(), &notice)));
+                }
             }
         }
         Ok(())
@@ -414,7 +422,8 @@ impl Io {
             n.status(&state.to_string());
         }
         let text = format!("state: {state}");
-        self.services.recorder.record(Record::Event(telemetry::EventRecord { at_s: at.secs(), text }));
+        let event = telemetry::EventRecord { at_s: at.secs(), level: Level::Info, kind: "state", text, fields: None };
+        self.services.recorder.record(Record::Event(event));
         if let Some(tx) = &self.progress {
             let p = core.progress();
             tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
@@ -482,7 +491,9 @@ impl Io {
                 Ok(()) => tracing::info!("{text}"),
                 Err(_) => tracing::warn!("{text}"),
             }
-            self.services.recorder.record(Record::Event(telemetry::EventRecord { at_s: now.secs(), text }));
+            let level = if result.is_ok() { Level::Info } else { Level::Warning };
+            let event = telemetry::EventRecord { at_s: now.secs(), level, kind: "request", text, fields: None };
+            self.services.recorder.record(Record::Event(event));
         }
         let reply = match result {
             Ok(()) => Reply { ok: true, error: None, status },

@@ -44,6 +44,7 @@ use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::input::{InputRecord, RecordedInput, PSD_CHUNK};
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::timing::CycleRecord;
+use crate::gateway::core::{Level, Notice};
 use crate::planner::room::{OutlineKind, RoomShape};
 use crate::time::HostTime;
 
@@ -577,7 +578,11 @@ impl McapSink {
         let at_ns = (e.at_s * 1e9) as u64;
         let log = Log {
             timestamp: Some(self.stamp(at_ns)),
-            level: foxglove::messages::log::Level::Info as i32,
+            level: match e.level {
+                Level::Info => foxglove::messages::log::Level::Info,
+                Level::Warning => foxglove::messages::log::Level::Warning,
+                Level::Error => foxglove::messages::log::Level::Error,
+            } as i32,
             message: e.text.clone(),
             name: "flowgate".into(),
             file: String::new(),
@@ -750,11 +755,38 @@ impl CanRecord {
     }
 }
 
-/// Something that happened, in words: a state change, an operator's request and its answer.
+/// Something that happened, in words: a state change, an operator's request and its answer,
+/// or a notice of the core's (its warnings and errors among them), with its fields.
 #[derive(Debug, Clone)]
 pub struct EventRecord {
     pub at_s: f64,
+    pub level: Level,
+    /// What it is: `state`, `request`, or a notice's kind (`sequence_rebased`, ...).
+    pub kind: &'static str,
     pub text: String,
+    pub fields: Option<Value>,
+}
+
+impl EventRecord {
+    /// A notice of the core's at `at_s`.
+    pub fn notice(at_s: f64, notice: &Notice) -> Self {
+        Self {
+            at_s,
+            level: notice.level(),
+            kind: notice.kind(),
+            text: notice.to_string(),
+            fields: Some(notice.fields()),
+        }
+    }
+
+    /// Its line in `events.jsonl`.
+    pub fn json(&self) -> Value {
+        let mut line = json!({ "t_s": self.at_s, "level": self.level.name(), "kind": self.kind, "text": self.text });
+        if let Some(fields) = &self.fields {
+            line["fields"] = fields.clone();
+        }
+        line
+    }
 }
 
 #[cfg(test)]

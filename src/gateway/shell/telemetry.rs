@@ -8,8 +8,10 @@
 //! - `cycles.csv`: one row per cycle (columns in [`CycleRecord::CSV_HEADER`]);
 //! - `trace.json`: Chrome/Perfetto trace events, one complete event per stage per cycle;
 //! - `can.log`: every CAN frame sent and received, candump `-L` format;
-//! - `events.jsonl`: state changes and operator requests (who asked, and the answer), one
-//!   JSON object a line (`{"t_s": 1.234567, "text": "..."}`).
+//! - `events.jsonl`: state changes, operator requests (who asked, and the answer) and the
+//!   core's notices (its warnings and errors, obstacles entering and leaving the view), one
+//!   JSON object a line: `{"t_s": 1.234567, "level": "warning", "kind": "sequence_rebased",
+//!   "text": "...", "fields": {"seq": 4096}}` (`flowgate events` reads it).
 //!
 //! The text files are flushed at every drain, so a process killed outright (SIGKILL, the
 //! service manager's watchdog) loses at most the last drain's records; `flowgate run` puts
@@ -166,7 +168,7 @@ impl TextFiles {
             }
             Record::Can(f) => f.candump(&self.interface, &mut self.can)?,
             Record::Event(e) => {
-                serde_json::to_writer(&mut self.events, &serde_json::json!({ "t_s": e.at_s, "text": e.text }))?;
+                serde_json::to_writer(&mut self.events, &e.json())?;
                 writeln!(self.events)?;
             }
             Record::Input(_) | Record::PsdSent { .. } | Record::Scene(_) | Record::CanUnwritten { .. } => {}
@@ -352,4 +354,60 @@ mod tests {
         // a cycle's scene, are under 6 MB.
         assert!(std::mem::size_of::<Record>() <= 656, "{} bytes", std::mem::size_of::<Record>());
     }
+}
+
+/// One line of `events.jsonl`, as read back.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, Serialize)]
+pub struct LoggedEvent {
+    pub t_s: f64,
+    /// `info` in a log written before events had levels.
+    #[serde(default = "info")]
+    pub level: String,
+    #[serde(default)]
+    pub kind: String,
+    pub text: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fields: Option<serde_json::Value>,
+}
+
+fn info() -> String {
+    "info".into()
+}
+
+impl LoggedEvent {
+    /// Its level's rank: info 0, warning 1, error 2.
+    pub fn rank(&self) -> u8 {
+        match self.level.as_str() {
+            "error" => 2,
+            "warning" => 1,
+            _ => 0,
+        }
+    }
+}
+
+/// What reading an event log refuses, naming the file and the line.
+#[derive(Debug, thiserror::Error)]
+pub enum EventsError {
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("{path}, line {line}: not an event ({why})")]
+    Bad { path: String, line: usize, why: String },
+}
+
+/// The events of a run: `path` is its `events.jsonl` or the telemetry directory holding it.
+pub fn read_events(path: &Path) -> Result<Vec<LoggedEvent>, EventsError> {
+    let file = if path.is_dir() { path.join("events.jsonl") } else { path.to_path_buf() };
+    let name = file.display().to_string();
+    let text = std::fs::read_to_string(&file).map_err(|source| EventsError::Io { path: name.clone(), source })?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(k, l)| {
+            serde_json::from_str(l).map_err(|e| EventsError::Bad {
+                path: name.clone(),
+                line: k + 1,
+                why: e.to_string(),
+            })
+        })
+        .collect()
 }
