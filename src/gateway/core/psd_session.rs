@@ -311,6 +311,16 @@ impl PsdSession {
                 }
                 Step::Schedule
             }
+            // The answer to a GetInfo that a reboot's announcement overtook (the handshake
+            // went on from the schedule): the controller's identity is still checked.
+            (_, Message::Info { info, .. }) if self.info.is_none() => {
+                self.info = Some(info);
+                if let Some(why) = self.identity_problem(&info) {
+                    self.phase = Phase::Down;
+                    return SessionEvent::Failed(SetupError::Identity(why));
+                }
+                return SessionEvent::Consumed;
+            }
             (Step::Schedule, Message::Ack { seq: s, .. }) if s == seq => Step::TimeSync,
             (Step::TimeSync, Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us })
                 if request_seq == seq && host_time_us == sent.as_nanos() / 1000 =>

@@ -371,6 +371,30 @@ fn samples_are_checked_against_the_schedule_and_their_frame() {
 
 /// A controller that cannot run the schedule (here: 2 LEDs for a schedule of 4) is not
 /// the configured one: the handshake fails, naming why.
+/// A controller that announces its boot before it answers GetInfo: the handshake goes on
+/// from the schedule, and the answer, when it comes, is still checked.
+#[test]
+fn a_boot_announced_before_the_identity_does_not_skip_its_check() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    let mut asked = None;
+    while let Some(o) = c.poll() {
+        if let Output::Psd(Packet { seq, message: Message::GetInfo }) = o {
+            asked = Some(seq);
+        }
+    }
+    let reset = Message::Fault { code: flowgate_protocol::psd::FaultCode::Reset, detail: 0 };
+    c.psd_bytes(ms(1), &bytes(reset));
+    let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 2, clock_hz: 1_000_000 };
+    c.psd_bytes(ms(2), &bytes(Message::Info { request_seq: asked.expect("GetInfo sent"), info }));
+    let failed = std::iter::from_fn(|| c.poll()).find_map(|o| match o {
+        Output::SetupFailed(e) => Some(e),
+        _ => None,
+    });
+    let e = failed.expect("refused");
+    assert_eq!(e.to_string(), "PSD controller is not the one configured: it drives fewer LEDs than the schedule has");
+}
+
 #[test]
 fn a_controller_of_another_kind_is_refused_at_the_handshake() {
     let mut c = core();
