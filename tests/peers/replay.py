@@ -132,7 +132,12 @@ def read(path, telemetry, dbc_path):
     )
     check(all(m[2]["frame_id"] == "floor" for m in messages.get("/robot/pose", [])), "poses in the floor frame")
     logs = [m[2] for m in messages.get("/log", [])]
-    check(len(logs) > 0 and all(l["level"] == "INFO" and l["name"] == "flowgate" for l in logs), "/log entries at INFO")
+    check(
+        len(logs) > 0 and all(l["level"] in ("INFO", "WARNING", "ERROR") and l["name"] == "flowgate" for l in logs),
+        "/log entries at a level",
+    )
+    # The controller's start among them, at INFO (a notice of the core's).
+    check(any(l["level"] == "INFO" and l["message"].startswith("PSD controller streaming") for l in logs), "/log has the controller's start")
     # The arena is drawn at most 10 times a second (every cycle when slower).
     arena = [m[1] for m in messages.get("/arena", [])]
     check(len(arena) > 0 and all(b - a >= 100_000_000 for a, b in zip(arena, arena[1:])), "/arena at most every 100 ms")

@@ -11,8 +11,9 @@
 //! - for the eye, at most every [`ARENA_EVERY_NS`]: `/obstacles` (position, velocity,
 //!   covariance, planning radius), `/robot/pose` (`foxglove.PoseInFrame`)
 //!   and `/arena` (`foxglove.SceneUpdate`: the lane's lines, the room's walls, static
-//!   obstacles and view's edge, goal, obstacles with their planning circles, the robot); and `/log` (`foxglove.Log`: state changes, operator requests and
-//!   answers);
+//!   obstacles and view's edge, goal, obstacles with their planning circles, the robot); and
+//!   `/log` (`foxglove.Log`: state changes, operator requests and answers, and the core's
+//!   notices, each at its level);
 //! - metadata `flowgate`: the configuration the run used (TOML), the version, the clock's
 //!   origin; `flowgate.end`: how many inputs and records were written and dropped.
 //!
