@@ -371,6 +371,29 @@ fn plan_command_shards_and_merges_a_sweep() {
     assert!(!ok && text.contains("5 of the sweep's 10 episodes are missing") && text.contains("shard 1/2"), "{text}");
     let (ok, text) = run(&["--planner-only", "--sweep", "10", "--shard", "2/2", e1s]);
     assert!(!ok && text.contains("expected i/n with 0 <= i < n"), "{text}");
+    // `auto/n`: the index from a batch system's array job (a Slurm array counted from 1
+    // here), the same shard as `1/2`; refused, naming the variables, outside one.
+    let auto = |env: &[(&str, &str)], out: &str| {
+        let mut cmd = flowgate();
+        cmd.arg("plan").args(["--planner-only", "--sweep", "10", "--seed", "5", "--shard", "auto/2", e1s]);
+        cmd.args(["--out", out]);
+        for v in ["SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_MIN", "JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX"] {
+            cmd.env_remove(v);
+        }
+        let out = cmd.envs(env.iter().copied()).output().unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr),
+        )
+    };
+    let (ok, text) = auto(&[("SLURM_ARRAY_TASK_ID", "2"), ("SLURM_ARRAY_TASK_MIN", "1")], &d("auto"));
+    assert!(ok && text.contains("shard 1/2 of the sweep of 10"), "{text}");
+    assert_eq!(read("auto/shard.json"), read("s1/shard.json"));
+    let (ok, text) = auto(&[], &d("none"));
+    assert!(!ok && text.contains("--shard auto/2: no batch index in the environment"), "{text}");
+    assert!(text.contains("SLURM_ARRAY_TASK_ID, JOB_COMPLETION_INDEX, AWS_BATCH_JOB_ARRAY_INDEX"), "{text}");
+    let (ok, text) = auto(&[("JOB_COMPLETION_INDEX", "2")], &d("beyond"));
+    assert!(!ok && text.contains("JOB_COMPLETION_INDEX gives task 2, beyond the 2 shards"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -27,9 +27,11 @@ pub struct PlanArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Run only this shard of the sweep, `i/n`: the episodes whose index is i modulo n
-    /// (writes shard.json for `--merge`; a batch system runs i = 0..n-1 anywhere).
+    /// (writes shard.json for `--merge`; a batch system runs i = 0..n-1 anywhere). `auto/n`
+    /// takes i from the array job's index: SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN),
+    /// JOB_COMPLETION_INDEX (Kubernetes) or AWS_BATCH_JOB_ARRAY_INDEX.
     #[arg(long, value_name = "I/N", requires = "sweep")]
-    shard: Option<sweep::Shard>,
+    shard: Option<sweep::ShardSpec>,
     /// Merge sweep shards (each DIR holding a shard.json) into one report: sweep.json in --out.
     #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["all", "scenario", "file", "sweep"])]
     merge: Vec<PathBuf>,
@@ -84,7 +86,8 @@ fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mod
     }
     let started = std::time::Instant::now();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let path = if let Some(shard) = args.shard {
+    let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
+    let path = if let Some(shard) = shard {
         let episodes = sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, shard);
         let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
         say!("shard {shard} of the sweep of {n}:");

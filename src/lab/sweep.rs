@@ -156,7 +156,7 @@ impl Shard {
 
 /// A `--shard` that is not `i/n` with `0 <= i < n`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("shard {0:?}: expected i/n with 0 <= i < n (e.g. 0/4 .. 3/4)")]
+#[error("shard {0:?}: expected i/n with 0 <= i < n (e.g. 0/4 .. 3/4), or auto/n (the index from a batch system)")]
 pub struct BadShard(pub String);
 
 impl std::str::FromStr for Shard {
@@ -169,6 +169,71 @@ impl std::str::FromStr for Shard {
             return Err(bad());
         }
         Ok(Shard { index, count })
+    }
+}
+
+/// A `--shard` as given: `i/n`, or `auto/n`, the index taken from the batch system's
+/// environment when the shard runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShardSpec {
+    Fixed(Shard),
+    Auto { count: u64 },
+}
+
+/// The environment variables a batch system's array job gives each task its index in:
+/// Slurm's (less `SLURM_ARRAY_TASK_MIN`, as `--array=1-4` counts from 1), a Kubernetes
+/// Indexed Job's, AWS Batch's.
+pub const BATCH_INDEX_VARIABLES: [&str; 3] =
+    ["SLURM_ARRAY_TASK_ID", "JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX"];
+
+/// Why `auto/n` has no shard here.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum AutoShardError {
+    #[error("--shard auto/{count}: no batch index in the environment (none of {})", BATCH_INDEX_VARIABLES.join(", "))]
+    Unset { count: u64 },
+    #[error("--shard auto/{count}: {variable}={value} is not a task index")]
+    NotAnIndex { count: u64, variable: &'static str, value: String },
+    #[error("--shard auto/{count}: {variable} gives task {index}, beyond the {count} shards (0..{count})")]
+    Beyond { count: u64, variable: &'static str, index: u64 },
+}
+
+impl ShardSpec {
+    /// The shard to run, `env` the environment (`|name| std::env::var(name).ok()`).
+    pub fn resolve(self, env: impl Fn(&str) -> Option<String>) -> Result<Shard, AutoShardError> {
+        let count = match self {
+            Self::Fixed(shard) => return Ok(shard),
+            Self::Auto { count } => count,
+        };
+        let (variable, value) = BATCH_INDEX_VARIABLES
+            .iter()
+            .find_map(|&v| env(v).map(|value| (v, value)))
+            .ok_or(AutoShardError::Unset { count })?;
+        let number = |text: &str| text.trim().parse::<u64>().ok();
+        let not_an_index = || AutoShardError::NotAnIndex { count, variable, value: value.clone() };
+        let id = number(&value).ok_or_else(not_an_index)?;
+        let first = if variable == "SLURM_ARRAY_TASK_ID" {
+            env("SLURM_ARRAY_TASK_MIN").and_then(|m| number(&m)).unwrap_or(0)
+        } else {
+            0
+        };
+        let index = id.checked_sub(first).ok_or_else(not_an_index)?;
+        if index >= count {
+            return Err(AutoShardError::Beyond { count, variable, index });
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+impl std::str::FromStr for ShardSpec {
+    type Err = BadShard;
+    fn from_str(text: &str) -> Result<Self, BadShard> {
+        match text.split_once('/') {
+            Some((auto, n)) if auto.trim() == "auto" => match n.trim().parse() {
+                Ok(count) if count > 0 => Ok(Self::Auto { count }),
+                _ => Err(BadShard(text.to_owned())),
+            },
+            _ => text.parse().map(Self::Fixed),
+        }
     }
 }
 
@@ -431,5 +496,34 @@ impl std::fmt::Display for SweepReport {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn env<'a>(vars: &'a [(&'a str, &'a str)]) -> impl Fn(&str) -> Option<String> + 'a {
+        move |name| vars.iter().find(|(k, _)| *k == name).map(|(_, v)| v.to_string())
+    }
+
+    /// `auto/n` takes its index from whichever batch system set one, a Slurm array from
+    /// its first task; `i/n` ignores the environment.
+    #[test]
+    fn an_automatic_shard_takes_the_batch_systems_index() {
+        let auto: ShardSpec = "auto/4".parse().unwrap();
+        assert_eq!(auto, ShardSpec::Auto { count: 4 });
+        let slurm = [("SLURM_ARRAY_TASK_ID", "3"), ("SLURM_ARRAY_TASK_MIN", "1")];
+        assert_eq!(auto.resolve(env(&slurm)), Ok(Shard { index: 2, count: 4 }));
+        assert_eq!(auto.resolve(env(&[("JOB_COMPLETION_INDEX", "0")])), Ok(Shard { index: 0, count: 4 }));
+        assert_eq!(auto.resolve(env(&[("AWS_BATCH_JOB_ARRAY_INDEX", "3")])), Ok(Shard { index: 3, count: 4 }));
+        assert_eq!(auto.resolve(env(&[])), Err(AutoShardError::Unset { count: 4 }));
+        let beyond = auto.resolve(env(&[("JOB_COMPLETION_INDEX", "4")])).unwrap_err();
+        assert_eq!(beyond.to_string(), "--shard auto/4: JOB_COMPLETION_INDEX gives task 4, beyond the 4 shards (0..4)");
+        let junk = auto.resolve(env(&[("SLURM_ARRAY_TASK_ID", "x")])).unwrap_err();
+        assert_eq!(junk.to_string(), "--shard auto/4: SLURM_ARRAY_TASK_ID=x is not a task index");
+        let fixed: ShardSpec = "1/4".parse().unwrap();
+        assert_eq!(fixed.resolve(env(&slurm)), Ok(Shard { index: 1, count: 4 }));
+        assert!("auto/0".parse::<ShardSpec>().is_err() && "auto".parse::<ShardSpec>().is_err());
     }
 }
