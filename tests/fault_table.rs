@@ -11,6 +11,7 @@
 use std::path::Path;
 
 use flowgate::gateway::core::operator::{Goal, Request};
+use flowgate::gateway::core::safety::Garbled;
 use flowgate::gateway::core::{State, StopReason};
 use flowgate::gateway::shell::telemetry::CycleRecord;
 use flowgate::lab::planner_only::Outcome;
@@ -169,7 +170,7 @@ fn table() -> Vec<Row> {
             "corruption",
             "5% of bytes corrupted (CRC)",
             &["serial_corrupt=0.05", "serial_corrupt_during=[2.0, 2.8]"][..],
-            fault(R::SerialGarbled { frames: 1, bytes: 33, over_budget: true }, 104.0, 104.1, Cycle),
+            fault(R::SerialGarbled { frames: 1, bytes: 33, found: Garbled::BeyondBudget }, 104.0, 104.1, Cycle),
         )
         .until(2.8),
         row(
@@ -177,7 +178,7 @@ fn table() -> Vec<Row> {
             "corruption",
             "every byte garbled for 500 ms (a burst of noise)",
             &["serial_corrupt=1.0", "serial_corrupt_during=[2.0, 2.5]"],
-            fault(R::SerialGarbled { frames: 21, bytes: 381, over_budget: true }, 47.4, 47.5, Cycle),
+            fault(R::SerialGarbled { frames: 21, bytes: 381, found: Garbled::BeyondBudget }, 47.4, 47.5, Cycle),
         )
         .until(2.5),
         row(

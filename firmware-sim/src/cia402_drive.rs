@@ -602,8 +602,9 @@ impl Cia402Drive {
         if let Some(since) = self.lag_since {
             next = next.min(since + FOLLOWING_ERROR_TIMEOUT);
         }
-        if let (Some(seen), true) = (self.gateway_seen, self.state.is_enabled()) {
-            next = next.min(seen + f64::from(self.consumer & 0xFFFF) * 1e-3);
+        let consumer_ms = self.consumer & 0xFFFF;
+        if let (Some(seen), true) = (self.gateway_seen, self.state.is_enabled() && consumer_ms > 0) {
+            next = next.min(seen + f64::from(consumer_ms) * 1e-3);
         }
         next
     }
@@ -629,6 +630,9 @@ impl Cia402Drive {
                 (false, _) => self.lag_since = None,
                 _ => {}
             }
+        } else {
+            // Free again: no following error can come of the lag any more.
+            self.lag_since = None;
         }
         let consumer_ms = self.consumer & 0xFFFF;
         if let (Some(seen), true) = (self.gateway_seen, self.state.is_enabled() && consumer_ms > 0) {

@@ -15,6 +15,9 @@ pub struct FaultPlan {
     /// Probability that a byte the controller sends is dropped.
     #[serde(default)]
     pub serial_drop: f64,
+    /// Drop only between these times `[from_s, to_s]` (default: the whole run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial_drop_during: Option<[f64; 2]>,
     /// Probability that a byte the controller sends is corrupted (one bit flipped).
     #[serde(default)]
     pub serial_corrupt: f64,
@@ -209,6 +212,7 @@ impl FaultPlan {
         }
         for (key, w) in [
             ("serial_corrupt_during", self.serial_corrupt_during),
+            ("serial_drop_during", self.serial_drop_during),
             ("serial_repeat_during", self.serial_repeat_during),
             ("serial_silence", self.serial_silence),
             ("adapter_bus_off", self.adapter_bus_off),
@@ -273,6 +277,21 @@ impl FaultPlan {
             }
         }
         Ok(())
+    }
+
+    /// The plan for a controller booted afresh at `t` (its device came back): the one-time
+    /// events of the controller already past happened to the one before it, and are not
+    /// played again.
+    pub fn booted_at(&self, t: f64) -> Self {
+        let future = |at: Option<f64>| at.filter(|&at| at > t);
+        Self {
+            controller_fault: self.controller_fault.filter(|f| f[0] > t),
+            controller_reset_at: future(self.controller_reset_at),
+            seq_jump_at: future(self.seq_jump_at),
+            frame_jump_at: future(self.frame_jump_at),
+            sync_reply_step: self.sync_reply_step.filter(|s| s[0] > t),
+            ..self.clone()
+        }
     }
 
     /// Parse `key=value` settings (the command line) over this plan.
@@ -358,6 +377,7 @@ impl FaultPlan {
 pub struct SerialFaults {
     rng: ChaCha8Rng,
     drop: f64,
+    drop_during: Option<[f64; 2]>,
     corrupt: f64,
     corrupt_during: Option<[f64; 2]>,
     silence: Option<[f64; 2]>,
@@ -382,6 +402,7 @@ impl SerialFaults {
         Self {
             rng: ChaCha8Rng::seed_from_u64(plan.seed ^ 0x5e71a1),
             drop: plan.serial_drop,
+            drop_during: plan.serial_drop_during,
             corrupt: plan.serial_corrupt,
             corrupt_during: plan.serial_corrupt_during,
             silence: plan.serial_silence,
@@ -433,15 +454,16 @@ impl SerialFaults {
             bytes.clear();
             return;
         }
-        let corrupt = match self.corrupt_during {
+        let within = |during: Option<[f64; 2]>, p: f64| match during {
             Some([from, to]) if t < from || t >= to => 0.0,
-            _ => self.corrupt,
+            _ => p,
         };
-        if self.drop <= 0.0 && corrupt <= 0.0 {
+        let corrupt = within(self.corrupt_during, self.corrupt);
+        let drop = within(self.drop_during, self.drop);
+        if drop <= 0.0 && corrupt <= 0.0 {
             return;
         }
         let rng = &mut self.rng;
-        let drop = self.drop;
         let before = bytes.len();
         bytes.retain(|_| !rng.random_bool(drop.min(1.0)));
         self.dropped += (before - bytes.len()) as u64;

@@ -179,6 +179,13 @@ impl MotorBoard {
         if let (Some(at), false) = (self.plan.board_reboot_at, self.reboot_done) {
             next = next.min(at);
         }
+        // A driver fault and a bus-off happen when they happen, not at the next poll.
+        if let (Some(at), false) = (self.plan.board_fault_at, self.board_fault_done) {
+            next = next.min(at);
+        }
+        if let Some(at) = self.plan.bus_off_at.filter(|&at| at > self.last_poll) {
+            next = next.min(at);
+        }
         if self.state == BoardState::Enabled {
             next = next.min(self.last_command + f64::from(self.timeout_ms) * 1e-3);
         }

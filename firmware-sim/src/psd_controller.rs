@@ -105,6 +105,11 @@ pub struct SerialQueue {
 
 impl SerialQueue {
     pub fn push(&mut self, o: Outgoing) {
+        if matches!(o.packet.message, Message::Fault { code: FaultCode::Reset, .. }) {
+            // A reboot loses the samples still in the pipeline (stamped on the old clock).
+            self.pending.retain(|p| !matches!(p.packet.message, Message::Sample(_) | Message::FrameEnd { .. }));
+            self.stream_at = o.at;
+        }
         let at = match o.packet.message {
             Message::Sample(_) | Message::FrameEnd { .. } => {
                 self.stream_at = self.stream_at.max(o.at);

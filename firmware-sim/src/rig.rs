@@ -525,7 +525,7 @@ async fn run(
                             config.leds,
                             config.noise_counts,
                             config.seed,
-                            config.faults.clone(),
+                            config.faults.booted_at(t),
                         );
                         controller.boot(t, &mut psd_out);
                     }

@@ -23,6 +23,9 @@ pub struct DecodeStats {
     pub bad_frames: u64,
     /// Bytes thrown away: bad frames' bytes, over-long runs with no delimiter.
     pub dropped_bytes: u64,
+    /// Bytes taken: good frames' bytes with their delimiters, and idle delimiters. Every
+    /// byte given to the decoder is taken, dropped, or still in its buffer.
+    pub taken_bytes: u64,
 }
 
 /// A frame that did not decode: why, and how many bytes it cost.
@@ -137,7 +140,11 @@ impl Decoder for PsdCodec {
             match self.splitter.next(buf, |b| b == 0, false) {
                 None => return Ok(None),
                 Some(Chunk::Overlong(dropped)) => return Ok(Some(Err(StreamError::Overlong { dropped }))),
-                Some(Chunk::Line { len: 0, terminator }) => buf.advance(terminator), // idle delimiters
+                Some(Chunk::Line { len: 0, terminator }) => {
+                    // Idle delimiters.
+                    buf.advance(terminator);
+                    self.splitter.stats.taken_bytes += terminator as u64;
+                }
                 Some(Chunk::Line { len, terminator }) => {
                     let result = Packet::decode(&buf[..len]);
                     self.rejected = result.is_err().then(|| psd::Header::of_wire(&buf[..len])).flatten();
@@ -146,6 +153,7 @@ impl Decoder for PsdCodec {
                     return Ok(Some(match result {
                         Ok(p) => {
                             stats.frames += 1;
+                            stats.taken_bytes += (len + terminator) as u64;
                             Ok(p)
                         }
                         Err(error) => {
@@ -218,6 +226,7 @@ impl<D: Line, E> Decoder for SlcanCodec<D, E> {
                 Ok(Some(match result {
                     Ok(line) => {
                         stats.frames += 1;
+                        stats.taken_bytes += len as u64;
                         Ok(line)
                     }
                     Err(error) => {

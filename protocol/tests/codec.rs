@@ -130,6 +130,36 @@ proptest! {
         prop_assert_eq!(seqs, (0..garbage.len() as u16).collect::<Vec<_>>());
     }
 
+    /// Nothing is lost uncounted: every byte given to a decoder is taken (in a good frame
+    /// or an idle delimiter), dropped (counted), or still in its buffer.
+    #[test]
+    fn every_byte_is_taken_dropped_or_buffered(
+        pieces in proptest::collection::vec((any::<bool>(), proptest::collection::vec(any::<u8>(), 0..80)), 0..12),
+        chunk in 1usize..64,
+    ) {
+        // Good frames among random bytes, so both ways are taken.
+        let mut stream = Vec::new();
+        for (i, (good, bytes)) in pieces.iter().enumerate() {
+            if *good { stream.extend(wire(ping(i as u16))) } else { stream.extend(bytes) }
+        }
+        fn account<D: Decoder>(codec: &mut D, bytes: &[u8], chunk: usize) -> usize where D::Error: std::fmt::Debug {
+            let mut buf = BytesMut::new();
+            for piece in bytes.chunks(chunk) {
+                buf.extend_from_slice(piece);
+                while codec.decode(&mut buf).unwrap().is_some() {}
+            }
+            buf.len()
+        }
+        let mut psd = PsdCodec::new();
+        let left = account(&mut psd, &stream, chunk) as u64;
+        let s = psd.stats();
+        prop_assert_eq!(s.taken_bytes + s.dropped_bytes + left, stream.len() as u64, "{:?}", s);
+        let mut slcan = SlcanHostCodec::new();
+        let left = account(&mut slcan, &stream, chunk) as u64;
+        let s = slcan.stats();
+        prop_assert_eq!(s.taken_bytes + s.dropped_bytes + left, stream.len() as u64, "{:?}", s);
+    }
+
     #[test]
     fn codecs_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..600), chunk in 1usize..64) {
         decode_all(&mut PsdCodec::new(), &bytes, chunk);

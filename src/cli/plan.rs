@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use flowgate::lab::planner_only::{self, Mode};
-use flowgate::lab::sweep;
 use flowgate::lab::{plots, virtual_rig, Scenario};
+use flowgate::lab::{swarm, sweep};
 
 #[derive(Args, Debug)]
 pub struct PlanArgs {
@@ -30,8 +30,17 @@ pub struct PlanArgs {
     /// (writes shard.json for `--merge`; a batch system runs i = 0..n-1 anywhere). `auto/n`
     /// takes i from the array job's index: SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN),
     /// JOB_COMPLETION_INDEX (Kubernetes) or AWS_BATCH_JOB_ARRAY_INDEX.
-    #[arg(long, value_name = "I/N", requires = "sweep")]
+    #[arg(long, value_name = "I/N")]
     shard: Option<sweep::ShardSpec>,
+    /// Run a fault swarm of this many episodes around the scenario: random overlapping
+    /// faults on both links and in the world, through the whole stack, an operator
+    /// resetting, arming and starting after each stop, every episode judged by invariants.
+    #[arg(long, value_name = "N", conflicts_with_all = ["all", "sweep", "planner_only"])]
+    swarm: Option<u64>,
+    /// Replay one episode of the swarm alone, keeping its cycles.csv, can.log and truth in
+    /// --out (the command a broken invariant prints).
+    #[arg(long, value_name = "K", requires = "swarm", conflicts_with = "shard")]
+    episode: Option<u64>,
     /// Merge sweep shards (each DIR holding a shard.json) into one report: sweep.json in --out.
     #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["all", "scenario", "file", "sweep"])]
     merge: Vec<PathBuf>,
@@ -65,8 +74,14 @@ pub fn run(args: PlanArgs) -> Result<()> {
     let mut scenario = Scenario::load(file)?;
     scenario.supervised = !args.unsupervised;
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
+    if args.shard.is_some() && args.sweep.is_none() && args.swarm.is_none() {
+        bail!("--shard splits a --sweep or a --swarm");
+    }
     if let Some(n) = args.sweep {
         return sweep_command(&args, &scenario, n, &out, mode);
+    }
+    if let Some(n) = args.swarm {
+        return swarm_command(&args, file, &scenario, n, &out);
     }
     let run = one(&scenario, mode, Some(&out))?;
     say!("{}  ({mode})", plots::one_line(&run));
@@ -114,6 +129,78 @@ fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mod
         path
     };
     say!("  wrote {}", path.display());
+    Ok(())
+}
+
+/// `--swarm N`: the fault swarm, or one shard of it, or one episode (`--episode K`).
+fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out: &Path) -> Result<()> {
+    if n == 0 {
+        bail!("--swarm needs at least one episode");
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let replay = |k: u64| {
+        let unsupervised = if scenario.supervised { "" } else { " --unsupervised" };
+        format!("flowgate plan --swarm {n} --seed {} --episode {k}{unsupervised} {}", args.seed, file.display())
+    };
+    if let Some(k) = args.episode {
+        if k >= n {
+            bail!("--episode {k}: the swarm has episodes 0 to {}", n - 1);
+        }
+        let (outcome, run) = swarm::run_episode(scenario, args.seed, k, true);
+        let schedule = swarm::schedule(scenario, args.seed, k);
+        say!("episode {k} of the swarm around {} (seed {}), {}:", scenario.name, args.seed, outcome.backend.name());
+        for f in &outcome.faults {
+            let led = f.led.map(|l| format!(" (LED {l})")).unwrap_or_default();
+            say!("  fault {:?}{led}: {:.3} s to {:.3} s", f.kind, f.from, f.to);
+        }
+        for s in &outcome.stops {
+            let rest = s.rest_after.map_or("never".into(), |r| format!("{:.1} ms", r * 1e3));
+            say!("  {:>8.3} s  fault: {}  (wheels at rest after {rest})", s.at, s.reason);
+        }
+        say!(
+            "  goal reached: {}; {} requests refused; {:.1} s virtual",
+            outcome.reached_goal,
+            outcome.refusals,
+            outcome.duration
+        );
+        say!("  bytes sent: digest {}", outcome.digest);
+        if let Some(t) = &run.telemetry {
+            t.write(out).with_context(|| format!("writing {}", out.display()))?;
+        }
+        run.truth.write(&out.join("truth.csv")).with_context(|| format!("writing {}", out.display()))?;
+        std::fs::write(out.join("faults.toml"), toml::to_string(&schedule.scenario.faults)?)?;
+        std::fs::write(out.join("episode.json"), serde_json::to_string_pretty(&outcome)?)?;
+        say!("  wrote {}/{{episode.json,faults.toml,cycles.csv,can.log,truth.csv}}", out.display());
+        if !outcome.violations.is_empty() {
+            bail!("episode {k} broke {} invariants:\n  {}", outcome.violations.len(), outcome.violations.join("\n  "));
+        }
+        return Ok(());
+    }
+    let started = std::time::Instant::now();
+    let shard =
+        args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?.unwrap_or(sweep::Shard::WHOLE);
+    let outcomes = swarm::run(scenario, n, args.seed, args.threads, shard);
+    let report = swarm::report(scenario, args.seed, shard, &outcomes);
+    say!("{report}");
+    say!(
+        "  ({} episodes, {:.0} s of virtual time, in {:.1} s)",
+        outcomes.len(),
+        report.virtual_s,
+        started.elapsed().as_secs_f64()
+    );
+    let path = out.join("swarm.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+    say!("  wrote {}", path.display());
+    for o in &report.failures {
+        say!("episode {} ({}) broke:", o.index, o.backend.name());
+        for v in &o.violations {
+            say!("  {v}");
+        }
+        say!("  replay: {}", replay(o.index));
+    }
+    if report.violated > 0 {
+        bail!("{} of {} episodes broke an invariant", report.violated, report.episodes);
+    }
     Ok(())
 }
 

@@ -18,6 +18,7 @@ pub mod demo;
 pub mod planner_only;
 pub mod plots;
 pub mod scenario;
+pub mod swarm;
 pub mod sweep;
 pub mod virtual_rig;
 

@@ -195,8 +195,9 @@ struct ControllerSpec {
 }
 
 impl ControllerSpec {
-    fn build(&self) -> PsdController {
-        PsdController::new(self.camera, self.leds, self.noise_counts, self.seed, self.faults.clone())
+    /// The controller, booted at `t`.
+    fn build(&self, t: f64) -> PsdController {
+        PsdController::new(self.camera, self.leds, self.noise_counts, self.seed, self.faults.booted_at(t))
     }
 }
 
@@ -327,6 +328,24 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     /// (there must be none: every test's invariant).
     announced: State,
     motion_outside_running: u64,
+    /// The world's truth of the lines: bytes the PSD line delivered to the gateway, and
+    /// CAN frames the bus delivered to it (each must be accounted for by the core).
+    psd_delivered: u64,
+    can_delivered: u64,
+    /// FNV-1a over every byte the gateway sent (PSD packets, CAN frames' ids and data): two
+    /// runs that agree on it sent the same bytes.
+    sent_digest: u64,
+}
+
+/// FNV-1a's offset basis and prime (64 bits).
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+
+fn fnv(mut hash: u64, bytes: &[u8]) -> u64 {
+    for &b in bytes {
+        hash = (hash ^ u64::from(b)).wrapping_mul(FNV_PRIME);
+    }
+    hash
 }
 
 /// The simulated controller (the scenario's camera, LEDs, noise and faults) and motors.
@@ -383,7 +402,7 @@ impl<K: StageClock> VirtualRig<K> {
         }
         let (spec, kind) = firmware_spec(scenario, &options, &plan);
         let mut world = World::new(scenario);
-        let mut controller = spec.build();
+        let mut controller = spec.build(0.0);
         let mut board = Motors::new(kind, &plan);
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
@@ -439,6 +458,9 @@ impl<K: StageClock> VirtualRig<K> {
             timing: options.telemetry.then(Timing::default),
             announced: State::Idle,
             motion_outside_running: 0,
+            psd_delivered: 0,
+            can_delivered: 0,
+            sent_digest: FNV_OFFSET,
         };
         rig.core_deadline = rig.core.next_deadline();
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
@@ -468,6 +490,18 @@ impl<K: StageClock> VirtualRig<K> {
     /// Virtual time, s.
     pub fn time(&self) -> f64 {
         secs(self.t)
+    }
+    /// Since when the wheels have stood still, s (`None`: turning now).
+    pub fn at_rest_since(&self) -> Option<f64> {
+        self.at_rest_since
+    }
+    /// Bytes the PSD line delivered to the gateway, and CAN frames the bus delivered to it.
+    pub fn delivered(&self) -> (u64, u64) {
+        (self.psd_delivered, self.can_delivered)
+    }
+    /// A digest of every byte the gateway sent so far (FNV-1a, 64 bits).
+    pub fn sent_digest(&self) -> u64 {
+        self.sent_digest
     }
 
     /// Run the scenario: until the gateway has stopped (goal, stall, fault) and the world
@@ -600,7 +634,7 @@ impl<K: StageClock> VirtualRig<K> {
             } else if self.psd_gone && t >= back_at {
                 self.vanish = None;
                 self.psd_gone = false;
-                self.controller = self.spec.build();
+                self.controller = self.spec.build(t);
                 self.controller.boot(t, &mut self.psd_out);
             }
         }
@@ -691,6 +725,7 @@ impl<K: StageClock> VirtualRig<K> {
             }
         }
         while self.to_host.take(self.t, &mut self.scratch) {
+            self.psd_delivered += self.scratch.len() as u64;
             // In reads of at most a chunk, as the shell's.
             for chunk in self.scratch.chunks(PSD_CHUNK) {
                 feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::PsdBytes(chunk));
@@ -723,6 +758,7 @@ impl<K: StageClock> VirtualRig<K> {
             if let Some(tel) = &mut self.telemetry {
                 let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
             }
+            self.can_delivered += 1;
             self.feed(Input::Can(CanEvent::Frame(frame)));
         }
         // SocketCAN tells of its controller going bus-off with an error frame, unasked.
@@ -735,8 +771,11 @@ impl<K: StageClock> VirtualRig<K> {
             self.host_rx.extend_from_slice(&self.scratch);
             while let Ok(Some(line)) = self.host_codec.decode(&mut self.host_rx) {
                 if let Some(event) = slcan_event(line) {
-                    if let (CanEvent::Frame(frame), Some(tel)) = (event, &mut self.telemetry) {
-                        let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
+                    if let CanEvent::Frame(frame) = event {
+                        self.can_delivered += 1;
+                        if let Some(tel) = &mut self.telemetry {
+                            let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
+                        }
                     }
                     feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::Can(event));
                 }
@@ -750,8 +789,11 @@ impl<K: StageClock> VirtualRig<K> {
             match output {
                 Output::Psd(packet) => {
                     let mut wire = [0u8; psd::MAX_WIRE_LEN];
-                    if let (Ok(n), false) = (packet.encode(&mut wire), self.psd_gone) {
-                        self.to_controller.send(self.t, &wire[..n]);
+                    if let Ok(n) = packet.encode(&mut wire) {
+                        self.sent_digest = fnv(self.sent_digest, &wire[..n]);
+                        if !self.psd_gone {
+                            self.to_controller.send(self.t, &wire[..n]);
+                        }
                     }
                 }
                 Output::Can(frame) => {
@@ -823,6 +865,11 @@ impl<K: StageClock> VirtualRig<K> {
 
     fn send_can(&mut self, frame: CanFrame) -> u64 {
         let at_s = self.time();
+        let id = match frame.id() {
+            flowgate_protocol::CanId::Standard(id) => u32::from(id),
+            flowgate_protocol::CanId::Extended(id) => id | 1 << 31,
+        };
+        self.sent_digest = fnv(fnv(self.sent_digest, &id.to_le_bytes()), frame.data());
         if self.inputs.is_some() {
             self.can_sent.push(frame);
         }

@@ -101,6 +101,9 @@ pub struct Truth {
     pub first_contact: Option<f64>,
     /// That first contact: what was touched, and how the robot was moving.
     pub contact: Option<Contact>,
+    /// The first contact in which the robot drove into what it touched (a passive contact
+    /// may come first: a stopped robot hit by an obstacle, which it may then drive into).
+    pub first_active_contact: Option<Contact>,
     /// Path length travelled by the robot's centre, m.
     pub path_length: f64,
     /// Largest wheel rim speed reached, m/s: left, right.
@@ -131,6 +134,7 @@ impl World {
                 min_wall_clearance: f64::INFINITY,
                 first_contact: None,
                 contact: None,
+                first_active_contact: None,
                 path_length: 0.0,
                 peak_wheel_speed: [0.0; 2],
             },
@@ -510,11 +514,18 @@ impl World {
         }
         let wall = self.wall_clearance_at(pose);
         self.truth.min_wall_clearance = self.truth.min_wall_clearance.min(wall);
-        if self.truth.first_contact.is_none() && (may_touch || wall < 0.0) {
+        let judged = self.truth.first_contact.is_some() && self.truth.first_active_contact.is_some();
+        if !judged && (may_touch || wall < 0.0) {
             let obstacle = self.clearances_at(pose, t).fold(f64::INFINITY, f64::min);
             if obstacle < 0.0 || wall < 0.0 {
-                self.truth.first_contact = Some(t);
-                self.truth.contact = Some(self.contact(pose, t, obstacle, wall));
+                let contact = self.contact(pose, t, obstacle, wall);
+                if self.truth.first_contact.is_none() {
+                    self.truth.first_contact = Some(t);
+                    self.truth.contact = Some(contact);
+                }
+                if contact.active && self.truth.first_active_contact.is_none() {
+                    self.truth.first_active_contact = Some(contact);
+                }
             }
         }
     }

@@ -34,12 +34,16 @@ impl<K: StageClock> Core<K> {
                 }
                 if bus_off {
                     self.counters.can_error_frames += 1;
+                    self.links.bus_off = true;
                     self.stop_if_active(now, StopReason::BusOff);
+                } else {
+                    self.links.bus_off = false;
                 }
             }
             CanEvent::ErrorFrame { bus_off } => {
                 self.counters.can_error_frames += 1;
                 if bus_off {
+                    self.links.bus_off = true;
                     self.stop(now, StopReason::BusOff);
                 }
             }
@@ -75,6 +79,7 @@ impl<K: StageClock> Core<K> {
     /// A frame from the bus: the motors' master says what it was and what it asks for.
     fn can_frame(&mut self, now: HostTime, frame: &CanFrame) {
         self.counters.can_frames_in += 1;
+        self.links.bus_off = false;
         let state = self.state();
         let effect = self.motors.frame(now, frame, state, &mut self.counters, &mut self.out.can());
         if effect.second_master {

@@ -12,6 +12,13 @@ use crate::time::{ClockOffset, CtrlTime, HostTime};
 use crate::track::Pose;
 use crate::Point;
 
+/// A frame's end stamp may stray this far from the frames counted, µs, beyond drift.
+const STAMP_SLACK_US: f64 = 2000.0;
+/// Frames apart beyond which two frame ends are not compared.
+const STAMP_CHECK_FRAMES: u32 = 64;
+/// The controller's clock drift bound (1000 ppm, as the time syncs allow).
+const DRIFT_BOUND: f64 = 1e-3;
+
 /// What the tracker and the control step made of a frame.
 struct Decision {
     pose: Pose,
@@ -35,6 +42,7 @@ impl<K: StageClock> Core<K> {
         // This frame's decode and checks, whether or not it ends in a command.
         let decode_ns = std::mem::take(&mut self.stages.decode_ns);
         let checks_ns = std::mem::take(&mut self.stages.checks_ns);
+        self.check_stamps(now, frame_no, end);
         self.track_frame(now);
         // No fresh pose: no command (the pose watchdog stops a running robot; the keep-alive
         // feeds a board that waits for its first pose).
@@ -194,6 +202,38 @@ impl<K: StageClock> Core<K> {
         }
     }
 
+    /// Whether the frame's end stamp keeps pace with the frames counted since the last, and
+    /// with the time between their arrivals: a stamp that keeps pace with neither (beyond
+    /// drift and jitter) is the controller's clock stepping. A pose stop soon after is then
+    /// named for the clock, whichever way it stepped: backwards, the poses only look old.
+    /// (A stream restarted behind a delay breaks the count's pace but keeps the arrivals';
+    /// a creeping delay the other way round.)
+    fn check_stamps(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
+        // Frames of the stream before a restart, still on their way behind a delay, come
+        // first: neither judged nor judged against until the new stream's first frame.
+        if let Some(since) = self.watch.new_stream_since {
+            // Its first frame ends a period after the restart; the old ones before it (half
+            // a period apart from either is more than the clock offset's error).
+            if self.psd.clock().to_host(end) < since + self.rig.sample_period / 2 {
+                return;
+            }
+            self.watch.new_stream_since = None;
+        }
+        let within =
+            |&(last, _, _): &(u32, CtrlTime, HostTime)| (1..=STAMP_CHECK_FRAMES).contains(&frame_no.wrapping_sub(last));
+        if let Some((last, last_end, arrived)) = self.watch.last_frame_end.filter(within) {
+            let frames = f64::from(frame_no.wrapping_sub(last));
+            let counted = frames * self.rig.sample_period.as_secs_f64() * 1e6;
+            let stamped = end.0 as f64 - last_end.0 as f64;
+            let between = now.since(arrived).as_secs_f64() * 1e6;
+            let off = |expected: f64| (stamped - expected).abs() > STAMP_SLACK_US + expected.abs() * DRIFT_BOUND;
+            if off(counted) && off(between) {
+                self.watch.stamps_stepped = Some(now);
+            }
+        }
+        self.watch.last_frame_end = Some((frame_no, end, now));
+    }
+
     /// The frame's samples into the tracker, in floor coordinates on the host clock. A
     /// sample stamped after `now` (beyond a period of clock tolerance) is discarded and
     /// counted: one future stamp would otherwise make every later, true one look old.
@@ -211,8 +251,11 @@ impl<K: StageClock> Core<K> {
 
     /// The robot's two LEDs into a pose, if plausible.
     fn observe_robot(&mut self, now: HostTime, clock: ClockOffset) {
-        let (Some(f), Some(r)) = (self.frame.usable(self.rig.robot_front), self.frame.usable(self.rig.robot_rear))
-        else {
+        let (front, rear) = (self.rig.robot_front, self.rig.robot_rear);
+        let (Some(f), Some(r)) = (self.frame.usable(front), self.frame.usable(rear)) else {
+            // Seen but weak (occluded), as against not come at all (lost with its frame).
+            let weak = |led| self.frame.received(led) && self.frame.usable(led).is_none();
+            self.watch.robot_weak |= weak(front) || weak(rear);
             return;
         };
         let cal = &self.rig.calibration;
@@ -227,6 +270,9 @@ impl<K: StageClock> Core<K> {
             Ok(()) => {
                 self.watch.implausible = None;
                 self.watch.robot_arrived = now;
+                self.watch.robot_weak = false;
+                self.watch.quiet_since_pose = false;
+                self.watch.garbage_at_last_pose = (self.counters.bad_serial_frames, self.psd.dropped_bytes());
                 self.tracker.observe_robot(at, fp, rp);
             }
             Err(e) => {

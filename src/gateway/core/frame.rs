@@ -176,6 +176,11 @@ impl FrameAssembler {
         hit
     }
 
+    /// Whether the LED's sample came in this frame, usable or not.
+    pub fn received(&self, led: u8) -> bool {
+        self.samples[usize::from(led)].is_some()
+    }
+
     /// The LED's sample in this frame, if the controller judged it usable.
     pub fn usable(&self, led: u8) -> Option<RawSample> {
         self.samples[usize::from(led)].filter(|s| s.usable)

@@ -63,7 +63,7 @@ use std::time::Duration;
 
 use crate::config::Rig;
 use crate::control::ControlStep;
-use crate::time::HostTime;
+use crate::time::{CtrlTime, HostTime};
 use crate::track::{Implausible, Pose, Tracker};
 
 mod budget;
@@ -89,7 +89,7 @@ pub use counters::{Counters, Progress};
 pub use input::{Answer, CanEvent, Input};
 pub use notice::{Level, Notice};
 pub use output::Output;
-pub use psd_session::SetupError;
+pub use psd_session::{SerialBytes, SetupError};
 pub use safety::{State, StopReason};
 
 use budget::Budget;
@@ -146,6 +146,11 @@ struct Links {
     streamed: bool,
     /// The PSD session is being configured again for an operator's reset (not a reconnect).
     rehandshake: bool,
+    /// Our CAN controller reported bus-off, and nothing has been heard on the bus since:
+    /// what goes unheard meanwhile is the bus-off's doing.
+    bus_off: bool,
+    /// When the silent controller was last configured again.
+    restreamed_at: HostTime,
 }
 
 /// The times the watchdogs and the core's own timers count from.
@@ -163,6 +168,20 @@ struct Watch {
     /// When a robot sample was last discarded as stamped in the future (the clock, not the
     /// robot, is then what went wrong).
     robot_from_future: Option<HostTime>,
+    /// The last frame's number and end stamp, and when a frame's stamp last disagreed with
+    /// the frames counted since (the controller's clock stepped, whichever way).
+    last_frame_end: Option<(u32, CtrlTime, HostTime)>,
+    /// The controller began to stream again at this time, and its new stream's first
+    /// frame has not come yet.
+    new_stream_since: Option<HostTime>,
+    stamps_stepped: Option<HostTime>,
+    /// The garbage counted at the last plausible robot pose, and whether the robot's LEDs
+    /// have since come in frames but unusable (weak: occluded), rather than not at all.
+    garbage_at_last_pose: (u64, u64),
+    robot_weak: bool,
+    /// The samples stopped for longer than two periods since the last plausible pose (the
+    /// line went quiet, even if it came back before the sample watchdog fired).
+    quiet_since_pose: bool,
     next_heartbeat: HostTime,
     stopping_since: Option<HostTime>,
     last_command: Option<HostTime>,
@@ -236,6 +255,8 @@ impl<K: StageClock> Core<K> {
                 second_master_heard: None,
                 streamed: false,
                 rehandshake: false,
+                bus_off: false,
+                restreamed_at: HostTime::ZERO,
             },
             watch: Watch {
                 last_sample: HostTime::ZERO,
@@ -244,6 +265,12 @@ impl<K: StageClock> Core<K> {
                 robot_arrived: HostTime::ZERO,
                 implausible: None,
                 robot_from_future: None,
+                last_frame_end: None,
+                new_stream_since: None,
+                stamps_stepped: None,
+                garbage_at_last_pose: (0, 0),
+                robot_weak: false,
+                quiet_since_pose: false,
                 next_heartbeat: HostTime::ZERO,
                 stopping_since: None,
                 last_command: None,
@@ -270,6 +297,10 @@ impl<K: StageClock> Core<K> {
     }
     pub fn counters(&self) -> Counters {
         self.counters
+    }
+    /// Where the PSD line's bytes went (every one accounted for).
+    pub fn serial_bytes(&self) -> SerialBytes {
+        self.psd.bytes()
     }
     pub fn progress(&self) -> Progress {
         self.progress

@@ -46,6 +46,9 @@ pub enum Notice {
     ClockJumped { step_us: i64 },
     /// The controller rebooted; it is configured again.
     ControllerReset,
+    /// The controller streamed no sample for this long, unannounced (a reboot whose
+    /// announcement was lost, say): it is configured again.
+    ControllerSilent { silent_ms: u64 },
     /// The controller reported a fault.
     ControllerFault { code: FaultCode, detail: u32 },
     /// A robot pose was discarded as implausible (the first of a run of them).
@@ -77,6 +80,7 @@ impl Notice {
             | Self::FrameCounterRebased { .. }
             | Self::ClockStepRefused { .. }
             | Self::ControllerReset
+            | Self::ControllerSilent { .. }
             | Self::PoseDiscarded { .. }
             | Self::GoalOccupied { .. }
             | Self::GoalBlocked { .. }
@@ -98,6 +102,7 @@ impl Notice {
             Self::ClockStepRefused { .. } => "clock_step_refused",
             Self::ClockJumped { .. } => "clock_jumped",
             Self::ControllerReset => "controller_reset",
+            Self::ControllerSilent { .. } => "controller_silent",
             Self::ControllerFault { .. } => "controller_fault",
             Self::PoseDiscarded { .. } => "pose_discarded",
             Self::ObstacleEntered { .. } => "obstacle_entered",
@@ -119,6 +124,7 @@ impl Notice {
             Self::FrameCounterRebased { frame } => json!({ "frame": frame }),
             Self::ClockStepRefused { step_us } | Self::ClockJumped { step_us } => json!({ "step_us": step_us }),
             Self::ControllerReset => json!({}),
+            Self::ControllerSilent { silent_ms } => json!({ "silent_ms": silent_ms }),
             Self::ControllerFault { code, detail } => json!({ "code": format!("{code:?}"), "detail": detail }),
             Self::PoseDiscarded { why } => json!({ "why": why.to_string() }),
             Self::ObstacleEntered { led, at } => json!({ "led": led, "at": at }),
@@ -152,6 +158,9 @@ impl std::fmt::Display for Notice {
                 write!(f, "PSD controller's clock jumped by {step_us} µs (confirmed by a second sync)")
             }
             Self::ControllerReset => f.write_str("PSD controller reset; reconfiguring"),
+            Self::ControllerSilent { silent_ms } => {
+                write!(f, "PSD controller streamed nothing for {silent_ms} ms; reconfiguring")
+            }
             Self::ControllerFault { code, detail } => write!(f, "PSD controller fault {code:?} (detail {detail})"),
             Self::PoseDiscarded { why } => write!(f, "robot pose discarded: {why}"),
             Self::ObstacleEntered { led, at: [x, y] } => {

@@ -69,6 +69,8 @@ pub enum Refusal {
     NotFaulted(State),
     #[error("fault: {0}, cause still present")]
     CauseStillPresent(StopReason),
+    #[error("drive {node} still reports its wheel turning: reset once it stands")]
+    StillMoving { node: u8 },
     #[error("obstacle LED {led} is required (leds.obstacles[{index}].required) and has not been seen")]
     RequiredObstacleUnseen { led: u8, index: usize },
     #[error("no goal: set one with `goal X Y`")]

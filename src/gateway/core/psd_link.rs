@@ -11,6 +11,7 @@ use super::counter_window::Verdict;
 use super::frame::{Ended, Taken};
 use super::operator::Refusal;
 use super::psd_session::SessionEvent;
+use super::safety::Garbled;
 use super::{Core, Notice, Output, StageClock, StopReason, REOPEN_EVERY};
 use crate::time::{CtrlTime, HostTime};
 
@@ -18,6 +19,7 @@ impl<K: StageClock> Core<K> {
     /// The PSD line opened: configure the controller.
     pub(super) fn psd_connected(&mut self, now: HostTime) {
         self.links.psd_reopen_at = HostTime::NEVER;
+        self.watch.last_frame_end = None;
         self.psd.connect(now, &mut self.out.psd());
     }
 
@@ -34,6 +36,8 @@ impl<K: StageClock> Core<K> {
     /// Bytes read from the PSD line at `now`.
     pub(super) fn psd_bytes(&mut self, now: HostTime, bytes: &[u8]) {
         if self.psd.is_down() {
+            self.psd.discard(bytes);
+            self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
             return;
         }
         self.psd.feed(bytes);
@@ -62,33 +66,47 @@ impl<K: StageClock> Core<K> {
         self.counters.bad_serial_frames += 1;
         tracing::debug!("bad serial frame: {e}");
         if self.links.bad_frames.exceeded(now) {
-            self.stop_if_active(now, self.garbled_since_last_sample(true));
+            self.stop_if_active(now, self.garbled_since_last_sample(Garbled::BeyondBudget));
         }
     }
 
     /// A sample taken (or the stream or the arm starting afresh) at `now`: the sample
     /// watchdog starts again, and so does the count of garbage since the last sample.
     pub(super) fn sampled(&mut self, now: HostTime) {
+        self.watch.quiet_since_pose |= now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
         self.watch.last_sample = now;
         self.watch.garbage_at_last_sample = (self.counters.bad_serial_frames, self.psd.dropped_bytes());
     }
 
     /// The serial link garbled: the bad frames and dropped bytes since the last sample.
-    fn garbled_since_last_sample(&self, over_budget: bool) -> StopReason {
-        let (frames, bytes) = self.watch.garbage_at_last_sample;
+    fn garbled_since_last_sample(&self, found: Garbled) -> StopReason {
+        self.garbled_since(self.watch.garbage_at_last_sample, found)
+    }
+
+    /// The serial link garbled: the bad frames and dropped bytes since they were
+    /// `(frames, bytes)`.
+    pub(super) fn garbled_since(&self, (frames, bytes): (u64, u64), found: Garbled) -> StopReason {
         let count = |now: u64, then: u64| u32::try_from(now.saturating_sub(then)).unwrap_or(u32::MAX);
         StopReason::SerialGarbled {
             frames: count(self.counters.bad_serial_frames, frames),
             bytes: count(self.psd.dropped_bytes(), bytes),
-            over_budget,
+            found,
         }
     }
 
-    /// Why no sample came for the sample timeout, named by the first cause: garbage on the
-    /// line since the last sample (noise, a bad cable or baud rate) is the line garbled,
-    /// not the controller silent.
+    /// Why no sample came for the sample timeout, named by the first cause: the line gone;
+    /// garbage on the line since the last sample (noise, a bad cable or baud rate) is the
+    /// line garbled, not the controller silent.
     pub(super) fn samples_stopped_cause(&self) -> StopReason {
-        match self.garbled_since_last_sample(false) {
+        // A line gone (a device that vanished, not yet back) is the first cause of all.
+        if self.psd.is_down() {
+            return StopReason::SerialLost;
+        }
+        // The handshake cannot trust the clock: the stream waits for it.
+        if self.psd.clock_waiting() {
+            return StopReason::ClockUnsynced;
+        }
+        match self.garbled_since_last_sample(Garbled::NoSample) {
             StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
             garbled => garbled,
         }
@@ -171,6 +189,7 @@ impl<K: StageClock> Core<K> {
     /// counted; `--arm` arms and starts now.
     fn streaming(&mut self, now: HostTime) {
         self.sampled(now);
+        (self.watch.last_frame_end, self.watch.new_stream_since) = (None, Some(now));
         self.frame.restart(&self.rig.schedule);
         if self.links.streamed && !std::mem::take(&mut self.links.rehandshake) {
             self.counters.serial_reconnects += 1;

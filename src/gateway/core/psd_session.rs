@@ -105,6 +105,23 @@ pub enum SessionEvent {
     ClockStep { step_us: i64, again: bool },
 }
 
+/// Where the serial line's bytes went: every byte received is taken (in a good frame or
+/// an idle delimiter), dropped (counted in `serial_dropped_bytes`), or still buffered.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SerialBytes {
+    pub received: u64,
+    pub taken: u64,
+    pub dropped: u64,
+    pub buffered: u64,
+}
+
+impl SerialBytes {
+    /// Every byte received is accounted for.
+    pub fn balanced(&self) -> bool {
+        self.received == self.taken + self.dropped + self.buffered
+    }
+}
+
 /// The session.
 #[derive(Debug)]
 pub struct PsdSession {
@@ -130,9 +147,22 @@ pub struct PsdSession {
     offset_round_trip: Duration,
     /// The last periodic sync found a step (refused).
     stepped: bool,
+    /// A handshake's sync that disagreed with the offset held before it, waiting for a
+    /// second to agree with one of them (an odd reply is not taken on its own word).
+    unconfirmed: Option<(ClockOffset, HostTime, Duration)>,
+    /// Handshake syncs taken so far in this handshake.
+    handshake_syncs: u8,
+    /// An offset has been taken (the session has a clock to judge a handshake's against).
+    has_offset: bool,
+    /// The handshake waits for a time sync with a round trip within bound.
+    clock_waiting: bool,
     /// Bytes thrown away before the current decoder (its own count starts at zero), and
     /// bytes still buffered when a session ended.
     dropped_before: u64,
+    /// Bytes taken by decoders before the current one.
+    taken_before: u64,
+    /// Every byte the line delivered.
+    received: u64,
 }
 
 impl PsdSession {
@@ -153,7 +183,13 @@ impl PsdSession {
             round_trip: None,
             offset_round_trip: Duration::ZERO,
             stepped: false,
+            unconfirmed: None,
+            handshake_syncs: 0,
+            has_offset: false,
+            clock_waiting: false,
             dropped_before: 0,
+            taken_before: 0,
+            received: 0,
         }
     }
 
@@ -161,8 +197,10 @@ impl PsdSession {
     pub fn connect(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
         self.discard_buffer();
         self.dropped_before += self.codec.stats().dropped_bytes;
+        self.taken_before += self.codec.stats().taken_bytes;
         self.incoming.reset();
         self.codec = PsdCodec::new();
+        (self.unconfirmed, self.handshake_syncs, self.clock_waiting) = (None, 0, false);
         send(self.packet(Message::StopStream));
         self.request(now, Step::Info, 1, send);
     }
@@ -174,6 +212,7 @@ impl PsdSession {
         self.incoming.reset();
         let was_streaming = self.phase == Phase::Streaming;
         if self.phase != Phase::Down {
+            (self.unconfirmed, self.handshake_syncs) = (None, 0);
             self.request(now, Step::Schedule, 1, send);
         }
         was_streaming
@@ -201,6 +240,28 @@ impl PsdSession {
     /// with no delimiter, bytes left undecoded when a session ended.
     pub fn dropped_bytes(&self) -> u64 {
         self.dropped_before + self.codec.stats().dropped_bytes
+    }
+
+    /// Where every byte the line delivered went.
+    pub fn bytes(&self) -> SerialBytes {
+        SerialBytes {
+            received: self.received,
+            taken: self.taken_before + self.codec.stats().taken_bytes,
+            dropped: self.dropped_bytes(),
+            buffered: self.buf.len() as u64,
+        }
+    }
+
+    /// Bytes that arrived with the session down (after the line failed, before it opened
+    /// again): thrown away, and counted.
+    pub fn discard(&mut self, bytes: &[u8]) {
+        self.received += bytes.len() as u64;
+        self.dropped_before += bytes.len() as u64;
+    }
+
+    /// The handshake is held up by time syncs whose round trips are beyond bound.
+    pub fn clock_waiting(&self) -> bool {
+        self.clock_waiting && !self.is_streaming()
     }
 
     pub fn is_streaming(&self) -> bool {
@@ -254,6 +315,7 @@ impl PsdSession {
 
     /// Bytes read from the line.
     pub fn feed(&mut self, bytes: &[u8]) {
+        self.received += bytes.len() as u64;
         self.buf.extend_from_slice(bytes);
     }
 
@@ -326,12 +388,42 @@ impl PsdSession {
                 if request_seq == seq && host_time_us == sent.as_nanos() / 1000 =>
             {
                 // The handshake's sync sets the clock afresh (a new session, or a controller
-                // that rebooted): nothing to judge it against.
+                // that rebooted). One that disagrees with the clock held before it is taken
+                // only once a second agrees with it (the clock stepped, or the controller
+                // rebooted); a second that agrees with the old clock says the first reply
+                // was the odd one. Either way two replies in a row agree.
                 let rtt = now.since(sent);
                 self.round_trip = Some(rtt);
+                if rtt > MAX_RTT {
+                    // Held in a queue: its stamp says little about the clocks (stamps put
+                    // tens of ms off would make true samples look as if from the future).
+                    // Asked again, for as long as the replies come held; the stream waits.
+                    self.clock_waiting = true;
+                    self.request(now, Step::TimeSync, 1, send);
+                    return SessionEvent::Consumed;
+                }
+                self.clock_waiting = false;
                 self.stepped = false;
-                self.take_offset(ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now), now, rtt);
-                Step::Start
+                self.handshake_syncs = self.handshake_syncs.saturating_add(1);
+                let offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
+                let agrees = |(held, at, held_rtt): (ClockOffset, HostTime, Duration)| {
+                    let drift = now.since(at).as_nanos() * u128::from(MAX_DRIFT_PPM) / 1_000_000;
+                    let bound = drift + (rtt.as_nanos() + held_rtt.as_nanos()) / 2 + 2_000;
+                    (offset.as_nanos() - held.as_nanos()).unsigned_abs() <= bound
+                };
+                let held = self.has_offset.then_some((self.offset, self.synced_at, self.offset_round_trip));
+                let confirmed = match self.unconfirmed.or(held) {
+                    None => true,
+                    Some(earlier) => agrees(earlier) || held.is_some_and(agrees),
+                };
+                if confirmed || self.handshake_syncs >= TRIES {
+                    self.unconfirmed = None;
+                    self.take_offset(offset, now, rtt);
+                    Step::Start
+                } else {
+                    self.unconfirmed = Some((offset, now, rtt));
+                    Step::TimeSync
+                }
             }
             (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {
                 self.phase = Phase::Streaming;
@@ -371,6 +463,15 @@ impl PsdSession {
         if step_ns.unsigned_abs() > self.step_bound_ns(now, rtt) {
             let again = std::mem::replace(&mut self.stepped, true);
             self.next_resync = now + STEP_RECHECK;
+            if again {
+                // Confirmed: the controller's clock is there now. Taken, so that its stamps
+                // mean the right times again (the core faults on the step all the same); held
+                // at the old offset, every sample would look old or from the future, and the
+                // pose would stay lost for good.
+                self.stepped = false;
+                self.take_offset(offset, now, rtt);
+                self.next_resync = now + RESYNC_EVERY;
+            }
             let step_us = i64::try_from(step_ns / 1000).unwrap_or(if step_ns < 0 { i64::MIN } else { i64::MAX });
             return Some(SessionEvent::ClockStep { step_us, again });
         }
@@ -394,6 +495,7 @@ impl PsdSession {
     }
 
     fn take_offset(&mut self, offset: ClockOffset, now: HostTime, rtt: Duration) {
+        self.has_offset = true;
         self.offset = offset;
         self.synced_at = now;
         self.offset_round_trip = rtt;

@@ -97,10 +97,10 @@ impl<K: StageClock> Core<K> {
         if self.cause_present(now, reason) {
             return Err(Refusal::CauseStillPresent(reason));
         }
-        if let StopReason::ObstacleOccluded { led } = reason {
-            if let Some(k) = self.rig.obstacles.iter().position(|o| o.led == led) {
-                self.tracker.drop_obstacle(k);
-            }
+        // Armed again, the drives go pre-operational to be configured, and no longer hear
+        // a quick stop: a wheel still turning (its stop lost on the bus) must stand first.
+        if let Some(node) = self.motors.moving(now) {
+            return Err(Refusal::StillMoving { node });
         }
         self.motors.fault_reset(&mut self.out.can());
         // The PSD session starts afresh: sequence numbers, frame counter and clock taken
@@ -109,6 +109,8 @@ impl<K: StageClock> Core<K> {
             self.psd.connect(now, &mut self.out.psd());
             self.frame.forget_counter();
             self.watch.robot_from_future = None;
+            self.watch.last_frame_end = None;
+            self.watch.stamps_stepped = None;
             self.links.rehandshake = true;
         }
         self.safety.reset(now.secs());
@@ -130,17 +132,28 @@ impl<K: StageClock> Core<K> {
         let sampling = !self.psd.is_down() && now < self.watch.last_sample + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
+            StopReason::ClockUnsynced => self.psd.clock_waiting(),
             StopReason::SamplesStopped | StopReason::SerialGarbled { .. } => !sampling,
             StopReason::PoseLost => {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
-            StopReason::HeartbeatLost { .. } | StopReason::DriveHeartbeatLost { .. } => !heard,
-            // The reset forgets the occluded track: the obstacle is absent until seen again
-            // (and a required one refuses the arm until then).
+            StopReason::HeartbeatLost { .. } => !heard,
+            // A drive that rebooted unheard (its boot-up lost) stays silent, its heartbeat
+            // off until configured: listening cannot tell it from a dead one. The arm
+            // configures each drive afresh by SDO and faults naming the one that does not
+            // answer, so the reset need not wait for a heartbeat that may never come.
+            StopReason::DriveHeartbeatLost { .. } => false,
+            // The reset keeps the occluded track: the robot, armed again, drives around the
+            // region the obstacle may have reached (it is not forgotten while unseen: that
+            // drove robots blind into it), and faults again if it stays unseen.
             StopReason::ObstacleOccluded { .. } => false,
-            StopReason::BusOff | StopReason::BoardBusOff { .. } | StopReason::BoardEStop { .. } => {
-                !heard || self.motors.latched(reason)
-            }
+            // Back on the bus once heard again; the board's BUS bit records that it was off,
+            // a latch the reset itself clears (refusing the reset for it would never end).
+            // Our controller back on the bus (its flags, or a frame heard since), and a board
+            // heard again (drives may be silent: see above).
+            StopReason::BusOff => self.links.bus_off || (!heard && self.motors.board().is_some()),
+            StopReason::BoardBusOff { .. } => !heard,
+            StopReason::BoardEStop { .. } => !heard || self.motors.latched(reason),
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.links.can_up,
             // Two masters must never drive one board: refused while the other is heard.
             StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {

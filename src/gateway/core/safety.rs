@@ -33,11 +33,12 @@ pub enum StopReason {
     PoseDelayed,
     SamplesStopped,
     /// Garbage on the serial line (bad frames, bytes dropped between frames): bad frames
-    /// beyond budget, or garbage where the samples stopped. The counts since the last sample.
+    /// beyond budget, or garbage where the samples or the robot's poses stopped. The counts
+    /// since the last sample (the last pose, for `Garbled::NoPose`).
     SerialGarbled {
         frames: u32,
         bytes: u32,
-        over_budget: bool,
+        found: Garbled,
     },
     /// Duplicated, replayed, reordered or far-jumped PSD packets beyond budget.
     PsdSequence,
@@ -162,7 +163,7 @@ impl StopReason {
         Self::PoseImplausible,
         Self::PoseDelayed,
         Self::SamplesStopped,
-        Self::SerialGarbled { frames: 0, bytes: 0, over_budget: false },
+        Self::SerialGarbled { frames: 0, bytes: 0, found: Garbled::NoSample },
         Self::PsdSequence,
         Self::UnscheduledLed { led: 0 },
         Self::FrameCounterJump,
@@ -269,19 +270,33 @@ impl StopReason {
     }
 }
 
+/// How garbage on the serial line stopped the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Garbled {
+    /// More bad frames than `safety.bad_frames_per_s` allows.
+    BeyondBudget,
+    /// No sample came through it for the sample timeout.
+    NoSample,
+    /// No robot pose came through it for the pose timeout (the frames that carried the
+    /// robot's samples were lost in it; others may have come).
+    NoPose,
+}
+
 impl std::fmt::Display for StopReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         if let Some(text) = self.fixed_text() {
             return f.write_str(text);
         }
         match self {
-            Self::SerialGarbled { frames, bytes, over_budget } => {
+            Self::SerialGarbled { frames, bytes, found } => {
                 let s = |n: &u32| if *n == 1 { "" } else { "s" };
                 let (fs, bs) = (s(frames), s(bytes));
-                let counts = format!("{frames} bad frame{fs}, {bytes} byte{bs} dropped since the last sample");
-                match over_budget {
-                    true => write!(f, "garbled serial frames beyond budget ({counts})"),
-                    false => write!(f, "garbled serial data and no sample through it ({counts})"),
+                let since = if *found == Garbled::NoPose { "pose" } else { "sample" };
+                let counts = format!("{frames} bad frame{fs}, {bytes} byte{bs} dropped since the last {since}");
+                match found {
+                    Garbled::BeyondBudget => write!(f, "garbled serial frames beyond budget ({counts})"),
+                    Garbled::NoSample => write!(f, "garbled serial data and no sample through it ({counts})"),
+                    Garbled::NoPose => write!(f, "garbled serial data and no robot pose through it ({counts})"),
                 }
             }
             Self::UnscheduledLed { led } => {

@@ -3,6 +3,7 @@
 use flowgate_protocol::psd::{Info, Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
 use super::operator::{Refusal, Request};
+use super::safety::Garbled;
 use super::*;
 use crate::config::GatewayConfig;
 use crate::Point;
@@ -272,7 +273,7 @@ fn garbage_in_place_of_samples_is_named_garbled_not_silent() {
         let now = c.next_deadline();
         c.tick(now);
     }
-    let reason = StopReason::SerialGarbled { frames: 1, bytes: 3001, over_budget: false };
+    let reason = StopReason::SerialGarbled { frames: 1, bytes: 3001, found: Garbled::NoSample };
     assert_eq!(c.state(), State::Fault(reason));
     assert_eq!(
         reason.to_string(),
@@ -411,4 +412,91 @@ fn a_controller_of_another_kind_is_refused_at_the_handshake() {
     }
     let e = failed.expect("refused");
     assert_eq!(e.to_string(), "PSD controller is not the one configured: it drives fewer LEDs than the schedule has");
+}
+
+/// Answer the handshake as [`answer`] does, but the time-sync replies `off_us` off (one odd
+/// reply, or a controller whose clock really moved).
+fn answer_syncs_off(core: &mut Core<NoClock>, now: HostTime, off_us: i64) -> bool {
+    let mut streaming = false;
+    while let Some(o) = core.poll() {
+        let p = match o {
+            Output::Psd(p) => p,
+            Output::Streaming => {
+                streaming = true;
+                continue;
+            }
+            _ => continue,
+        };
+        let reply = match p.message {
+            Message::GetInfo => Message::Info {
+                request_seq: p.seq,
+                info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+            },
+            Message::TimeSync { host_time_us } => Message::TimeSyncReply {
+                request_seq: p.seq,
+                host_time_us,
+                t_ctrl_us: (now.as_nanos() / 1000 + CTRL_EPOCH_US).saturating_add_signed(off_us),
+            },
+            Message::StopStream => continue,
+            m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
+        };
+        core.psd_bytes(now, &bytes(reply));
+        // Only the first sync is odd: the rest come true.
+        if matches!(p.message, Message::TimeSync { .. }) {
+            return streaming || answer(core, now).contains(&Output::Streaming);
+        }
+    }
+    streaming
+}
+
+/// A handshake after the clock was taken once (an operator's reset, a line that came back)
+/// does not take one odd time-sync reply on its word: it asks again, and takes the clock
+/// two replies in a row agree on. Without this check, every sample after a reset was 80 ms
+/// off (found by the fault swarm).
+#[test]
+fn a_handshake_takes_no_odd_time_sync_reply_on_its_word() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    let held = c.psd.clock();
+    c.psd_connected(ms(500));
+    assert!(answer_syncs_off(&mut c, ms(501), 80_000), "streaming again");
+    assert!(c.psd.is_streaming());
+    let step_ns = c.psd.clock().as_nanos() - held.as_nanos();
+    assert!(step_ns.unsigned_abs() < 1_000_000, "the odd reply was taken: {step_ns} ns");
+    // Frames stamped on the true clock are poses of their own time, not from the future.
+    frame(&mut c, ms(520), 1, CTRL_EPOCH_US + 519_000);
+    assert_eq!(c.counters().samples_from_future, 0);
+    assert!((c.tracker.pose_time().unwrap() - 0.519).abs() < 1e-6);
+}
+
+/// A pose lost because the frames that carried it were garbled is named for the garbage,
+/// with its counts since the last pose, not as a pose lost; an occluded robot (its samples
+/// arrive, weak) is still "robot pose lost".
+#[test]
+fn a_pose_lost_in_garbage_is_named_garbled() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(2), &Request::Arm).unwrap();
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    // The robot's frames garbled from here; the line stays busy (no quiet gap).
+    for k in 1..12u32 {
+        let mut garbled = bytes(Message::FrameEnd {
+            frame: k,
+            t_ctrl_us: CTRL_EPOCH_US + 19_000 + u64::from(k) * 20_000,
+            samples: 2,
+        });
+        garbled[3] ^= 0x5A;
+        c.psd_bytes(ms(20 + 20 * u64::from(k)), &garbled);
+        c.sampled(ms(20 + 20 * u64::from(k)));
+    }
+    let reason = c.pose_lost_cause(ms(200));
+    assert!(matches!(reason, StopReason::SerialGarbled { frames: 11, found: Garbled::NoPose, .. }), "{reason:?}");
+    assert!(
+        reason.to_string().starts_with("garbled serial data and no robot pose through it (11 bad frames"),
+        "{reason}"
+    );
+    c.watch.robot_weak = true;
+    assert_eq!(c.pose_lost_cause(ms(200)), StopReason::PoseLost);
 }

@@ -8,8 +8,12 @@
 //!
 //! [`Input::Tick`]: super::Input::Tick
 
+use super::safety::Garbled;
 use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, REOPEN_EVERY, STOP_GRACE};
 use crate::time::HostTime;
+
+/// A streaming controller silent this long is configured again.
+pub const RESTREAM_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// One entry of the timer table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -18,6 +22,9 @@ pub enum Timer {
     Heartbeat,
     /// The PSD handshake's retries and the periodic time sync.
     PsdSession,
+    /// The controller streaming, and no sample for [`RESTREAM_AFTER`]: configure it again
+    /// (a reboot whose announcement was lost leaves it answering, but not streaming).
+    Restream,
     /// Ask for the lost PSD line, or the lost CAN link, again.
     ReopenPsd,
     ReopenCan,
@@ -42,9 +49,10 @@ pub enum Timer {
 
 impl Timer {
     /// The table, in the order a tick fires its entries.
-    pub const TABLE: [Timer; 12] = [
+    pub const TABLE: [Timer; 13] = [
         Timer::Heartbeat,
         Timer::PsdSession,
+        Timer::Restream,
         Timer::ReopenPsd,
         Timer::ReopenCan,
         Timer::Samples,
@@ -77,6 +85,9 @@ impl<K: StageClock> Core<K> {
         match timer {
             Timer::Heartbeat => self.watch.next_heartbeat,
             Timer::PsdSession => self.psd.deadline(),
+            Timer::Restream if self.psd.is_streaming() => {
+                self.watch.last_sample.max(self.links.restreamed_at) + RESTREAM_AFTER
+            }
             Timer::ReopenPsd => self.links.psd_reopen_at,
             Timer::ReopenCan => self.links.can_reopen_at,
             Timer::Samples if active => self.watch.last_sample + s.sample_timeout,
@@ -127,6 +138,12 @@ impl<K: StageClock> Core<K> {
                     self.out.push(Output::SetupFailed(e));
                 }
             }
+            Timer::Restream => {
+                let silent_ms = now.since(self.watch.last_sample).as_millis() as u64;
+                self.notice(now, super::Notice::ControllerSilent { silent_ms });
+                self.links.restreamed_at = now;
+                self.psd.connect(now, &mut self.out.psd());
+            }
             Timer::ReopenPsd => {
                 self.links.psd_reopen_at = now + REOPEN_EVERY;
                 self.out.push(Output::OpenPsd);
@@ -145,7 +162,8 @@ impl<K: StageClock> Core<K> {
             Timer::MotorHeartbeat => {
                 let (_, reason) =
                     self.motors.heartbeat_deadline(self.watch.armed_at, self.rig.safety.heartbeat_timeout);
-                self.stop(now, reason);
+                // Unheard because our own controller is off the bus: named for that.
+                self.stop(now, if self.links.bus_off { StopReason::BusOff } else { reason });
             }
             Timer::ClockSync => self.stop(now, StopReason::ClockUnsynced),
             Timer::Motors => {
@@ -163,20 +181,30 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// Why no fresh pose came, named by the first cause: the line gone quiet; the robot's
-    /// samples stamped in the future (the controller's clock jumped); seen where it cannot
-    /// be; arriving, but too old (delay); or not arriving.
-    fn pose_lost_cause(&self, now: HostTime) -> StopReason {
+    /// Why no fresh pose came, named by the first cause: the line gone quiet; the
+    /// controller's clock jumped (the robot's samples stamped in the future, or frames
+    /// stamped out of step with their count); seen where it cannot be; arriving, but too
+    /// old (delay); lost with frames the line garbled (no weak sample of the robot since);
+    /// lost while the line went quiet for a while; or not arriving.
+    pub(super) fn pose_lost_cause(&self, now: HostTime) -> StopReason {
         let s = &self.rig.safety;
         let quiet = now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
+        let recent = |at: Option<HostTime>, within| at.is_some_and(|at| now.since(at) < within);
+        let garbled = self.garbled_since(self.watch.garbage_at_last_pose, Garbled::NoPose);
         if quiet {
             self.samples_stopped_cause()
-        } else if self.watch.robot_from_future.is_some_and(|at| now.since(at) < s.sample_timeout) {
+        } else if recent(self.watch.robot_from_future, s.sample_timeout)
+            || recent(self.watch.stamps_stepped, s.sample_timeout + s.pose_timeout)
+        {
             StopReason::ClockJumped
         } else if self.watch.implausible.is_some() {
             StopReason::PoseImplausible
         } else if now.since(self.watch.robot_arrived) < s.sample_timeout {
             StopReason::PoseDelayed
+        } else if !self.watch.robot_weak && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. }) {
+            garbled
+        } else if self.watch.quiet_since_pose && !self.watch.robot_weak {
+            StopReason::SamplesStopped
         } else {
             StopReason::PoseLost
         }

@@ -144,7 +144,6 @@ impl BoardMaster {
     /// Whether the board still latches the fault bit behind `reason`.
     pub fn latched(&self, reason: StopReason) -> bool {
         match reason {
-            StopReason::BusOff | StopReason::BoardBusOff { .. } => self.faults.contains(FaultBits::BUS),
             // The board refuses to leave its e-stop while its input is open; so does the gateway.
             StopReason::BoardEStop { .. } => self.faults.contains(FaultBits::ESTOP_INPUT),
             _ => false,
@@ -219,6 +218,8 @@ impl BoardMaster {
         let settled = state != State::Armed || now >= self.enable_sent + ENABLE_GRACE;
         let latched = if faults.contains(FaultBits::ESTOP_INPUT) {
             StopReason::BoardEStop { node }
+        } else if faults.contains(FaultBits::BUS) {
+            StopReason::BoardBusOff { node }
         } else {
             StopReason::BoardFault { node }
         };

@@ -27,6 +27,10 @@ use crate::time::HostTime;
 /// of the gateway's periods.
 pub const CONSUMER_TIME_MS: u32 = 300;
 
+/// How recent a drive's report of its velocity must be to say its wheel turns now (ten of
+/// its report periods at the default 10 ms).
+pub const MOTION_REPORT_FRESH: std::time::Duration = std::time::Duration::from_millis(100);
+
 /// One configuration write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SdoWrite {
@@ -129,6 +133,11 @@ struct Drive {
     step: usize,
     sent: Option<HostTime>,
     heard: Option<HostTime>,
+    /// When it last reported its state and velocity (TPDO1).
+    reported: Option<HostTime>,
+    /// Its last heartbeat was its boot-up: alive, but silent until configured again (a
+    /// rebooted drive's heartbeat period is back at its default, off).
+    booted: bool,
     statusword: Option<u16>,
     velocity: i32,
     position: Option<i32>,
@@ -175,6 +184,8 @@ impl Cia402Master {
             step: 0,
             sent: None,
             heard: None,
+            booted: false,
+            reported: None,
             statusword: None,
             velocity: 0,
             position: None,
@@ -205,9 +216,25 @@ impl Cia402Master {
             .map(|d| ((f64::from(d.velocity) / self.settings.velocity_scale).round() as i32, d.position))
     }
 
+    /// A drive that reports its wheel turning now, if any (its node): powered (in operation
+    /// enabled or its quick stop), with a report within [`MOTION_REPORT_FRESH`]. A drive
+    /// gone silent is not taken as turning on an old report: the arm, configuring it by SDO,
+    /// finds it or names it.
+    pub fn moving(&self, now: HostTime) -> Option<u8> {
+        let powered = |d: &&Drive| d.state().is_none_or(|s| s.is_enabled() || s == DriveState::QuickStopActive);
+        let fresh = |d: &&Drive| d.reported.is_some_and(|at| now < at + MOTION_REPORT_FRESH);
+        self.drives.iter().filter(powered).filter(fresh).find(|d| d.velocity != 0).map(|d| d.node.get())
+    }
+
     /// When each drive was last heard (heartbeat or boot-up).
     pub fn heard(&self) -> [Option<HostTime>; 2] {
         self.drives.each_ref().map(|d| d.heard)
+    }
+
+    /// Every drive heard within `timeout` of `now`, or booted since and silent until
+    /// configured.
+    pub fn alive_within(&self, now: HostTime, timeout: std::time::Duration) -> bool {
+        self.drives.iter().all(|d| d.booted || d.heard.is_some_and(|h| now < h + timeout))
     }
 
     /// Arm: configure both drives afresh and take them to operation enabled.
@@ -278,9 +305,15 @@ impl Cia402Master {
     /// The gateway's heartbeat (operational: it is the master). After an e-stop, with each
     /// heartbeat the quick stop again to every drive not yet seen out of operation enabled:
     /// a drive has no command timeout, so a lost quick stop must not leave it running while
-    /// the heartbeat it watches goes on.
+    /// the heartbeat it watches goes on. Until every drive is seen out of it, the heartbeat
+    /// itself is withheld: on a lossy bus the repeats may all be lost, and the drives' own
+    /// heartbeat consumer (0x1016) then stops them within its time, whatever the loss.
     pub fn heartbeat(&mut self, send: &mut impl FnMut(CanFrame)) {
-        emit(send, CanOpenMessage::Heartbeat { node: self.settings.gateway, state: NmtState::Operational });
+        let unconfirmed =
+            self.phase == Phase::QuickStop && self.drives.iter().any(|d| d.state().is_none_or(DriveState::is_enabled));
+        if !unconfirmed {
+            emit(send, CanOpenMessage::Heartbeat { node: self.settings.gateway, state: NmtState::Operational });
+        }
         if self.phase == Phase::QuickStop {
             for d in &self.drives {
                 if d.state().is_none_or(DriveState::is_enabled) {
@@ -347,6 +380,11 @@ impl Cia402Master {
             CanOpenMessage::Heartbeat { state, .. } => {
                 let d = &mut self.drives[k];
                 d.heard = Some(now);
+                d.booted = state == NmtState::BootUp;
+                if d.booted {
+                    // Rebooted: its motor unpowered, its last report void.
+                    (d.velocity, d.statusword) = (0, None);
+                }
                 match (state, self.phase) {
                     // Booted while being configured (powered up with the gateway, or reset):
                     // nothing it was told holds, and nothing moves yet: configure it afresh.
@@ -365,7 +403,7 @@ impl Cia402Master {
             }
             CanOpenMessage::SdoResponse { response, .. } => self.sdo_answer(now, k, response, send),
             CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 1, data, .. } => {
-                self.status(k, data, active, send)
+                self.status(now, k, data, active, send)
             }
             CanOpenMessage::Pdo { direction: PdoDirection::Transmit, number: 2, data, .. } => {
                 if let [a, b, c, d] = *data.bytes() {
@@ -410,11 +448,19 @@ impl Cia402Master {
 
     /// TPDO1: statusword and velocity. While enabling, answer with the next controlword; once
     /// enabled, a drive that leaves operation enabled stops the gateway.
-    fn status(&mut self, k: usize, data: PdoData, active: bool, send: &mut impl FnMut(CanFrame)) -> Option<StopReason> {
+    fn status(
+        &mut self,
+        now: HostTime,
+        k: usize,
+        data: PdoData,
+        active: bool,
+        send: &mut impl FnMut(CanFrame),
+    ) -> Option<StopReason> {
         let report = VelocityReport::parse(&data)?;
         let d = &mut self.drives[k];
         d.statusword = Some(report.statusword);
         d.velocity = report.velocity_actual;
+        d.reported = Some(now);
         let state = DriveState::from_statusword(report.statusword);
         match self.phase {
             // Configured means started: the NMT start follows the last write at once.

@@ -170,11 +170,21 @@ impl MotorMaster {
         }
     }
 
-    /// Every motor was heard within `timeout` of `now`.
+    /// A CiA 402 drive that last reported its wheel turning (its node). The board stops by
+    /// itself on its command timeout; a drive does not.
+    pub fn moving(&self, now: HostTime) -> Option<u8> {
+        match self {
+            Self::Board(_) => None,
+            Self::Cia402(m) => m.moving(now),
+        }
+    }
+
+    /// Every motor was heard within `timeout` of `now` (a CiA 402 drive that announced its
+    /// boot since counts: it is silent until configured).
     pub fn heard_within(&self, now: HostTime, timeout: std::time::Duration) -> bool {
         match self {
             Self::Board(b) => b.last_heartbeat().is_some_and(|h| now < h + timeout),
-            Self::Cia402(m) => m.heard().iter().all(|h| h.is_some_and(|h| now < h + timeout)),
+            Self::Cia402(m) => m.alive_within(now, timeout),
         }
     }
 
