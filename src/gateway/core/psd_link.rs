@@ -79,7 +79,7 @@ impl<K: StageClock> Core<K> {
     }
 
     /// The serial link garbled: the bad frames and dropped bytes since the last sample.
-    fn garbled_since_last_sample(&self, found: Garbled) -> StopReason {
+    pub(super) fn garbled_since_last_sample(&self, found: Garbled) -> StopReason {
         self.garbled_since(self.watch.garbage_at_last_sample, found)
     }
 

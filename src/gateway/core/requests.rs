@@ -38,6 +38,11 @@ impl<K: StageClock> Core<K> {
             State::Fault(_) => return Err(Refusal::Faulted(state)),
             _ => return Err(Refusal::Already(state)),
         }
+        // Armed, the sample watchdog runs: without a stream it could only fault, and name
+        // the samples rather than the line or the handshake that holds them up.
+        if !self.psd.is_streaming() {
+            return Err(Refusal::NotStreaming);
+        }
         let unseen =
             self.rig.obstacles.iter().enumerate().find(|&(k, o)| o.required && self.tracker.obstacle_time(k).is_none());
         if let Some((index, o)) = unseen {

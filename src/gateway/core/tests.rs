@@ -19,6 +19,9 @@ fn core() -> Core<NoClock> {
 #[test]
 fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
     let mut c = core();
+    assert_eq!(c.request(ms(0), &Request::Arm), Err(Refusal::NotStreaming), "no stream yet");
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
     assert_eq!(c.request(ms(1), &Request::Arm), Ok(()));
     let text = include_str!("../../../rig.example.toml").replacen(
         "{ led = 4, radius = 0.07 }",
@@ -26,6 +29,8 @@ fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
         1,
     );
     let mut c = Core::new(GatewayConfig::from_toml(&text, "rig").unwrap().rig("rig").unwrap(), NoClock);
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
     let refusal = c.request(ms(1), &Request::Arm).unwrap_err();
     assert_eq!(refusal, Refusal::RequiredObstacleUnseen { led: 4, index: 1 });
     assert_eq!(refusal.to_string(), "obstacle LED 4 is required (leds.obstacles[1].required) and has not been seen");
@@ -59,6 +64,8 @@ fn every_discarded_byte_is_counted() {
 #[test]
 fn an_interface_gone_down_is_named_and_held_until_the_link_reopens() {
     let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
     c.request(ms(1), &Request::Arm).unwrap();
     c.can_event(ms(2), CanEvent::InterfaceDown);
     assert_eq!(c.state(), State::Fault(StopReason::CanInterfaceDown));

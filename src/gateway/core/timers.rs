@@ -135,6 +135,16 @@ impl<K: StageClock> Core<K> {
             Timer::PsdSession => {
                 let failed = self.psd.tick(now, &mut self.out.psd());
                 if let Some(e) = failed {
+                    // A controller that streamed, configured again and now silent: named as
+                    // the sample watchdog names it (garbage, or no samples), before the
+                    // shell reopens the line for it.
+                    if self.links.streamed {
+                        let reason = match self.garbled_since_last_sample(Garbled::NoSample) {
+                            StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
+                            garbled => garbled,
+                        };
+                        self.stop(now, reason);
+                    }
                     self.out.push(Output::SetupFailed(e));
                 }
             }
