@@ -64,7 +64,7 @@ fn await_line(rx: &mpsc::Receiver<String>, what: &str, seen: &mut Vec<String>) {
 }
 
 /// A running `flowgate run --config CONFIG` and its output lines, once its control socket
-/// is up (its log goes on being read, so its stderr never fills).
+/// is up and the controller streams (its log goes on being read, so its stderr never fills).
 struct Gateway {
     child: std::process::Child,
     out: mpsc::Receiver<String>,
@@ -81,7 +81,12 @@ fn run_gateway(config: &Path) -> Gateway {
         .unwrap();
     let out = lines(child.stdout.take().unwrap());
     let log = lines(child.stderr.take().unwrap());
-    await_line(&log, "control socket", &mut Vec::new());
+    let mut seen = Vec::new();
+    await_line(&log, "control socket", &mut seen);
+    // An arm is refused until the controller streams: wait for it, as an operator would.
+    if !seen.iter().any(|l| l.contains("PSD controller streaming")) {
+        await_line(&log, "PSD controller streaming", &mut seen);
+    }
     Gateway { child, out }
 }
 

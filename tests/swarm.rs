@@ -104,30 +104,30 @@ fn a_swarm_episode_replays_alone_to_the_same_bytes() {
 
 /// A broken invariant is reported with its seed and episode and the one-line command that
 /// replays it, and the swarm fails. The episode here is one the swarm found around E2 and
-/// is still open (docs/faults.md lists it): the controller's clock steps back, and the
-/// fault reads "robot pose delayed" rather than the clock jumped.
+/// is still open (docs/faults.md lists it): bytes lost on the PSD line, and the fault
+/// reads "no samples from the PSD controller" rather than the line garbled.
 #[test]
 fn a_broken_invariant_names_its_episode_and_the_command_that_replays_it() {
     let dir = scratch("broken");
     let e2 = scenario("e2-lane-head-on.toml");
     let out = dir.join("shard");
-    // The shard of one episode: 3464 of the 10,000.
+    // The shard of one episode: 8804 of the 10,000.
     let o = run(&[
         "plan",
         "--swarm",
         "10000",
         "--shard",
-        "3464/10000",
+        "8804/10000",
         e2.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
     ]);
     assert!(!o.status.success());
     let said = text(&o);
-    assert!(said.contains("episode 3464 (board over SocketCAN) broke:"), "{said}");
+    assert!(said.contains("episode 8804 (CiA 402 drives over SLCAN) broke:"), "{said}");
     assert!(said.contains("no fault present names it"), "{said}");
     let command = said.lines().find_map(|l| l.trim().strip_prefix("replay: ")).expect("a replay line").to_string();
-    assert_eq!(command, format!("flowgate plan --swarm 10000 --seed 1 --episode 3464 {}", e2.display()));
+    assert_eq!(command, format!("flowgate plan --swarm 10000 --seed 1 --episode 8804 {}", e2.display()));
     let report: Value = serde_json::from_str(&std::fs::read_to_string(out.join("swarm.json")).unwrap()).unwrap();
     let digest = report["failures"][0]["digest"].as_str().unwrap().to_string();
     // The printed command, run as printed (with an --out of our own), reproduces it.

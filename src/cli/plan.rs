@@ -143,38 +143,7 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
         format!("flowgate plan --swarm {n} --seed {} --episode {k}{unsupervised} {}", args.seed, file.display())
     };
     if let Some(k) = args.episode {
-        if k >= n {
-            bail!("--episode {k}: the swarm has episodes 0 to {}", n - 1);
-        }
-        let (outcome, run) = swarm::run_episode(scenario, args.seed, k, true);
-        let schedule = swarm::schedule(scenario, args.seed, k);
-        say!("episode {k} of the swarm around {} (seed {}), {}:", scenario.name, args.seed, outcome.backend.name());
-        for f in &outcome.faults {
-            let led = f.led.map(|l| format!(" (LED {l})")).unwrap_or_default();
-            say!("  fault {:?}{led}: {:.3} s to {:.3} s", f.kind, f.from, f.to);
-        }
-        for s in &outcome.stops {
-            let rest = s.rest_after.map_or("never".into(), |r| format!("{:.1} ms", r * 1e3));
-            say!("  {:>8.3} s  fault: {}  (wheels at rest after {rest})", s.at, s.reason);
-        }
-        say!(
-            "  goal reached: {}; {} requests refused; {:.1} s virtual",
-            outcome.reached_goal,
-            outcome.refusals,
-            outcome.duration
-        );
-        say!("  bytes sent: digest {}", outcome.digest);
-        if let Some(t) = &run.telemetry {
-            t.write(out).with_context(|| format!("writing {}", out.display()))?;
-        }
-        run.truth.write(&out.join("truth.csv")).with_context(|| format!("writing {}", out.display()))?;
-        std::fs::write(out.join("faults.toml"), toml::to_string(&schedule.scenario.faults)?)?;
-        std::fs::write(out.join("episode.json"), serde_json::to_string_pretty(&outcome)?)?;
-        say!("  wrote {}/{{episode.json,faults.toml,cycles.csv,can.log,truth.csv}}", out.display());
-        if !outcome.violations.is_empty() {
-            bail!("episode {k} broke {} invariants:\n  {}", outcome.violations.len(), outcome.violations.join("\n  "));
-        }
-        return Ok(());
+        return swarm_episode(args, scenario, n, k, out);
     }
     let started = std::time::Instant::now();
     let shard =
@@ -200,6 +169,42 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     }
     if report.violated > 0 {
         bail!("{} of {} episodes broke an invariant", report.violated, report.episodes);
+    }
+    Ok(())
+}
+
+/// `--swarm N --episode K`: one episode of the swarm, alone, its files kept in `out`.
+fn swarm_episode(args: &PlanArgs, scenario: &Scenario, n: u64, k: u64, out: &Path) -> Result<()> {
+    if k >= n {
+        bail!("--episode {k}: the swarm has episodes 0 to {}", n - 1);
+    }
+    let (outcome, run) = swarm::run_episode(scenario, args.seed, k, true);
+    let schedule = swarm::schedule(scenario, args.seed, k);
+    say!("episode {k} of the swarm around {} (seed {}), {}:", scenario.name, args.seed, outcome.backend.name());
+    for f in &outcome.faults {
+        let led = f.led.map(|l| format!(" (LED {l})")).unwrap_or_default();
+        say!("  fault {:?}{led}: {:.3} s to {:.3} s", f.kind, f.from, f.to);
+    }
+    for s in &outcome.stops {
+        let rest = s.rest_after.map_or("never".into(), |r| format!("{:.1} ms", r * 1e3));
+        say!("  {:>8.3} s  fault: {}  (wheels at rest after {rest})", s.at, s.reason);
+    }
+    say!(
+        "  goal reached: {}; {} requests refused; {:.1} s virtual",
+        outcome.reached_goal,
+        outcome.refusals,
+        outcome.duration
+    );
+    say!("  bytes sent: digest {}", outcome.digest);
+    if let Some(t) = &run.telemetry {
+        t.write(out).with_context(|| format!("writing {}", out.display()))?;
+    }
+    run.truth.write(&out.join("truth.csv")).with_context(|| format!("writing {}", out.display()))?;
+    std::fs::write(out.join("faults.toml"), toml::to_string(&schedule.scenario.faults)?)?;
+    std::fs::write(out.join("episode.json"), serde_json::to_string_pretty(&outcome)?)?;
+    say!("  wrote {}/{{episode.json,faults.toml,cycles.csv,can.log,truth.csv}}", out.display());
+    if !outcome.violations.is_empty() {
+        bail!("episode {k} broke {} invariants:\n  {}", outcome.violations.len(), outcome.violations.join("\n  "));
     }
     Ok(())
 }

@@ -368,164 +368,9 @@ pub fn schedule(base: &Scenario, seed: u64, episode: u64) -> Schedule {
     for kind in kinds {
         let a = rng.random_range(START_WINDOW.0..START_WINDOW.1);
         let (to, led) = match kind {
-            Kind::SerialCorruption => {
-                let to = span(&mut rng, a, 0.05, 1.0);
-                plan.serial_corrupt = if rng.random_bool(0.3) { 1.0 } else { rng.random_range(0.005..0.1) };
-                plan.serial_corrupt_during = Some([a, to]);
-                (to, None)
-            }
-            Kind::SerialDrops => {
-                let to = span(&mut rng, a, 0.2, 2.0);
-                plan.serial_drop = rng.random_range(0.0005..0.05);
-                plan.serial_drop_during = Some([a, to]);
-                (to, None)
-            }
-            Kind::SerialRepeats => {
-                let to = span(&mut rng, a, 0.2, 2.0);
-                plan.serial_duplicate = rng.random_range(0.0..0.5);
-                plan.serial_replay = rng.random_range(0.0..0.2);
-                plan.serial_repeat_during = Some([a, to]);
-                (to, None)
-            }
-            Kind::SerialBursts => {
-                let n = rng.random_range(1..=3);
-                let mut at: Vec<f64> = (0..n).map(|_| a + rng.random_range(0.0..1.0)).collect();
-                at.sort_by(f64::total_cmp);
-                plan.serial_burst_len = rng.random_range(16..=512);
-                let to = at.last().copied().unwrap_or(a);
-                plan.serial_burst_at = at;
-                (to, None)
-            }
-            Kind::SerialSilence => {
-                let to = span(&mut rng, a, 0.02, 0.8);
-                plan.serial_silence = Some([a, to]);
-                (to, None)
-            }
-            Kind::SampleDelay => {
-                let ramp = if rng.random_bool(0.5) { 0.0 } else { rng.random_range(0.1..2.0) };
-                let until = a + ramp + rng.random_range(0.2..2.0);
-                plan.sample_delay_ramp = Some([a, a + ramp, rng.random_range(30.0..400.0)]);
-                plan.sample_delay_until = Some(until);
-                (until, None)
-            }
-            Kind::SampleJitter => {
-                plan.sample_jitter_ms = rng.random_range(0.5..5.0);
-                // Benign all run: it names no stop, and ends none.
-                (a, None)
-            }
-            Kind::ClockStep => {
-                let ms = rng.random_range(20.0..500.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-                plan.clock_step = Some([a, ms]);
-                (a, None)
-            }
-            Kind::OddSyncReply => {
-                let ms = rng.random_range(20.0..200.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-                plan.sync_reply_step = Some([a, ms]);
-                (a, None)
-            }
-            Kind::SyncHeld => {
-                let to = span(&mut rng, a, 1.0, 8.0);
-                plan.sync_reply_hold = Some([a, to, rng.random_range(15.0..60.0)]);
-                (to, None)
-            }
-            Kind::ControllerReset => {
-                plan.controller_reset_at = Some(a);
-                (a, None)
-            }
-            Kind::ControllerFault => {
-                plan.controller_fault =
-                    Some([a, f64::from(rng.random_range(3..=5u8)), f64::from(rng.random_range(0..8u8))]);
-                (a, None)
-            }
-            Kind::ControllerOverrun => {
-                plan.controller_fault = Some([a, 2.0, 0.0]);
-                (a, None)
-            }
-            Kind::SerialVanish => {
-                plan.serial_vanish_s = rng.random_range(0.2..1.0);
-                plan.serial_vanish_at = Some(a);
-                (a + plan.serial_vanish_s, None)
-            }
-            Kind::RobotOccluded | Kind::Reflection => {
-                let led = rng.random_range(1..=2u8);
-                if kind == Kind::RobotOccluded {
-                    let to = span(&mut rng, a, 0.05, 1.5);
-                    plan.occlusions.push([f64::from(led), a, to]);
-                    (to, Some(led))
-                } else {
-                    let to = span(&mut rng, a, 0.02, 1.0);
-                    let dx = rng.random_range(0.03..0.3) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-                    plan.reflections.push([f64::from(led), a, to, dx]);
-                    (to, Some(led))
-                }
-            }
-            Kind::ObstacleOccluded => {
-                let led = 3 + rng.random_range(0..obstacles.max(1));
-                let to = span(&mut rng, a, 0.2, 2.5);
-                plan.occlusions.push([f64::from(led), a, to]);
-                (to, Some(led))
-            }
-            Kind::SequenceJump => {
-                plan.seq_jump_at = Some(a);
-                (a, None)
-            }
-            Kind::FrameJump => {
-                plan.frame_jump_at = Some(a);
-                (a, None)
-            }
-            Kind::UnscheduledLed => {
-                let to = span(&mut rng, a, 0.05, 1.0);
-                plan.unscheduled_led = Some([9.0, a, to]);
-                (to, Some(9))
-            }
-            Kind::CanLoss => {
-                let to = span(&mut rng, a, 0.2, 2.0);
-                plan.can_loss = rng.random_range(0.02..0.5);
-                plan.can_loss_during = Some([a, to]);
-                (to, None)
-            }
-            Kind::HeartbeatLoss => {
-                let to = span(&mut rng, a, 0.1, 1.5);
-                plan.heartbeat_stop_at = Some(a);
-                plan.heartbeat_resume_at = Some(to);
-                (to, None)
-            }
-            Kind::BoardFault => {
-                plan.board_fault_at = Some(a);
-                (a, None)
-            }
-            Kind::BoardEStop => {
-                let to = span(&mut rng, a, 0.1, 1.5);
-                plan.board_estop = Some([a, to]);
-                (to, None)
-            }
-            Kind::BoardReboot => {
-                plan.board_reboot_at = Some(a);
-                (a, None)
-            }
-            Kind::BoardBusOff => {
-                plan.bus_off_s = rng.random_range(0.1..1.5);
-                plan.bus_off_at = Some(a);
-                (a + plan.bus_off_s, None)
-            }
-            Kind::AdapterBusOff => {
-                let to = span(&mut rng, a, 0.05, 1.5);
-                plan.adapter_bus_off = Some([a, to]);
-                (to, None)
-            }
             Kind::BitrateMismatch => {
                 faults.push(Injected { kind, from: 0.0, to: f64::INFINITY, led: None });
                 continue;
-            }
-            Kind::DriveUndervoltage => {
-                let to = span(&mut rng, a, 0.1, 1.0);
-                plan.drive_undervoltage = Some([a, to]);
-                (to, None)
-            }
-            Kind::DriveBlocked => {
-                let to = span(&mut rng, a, 0.1, 1.0);
-                plan.drive_blocked = Some([a, to]);
-                (to, None)
             }
             Kind::PasserBy => {
                 // From beyond the view's edge (about ±0.8 m), across the robot's way, and out.
@@ -539,11 +384,199 @@ pub fn schedule(base: &Scenario, seed: u64, episode: u64) -> Schedule {
                 });
                 (a, Some(3 + obstacles))
             }
+
+            _ => line_fault(kind, a, &mut rng, &mut plan)
+                .or_else(|| controller_fault(kind, a, &mut rng, &mut plan, obstacles))
+                .or_else(|| motor_fault(kind, a, &mut rng, &mut plan))
+                .unwrap_or((a, None)),
         };
         faults.push(Injected { kind, from: a, to, led });
     }
     scenario.sim.faults = plan;
     Schedule { backend, faults, scenario }
+}
+
+/// A fault of the PSD line's bytes and timing, drawn into `plan` from `a`: when its cause
+/// ends, and the LED it concerns (`None`: not one of these kinds).
+fn line_fault(kind: Kind, a: f64, rng: &mut ChaCha8Rng, plan: &mut FaultPlan) -> Option<(f64, Option<u8>)> {
+    Some(match kind {
+        Kind::SerialCorruption => {
+            let to = span(rng, a, 0.05, 1.0);
+            plan.serial_corrupt = if rng.random_bool(0.3) { 1.0 } else { rng.random_range(0.005..0.1) };
+            plan.serial_corrupt_during = Some([a, to]);
+            (to, None)
+        }
+        Kind::SerialDrops => {
+            let to = span(rng, a, 0.2, 2.0);
+            plan.serial_drop = rng.random_range(0.0005..0.05);
+            plan.serial_drop_during = Some([a, to]);
+            (to, None)
+        }
+        Kind::SerialRepeats => {
+            let to = span(rng, a, 0.2, 2.0);
+            plan.serial_duplicate = rng.random_range(0.0..0.5);
+            plan.serial_replay = rng.random_range(0.0..0.2);
+            plan.serial_repeat_during = Some([a, to]);
+            (to, None)
+        }
+        Kind::SerialBursts => {
+            let n = rng.random_range(1..=3);
+            let mut at: Vec<f64> = (0..n).map(|_| a + rng.random_range(0.0..1.0)).collect();
+            at.sort_by(f64::total_cmp);
+            plan.serial_burst_len = rng.random_range(16..=512);
+            let to = at.last().copied().unwrap_or(a);
+            plan.serial_burst_at = at;
+            (to, None)
+        }
+        Kind::SerialSilence => {
+            let to = span(rng, a, 0.02, 0.8);
+            plan.serial_silence = Some([a, to]);
+            (to, None)
+        }
+        Kind::SampleDelay => {
+            let ramp = if rng.random_bool(0.5) { 0.0 } else { rng.random_range(0.1..2.0) };
+            let until = a + ramp + rng.random_range(0.2..2.0);
+            plan.sample_delay_ramp = Some([a, a + ramp, rng.random_range(30.0..400.0)]);
+            plan.sample_delay_until = Some(until);
+            (until, None)
+        }
+        Kind::SampleJitter => {
+            plan.sample_jitter_ms = rng.random_range(0.5..5.0);
+            // Benign all run: it names no stop, and ends none.
+            (a, None)
+        }
+        _ => return None,
+    })
+}
+
+/// A fault of the PSD controller, its clock, its packets' counters or its LEDs.
+fn controller_fault(
+    kind: Kind,
+    a: f64,
+    rng: &mut ChaCha8Rng,
+    plan: &mut FaultPlan,
+    obstacles: u8,
+) -> Option<(f64, Option<u8>)> {
+    Some(match kind {
+        Kind::ClockStep => {
+            let ms = rng.random_range(20.0..500.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            plan.clock_step = Some([a, ms]);
+            (a, None)
+        }
+        Kind::OddSyncReply => {
+            let ms = rng.random_range(20.0..200.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            plan.sync_reply_step = Some([a, ms]);
+            (a, None)
+        }
+        Kind::SyncHeld => {
+            let to = span(rng, a, 1.0, 8.0);
+            plan.sync_reply_hold = Some([a, to, rng.random_range(15.0..60.0)]);
+            (to, None)
+        }
+        Kind::ControllerReset => {
+            plan.controller_reset_at = Some(a);
+            (a, None)
+        }
+        Kind::ControllerFault => {
+            plan.controller_fault =
+                Some([a, f64::from(rng.random_range(3..=5u8)), f64::from(rng.random_range(0..8u8))]);
+            (a, None)
+        }
+        Kind::ControllerOverrun => {
+            plan.controller_fault = Some([a, 2.0, 0.0]);
+            (a, None)
+        }
+        Kind::SerialVanish => {
+            plan.serial_vanish_s = rng.random_range(0.2..1.0);
+            plan.serial_vanish_at = Some(a);
+            (a + plan.serial_vanish_s, None)
+        }
+        Kind::RobotOccluded | Kind::Reflection => {
+            let led = rng.random_range(1..=2u8);
+            if kind == Kind::RobotOccluded {
+                let to = span(rng, a, 0.05, 1.5);
+                plan.occlusions.push([f64::from(led), a, to]);
+                (to, Some(led))
+            } else {
+                let to = span(rng, a, 0.02, 1.0);
+                let dx = rng.random_range(0.03..0.3) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+                plan.reflections.push([f64::from(led), a, to, dx]);
+                (to, Some(led))
+            }
+        }
+        Kind::ObstacleOccluded => {
+            let led = 3 + rng.random_range(0..obstacles.max(1));
+            let to = span(rng, a, 0.2, 2.5);
+            plan.occlusions.push([f64::from(led), a, to]);
+            (to, Some(led))
+        }
+        Kind::SequenceJump => {
+            plan.seq_jump_at = Some(a);
+            (a, None)
+        }
+        Kind::FrameJump => {
+            plan.frame_jump_at = Some(a);
+            (a, None)
+        }
+        Kind::UnscheduledLed => {
+            let to = span(rng, a, 0.05, 1.0);
+            plan.unscheduled_led = Some([9.0, a, to]);
+            (to, Some(9))
+        }
+        _ => return None,
+    })
+}
+
+/// A fault of the CAN bus, its adapter, the board or the drives.
+fn motor_fault(kind: Kind, a: f64, rng: &mut ChaCha8Rng, plan: &mut FaultPlan) -> Option<(f64, Option<u8>)> {
+    Some(match kind {
+        Kind::CanLoss => {
+            let to = span(rng, a, 0.2, 2.0);
+            plan.can_loss = rng.random_range(0.02..0.5);
+            plan.can_loss_during = Some([a, to]);
+            (to, None)
+        }
+        Kind::HeartbeatLoss => {
+            let to = span(rng, a, 0.1, 1.5);
+            plan.heartbeat_stop_at = Some(a);
+            plan.heartbeat_resume_at = Some(to);
+            (to, None)
+        }
+        Kind::BoardFault => {
+            plan.board_fault_at = Some(a);
+            (a, None)
+        }
+        Kind::BoardEStop => {
+            let to = span(rng, a, 0.1, 1.5);
+            plan.board_estop = Some([a, to]);
+            (to, None)
+        }
+        Kind::BoardReboot => {
+            plan.board_reboot_at = Some(a);
+            (a, None)
+        }
+        Kind::BoardBusOff => {
+            plan.bus_off_s = rng.random_range(0.1..1.5);
+            plan.bus_off_at = Some(a);
+            (a + plan.bus_off_s, None)
+        }
+        Kind::AdapterBusOff => {
+            let to = span(rng, a, 0.05, 1.5);
+            plan.adapter_bus_off = Some([a, to]);
+            (to, None)
+        }
+        Kind::DriveUndervoltage => {
+            let to = span(rng, a, 0.1, 1.0);
+            plan.drive_undervoltage = Some([a, to]);
+            (to, None)
+        }
+        Kind::DriveBlocked => {
+            let to = span(rng, a, 0.1, 1.0);
+            plan.drive_blocked = Some([a, to]);
+            (to, None)
+        }
+        _ => return None,
+    })
 }
 
 /// The end of a cause lasting `lo..hi` s from `a`.
@@ -712,100 +745,93 @@ fn rest_by(settings: &Settings, schedule: &Schedule, at: f64, cause: Option<&Inj
 }
 
 /// The invariants on one episode's fault states, arms and end.
-fn judge(
+/// The schedule's faults, as a violation lists them.
+fn listed(schedule: &Schedule) -> String {
+    let each = schedule.faults.iter().map(|f| format!("{:?} {:.3}-{:.3} s", f.kind, f.from, f.to));
+    each.collect::<Vec<_>>().join(", ")
+}
+
+/// The invariants on one fault state: named for a fault present, found within its
+/// watchdog, the wheels at rest within budget. Violations go to `v`.
+fn judge_stop(
     schedule: &Schedule,
     settings: &Settings,
     history: &[(f64, State)],
     watch: &Watch,
-    reached_goal: bool,
-    final_state: State,
-) -> (Vec<String>, Vec<Stop>) {
-    let mut v = Vec::new();
-    let mut stops = Vec::with_capacity(watch.faults.len());
-    let listed = || {
-        schedule
-            .faults
-            .iter()
-            .map(|f| format!("{:?} {:.3}-{:.3} s", f.kind, f.from, f.to))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
+    seen: &Seen,
+    v: &mut Vec<String>,
+) -> Stop {
     let armed_before =
         |t: f64| history.iter().rev().find(|(at, s)| *at <= t + FUZZ_S && *s == State::Armed).map_or(0.0, |x| x.0);
-    for seen in &watch.faults {
-        let present: Vec<&Injected> = schedule
-            .faults
-            .iter()
-            .filter(|f| {
-                f.kind.explains(f.led, seen.reason) && seen.at >= f.from - FUZZ_S && seen.at <= f.to + f.kind.grace()
-            })
-            .collect();
-        let named_for = present.iter().min_by(|a, b| a.from.total_cmp(&b.from)).copied();
-        stops.push(Stop {
-            at: seen.at,
-            reason: seen.reason.to_string(),
-            named_for: named_for.map(|f| f.kind),
-            rest_after: seen.rest.map(|r| r - seen.at),
-        });
-        // The world's own: an obstacle that walked onto the stopped robot leaves it inside
-        // the obstacle's planning circle, where the planner refuses (and must).
-        let worldly = seen.reason == StopReason::PlannerInvalid;
-        if named_for.is_none() && !worldly {
-            v.push(format!(
-                "fault at {:.3} s named \"{}\": no fault present names it ({})",
-                seen.at,
-                seen.reason,
-                listed()
-            ));
-            continue;
-        }
-        if let Some(watchdog) = settings.watchdog(seen.reason) {
-            // The watchdogs start afresh at each arm; the time sync's at each reset.
-            let restart = if seen.reason == StopReason::ClockUnsynced {
-                watch.resets.iter().copied().filter(|r| *r <= seen.at).fold(0.0, f64::max) + HANDSHAKE_S
-            } else {
-                armed_before(seen.at)
-            };
-            // From the latest start of a cause that silences it entirely (partial ones let
-            // some through, and the watchdog counts from the last).
-            let since = present.iter().filter(|f| f.kind.total()).map(|f| f.from.max(restart)).fold(f64::NAN, f64::max);
-            let by = since + watchdog + settings.period;
-            if since.is_finite() && seen.at > by + FUZZ_S {
-                v.push(format!(
-                    "fault \"{}\" at {:.3} s: {:.1} ms after its cause, beyond the {:.0} ms watchdog and a cycle",
-                    seen.reason,
-                    seen.at,
-                    (seen.at - since) * 1e3,
-                    watchdog * 1e3
-                ));
-            }
-        }
-        let by = if present.is_empty() {
-            rest_by(settings, schedule, seen.at, None)
+    let present: Vec<&Injected> = schedule
+        .faults
+        .iter()
+        .filter(|f| {
+            f.kind.explains(f.led, seen.reason) && seen.at >= f.from - FUZZ_S && seen.at <= f.to + f.kind.grace()
+        })
+        .collect();
+    let named_for = present.iter().min_by(|a, b| a.from.total_cmp(&b.from)).copied();
+    let stop = Stop {
+        at: seen.at,
+        reason: seen.reason.to_string(),
+        named_for: named_for.map(|f| f.kind),
+        rest_after: seen.rest.map(|r| r - seen.at),
+    };
+    // The world's own: an obstacle that walked onto the stopped robot leaves it inside
+    // the obstacle's planning circle, where the planner refuses (and must).
+    let worldly = seen.reason == StopReason::PlannerInvalid;
+    if named_for.is_none() && !worldly {
+        v.push(format!(
+            "fault at {:.3} s named \"{}\": no fault present names it ({})",
+            seen.at,
+            seen.reason,
+            listed(schedule)
+        ));
+        return stop;
+    }
+    if let Some(watchdog) = settings.watchdog(seen.reason) {
+        // The watchdogs start afresh at each arm; the time sync's at each reset.
+        let restart = if seen.reason == StopReason::ClockUnsynced {
+            watch.resets.iter().copied().filter(|r| *r <= seen.at).fold(0.0, f64::max) + HANDSHAKE_S
         } else {
-            present.iter().map(|f| rest_by(settings, schedule, seen.at, Some(f))).fold(f64::NEG_INFINITY, f64::max)
+            armed_before(seen.at)
         };
-        match seen.rest {
-            None => {
-                v.push(format!("fault \"{}\" at {:.3} s: the wheels never came to rest in it", seen.reason, seen.at))
-            }
-            Some(rest) if rest > by + FUZZ_S => v.push(format!(
-                "fault \"{}\" at {:.3} s: wheels at rest {:.1} ms after it, the budget {:.1} ms",
+        // From the latest start of a cause that silences it entirely (partial ones let
+        // some through, and the watchdog counts from the last).
+        let since = present.iter().filter(|f| f.kind.total()).map(|f| f.from.max(restart)).fold(f64::NAN, f64::max);
+        let by = since + watchdog + settings.period;
+        if since.is_finite() && seen.at > by + FUZZ_S {
+            v.push(format!(
+                "fault \"{}\" at {:.3} s: {:.1} ms after its cause, beyond the {:.0} ms watchdog and a cycle",
                 seen.reason,
                 seen.at,
-                (rest - seen.at) * 1e3,
-                (by - seen.at) * 1e3
-            )),
-            Some(_) => {}
+                (seen.at - since) * 1e3,
+                watchdog * 1e3
+            ));
         }
     }
-    if let Some(t) = watch.stuck {
-        v.push(format!("the run stopped advancing at {t:.6} s (more than {STEPS_PER_S} events a second)"));
+    let by = if present.is_empty() {
+        rest_by(settings, schedule, seen.at, None)
+    } else {
+        present.iter().map(|f| rest_by(settings, schedule, seen.at, Some(f))).fold(f64::NEG_INFINITY, f64::max)
+    };
+    match seen.rest {
+        None => v.push(format!("fault \"{}\" at {:.3} s: the wheels never came to rest in it", seen.reason, seen.at)),
+        Some(rest) if rest > by + FUZZ_S => v.push(format!(
+            "fault \"{}\" at {:.3} s: wheels at rest {:.1} ms after it, the budget {:.1} ms",
+            seen.reason,
+            seen.at,
+            (rest - seen.at) * 1e3,
+            (by - seen.at) * 1e3
+        )),
+        Some(_) => {}
     }
-    if let Some(t) = watch.turned_in_fault {
-        v.push(format!("the wheels turned in a fault at {t:.3} s, after coming to rest in it"));
-    }
-    // Armed only when the operator armed (or at start, before any fault: `ArmAtStart`);
+    stop
+}
+
+/// Armed only when the operator armed (or at start, before any fault: `ArmAtStart`);
+/// Running only after a start since the last arm.
+fn judge_arms(history: &[(f64, State)], watch: &Watch, v: &mut Vec<String>) {
     // Running only after a start since the last arm.
     let first_fault = history.iter().find(|(_, s)| matches!(s, State::Fault(_))).map_or(f64::INFINITY, |x| x.0);
     let mut last_armed = None;
@@ -832,6 +858,25 @@ fn judge(
             _ => {}
         }
     }
+}
+
+fn judge(
+    schedule: &Schedule,
+    settings: &Settings,
+    history: &[(f64, State)],
+    watch: &Watch,
+    reached_goal: bool,
+    final_state: State,
+) -> (Vec<String>, Vec<Stop>) {
+    let mut v = Vec::new();
+    let stops = watch.faults.iter().map(|seen| judge_stop(schedule, settings, history, watch, seen, &mut v)).collect();
+    if let Some(t) = watch.stuck {
+        v.push(format!("the run stopped advancing at {t:.6} s (more than {STEPS_PER_S} events a second)"));
+    }
+    if let Some(t) = watch.turned_in_fault {
+        v.push(format!("the wheels turned in a fault at {t:.3} s, after coming to rest in it"));
+    }
+    judge_arms(history, watch, &mut v);
     let lasting: Vec<&Injected> = schedule.faults.iter().filter(|f| f.to.is_infinite()).collect();
     if lasting.is_empty() {
         if !reached_goal {
@@ -865,13 +910,47 @@ pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outco
     }
     let s = &schedule.scenario;
     let mut rig = VirtualRig::new(s, options);
+    let watch = operate(&mut rig, &schedule);
+    let core = rig.core();
+    let history = core.safety().history.clone();
+    let settings = Settings {
+        period: core.rig().sample_period.as_secs_f64(),
+        safety: core.rig().safety,
+        board_timeout: f64::from(core.rig().board.command_timeout_ms) * 1e-3,
+        backend,
+    };
+    let final_state = core.state();
+    let mut accounting = accounting(&rig);
+    let digest = format!("{:016x}", rig.sent_digest());
+    let run = rig.finish(s.goal.position, s.goal.tolerance);
+    let reached_goal = final_state == State::Stopped(StopReason::GoalReached) && run.reached_goal;
+    let (mut violations, stops) = judge(&schedule, &settings, &history, &watch, reached_goal, final_state);
+    violations.append(&mut accounting);
+    let outcome = Outcome {
+        index,
+        backend,
+        faults: schedule.faults,
+        stops,
+        refusals: watch.refusals,
+        last_refusal: watch.last_refusal,
+        reached_goal,
+        duration: run.truth.summary.duration,
+        violations,
+        digest,
+    };
+    (outcome, run)
+}
+
+/// Run `rig` to the goal after the schedule's last fault (or its time limit past it), the
+/// operator resetting, arming, setting the goal and starting after each stop; what it saw.
+fn operate(rig: &mut VirtualRig, schedule: &Schedule) -> Watch {
+    let s = &schedule.scenario;
     let period = rig.core().rig().sample_period.as_secs_f64();
     let goal = Request::Goal { goals: vec![Goal { position: s.goal.position, tolerance: s.goal.tolerance }] };
     let last_end = schedule.last_end();
     let limit = last_end + s.time_limit;
     let mut watch = Watch::default();
-    let mut next_try = f64::INFINITY;
-    let mut shown = State::Idle;
+    let (mut next_try, mut shown) = (f64::INFINITY, State::Idle);
     // Liveness: a run that takes far more events than a rig has (a few thousand a second)
     // is stuck, and said so.
     let most_steps = (limit * STEPS_PER_S) as u64;
@@ -883,8 +962,7 @@ pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outco
             break;
         }
         rig.step();
-        let t = rig.time();
-        let state = rig.core().state();
+        let (t, state) = (rig.time(), rig.core().state());
         if state != shown {
             if matches!(state, State::Fault(_) | State::Stopped(_) | State::Idle | State::Armed) {
                 next_try = t + REACTION_S;
@@ -907,71 +985,48 @@ pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outco
                     _ => &[&Request::Arm, &goal, &Request::Start],
                 };
                 for &request in steps {
-                    match rig.request(request) {
-                        Ok(()) => watch.asked(t, request),
-                        Err(refusal) => {
-                            watch.refusals += 1;
-                            watch.last_refusal = Some(format!("{} at {t:.2} s: {refusal}", request_name(request)));
-                            break;
-                        }
+                    if let Err(refusal) = rig.request(request) {
+                        watch.refusals += 1;
+                        watch.last_refusal = Some(format!("{} at {t:.2} s: {refusal}", request_name(request)));
+                        break;
                     }
+                    watch.asked(t, request);
                 }
             }
             _ => {}
         }
     }
-    let core = rig.core();
-    let history = core.safety().history.clone();
-    let bytes = core.serial_bytes();
-    let counters = core.counters();
-    let settings = Settings {
-        period: core.rig().sample_period.as_secs_f64(),
-        safety: core.rig().safety,
-        board_timeout: f64::from(core.rig().board.command_timeout_ms) * 1e-3,
-        backend,
-    };
-    let final_state = core.state();
-    let delivered = rig.delivered();
-    let digest = format!("{:016x}", rig.sent_digest());
-    let truth = rig.world().truth();
-    let motion_outside_running = rig.motion_outside_running();
-    let run = rig.finish(s.goal.position, s.goal.tolerance);
-    let reached_goal = final_state == State::Stopped(StopReason::GoalReached) && run.reached_goal;
-    let (mut violations, stops) = judge(&schedule, &settings, &history, &watch, reached_goal, final_state);
-    if let Some(c) = truth.first_active_contact {
-        violations.push(format!(
+    watch
+}
+
+/// The world's and the lines' invariants at the end: no active contact, no motion command
+/// outside Running, every byte and frame accounted for.
+fn accounting(rig: &VirtualRig) -> Vec<String> {
+    let mut v = Vec::new();
+    if let Some(c) = rig.world().truth().first_active_contact {
+        v.push(format!(
             "active contact with {:?} at {:.3} s, driving into it at {:.3} m/s",
             c.with, c.at, c.approach_speed
         ));
     }
-    if motion_outside_running > 0 {
-        violations.push(format!("{motion_outside_running} motion commands outside Running"));
+    let motion = rig.motion_outside_running();
+    if motion > 0 {
+        v.push(format!("{motion} motion commands outside Running"));
     }
+    let (bytes, delivered, counters) = (rig.core().serial_bytes(), rig.delivered(), rig.core().counters());
     if !bytes.balanced() || bytes.received != delivered.0 {
-        violations.push(format!(
+        v.push(format!(
             "PSD bytes unaccounted for: the line delivered {}, the gateway received {}, took {}, dropped {}, holds {}",
             delivered.0, bytes.received, bytes.taken, bytes.dropped, bytes.buffered
         ));
     }
     if counters.can_frames_in != delivered.1 {
-        violations.push(format!(
+        v.push(format!(
             "CAN frames unaccounted for: the bus delivered {}, the gateway counted {}",
             delivered.1, counters.can_frames_in
         ));
     }
-    let outcome = Outcome {
-        index,
-        backend,
-        faults: schedule.faults,
-        stops,
-        refusals: watch.refusals,
-        last_refusal: watch.last_refusal,
-        reached_goal,
-        duration: run.truth.summary.duration,
-        violations,
-        digest,
-    };
-    (outcome, run)
+    v
 }
 
 fn request_name(request: &Request) -> &'static str {

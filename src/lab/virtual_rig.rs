@@ -328,13 +328,25 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     /// (there must be none: every test's invariant).
     announced: State,
     motion_outside_running: u64,
-    /// The world's truth of the lines: bytes the PSD line delivered to the gateway, and
-    /// CAN frames the bus delivered to it (each must be accounted for by the core).
+    lines: LineTruth,
+}
+
+/// The world's truth of the lines.
+#[derive(Debug)]
+struct LineTruth {
+    /// Bytes the PSD line delivered to the gateway, and CAN frames the bus delivered to it
+    /// (each must be accounted for by the core).
     psd_delivered: u64,
     can_delivered: u64,
     /// FNV-1a over every byte the gateway sent (PSD packets, CAN frames' ids and data): two
     /// runs that agree on it sent the same bytes.
     sent_digest: u64,
+}
+
+impl Default for LineTruth {
+    fn default() -> Self {
+        Self { psd_delivered: 0, can_delivered: 0, sent_digest: FNV_OFFSET }
+    }
 }
 
 /// FNV-1a's offset basis and prime (64 bits).
@@ -458,9 +470,7 @@ impl<K: StageClock> VirtualRig<K> {
             timing: options.telemetry.then(Timing::default),
             announced: State::Idle,
             motion_outside_running: 0,
-            psd_delivered: 0,
-            can_delivered: 0,
-            sent_digest: FNV_OFFSET,
+            lines: LineTruth::default(),
         };
         rig.core_deadline = rig.core.next_deadline();
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.
@@ -497,11 +507,11 @@ impl<K: StageClock> VirtualRig<K> {
     }
     /// Bytes the PSD line delivered to the gateway, and CAN frames the bus delivered to it.
     pub fn delivered(&self) -> (u64, u64) {
-        (self.psd_delivered, self.can_delivered)
+        (self.lines.psd_delivered, self.lines.can_delivered)
     }
     /// A digest of every byte the gateway sent so far (FNV-1a, 64 bits).
     pub fn sent_digest(&self) -> u64 {
-        self.sent_digest
+        self.lines.sent_digest
     }
 
     /// Run the scenario: until the gateway has stopped (goal, stall, fault) and the world
@@ -725,7 +735,7 @@ impl<K: StageClock> VirtualRig<K> {
             }
         }
         while self.to_host.take(self.t, &mut self.scratch) {
-            self.psd_delivered += self.scratch.len() as u64;
+            self.lines.psd_delivered += self.scratch.len() as u64;
             // In reads of at most a chunk, as the shell's.
             for chunk in self.scratch.chunks(PSD_CHUNK) {
                 feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::PsdBytes(chunk));
@@ -758,7 +768,7 @@ impl<K: StageClock> VirtualRig<K> {
             if let Some(tel) = &mut self.telemetry {
                 let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
             }
-            self.can_delivered += 1;
+            self.lines.can_delivered += 1;
             self.feed(Input::Can(CanEvent::Frame(frame)));
         }
         // SocketCAN tells of its controller going bus-off with an error frame, unasked.
@@ -772,7 +782,7 @@ impl<K: StageClock> VirtualRig<K> {
             while let Ok(Some(line)) = self.host_codec.decode(&mut self.host_rx) {
                 if let Some(event) = slcan_event(line) {
                     if let CanEvent::Frame(frame) = event {
-                        self.can_delivered += 1;
+                        self.lines.can_delivered += 1;
                         if let Some(tel) = &mut self.telemetry {
                             let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
                         }
@@ -790,7 +800,7 @@ impl<K: StageClock> VirtualRig<K> {
                 Output::Psd(packet) => {
                     let mut wire = [0u8; psd::MAX_WIRE_LEN];
                     if let Ok(n) = packet.encode(&mut wire) {
-                        self.sent_digest = fnv(self.sent_digest, &wire[..n]);
+                        self.lines.sent_digest = fnv(self.lines.sent_digest, &wire[..n]);
                         if !self.psd_gone {
                             self.to_controller.send(self.t, &wire[..n]);
                         }
@@ -869,7 +879,7 @@ impl<K: StageClock> VirtualRig<K> {
             flowgate_protocol::CanId::Standard(id) => u32::from(id),
             flowgate_protocol::CanId::Extended(id) => id | 1 << 31,
         };
-        self.sent_digest = fnv(fnv(self.sent_digest, &id.to_le_bytes()), frame.data());
+        self.lines.sent_digest = fnv(fnv(self.lines.sent_digest, &id.to_le_bytes()), frame.data());
         if self.inputs.is_some() {
             self.can_sent.push(frame);
         }

@@ -71,8 +71,6 @@ pub enum Refusal {
     CauseStillPresent(StopReason),
     #[error("drive {node} still reports its wheel turning: reset once it stands")]
     StillMoving { node: u8 },
-    #[error("the PSD controller is not streaming (its line down, or being configured): arm once it streams")]
-    NotStreaming,
     #[error("obstacle LED {led} is required (leds.obstacles[{index}].required) and has not been seen")]
     RequiredObstacleUnseen { led: u8, index: usize },
     #[error("no goal: set one with `goal X Y`")]

@@ -96,20 +96,22 @@ impl<K: StageClock> Core<K> {
 
     /// Why no sample came for the sample timeout, named by the first cause: the line gone;
     /// garbage on the line since the last sample (noise, a bad cable or baud rate) is the
-    /// line garbled, not the controller silent.
-    pub(super) fn samples_stopped_cause(&self) -> StopReason {
+    /// line garbled, not the controller silent; a handshake waiting on a time sync beyond
+    /// its bound is the clock.
+    pub(super) fn samples_stopped_cause(&self, now: HostTime) -> StopReason {
         // A line gone (a device that vanished, not yet back) is the first cause of all.
         if self.psd.is_down() {
             return StopReason::SerialLost;
         }
-        // The handshake cannot trust the clock: the stream waits for it.
-        if self.psd.clock_waiting() {
+        match self.garbled_since_last_sample(Garbled::NoSample) {
+            StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => {}
+            garbled => return garbled,
+        }
+        // A clean line, and the handshake waiting on the clock: the stream waits for it.
+        if self.psd.clock_waiting(now) {
             return StopReason::ClockUnsynced;
         }
-        match self.garbled_since_last_sample(Garbled::NoSample) {
-            StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
-            garbled => garbled,
-        }
+        StopReason::SamplesStopped
     }
 
     /// A packet discarded for its place in the sequence or the schedule: counted (by the

@@ -154,8 +154,8 @@ pub struct PsdSession {
     handshake_syncs: u8,
     /// An offset has been taken (the session has a clock to judge a handshake's against).
     has_offset: bool,
-    /// The handshake waits for a time sync with a round trip within bound.
-    clock_waiting: bool,
+    /// Time syncs the handshake asked again for, their replies held beyond the bound.
+    held_syncs: u8,
     /// Bytes thrown away before the current decoder (its own count starts at zero), and
     /// bytes still buffered when a session ended.
     dropped_before: u64,
@@ -186,7 +186,7 @@ impl PsdSession {
             unconfirmed: None,
             handshake_syncs: 0,
             has_offset: false,
-            clock_waiting: false,
+            held_syncs: 0,
             dropped_before: 0,
             taken_before: 0,
             received: 0,
@@ -200,7 +200,7 @@ impl PsdSession {
         self.taken_before += self.codec.stats().taken_bytes;
         self.incoming.reset();
         self.codec = PsdCodec::new();
-        (self.unconfirmed, self.handshake_syncs, self.clock_waiting) = (None, 0, false);
+        (self.unconfirmed, self.handshake_syncs, self.held_syncs) = (None, 0, 0);
         send(self.packet(Message::StopStream));
         self.request(now, Step::Info, 1, send);
     }
@@ -212,7 +212,7 @@ impl PsdSession {
         self.incoming.reset();
         let was_streaming = self.phase == Phase::Streaming;
         if self.phase != Phase::Down {
-            (self.unconfirmed, self.handshake_syncs) = (None, 0);
+            (self.unconfirmed, self.handshake_syncs, self.held_syncs) = (None, 0, 0);
             self.request(now, Step::Schedule, 1, send);
         }
         was_streaming
@@ -259,9 +259,13 @@ impl PsdSession {
         self.dropped_before += bytes.len() as u64;
     }
 
-    /// The handshake is held up by time syncs whose round trips are beyond bound.
-    pub fn clock_waiting(&self) -> bool {
-        self.clock_waiting && !self.is_streaming()
+    /// The handshake waits on the controller's clock: a time sync answered too late to be
+    /// taken, or unanswered beyond the round trip's bound.
+    pub fn clock_waiting(&self, now: HostTime) -> bool {
+        match self.phase {
+            Phase::Setup { step: Step::TimeSync, sent, .. } => self.held_syncs > 0 || now > sent + MAX_RTT,
+            _ => false,
+        }
     }
 
     pub fn is_streaming(&self) -> bool {
@@ -387,42 +391,9 @@ impl PsdSession {
             (Step::TimeSync, Message::TimeSyncReply { request_seq, host_time_us, t_ctrl_us })
                 if request_seq == seq && host_time_us == sent.as_nanos() / 1000 =>
             {
-                // The handshake's sync sets the clock afresh (a new session, or a controller
-                // that rebooted). One that disagrees with the clock held before it is taken
-                // only once a second agrees with it (the clock stepped, or the controller
-                // rebooted); a second that agrees with the old clock says the first reply
-                // was the odd one. Either way two replies in a row agree.
-                let rtt = now.since(sent);
-                self.round_trip = Some(rtt);
-                if rtt > MAX_RTT {
-                    // Held in a queue: its stamp says little about the clocks (stamps put
-                    // tens of ms off would make true samples look as if from the future).
-                    // Asked again, for as long as the replies come held; the stream waits.
-                    self.clock_waiting = true;
-                    self.request(now, Step::TimeSync, 1, send);
-                    return SessionEvent::Consumed;
-                }
-                self.clock_waiting = false;
-                self.stepped = false;
-                self.handshake_syncs = self.handshake_syncs.saturating_add(1);
-                let offset = ClockOffset::from_round_trip(sent, CtrlTime(t_ctrl_us), now);
-                let agrees = |(held, at, held_rtt): (ClockOffset, HostTime, Duration)| {
-                    let drift = now.since(at).as_nanos() * u128::from(MAX_DRIFT_PPM) / 1_000_000;
-                    let bound = drift + (rtt.as_nanos() + held_rtt.as_nanos()) / 2 + 2_000;
-                    (offset.as_nanos() - held.as_nanos()).unsigned_abs() <= bound
-                };
-                let held = self.has_offset.then_some((self.offset, self.synced_at, self.offset_round_trip));
-                let confirmed = match self.unconfirmed.or(held) {
-                    None => true,
-                    Some(earlier) => agrees(earlier) || held.is_some_and(agrees),
-                };
-                if confirmed || self.handshake_syncs >= TRIES {
-                    self.unconfirmed = None;
-                    self.take_offset(offset, now, rtt);
-                    Step::Start
-                } else {
-                    self.unconfirmed = Some((offset, now, rtt));
-                    Step::TimeSync
+                match self.handshake_sync(now, sent, CtrlTime(t_ctrl_us), send) {
+                    Some(next) => next,
+                    None => return SessionEvent::Consumed,
                 }
             }
             (Step::Start, Message::Ack { seq: s, .. }) if s == seq => {
@@ -442,6 +413,54 @@ impl PsdSession {
         };
         self.request(now, next, 1, send);
         SessionEvent::Consumed
+    }
+
+    /// The handshake's time-sync reply to the request sent at `sent`: the next step, or
+    /// `None` when the sync is asked for again (a reply held in a queue).
+    fn handshake_sync(
+        &mut self,
+        now: HostTime,
+        sent: HostTime,
+        t_ctrl: CtrlTime,
+        send: &mut impl FnMut(Packet),
+    ) -> Option<Step> {
+        // The handshake's sync sets the clock afresh (a new session, or a controller
+        // that rebooted). One that disagrees with the clock held before it is taken
+        // only once a second agrees with it (the clock stepped, or the controller
+        // rebooted); a second that agrees with the old clock says the first reply
+        // was the odd one. Either way two replies in a row agree.
+        let rtt = now.since(sent);
+        self.round_trip = Some(rtt);
+        if rtt > MAX_RTT && self.held_syncs < TRIES {
+            // Held in a queue: its stamp says little about the clocks (stamps put
+            // tens of ms off would make true samples look as if from the future).
+            // Asked again a few times; then taken all the same, the periodic syncs
+            // judging it, and the stale-clock watchdog faulting if none is good.
+            self.held_syncs += 1;
+            self.request(now, Step::TimeSync, 1, send);
+            return None;
+        }
+        self.stepped = false;
+        self.handshake_syncs = self.handshake_syncs.saturating_add(1);
+        let offset = ClockOffset::from_round_trip(sent, t_ctrl, now);
+        let agrees = |(held, at, held_rtt): (ClockOffset, HostTime, Duration)| {
+            let drift = now.since(at).as_nanos() * u128::from(MAX_DRIFT_PPM) / 1_000_000;
+            let bound = drift + (rtt.as_nanos() + held_rtt.as_nanos()) / 2 + 2_000;
+            (offset.as_nanos() - held.as_nanos()).unsigned_abs() <= bound
+        };
+        let held = self.has_offset.then_some((self.offset, self.synced_at, self.offset_round_trip));
+        let confirmed = match self.unconfirmed.or(held) {
+            None => true,
+            Some(earlier) => agrees(earlier) || held.is_some_and(agrees),
+        };
+        if confirmed || self.handshake_syncs >= TRIES {
+            self.unconfirmed = None;
+            self.take_offset(offset, now, rtt);
+            Some(Step::Start)
+        } else {
+            self.unconfirmed = Some((offset, now, rtt));
+            Some(Step::TimeSync)
+        }
     }
 
     /// The answer to a periodic time sync, if `packet` is it. A reply names its request

@@ -38,11 +38,6 @@ impl<K: StageClock> Core<K> {
             State::Fault(_) => return Err(Refusal::Faulted(state)),
             _ => return Err(Refusal::Already(state)),
         }
-        // Armed, the sample watchdog runs: without a stream it could only fault, and name
-        // the samples rather than the line or the handshake that holds them up.
-        if !self.psd.is_streaming() {
-            return Err(Refusal::NotStreaming);
-        }
         let unseen =
             self.rig.obstacles.iter().enumerate().find(|&(k, o)| o.required && self.tracker.obstacle_time(k).is_none());
         if let Some((index, o)) = unseen {
@@ -137,7 +132,7 @@ impl<K: StageClock> Core<K> {
         let sampling = !self.psd.is_down() && now < self.watch.last_sample + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
-            StopReason::ClockUnsynced => self.psd.clock_waiting(),
+            StopReason::ClockUnsynced => self.psd.clock_waiting(now),
             StopReason::SamplesStopped | StopReason::SerialGarbled { .. } => !sampling,
             StopReason::PoseLost => {
                 !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())

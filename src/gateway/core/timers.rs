@@ -132,28 +132,8 @@ impl<K: StageClock> Core<K> {
                     self.out.push(Output::PollCanStatus);
                 }
             }
-            Timer::PsdSession => {
-                let failed = self.psd.tick(now, &mut self.out.psd());
-                if let Some(e) = failed {
-                    // A controller that streamed, configured again and now silent: named as
-                    // the sample watchdog names it (garbage, or no samples), before the
-                    // shell reopens the line for it.
-                    if self.links.streamed {
-                        let reason = match self.garbled_since_last_sample(Garbled::NoSample) {
-                            StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
-                            garbled => garbled,
-                        };
-                        self.stop(now, reason);
-                    }
-                    self.out.push(Output::SetupFailed(e));
-                }
-            }
-            Timer::Restream => {
-                let silent_ms = now.since(self.watch.last_sample).as_millis() as u64;
-                self.notice(now, super::Notice::ControllerSilent { silent_ms });
-                self.links.restreamed_at = now;
-                self.psd.connect(now, &mut self.out.psd());
-            }
+            Timer::PsdSession => self.psd_session_due(now),
+            Timer::Restream => self.restream(now),
             Timer::ReopenPsd => {
                 self.links.psd_reopen_at = now + REOPEN_EVERY;
                 self.out.push(Output::OpenPsd);
@@ -162,7 +142,7 @@ impl<K: StageClock> Core<K> {
                 self.links.can_reopen_at = now + REOPEN_EVERY;
                 self.out.push(Output::OpenCan);
             }
-            Timer::Samples => self.stop(now, self.samples_stopped_cause()),
+            Timer::Samples => self.stop(now, self.samples_stopped_cause(now)),
             Timer::Pose => self.stop(now, self.pose_lost_cause(now)),
             Timer::Occlusion => {
                 if let Some((_, k)) = self.occlusion_deadline() {
@@ -191,6 +171,29 @@ impl<K: StageClock> Core<K> {
         }
     }
 
+    /// The handshake's retry or the periodic time sync is due. A controller that streamed,
+    /// configured again and now silent is named as the sample watchdog names it (garbage,
+    /// or no samples), before the shell reopens the line for it.
+    fn psd_session_due(&mut self, now: HostTime) {
+        let Some(e) = self.psd.tick(now, &mut self.out.psd()) else { return };
+        if self.links.streamed {
+            let reason = match self.garbled_since_last_sample(Garbled::NoSample) {
+                StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
+                garbled => garbled,
+            };
+            self.stop(now, reason);
+        }
+        self.out.push(Output::SetupFailed(e));
+    }
+
+    /// The streaming controller has been silent for [`RESTREAM_AFTER`]: configure it again.
+    fn restream(&mut self, now: HostTime) {
+        let silent_ms = now.since(self.watch.last_sample).as_millis() as u64;
+        self.notice(now, super::Notice::ControllerSilent { silent_ms });
+        self.links.restreamed_at = now;
+        self.psd.connect(now, &mut self.out.psd());
+    }
+
     /// Why no fresh pose came, named by the first cause: the line gone quiet; the
     /// controller's clock jumped (the robot's samples stamped in the future, or frames
     /// stamped out of step with their count); seen where it cannot be; arriving, but too
@@ -202,7 +205,7 @@ impl<K: StageClock> Core<K> {
         let recent = |at: Option<HostTime>, within| at.is_some_and(|at| now.since(at) < within);
         let garbled = self.garbled_since(self.watch.garbage_at_last_pose, Garbled::NoPose);
         if quiet {
-            self.samples_stopped_cause()
+            self.samples_stopped_cause(now)
         } else if recent(self.watch.robot_from_future, s.sample_timeout)
             || recent(self.watch.stamps_stepped, s.sample_timeout + s.pose_timeout)
         {
