@@ -1087,23 +1087,7 @@ pub struct EpisodeLine {
 
 /// Run `n` episodes of the swarm (the shard's) around `base` on `threads` threads.
 pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize, shard: Shard) -> Vec<Outcome> {
-    let threads = threads.max(1);
-    let count = usize::try_from(shard.count.max(1)).unwrap_or(usize::MAX);
-    let mut outcomes: Vec<Outcome> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|w| {
-                scope.spawn(move || {
-                    (shard.index..n)
-                        .step_by(count)
-                        .skip(w)
-                        .step_by(threads)
-                        .map(|i| run_episode(base, seed, i, false).0)
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        handles.into_iter().flat_map(|h| h.join().expect("swarm worker panicked")).collect()
-    });
+    let mut outcomes = shard.run(n, threads, |i| run_episode(base, seed, i, false).0);
     outcomes.sort_by_key(|o| o.index);
     outcomes
 }

@@ -152,6 +152,24 @@ pub struct Shard {
 impl Shard {
     /// The whole sweep.
     pub const WHOLE: Shard = Shard { index: 0, count: 1 };
+
+    /// `episode(i)` for this shard's episodes of `n` (i modulo the count is the index), on
+    /// `threads` threads; in no particular order.
+    pub fn run<T: Send>(self, n: u64, threads: usize, episode: impl Fn(u64) -> T + Sync) -> Vec<T> {
+        let threads = threads.max(1);
+        let count = usize::try_from(self.count.max(1)).unwrap_or(usize::MAX);
+        let episode = &episode;
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..threads)
+                .map(|w| {
+                    scope.spawn(move || {
+                        (self.index..n).step_by(count).skip(w).step_by(threads).map(episode).collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            handles.into_iter().flat_map(|h| h.join().expect("a worker panicked")).collect()
+        })
+    }
 }
 
 /// A `--shard` that is not `i/n` with `0 <= i < n`.
@@ -272,33 +290,17 @@ pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -
 /// Run one shard of an `n`-episode sweep around `base` on `threads` threads: its episodes,
 /// in index order.
 pub fn run_shard(base: &Scenario, n: u64, seed: u64, threads: usize, mode: Mode, shard: Shard) -> Vec<Episode> {
-    let threads = threads.max(1);
-    let count = usize::try_from(shard.count.max(1)).unwrap_or(usize::MAX);
-    let mut episodes: Vec<Episode> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|w| {
-                scope.spawn(move || {
-                    (shard.index..n)
-                        .step_by(count)
-                        .skip(w)
-                        .step_by(threads)
-                        .map(|i| {
-                            let s = perturb(base, seed, i);
-                            let (outcome, min_clearance, contact) = mode.episode(&s);
-                            Episode {
-                                index: i,
-                                outcome,
-                                min_clearance,
-                                speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
-                                delay: s.sensing.delay,
-                                active_contact: outcome == Outcome::Collision && contact.is_some_and(|c| c.active),
-                            }
-                        })
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        handles.into_iter().flat_map(|h| h.join().expect("sweep worker panicked")).collect()
+    let mut episodes = shard.run(n, threads, |i| {
+        let s = perturb(base, seed, i);
+        let (outcome, min_clearance, contact) = mode.episode(&s);
+        Episode {
+            index: i,
+            outcome,
+            min_clearance,
+            speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
+            delay: s.sensing.delay,
+            active_contact: outcome == Outcome::Collision && contact.is_some_and(|c| c.active),
+        }
     });
     episodes.sort_by_key(|e| e.index);
     episodes

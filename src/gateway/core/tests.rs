@@ -90,6 +90,12 @@ fn bytes(message: Message) -> Vec<u8> {
 
 /// Answer every request the core has queued, as a controller would, at `now`.
 fn answer(core: &mut Core<NoClock>, now: HostTime) -> Vec<Output> {
+    answer_with(core, now, |_| 0)
+}
+
+/// The same, the `k`th time-sync reply (from 0) put `sync_off(k)` µs off.
+fn answer_with(core: &mut Core<NoClock>, now: HostTime, mut sync_off: impl FnMut(u32) -> i64) -> Vec<Output> {
+    let mut syncs = 0;
     let mut other = Vec::new();
     while let Some(o) = core.poll() {
         let Output::Psd(p) = o else {
@@ -104,7 +110,10 @@ fn answer(core: &mut Core<NoClock>, now: HostTime) -> Vec<Output> {
             Message::TimeSync { host_time_us } => Message::TimeSyncReply {
                 request_seq: p.seq,
                 host_time_us,
-                t_ctrl_us: now.as_nanos() / 1000 + CTRL_EPOCH_US,
+                t_ctrl_us: {
+                    syncs += 1;
+                    (now.as_nanos() / 1000 + CTRL_EPOCH_US).saturating_add_signed(sync_off(syncs - 1))
+                },
             },
             Message::StopStream => continue,
             m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
@@ -420,39 +429,10 @@ fn a_controller_of_another_kind_is_refused_at_the_handshake() {
     assert_eq!(e.to_string(), "PSD controller is not the one configured: it drives fewer LEDs than the schedule has");
 }
 
-/// Answer the handshake as [`answer`] does, but the time-sync replies `off_us` off (one odd
-/// reply, or a controller whose clock really moved).
+/// Answer the handshake as [`answer`] does, its first time-sync reply `off_us` off (one
+/// odd reply); whether the controller streams again.
 fn answer_syncs_off(core: &mut Core<NoClock>, now: HostTime, off_us: i64) -> bool {
-    let mut streaming = false;
-    while let Some(o) = core.poll() {
-        let p = match o {
-            Output::Psd(p) => p,
-            Output::Streaming => {
-                streaming = true;
-                continue;
-            }
-            _ => continue,
-        };
-        let reply = match p.message {
-            Message::GetInfo => Message::Info {
-                request_seq: p.seq,
-                info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
-            },
-            Message::TimeSync { host_time_us } => Message::TimeSyncReply {
-                request_seq: p.seq,
-                host_time_us,
-                t_ctrl_us: (now.as_nanos() / 1000 + CTRL_EPOCH_US).saturating_add_signed(off_us),
-            },
-            Message::StopStream => continue,
-            m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
-        };
-        core.psd_bytes(now, &bytes(reply));
-        // Only the first sync is odd: the rest come true.
-        if matches!(p.message, Message::TimeSync { .. }) {
-            return streaming || answer(core, now).contains(&Output::Streaming);
-        }
-    }
-    streaming
+    answer_with(core, now, |k| if k == 0 { off_us } else { 0 }).contains(&Output::Streaming)
 }
 
 /// A handshake after the clock was taken once (an operator's reset, a line that came back)
