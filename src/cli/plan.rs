@@ -27,7 +27,8 @@ pub struct PlanArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Run only this shard of the sweep, `i/n`: the episodes whose index is i modulo n
-    /// (writes shard.json for `--merge`; a batch system runs i = 0..n-1 anywhere). `auto/n`
+    /// (writes shard.json and episodes.parquet for `--merge`; a batch system runs i = 0..n-1
+    /// anywhere). `auto/n`
     /// takes i from the array job's index: SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN),
     /// JOB_COMPLETION_INDEX (Kubernetes) or AWS_BATCH_JOB_ARRAY_INDEX.
     #[arg(long, value_name = "I/N")]
@@ -41,7 +42,8 @@ pub struct PlanArgs {
     /// --out (the command a broken invariant prints).
     #[arg(long, value_name = "K", requires = "swarm", conflicts_with = "shard")]
     episode: Option<u64>,
-    /// Merge sweep shards (each DIR holding a shard.json) into one report: sweep.json in --out.
+    /// Merge sweep shards (each DIR holding a shard.json and its episodes.parquet) into one
+    /// sweep: sweep.json and episodes.parquet in --out.
     #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["all", "scenario", "file", "sweep"])]
     merge: Vec<PathBuf>,
     /// Worker threads for the sweep.
@@ -78,7 +80,7 @@ pub fn run(args: PlanArgs) -> Result<()> {
         bail!("--shard splits a --sweep or a --swarm");
     }
     if let Some(n) = args.sweep {
-        return sweep_command(&args, &scenario, n, &out, mode);
+        return sweep_command(&args, file, &scenario, n, &out, mode);
     }
     if let Some(n) = args.swarm {
         return swarm_command(&args, file, &scenario, n, &out);
@@ -91,8 +93,9 @@ pub fn run(args: PlanArgs) -> Result<()> {
     Ok(())
 }
 
-/// `--sweep N`: the episodes around the scenario, or one shard of them (`--shard i/n`).
-fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mode: Mode) -> Result<()> {
+/// `--sweep N`: the episodes around the scenario, or one shard of them (`--shard i/n`): a
+/// shard's manifest and episodes for `--merge`, or the whole sweep's report and episodes.
+fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, out: &Path, mode: Mode) -> Result<()> {
     if n == 0 {
         bail!("--sweep needs at least one episode");
     }
@@ -100,35 +103,41 @@ fn sweep_command(args: &PlanArgs, scenario: &Scenario, n: usize, out: &Path, mod
         bail!("--sweep {n}: at most {} episodes (shard a larger envelope into several sweeps)", sweep::MAX_EPISODES);
     }
     let started = std::time::Instant::now();
+    let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
-    let path = if let Some(shard) = shard {
-        let episodes = sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, shard);
-        let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
+    let episodes =
+        sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, shard.unwrap_or(sweep::Shard::WHOLE));
+    let manifest =
+        sweep::Manifest::new(scenario, &bytes, mode, args.seed, n as u64, shard.unwrap_or(sweep::Shard::WHOLE));
+    let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
+    if let Some(shard) = shard {
         say!("shard {shard} of the sweep of {n}:");
-        say!("{report}");
-        say!("  ({} episodes in {:.1} s)", episodes.len(), started.elapsed().as_secs_f64());
-        let file = sweep::ShardFile {
-            scenario: scenario.name.clone(),
-            mode,
-            supervised: scenario.supervised,
-            seed: args.seed,
-            sweep_episodes: n as u64,
-            shard,
-            episodes,
-        };
-        let path = out.join("shard.json");
-        std::fs::write(&path, serde_json::to_string(&file)?)?;
-        path
+    }
+    say!("{report}");
+    say!("  ({} episodes in {:.1} s)", episodes.len(), started.elapsed().as_secs_f64());
+    if shard.is_some() {
+        sweep::write_shard(out, &manifest, &episodes)?;
+        say!("  wrote {}/{{{},{}}}", out.display(), sweep::MANIFEST_FILE, sweep::EPISODES_FILE);
     } else {
-        let report = sweep::sweep(scenario, n, args.seed, args.threads, mode);
-        say!("{report}");
-        say!("  ({} episodes in {:.1} s)", n, started.elapsed().as_secs_f64());
-        let path = out.join("sweep.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
-        path
-    };
-    say!("  wrote {}", path.display());
+        write_sweep(out, &manifest, &episodes, &report)?;
+    }
+    Ok(())
+}
+
+/// A whole sweep's report (`sweep.json`) and episodes.
+fn write_sweep(
+    out: &Path,
+    manifest: &sweep::Manifest,
+    episodes: &[sweep::Episode],
+    report: &sweep::SweepReport,
+) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    sweep::episodes_file::write(&out.join(sweep::EPISODES_FILE), manifest, episodes)?;
+    let path = out.join("sweep.json");
+    std::fs::write(&path, serde_json::to_string_pretty(report)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    say!("  wrote {}/{{sweep.json,{}}}", out.display(), sweep::EPISODES_FILE);
     Ok(())
 }
 
@@ -209,25 +218,14 @@ fn swarm_episode(args: &PlanArgs, scenario: &Scenario, n: u64, k: u64, out: &Pat
     Ok(())
 }
 
-/// `--merge`: the shards' reports as one sweep.
+/// `--merge`: the shards as one sweep, its report and episodes in `out`.
 fn merge(dirs: &[PathBuf], out: Option<&Path>) -> Result<()> {
-    let mut shards = Vec::with_capacity(dirs.len());
-    for dir in dirs {
-        let path = dir.join("shard.json");
-        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-        let shard: sweep::ShardFile =
-            serde_json::from_str(&text).with_context(|| format!("{}: not a sweep shard", path.display()))?;
-        shards.push(shard);
-    }
-    let report = sweep::merge(&shards)?;
+    let shards = dirs.iter().map(|dir| sweep::read_shard(dir)).collect::<Result<Vec<_>, _>>()?;
+    let (manifest, episodes, report) = sweep::merge(&shards)?;
     say!("{report}");
     say!("  (merged from {} shards)", shards.len());
     let out = out.map_or_else(|| Path::new("out/plan").join("merged"), Path::to_path_buf);
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let path = out.join("sweep.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
-    say!("  wrote {}", path.display());
-    Ok(())
+    write_sweep(&out, &manifest, &episodes, &report)
 }
 
 /// One run in `mode`; a full-stack run also leaves its `cycles.csv` and `can.log` in `out`.

@@ -41,18 +41,47 @@ impl std::fmt::Display for Mode {
     }
 }
 
+/// What a sweep keeps of one episode.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeResult {
+    pub outcome: Outcome,
+    /// Smallest true clearance to an obstacle, m.
+    pub min_obstacle_clearance: Option<f64>,
+    /// Smallest true clearance to a wall or static obstacle, m.
+    pub min_wall_clearance: Option<f64>,
+    pub contact: Option<Contact>,
+    /// When it ended, s.
+    pub duration: f64,
+    pub path_length: f64,
+}
+
 impl Mode {
-    /// One episode's outcome, smallest true clearance to an obstacle, and first contact.
-    pub fn episode(self, s: &Scenario) -> (Outcome, Option<f64>, Option<Contact>) {
+    /// One episode, in this mode.
+    pub fn episode(self, s: &Scenario) -> EpisodeResult {
         match self {
             Mode::PlannerOnly => {
                 let r = run_with(s, Keep::Outcome).summary;
-                (r.outcome, r.min_obstacle_clearance, r.contact)
+                EpisodeResult {
+                    outcome: r.outcome,
+                    min_obstacle_clearance: r.min_obstacle_clearance,
+                    min_wall_clearance: r.min_wall_clearance,
+                    contact: r.contact,
+                    duration: r.end_time,
+                    path_length: r.path_length,
+                }
             }
             Mode::FullStack => {
                 let options = super::virtual_rig::Options { stop_at_contact: true, ..Default::default() };
                 let e = super::virtual_rig::run(s, options);
-                (e.outcome, e.truth.summary.min_obstacle_clearance, e.truth.summary.contact)
+                let t = &e.truth.summary;
+                EpisodeResult {
+                    outcome: e.outcome,
+                    min_obstacle_clearance: t.min_obstacle_clearance,
+                    min_wall_clearance: t.min_wall_clearance,
+                    contact: t.contact,
+                    duration: t.duration,
+                    path_length: t.path_length,
+                }
             }
         }
     }
