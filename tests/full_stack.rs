@@ -278,7 +278,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
         let operator = operator.clone();
         async move {
             let (reply, answer) = tokio::sync::oneshot::channel();
-            let peer = Peer { uid: 0, gid: 0, pid: None };
+            let peer = Peer::Socket { uid: 0, gid: 0, pid: None };
             operator.send(Command { request, peer, reply }).await.unwrap();
             let reply = answer.await.unwrap();
             assert!(reply.ok, "{reply:?}");

@@ -33,6 +33,14 @@ pub struct DemoArgs {
     /// Foxglove's default): in Foxglove, "Open connection", Foxglove WebSocket.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     foxglove: Option<std::net::SocketAddr>,
+    /// Serve a control socket here (`flowgate ctl --socket PATH status`).
+    #[arg(long, value_name = "PATH")]
+    socket: Option<PathBuf>,
+    /// Join ROS 2 as node /flowgate (ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE
+    /// honoured) and wait for a goal on /goal_pose and calls of ~/arm and ~/start, instead
+    /// of driving to the scenario's goal at once.
+    #[arg(long)]
+    ros2: bool,
 }
 
 /// One line of the run's progress, about twice a second.
@@ -48,13 +56,8 @@ fn say_progress(p: &Progress) {
     );
 }
 
-pub fn run(args: DemoArgs) -> Result<()> {
-    let scenario = match &args.scenario {
-        Some(path) => Scenario::load(path)?,
-        None => Scenario::from_toml(demo::DEFAULT_SCENARIO, "E2 (built in)")?,
-    };
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let out = std::fs::canonicalize(&args.out)?;
+/// What the demo runs, and where to watch it.
+fn announce(args: &DemoArgs, scenario: &Scenario) {
     let motors = match args.drive {
         demo::DemoDrive::Pcl80k => "a PCL-80K-like board",
         demo::DemoDrive::Cia402 => "CiA 402 drives",
@@ -66,12 +69,32 @@ pub fn run(args: DemoArgs) -> Result<()> {
     if let Some(addr) = args.foxglove {
         say!("Foxglove live  ws://{addr} (read-only; it ends with the run)");
     }
+    if args.ros2 {
+        say!("ROS 2          node /flowgate: send a goal on /goal_pose, then call /flowgate/arm and /flowgate/start");
+    }
+}
+
+pub fn run(args: DemoArgs) -> Result<()> {
+    let scenario = match &args.scenario {
+        Some(path) => Scenario::load(path)?,
+        None => Scenario::from_toml(demo::DEFAULT_SCENARIO, "E2 (built in)")?,
+    };
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let out = std::fs::canonicalize(&args.out)?;
+    announce(&args, &scenario);
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let run = runtime.block_on(demo::run(
         &scenario,
         &args.can,
         args.drive,
-        demo::Outputs { dir: Some(out.clone()), record: args.record.clone(), view: args.view, foxglove: args.foxglove },
+        demo::Outputs {
+            dir: Some(out.clone()),
+            record: args.record.clone(),
+            view: args.view,
+            foxglove: args.foxglove,
+            socket: args.socket.clone(),
+            ros2: args.ros2,
+        },
         say_progress,
     ))?;
     let t = &run.truth.summary;
@@ -97,7 +120,13 @@ pub fn run(args: DemoArgs) -> Result<()> {
         let path = path.display();
         say!("recorded {path} ({} inputs, {} cycles): flowgate replay {path} plays it back", rec.inputs, rec.cycles);
     }
-    if run.outcome() != Outcome::Goal {
+    // Driven from ROS 2, the goal is the operator's: the gateway's own stop says it was reached.
+    let reached = if args.ros2 {
+        run.report.stop_reason == Some(flowgate::gateway::core::StopReason::GoalReached) && !run.contact
+    } else {
+        run.outcome() == Outcome::Goal
+    };
+    if !reached {
         anyhow::bail!("the demo run did not reach the goal cleanly");
     }
     Ok(())

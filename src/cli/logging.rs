@@ -41,7 +41,10 @@ fn stderr_is_journal() -> bool {
 }
 
 pub fn init() {
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn"));
+    // The DDS library's own warnings narrate discovery (peers without locators, resends):
+    // errors only, unless RUST_LOG asks for more.
+    let filter =
+        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn,rustdds=error,ros2_client=error"));
     let fmt = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
     if stderr_is_journal() {
         fmt.event_format(Journal).init();

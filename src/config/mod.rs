@@ -21,8 +21,10 @@ use serde::{Deserialize, Serialize};
 
 mod can_url;
 mod room;
+mod ros2;
 pub use can_url::CanUrl;
 pub use room::{PointsSection, RoomSection};
+pub use ros2::{DiscoveryRange, Ros2Config, Ros2Settings, MAX_DOMAIN_ID};
 
 use crate::calibration::Calibration;
 use crate::control::drive::DriveConfig;
@@ -69,6 +71,9 @@ pub struct GatewayConfig {
     pub operator: OperatorConfig,
     #[serde(default)]
     pub realtime: RealtimeConfig,
+    /// flowgate as a ROS 2 node (`[ros2]`, off without it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<Ros2Config>,
 }
 
 /// How the gateway trades CPU for latency on a rig that gives it a core.
@@ -335,7 +340,7 @@ pub struct Goal {
     pub tolerance: f64,
 }
 
-fn default_tolerance() -> f64 {
+pub fn default_tolerance() -> f64 {
     0.02
 }
 
@@ -1075,6 +1080,9 @@ impl GatewayConfig {
         self.safety.validate(sample_period, self.drive.command_timeout_ms)?;
         self.telemetry.validate()?;
         self.realtime.validate(sample_period)?;
+        if let Some(r) = &self.ros2 {
+            r.validate()?;
+        }
         let control = self.control_config(sample_period, &calibration, room);
         let board = self.drive.board_settings(control.drive.pulses_per_metre())?;
         let motors = match (self.can.protocol, &self.cia402) {
@@ -1114,6 +1122,7 @@ impl GatewayConfig {
             spin: (!spin.is_zero()).then_some(spin),
             warm_up: self.realtime.warm_up,
             realtime: self.realtime.settings(),
+            ros2: self.ros2.clone().filter(|r| r.enabled),
             config: self.clone(),
         })
     }
@@ -1359,6 +1368,8 @@ pub struct Rig {
     pub warm_up: bool,
     /// CPU affinity, `SCHED_FIFO` and locked memory, applied at start.
     pub realtime: RealtimeSettings,
+    /// `[ros2]` when enabled.
+    pub ros2: Option<Ros2Config>,
     /// The configuration this rig was built from (a recording keeps it as TOML, so a
     /// replay rebuilds the same rig). Kept as it is, not as text: the offline runner builds
     /// a rig every episode, and writing TOML was a twentieth of a sweep.

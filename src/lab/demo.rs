@@ -98,7 +98,15 @@ pub struct Outputs {
     pub view: Option<std::net::SocketAddr>,
     /// Foxglove live's address.
     pub foxglove: Option<std::net::SocketAddr>,
+    /// A control socket for `flowgate ctl`.
+    pub socket: Option<PathBuf>,
+    /// Join ROS 2 (`[ros2]` at its defaults, ROS 2's environment honoured) and wait for its
+    /// goal, arm and start instead of driving to the scenario's goal at once.
+    pub ros2: bool,
 }
+
+/// How long a demo driven from ROS 2 waits for its operator, beyond the scenario's time.
+pub const ROS2_OPERATOR_WAIT: Duration = Duration::from_secs(300);
 
 /// The motors of the demo's rig.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -145,11 +153,17 @@ pub async fn run(
     config.telemetry.record = outputs.record;
     config.operator.view = outputs.view;
     config.operator.foxglove = outputs.foxglove;
+    config.operator.socket = outputs.socket;
+    if outputs.ros2 {
+        config.ros2 = Some(crate::config::Ros2Config { enabled: true, ..Default::default() });
+    }
     let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-    let gw = tokio::spawn(gateway::shell::run(rig, Controls::new(stop_rx, true), Some(progress_tx)));
-    let limit = tokio::time::Instant::now() + Duration::from_secs_f64(scenario.time_limit);
+    let controls = Controls::new(stop_rx, !outputs.ros2);
+    let gw = tokio::spawn(gateway::shell::run(rig, controls, Some(progress_tx)));
+    let wait = if outputs.ros2 { ROS2_OPERATOR_WAIT } else { Duration::ZERO };
+    let limit = tokio::time::Instant::now() + Duration::from_secs_f64(scenario.time_limit) + wait;
     let mut ticker = tokio::time::interval(Duration::from_millis(500));
     loop {
         tokio::select! {

@@ -257,6 +257,7 @@ impl Scenario {
             telemetry: TelemetryConfig { out_dir, ..TelemetryConfig::default() },
             operator: OperatorConfig::default(),
             realtime: Default::default(),
+            ros2: None,
         }
     }
 }

@@ -5,6 +5,7 @@
 use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
 use super::timing::CycleRecord;
+use super::LastEstimate;
 use super::{Core, Notice, Output, StageClock, State, StopReason};
 use crate::control::{StepOutput, StepStatus, Supervision};
 use crate::planner::PlannerError;
@@ -23,6 +24,8 @@ const DRIFT_BOUND: f64 = 1e-3;
 struct Decision {
     pose: Pose,
     delay: f64,
+    /// The wheels' rim speeds the tracker holds, m/s: left, right.
+    wheels: [f64; 2],
     clearance: Option<f64>,
     /// The control step's output, in Running.
     step: Option<StepOutput>,
@@ -50,7 +53,7 @@ impl<K: StageClock> Core<K> {
         if d.started {
             self.state_changed(now);
         }
-        self.last_estimate = Some((d.pose, d.delay));
+        self.last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
         self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
         let (pulses, wheels) = match d.step {
             Some(out) => self.carry_out(now, out),
@@ -92,8 +95,8 @@ impl<K: StageClock> Core<K> {
         }
         let plan_start = self.clock.now_ns();
         let step = self.safety.state().may_move().then(|| self.control.step(t, &tracked.estimate));
-        let (pose, delay) = (tracked.estimate.pose(), tracked.estimate.delay);
-        Some(Decision { pose, delay, clearance: tracked.clearance, step, started, track_ns, plan_start })
+        let (pose, delay, wheels) = (tracked.estimate.pose(), tracked.estimate.delay, tracked.estimate.wheels);
+        Some(Decision { pose, delay, wheels, clearance: tracked.clearance, step, started, track_ns, plan_start })
     }
 
     /// Count what the step saw and act on its status; the pulses and wheel speeds to command.

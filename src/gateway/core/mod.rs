@@ -228,8 +228,17 @@ pub struct Core<K: StageClock> {
     counters: Counters,
     progress: Progress,
     /// The last cycle's pose estimate and sensing delay (for [`Core::scene`]).
-    last_estimate: Option<(Pose, f64)>,
+    last_estimate: Option<LastEstimate>,
     shutdown: bool,
+}
+
+/// What the last cycle estimated of the robot, for [`Core::scene`].
+#[derive(Debug, Clone, Copy)]
+struct LastEstimate {
+    pose: Pose,
+    delay: f64,
+    /// The wheels' rim speeds, m/s: left, right.
+    wheels: [f64; 2],
 }
 
 impl<K: StageClock> Core<K> {

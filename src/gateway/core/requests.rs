@@ -3,6 +3,7 @@
 
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
 use super::scene::{ObstacleView, SceneRecord};
+use super::LastEstimate;
 use super::{Answer, Core, StageClock, State, StopReason};
 use crate::planner::Space;
 use crate::time::HostTime;
@@ -214,9 +215,10 @@ impl<K: StageClock> Core<K> {
         // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
         let cycle = self.counters.cycles.saturating_sub(1);
         let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
-        let Some((pose, delay)) = self.last_estimate else { return scene };
+        let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.last_estimate else { return scene };
         let goal = self.control.config().goal;
         scene.pose = [pose.position.re, pose.position.im, pose.heading];
+        scene.twist = [0.5 * (left + right), (right - left) / self.rig.control.drive.wheel_base];
         scene.goal = [goal.re, goal.im];
         let (robot, margin) = (self.rig.control.robot_radius, self.rig.control.planner.margin);
         for (view, (o, cov)) in scene.obstacles.iter_mut().zip(self.tracker.obstacles_at(now.secs())) {
@@ -262,7 +264,7 @@ impl<K: StageClock> Core<K> {
                 if let Some(why) = room.blocked_at(at) {
                     return Err(bad(why));
                 }
-                let robot = self.last_estimate.map(|(pose, _)| pose.position);
+                let robot = self.last_estimate.map(|e| e.pose.position);
                 if let Some(robot) = robot.filter(|&r| room.blocked_at(r).is_none() && !room.reachable(r, at)) {
                     return Err(bad(format!(
                         "out of the robot's reach from ({:.3}, {:.3}): the walls, static obstacles or the view's edge \

@@ -25,6 +25,8 @@ pub struct SceneRecord {
     pub at: HostTime,
     /// x, y (m), heading (rad).
     pub pose: [f64; 3],
+    /// The robot's forward speed (m/s) and yaw rate (rad/s), from the wheels' speeds.
+    pub twist: [f64; 2],
     pub goal: [f64; 2],
     pub count: u8,
     pub obstacles: [ObstacleView; MAX_OBSTACLES],

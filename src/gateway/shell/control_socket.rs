@@ -27,27 +27,32 @@ const MAX_CLIENTS: usize = 8;
 /// Requests queued for the loop; a client beyond this waits for room.
 pub const QUEUE: usize = 16;
 /// How long a client waits for the loop's answer.
-const ANSWER_DEADLINE: Duration = Duration::from_secs(2);
+pub const ANSWER_DEADLINE: Duration = Duration::from_secs(2);
 /// The least time between two requests of one connection: operators and their scripts ask
 /// at human rates, and a flooding client waits on its own connection (at most 100 requests
 /// a second each, 800 in all), never taking the control loop's time.
 pub const MIN_INTERVAL: Duration = Duration::from_millis(10);
 
-/// Who asked, from the socket's peer credentials.
+/// Who asked: a process on the control socket (its peer credentials), or ROS 2.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub struct Peer {
-    pub uid: u32,
-    pub gid: u32,
-    pub pid: Option<i32>,
+#[serde(rename_all = "snake_case")]
+pub enum Peer {
+    Socket { uid: u32, gid: u32, pid: Option<i32> },
+    Ros2,
 }
 
 impl std::fmt::Display for Peer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "uid {} gid {}", self.uid, self.gid)?;
-        if let Some(pid) = self.pid {
-            write!(f, " pid {pid}")?;
+        match *self {
+            Peer::Socket { uid, gid, pid } => {
+                write!(f, "uid {uid} gid {gid}")?;
+                if let Some(pid) = pid {
+                    write!(f, " pid {pid}")?;
+                }
+                Ok(())
+            }
+            Peer::Ros2 => f.write_str("ROS 2"),
         }
-        Ok(())
     }
 }
 
@@ -161,7 +166,7 @@ impl ControlSocket {
 
 /// One client: lines in, replies out, until it hangs up.
 async fn connection(stream: UnixStream, tx: mpsc::Sender<Command>) -> std::io::Result<()> {
-    let peer = stream.peer_cred().map(|c| Peer { uid: c.uid(), gid: c.gid(), pid: c.pid() })?;
+    let peer = stream.peer_cred().map(|c| Peer::Socket { uid: c.uid(), gid: c.gid(), pid: c.pid() })?;
     let (read, mut write) = stream.into_split();
     let mut read = BufReader::new(read);
     let mut line = Vec::with_capacity(256);

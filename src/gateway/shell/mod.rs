@@ -30,6 +30,8 @@ pub mod metrics;
 pub mod realtime;
 pub mod recording;
 pub mod report;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 mod services;
 pub mod systemd;
 pub mod telemetry;
@@ -545,13 +547,27 @@ impl Io {
     /// allocation). Returns when the next is due.
     fn publish_view<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
         let now = self.now();
-        let Some((publisher, next)) = &mut self.services.view else { return HostTime::NEVER };
+        #[cfg(feature = "ros2")]
+        let ros2_next = match &mut self.services.ros2 {
+            Some((node, next, every)) => {
+                if now >= *next {
+                    let scene = core.scene(now);
+                    node.publish(view::ViewSnapshot { scene, state: core.state(), cycles: core.counters().cycles });
+                    *next = now + *every;
+                }
+                *next
+            }
+            None => HostTime::NEVER,
+        };
+        #[cfg(not(feature = "ros2"))]
+        let ros2_next = HostTime::NEVER;
+        let Some((publisher, next)) = &mut self.services.view else { return ros2_next };
         if now >= *next {
             let scene = core.scene(now);
             publisher.publish(view::ViewSnapshot { scene, state: core.state(), cycles: core.counters().cycles });
             *next = now + view::PUBLISH_EVERY;
         }
-        *next
+        (*next).min(ros2_next)
     }
 
     /// The serial line failed: close it and tell the core (which asks for it again).
@@ -615,6 +631,10 @@ impl Io {
         if let Some((_, next)) = &mut self.services.view {
             *next = HostTime::ZERO;
         }
+        #[cfg(feature = "ros2")]
+        if let Some((_, next, _)) = &mut self.services.ros2 {
+            *next = HostTime::ZERO;
+        }
         self.publish_metrics(core);
         self.publish_view(core);
         let dropped = self.services.recorder.dropped();
@@ -671,4 +691,12 @@ pub enum GatewayError {
     View { addr: std::net::SocketAddr, source: std::io::Error },
     #[error("operator.foxglove = \"{addr}\": cannot serve Foxglove live there: {source}")]
     Foxglove { addr: std::net::SocketAddr, source: ::foxglove::FoxgloveError },
+    #[error("{0}")]
+    Ros2Config(crate::config::Invalid),
+    #[cfg(feature = "ros2")]
+    #[error(transparent)]
+    Ros2(#[from] ros2::Ros2Error),
+    #[cfg(not(feature = "ros2"))]
+    #[error("[ros2] is enabled, but this flowgate was built without ROS 2 (the `ros2` feature)")]
+    Ros2Missing,
 }

@@ -32,6 +32,9 @@ pub(super) struct Services {
     pub metrics: Option<(watch::Sender<Arc<metrics::Snapshot>>, HostTime)>,
     /// The live view: where the loop publishes its scene, and when it next does.
     pub view: Option<(view::ViewPublisher, HostTime)>,
+    /// The ROS 2 node: where the loop publishes its scene, when it next does, and how often.
+    #[cfg(feature = "ros2")]
+    pub ros2: Option<(super::ros2::Ros2Node, HostTime, std::time::Duration)>,
     /// When the gateway started, s since the Unix epoch.
     pub start_time_s: f64,
     writer: Option<JoinHandle<std::io::Result<WrittenFiles>>>,
@@ -41,6 +44,8 @@ pub(super) struct Services {
 impl Services {
     /// Start what the rig's config asks for; operator requests go to `requests`.
     pub async fn start(rig: &Rig, origin: Instant, requests: mpsc::Sender<Command>) -> Result<Self, GatewayError> {
+        #[cfg(feature = "ros2")]
+        let ros2_requests = requests.clone();
         let socket = match &rig.operator.socket {
             Some(path) => {
                 let socket = ControlSocket::bind(path, rig.operator.group.as_deref())?;
@@ -57,7 +62,7 @@ impl Services {
         };
         let (recorder, writer) = start_telemetry(rig, origin, inputs_taken.clone(), live)?;
         // The statistics snapshot feeds `/metrics` and the view's latency histogram.
-        let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some())
+        let stats = (rig.operator.metrics.is_some() || rig.operator.view.is_some() || rig.ros2.is_some())
             .then(|| watch::channel(Arc::new(metrics::Snapshot::empty(start_time_s))));
         if let (Some(addr), Some((_, rx))) = (rig.operator.metrics, &stats) {
             let listener = std::net::TcpListener::bind(addr)
@@ -71,8 +76,27 @@ impl Services {
             (Some(addr), Some((_, rx))) => Some((start_view(rig, addr, rx.clone())?, HostTime::ZERO)),
             _ => None,
         };
+        #[cfg(feature = "ros2")]
+        let ros2 = match (&rig.ros2, &stats) {
+            (Some(config), Some((_, rx))) => Some(start_ros2(rig, config, start_time_s, rx.clone(), ros2_requests)?),
+            _ => None,
+        };
+        #[cfg(not(feature = "ros2"))]
+        if rig.ros2.is_some() {
+            return Err(GatewayError::Ros2Missing);
+        }
         let metrics = stats.map(|(tx, _)| (tx, HostTime::ZERO));
-        Ok(Self { recorder, inputs_taken, metrics, view, start_time_s, writer, socket })
+        Ok(Self {
+            recorder,
+            inputs_taken,
+            metrics,
+            view,
+            #[cfg(feature = "ros2")]
+            ros2,
+            start_time_s,
+            writer,
+            socket,
+        })
     }
 
     /// Stop the services and wait for the telemetry writer to finish its files.
@@ -83,6 +107,10 @@ impl Services {
         // The view's last frame, marked ended, goes out before the process can end.
         if let Some((view, _)) = self.view.take() {
             view.close().await;
+        }
+        #[cfg(feature = "ros2")]
+        if let Some((node, ..)) = self.ros2.take() {
+            node.close().await;
         }
         // Dropping the recorder closes the writer's queue: it writes what is left and ends.
         drop(self.recorder);
@@ -100,18 +128,37 @@ fn lane_half_width(rig: &Rig) -> Option<f64> {
     }
 }
 
+fn view_setup(rig: &Rig) -> view::ViewSetup {
+    view::ViewSetup {
+        planner: rig.control.planner,
+        robot_radius: rig.control.robot_radius,
+        lane_half_width: lane_half_width(rig),
+        room: rig.control.room.clone(),
+    }
+}
+
+/// Join ROS 2 as `[ros2]` and its environment say.
+#[cfg(feature = "ros2")]
+fn start_ros2(
+    rig: &Rig,
+    config: &crate::config::Ros2Config,
+    start_time_s: f64,
+    stats: watch::Receiver<Arc<metrics::Snapshot>>,
+    requests: mpsc::Sender<Command>,
+) -> Result<(super::ros2::Ros2Node, HostTime, std::time::Duration), GatewayError> {
+    let settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Config)?;
+    let every = settings.publish_every;
+    let setup = super::ros2::Ros2Setup { settings, view: view_setup(rig), start_time_s };
+    let node = super::ros2::start(setup, stats, requests)?;
+    Ok((node, HostTime::ZERO, every))
+}
+
 fn start_view(
     rig: &Rig,
     addr: std::net::SocketAddr,
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
 ) -> Result<view::ViewPublisher, GatewayError> {
-    let setup = view::ViewSetup {
-        planner: rig.control.planner,
-        robot_radius: rig.control.robot_radius,
-        lane_half_width: lane_half_width(rig),
-        room: rig.control.room.clone(),
-    };
-    let publisher = view::start(addr, setup, stats).map_err(|source| GatewayError::View { addr, source })?;
+    let publisher = view::start(addr, view_setup(rig), stats).map_err(|source| GatewayError::View { addr, source })?;
     if !addr.ip().is_loopback() {
         tracing::warn!("the live view on {addr} is visible beyond this host (read-only)");
     }

@@ -197,7 +197,7 @@ async fn render(
 
 /// The planner's field for the scene (planning circles as the loop last grew them), for
 /// streamlines. `None` before a pose, or when the planner could not make one.
-fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
+pub(super) fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
     let mut planned =
         [PlanObstacle { center: Point::default(), velocity: Point::default(), radius: 1.0 }; MAX_OBSTACLES];
     let n = s.obstacles().len();

@@ -1,0 +1,204 @@
+//! The gateway's scene and statistics as ROS 2 messages: pure functions of what the loop
+//! published, so the live node and a bag export say the same.
+
+use super::msgs::{
+    ColorRgba, DiagnosticArray, DiagnosticStatus, Header, KeyValue, Marker, MarkerArray, Odometry, Path, Point, Pose,
+    PoseStamped, PoseWithCovariance, Quaternion, TfMessage, Time, Transform, TransformStamped, Twist,
+    TwistWithCovariance,
+};
+use crate::gateway::core::scene::SceneRecord;
+use crate::gateway::core::State;
+use crate::gateway::shell::metrics;
+use crate::gateway::shell::view::{self, ViewSetup};
+use crate::planner::room::OutlineKind;
+use crate::planner::streamlines;
+
+/// The frames the messages are in.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frames {
+    /// The calibrated floor, fixed in the room.
+    pub floor: String,
+    /// The robot's centre, x forward.
+    pub base: String,
+}
+
+fn header(stamp: Time, frame: &str) -> Header {
+    Header { stamp, frame_id: frame.to_owned() }
+}
+
+fn pose_of(s: &SceneRecord) -> Pose {
+    Pose { position: Point { x: s.pose[0], y: s.pose[1], z: 0.0 }, orientation: Quaternion::yaw(s.pose[2]) }
+}
+
+/// `/odom`: the tracker's pose in the floor frame, its twist in the robot's.
+pub fn odometry(s: &SceneRecord, stamp: Time, frames: &Frames) -> Odometry {
+    let twist =
+        Twist { linear: Point { x: s.twist[0], y: 0.0, z: 0.0 }, angular: Point { x: 0.0, y: 0.0, z: s.twist[1] } };
+    Odometry {
+        header: header(stamp, &frames.floor),
+        child_frame_id: frames.base.clone(),
+        pose: PoseWithCovariance { pose: pose_of(s), covariance: Default::default() },
+        twist: TwistWithCovariance { twist, covariance: Default::default() },
+    }
+}
+
+/// `/tf`: the floor frame to the robot's.
+pub fn transform(s: &SceneRecord, stamp: Time, frames: &Frames) -> TfMessage {
+    let p = pose_of(s);
+    TfMessage {
+        transforms: vec![TransformStamped {
+            header: header(stamp, &frames.floor),
+            child_frame_id: frames.base.clone(),
+            transform: Transform { translation: p.position, rotation: p.orientation },
+        }],
+    }
+}
+
+fn rgba(r: f32, g: f32, b: f32, a: f32) -> ColorRgba {
+    ColorRgba { r, g, b, a }
+}
+
+fn cylinder(stamp: Time, frames: &Frames, ns: &str, id: i32, at: [f32; 2], radius: f32, color: ColorRgba) -> Marker {
+    Marker {
+        header: header(stamp, &frames.floor),
+        ns: ns.into(),
+        id,
+        kind: Marker::CYLINDER,
+        action: Marker::ADD,
+        pose: Pose {
+            position: Point { x: f64::from(at[0]), y: f64::from(at[1]), z: 0.05 },
+            orientation: Quaternion::default(),
+        },
+        scale: Point { x: 2.0 * f64::from(radius), y: 2.0 * f64::from(radius), z: 0.1 },
+        color,
+        ..Marker::default()
+    }
+}
+
+/// `~/obstacles`: a clearing marker, then each tracked obstacle (its body, its planning
+/// circle, its velocity as an arrow over a second) and the room's walls, static obstacles and
+/// view's edge as line strips.
+pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> MarkerArray {
+    let mut markers = vec![Marker { action: Marker::DELETEALL, ..Marker::default() }];
+    for (k, o) in s.obstacles().iter().enumerate() {
+        let id = k as i32;
+        markers.push(cylinder(stamp, frames, "obstacle", id, o.position, o.radius, rgba(0.9, 0.3, 0.1, 0.9)));
+        let planning = rgba(0.9, 0.6, 0.1, 0.25);
+        markers.push(cylinder(stamp, frames, "planning_circle", id, o.position, o.planning_radius, planning));
+        let from = Point { x: f64::from(o.position[0]), y: f64::from(o.position[1]), z: 0.1 };
+        let to = Point { x: from.x + f64::from(o.velocity[0]), y: from.y + f64::from(o.velocity[1]), z: 0.1 };
+        markers.push(Marker {
+            header: header(stamp, &frames.floor),
+            ns: "velocity".into(),
+            id,
+            kind: Marker::ARROW,
+            action: Marker::ADD,
+            scale: Point { x: 0.02, y: 0.04, z: 0.04 },
+            color: rgba(0.9, 0.3, 0.1, 1.0),
+            points: vec![from, to],
+            ..Marker::default()
+        });
+    }
+    if let Some(room) = &setup.room {
+        for (k, (kind, points)) in room.shape().outlines().enumerate() {
+            let (ns, color) = match kind {
+                OutlineKind::Wall => ("wall", rgba(0.2, 0.2, 0.2, 1.0)),
+                OutlineKind::StaticObstacle => ("static_obstacle", rgba(0.4, 0.3, 0.2, 1.0)),
+                OutlineKind::View => ("view_edge", rgba(0.3, 0.5, 0.9, 0.6)),
+            };
+            let mut line: Vec<Point> = points.iter().map(|p| Point { x: p.re, y: p.im, z: 0.0 }).collect();
+            if kind != OutlineKind::Wall {
+                line.extend(line.first().copied());
+            }
+            markers.push(Marker {
+                header: header(stamp, &frames.floor),
+                ns: ns.into(),
+                id: k as i32,
+                kind: Marker::LINE_STRIP,
+                action: Marker::ADD,
+                scale: Point { x: 0.01, y: 0.0, z: 0.0 },
+                color,
+                points: line,
+                ..Marker::default()
+            });
+        }
+    }
+    MarkerArray { markers }
+}
+
+/// How far ahead `~/path` follows the field, m.
+const PATH_AHEAD: f64 = 4.0;
+const PATH_STEP: f64 = 0.01;
+
+/// `~/path`: the streamline of the planner's field from the robot toward the goal (empty
+/// before a pose).
+pub fn path(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> Path {
+    let mut out = Path { header: header(stamp, &frames.floor), poses: Vec::new() };
+    if s.pose == [0.0; 3] && s.goal == [0.0; 2] {
+        return out;
+    }
+    let Some(field) = view::field(s, setup) else { return out };
+    let robot = crate::Point::new(s.pose[0], s.pose[1]);
+    let reach = crate::Point::new(PATH_AHEAD, PATH_AHEAD);
+    let steps = (PATH_AHEAD / PATH_STEP) as usize;
+    let line = streamlines(&field, &[robot], PATH_STEP, steps, (robot - reach, robot + reach));
+    let mut points: Vec<crate::Point> = line.into_iter().next().unwrap_or_default();
+    points.push(crate::Point::new(s.goal[0], s.goal[1]));
+    for (k, p) in points.iter().enumerate() {
+        let next = points.get(k + 1).copied().unwrap_or(*p);
+        let heading = if next == *p { s.pose[2] } else { (next - *p).im.atan2((next - *p).re) };
+        out.poses.push(PoseStamped {
+            header: header(stamp, &frames.floor),
+            pose: Pose { position: Point { x: p.re, y: p.im, z: 0.0 }, orientation: Quaternion::yaw(heading) },
+        });
+    }
+    out
+}
+
+/// Level of a state: running and its way there fine, a stop a warning, a fault an error.
+fn level(state: State) -> u8 {
+    match state {
+        State::Fault(_) => DiagnosticStatus::ERROR,
+        State::Stopped(_) | State::Stopping(_) => DiagnosticStatus::WARN,
+        _ => DiagnosticStatus::OK,
+    }
+}
+
+/// `/diagnostics`: the state and its reason, both links' counters, the cycle's latency, and
+/// the last request ROS 2 made that was refused (with the control socket's words).
+pub fn diagnostics(
+    stats: &metrics::Snapshot,
+    last_refusal: Option<&str>,
+    stamp: Time,
+    hardware_id: &str,
+) -> DiagnosticArray {
+    let kv = |key: &str, value: String| KeyValue { key: key.into(), value };
+    let mut values = vec![kv("state", stats.state.to_string()), kv("uptime_s", format!("{:.1}", stats.uptime_s))];
+    if let Ok(serde_json::Value::Object(counters)) = serde_json::to_value(stats.counters) {
+        values.extend(counters.into_iter().map(|(k, v)| kv(&k, v.to_string())));
+    }
+    let h = &stats.e2e_ns;
+    if !h.is_empty() {
+        for (name, q) in [("latency_p50_us", 0.5), ("latency_p99_us", 0.99), ("latency_max_us", 1.0)] {
+            values.push(kv(name, format!("{:.1}", h.value_at_quantile(q) as f64 / 1e3)));
+        }
+    }
+    values.push(kv("deadline_misses", stats.deadline_misses.to_string()));
+    let mut status = vec![DiagnosticStatus {
+        level: level(stats.state),
+        name: "flowgate: gateway".into(),
+        message: stats.state.to_string(),
+        hardware_id: hardware_id.into(),
+        values,
+    }];
+    if let Some(text) = last_refusal {
+        status.push(DiagnosticStatus {
+            level: DiagnosticStatus::WARN,
+            name: "flowgate: requests".into(),
+            message: text.into(),
+            hardware_id: hardware_id.into(),
+            values: Vec::new(),
+        });
+    }
+    DiagnosticArray { header: Header { stamp, frame_id: String::new() }, status }
+}

@@ -1,0 +1,326 @@
+//! flowgate as a ROS 2 node, beside the loop as the live view is: the loop hands it copies of
+//! its scene through a watch channel and never waits on DDS; operator requests from ROS 2
+//! go to the loop through the control socket's queue, so ROS 2 can do nothing the control
+//! socket cannot, and gets the same words back.
+//!
+//! Publishes `/odom`, `/tf`, `~/obstacles`, `~/path` and `/diagnostics`; takes `/goal_pose`;
+//! serves `~/arm`, `~/start`, `~/stop`, `~/reset` and `~/estop` (`std_srvs/srv/Trigger`).
+//! The DDS is RustDDS, through `ros2-client`: no ROS installation is needed.
+
+pub mod convert;
+pub mod msgs;
+
+use std::sync::Arc;
+
+use futures_util::StreamExt;
+use ros2_client::{
+    Context, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, Server, ServiceMapping,
+    ServiceTypeName,
+};
+use tokio::sync::{mpsc, oneshot, watch};
+
+use super::control_socket::{Command, Peer, Reply, ANSWER_DEADLINE};
+use super::metrics;
+use super::view::{ViewSetup, ViewSnapshot};
+use crate::config::{DiscoveryRange, Ros2Settings};
+use crate::gateway::core::operator::Request;
+use convert::Frames;
+use msgs::{Time, TriggerRequest, TriggerResponse};
+
+impl ros2_client::Message for msgs::Odometry {}
+impl ros2_client::Message for msgs::TfMessage {}
+impl ros2_client::Message for msgs::MarkerArray {}
+impl ros2_client::Message for msgs::Path {}
+impl ros2_client::Message for msgs::DiagnosticArray {}
+impl ros2_client::Message for msgs::PoseStamped {}
+impl ros2_client::Message for TriggerRequest {}
+impl ros2_client::Message for TriggerResponse {}
+
+/// The node thread's nice value (below the loop's, as the live view's).
+const ROS2_NICE: i32 = 10;
+
+/// What the node needs of the rig.
+#[derive(Debug, Clone)]
+pub struct Ros2Setup {
+    pub settings: Ros2Settings,
+    pub view: ViewSetup,
+    /// When the gateway started, s since the Unix epoch (the messages' stamps are Unix time).
+    pub start_time_s: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum Ros2Error {
+    #[error("[ros2]: cannot join ROS 2 domain {domain}: {why}")]
+    Join { domain: u16, why: String },
+    #[error("[ros2]: {what}: {why}")]
+    Create { what: String, why: String },
+    #[error("[ros2]: cannot start the node's thread: {0}")]
+    Thread(#[from] std::io::Error),
+}
+
+/// The loop's end of the node: publish a scene when one is due.
+#[derive(Debug)]
+pub struct Ros2Node {
+    tx: watch::Sender<ViewSnapshot>,
+    done: oneshot::Receiver<()>,
+}
+
+impl Ros2Node {
+    pub fn publish(&self, snapshot: ViewSnapshot) {
+        self.tx.send_replace(snapshot);
+    }
+
+    /// End the node (its last scene published), waiting at most 2 s.
+    pub async fn close(self) {
+        drop(self.tx);
+        if tokio::time::timeout(std::time::Duration::from_secs(2), self.done).await.is_err() {
+            tracing::debug!("the ROS 2 node did not close within 2 s");
+        }
+    }
+}
+
+/// The node's DDS side: made before its thread starts, so a failure is the caller's.
+struct Endpoints {
+    node: ros2_client::Node,
+    odom: Publisher<msgs::Odometry>,
+    tf: Publisher<msgs::TfMessage>,
+    obstacles: Publisher<msgs::MarkerArray>,
+    path: Publisher<msgs::Path>,
+    diagnostics: Publisher<msgs::DiagnosticArray>,
+    goal: ros2_client::Subscription<msgs::PoseStamped>,
+    services: Vec<(Request, Server<TriggerRequest, TriggerResponse>)>,
+}
+
+/// The node's fully qualified name, the prefix of its private (`~/`) names.
+fn node_fqn(s: &Ros2Settings) -> String {
+    let ns = s.namespace.trim_end_matches('/');
+    format!("{ns}/{}", s.node_name)
+}
+
+fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
+    let mut participant = rustdds::DomainParticipantBuilder::new(s.domain_id);
+    if s.discovery_range == DiscoveryRange::Localhost {
+        participant = participant.with_only_networks([std::net::Ipv4Addr::LOCALHOST]);
+    }
+    let join_err = |e: &dyn std::fmt::Display| Ros2Error::Join { domain: s.domain_id, why: e.to_string() };
+    let participant = participant.build().map_err(|e| join_err(&e))?;
+    let context = Context::from_domain_participant(participant).map_err(|e| join_err(&e))?;
+    let create = |what: &str| {
+        let what = what.to_owned();
+        move |e: &dyn std::fmt::Display| Ros2Error::Create { what: what.clone(), why: e.to_string() }
+    };
+    let name = NodeName::new(&s.namespace, &s.node_name).map_err(|e| create("node name")(&e))?;
+    let mut node = context.new_node(name, NodeOptions::new().enable_rosout(true)).map_err(|e| create("node")(&e))?;
+    let qos = QosProfile::publisher_default()
+        .reliability_reliable(ros2_client::qos::WhenFull::DEFAULT)
+        .durability(ros2_client::qos::Durability::Volatile)
+        .history(ros2_client::qos::History::KeepLast { depth: usize::from(s.qos_depth) });
+    let fqn = node_fqn(s);
+    let topic = |ns: &str, base: &str, package: &str, kind: &str| {
+        let name = Name::new(ns, base).map_err(|e| create(base)(&e))?;
+        node.create_topic(&name, MessageTypeName::new(package, kind), &qos).map_err(|e| create(base)(&e))
+    };
+    let t_odom = topic("/", "odom", "nav_msgs", "Odometry")?;
+    let t_tf = topic("/", "tf", "tf2_msgs", "TFMessage")?;
+    let t_obstacles = topic(&fqn, "obstacles", "visualization_msgs", "MarkerArray")?;
+    let t_path = topic(&fqn, "path", "nav_msgs", "Path")?;
+    let t_diagnostics = topic("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray")?;
+    let t_goal = topic("/", "goal_pose", "geometry_msgs", "PoseStamped")?;
+    let publisher_err = create("publisher");
+    let odom = node.create_publisher(&t_odom, None).map_err(|e| publisher_err(&e))?;
+    let tf = node.create_publisher(&t_tf, None).map_err(|e| publisher_err(&e))?;
+    let obstacles = node.create_publisher(&t_obstacles, None).map_err(|e| publisher_err(&e))?;
+    let path = node.create_publisher(&t_path, None).map_err(|e| publisher_err(&e))?;
+    let diagnostics = node.create_publisher(&t_diagnostics, None).map_err(|e| publisher_err(&e))?;
+    let goal = node.create_subscription(&t_goal, None).map_err(|e| create("/goal_pose")(&e))?;
+    let mut services = Vec::new();
+    for (request, base) in [
+        (Request::Arm, "arm"),
+        (Request::Start, "start"),
+        (Request::Stop, "stop"),
+        (Request::Reset, "reset"),
+        (Request::EStop, "estop"),
+    ] {
+        let name = Name::new(&fqn, base).map_err(|e| create(base)(&e))?;
+        let kind = ServiceTypeName::new("std_srvs", "Trigger");
+        let server = node
+            .create_server(ServiceMapping::Enhanced, &name, &kind, qos.clone(), qos.clone())
+            .map_err(|e| create(&format!("~/{base}"))(&e))?;
+        services.push((request, server));
+    }
+    Ok(Endpoints { node, odom, tf, obstacles, path, diagnostics, goal, services })
+}
+
+/// Join the ROS 2 domain and start the node's thread. It ends when the returned node is
+/// closed or dropped.
+pub fn start(
+    setup: Ros2Setup,
+    stats: watch::Receiver<Arc<metrics::Snapshot>>,
+    requests: mpsc::Sender<Command>,
+) -> Result<Ros2Node, Ros2Error> {
+    let endpoints = join(&setup.settings)?;
+    let (tx, rx) = watch::channel(ViewSnapshot::default());
+    let (done_tx, done) = oneshot::channel();
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let s = &setup.settings;
+    tracing::info!(
+        "ROS 2: node {} in domain {} ({} discovery)",
+        node_fqn(s),
+        s.domain_id,
+        s.discovery_range.ros_name()
+    );
+    std::thread::Builder::new().name("flowgate-ros2".into()).spawn(move || {
+        if let Err(e) = rustix::process::setpriority_process(None, ROS2_NICE) {
+            tracing::debug!("ROS 2 thread priority: {e}");
+        }
+        runtime.block_on(serve(endpoints, setup, rx, stats, requests));
+        let _ = done_tx.send(());
+    })?;
+    Ok(Ros2Node { tx, done })
+}
+
+/// Ask the loop, as the control socket does, within its deadlines.
+async fn ask(requests: &mpsc::Sender<Command>, request: Request) -> Reply {
+    let (reply, answer) = oneshot::channel();
+    let command = Command { request, peer: Peer::Ros2, reply };
+    match tokio::time::timeout(ANSWER_DEADLINE, requests.send(command)).await {
+        Ok(Ok(())) => {}
+        Ok(Err(_)) => return Reply::error("the gateway is shutting down"),
+        Err(_) => return Reply::error("the gateway did not take the request within 2 s"),
+    }
+    match tokio::time::timeout(ANSWER_DEADLINE, answer).await {
+        Ok(Ok(reply)) => reply,
+        _ => Reply::error("no answer from the gateway within 2 s"),
+    }
+}
+
+/// A reply as a Trigger's response: the refusal's words, or the state now.
+fn trigger_response(reply: Reply) -> TriggerResponse {
+    let message = match (&reply.error, &reply.status) {
+        (Some(e), _) => e.clone(),
+        (None, Some(status)) => status.state.to_string(),
+        (None, None) => "ok".into(),
+    };
+    TriggerResponse { success: reply.ok, message }
+}
+
+/// What the node keeps between events.
+struct NodeState {
+    setup: Ros2Setup,
+    frames: Frames,
+    hardware_id: String,
+    /// The last request from ROS 2 the gateway refused, in the control socket's words.
+    last_refusal: Option<String>,
+}
+
+impl NodeState {
+    fn stamp(&self, at: crate::time::HostTime) -> Time {
+        Time::from_secs(self.setup.start_time_s + at.secs())
+    }
+}
+
+/// The node's loop: publish each scene and statistics the loop hands over, answer goals and
+/// services, until the loop's end of the scene channel is gone.
+async fn serve(
+    e: Endpoints,
+    setup: Ros2Setup,
+    mut scenes: watch::Receiver<ViewSnapshot>,
+    mut stats: watch::Receiver<Arc<metrics::Snapshot>>,
+    requests: mpsc::Sender<Command>,
+) {
+    let Endpoints { mut node, odom, tf, obstacles, path, diagnostics, goal, services } = e;
+    let frames = Frames { floor: setup.settings.floor_frame.clone(), base: setup.settings.base_frame.clone() };
+    let hardware_id = node_fqn(&setup.settings);
+    let mut state = NodeState { setup, frames, hardware_id, last_refusal: None };
+    let spin = match node.spinner() {
+        Ok(spinner) => spinner.spin(),
+        Err(e) => return tracing::warn!("ROS 2: the node's spinner: {e:?}"),
+    };
+    tokio::pin!(spin);
+    let goals = goal.async_stream();
+    tokio::pin!(goals);
+    let mut calls = futures_util::stream::select_all(
+        services.iter().map(|(request, server)| server.receive_request_stream().map(move |r| (request, server, r))),
+    );
+    let mut stats_open = true;
+    loop {
+        tokio::select! {
+            _ = &mut spin => tracing::debug!("ROS 2: the node's spinner ended"),
+            changed = scenes.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                let snapshot = *scenes.borrow_and_update();
+                publish_scene(&state, &snapshot, &odom, &tf, &obstacles, &path);
+            }
+            changed = stats.changed(), if stats_open => {
+                if changed.is_err() {
+                    stats_open = false;
+                    continue;
+                }
+                let snapshot = stats.borrow_and_update().clone();
+                let stamp = Time::from_secs(state.setup.start_time_s + snapshot.uptime_s);
+                let msg = convert::diagnostics(&snapshot, state.last_refusal.as_deref(), stamp, &state.hardware_id);
+                if let Err(e) = diagnostics.publish(msg) {
+                    tracing::debug!("ROS 2: /diagnostics: {e:?}");
+                }
+            }
+            Some(received) = goals.next() => match received {
+                Ok((pose, _)) => take_goal(&mut state, &requests, pose).await,
+                Err(e) => tracing::warn!("ROS 2: /goal_pose: {e:?}"),
+            },
+            Some((request, server, received)) = calls.next() => match received {
+                Ok((id, _)) => {
+                    let reply = ask(&requests, request.clone()).await;
+                    if let Some(e) = &reply.error {
+                        state.last_refusal = Some(e.clone());
+                    }
+                    if let Err(e) = server.send_response(id, trigger_response(reply)) {
+                        tracing::warn!("ROS 2: answering {request:?}: {e:?}");
+                    }
+                }
+                Err(e) => tracing::warn!("ROS 2: a {request:?} call: {e:?}"),
+            },
+        }
+    }
+}
+
+/// `/odom`, `/tf`, `~/obstacles` and `~/path` for one scene (nothing before a pose).
+fn publish_scene(
+    state: &NodeState,
+    snapshot: &ViewSnapshot,
+    odom: &Publisher<msgs::Odometry>,
+    tf: &Publisher<msgs::TfMessage>,
+    obstacles: &Publisher<msgs::MarkerArray>,
+    path: &Publisher<msgs::Path>,
+) {
+    let s = &snapshot.scene;
+    let stamp = state.stamp(s.at);
+    let (frames, view) = (&state.frames, &state.setup.view);
+    let has_pose = s.pose != [0.0; 3] || s.goal != [0.0; 2];
+    let failed = |topic: &str, e: &dyn std::fmt::Debug| tracing::debug!("ROS 2: {topic}: {e:?}");
+    if has_pose {
+        odom.publish(convert::odometry(s, stamp, frames)).unwrap_or_else(|e| failed("/odom", &e));
+        tf.publish(convert::transform(s, stamp, frames)).unwrap_or_else(|e| failed("/tf", &e));
+        path.publish(convert::path(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
+    }
+    obstacles.publish(convert::obstacles(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/obstacles", &e));
+}
+
+/// A goal from `/goal_pose` (RViz's "2D Goal Pose"), checked by the loop as `ctl goal` is; a
+/// goal in another frame is refused here.
+async fn take_goal(state: &mut NodeState, requests: &mpsc::Sender<Command>, goal: msgs::PoseStamped) {
+    let frame = &goal.header.frame_id;
+    let (x, y) = (goal.pose.position.x, goal.pose.position.y);
+    if !frame.is_empty() && *frame != state.frames.floor {
+        let text = format!("goal in frame `{frame}`: flowgate takes goals in `{}`", state.frames.floor);
+        tracing::warn!("ROS 2: {text}");
+        state.last_refusal = Some(text);
+        return;
+    }
+    let goals = vec![crate::config::Goal { position: [x, y], tolerance: crate::config::default_tolerance() }];
+    let reply = ask(requests, Request::Goal { goals }).await;
+    if let Some(e) = reply.error {
+        state.last_refusal = Some(e);
+    }
+}

@@ -1,0 +1,136 @@
+"""Peer of tests/ros2.rs: a ROS 2 node in rclpy (Jazzy, Fast DDS) beside a running
+`flowgate demo --ros2`, as a lab's own node would be.
+
+It hears /odom, ~/obstacles, ~/path and /diagnostics and finds /tf's type in the graph; sends a
+goal out of the camera's view on /goal_pose and reads the refusal off /diagnostics; calls
+~/arm twice (the second is refused); compares both refusals with `flowgate ctl`'s words on the
+control socket; sends a reachable goal, calls ~/start, and waits for the gateway to stop at
+it. Prints one JSON object with what it saw.
+
+usage: ros2.py FLOWGATE SOCKET GOAL_X GOAL_Y
+"""
+
+import json
+import subprocess
+import sys
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry, Path
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+
+def fail(why):
+    print(f"ros2 peer: {why}", file=sys.stderr)
+    sys.exit(1)
+
+
+class Peer(Node):
+    def __init__(self):
+        super().__init__("flowgate_peer")
+        self.odom, self.obstacles, self.paths, self.diagnostics = [], [], [], []
+        self.create_subscription(Odometry, "/odom", lambda m: self.odom.append((time.monotonic(), m)), 10)
+        self.create_subscription(MarkerArray, "/flowgate/obstacles", self.obstacles.append, 10)
+        self.create_subscription(Path, "/flowgate/path", self.paths.append, 10)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, 10)
+        self.goal = self.create_publisher(PoseStamped, "/goal_pose", 10)
+        self.triggers = {n: self.create_client(Trigger, f"/flowgate/{n}") for n in ["arm", "start", "stop", "reset", "estop"]}
+
+    def spin_until(self, what, deadline_s, why):
+        end = time.monotonic() + deadline_s
+        while time.monotonic() < end:
+            rclpy.spin_once(self, timeout_sec=0.05)
+            found = what()
+            if found:
+                return found
+        fail(f"waited {deadline_s} s for {why}")
+
+    def call(self, name):
+        client = self.triggers[name]
+        self.spin_until(lambda: client.service_is_ready(), 20, f"/flowgate/{name}")
+        future = client.call_async(Trigger.Request())
+        self.spin_until(lambda: future.done(), 10, f"an answer from /flowgate/{name}")
+        r = future.result()
+        return {"success": r.success, "message": r.message}
+
+    def send_goal(self, x, y):
+        self.spin_until(lambda: self.goal.get_subscription_count() > 0, 20, "flowgate to hear /goal_pose")
+        msg = PoseStamped()
+        msg.header.frame_id = "map"
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.pose.position.x, msg.pose.position.y = x, y
+        msg.pose.orientation.w = 1.0
+        self.goal.publish(msg)
+
+    def refusal(self, since):
+        for d in self.diagnostics[since:]:
+            for s in d.status:
+                if s.name == "flowgate: requests":
+                    return s.message
+        return None
+
+    def state(self):
+        for d in reversed(self.diagnostics):
+            for s in d.status:
+                if s.name == "flowgate: gateway":
+                    return s.message
+        return None
+
+
+def ctl(flowgate, socket, *args):
+    out = subprocess.run([flowgate, "ctl", "--socket", socket, *args], capture_output=True, text=True, timeout=10)
+    return (out.stdout + out.stderr).strip()
+
+
+def main():
+    flowgate, socket, gx, gy = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])
+    rclpy.init()
+    peer = Peer()
+    peer.spin_until(lambda: len(peer.odom) >= 5 and peer.diagnostics and peer.paths and peer.obstacles, 30, "the topics")
+    types = dict(peer.get_topic_names_and_types())
+    seen = len(peer.diagnostics)
+    peer.send_goal(5.0, 5.0)
+    goal_refused = peer.spin_until(lambda: peer.refusal(seen), 10, "the out-of-view goal's refusal")
+    goal_refused_ctl = ctl(flowgate, socket, "goal", "5", "5")
+    arm = peer.call("arm")
+    arm_again = peer.call("arm")
+    arm_again_ctl = ctl(flowgate, socket, "arm")
+    peer.send_goal(gx, gy)
+    time.sleep(0.3)  # the goal travels on its topic; the start below goes through a service
+    start = peer.call("start")
+    started = time.monotonic()
+    stopped = peer.spin_until(lambda: (s := peer.state()) and s.startswith("stopped") and s, 60, "the gateway to stop")
+    ran = time.monotonic() - started
+    odom = peer.odom
+    span = odom[-1][0] - odom[0][0]
+    last = odom[-1][1]
+    print(json.dumps({
+        "types": {k: v for k, v in types.items() if k in ["/odom", "/tf", "/diagnostics", "/goal_pose", "/flowgate/obstacles", "/flowgate/path"]},
+        "odom": [
+            {"t": m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, "x": m.pose.pose.position.x, "y": m.pose.pose.position.y,
+             "frame": m.header.frame_id, "child": m.child_frame_id, "v": m.twist.twist.linear.x}
+            for _, m in odom
+        ],
+        "odom_rate_hz": (len(odom) - 1) / span if span > 0 else 0,
+        "obstacle_namespaces": sorted({mk.ns for a in peer.obstacles for mk in a.markers if mk.ns}),
+        "path_frames": sorted({p.header.frame_id for p in peer.paths}),
+        "path_longest": max(len(p.poses) for p in peer.paths),
+        "goal_refused": goal_refused,
+        "goal_refused_ctl": goal_refused_ctl,
+        "arm": arm,
+        "arm_again": arm_again,
+        "arm_again_ctl": arm_again_ctl,
+        "start": start,
+        "stopped": stopped,
+        "ran_s": ran,
+        "last_pose": [last.pose.pose.position.x, last.pose.pose.position.y],
+    }))
+    peer.destroy_node()
+    rclpy.shutdown()
+
+
+main()

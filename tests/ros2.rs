@@ -1,0 +1,137 @@
+//! flowgate in a ROS 2 system: `flowgate demo --ros2` beside a node of rclpy (Jazzy's, Fast
+//! DDS, from PyPI) that a lab would write: it hears every topic, its goal and its service
+//! calls drive the robot to that goal, and refusals come back in the control socket's words.
+//! Discovery stays on the loopback interface (`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` on
+//! both sides), in a domain of the test's own.
+
+#![cfg(feature = "ros2")]
+
+#[path = "support/python.rs"]
+mod python;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use serde_json::Value;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("flowgate-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Each `/cycle` of a recording: its log time (ns since the Unix epoch) and the robot's x, y.
+fn recorded_cycles(path: &Path) -> Vec<(u64, f64, f64)> {
+    let bytes = std::fs::read(path).unwrap();
+    let mut cycles = Vec::new();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        if message.channel.topic == "/cycle" {
+            let c: Value = serde_json::from_slice(&message.data).unwrap();
+            cycles.push((message.log_time, c["x"].as_f64().unwrap(), c["y"].as_f64().unwrap()));
+        }
+    }
+    cycles
+}
+
+#[test]
+fn a_ros2_node_watches_and_drives_flowgate() {
+    let dir = temp_dir("ros2");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let flowgate = env!("CARGO_BIN_EXE_flowgate");
+    let socket = dir.join("control.sock");
+    let recording = dir.join("run.mcap");
+    // A domain of this test's own: two runs of the suite on one machine do not hear each other.
+    let domain = (100 + std::process::id() % 100).to_string();
+    let ros_env = [
+        ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
+        ("ROS_DOMAIN_ID", domain.as_str()),
+        ("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"),
+    ];
+    let demo = Command::new(flowgate)
+        .args(["demo", "--ros2", "--scenario"])
+        .arg(root.join("scenarios/e1-standing-obstacle.toml"))
+        .arg("--socket")
+        .arg(&socket)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .arg("--record")
+        .arg(&recording)
+        .envs(ros_env)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The peer waits on each topic and service with a deadline of its own.
+    let (gx, gy) = (0.3, 0.06);
+    let peer = Command::new(python::python())
+        .arg(python::peer("ros2"))
+        .args([flowgate, socket.to_str().unwrap(), &gx.to_string(), &gy.to_string()])
+        .envs(ros_env)
+        .output()
+        .unwrap();
+    let demo = demo.wait_with_output().unwrap();
+    let said = |o: &std::process::Output| {
+        String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
+    };
+    assert!(peer.status.success(), "peer: {}\ndemo: {}", said(&peer), said(&demo));
+    assert!(demo.status.success(), "demo: {}", said(&demo));
+    let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
+
+    let types = &seen["types"];
+    for (topic, kind) in [
+        ("/odom", "nav_msgs/msg/Odometry"),
+        ("/tf", "tf2_msgs/msg/TFMessage"),
+        ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
+        ("/goal_pose", "geometry_msgs/msg/PoseStamped"),
+        ("/flowgate/obstacles", "visualization_msgs/msg/MarkerArray"),
+        ("/flowgate/path", "nav_msgs/msg/Path"),
+    ] {
+        assert_eq!(types[topic], serde_json::json!([kind]), "{topic}: {types}");
+    }
+    // The refusals, word for word as `flowgate ctl` prints the control socket's.
+    let goal_refused = seen["goal_refused"].as_str().unwrap();
+    assert!(goal_refused.contains("outside the calibrated arena"), "{goal_refused}");
+    assert_eq!(seen["goal_refused_ctl"].as_str().unwrap(), format!("Error: refused: {goal_refused}"));
+    assert_eq!(seen["arm"], serde_json::json!({"success": true, "message": "armed"}));
+    assert_eq!(seen["arm_again"], serde_json::json!({"success": false, "message": "already armed"}));
+    assert_eq!(seen["arm_again_ctl"], "Error: refused: already armed");
+    assert_eq!(seen["start"]["success"], true);
+    // The robot reached the peer's goal (not the scenario's, 0.35, 0.05), and said so.
+    assert_eq!(seen["stopped"], "stopped: goal reached");
+    let last = &seen["last_pose"];
+    let off = (last[0].as_f64().unwrap() - gx).hypot(last[1].as_f64().unwrap() - gy);
+    assert!(off < 0.03, "the robot stopped {off:.3} m from the peer's goal");
+
+    let odom = seen["odom"].as_array().unwrap();
+    assert!(odom.iter().all(|o| o["frame"] == "map" && o["child"] == "base_link"));
+    let rate = seen["odom_rate_hz"].as_f64().unwrap();
+    assert!((17.0..=23.0).contains(&rate), "/odom at {rate:.1} Hz, published at 20");
+    assert!(odom.iter().any(|o| o["v"].as_f64().unwrap() > 0.05), "/odom's twist never moved");
+    let namespaces = &seen["obstacle_namespaces"];
+    for ns in ["obstacle", "planning_circle", "velocity", "view_edge"] {
+        assert!(namespaces.as_array().unwrap().iter().any(|n| n == ns), "{ns} not in {namespaces}");
+    }
+    assert_eq!(seen["path_frames"], serde_json::json!(["map"]));
+    assert!(seen["path_longest"].as_u64().unwrap() > 20, "~/path: {}", seen["path_longest"]);
+
+    // Each /odom pose is the pose of the last cycle recorded before its stamp (cycles are
+    // recorded from the arm on: before it, there is none to compare with).
+    let cycles = recorded_cycles(&recording);
+    assert!(!cycles.is_empty());
+    let mut compared = 0;
+    for o in odom {
+        let t_ns = (o["t"].as_f64().unwrap() * 1e9) as u64;
+        let Some(&(at, x, y)) = cycles.iter().take_while(|c| c.0 <= t_ns).last() else { continue };
+        if t_ns > at + 20_000_000 {
+            continue;
+        }
+        let (ox, oy) = (o["x"].as_f64().unwrap(), o["y"].as_f64().unwrap());
+        assert!((ox - x).abs() < 1e-3 && (oy - y).abs() < 1e-3, "/odom ({ox}, {oy}) at {t_ns} ns, cycle ({x}, {y})");
+        compared += 1;
+    }
+    let moving = odom.iter().filter(|o| o["v"].as_f64().unwrap() > 0.0).count();
+    assert!(compared >= moving, "{compared} /odom poses compared, {moving} moving");
+    let _ = std::fs::remove_dir_all(&dir);
+}
