@@ -133,5 +133,35 @@ fn a_ros2_node_watches_and_drives_flowgate() {
     }
     let moving = odom.iter().filter(|o| o["v"].as_f64().unwrap() > 0.0).count();
     assert!(compared >= moving, "{compared} /odom poses compared, {moving} moving");
+
+    // The recording as a ROS 2 bag, read by rosbags from the bag's own message definitions:
+    // a /odom and a /tf for every recorded cycle, at its log time, at its pose.
+    let bag = dir.join("bag");
+    let export =
+        Command::new(flowgate).args(["record", "export", "--ros2"]).arg(&bag).arg(&recording).output().unwrap();
+    assert!(export.status.success(), "{}", said(&export));
+    let read = Command::new(python::python()).arg(python::peer("ros2")).arg("--bag").arg(&bag).output().unwrap();
+    assert!(read.status.success(), "rosbags: {}", said(&read));
+    let bag: Value = serde_json::from_slice(&read.stdout).unwrap();
+    assert_eq!(bag["types"]["/odom"], "nav_msgs/msg/Odometry");
+    assert_eq!(bag["types"]["/tf"], "tf2_msgs/msg/TFMessage");
+    assert_eq!(bag["types"]["/flowgate/obstacles"], "visualization_msgs/msg/MarkerArray");
+    assert_eq!(bag["types"]["/flowgate/path"], "nav_msgs/msg/Path");
+    assert_eq!(bag["types"]["/diagnostics"], "diagnostic_msgs/msg/DiagnosticArray");
+    for topic in ["/odom", "/tf"] {
+        let messages = bag[topic.trim_start_matches('/')].as_array().unwrap();
+        assert_eq!(messages.len(), cycles.len(), "{topic}: one a recorded cycle");
+        for (m, &(at, x, y)) in messages.iter().zip(&cycles) {
+            assert_eq!(m["ns"].as_u64(), Some(at), "{topic}");
+            let (mx, my) = (m["x"].as_f64().unwrap(), m["y"].as_f64().unwrap());
+            assert!((mx - x).abs() < 1e-5 && (my - y).abs() < 1e-5, "{topic} ({mx}, {my}), cycle ({x}, {y})");
+            assert!(m["frame"] == "map" && m["child"] == "base_link", "{m}");
+        }
+    }
+    assert_eq!(bag["namespaces"], seen["obstacle_namespaces"]);
+    assert!(bag["paths"].as_array().unwrap().iter().any(|n| n.as_u64().unwrap() > 20));
+    let states = bag["states"].as_array().unwrap();
+    assert_eq!(states.first().unwrap(), "armed");
+    assert_eq!(states.last().unwrap(), "stopped: goal reached");
     let _ = std::fs::remove_dir_all(&dir);
 }

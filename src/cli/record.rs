@@ -2,6 +2,8 @@
 //! size and duration, each channel's messages, its chunks' compression, the bytes a cycle
 //! takes, and whether it was cut short. Any MCAP file, compressed or not.
 //!
+//! `flowgate record export --ros2 DIR FILE.mcap`: a recording as a ROS 2 bag.
+//!
 //! `flowgate record events DIR`: a run's durable event log (`events.jsonl`): state changes,
 //! operator requests and the gateway's notices, its warnings and errors among them.
 
@@ -41,6 +43,16 @@ enum RecordCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Turn a recording into a ROS 2 bag (rosbag2: MCAP storage, CDR, metadata.yaml) with
+    /// the topics the ROS 2 node publishes: /odom and /tf every cycle, ~/obstacles and
+    /// ~/path at [ros2] publish_hz, /diagnostics once a second.
+    Export {
+        /// The recording.
+        file: PathBuf,
+        /// The bag's folder (new): `ros2 bag play DIR` plays it.
+        #[arg(long, value_name = "DIR")]
+        ros2: PathBuf,
+    },
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -74,5 +86,25 @@ pub fn run(args: RecordArgs) -> Result<bool> {
             }
             Ok(true)
         }
+        RecordCommand::Export { file, ros2 } => export_ros2(&file, &ros2),
     }
+}
+
+#[cfg(feature = "ros2")]
+fn export_ros2(file: &std::path::Path, dir: &std::path::Path) -> Result<bool> {
+    let recording = flowgate::replay::Recording::read(file)?;
+    let bag = flowgate::replay::ros2_bag::export(&recording, dir)?;
+    let total: u64 = bag.messages.values().sum();
+    let seconds = (bag.end_ns - bag.start_ns) as f64 * 1e-9;
+    say!("rosbag2 {} ({total} messages over {seconds:.1} s, MCAP storage, CDR):", bag.dir.display());
+    for (topic, n) in &bag.messages {
+        say!("  {topic:<24} {n:>7}");
+    }
+    say!("  ros2 bag play {} plays it", bag.dir.display());
+    Ok(true)
+}
+
+#[cfg(not(feature = "ros2"))]
+fn export_ros2(_: &std::path::Path, _: &std::path::Path) -> Result<bool> {
+    anyhow::bail!("this flowgate was built without ROS 2 (the `ros2` feature): it cannot write a ROS 2 bag")
 }

@@ -8,6 +8,7 @@ control socket; sends a reachable goal, calls ~/start, and waits for the gateway
 it. Prints one JSON object with what it saw.
 
 usage: ros2.py FLOWGATE SOCKET GOAL_X GOAL_Y
+       ros2.py --bag DIR      (reads a `flowgate record export --ros2` bag with rosbags)
 """
 
 import json
@@ -86,7 +87,46 @@ def ctl(flowgate, socket, *args):
     return (out.stdout + out.stderr).strip()
 
 
+def read_bag(folder):
+    """Every message of a rosbag2, decoded by rosbags from the bag's own definitions."""
+    from pathlib import Path
+
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    out = {"types": {}, "counts": {}, "odom": [], "tf": [], "namespaces": set(), "states": [], "paths": []}
+    with AnyReader([Path(folder)], default_typestore=get_typestore(Stores.EMPTY)) as reader:
+        for c in reader.connections:
+            out["types"][c.topic] = c.msgtype
+        for conn, log_time, raw in reader.messages():
+            m = reader.deserialize(raw, conn.msgtype)
+            out["counts"][conn.topic] = out["counts"].get(conn.topic, 0) + 1
+            stamp = None
+            if conn.topic == "/odom":
+                stamp = m.header.stamp
+                p = m.pose.pose.position
+                out["odom"].append({"ns": log_time, "x": p.x, "y": p.y, "frame": m.header.frame_id, "child": m.child_frame_id})
+            elif conn.topic == "/tf":
+                (t,) = m.transforms
+                stamp = t.header.stamp
+                out["tf"].append({"ns": log_time, "x": t.transform.translation.x, "y": t.transform.translation.y,
+                                  "frame": t.header.frame_id, "child": t.child_frame_id})
+            elif conn.topic.endswith("/obstacles"):
+                out["namespaces"].update(mk.ns for mk in m.markers if mk.ns)
+            elif conn.topic.endswith("/path"):
+                stamp = m.header.stamp
+                out["paths"].append(len(m.poses))
+            elif conn.topic == "/diagnostics":
+                out["states"].append(m.status[0].message)
+            if stamp is not None and stamp.sec * 10**9 + stamp.nanosec != log_time:
+                fail(f"{conn.topic}: stamp {stamp} is not its log time {log_time}")
+    out["namespaces"] = sorted(out["namespaces"])
+    print(json.dumps(out))
+
+
 def main():
+    if sys.argv[1] == "--bag":
+        return read_bag(sys.argv[2])
     flowgate, socket, gx, gy = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])
     rclpy.init()
     peer = Peer()

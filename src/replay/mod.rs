@@ -23,6 +23,9 @@ use crate::planner::Space;
 use crate::svg::{Axes, Svg};
 use crate::time::HostTime;
 
+#[cfg(feature = "ros2")]
+pub mod ros2_bag;
+
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
     #[error("{path}: {source}")]
@@ -66,6 +69,8 @@ pub struct Recording {
     pub inputs_missing: u64,
     /// The recording stopped early (damaged or cut): what the reader said.
     pub truncated: Option<String>,
+    /// The host clock's zero on the Unix clock, ns (a host time plus this is a log time).
+    pub origin_unix_ns: u64,
 }
 
 impl Recording {
@@ -278,7 +283,16 @@ impl Gathered {
         inputs.sort_by_key(|i| i.seq);
         let inputs_missing = inputs.windows(2).map(|w| w[1].seq.saturating_sub(w[0].seq + 1)).sum::<u64>()
             + inputs.first().map_or(0, |i| i.seq);
-        Ok(Recording { config_toml, inputs, can_sent: self.can_sent, end: self.end, inputs_missing, truncated })
+        let origin_unix_ns = self.origin_unix_ns;
+        Ok(Recording {
+            config_toml,
+            inputs,
+            can_sent: self.can_sent,
+            end: self.end,
+            inputs_missing,
+            truncated,
+            origin_unix_ns,
+        })
     }
 }
 
