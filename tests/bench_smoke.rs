@@ -16,6 +16,7 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
         Mode { realtime: RealtimeSettings { cpus: vec![0], ..RealtimeSettings::default() }, ..Mode::default() },
         Mode { record: true, ..Mode::default() },
         Mode { cia402: true, ..Mode::default() },
+        Mode { ros2: true, ..Mode::default() },
     ];
     let phases = [PhaseSpec { name: "smoke", frame_rate_hz: 100.0, cycles: 100, floor: true, also }];
     let report = flowgate::lab::bench::run(exe, &Transport::SlcanPty, &phases, &dir).await.expect("bench runs");
@@ -64,8 +65,12 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     assert_eq!((drives.cycles_sent, drives.commands_received), (100, 100));
     assert_eq!(drives.floor.expect("its own floor").commands_received, 100);
     assert!(report.wire_per_cycle_cia402_us > report.wire_per_cycle_us);
+    // The ROS 2 row: its gateway runs its node (no one listening) and answers every frame.
+    let ros2 = &report.phases[5];
+    assert_eq!((ros2.name.as_str(), ros2.ros2), ("smoke, ROS 2", true));
+    assert_eq!((ros2.cycles_sent, ros2.commands_received), (100, 100));
     assert!(report.gateway_states.iter().all(|s| !s.starts_with("fault")), "{:?}", report.gateway_states);
-    assert_eq!(report.other_states.len(), 4);
+    assert_eq!(report.other_states.len(), 5);
     for (name, states) in &report.other_states {
         assert!(states.iter().all(|s| !s.starts_with("fault")) && !states.is_empty(), "{name}: {states:?}");
     }

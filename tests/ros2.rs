@@ -165,3 +165,28 @@ fn a_ros2_node_watches_and_drives_flowgate() {
     assert_eq!(states.last().unwrap(), "stopped: goal reached");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// deploy/rviz/flowgate.rviz, read as YAML: the floor as the fixed frame, a display on each
+/// topic the node publishes, and RViz's goal tool on the topic the node takes.
+#[test]
+fn the_rviz_configuration_shows_what_the_node_publishes() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = Command::new(python::python())
+        .arg(python::peer("ros2"))
+        .arg("--rviz")
+        .arg(root.join("deploy/rviz/flowgate.rviz"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rviz: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(rviz["fixed_frame"], "map");
+    assert_eq!(
+        rviz["displays"],
+        serde_json::json!({
+            "rviz_default_plugins/Odometry": "/odom",
+            "rviz_default_plugins/MarkerArray": "/flowgate/obstacles",
+            "rviz_default_plugins/Path": "/flowgate/path",
+        })
+    );
+    assert_eq!(rviz["tools"], serde_json::json!({"rviz_default_plugins/SetGoal": "/goal_pose"}));
+}

@@ -40,6 +40,9 @@ pub struct BenchArgs {
     /// at 1 kHz: the latency to the second RPDO beside the board's velocity frame).
     #[arg(long)]
     no_cia402_row: bool,
+    /// Leave out the row with the ROS 2 node on (at the paper's rate and at 1 kHz).
+    #[arg(long)]
+    no_ros2_row: bool,
     /// Where to write bench.json.
     #[arg(long, value_name = "DIR", default_value = "out/bench")]
     out: PathBuf,
@@ -109,6 +112,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if !args.no_cia402_row {
         phases[0].also.push(Mode { cia402: true, ..Mode::default() });
         phases[1].also.push(Mode { cia402: true, ..Mode::default() });
+    }
+    if !args.no_ros2_row && cfg!(feature = "ros2") {
+        phases[0].also.push(Mode { ros2: true, ..Mode::default() });
+        phases[1].also.push(Mode { ros2: true, ..Mode::default() });
     }
     let names: Vec<&str> = phases.iter().map(|p| p.name).collect();
     say!("bench: phases {} ({}), bench.json to {}", names.join(", "), args.can, args.out.display());

@@ -9,6 +9,7 @@ it. Prints one JSON object with what it saw.
 
 usage: ros2.py FLOWGATE SOCKET GOAL_X GOAL_Y
        ros2.py --bag DIR      (reads a `flowgate record export --ros2` bag with rosbags)
+       ros2.py --rviz FILE    (the RViz configuration's fixed frame and topics, as JSON)
 """
 
 import json
@@ -124,7 +125,18 @@ def read_bag(folder):
     print(json.dumps(out))
 
 
+def rviz(path):
+    import yaml
+
+    manager = yaml.safe_load(open(path))["Visualization Manager"]
+    topics = {d["Class"]: d["Topic"]["Value"] for d in manager["Displays"] if "Topic" in d}
+    tools = {t["Class"]: t["Topic"]["Value"] for t in manager["Tools"] if "Topic" in t}
+    print(json.dumps({"fixed_frame": manager["Global Options"]["Fixed Frame"], "displays": topics, "tools": tools}))
+
+
 def main():
+    if sys.argv[1] == "--rviz":
+        return rviz(sys.argv[2])
     if sys.argv[1] == "--bag":
         return read_bag(sys.argv[2])
     flowgate, socket, gx, gy = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])

@@ -57,6 +57,9 @@ pub struct Phase {
     /// The gateway commanded CiA 402 drives (two RPDOs a cycle) in this phase.
     #[serde(default)]
     pub cia402: bool,
+    /// The gateway ran its ROS 2 node (on loopback, in a domain no subscriber listens in).
+    #[serde(default)]
+    pub ros2: bool,
     /// Time-division frames per second the controller sent.
     pub frame_rate_hz: f64,
     pub samples_per_s: f64,
@@ -106,6 +109,8 @@ pub struct Mode {
     /// Command two CiA 402 drives (an RPDO each a cycle) instead of a PCL-80K-like board;
     /// the latency is to the second RPDO, and the null gateway sends two frames too.
     pub cia402: bool,
+    /// Run the ROS 2 node (`[ros2]`, on loopback, no subscriber): what publishing costs the loop.
+    pub ros2: bool,
 }
 
 impl Mode {
@@ -118,6 +123,7 @@ impl Mode {
             (self.record, "recording"),
             (self.view, "view"),
             (self.cia402, "CiA 402"),
+            (self.ros2, "ROS 2"),
         ]
         .into_iter()
         .filter_map(|(on, name)| on.then_some(name))
@@ -271,6 +277,9 @@ fn rig_toml(psd: &Path, can_endpoint: &str, motors: &BenchMotors, socket: &Path,
     let slot_us = 500.max(spin_us + 100);
     let rt = &mode.realtime;
     let view = if mode.view { "view = \"127.0.0.1:0\"\n" } else { "" };
+    // A domain of its own, on loopback: the node publishes with no one to hear it.
+    let ros2 =
+        if mode.ros2 { "[ros2]\nenabled = true\ndomain_id = 231\ndiscovery_range = \"localhost\"\n" } else { "" };
     // CiA 402 drives: the bench answers their configuration at once, but under emulation
     // (vcan in the VM) a turn of the null gateway may hold it up.
     let (node, protocol, cia402) = match *motors {
@@ -297,7 +306,7 @@ fn rig_toml(psd: &Path, can_endpoint: &str, motors: &BenchMotors, socket: &Path,
          [drive]\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nwheel_base = 0.108\nmax_wheel_speed = 0.25\nwheel_accel = 1.0\ncommand_timeout_ms = 31000\n\
          [robot]\nradius = 0.07\nmax_speed = 0.15\n[goal]\nposition = [0.75, 0.0]\n[planner]\ncruise_speed = 0.1\nc1 = 20\nkc = 0.1\n\
          [safety]\nsample_timeout_ms = 30000\npose_timeout_ms = 30000\nocclusion_timeout_ms = 31000\nheartbeat_timeout_ms = 30000\nbad_frames_per_s = 1000\nstall_window_ms = 3600000\n\
-         [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\nwarm_up = {}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}",
+         [operator]\nsocket = \"{}\"\n{view}[realtime]\nspin_us = {spin_us}\nwarm_up = {}\ncpus = {:?}\nfifo_priority = {}\nlock_memory = {}\n{record}{ros2}",
         psd.display(),
         socket.display(),
         mode.warm_up,
@@ -657,6 +666,7 @@ impl PairTally {
             recording: mode.record,
             view: mode.view,
             cia402: mode.cia402,
+            ros2: mode.ros2,
             frame_rate_hz: g.sent as f64 / g.elapsed_s,
             samples_per_s: 2.0 * g.sent as f64 / g.elapsed_s,
             cycles_sent: g.sent,
@@ -752,7 +762,13 @@ fn sustained(phases: &[Phase], passes: &dyn Fn(&Phase) -> bool) -> f64 {
     let mut latency_phases: Vec<&Phase> = phases
         .iter()
         .filter(|p| {
-            p.floor.is_some() && p.spin_us.is_none() && p.realtime.is_none() && !p.recording && !p.view && !p.cia402
+            p.floor.is_some()
+                && p.spin_us.is_none()
+                && p.realtime.is_none()
+                && !p.recording
+                && !p.view
+                && !p.cia402
+                && !p.ros2
         })
         .collect();
     latency_phases.sort_by(|a, b| a.samples_per_s.total_cmp(&b.samples_per_s));
@@ -920,7 +936,7 @@ impl BenchReport {
         for p in self
             .phases
             .iter()
-            .filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording || p.view || p.cia402)
+            .filter(|p| p.spin_us.is_some() || p.realtime.is_some() || p.recording || p.view || p.cia402 || p.ros2)
         {
             let mut how = Vec::new();
             if let Some(us) = p.spin_us {
@@ -943,6 +959,9 @@ impl BenchReport {
                     "two CiA 402 drives (an RPDO each a cycle; the latency to the second; its null gateway sends two)"
                         .to_string(),
                 );
+            }
+            if p.ros2 {
+                how.push("its ROS 2 node publishing (on loopback, no subscriber)".to_string());
             }
             let states =
                 self.other_states.iter().find(|(n, _)| *n == p.name).map_or(String::new(), |(_, s)| s.join(" -> "));

@@ -81,6 +81,8 @@ impl Ros2Node {
 
 /// The node's DDS side: made before its thread starts, so a failure is the caller's.
 struct Endpoints {
+    /// Held past the node: the participant must outlive every endpoint as it leaves.
+    context: Context,
     node: ros2_client::Node,
     odom: Publisher<msgs::Odometry>,
     tf: Publisher<msgs::TfMessage>,
@@ -148,7 +150,7 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
             .map_err(|e| create(&format!("~/{base}"))(&e))?;
         services.push((request, server));
     }
-    Ok(Endpoints { node, odom, tf, obstacles, path, diagnostics, goal, services })
+    Ok(Endpoints { context, node, odom, tf, obstacles, path, diagnostics, goal, services })
 }
 
 /// Join the ROS 2 domain and start the node's thread. It ends when the returned node is
@@ -228,7 +230,7 @@ async fn serve(
     mut stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: mpsc::Sender<Command>,
 ) {
-    let Endpoints { mut node, odom, tf, obstacles, path, diagnostics, goal, services } = e;
+    let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goal, services } = e;
     let frames = Frames { floor: setup.settings.floor_frame.clone(), base: setup.settings.base_frame.clone() };
     let hardware_id = node_fqn(&setup.settings);
     let mut state = NodeState { setup, frames, hardware_id, last_refusal: None };
@@ -236,9 +238,8 @@ async fn serve(
         Ok(spinner) => spinner.spin(),
         Err(e) => return tracing::warn!("ROS 2: the node's spinner: {e:?}"),
     };
-    tokio::pin!(spin);
-    let goals = goal.async_stream();
-    tokio::pin!(goals);
+    let mut spin = Box::pin(spin);
+    let mut goals = Box::pin(goal.async_stream());
     let mut calls = futures_util::stream::select_all(
         services.iter().map(|(request, server)| server.receive_request_stream().map(move |r| (request, server, r))),
     );
@@ -283,6 +284,14 @@ async fn serve(
             },
         }
     }
+    // Leave the graph in order while the participant still runs: our endpoints, the node
+    // (which tells the spinner to stop), the spinner's own endpoints, the participant last.
+    drop(calls);
+    drop(goals);
+    drop((services, goal, odom, tf, obstacles, path, diagnostics));
+    drop(node);
+    drop(spin);
+    drop(context);
 }
 
 /// `/odom`, `/tf`, `~/obstacles` and `~/path` for one scene (nothing before a pose).
