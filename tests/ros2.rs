@@ -23,16 +23,20 @@ fn temp_dir(name: &str) -> PathBuf {
 
 /// Each `/cycle` of a recording: its log time (ns since the Unix epoch) and the robot's x, y.
 fn recorded_cycles(path: &Path) -> Vec<(u64, f64, f64)> {
+    recorded(path, "/cycle").into_iter().map(|(t, c)| (t, c["x"].as_f64().unwrap(), c["y"].as_f64().unwrap())).collect()
+}
+
+/// Every message of a JSON channel of a recording, with its log time.
+fn recorded(path: &Path, topic: &str) -> Vec<(u64, Value)> {
     let bytes = std::fs::read(path).unwrap();
-    let mut cycles = Vec::new();
+    let mut out = Vec::new();
     for message in mcap::MessageStream::new(&bytes).unwrap() {
         let message = message.unwrap();
-        if message.channel.topic == "/cycle" {
-            let c: Value = serde_json::from_slice(&message.data).unwrap();
-            cycles.push((message.log_time, c["x"].as_f64().unwrap(), c["y"].as_f64().unwrap()));
+        if message.channel.topic == topic {
+            out.push((message.log_time, serde_json::from_slice(&message.data).unwrap()));
         }
     }
-    cycles
+    out
 }
 
 #[test]
@@ -159,6 +163,37 @@ fn a_ros2_node_watches_and_drives_flowgate() {
         }
     }
     assert_eq!(bag["namespaces"], seen["obstacle_namespaces"]);
+    // Each state in /diagnostics is its cycle's (the last is the recording's end, no cycle).
+    let states: std::collections::HashMap<u64, String> =
+        recorded(&recording, "/cycle").into_iter().map(|(t, c)| (t, c["state"].as_str().unwrap().to_owned())).collect();
+    let diagnostics = bag["diagnostics"].as_array().unwrap();
+    for d in &diagnostics[..diagnostics.len() - 1] {
+        let state = &states[&d["ns"].as_u64().unwrap()];
+        assert!(d["state"].as_str().unwrap().starts_with(state.as_str()), "{d} at a cycle in {state}");
+    }
+    // Each obstacle marker at a recorded /obstacles' time is where the recording has it.
+    let recorded_obstacles: std::collections::HashMap<u64, Value> =
+        recorded(&recording, "/obstacles").into_iter().collect();
+    let mut matched = 0;
+    for m in bag["obstacles"].as_array().unwrap() {
+        let Some(r) = recorded_obstacles.get(&m["ns"].as_u64().unwrap()) else { continue };
+        let (ours, theirs) = (m["at"].as_array().unwrap(), r["obstacles"].as_array().unwrap());
+        assert_eq!(ours.len(), theirs.len(), "{m} / {r}");
+        for (k, (a, b)) in ours.iter().zip(theirs).enumerate() {
+            for i in 0..2 {
+                let d = a[i].as_f64().unwrap() - b["position"][i].as_f64().unwrap();
+                assert!(d.abs() < 1e-4, "obstacle {k}: {a} / {b}");
+            }
+            let radius = m["planning_radius"][k].as_f64().unwrap() - b["planning_radius"].as_f64().unwrap();
+            assert!(radius.abs() < 1e-4, "obstacle {k}'s planning radius: {m} / {b}");
+        }
+        matched += 1;
+    }
+    assert!(
+        matched * 4 >= recorded_obstacles.len(),
+        "{matched} of {} recorded /obstacles compared",
+        recorded_obstacles.len()
+    );
     assert!(bag["paths"].as_array().unwrap().iter().any(|n| n.as_u64().unwrap() > 20));
     let states = bag["states"].as_array().unwrap();
     assert_eq!(states.first().unwrap(), "armed");

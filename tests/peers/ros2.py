@@ -95,7 +95,8 @@ def read_bag(folder):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    out = {"types": {}, "counts": {}, "odom": [], "tf": [], "namespaces": set(), "states": [], "paths": []}
+    out = {"types": {}, "counts": {}, "odom": [], "tf": [], "namespaces": set(), "states": [], "paths": [],
+           "obstacles": [], "diagnostics": []}
     with AnyReader([Path(folder)], default_typestore=get_typestore(Stores.EMPTY)) as reader:
         for c in reader.connections:
             out["types"][c.topic] = c.msgtype
@@ -114,11 +115,16 @@ def read_bag(folder):
                                   "frame": t.header.frame_id, "child": t.child_frame_id})
             elif conn.topic.endswith("/obstacles"):
                 out["namespaces"].update(mk.ns for mk in m.markers if mk.ns)
+                bodies = [mk for mk in m.markers if mk.ns == "obstacle"]
+                circles = {mk.id: mk.scale.x / 2 for mk in m.markers if mk.ns == "planning_circle"}
+                out["obstacles"].append({"ns": log_time, "at": [[mk.pose.position.x, mk.pose.position.y] for mk in bodies],
+                                         "planning_radius": [circles.get(mk.id) for mk in bodies]})
             elif conn.topic.endswith("/path"):
                 stamp = m.header.stamp
                 out["paths"].append(len(m.poses))
             elif conn.topic == "/diagnostics":
                 out["states"].append(m.status[0].message)
+                out["diagnostics"].append({"ns": log_time, "state": m.status[0].message})
             if stamp is not None and stamp.sec * 10**9 + stamp.nanosec != log_time:
                 fail(f"{conn.topic}: stamp {stamp} is not its log time {log_time}")
     out["namespaces"] = sorted(out["namespaces"])
