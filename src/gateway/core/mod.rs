@@ -144,7 +144,8 @@ struct Links {
     second_master_heard: Option<HostTime>,
     /// The controller has streamed at least once.
     streamed: bool,
-    /// The PSD session is being configured again for an operator's reset (not a reconnect).
+    /// The PSD session is being configured again, for an operator's reset or a controller
+    /// gone silent (not a reconnect).
     rehandshake: bool,
     /// Our CAN controller reported bus-off, and nothing has been heard on the bus since:
     /// what goes unheard meanwhile is the bus-off's doing.

@@ -29,6 +29,8 @@ impl<K: StageClock> Core<K> {
             self.links.psd_reopen_at = now + REOPEN_EVERY;
         }
         self.psd.down();
+        // A configuration under way on the lost line is not the next line's.
+        self.links.rehandshake = false;
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
         self.stop(now, StopReason::SerialLost);
     }

@@ -191,6 +191,8 @@ impl<K: StageClock> Core<K> {
         let silent_ms = now.since(self.watch.last_sample).as_millis() as u64;
         self.notice(now, super::Notice::ControllerSilent { silent_ms });
         self.links.restreamed_at = now;
+        // The same line, configured again: not a reconnect (the notice counts it).
+        self.links.rehandshake = true;
         self.psd.connect(now, &mut self.out.psd());
     }
 
