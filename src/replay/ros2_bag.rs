@@ -16,7 +16,6 @@ use crate::gateway::shell::metrics::Snapshot;
 use crate::gateway::shell::ros2::convert::{self, Frames};
 use crate::gateway::shell::ros2::msgs::Time;
 use crate::gateway::shell::view::ViewSetup;
-use crate::planner::Space;
 use crate::time::HostTime;
 
 /// Each message type's definition (`.msg`, without comments), by `package/Name`: a schema is
@@ -217,15 +216,7 @@ pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError>
     let settings = config.ros2.clone().unwrap_or_else(Ros2Config::default).resolve(|_| None).map_err(BagError::Ros2)?;
     let frames = Frames { floor: settings.floor_frame.clone(), base: settings.base_frame.clone() };
     let fqn = format!("{}/{}", settings.namespace.trim_end_matches('/'), settings.node_name);
-    let view = ViewSetup {
-        planner: rig.control.planner,
-        robot_radius: rig.control.robot_radius,
-        lane_half_width: match rig.control.planner.space {
-            Space::Lane { half_width } => Some(half_width),
-            Space::Free => None,
-        },
-        room: rig.control.room.clone(),
-    };
+    let view = ViewSetup::of(&rig);
     let name = dir.file_name().map_or("flowgate".into(), |n| n.to_string_lossy().into_owned());
     let file = dir.join(format!("{name}_0.mcap"));
     let mut bag = BagWriter::create(&file, settings.qos_depth)?;

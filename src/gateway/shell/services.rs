@@ -18,7 +18,6 @@ use super::telemetry::{self, Recorder, Sinks, WrittenFiles};
 use super::{metrics, unix_now, view, GatewayError};
 use crate::config::CanUrl;
 use crate::config::Rig;
-use crate::planner::Space;
 use crate::time::HostTime;
 
 /// The services of one run.
@@ -121,21 +120,7 @@ impl Services {
     }
 }
 
-fn lane_half_width(rig: &Rig) -> Option<f64> {
-    match rig.control.planner.space {
-        Space::Lane { half_width } => Some(half_width),
-        Space::Free => None,
-    }
-}
-
-fn view_setup(rig: &Rig) -> view::ViewSetup {
-    view::ViewSetup {
-        planner: rig.control.planner,
-        robot_radius: rig.control.robot_radius,
-        lane_half_width: lane_half_width(rig),
-        room: rig.control.room.clone(),
-    }
-}
+use view::lane_half_width;
 
 /// Join ROS 2 as `[ros2]` and its environment say.
 #[cfg(feature = "ros2")]
@@ -148,7 +133,7 @@ fn start_ros2(
 ) -> Result<(super::ros2::Ros2Node, HostTime, std::time::Duration), GatewayError> {
     let settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Config)?;
     let every = settings.publish_every;
-    let setup = super::ros2::Ros2Setup { settings, view: view_setup(rig), start_time_s };
+    let setup = super::ros2::Ros2Setup { settings, view: view::ViewSetup::of(rig), start_time_s };
     let node = super::ros2::start(setup, stats, requests)?;
     Ok((node, HostTime::ZERO, every))
 }
@@ -158,7 +143,8 @@ fn start_view(
     addr: std::net::SocketAddr,
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
 ) -> Result<view::ViewPublisher, GatewayError> {
-    let publisher = view::start(addr, view_setup(rig), stats).map_err(|source| GatewayError::View { addr, source })?;
+    let publisher =
+        view::start(addr, view::ViewSetup::of(rig), stats).map_err(|source| GatewayError::View { addr, source })?;
     if !addr.ip().is_loopback() {
         tracing::warn!("the live view on {addr} is visible beyond this host (read-only)");
     }

@@ -75,6 +75,26 @@ pub struct ViewSetup {
     pub room: Option<Arc<Room>>,
 }
 
+impl ViewSetup {
+    /// What `rig` gives the drawing (and the ROS 2 node's markers and path).
+    pub fn of(rig: &crate::config::Rig) -> Self {
+        Self {
+            planner: rig.control.planner,
+            robot_radius: rig.control.robot_radius,
+            lane_half_width: lane_half_width(rig),
+            room: rig.control.room.clone(),
+        }
+    }
+}
+
+/// The lane's half-width, when the planner's space is a lane.
+pub fn lane_half_width(rig: &crate::config::Rig) -> Option<f64> {
+    match rig.control.planner.space {
+        crate::planner::Space::Lane { half_width } => Some(half_width),
+        crate::planner::Space::Free => None,
+    }
+}
+
 /// One frame for the page.
 #[derive(Debug, Clone, Default)]
 struct Frame {

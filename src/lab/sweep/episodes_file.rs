@@ -109,7 +109,7 @@ fn write_column(
         (0, ColumnWriter::Int64ColumnWriter(w)) => w.write_batch(&u64s(|e| e.index), None, None),
         (1, ColumnWriter::Int64ColumnWriter(w)) => w.write_batch(&vec![seed as i64; group.len()], None, None),
         (2, ColumnWriter::ByteArrayColumnWriter(w)) => {
-            let names: Vec<ByteArray> = group.iter().map(|e| ByteArray::from(outcome_name(e.outcome))).collect();
+            let names: Vec<ByteArray> = group.iter().map(|e| ByteArray::from(e.outcome.to_string().as_str())).collect();
             w.write_batch(&names, None, None)
         }
         (3, ColumnWriter::DoubleColumnWriter(w)) => {
@@ -130,17 +130,6 @@ fn write_column(
         (n, _) => unreachable!("column {n} of the schema has no writer"),
     }?;
     Ok(())
-}
-
-fn outcome_name(o: Outcome) -> &'static str {
-    match o {
-        Outcome::Goal => "goal",
-        Outcome::Collision => "collision",
-        Outcome::Timeout => "timeout",
-        Outcome::Stall => "stall",
-        Outcome::Fault => "fault",
-        Outcome::Stopped => "stopped",
-    }
 }
 
 const OUTCOMES: [Outcome; 6] =
@@ -263,7 +252,7 @@ fn episodes(c: Columns, path: &Path) -> Result<Vec<Episode>, EpisodesFileError> 
     (0..n)
         .map(|i| {
             let name = c.outcome[i].as_utf8().map_err(|e| bad(i, format!("outcome: {e}")))?;
-            let outcome = OUTCOMES.into_iter().find(|&o| outcome_name(o) == name).ok_or_else(|| {
+            let outcome = OUTCOMES.into_iter().find(|o| o.to_string() == name).ok_or_else(|| {
                 bad(i, format!("outcome {name:?} is none of goal, collision, timeout, stall, fault, stopped"))
             })?;
             Ok(Episode {
