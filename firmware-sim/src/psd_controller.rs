@@ -328,7 +328,9 @@ impl PsdController {
                 self.schedule = None;
                 self.streaming = false;
                 self.seq = 0;
-                self.clock_origin_us = -at * 1e6; // the clock restarts from zero
+                // The clock restarts from zero, and a step before the reset went with it.
+                let rate = 1.0 + self.faults.clock_drift_ppm * 1e-6;
+                self.clock_origin_us = -(at * 1e6 * rate + self.faults.clock_step_us(at));
                 self.boot(at, out);
             }
         }

@@ -198,6 +198,8 @@ fn swarm_episode(args: &PlanArgs, scenario: &Scenario, n: u64, k: u64, out: &Pat
         let rest = s.rest_after.map_or("never".into(), |r| format!("{:.1} ms", r * 1e3));
         say!("  {:>8.3} s  fault: {}  (wheels at rest after {rest})", s.at, s.reason);
     }
+    let states = outcome.states.iter().map(|(t, state)| format!("{t:.3} s {state}"));
+    say!("  states: {}", states.collect::<Vec<_>>().join(", "));
     say!(
         "  goal reached: {}; {} requests refused; {:.1} s virtual",
         outcome.reached_goal,

@@ -631,6 +631,9 @@ pub struct Outcome {
     pub violations: Vec<String>,
     /// FNV-1a of every byte the gateway sent, in hex: a replay sends the same.
     pub digest: String,
+    /// The gateway's states and when it entered each, s (kept with the episode's files).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub states: Vec<(f64, String)>,
 }
 
 /// What the episode's operator and the world showed over the run.
@@ -761,8 +764,9 @@ fn judge_stop(
     seen: &Seen,
     v: &mut Vec<String>,
 ) -> Stop {
-    let armed_before =
-        |t: f64| history.iter().rev().find(|(at, s)| *at <= t + FUZZ_S && *s == State::Armed).map_or(0.0, |x| x.0);
+    let entered_before = |t: f64, state: State| {
+        history.iter().rev().find(|(at, s)| *at <= t + FUZZ_S && *s == state).map_or(0.0, |x| x.0)
+    };
     let present: Vec<&Injected> = schedule
         .faults
         .iter()
@@ -794,12 +798,17 @@ fn judge_stop(
         let restart = if seen.reason == StopReason::ClockUnsynced {
             watch.resets.iter().copied().filter(|r| *r <= seen.at).fold(0.0, f64::max) + HANDSHAKE_S
         } else {
-            armed_before(seen.at)
+            entered_before(seen.at, State::Armed)
         };
         // From the latest start of a cause that silences it entirely (partial ones let
         // some through, and the watchdog counts from the last).
         let since = present.iter().filter(|f| f.kind.total()).map(|f| f.from.max(restart)).fold(f64::NAN, f64::max);
-        let by = since + watchdog + settings.period;
+        // The pose and occlusion watchdogs watch only a running robot, counting from the
+        // arm: one that ran out while the robot stood armed fires as it starts to run.
+        let running = matches!(seen.reason, StopReason::PoseLost | StopReason::ObstacleOccluded { .. })
+            .then(|| entered_before(seen.at, State::Running))
+            .unwrap_or(0.0);
+        let by = (since + watchdog).max(running) + settings.period;
         if since.is_finite() && seen.at > by + FUZZ_S {
             v.push(format!(
                 "fault \"{}\" at {:.3} s: {:.1} ms after its cause, beyond the {:.0} ms watchdog and a cycle",
@@ -937,6 +946,7 @@ pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outco
         duration: run.truth.summary.duration,
         violations,
         digest,
+        states: if keep { history.iter().map(|(t, state)| (*t, state.to_string())).collect() } else { Vec::new() },
     };
     (outcome, run)
 }
@@ -1262,5 +1272,29 @@ mod tests {
         // The goal not reached after the last fault.
         let (v, _) = judge(&good, &s, &h, &seen(2.1, StopReason::SamplesStopped, Some(2.1)), false, State::Idle);
         assert!(v[0].contains("goal was not reached"), "{v:?}");
+    }
+
+    /// The occlusion watchdog watches only a running robot: an obstacle hidden while the
+    /// robot stood armed (its goal refused, say) is found as the robot starts, however long
+    /// after the occlusion began; one hidden while it ran, within the watchdog and a cycle.
+    #[test]
+    fn a_watchdog_of_a_running_robot_fires_as_it_starts() {
+        let s = settings();
+        let hidden = with(vec![Injected { kind: Kind::ObstacleOccluded, from: 5.3, to: 7.6, led: Some(3) }]);
+        let reason = StopReason::ObstacleOccluded { led: 3 };
+        let seen = |at: f64| Watch { faults: vec![Seen { at, reason, rest: Some(at) }], ..Watch::default() };
+        let armed = vec![(0.0, State::Idle), (4.36, State::Armed)];
+        let ran_at = |t: f64| {
+            let mut h = armed.clone();
+            h.extend([(t, State::Running), (t, State::Fault(reason))]);
+            h
+        };
+        let (v, _) = judge(&hidden, &s, &ran_at(7.45), &seen(7.45), true, State::Idle);
+        assert!(v.is_empty(), "{v:?}");
+        // Running since before the occlusion: late beyond the watchdog and a cycle.
+        let mut h = vec![(0.0, State::Idle), (4.36, State::Armed), (4.4, State::Running)];
+        h.push((7.45, State::Fault(reason)));
+        let (v, _) = judge(&hidden, &s, &h, &seen(7.45), true, State::Idle);
+        assert!(v[0].contains("beyond the 1000 ms watchdog"), "{v:?}");
     }
 }

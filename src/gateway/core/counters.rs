@@ -116,3 +116,11 @@ pub struct Counters {
     pub planner_unclosed_at_a_wall: u64,
     pub telemetry_dropped: u64,
 }
+
+impl Counters {
+    /// Controller packets discarded for their sequence numbers: seen twice, behind the
+    /// sequence, or beyond its window.
+    pub fn psd_sequence_discards(&self) -> u64 {
+        self.psd_duplicates + self.psd_out_of_order + self.psd_seq_jumps
+    }
+}

@@ -17,6 +17,10 @@ use crate::Point;
 const STAMP_SLACK_US: f64 = 2000.0;
 /// Frames apart beyond which two frame ends are not compared.
 const STAMP_CHECK_FRAMES: u32 = 64;
+/// The most frames the controller may count between the last frame before a restart and
+/// the new stream's first (a minute at 1 kHz): beyond, its counter is taken to have begun
+/// again (a reboot).
+const RESTART_FRAMES: u32 = 1 << 16;
 /// The controller's clock drift bound (1000 ppm, as the time syncs allow).
 const DRIFT_BOUND: f64 = 1e-3;
 
@@ -218,9 +222,17 @@ impl<K: StageClock> Core<K> {
             // Its first frame ends a period after the restart; the old ones before it (half
             // a period apart from either is more than the clock offset's error).
             if self.psd.clock().to_host(end) < since + self.rig.sample_period / 2 {
+                // The line keeps order: a frame counted after the last one before the
+                // restart but stamped before it was not left in flight. The clock stepped
+                // back after the handshake's sync.
+                let counted_after = |last: u32| (1..=RESTART_FRAMES).contains(&frame_no.wrapping_sub(last));
+                if self.watch.frame_before_stream.is_some_and(|(last, last_end)| counted_after(last) && end < last_end)
+                {
+                    self.watch.stamps_stepped = Some(now);
+                }
                 return;
             }
-            self.watch.new_stream_since = None;
+            (self.watch.new_stream_since, self.watch.frame_before_stream) = (None, None);
         }
         let within =
             |&(last, _, _): &(u32, CtrlTime, HostTime)| (1..=STAMP_CHECK_FRAMES).contains(&frame_no.wrapping_sub(last));
@@ -275,7 +287,7 @@ impl<K: StageClock> Core<K> {
                 self.watch.robot_arrived = now;
                 self.watch.robot_weak = false;
                 self.watch.quiet_since_pose = false;
-                self.watch.garbage_at_last_pose = (self.counters.bad_serial_frames, self.psd.dropped_bytes());
+                self.watch.garbage_at_last_pose = (self.counters.bad_serial_frames, self.psd.garbage_bytes());
                 self.tracker.observe_robot(at, fp, rp);
             }
             Err(e) => {

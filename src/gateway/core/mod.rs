@@ -161,6 +161,8 @@ struct Watch {
     /// The serial link's bad frames and dropped bytes as counted at the last sample: what
     /// came since is garbage, and a line that carried only garbage is garbled, not silent.
     garbage_at_last_sample: (u64, u64),
+    /// The packets discarded for their sequence numbers, as counted at the last sample.
+    discards_at_last_sample: u64,
     armed_at: HostTime,
     /// When the last plausible robot pose arrived (host time, whatever its age).
     robot_arrived: HostTime,
@@ -175,6 +177,9 @@ struct Watch {
     /// The controller began to stream again at this time, and its new stream's first
     /// frame has not come yet.
     new_stream_since: Option<HostTime>,
+    /// The last frame judged before the stream restarted (its number and end stamp), until
+    /// the new stream's first frame comes.
+    frame_before_stream: Option<(u32, CtrlTime)>,
     stamps_stepped: Option<HostTime>,
     /// The garbage counted at the last plausible robot pose, and whether the robot's LEDs
     /// have since come in frames but unusable (weak: occluded), rather than not at all.
@@ -271,12 +276,14 @@ impl<K: StageClock> Core<K> {
             watch: Watch {
                 last_sample: HostTime::ZERO,
                 garbage_at_last_sample: (0, 0),
+                discards_at_last_sample: 0,
                 armed_at: HostTime::ZERO,
                 robot_arrived: HostTime::ZERO,
                 implausible: None,
                 robot_from_future: None,
                 last_frame_end: None,
                 new_stream_since: None,
+                frame_before_stream: None,
                 stamps_stepped: None,
                 garbage_at_last_pose: (0, 0),
                 robot_weak: false,

@@ -19,7 +19,8 @@ impl<K: StageClock> Core<K> {
     /// The PSD line opened: configure the controller.
     pub(super) fn psd_connected(&mut self, now: HostTime) {
         self.links.psd_reopen_at = HostTime::NEVER;
-        self.watch.last_frame_end = None;
+        // A line opened afresh carries nothing of the last one's order.
+        (self.watch.last_frame_end, self.watch.frame_before_stream) = (None, None);
         self.psd.connect(now, &mut self.out.psd());
     }
 
@@ -61,6 +62,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
+        self.psd.decoded(now);
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
     }
 
@@ -72,12 +74,27 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// A sample taken (or the stream or the arm starting afresh) at `now`: the sample
-    /// watchdog starts again, and so does the count of garbage since the last sample.
+    /// A sample taken (or the stream starting afresh) at `now`: the sample watchdog starts
+    /// again, and so does the count of garbage since the last sample.
     pub(super) fn sampled(&mut self, now: HostTime) {
+        self.samples_watched_from(now);
+        self.watch.garbage_at_last_sample = (self.counters.bad_serial_frames, self.psd.garbage_bytes());
+        self.watch.discards_at_last_sample = self.counters.psd_sequence_discards();
+    }
+
+    /// The sample watchdog counts from `now` (a sample, the stream's start, an arm). An arm
+    /// is no sample: the garbage since the last one still names a stop that follows.
+    pub(super) fn samples_watched_from(&mut self, now: HostTime) {
         self.watch.quiet_since_pose |= now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
         self.watch.last_sample = now;
-        self.watch.garbage_at_last_sample = (self.counters.bad_serial_frames, self.psd.dropped_bytes());
+    }
+
+    /// Frames are no longer judged against the last one (a new stream, a reset); it is
+    /// kept to tell the new stream's frames from the old one's still in flight.
+    pub(super) fn forget_frame_pace(&mut self) {
+        if let Some((last, end, _)) = self.watch.last_frame_end.take() {
+            self.watch.frame_before_stream = Some((last, end));
+        }
     }
 
     /// The serial link garbled: the bad frames and dropped bytes since the last sample.
@@ -88,28 +105,43 @@ impl<K: StageClock> Core<K> {
     /// The serial link garbled: the bad frames and dropped bytes since they were
     /// `(frames, bytes)`.
     pub(super) fn garbled_since(&self, (frames, bytes): (u64, u64), found: Garbled) -> StopReason {
+        self.garbled_counting((frames, bytes), found, 0)
+    }
+
+    /// As [`Self::garbled_since`], found by a watchdog at `now`: the line has gone quiet,
+    /// and a frame begun over a period ago and not ended counts as a bad frame too.
+    pub(super) fn garbled_when_quiet(&self, now: HostTime, since: (u64, u64), found: Garbled) -> StopReason {
+        self.garbled_counting(since, found, self.psd.cut_short(now - self.rig.sample_period))
+    }
+
+    fn garbled_counting(&self, (frames, bytes): (u64, u64), found: Garbled, cut_short: u64) -> StopReason {
         let count = |now: u64, then: u64| u32::try_from(now.saturating_sub(then)).unwrap_or(u32::MAX);
+        let cut = u64::from(cut_short > 0);
         StopReason::SerialGarbled {
-            frames: count(self.counters.bad_serial_frames, frames),
-            bytes: count(self.psd.dropped_bytes(), bytes),
+            frames: count(self.counters.bad_serial_frames + cut, frames),
+            bytes: count(self.psd.garbage_bytes() + cut_short, bytes),
             found,
         }
     }
 
     /// Why no sample came for the sample timeout, named by the first cause: the line gone;
-    /// garbage on the line since the last sample (noise, a bad cable or baud rate) is the
-    /// line garbled, not the controller silent; a handshake waiting on a time sync beyond
-    /// its bound is the clock.
+    /// garbage on the line since the last sample (noise, a bad cable or baud rate; a frame
+    /// cut short) is the line garbled, not the controller silent; whole packets discarded
+    /// for their sequence numbers while a handshake waits (its answer among them, maybe)
+    /// are the sequence; a handshake waiting on, or held up by, the time sync is the clock.
     pub(super) fn samples_stopped_cause(&self, now: HostTime) -> StopReason {
         // A line gone (a device that vanished, not yet back) is the first cause of all.
         if self.psd.is_down() {
             return StopReason::SerialLost;
         }
-        match self.garbled_since_last_sample(Garbled::NoSample) {
+        match self.garbled_when_quiet(now, self.watch.garbage_at_last_sample, Garbled::NoSample) {
             StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => {}
             garbled => return garbled,
         }
-        // A clean line, and the handshake waiting on the clock: the stream waits for it.
+        // A handshake's answer may be among them: the stream waits for it.
+        if self.psd.in_handshake() && self.counters.psd_sequence_discards() > self.watch.discards_at_last_sample {
+            return StopReason::PsdSequence;
+        }
         if self.psd.clock_waiting(now) {
             return StopReason::ClockUnsynced;
         }
@@ -172,7 +204,7 @@ impl<K: StageClock> Core<K> {
         match event {
             SessionEvent::Pass => return false,
             SessionEvent::Consumed => {}
-            SessionEvent::Failed(e) => self.out.push(Output::SetupFailed(e)),
+            SessionEvent::Failed(e) => self.setup_failed(now, e),
             SessionEvent::Streaming => self.streaming(now),
             SessionEvent::Resynced { accepted: true } => self.counters.time_syncs += 1,
             SessionEvent::Resynced { accepted: false } => self.counters.time_syncs_rejected += 1,
@@ -193,7 +225,8 @@ impl<K: StageClock> Core<K> {
     /// counted; `--arm` arms and starts now.
     fn streaming(&mut self, now: HostTime) {
         self.sampled(now);
-        (self.watch.last_frame_end, self.watch.new_stream_since) = (None, Some(now));
+        self.forget_frame_pace();
+        self.watch.new_stream_since = Some(now);
         self.frame.restart(&self.rig.schedule);
         if self.links.streamed && !std::mem::take(&mut self.links.rehandshake) {
             self.counters.serial_reconnects += 1;
@@ -243,6 +276,8 @@ impl<K: StageClock> Core<K> {
                 // schedule and clock are gone. A robot driving on it stops, named for it (a
                 // quick reconfigure must not hide a reboot); the controller is configured
                 // again so an operator can reset and arm.
+                // Its clock and frame counter begin again: no frame before is a baseline.
+                (self.watch.last_frame_end, self.watch.frame_before_stream) = (None, None);
                 let restarted = self.psd.restart(now, &mut self.out.psd());
                 if restarted {
                     self.notice(now, Notice::ControllerReset);

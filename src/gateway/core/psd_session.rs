@@ -159,10 +159,14 @@ pub struct PsdSession {
     /// Bytes thrown away before the current decoder (its own count starts at zero), and
     /// bytes still buffered when a session ended.
     dropped_before: u64,
+    /// Bytes earlier decoders threw away as garbage (bad frames, runs with no delimiter).
+    garbage_before: u64,
     /// Bytes taken by decoders before the current one.
     taken_before: u64,
     /// Every byte the line delivered.
     received: u64,
+    /// Since when the bytes buffered have waited for their frame's end.
+    tail_since: Option<HostTime>,
 }
 
 impl PsdSession {
@@ -188,8 +192,10 @@ impl PsdSession {
             has_offset: false,
             held_syncs: 0,
             dropped_before: 0,
+            garbage_before: 0,
             taken_before: 0,
             received: 0,
+            tail_since: None,
         }
     }
 
@@ -197,6 +203,7 @@ impl PsdSession {
     pub fn connect(&mut self, now: HostTime, send: &mut impl FnMut(Packet)) {
         self.discard_buffer();
         self.dropped_before += self.codec.stats().dropped_bytes;
+        self.garbage_before += self.codec.stats().dropped_bytes;
         self.taken_before += self.codec.stats().taken_bytes;
         self.incoming.reset();
         self.codec = PsdCodec::new();
@@ -234,12 +241,19 @@ impl PsdSession {
     fn discard_buffer(&mut self) {
         self.dropped_before += self.buf.len() as u64;
         self.buf.clear();
+        self.tail_since = None;
     }
 
     /// Every byte received and thrown away so far: bad frames with their delimiters, runs
     /// with no delimiter, bytes left undecoded when a session ended.
     pub fn dropped_bytes(&self) -> u64 {
         self.dropped_before + self.codec.stats().dropped_bytes
+    }
+
+    /// Every byte the decoders threw away as garbage: of the bytes dropped, those not
+    /// merely discarded with the line down or a session's end (the line's noise).
+    pub fn garbage_bytes(&self) -> u64 {
+        self.garbage_before + self.codec.stats().dropped_bytes
     }
 
     /// Where every byte the line delivered went.
@@ -264,12 +278,19 @@ impl PsdSession {
     pub fn clock_waiting(&self, now: HostTime) -> bool {
         match self.phase {
             Phase::Setup { step: Step::TimeSync, sent, .. } => self.held_syncs > 0 || now > sent + MAX_RTT,
+            // Its syncs were held, and the handshake goes on late for them.
+            Phase::Setup { .. } => self.held_syncs > 0,
             _ => false,
         }
     }
 
     pub fn is_streaming(&self) -> bool {
         self.phase == Phase::Streaming
+    }
+    /// Configuring the controller: no samples until the handshake ends, which has its own
+    /// deadlines (each request's tries, the time sync's bound).
+    pub fn in_handshake(&self) -> bool {
+        matches!(self.phase, Phase::Setup { .. })
     }
     pub fn is_down(&self) -> bool {
         self.phase == Phase::Down
@@ -321,6 +342,20 @@ impl PsdSession {
     pub fn feed(&mut self, bytes: &[u8]) {
         self.received += bytes.len() as u64;
         self.buf.extend_from_slice(bytes);
+    }
+
+    /// Everything fed at `now` is decoded: what is left waits for its frame's end.
+    pub fn decoded(&mut self, now: HostTime) {
+        self.tail_since = if self.buf.is_empty() { None } else { self.tail_since.or(Some(now)) };
+    }
+
+    /// The bytes of a frame begun before `before` and not ended since: on a line that
+    /// went quiet, its end (the delimiter) was lost.
+    pub fn cut_short(&self, before: HostTime) -> u64 {
+        match self.tail_since {
+            Some(since) if since < before => self.buf.len() as u64,
+            _ => 0,
+        }
     }
 
     /// The next decoded item, `None` when more bytes are needed.

@@ -46,7 +46,7 @@ impl<K: StageClock> Core<K> {
         }
         let action = self.safety.arm(now.secs());
         self.watch.armed_at = now;
-        self.sampled(now);
+        self.samples_watched_from(now);
         self.motors.armed();
         self.mission.start_requested = false;
         self.act(now, action);
@@ -110,7 +110,7 @@ impl<K: StageClock> Core<K> {
             self.psd.connect(now, &mut self.out.psd());
             self.frame.forget_counter();
             self.watch.robot_from_future = None;
-            self.watch.last_frame_end = None;
+            self.forget_frame_pace();
             self.watch.stamps_stepped = None;
             self.links.rehandshake = true;
         }

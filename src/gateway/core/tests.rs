@@ -486,3 +486,157 @@ fn a_pose_lost_in_garbage_is_named_garbled() {
     c.watch.robot_weak = true;
     assert_eq!(c.pose_lost_cause(ms(200)), StopReason::PoseLost);
 }
+
+/// A packet numbered `seq`, whatever the controller's count.
+fn numbered(seq: u16, message: Message) -> Vec<u8> {
+    let mut wire = [0u8; MAX_WIRE_LEN];
+    let n = Packet::new(seq, message).encode(&mut wire).unwrap();
+    wire[..n].to_vec()
+}
+
+/// Drive the core to its next fault (or give up at `until`).
+fn run_to_fault(c: &mut Core<NoClock>, until: HostTime) -> StopReason {
+    while c.state().is_active() && c.next_deadline() <= until {
+        let now = c.next_deadline();
+        c.tick(now);
+    }
+    let State::Fault(reason) = c.state() else { panic!("no fault by {until}: {}", c.state()) };
+    reason
+}
+
+/// A frame begun and never ended (its delimiter lost) on a line that then went quiet is
+/// garbage: the sample watchdog names the line garbled, counting it, not the controller
+/// silent (found by the fault swarm: a handshake's answer lost so, after a reset).
+#[test]
+fn a_frame_cut_short_on_a_quiet_line_is_named_garbled() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(2), &Request::Arm).unwrap();
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    let heartbeat =
+        bytes(Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Streaming });
+    let cut = &heartbeat[..heartbeat.len() - 1];
+    c.psd_bytes(ms(30), cut);
+    let reason = run_to_fault(&mut c, ms(500));
+    let n = cut.len() as u32;
+    assert_eq!(reason, StopReason::SerialGarbled { frames: 1, bytes: n, found: Garbled::NoSample });
+    // Still waiting in the decoder, not yet dropped: the line's accounts say so.
+    assert_eq!(c.serial_bytes().buffered, u64::from(n));
+}
+
+/// An arm is no sample: the garbage that came since the last sample still names the stop
+/// that follows it (an operator's reset and arm on a noisy line).
+#[test]
+fn garbage_before_an_arm_names_the_stop_after_it() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    let mut garbled = bytes(Message::FrameEnd { frame: 1, t_ctrl_us: CTRL_EPOCH_US + 39_000, samples: 2 });
+    garbled[3] ^= 0x5A;
+    c.psd_bytes(ms(40), &garbled);
+    c.request(ms(50), &Request::Arm).unwrap();
+    let reason = run_to_fault(&mut c, ms(500));
+    assert!(matches!(reason, StopReason::SerialGarbled { frames: 1, found: Garbled::NoSample, .. }), "{reason:?}");
+}
+
+/// While a handshake waits, its answer discarded for its sequence number (one packet
+/// numbered far ahead came first, and the true ones now look old): the stop names the
+/// sequence, not the controller silent.
+#[test]
+fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(2), &Request::Arm).unwrap();
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    // The line reopened: the handshake again, its window of sequence numbers afresh.
+    c.psd_connected(ms(30));
+    let mut info_seq = None;
+    while let Some(o) = c.poll() {
+        if let Output::Psd(Packet { seq, message: Message::GetInfo }) = o {
+            info_seq = Some(seq);
+        }
+    }
+    let info = Message::Info {
+        request_seq: info_seq.expect("GetInfo sent"),
+        info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+    };
+    c.psd_bytes(
+        ms(31),
+        &numbered(40_000, Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Idle }),
+    );
+    c.psd_bytes(ms(31), &numbered(7, info));
+    assert_eq!(c.counters().psd_sequence_discards(), 1);
+    assert_eq!(run_to_fault(&mut c, ms(500)), StopReason::PsdSequence);
+}
+
+/// A handshake whose time syncs were held (round trips beyond the bound) goes on late for
+/// them: a watchdog that fires before its stream starts names the clock, whichever step
+/// it waits on by then.
+#[test]
+fn a_handshake_late_for_held_time_syncs_names_the_clock() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(2), &Request::Arm).unwrap();
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    c.psd_connected(ms(30));
+    // Answer each request 20 ms late (the time syncs held), up to the start's.
+    let mut now = ms(30);
+    'handshake: loop {
+        let pending: Vec<Packet> = std::iter::from_fn(|| c.poll())
+            .filter_map(|o| if let Output::Psd(p) = o { Some(p) } else { None })
+            .collect();
+        now = now + std::time::Duration::from_millis(20);
+        for p in pending {
+            let reply = match p.message {
+                Message::GetInfo => Message::Info {
+                    request_seq: p.seq,
+                    info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+                },
+                Message::TimeSync { host_time_us } => Message::TimeSyncReply {
+                    request_seq: p.seq,
+                    host_time_us,
+                    t_ctrl_us: now.as_nanos() / 1000 + CTRL_EPOCH_US,
+                },
+                Message::StartStream => break 'handshake,
+                Message::StopStream => continue,
+                m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
+            };
+            c.psd_bytes(now, &bytes(reply));
+        }
+    }
+    // Waiting on the start's answer, not on a time sync.
+    assert!(c.psd.in_handshake());
+    assert_eq!(run_to_fault(&mut c, now + std::time::Duration::from_millis(200)), StopReason::ClockUnsynced);
+}
+
+/// The controller's clock stepped back just after a handshake took it: every frame of the
+/// new stream looks older than the stream itself, as frames of the old one still in flight
+/// would. The line keeps order, so a frame counted after the last one before the restart
+/// but stamped before it is the clock: a pose stop then names it. Frames of the old stream
+/// still in flight (counted and stamped after it) are not.
+#[test]
+fn a_clock_stepped_back_after_the_handshake_is_named_the_clock() {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(2), &Request::Arm).unwrap();
+    for k in 0..5u32 {
+        let t = 20 + 20 * u64::from(k);
+        frame(&mut c, ms(t), k, CTRL_EPOCH_US + (t - 1) * 1000);
+    }
+    // The operator's e-stop and reset: the controller configured again on the same line.
+    c.request(ms(105), &Request::EStop).unwrap();
+    c.request(ms(110), &Request::Reset).unwrap();
+    answer(&mut c, ms(111));
+    // The old stream's last frame, still in flight: no step.
+    frame(&mut c, ms(112), 5, CTRL_EPOCH_US + 119_000 - 20_000);
+    assert_eq!(c.watch.stamps_stepped, None);
+    // The new stream's, its clock stepped back 461 ms.
+    frame(&mut c, ms(131), 6, CTRL_EPOCH_US + 130_000 - 461_000);
+    assert_eq!(c.watch.stamps_stepped, Some(ms(131)));
+    assert_eq!(c.pose_lost_cause(ms(140)), StopReason::ClockJumped);
+}

@@ -28,7 +28,8 @@ pub enum Timer {
     /// Ask for the lost PSD line, or the lost CAN link, again.
     ReopenPsd,
     ReopenCan,
-    /// Watchdog: no sample within `safety.sample_timeout` (armed, running or stopping).
+    /// Watchdog: no sample within `safety.sample_timeout` (armed, running or stopping),
+    /// counted from the last sample, the arm or the stream's start.
     Samples,
     /// Watchdog: no fresh robot pose within `safety.pose_timeout` (running).
     Pose,
@@ -175,11 +176,20 @@ impl<K: StageClock> Core<K> {
     /// configured again and now silent is named as the sample watchdog names it (garbage,
     /// or no samples), before the shell reopens the line for it.
     fn psd_session_due(&mut self, now: HostTime) {
-        let Some(e) = self.psd.tick(now, &mut self.out.psd()) else { return };
+        let failed = self.psd.tick(now, &mut self.out.psd());
+        if let Some(e) = failed {
+            self.setup_failed(now, e);
+        }
+    }
+
+    /// The handshake gave up (unanswered, or refused): a robot armed meanwhile stops,
+    /// named as the sample watchdog would have named it.
+    pub(super) fn setup_failed(&mut self, now: HostTime, e: super::psd_session::SetupError) {
         if self.links.streamed {
-            let reason = match self.garbled_since_last_sample(Garbled::NoSample) {
-                StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => StopReason::SamplesStopped,
-                garbled => garbled,
+            let reason = match self.samples_stopped_cause(now) {
+                // Given up on, not waiting: the controller did not answer.
+                StopReason::ClockUnsynced => StopReason::SamplesStopped,
+                reason => reason,
             };
             self.stop(now, reason);
         }
@@ -205,7 +215,7 @@ impl<K: StageClock> Core<K> {
         let s = &self.rig.safety;
         let quiet = now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
         let recent = |at: Option<HostTime>, within| at.is_some_and(|at| now.since(at) < within);
-        let garbled = self.garbled_since(self.watch.garbage_at_last_pose, Garbled::NoPose);
+        let garbled = self.garbled_when_quiet(now, self.watch.garbage_at_last_pose, Garbled::NoPose);
         if quiet {
             self.samples_stopped_cause(now)
         } else if recent(self.watch.robot_from_future, s.sample_timeout)
