@@ -805,9 +805,8 @@ fn judge_stop(
         let since = present.iter().filter(|f| f.kind.total()).map(|f| f.from.max(restart)).fold(f64::NAN, f64::max);
         // The pose and occlusion watchdogs watch only a running robot, counting from the
         // arm: one that ran out while the robot stood armed fires as it starts to run.
-        let running = matches!(seen.reason, StopReason::PoseLost | StopReason::ObstacleOccluded { .. })
-            .then(|| entered_before(seen.at, State::Running))
-            .unwrap_or(0.0);
+        let running_only = matches!(seen.reason, StopReason::PoseLost | StopReason::ObstacleOccluded { .. });
+        let running = if running_only { entered_before(seen.at, State::Running) } else { 0.0 };
         let by = (since + watchdog).max(running) + settings.period;
         if since.is_finite() && seen.at > by + FUZZ_S {
             v.push(format!(
