@@ -79,6 +79,14 @@ fn ms(v: u64) -> HostTime {
     HostTime::from_nanos(v * 1_000_000)
 }
 
+/// The controller's answer to GetInfo `request_seq`: the controller the rig expects.
+fn info_reply(request_seq: u16) -> Message {
+    Message::Info {
+        request_seq,
+        info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
+    }
+}
+
 /// The controller's packets, numbered in order as its firmware does.
 fn bytes(message: Message) -> Vec<u8> {
     use std::sync::atomic::{AtomicU16, Ordering};
@@ -103,10 +111,7 @@ fn answer_with(core: &mut Core<NoClock>, now: HostTime, mut sync_off: impl FnMut
             continue;
         };
         let reply = match p.message {
-            Message::GetInfo => Message::Info {
-                request_seq: p.seq,
-                info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
-            },
+            Message::GetInfo => info_reply(p.seq),
             Message::TimeSync { host_time_us } => Message::TimeSyncReply {
                 request_seq: p.seq,
                 host_time_us,
@@ -461,11 +466,7 @@ fn a_handshake_takes_no_odd_time_sync_reply_on_its_word() {
 /// arrive, weak) is still "robot pose lost".
 #[test]
 fn a_pose_lost_in_garbage_is_named_garbled() {
-    let mut c = core();
-    c.psd_connected(ms(0));
-    answer(&mut c, ms(1));
-    c.request(ms(2), &Request::Arm).unwrap();
-    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    let mut c = armed_with_a_sample();
     // The robot's frames garbled from here; the line stays busy (no quiet gap).
     for k in 1..12u32 {
         let mut garbled = bytes(Message::FrameEnd {
@@ -494,6 +495,16 @@ fn numbered(seq: u16, message: Message) -> Vec<u8> {
     wire[..n].to_vec()
 }
 
+/// A core streaming, armed at 2 ms, its last sample (a frame of the robot) at 20 ms.
+fn armed_with_a_sample() -> Core<NoClock> {
+    let mut c = core();
+    c.psd_connected(ms(0));
+    answer(&mut c, ms(1));
+    c.request(ms(2), &Request::Arm).unwrap();
+    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    c
+}
+
 /// Drive the core to its next fault (or give up at `until`).
 fn run_to_fault(c: &mut Core<NoClock>, until: HostTime) -> StopReason {
     while c.state().is_active() && c.next_deadline() <= until {
@@ -506,14 +517,10 @@ fn run_to_fault(c: &mut Core<NoClock>, until: HostTime) -> StopReason {
 
 /// A frame begun and never ended (its delimiter lost) on a line that then went quiet is
 /// garbage: the sample watchdog names the line garbled, counting it, not the controller
-/// silent (found by the fault swarm: a handshake's answer lost so, after a reset).
+/// silent (a handshake's answer lost so after a reset reads as the line's noise).
 #[test]
 fn a_frame_cut_short_on_a_quiet_line_is_named_garbled() {
-    let mut c = core();
-    c.psd_connected(ms(0));
-    answer(&mut c, ms(1));
-    c.request(ms(2), &Request::Arm).unwrap();
-    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    let mut c = armed_with_a_sample();
     let heartbeat =
         bytes(Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Streaming });
     let cut = &heartbeat[..heartbeat.len() - 1];
@@ -546,11 +553,7 @@ fn garbage_before_an_arm_names_the_stop_after_it() {
 /// sequence, not the controller silent.
 #[test]
 fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
-    let mut c = core();
-    c.psd_connected(ms(0));
-    answer(&mut c, ms(1));
-    c.request(ms(2), &Request::Arm).unwrap();
-    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    let mut c = armed_with_a_sample();
     // The line reopened: the handshake again, its window of sequence numbers afresh.
     c.psd_connected(ms(30));
     let mut info_seq = None;
@@ -559,10 +562,7 @@ fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
             info_seq = Some(seq);
         }
     }
-    let info = Message::Info {
-        request_seq: info_seq.expect("GetInfo sent"),
-        info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
-    };
+    let info = info_reply(info_seq.expect("GetInfo sent"));
     c.psd_bytes(
         ms(31),
         &numbered(40_000, Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Idle }),
@@ -577,11 +577,7 @@ fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
 /// it waits on by then.
 #[test]
 fn a_handshake_late_for_held_time_syncs_names_the_clock() {
-    let mut c = core();
-    c.psd_connected(ms(0));
-    answer(&mut c, ms(1));
-    c.request(ms(2), &Request::Arm).unwrap();
-    frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
+    let mut c = armed_with_a_sample();
     c.psd_connected(ms(30));
     // Answer each request 20 ms late (the time syncs held), up to the start's.
     let mut now = ms(30);
@@ -592,10 +588,7 @@ fn a_handshake_late_for_held_time_syncs_names_the_clock() {
         now = now + std::time::Duration::from_millis(20);
         for p in pending {
             let reply = match p.message {
-                Message::GetInfo => Message::Info {
-                    request_seq: p.seq,
-                    info: Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 16, clock_hz: 1_000_000 },
-                },
+                Message::GetInfo => info_reply(p.seq),
                 Message::TimeSync { host_time_us } => Message::TimeSyncReply {
                     request_seq: p.seq,
                     host_time_us,
