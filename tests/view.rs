@@ -45,7 +45,7 @@ fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
     // lasts nine. The script says "ready" with its browser up, then waits for the view.
     let python = python::python();
     let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
-    let mut browser = Command::new(&python)
+    let mut browser = python::niced(&python)
         .arg(python::peer("view"))
         .args([&format!("http://{addr}/"), &shot])
         .stdout(Stdio::piped())
@@ -93,7 +93,7 @@ fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
     assert!(inside(&view_edge, [-0.5, 0.35]) && inside(&view_edge, [0.5, -0.35]), "{view_edge:?}");
 
     // Foxglove live, while the robot drives: the room in `/arena`, as the page has it.
-    let seen_live = Command::new(&python)
+    let seen_live = python::niced(&python)
         .arg(python::peer("foxglove"))
         .args([&format!("ws://{foxglove}"), "25", "/arena"])
         .output()

@@ -28,3 +28,13 @@ pub fn python() -> PathBuf {
 pub fn peer(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/peers").join(format!("{name}.py"))
 }
+
+/// `program` run at a lower scheduling priority (`nice -n 10`), for a peer that shares the
+/// machine with a gateway running in real time: a browser starting up on a two-core machine
+/// must not starve the gateway's watchdogs, as it would not on a rig whose gateway has a
+/// core to itself.
+pub fn niced(program: &Path) -> std::process::Command {
+    let mut command = std::process::Command::new("nice");
+    command.args(["-n", "10"]).arg(program);
+    command
+}

@@ -47,10 +47,9 @@ const MAX_PATH: usize = 4000;
 /// Rendered scenes the robot's speed is reckoned over: half a second's worth at
 /// [`RENDER_EVERY`].
 const SPEED_OVER: usize = 6;
-/// How long the view keeps serving after its last frame, so clients take it.
-const FINAL_GRACE: Duration = Duration::from_millis(300);
-/// How long closing the view waits for its thread to send the last frame.
-const CLOSE_DEADLINE: Duration = Duration::from_secs(2);
+/// How long closing the view waits for its thread: every client connected takes the last
+/// frame within its own deadline ([`CLIENT_DEADLINE`]), or is dropped.
+const CLOSE_DEADLINE: Duration = Duration::from_secs(3);
 
 /// The view thread's nice value (the loop keeps the process's, 0 or SCHED_FIFO).
 const VIEW_NICE: i32 = 10;
@@ -118,7 +117,8 @@ impl ViewPublisher {
     }
 
     /// End the view: it sends its clients a last frame, marked `ended`, of the last scene
-    /// published. Waits for that at most `CLOSE_DEADLINE` (2 s).
+    /// published, and waits until each has taken it (each within its deadline, 2 s), at most
+    /// `CLOSE_DEADLINE` (3 s) in all.
     pub async fn close(self) {
         drop(self.tx);
         if tokio::time::timeout(CLOSE_DEADLINE, self.done).await.is_err() {
@@ -149,10 +149,14 @@ pub fn start(
         runtime.block_on(async move {
             let Ok(listener) = TcpListener::from_std(listener) else { return };
             let (frames_tx, frames_rx) = watch::channel(Frame::default());
-            tokio::select! {
-                () = render(rx, stats, setup, frames_tx) => {}
-                () = serve(listener, frames_rx, counted) => {}
-            }
+            // Each client holds a clone of `serving` until it is done: once the last frame is
+            // out and no new client is taken, the channel closes when the last one is served.
+            let (serving, mut all_served) = tokio::sync::mpsc::channel::<()>(1);
+            let accepting = tokio::spawn(serve(listener, frames_rx, counted, serving));
+            render(rx, stats, setup, frames_tx).await;
+            accepting.abort();
+            let _ = accepting.await;
+            let _ = tokio::time::timeout(CLOSE_DEADLINE, all_served.recv()).await;
         });
         let _ = done_tx.send(());
     })?;
@@ -182,7 +186,6 @@ async fn render(
                 seq += 1;
                 let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq, speed, true);
                 frames.send_replace(Frame { seq, json: json.into() });
-                tokio::time::sleep(FINAL_GRACE).await;
             }
             return;
         }
@@ -387,15 +390,22 @@ fn round(x: f64) -> f64 {
     (x * 1e4).round() / 1e4
 }
 
-async fn serve(listener: TcpListener, frames: watch::Receiver<Frame>, dropped: Arc<AtomicU64>) {
+/// Take clients until aborted; each holds a clone of `serving` while it is served.
+async fn serve(
+    listener: TcpListener,
+    frames: watch::Receiver<Frame>,
+    dropped: Arc<AtomicU64>,
+    serving: tokio::sync::mpsc::Sender<()>,
+) {
     let clients = Arc::new(tokio::sync::Semaphore::new(MAX_CLIENTS));
     loop {
         let Ok((stream, _)) = listener.accept().await else { continue };
-        let (frames, dropped, clients) = (frames.clone(), dropped.clone(), clients.clone());
+        let (frames, dropped, clients, serving) = (frames.clone(), dropped.clone(), clients.clone(), serving.clone());
         tokio::spawn(async move {
             if let Err(e) = client(stream, frames, dropped, clients).await {
                 tracing::debug!("view client: {e}");
             }
+            drop(serving);
         });
     }
 }
@@ -564,6 +574,41 @@ mod tests {
         assert_eq!((f["state_name"].as_str(), f["reason"].as_str()), (Some("stopped"), Some("goal reached")));
         assert_eq!(f["ended"], true);
         assert!(f["numbers"]["clearance"].is_null() && f["numbers"]["speed"].is_null());
+    }
+
+    /// Closing the view waits for its clients: an event stream that has its first frame
+    /// when the run ends takes the last one, marked `ended`, before the view closes it.
+    #[tokio::test]
+    async fn closing_the_view_sends_each_event_stream_the_last_frame() {
+        use std::io::{Read, Write};
+        let (_stats_tx, stats) = watch::channel(Arc::new(metrics::Snapshot::empty(0.0)));
+        let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+        let view = start(addr, setup(), stats).unwrap();
+        let scene =
+            SceneRecord { pose: [0.6, 0.0, 0.0], goal: [0.6, 0.0], count: 1, cycle: 1, ..SceneRecord::default() };
+        view.publish(ViewSnapshot { scene, state: State::Running, cycles: 1 });
+        let (first_tx, first) = tokio::sync::oneshot::channel();
+        let reader = std::thread::spawn(move || {
+            let mut stream = std::net::TcpStream::connect(addr).unwrap();
+            stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+            stream.write_all(b"GET /events HTTP/1.1\r\n\r\n").unwrap();
+            let (mut text, mut buf, mut first_tx) = (String::new(), [0u8; 65536], Some(first_tx));
+            // Until the view closes the stream (or the read deadline fails the test).
+            loop {
+                match stream.read(&mut buf).unwrap() {
+                    0 => return text,
+                    n => text.push_str(std::str::from_utf8(&buf[..n]).unwrap()),
+                }
+                if text.contains("\"ended\":false") {
+                    first_tx.take().map(|tx| tx.send(()));
+                }
+            }
+        });
+        first.await.expect("the stream's first frame");
+        view.close().await;
+        let text = tokio::task::spawn_blocking(move || reader.join().unwrap()).await.unwrap();
+        let last = text.rsplit("data: ").next().unwrap();
+        assert!(last.contains("\"ended\":true"), "the stream ended without the last frame: {text}");
     }
 
     /// The drawn field is the one the robot follows: with the robot between an obstacle and
