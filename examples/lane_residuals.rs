@@ -2,7 +2,9 @@
 //! a streamline (the normal-flow residual relative to the flow's speed on the circle), and
 //! what building the field costs, for the paper's geometries and across the lane.
 //!
-//! cargo run --release --example lane_residuals
+//! cargo run --release --example lane_residuals [AIM]
+//!
+//! AIM is `planner.lane_residual`, the truncation error the series aim at (default 1e-8).
 
 use std::time::Instant;
 
@@ -13,15 +15,23 @@ fn sink(goal: C) -> Sink {
     Sink { goal, strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 }
 }
 
-/// The residual on the first circle, and the field's build time in µs (median of 201).
-fn measure(h: f64, obstacles: &[PlanObstacle], goal: C) -> (f64, f64) {
+/// The lane field at `aim` (`planner.lane_residual`).
+fn build(aim: f64, h: f64, obstacles: &[PlanObstacle], goal: C) -> Field {
     let lane = Space::Lane { half_width: h };
-    let field = Field::new(lane, sink(goal), obstacles).expect("a valid geometry");
+    let mut field = Field::empty(lane, sink(goal));
+    field.set_lane_aim(aim);
+    field.rebuild(lane, sink(goal), obstacles).expect("a valid geometry");
+    field
+}
+
+/// The residual on the first circle, and the field's build time in µs (median of 201).
+fn measure(aim: f64, h: f64, obstacles: &[PlanObstacle], goal: C) -> (f64, f64) {
+    let field = build(aim, h, obstacles, goal);
     let residual = (0..obstacles.len()).filter_map(|k| field.circle_residual(k, 720)).fold(0.0, f64::max);
     let mut times: Vec<f64> = (0..201)
         .map(|_| {
             let start = Instant::now();
-            std::hint::black_box(Field::new(lane, sink(goal), obstacles).expect("valid"));
+            std::hint::black_box(build(aim, h, obstacles, goal));
             start.elapsed().as_secs_f64() * 1e6
         })
         .collect();
@@ -30,6 +40,11 @@ fn measure(h: f64, obstacles: &[PlanObstacle], goal: C) -> (f64, f64) {
 }
 
 fn main() {
+    let aim = match std::env::args().nth(1) {
+        None => flowgate::planner::multipole::EXACT_AIM,
+        Some(a) => a.parse().unwrap_or_else(|_| panic!("AIM is a number (1e-10 to 1e-4), not {a}")),
+    };
+    println!("the series aim at {aim:e} (planner.lane_residual)");
     let goal = C::new(0.8, 0.0);
     let one = |centre: C, radius: f64, velocity: C| [PlanObstacle { center: centre, velocity, radius }];
     println!("{:<58} {:>10} {:>10}", "geometry (h = 0.2 m unless given)", "residual", "build µs");
@@ -58,7 +73,7 @@ fn main() {
         ("R = 1 cm, 1 mm from the wall, standing", 0.2, one(C::new(0.0, 0.189), 0.01, C::default()).to_vec()),
     ];
     for (name, h, obstacles) in rows {
-        let (residual, us) = measure(h, &obstacles, goal);
+        let (residual, us) = measure(aim, h, &obstacles, goal);
         println!("{name:<58} {residual:>10.1e} {us:>10.1}");
     }
 
@@ -73,9 +88,7 @@ fn main() {
             // Closed against the wall below a gap of R/10.
             let is_clear = h - y.abs() - r >= flowgate::planner::field::WALL_CLOSE * r;
             for v in [C::default(), C::new(0.15, 0.0), C::new(-0.15, 0.0), C::new(0.0, 0.15), C::new(0.0, -0.15)] {
-                let field =
-                    Field::new(Space::Lane { half_width: h }, sink(C::new(3.0 * h, 0.0)), &one(C::new(0.0, y), r, v))
-                        .expect("valid");
+                let field = build(aim, h, &one(C::new(0.0, y), r, v), C::new(3.0 * h, 0.0));
                 let w = field.circle_residual(0, 720).expect("one obstacle");
                 let decade = (-w.log10()).floor().clamp(0.0, 7.0) as usize;
                 if is_clear {

@@ -1,6 +1,7 @@
 //! Sweeps in shards, as a batch system runs them: each shard's manifest and Parquet episodes,
 //! merged back into exactly the sweep run in one piece, read by pyarrow as a user's analysis
-//! would; shards of another sweep refused by the field that differs.
+//! would; shards of another sweep refused by the field that differs. A setting compared over
+//! the same episodes (`--compare`), judged by its outcomes in distribution.
 
 #[path = "support/python.rs"]
 mod python;
@@ -251,4 +252,49 @@ fn the_kubernetes_job_runs_one_shard_per_index() {
     assert_eq!((manifest.sweep_episodes, episodes.len()), (12, 12));
     assert_eq!(manifest.scenario, "E2 lane head-on");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `--compare KEY=VALUE` runs the same episodes twice. E2's lane at the default residual
+/// (`planner.lane_residual = 1e-4`) and at 1e-8 has the same outcomes in distribution;
+/// planning circles grown by 5 cm (`planner.clearance`) keep every rate but move every
+/// minimum clearance, and the command fails, naming the setting.
+#[test]
+fn a_compared_setting_is_judged_by_its_outcomes_in_distribution() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let compare = |episodes: &str, setting: &str, scenario: &str, dir: &Path| {
+        let out = flowgate()
+            .args(["plan", "--planner-only", "--sweep", episodes, "--compare", setting, "--out"])
+            .arg(dir)
+            .arg(root.join(scenario))
+            .output()
+            .unwrap();
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join("compare.json")).unwrap()).unwrap();
+        (out, json)
+    };
+    let dir = temp_dir("compare-lane");
+    let (out, json) = compare("100", "planner.lane_residual=1e-8", "scenarios/e2-lane-head-on.toml", &dir);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("the same in distribution: yes"), "{text}");
+    assert_eq!(json["same"], true, "{json}");
+    assert_eq!(json["rates"].as_array().unwrap().len(), 7);
+    assert!(json["clearance"]["p_value"].as_f64().unwrap() >= 0.01, "{json}");
+    assert_eq!(json["clearance"]["before"], 100);
+
+    let dir = temp_dir("compare-clearance");
+    let (out, json) = compare("50", "planner.clearance=0.05", E1, &dir);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{}", String::from_utf8_lossy(&out.stdout));
+    assert!(err.contains("with planner.clearance=0.05 the outcomes are not the same in distribution"), "{err}");
+    assert!(json["rates"].as_array().unwrap().iter().all(|r| r["same"] == true), "{json}");
+    assert!(json["clearance"]["p_value"].as_f64().unwrap() < 0.01 && json["same"] == false, "{json}");
+
+    // A setting the scenario cannot take is refused before anything runs, naming the key.
+    let out = flowgate()
+        .args(["plan", "--planner-only", "--sweep", "5", "--compare", "planner.lane_residual=1e-2"])
+        .arg(root.join(E1))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("planner.lane_residual"), "{err}");
 }

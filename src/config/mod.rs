@@ -397,6 +397,11 @@ pub struct PlannerSettings {
     /// space.
     #[serde(default = "default_anticipation")]
     pub anticipation: f64,
+    /// In a lane: the boundary residual the obstacles' series aim at, relative to the flow
+    /// on each circle, from 1e-10 to 1e-4 (docs/planner.md, "How exact"). A looser aim
+    /// fits fewer orders, for a cheaper cycle.
+    #[serde(default = "default_lane_residual")]
+    pub lane_residual: f64,
 }
 
 fn default_true() -> bool {
@@ -413,6 +418,10 @@ fn default_clearance() -> f64 {
 
 fn default_anticipation() -> f64 {
     3.0
+}
+
+fn default_lane_residual() -> f64 {
+    crate::planner::multipole::LOOSEST_AIM
 }
 
 fn default_goal_wait() -> f64 {
@@ -974,6 +983,13 @@ impl PlannerSettings {
         if !(self.anticipation.is_finite() && (0.0..=30.0).contains(&self.anticipation)) {
             return invalid("planner.anticipation", format!("must be from 0 to 30 s, is {}", self.anticipation));
         }
+        let aims = crate::planner::multipole::TIGHTEST_AIM..=crate::planner::multipole::LOOSEST_AIM;
+        if !aims.contains(&self.lane_residual) {
+            return invalid(
+                "planner.lane_residual",
+                format!("must be from 1e-10 to 1e-4, is {:e}", self.lane_residual),
+            );
+        }
         if !(self.goal_wait.is_finite() && (0.0..=3600.0).contains(&self.goal_wait)) {
             return invalid("planner.goal_wait", format!("must be from 0 to 3600 s, is {}", self.goal_wait));
         }
@@ -1223,6 +1239,7 @@ impl GatewayConfig {
                 clearance: p.clearance,
                 tie_break: p.tie_break.then(TieBreak::default),
                 anticipation: p.anticipation,
+                lane_residual: p.lane_residual,
             },
             drive: DriveConfig {
                 wheel_base: d.wheel_base,
@@ -1428,6 +1445,8 @@ mod tests {
             ("goal_wait = 10.0", "goal_wait = inf", "planner.goal_wait"),
             ("anticipation = 3.0", "anticipation = -1", "planner.anticipation"),
             ("anticipation = 3.0", "anticipation = nan", "planner.anticipation"),
+            ("lane_residual = 1e-4", "lane_residual = 1e-3", "planner.lane_residual"),
+            ("lane_residual = 1e-4", "lane_residual = nan", "planner.lane_residual"),
             ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = nan", "planner.margin.extra_speed"),
             ("rule = \"factor\", factor = 1.1", "rule = \"delay\", extra_speed = -1", "planner.margin.extra_speed"),
             ("k1 = 0.0", "k1 = nan", "calibration.k1"),

@@ -51,6 +51,27 @@ pub enum ScenarioError {
     Room { path: String, source: Box<toml::de::Error> },
     #[error("scenario {path}: {invalid}")]
     Invalid { path: String, invalid: Invalid },
+    #[error("scenario {path}: setting `{setting}`: {why}")]
+    Setting { path: String, setting: String, why: String },
+}
+
+/// `text` (a scenario's TOML) with `setting` (`KEY=VALUE`) set, or why it cannot be.
+fn with_setting(text: &str, setting: &str) -> Result<String, String> {
+    let (key, value) = setting.split_once('=').ok_or("is not KEY=VALUE")?;
+    let (key, value) = (key.trim(), value.trim());
+    let value: toml::Table =
+        toml::from_str(&format!("value = {value}")).map_err(|e| format!("the value is not TOML: {}", e.message()))?;
+    let value = value.get("value").cloned().ok_or("no value")?;
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_owned())?;
+    let mut parts: Vec<&str> = key.split('.').collect();
+    let last = parts.pop().filter(|k| !k.is_empty()).ok_or("no key")?;
+    let mut here = &mut table;
+    for part in parts {
+        let next = here.entry(part).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        here = next.as_table_mut().ok_or_else(|| format!("`{part}` is not a table"))?;
+    }
+    here.insert(last.to_owned(), value);
+    toml::to_string(&table).map_err(|e| e.to_string())
 }
 
 /// The board's command timeout in the simulated rig: ten cycles of 20 ms, so a shared test
@@ -62,6 +83,21 @@ impl Scenario {
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
         let sim = flowgate_sim::scenario::Scenario::load(path)?;
         Self::new(sim, &path.display().to_string())
+    }
+
+    /// [`load`](Self::load), with one setting changed: `setting` is `KEY=VALUE`, the key
+    /// dotted (`planner.lane_residual`), the value TOML (`1e-4`, `true`, `"text"`). The
+    /// scenario is checked with it as if the file said so.
+    pub fn load_with(path: &Path, setting: &str) -> Result<Self, ScenarioError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| flowgate_sim::scenario::ScenarioError::Read { path: origin.clone(), source })?;
+        let changed = with_setting(&text, setting).map_err(|why| ScenarioError::Setting {
+            path: origin.clone(),
+            setting: setting.into(),
+            why,
+        })?;
+        Self::from_toml(&changed, &format!("{origin} with {setting}"))
     }
 
     /// Parse and check scenario text; `origin` names it in errors.

@@ -195,6 +195,9 @@ pub struct Field {
     /// [`multipole::Workspace`]); made with a lane's field, so that a control cycle's
     /// rebuild does not allocate.
     fit_work: Option<Box<multipole::Workspace>>,
+    /// What the lane series aim at: their truncation error relative to the flow on the
+    /// circle ([`Field::set_lane_aim`]).
+    lane_aim: f64,
     /// The room's walls, static obstacles and view's edge, with its sink flow solved for
     /// the goal (kept while the goal stays).
     room: Option<RoomField>,
@@ -303,12 +306,20 @@ impl Field {
             lane_series: ArrayVec::new(),
             unclosed_at_a_wall: false,
             fit_work: matches!(space, Space::Lane { .. }).then(multipole::Workspace::new),
+            lane_aim: multipole::EXACT_AIM,
             room: None,
         }
     }
 
     /// Put the field in `room` (or in no room). The room's sink flow is solved for the goal
     /// on the next build, and again only when the goal changes.
+    /// The lane series' aim from the next rebuild on: their truncation error relative to
+    /// the flow on each circle, from [`multipole::TIGHTEST_AIM`] to [`multipole::LOOSEST_AIM`]
+    /// (clamped), [`multipole::EXACT_AIM`] unless set. A looser aim fits fewer orders.
+    pub fn set_lane_aim(&mut self, aim: f64) {
+        self.lane_aim = aim.clamp(multipole::TIGHTEST_AIM, multipole::LOOSEST_AIM);
+    }
+
     pub fn set_room(&mut self, room: Option<&Arc<Room>>) {
         let same = match (&self.room, room) {
             (Some(a), Some(b)) => Arc::ptr_eq(&a.room, b),
@@ -418,7 +429,7 @@ impl Field {
         let series = Series::new(half_width, o.center, o.radius);
         let others = self.obstacles[..n].iter().enumerate().filter(|&(i, _)| i != k).map(|(_, p)| p.center);
         let rho = multipole::convergence_rate(half_width, o.center, o.radius, others.chain([self.sink.goal]));
-        let orders = multipole::orders_for(rho, series.real());
+        let orders = multipole::orders_for(rho, series.real(), self.lane_aim);
         let regularisation = if rho >= 1.0 { multipole::WALL_REGULARISATION } else { 0.0 };
         let mut points = [(Point::default(), Point::default()); POINTS];
         let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, work, &mut points);
@@ -475,6 +486,12 @@ impl Field {
     }
     pub fn obstacles(&self) -> &[PlanObstacle] {
         &self.obstacles[..self.n]
+    }
+
+    /// The multipole orders obstacle `k`'s lane series was fitted with (None in free
+    /// space, or if there is no obstacle `k`).
+    pub fn lane_orders(&self, k: usize) -> Option<usize> {
+        self.lane_series.get(k).map(|l| l.sink_fit.orders)
     }
 
     /// How far obstacle `k`'s planned circle is from a streamline of the field: the worst

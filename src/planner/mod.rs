@@ -120,6 +120,9 @@ pub struct PlannerConfig {
     /// edge, on the robot's side, of the band its drift sweeps while the robot passes it,
     /// at most this far ahead (`anticipate` in this module). Not used in free space.
     pub anticipation: f64,
+    /// What the lane's series aim at: their truncation error on each circle, relative to
+    /// the flow there ([`Field::set_lane_aim`]). Not used in free space or a room.
+    pub lane_residual: f64,
 }
 
 /// An obstacle as estimated by tracking, at the time the command will act.
@@ -298,6 +301,7 @@ impl Planner {
         let mut planned = ArrayVec::new();
         let mut flags = self.plan_obstacles(input, &mut planned)?;
         field.set_room(self.room.as_ref());
+        field.set_lane_aim(self.config.lane_residual);
         field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned, Some(input.position))?;
         flags.unclosed_at_a_wall = field.unclosed_at_a_wall();
         Ok(flags)

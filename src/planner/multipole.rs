@@ -62,8 +62,15 @@ const _: () = assert!(POINTS_PER_ORDER_AT_A_WALL * WALL_ORDERS <= POINTS);
 fn centred_on_a_wall(h: f64, a: Point) -> bool {
     a.im.abs() == h
 }
-/// The fit's aim: the series' truncation error, relative to the flow on the circle.
-const AIM: f64 = 1e-8;
+/// The fit's aim for a [`Field`](super::Field) made directly: the series' truncation error,
+/// relative to the flow on the circle. The property tests hold the lane to it.
+pub const EXACT_AIM: f64 = 1e-8;
+/// The loosest aim a configuration may set, and a rig's default (`planner.lane_residual`):
+/// a tenth of a millimetre on a circle of a metre, below the camera's millimetre of noise.
+/// Sweeps at it are the same in distribution as at [`EXACT_AIM`] (docs/simulation.md).
+pub const LOOSEST_AIM: f64 = 1e-4;
+/// The tightest: rounding sets in below it.
+pub const TIGHTEST_AIM: f64 = 1e-10;
 const UNKNOWNS: usize = 2 * COMPLEX_ORDERS + 1;
 /// Rows of the fit: the collocation points and one Tikhonov row per unknown.
 const ROWS: usize = POINTS + UNKNOWNS;
@@ -226,13 +233,13 @@ pub fn convergence_rate(h: f64, a: Point, r: f64, others: impl Iterator<Item = P
     rho.min(1.0)
 }
 
-/// How many orders a circle of convergence rate `rho` (see [`convergence_rate`]) needs:
-/// `n = ln(AIM)/ln(ρ)`, capped at [`ORDERS`] for real coefficients (`real`: a circle centred
+/// How many orders a circle of convergence rate `rho` (see [`convergence_rate`]) needs to
+/// reach `aim` (the series' truncation error relative to the flow): `n = ln(aim)/ln(ρ)`, capped at [`ORDERS`] for real coefficients (`real`: a circle centred
 /// on a wall), at 32 for complex ones. A circle that reaches a wall (`ρ = 1`) has a
 /// corner where it meets the wall, around which no series at the centre converges
 /// geometrically: its residual levels off near 1e-5 of the flow's speed from
 /// [`WALL_ORDERS`] on (measured: `examples/lane_residuals.rs`), so it gets those.
-pub fn orders_for(rho: f64, real: bool) -> usize {
+pub fn orders_for(rho: f64, real: bool, aim: f64) -> usize {
     if rho.is_nan() || rho <= 0.0 {
         return 1;
     }
@@ -240,7 +247,7 @@ pub fn orders_for(rho: f64, real: bool) -> usize {
         return WALL_ORDERS;
     }
     let cap = if real { ORDERS } else { COMPLEX_ORDERS };
-    ((AIM.ln() / rho.ln()).ceil() as usize).clamp(1, cap)
+    ((aim.ln() / rho.ln()).ceil() as usize).clamp(1, cap)
 }
 
 /// The most points [`collocation`] spaces round a circle (half of them in the lane, for a

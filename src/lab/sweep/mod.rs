@@ -16,6 +16,7 @@
 //! every episode exactly once, and gives the same episodes and report as the sweep run in one
 //! piece.
 
+pub mod compare;
 pub mod episodes_file;
 mod shard;
 
@@ -59,7 +60,8 @@ pub struct Episode {
 }
 
 impl Episode {
-    fn passive_contact(&self) -> bool {
+    /// A collision the robot did not drive into.
+    pub fn passive_contact(&self) -> bool {
         self.outcome == Outcome::Collision && !self.active_contact
     }
 }
