@@ -211,19 +211,30 @@ fn worst_residual(field: &Field, o: &PlanObstacle) -> f64 {
     worst / scale.max(o.velocity.norm()).max(1e-12)
 }
 
+/// E2's geometry (R = 14 cm in h = 20 cm, a 70% blockage), a centred 90% blockage standing
+/// and moving, and a small circle near a wall, each against [`lane_sink`].
+fn lane_circles() -> [PlanObstacle; 4] {
+    [
+        (Point::new(0.0, 0.0), 0.14, Point::new(-0.056, 0.0)),
+        (Point::new(0.2, 0.0), 0.18, Point::default()),
+        (Point::new(0.2, 0.0), 0.18, Point::new(-0.05, 0.03)),
+        (Point::new(0.0, 0.03), 0.03, Point::new(0.1, 0.0)),
+    ]
+    .map(|(center, radius, velocity)| PlanObstacle { center, velocity, radius })
+}
+
+/// The goal sink 0.8 m along the lane, at E2's strength.
+fn lane_sink() -> Sink {
+    Sink { goal: Point::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 }
+}
+
 /// `planner.lane_residual`: the same circles, fitted to a looser aim, stay within it, with
 /// fewer orders (a cheaper cycle).
 #[test]
 fn a_looser_lane_aim_holds_its_residual_with_fewer_orders() {
     let lane = Space::Lane { half_width: 0.2 };
-    for (centre, radius, velocity) in [
-        (Point::new(0.0, 0.0), 0.14, Point::new(-0.056, 0.0)),
-        (Point::new(0.2, 0.0), 0.18, Point::default()),
-        (Point::new(0.2, 0.0), 0.18, Point::new(-0.05, 0.03)),
-        (Point::new(0.0, 0.03), 0.03, Point::new(0.1, 0.0)),
-    ] {
-        let s = Sink { goal: Point::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
-        let obs = PlanObstacle { center: centre, velocity, radius };
+    for obs in lane_circles() {
+        let (centre, radius, s) = (obs.center, obs.radius, lane_sink());
         let mut field = Field::empty(lane, s);
         field.set_lane_aim(1e-4);
         field.rebuild(lane, s, &[obs]).unwrap();
@@ -241,14 +252,8 @@ fn a_looser_lane_aim_holds_its_residual_with_fewer_orders() {
 #[test]
 fn lane_circle_residual_is_at_the_fit_level() {
     let lane = Space::Lane { half_width: 0.2 };
-    for (centre, radius, velocity) in [
-        (Point::new(0.0, 0.0), 0.14, Point::new(-0.056, 0.0)),
-        (Point::new(0.2, 0.0), 0.18, Point::default()),
-        (Point::new(0.2, 0.0), 0.18, Point::new(-0.05, 0.03)),
-        (Point::new(0.0, 0.03), 0.03, Point::new(0.1, 0.0)),
-    ] {
-        let s = Sink { goal: Point::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 };
-        let obs = PlanObstacle { center: centre, velocity, radius };
+    for obs in lane_circles() {
+        let (centre, radius, s) = (obs.center, obs.radius, lane_sink());
         let field = Field::new(lane, s, &[obs]).unwrap();
         let worst = worst_residual(&field, &obs);
         eprintln!("lane circle residual, R = {radius} m at {centre}, h = 0.2 m: {worst:.1e} of the local speed");
