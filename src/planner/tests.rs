@@ -228,8 +228,8 @@ fn lane_sink() -> Sink {
     Sink { goal: Point::new(0.8, 0.0), strength: 0.1 * 0.14, c1: 20.0, reference_radius: 0.14 }
 }
 
-/// `planner.lane_residual`: the same circles, fitted to a looser aim, stay within it, with
-/// fewer orders (a cheaper cycle).
+/// `planner.lane_residual`: the same circles, fitted to the loosest aim (a rig's default),
+/// stay within it with at most two thirds of the orders (a cheaper cycle).
 #[test]
 fn a_looser_lane_aim_holds_its_residual_with_fewer_orders() {
     let lane = Space::Lane { half_width: 0.2 };
@@ -243,7 +243,7 @@ fn a_looser_lane_aim_holds_its_residual_with_fewer_orders() {
         let (loose, tight) = (field.lane_orders(0).unwrap(), exact.lane_orders(0).unwrap());
         eprintln!("R = {radius} m at {centre}: {worst:.1e} of the local speed with {loose} orders ({tight} at 1e-8)");
         assert!(worst < 1e-4, "R = {radius} at {centre}: {worst:.2e}");
-        assert!(loose < tight, "{loose} orders, {tight} at the default aim");
+        assert!(3 * loose <= 2 * tight, "{loose} orders, {tight} at 1e-8");
     }
 }
 
