@@ -34,7 +34,7 @@ pub struct PlanArgs {
     #[arg(long, value_name = "I/N")]
     shard: Option<sweep::ShardSpec>,
     /// Run the sweep twice, the second time with this setting changed (`KEY=VALUE`, e.g.
-    /// `planner.lane_residual=1e-4`), and say whether the outcomes stay the same in
+    /// `planner.lane_residual=1e-8`), and say whether the outcomes stay the same in
     /// distribution (each rate inside the other's 95% interval, the minimum clearances
     /// alike by a Kolmogorov-Smirnov test at 1%); fails when they do not.
     #[arg(long, value_name = "KEY=VALUE", requires = "sweep", conflicts_with = "shard")]

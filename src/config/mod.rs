@@ -398,7 +398,7 @@ pub struct PlannerSettings {
     #[serde(default = "default_anticipation")]
     pub anticipation: f64,
     /// In a lane: the boundary residual the obstacles' series aim at, relative to the flow
-    /// on each circle, from 1e-10 to 1e-4 (docs/planner.md, "How exact"). A looser aim
+    /// on each circle, from 1e-10 to 1e-4 (docs/simulation.md, "How exact a rig's lane is"). A looser aim
     /// fits fewer orders, for a cheaper cycle.
     #[serde(default = "default_lane_residual")]
     pub lane_residual: f64,

@@ -311,8 +311,6 @@ impl Field {
         }
     }
 
-    /// Put the field in `room` (or in no room). The room's sink flow is solved for the goal
-    /// on the next build, and again only when the goal changes.
     /// The lane series' aim from the next rebuild on: their truncation error relative to
     /// the flow on each circle, from [`multipole::TIGHTEST_AIM`] to [`multipole::LOOSEST_AIM`]
     /// (clamped), [`multipole::EXACT_AIM`] unless set. A looser aim fits fewer orders.
@@ -320,6 +318,8 @@ impl Field {
         self.lane_aim = aim.clamp(multipole::TIGHTEST_AIM, multipole::LOOSEST_AIM);
     }
 
+    /// Put the field in `room` (or in no room). The room's sink flow is solved for the goal
+    /// on the next build, and again only when the goal changes.
     pub fn set_room(&mut self, room: Option<&Arc<Room>>) {
         let same = match (&self.room, room) {
             (Some(a), Some(b)) => Arc::ptr_eq(&a.room, b),
