@@ -2,7 +2,9 @@
 //! `ros2`, CDR messages with `ros2msg` schemas, and `metadata.yaml`), with the topics the
 //! live ROS 2 node publishes. The recording is replayed through the core, which rebuilds
 //! every cycle's scene exactly; each cycle gives `/odom` and `/tf` stamped at its log time,
-//! `~/obstacles` and `~/path` follow at `[ros2] publish_hz`, `/diagnostics` once a second.
+//! `~/obstacles` and `~/path` on the first cycle of each `1 / [ros2] publish_hz` of host
+//! time (at the default 20 Hz, at each instant of the recording's own 10 Hz `/obstacles`),
+//! `/diagnostics` once a second.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -13,6 +15,7 @@ use super::{Recording, ReplayError};
 use crate::config::Ros2Config;
 use crate::gateway::core::{Core, NoClock, Output};
 use crate::gateway::shell::metrics::Snapshot;
+use crate::gateway::shell::recording::first_in_slot;
 use crate::gateway::shell::ros2::convert::{self, Frames};
 use crate::gateway::shell::ros2::msgs::Time;
 use crate::gateway::shell::view::ViewSetup;
@@ -222,8 +225,8 @@ pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError>
     let mut bag = BagWriter::create(&file, settings.qos_depth)?;
     let origin = recording.origin_unix_ns;
     let start_s = origin as f64 * 1e-9;
-    let every = settings.publish_every;
-    let (mut next_scene, mut next_stats) = (HostTime::ZERO, HostTime::ZERO);
+    let every = u64::try_from(settings.publish_every.as_nanos()).unwrap_or(u64::MAX);
+    let (mut last_scene, mut next_stats) = (None, HostTime::ZERO);
     let mut core = Core::new(rig, NoClock);
     for input in &recording.inputs {
         core.handle(input.at, input.input.as_input());
@@ -234,12 +237,12 @@ pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError>
             let scene = core.scene(at);
             bag.put("/odom", "nav_msgs/msg/Odometry", ns, &convert::odometry(&scene, stamp, &frames))?;
             bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &convert::transform(&scene, stamp, &frames))?;
-            if at >= next_scene {
+            if first_in_slot(last_scene, at.as_nanos(), every) {
                 let obstacles = convert::obstacles(&scene, &view, stamp, &frames);
                 bag.put(&format!("{fqn}/obstacles"), "visualization_msgs/msg/MarkerArray", ns, &obstacles)?;
                 let path = convert::path(&scene, &view, stamp, &frames);
                 bag.put(&format!("{fqn}/path"), "nav_msgs/msg/Path", ns, &path)?;
-                next_scene = at + every;
+                last_scene = Some(at.as_nanos());
             }
             if at >= next_stats {
                 let stats = Snapshot {

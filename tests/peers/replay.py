@@ -138,9 +138,12 @@ def read(path, telemetry, dbc_path):
     )
     # The controller's start among them, at INFO (a notice of the core's).
     check(any(l["level"] == "INFO" and l["message"].startswith("PSD controller streaming") for l in logs), "/log has the controller's start")
-    # The arena is drawn at most 10 times a second (every cycle when slower).
+    # The arena is drawn on the first cycle of each tenth of a second of host time (every
+    # cycle when slower): never twice in one.
     arena = [m[1] for m in messages.get("/arena", [])]
-    check(len(arena) > 0 and all(b - a >= 100_000_000 for a, b in zip(arena, arena[1:])), "/arena at most every 100 ms")
+    origin = messages["/cycle"][0][1] - cycles[0]["rx_ns"]
+    slots = [(t - origin) // 100_000_000 for t in arena]
+    check(len(arena) > 0 and all(a < b for a, b in zip(slots, slots[1:])), "/arena once in each 100 ms at most")
     check(len(arena) >= min(len(cycles), (cycles[-1]["rx_ns"] - cycles[0]["rx_ns"]) / 200e6), "/arena at least every 200 ms")
 
     # CAN: what went out and came in is exactly can.log's frames.

@@ -222,7 +222,7 @@ pub struct McapSink {
     inputs: u64,
     messages: u64,
     cycles: u64,
-    /// When `/arena` was last drawn (host ns): at most [`ARENA_EVERY_NS`] apart.
+    /// When `/arena` was last drawn (host ns): once in each [`ARENA_EVERY_NS`] of host time.
     arena_at: Option<u64>,
     /// When the still entities (lane walls, goal) were last drawn, and the goal drawn.
     still_at: Option<(u64, [f64; 2])>,
@@ -238,14 +238,22 @@ const COMPRESSION_LEVEL: u32 = 9;
 /// is killed later. Two seconds: a chunk twice as long compresses a few percent better.
 const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(2);
 
-/// The display channels (`/obstacles`, `/robot/pose`, `/arena`) are for the eye: 10 updates
-/// a second at most, the live view's frame rate (`/cycle` keeps every cycle, and a replay
+/// The display channels (`/obstacles`, `/robot/pose`, `/arena`) are for the eye: the first
+/// cycle of each tenth of a second of host time, the live view's frame rate (`/cycle` keeps every cycle, and a replay
 /// recomputes every cycle's estimates). At 20 they would be a sixth of the recording.
 pub const ARENA_EVERY_NS: u64 = 100_000_000;
 /// The still entities (lane walls, goal) are drawn again once a second, and when the goal
 /// moves: Foxglove keeps an entity until it is replaced, and a client that joins live or
 /// seeks in a recording has them within a second.
 pub const STILL_EVERY_NS: u64 = 1_000_000_000;
+
+/// Whether a cycle at `at` (host ns) is the first in its slot of `every` ns, `last` being the
+/// last one drawn. Slots of host time rather than `every` after the last: cadences whose
+/// periods divide each other pick the same cycles, so a bag exported at 20 Hz has a scene at
+/// each of the recording's 10 Hz ones.
+pub fn first_in_slot(last: Option<u64>, at: u64, every: u64) -> bool {
+    last.is_none_or(|last| at / every.max(1) > last / every.max(1))
+}
 
 impl std::fmt::Debug for McapSink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -607,7 +615,7 @@ impl McapSink {
         // For the eye, at a display's rate (`/cycle` has every cycle's position, and a
         // replay recomputes every cycle's estimates from the inputs).
         let at = s.at.as_nanos();
-        if self.arena_at.is_some_and(|last| at < last + ARENA_EVERY_NS) {
+        if !first_in_slot(self.arena_at, at, ARENA_EVERY_NS) {
             return Ok(());
         }
         self.arena_at = Some(at);
