@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{invalid, positive, GatewayConfig, Invalid};
 use crate::calibration::Calibration;
-use crate::planner::room::{PanelDensity, Panels, Room, RoomError, RoomShape};
+use crate::planner::room::{Panels, Room, RoomError, RoomShape};
 use crate::Point;
 
 /// A wall (a polyline) or a static obstacle (a polygon, closed by its last edge), in floor
@@ -41,14 +41,6 @@ pub struct RoomSection {
     /// (docs/planner.md, "What the tests assert") for more panels.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub corner_turn: f64,
-    /// How each panel's source density varies along it: `constant` or `linear` (continuous
-    /// round the boundary, with no spike in the flow at the panels' ends; docs/planner.md).
-    #[serde(default, skip_serializing_if = "is_constant")]
-    pub panel_density: PanelDensity,
-}
-
-fn is_constant(d: &PanelDensity) -> bool {
-    *d == PanelDensity::Constant
 }
 
 fn is_zero(x: &f64) -> bool {
@@ -62,7 +54,6 @@ impl Default for RoomSection {
             view_inset: default_view_inset(),
             panel_spacing: default_panel_spacing(),
             corner_turn: 0.0,
-            panel_density: PanelDensity::Constant,
         }
     }
 }
@@ -150,7 +141,6 @@ impl GatewayConfig {
         let panels = Panels {
             spacing: self.room.panel_spacing,
             corner_turn: (self.room.corner_turn > 0.0).then_some(self.room.corner_turn),
-            density: self.room.panel_density,
         };
         let Some(room) = solved(&shape, self.room_growth(), panels)? else { return Ok(None) };
         if let Some(g) = &self.goal {

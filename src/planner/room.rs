@@ -203,9 +203,6 @@ pub struct Panel {
     /// The boundary's normals at `a` and `b`: the mean of this panel's and its neighbour's
     /// there (which side of the boundary a point nearest a panel's end lies on).
     pub normal_at: [Point; 2],
-    /// The panel that starts where this one ends (the next round its loop): with linear
-    /// densities, the unknown at this panel's end is that panel's.
-    pub next: usize,
     /// Its midpoint and length, and beyond how far from the midpoint (squared) its point
     /// source stands for it: kept, as every evaluation needs them.
     mid: Point,
@@ -214,9 +211,9 @@ pub struct Panel {
 }
 
 impl Panel {
-    fn new(a: Point, b: Point, normal: Point, normal_at: [Point; 2], next: usize) -> Self {
+    fn new(a: Point, b: Point, normal: Point, normal_at: [Point; 2]) -> Self {
         let length = (b - a).norm();
-        Self { a, b, normal, normal_at, next, mid: (a + b) * 0.5, length, far_sqr: (FAR * length) * (FAR * length) }
+        Self { a, b, normal, normal_at, mid: (a + b) * 0.5, length, far_sqr: (FAR * length) * (FAR * length) }
     }
     pub fn mid(&self) -> Point {
         self.mid
@@ -239,28 +236,6 @@ impl Panel {
         }
         // 1/t = conj(t) for the unit direction t.
         ((z - self.a) / (z - self.b)).ln() * ((self.b - self.a).conj() / self.length)
-    }
-
-    /// The flows (`u - i v`) at `z` of a density falling linearly from 1 at `a` to 0 at `b`,
-    /// and of one rising from 0 at `a` to 1 at `b`. With `t` the unit direction, `L` the
-    /// length, `w = (z - a)/t` and `Λ = Log(w/(w - L))`: `∫ ds/(w - s) = Λ` and
-    /// `∫ (s/L) ds/(w - s) = wΛ/L - 1`, over `0..L`, each divided by `t`. Far away, the
-    /// point source and its dipole (`L²/12` of the density's slope), within 1e-6 like
-    /// the constant density's point source.
-    #[inline]
-    fn linear_flows(&self, z: Point) -> (Point, Point) {
-        let t_conj = (self.b - self.a).conj() / self.length;
-        let rel = z - self.mid;
-        let r2 = rel.norm_sqr();
-        if r2 > self.far_sqr {
-            let inv = rel.conj() / r2;
-            let (mono, dipole) = (0.5 * self.length * inv, (self.length * self.length / 12.0) * inv * inv * t_conj.conj());
-            return (mono - dipole, mono + dipole);
-        }
-        let lambda = ((z - self.a) / (z - self.b)).ln();
-        let w = (z - self.a) * t_conj;
-        let rising = w * lambda / self.length - 1.0;
-        ((lambda - rising) * t_conj, rising * t_conj)
     }
 }
 
@@ -309,12 +284,11 @@ fn boundary(regions: &Regions, shape: &RoomShape, grow: f64, panels: Panels) -> 
             (b - a) / (b - a).norm() * Point::new(0.0, -1.0)
         };
         let mean = |u: Point, v: Point| (u + v) / (u + v).norm();
-        let first = out.len();
         for k in 0..n {
             let (a, b) = (points[k], points[(k + 1) % n]);
             let here = normal(k);
             let normal_at = [mean(normal(k + n - 1), here), mean(here, normal(k + 1))];
-            out.push(Panel::new(a, b, here, normal_at, first + (k + 1) % n));
+            out.push(Panel::new(a, b, here, normal_at));
         }
     }
     out
@@ -332,7 +306,6 @@ pub struct Room {
     shape: RoomShape,
     grow: f64,
     panels: Vec<Panel>,
-    density: PanelDensity,
     /// `panels × panels`, row-major: densities = `solve · (normal flow to cancel)`.
     solve: Vec<f64>,
     /// The free region's parts, with each closed part's closure.
@@ -343,7 +316,7 @@ pub struct Room {
 /// (the rest follows from those).
 impl PartialEq for Room {
     fn eq(&self, other: &Self) -> bool {
-        self.shape == other.shape && self.grow == other.grow && self.panels == other.panels && self.density == other.density
+        self.shape == other.shape && self.grow == other.grow && self.panels == other.panels
     }
 }
 
@@ -351,7 +324,7 @@ impl Room {
     /// Solve `shape` grown by `grow` (the robot's radius), with panels of about `spacing`
     /// metres. `None` for an empty room (free space's own field is exact).
     pub fn new(shape: &RoomShape, grow: f64, spacing: f64) -> Result<Option<Self>, RoomError> {
-        Self::with_panels(shape, grow, Panels { spacing, corner_turn: None, density: PanelDensity::Constant })
+        Self::with_panels(shape, grow, Panels { spacing, corner_turn: None })
     }
 
     /// [`new`](Self::new), with the panels as `panels` says.
@@ -361,7 +334,6 @@ impl Room {
             return Ok(None);
         }
         let regions = Regions::new(shape, grow);
-        let density = panels.density;
         let panels = boundary(&regions, shape, grow, panels);
         if panels.len() > MAX_POINTS {
             return Err(RoomError::TooLarge { points: panels.len() });
@@ -372,14 +344,7 @@ impl Room {
             // Each midpoint a hair on the free side, where the panel's own flow is `-π`.
             let at = p.mid() - p.normal * (1e-9 * p.length());
             for (j, q) in panels.iter().enumerate() {
-                match density {
-                    PanelDensity::Constant => a[(i, j)] = (q.source_flow(at) * p.normal).re,
-                    PanelDensity::Linear => {
-                        let (falling, rising) = q.linear_flows(at);
-                        a[(i, j)] += (falling * p.normal).re;
-                        a[(i, q.next)] += (rising * p.normal).re;
-                    }
-                }
+                a[(i, j)] = (q.source_flow(at) * p.normal).re;
             }
         }
         let svd = a.svd(true, true);
@@ -389,7 +354,7 @@ impl Room {
             why: format!("the boundary's system has no inverse: {why}"),
         })?;
         let solve: Vec<f64> = (0..n).flat_map(|j| (0..n).map(move |i| (j, i))).map(|(j, i)| inverse[(j, i)]).collect();
-        let mut room = Self { shape: shape.clone(), grow, panels, density, solve, regions };
+        let mut room = Self { shape: shape.clone(), grow, panels, solve, regions };
         for k in 0..room.regions.parts.len() {
             let part = &room.regions.parts[k];
             if part.closed {
@@ -610,18 +575,8 @@ impl Room {
     /// The flow (`u - i v`) of the panels with these densities at `z`.
     fn panels_flow(&self, densities: &[f64], z: Point) -> Point {
         let mut f = Point::default();
-        match self.density {
-            PanelDensity::Constant => {
-                for (p, &q) in self.panels.iter().zip(densities) {
-                    f += p.source_flow(z) * q;
-                }
-            }
-            PanelDensity::Linear => {
-                for (p, &q) in self.panels.iter().zip(densities) {
-                    let (falling, rising) = p.linear_flows(z);
-                    f += falling * q + rising * densities[p.next];
-                }
-            }
+        for (p, &q) in self.panels.iter().zip(densities) {
+            f += p.source_flow(z) * q;
         }
         f
     }
@@ -965,13 +920,6 @@ mod tests {
         (false, z, "steps", 3000)
     }
 
-    fn density_under_test() -> PanelDensity {
-        match std::env::var("FLOWGATE_DENSITY").as_deref() {
-            Ok("linear") => PanelDensity::Linear,
-            _ => PanelDensity::Constant,
-        }
-    }
-
     /// From 10,000 random free points of 100 random furnished rooms, each reachable from its
     /// room's goal, the navigation field's streamline (the room's flow, kept off the
     /// boundary as the planner keeps it), held 2 mm off the boundary, reaches the goal from
@@ -982,7 +930,7 @@ mod tests {
     #[test]
     fn streamlines_from_random_points_of_random_rooms_reach_the_goal() {
         // The rooms' panels 2 cm, shorter in the free region's corners (`room.corner_turn`).
-        let panels = Panels { spacing: 0.02, corner_turn: Some(0.03), density: density_under_test() };
+        let panels = Panels { spacing: 0.02, corner_turn: Some(0.03) };
         // Each room drawn from its own seed, so that the rooms (each factorised once, the
         // bulk of the work) are built and traced on every core, alike whatever their number.
         let one_room = |k: u64| {
