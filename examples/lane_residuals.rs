@@ -19,7 +19,7 @@ fn sink(goal: C) -> Sink {
 fn build(aim: f64, h: f64, obstacles: &[PlanObstacle], goal: C) -> Field {
     let lane = Space::Lane { half_width: h };
     let mut field = Field::empty(lane, sink(goal));
-    field.set_lane_aim(aim);
+    field.set_lane_aim(aim).expect("main checked the aim");
     field.rebuild(lane, sink(goal), obstacles).expect("a valid geometry");
     field
 }
@@ -39,13 +39,23 @@ fn measure(aim: f64, h: f64, obstacles: &[PlanObstacle], goal: C) -> (f64, f64) 
     (residual, times[100])
 }
 
+fn refuse(why: &str) -> ! {
+    eprintln!("lane_residuals: {why}");
+    std::process::exit(2)
+}
+
 fn main() {
-    let aim = match std::env::args().nth(1) {
-        None => flowgate::planner::multipole::EXACT_AIM,
-        Some(a) => a.parse().unwrap_or_else(|_| panic!("AIM is a number (1e-10 to 1e-4), not {a}")),
-    };
-    println!("the series aim at {aim:e} (planner.lane_residual)");
     let goal = C::new(0.8, 0.0);
+    let aim = match std::env::args().nth(1).map(|a| (a.parse::<f64>(), a)) {
+        None => flowgate::planner::multipole::EXACT_AIM,
+        Some((Ok(aim), _)) => aim,
+        Some((Err(_), a)) => refuse(&format!("AIM is a number (1e-10 to 1e-4), not {a}")),
+    };
+    let lane = Space::Lane { half_width: 0.2 };
+    if let Err(why) = Field::empty(lane, sink(goal)).set_lane_aim(aim) {
+        refuse(&format!("AIM: {why}"));
+    }
+    println!("the series aim at {aim:e} (planner.lane_residual)");
     let one = |centre: C, radius: f64, velocity: C| [PlanObstacle { center: centre, velocity, radius }];
     println!("{:<58} {:>10} {:>10}", "geometry (h = 0.2 m unless given)", "residual", "build µs");
     let rows: [(&str, f64, Vec<PlanObstacle>); 7] = [

@@ -172,6 +172,8 @@ pub enum FieldError {
     GoalOutsideRoom,
     #[error("point lies {0:.3} m outside the room's free region")]
     OutsideRoom(f64),
+    #[error("the lane's aim {0:e} is outside {lo:e} to {hi:e}", lo = multipole::TIGHTEST_AIM, hi = multipole::LOOSEST_AIM)]
+    BadLaneAim(f64),
 }
 
 /// The field for one geometry: obstacles, images and goal fixed, evaluated at any point.
@@ -312,10 +314,15 @@ impl Field {
     }
 
     /// The lane series' aim from the next rebuild on: their truncation error relative to
-    /// the flow on each circle, from [`multipole::TIGHTEST_AIM`] to [`multipole::LOOSEST_AIM`]
-    /// (clamped), [`multipole::EXACT_AIM`] unless set. A looser aim fits fewer orders.
-    pub fn set_lane_aim(&mut self, aim: f64) {
-        self.lane_aim = aim.clamp(multipole::TIGHTEST_AIM, multipole::LOOSEST_AIM);
+    /// the flow on each circle, from [`multipole::TIGHTEST_AIM`] to [`multipole::LOOSEST_AIM`],
+    /// [`multipole::EXACT_AIM`] unless set. A looser aim fits fewer orders. An aim outside
+    /// that range (or NaN) is refused and the field keeps its aim.
+    pub fn set_lane_aim(&mut self, aim: f64) -> Result<(), FieldError> {
+        if !(multipole::TIGHTEST_AIM..=multipole::LOOSEST_AIM).contains(&aim) {
+            return Err(FieldError::BadLaneAim(aim));
+        }
+        self.lane_aim = aim;
+        Ok(())
     }
 
     /// Put the field in `room` (or in no room). The room's sink flow is solved for the goal

@@ -301,7 +301,7 @@ impl Planner {
         let mut planned = ArrayVec::new();
         let mut flags = self.plan_obstacles(input, &mut planned)?;
         field.set_room(self.room.as_ref());
-        field.set_lane_aim(self.config.lane_residual);
+        field.set_lane_aim(self.config.lane_residual)?;
         field.rebuild_clear_of(self.config.space, self.sink(input.goal), &planned, Some(input.position))?;
         flags.unclosed_at_a_wall = field.unclosed_at_a_wall();
         Ok(flags)

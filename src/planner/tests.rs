@@ -190,6 +190,12 @@ fn invalid_inputs_are_typed_errors() {
     assert_eq!(lane.eval(Point::new(0.0, 0.3)).unwrap_err(), FieldError::OutsideLane);
     let too_many = [o; MAX_OBSTACLES + 1];
     assert_eq!(Field::new(Space::Free, sink(goal), &too_many).unwrap_err(), FieldError::TooManyObstacles);
+    // A lane's aim out of range is refused, not clamped, and the field keeps its own.
+    let mut lane = Field::empty(Space::Lane { half_width: 0.2 }, sink(goal * 0.1));
+    assert_eq!(lane.set_lane_aim(1e-3).unwrap_err(), FieldError::BadLaneAim(1e-3));
+    assert!(matches!(lane.set_lane_aim(f64::NAN), Err(FieldError::BadLaneAim(a)) if a.is_nan()));
+    assert_eq!(FieldError::BadLaneAim(1e-3).to_string(), "the lane's aim 1e-3 is outside 1e-10 to 1e-4");
+    lane.set_lane_aim(1e-4).unwrap();
 }
 
 /// The worst normal-flow residual on obstacle `o`'s circle (its part inside the lane),
@@ -236,7 +242,7 @@ fn a_looser_lane_aim_holds_its_residual_with_fewer_orders() {
     for obs in lane_circles() {
         let (centre, radius, s) = (obs.center, obs.radius, lane_sink());
         let mut field = Field::empty(lane, s);
-        field.set_lane_aim(1e-4);
+        field.set_lane_aim(1e-4).unwrap();
         field.rebuild(lane, s, &[obs]).unwrap();
         let worst = worst_residual(&field, &obs);
         let exact = Field::new(lane, s, &[obs]).unwrap();
