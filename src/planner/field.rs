@@ -216,7 +216,7 @@ struct RoomField {
 /// A robot closer than this to the room's boundary (or beyond it, up to
 /// [`ROOM_TOLERANCE`]) is steered by the room's flow this far inside, along the boundary's
 /// normal: the panels' flow is not the field's beyond them.
-const ROOM_HOLD: f64 = 0.005;
+pub(crate) const ROOM_HOLD: f64 = 0.005;
 
 /// Within this distance of the room's boundary, the field loses its part that heads into
 /// the boundary, wholly on it, m ([`keep_off`]).
