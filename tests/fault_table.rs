@@ -208,7 +208,7 @@ fn table() -> Vec<Row> {
             "unintended repetition",
             "every packet sent twice from 2 s",
             &["serial_duplicate=1.0", "serial_repeat_during=[2.0, 3.0]"],
-            fault(R::PsdSequence, 76.5, 76.8, Cycle),
+            fault(R::PsdSequence { handshake: false }, 76.5, 76.8, Cycle),
         )
         .until(3.0),
         row(

@@ -212,7 +212,7 @@ impl Kind {
             (Kind::SerialCorruption | Kind::SerialDrops | Kind::SerialBursts, R::SerialGarbled { .. }) => true,
             // A jump is discarded and counted against the budget, which earlier discards may
             // have all but filled.
-            (Kind::SerialRepeats | Kind::SequenceJump, R::PsdSequence) => true,
+            (Kind::SerialRepeats | Kind::SequenceJump, R::PsdSequence { .. }) => true,
             (Kind::FrameJump, R::FrameCounterJump) => true,
             (Kind::SerialSilence, R::SamplesStopped) => true,
             (Kind::SampleDelay, R::SamplesStopped | R::PoseDelayed) => true,
@@ -251,7 +251,7 @@ impl Kind {
             // The board's command timeout, our commands not reaching it.
             (Kind::AdapterBusOff | Kind::BitrateMismatch, R::BoardFault { node }) => node1(node),
             // Samples lost inside the controller count against the sequence budget.
-            (Kind::ControllerOverrun, R::PsdSequence) => true,
+            (Kind::ControllerOverrun, R::PsdSequence { .. }) => true,
             // The adapter's controller off the bus: found by its flags, or by the
             // transmits it refuses meanwhile, or by the drives' answers that never come.
             (Kind::AdapterBusOff | Kind::BitrateMismatch, R::BusOff | R::CanTransmitRefused) => true,

@@ -140,7 +140,7 @@ impl<K: StageClock> Core<K> {
         }
         // A handshake's answer may be among them: the stream waits for it.
         if self.psd.in_handshake() && self.counters.psd_sequence_discards() > self.watch.discards_at_last_sample {
-            return StopReason::PsdSequence;
+            return StopReason::PsdSequence { handshake: true };
         }
         if self.psd.clock_waiting(now) {
             return StopReason::ClockUnsynced;
@@ -152,7 +152,7 @@ impl<K: StageClock> Core<K> {
     /// caller), and against the budget.
     fn sequence_error(&mut self, now: HostTime) {
         if self.links.sequence_errors.exceeded(now) {
-            self.stop_if_active(now, StopReason::PsdSequence);
+            self.stop_if_active(now, StopReason::PsdSequence { handshake: false });
         }
     }
 

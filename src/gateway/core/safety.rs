@@ -40,8 +40,12 @@ pub enum StopReason {
         bytes: u32,
         found: Garbled,
     },
-    /// Duplicated, replayed, reordered or far-jumped PSD packets beyond budget.
-    PsdSequence,
+    /// Duplicated, replayed, reordered or far-jumped PSD packets beyond budget; or, with
+    /// `handshake`, packets discarded for their sequence numbers while a handshake waited
+    /// for its answer and no sample came (its answer among them, maybe).
+    PsdSequence {
+        handshake: bool,
+    },
     /// Samples of an LED the schedule does not have in that slot beyond budget (the last
     /// one's LED named).
     UnscheduledLed {
@@ -164,7 +168,7 @@ impl StopReason {
         Self::PoseDelayed,
         Self::SamplesStopped,
         Self::SerialGarbled { frames: 0, bytes: 0, found: Garbled::NoSample },
-        Self::PsdSequence,
+        Self::PsdSequence { handshake: false },
         Self::UnscheduledLed { led: 0 },
         Self::FrameCounterJump,
         Self::ClockJumped,
@@ -253,7 +257,10 @@ impl StopReason {
             Self::PoseImplausible => "robot pose implausible (LED spacing or jump)",
             Self::PoseDelayed => "robot pose delayed beyond the pose timeout",
             Self::SamplesStopped => "no samples from the PSD controller",
-            Self::PsdSequence => "PSD packets out of sequence beyond budget",
+            Self::PsdSequence { handshake: false } => "PSD packets out of sequence beyond budget",
+            Self::PsdSequence { handshake: true } => {
+                "PSD packets discarded for their sequence numbers while the handshake waited for its answer"
+            }
             Self::FrameCounterJump => "PSD frame counter jumped beyond its window, beyond budget",
             Self::ClockJumped => "PSD controller's clock jumped (beyond the 1000 ppm drift bound)",
             Self::ControllerFault => "the PSD controller reports a fault",
@@ -517,7 +524,7 @@ mod tests {
                 | StopReason::PoseDelayed
                 | StopReason::SamplesStopped
                 | StopReason::SerialGarbled { .. }
-                | StopReason::PsdSequence
+                | StopReason::PsdSequence { .. }
                 | StopReason::UnscheduledLed { .. }
                 | StopReason::FrameCounterJump
                 | StopReason::ClockJumped

@@ -569,7 +569,12 @@ fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
     );
     c.psd_bytes(ms(31), &numbered(7, info));
     assert_eq!(c.counters().psd_sequence_discards(), 1);
-    assert_eq!(run_to_fault(&mut c, ms(500)), StopReason::PsdSequence);
+    let stop = run_to_fault(&mut c, ms(500));
+    assert_eq!(stop, StopReason::PsdSequence { handshake: true });
+    assert_eq!(
+        stop.to_string(),
+        "PSD packets discarded for their sequence numbers while the handshake waited for its answer"
+    );
 }
 
 /// A handshake whose time syncs were held (round trips beyond the bound) goes on late for
