@@ -983,8 +983,7 @@ impl PlannerSettings {
         if !(self.anticipation.is_finite() && (0.0..=30.0).contains(&self.anticipation)) {
             return invalid("planner.anticipation", format!("must be from 0 to 30 s, is {}", self.anticipation));
         }
-        let aims = crate::planner::multipole::TIGHTEST_AIM..=crate::planner::multipole::LOOSEST_AIM;
-        if !aims.contains(&self.lane_residual) {
+        if !crate::planner::multipole::aim_allowed(self.lane_residual) {
             return invalid(
                 "planner.lane_residual",
                 format!("must be from 1e-10 to 1e-4, is {:e}", self.lane_residual),

@@ -318,7 +318,7 @@ impl Field {
     /// [`multipole::EXACT_AIM`] unless set. A looser aim fits fewer orders. An aim outside
     /// that range (or NaN) is refused and the field keeps its aim.
     pub fn set_lane_aim(&mut self, aim: f64) -> Result<(), FieldError> {
-        if !(multipole::TIGHTEST_AIM..=multipole::LOOSEST_AIM).contains(&aim) {
+        if !multipole::aim_allowed(aim) {
             return Err(FieldError::BadLaneAim(aim));
         }
         self.lane_aim = aim;

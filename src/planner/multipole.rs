@@ -71,6 +71,12 @@ pub const EXACT_AIM: f64 = 1e-8;
 pub const LOOSEST_AIM: f64 = 1e-4;
 /// The tightest: rounding sets in below it.
 pub const TIGHTEST_AIM: f64 = 1e-10;
+
+/// Whether `aim` is one the fit can be set to, from [`TIGHTEST_AIM`] to [`LOOSEST_AIM`]
+/// (never NaN).
+pub fn aim_allowed(aim: f64) -> bool {
+    (TIGHTEST_AIM..=LOOSEST_AIM).contains(&aim)
+}
 const UNKNOWNS: usize = 2 * COMPLEX_ORDERS + 1;
 /// Rows of the fit: the collocation points and one Tikhonov row per unknown.
 const ROWS: usize = POINTS + UNKNOWNS;

@@ -195,6 +195,10 @@ fn invalid_inputs_are_typed_errors() {
     assert_eq!(lane.set_lane_aim(1e-3).unwrap_err(), FieldError::BadLaneAim(1e-3));
     assert!(matches!(lane.set_lane_aim(f64::NAN), Err(FieldError::BadLaneAim(a)) if a.is_nan()));
     assert_eq!(FieldError::BadLaneAim(1e-3).to_string(), "the lane's aim 1e-3 is outside 1e-10 to 1e-4");
+    let obs = [PlanObstacle { center: Point::new(-0.3, 0.0), velocity: Point::new(-0.05, 0.0), radius: 0.14 }];
+    lane.rebuild(Space::Lane { half_width: 0.2 }, sink(goal * 0.1), &obs).unwrap();
+    let exact = Field::new(Space::Lane { half_width: 0.2 }, sink(goal * 0.1), &obs).unwrap();
+    assert_eq!(lane.lane_orders(0), exact.lane_orders(0), "the refused aims left the exact one");
     lane.set_lane_aim(1e-4).unwrap();
 }
 
