@@ -575,6 +575,13 @@ fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
         stop.to_string(),
         "PSD packets discarded for their sequence numbers while the handshake waited for its answer"
     );
+    // Cleared without a restart: the operator's reset configures the controller again, and
+    // the robot arms again.
+    let t = c.next_deadline().max(ms(600));
+    c.request(t, &Request::Reset).unwrap();
+    answer(&mut c, t);
+    c.request(t, &Request::Arm).unwrap();
+    assert_eq!(c.state(), State::Armed);
 }
 
 /// A handshake whose time syncs were held (round trips beyond the bound) goes on late for
