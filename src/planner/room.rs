@@ -235,6 +235,31 @@ impl Panel {
         self.length
     }
 
+    /// The squared distance from `p` to the panel, and where along it (0 at `a`, 1 at `b`)
+    /// its nearest point lies.
+    fn nearest(&self, p: Point) -> (f64, f64) {
+        let ab = self.b - self.a;
+        let t = (((p - self.a) * ab.conj()).re / ab.norm_sqr()).clamp(0.0, 1.0);
+        ((p - (self.a + ab * t)).norm_sqr(), t)
+    }
+
+    /// The signed depth of `p` and the boundary's inward normal, for this panel nearest
+    /// `p` at squared distance `d` and parameter `t` ([`nearest`](Self::nearest)): signed
+    /// by the side of the panel (at an end, of the boundary's mean normal there).
+    fn depth_and_inward(&self, p: Point, d: f64, t: f64) -> (f64, Point) {
+        let normal = if t <= 0.0 {
+            self.normal_at[0]
+        } else if t >= 1.0 {
+            self.normal_at[1]
+        } else {
+            self.normal
+        };
+        let q = self.a + (self.b - self.a) * t;
+        let outward = ((p - q) * normal.conj()).re;
+        let depth = d.sqrt();
+        (if outward > 0.0 { -depth } else { depth }, -normal)
+    }
+
     /// The flow (`u - i v`) at `z` of a unit source density along the panel (each metre of
     /// it emitting what a unit point source does, `2π`): `(1/t) Log((z - a)/(z - b))`, `t`
     /// the panel's unit direction. Far from the panel (beyond `FAR` lengths) its point
@@ -424,16 +449,11 @@ impl Room {
     /// the boundary's mean normal there), which is exact for a point nearest one panel and
     /// needs no winding count.
     pub fn depth_and_inward(&self, p: Point) -> (f64, Point) {
-        let nearest = |panel: &Panel| {
-            let ab = panel.b - panel.a;
-            let t = (((p - panel.a) * ab.conj()).re / ab.norm_sqr()).clamp(0.0, 1.0);
-            ((p - (panel.a + ab * t)).norm_sqr(), t)
-        };
         // A bound on the distance first, from a sixteenth of the panels: the pass over them
         // all then skips any whose midpoint lies too far for it to come nearer (a panel is
         // no nearer than its midpoint less half its length), and finds the same panel as a
         // pass without skipping, the first of equals. The slack covers rounding.
-        let bound = self.panels.iter().step_by(16).map(|q| nearest(q).0).fold(f64::INFINITY, f64::min);
+        let bound = self.panels.iter().step_by(16).map(|q| q.nearest(p).0).fold(f64::INFINITY, f64::min);
         let reach = bound.sqrt() * (1.0 + 1e-9) + 1e-12;
         let mut best = (f64::INFINITY, 0usize, 0.5);
         for (k, panel) in self.panels.iter().enumerate() {
@@ -441,24 +461,15 @@ impl Room {
             if (p - panel.mid).norm_sqr() > far * far {
                 continue;
             }
-            let (d, t) = nearest(panel);
+            let (d, t) = panel.nearest(p);
             if d < best.0 {
                 best = (d, k, t);
             }
         }
-        let Some(panel) = self.panels.get(best.1) else { return (f64::INFINITY, Point::default()) };
-        let t = best.2;
-        let normal = if t <= 0.0 {
-            panel.normal_at[0]
-        } else if t >= 1.0 {
-            panel.normal_at[1]
-        } else {
-            panel.normal
-        };
-        let q = panel.a + (panel.b - panel.a) * t;
-        let outward = ((p - q) * normal.conj()).re;
-        let depth = best.0.sqrt();
-        (if outward > 0.0 { -depth } else { depth }, -normal)
+        match self.panels.get(best.1) {
+            Some(panel) => panel.depth_and_inward(p, best.0, best.2),
+            None => (f64::INFINITY, Point::default()),
+        }
     }
 
     /// The lines that touch the room's parts nearest `p`, each with the part on its far
@@ -884,14 +895,12 @@ mod tests {
         let every = |room: &Room, z: Point| {
             let mut best = (f64::INFINITY, 0usize, 0.5);
             for (k, panel) in room.panels.iter().enumerate() {
-                let ab = panel.b - panel.a;
-                let t = (((z - panel.a) * ab.conj()).re / ab.norm_sqr()).clamp(0.0, 1.0);
-                let d = (z - (panel.a + ab * t)).norm_sqr();
+                let (d, t) = panel.nearest(z);
                 if d < best.0 {
                     best = (d, k, t);
                 }
             }
-            best
+            room.panels[best.1].depth_and_inward(z, best.0, best.2)
         };
         let mut rng = Random(7);
         for _ in 0..4 {
@@ -899,19 +908,9 @@ mod tests {
             let on = room.panels.iter().flat_map(|q| [q.a, q.b, q.mid]);
             let points: Vec<Point> = on.chain((0..2000).map(|_| rng.point(1.1))).collect();
             for z in points {
-                let (d, k, t) = every(&room, z);
-                let panel = &room.panels[k];
-                let normal = if t <= 0.0 {
-                    panel.normal_at[0]
-                } else if t >= 1.0 {
-                    panel.normal_at[1]
-                } else {
-                    panel.normal
-                };
-                let outward = ((z - (panel.a + (panel.b - panel.a) * t)) * normal.conj()).re;
-                let depth = if outward > 0.0 { -d.sqrt() } else { d.sqrt() };
+                let (depth, normal) = every(&room, z);
                 let (got, inward) = room.depth_and_inward(z);
-                assert_eq!((got.to_bits(), inward), (depth.to_bits(), -normal), "at {z}");
+                assert_eq!((got.to_bits(), inward), (depth.to_bits(), normal), "at {z}");
             }
         }
     }
