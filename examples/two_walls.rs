@@ -21,7 +21,7 @@ fn main() {
     let y = 0.2 + lane.robot.radius + lane.rig().config.planner.clearance;
     let walls = format!(
         "[[walls]]\npoints = [[{a}, {y}], [{l}, {y}]]\n[[walls]]\npoints = [[{a}, -{y}], [{l}, -{y}]]\n\
-         [room]\nview_boundary = false\n",
+         [room]\nview_boundary = false\nwalls_as_lane = false\n",
         a = -l
     );
     let room = match Scenario::from_toml(&e2.replace("[lane]\nhalf_width = 0.2\n", &walls), "E2 between two walls") {

@@ -128,14 +128,14 @@ fn head_on_deadlock_is_broken_by_the_tie_break() {
     assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
     // And with the defaults, supervised (the view's edge a boundary, evasion on): evasion
     // backs away before the slow obstacle rather than slip past it, and the robot reaches
-    // the goal only once it has gone round, at 28.7 s against 10.2 s without evasion
+    // the goal only once it has gone round, at 29.3 s against 10.2 s without evasion
     // (docs/supervisor.md, "Evasion").
     (s.planner.uncertainty_sigmas, s.planner.clearance, s.supervised) = (defaults.0, defaults.1, true);
     (s.room.view_boundary, s.time_limit) = (None, 60.0);
     let broken = planner_only::run(&s, false).summary;
     assert_eq!(broken.outcome, Outcome::Goal, "{broken:?}");
     assert!(broken.first_contact.is_none());
-    assert!((broken.end_time - 28.7).abs() < 0.05, "{broken:?}");
+    assert!((broken.end_time - 29.29).abs() < 0.05, "{broken:?}");
     s.planner.evasion = Some(false);
     let unevaded = planner_only::run(&s, false).summary;
     assert!(unevaded.outcome == Outcome::Goal && (unevaded.end_time - 10.2).abs() < 0.05, "{unevaded:?}");
@@ -361,12 +361,12 @@ fn a_crossing_crowd_is_evaded() {
         sweep::sweep(&s, 1000, 1, 2, mode)
     };
     for (name, mode, goal, passive) in [
-        ("circle-crossing-5.toml", Mode::PlannerOnly, 0.995, 0.001),
-        ("circle-crossing-5.toml", Mode::FullStack, 0.991, 0.0),
+        ("circle-crossing-5.toml", Mode::PlannerOnly, 0.996, 0.001),
+        ("circle-crossing-5.toml", Mode::FullStack, 0.989, 0.0),
         ("circle-crossing-1.toml", Mode::PlannerOnly, 1.0, 0.0),
         ("circle-crossing-1.toml", Mode::FullStack, 0.999, 0.0),
         ("circle-crossing-5-walk-on.toml", Mode::PlannerOnly, 0.996, 0.003),
-        ("circle-crossing-5-walk-on.toml", Mode::FullStack, 0.998, 0.001),
+        ("circle-crossing-5-walk-on.toml", Mode::FullStack, 0.997, 0.002),
     ] {
         let r = run(name, mode);
         let target = if name.contains("-5.") { 0.95 } else { 0.99 };

@@ -1089,8 +1089,12 @@ impl GatewayConfig {
         self.robot.validate(&self.drive)?;
         self.validate_goal(&calibration)?;
         self.planner.validate()?;
-        self.validate_lane()?;
-        let room = self.room(&calibration)?;
+        // Two walls that make a lane are the lane, in what follows.
+        let lane_walls =
+            self.walls_lane(&calibration).map(|lane| Self { lane: Some(lane), walls: Vec::new(), ..self.clone() });
+        let this = lane_walls.as_ref().unwrap_or(self);
+        this.validate_lane()?;
+        let room = this.room(&calibration)?;
         self.operator.validate()?;
         self.safety.validate(sample_period, self.drive.command_timeout_ms)?;
         self.telemetry.validate()?;
@@ -1098,7 +1102,7 @@ impl GatewayConfig {
         if let Some(r) = &self.ros2 {
             r.validate()?;
         }
-        let control = self.control_config(sample_period, &calibration, room);
+        let control = this.control_config(sample_period, &calibration, room);
         let board = self.drive.board_settings(control.drive.pulses_per_metre())?;
         let motors = match (self.can.protocol, &self.cia402) {
             (MotorProtocolName::Pcl80k, None) => Motors::Pcl80k,

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{invalid, positive, GatewayConfig, Invalid};
 use crate::calibration::Calibration;
-use crate::planner::room::{Panels, Room, RoomError, RoomShape};
+use crate::planner::room::{FarField, Panels, Room, RoomError, RoomShape};
 use crate::Point;
 
 /// A wall (a polyline) or a static obstacle (a polygon, closed by its last edge), in floor
@@ -41,6 +41,28 @@ pub struct RoomSection {
     /// (docs/planner.md, "What the tests assert") for more panels.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub corner_turn: f64,
+    /// How a panel's flow is taken far from it: `"series"` (beyond 8 panel lengths, the
+    /// log's series, within 3.05e-6 of it) or `"exact"` (the log everywhere, a third dearer
+    /// a command; the reference the series is judged against, docs/planner.md).
+    #[serde(default, skip_serializing_if = "is_series")]
+    pub far_field: FarField,
+    /// Two straight walls along the floor's x axis, at `y = ±w` and reaching across the
+    /// whole calibrated view, with nothing else in the room, are the paper's lane: its exact
+    /// field, the walls taken as without end (the lane of half-width `w` less the robot's
+    /// radius and `planner.clearance`). false: solved as the finite walls they are.
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    pub walls_as_lane: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+fn is_true(b: &bool) -> bool {
+    *b
+}
+
+fn is_series(f: &FarField) -> bool {
+    *f == FarField::Series
 }
 
 fn is_zero(x: &f64) -> bool {
@@ -54,6 +76,8 @@ impl Default for RoomSection {
             view_inset: default_view_inset(),
             panel_spacing: default_panel_spacing(),
             corner_turn: 0.0,
+            far_field: FarField::Series,
+            walls_as_lane: true,
         }
     }
 }
@@ -128,6 +152,28 @@ impl GatewayConfig {
         Ok(shape)
     }
 
+    /// The lane two walls make (`room.walls_as_lane`): each straight along the x axis, at
+    /// `y = ±w` to a micrometre, both reaching across the calibrated view, with no `[lane]`,
+    /// static obstacle or view boundary asked for. Its half-width bounds the robot's centre,
+    /// as a `[lane]`'s does: `w` less the growth.
+    pub fn walls_lane(&self, calibration: &Calibration) -> Option<super::LaneSection> {
+        const SAME: f64 = 1e-6;
+        let r = &self.room;
+        if !r.walls_as_lane || self.lane.is_some() || !self.static_obstacles.is_empty() || r.view_boundary == Some(true)
+        {
+            return None;
+        }
+        let [x0, x1, _, _] = calibration.inner_rect()?;
+        let straight = |w: &PointsSection| match w.points[..] {
+            [[xa, ya], [xb, yb]] if (ya - yb).abs() <= SAME && xa.min(xb) <= x0 && xa.max(xb) >= x1 => Some(ya),
+            _ => None,
+        };
+        let [a, b] = &self.walls[..] else { return None };
+        let (ya, yb) = (straight(a)?, straight(b)?);
+        let half_width = 0.5 * (ya - yb).abs() - self.room_growth();
+        ((ya + yb).abs() <= SAME && half_width > 0.0).then_some(super::LaneSection { half_width })
+    }
+
     /// How far walls and static obstacles are grown for the robot's centre: its radius and
     /// the supervisor's room (`planner.clearance`), m.
     pub fn room_growth(&self) -> f64 {
@@ -141,6 +187,7 @@ impl GatewayConfig {
         let panels = Panels {
             spacing: self.room.panel_spacing,
             corner_turn: (self.room.corner_turn > 0.0).then_some(self.room.corner_turn),
+            far_field: self.room.far_field,
         };
         let Some(room) = solved(&shape, self.room_growth(), panels)? else { return Ok(None) };
         if let Some(g) = &self.goal {
