@@ -255,7 +255,8 @@ fn the_kubernetes_job_runs_one_shard_per_index() {
 }
 
 /// `--compare KEY=VALUE` runs the same episodes twice. E2's lane at the default residual
-/// (`planner.lane_residual = 1e-4`) and at 1e-8 has the same outcomes in distribution;
+/// (`planner.lane_residual = 1e-4`) and at 1e-8 has the same outcomes in distribution, as
+/// has a room's far field from its series and from its log (`room.far_field`);
 /// planning circles grown by 5 cm (`planner.clearance`) keep every rate but move every
 /// minimum clearance, and the command fails, naming the setting.
 #[test]
@@ -281,6 +282,14 @@ fn a_compared_setting_is_judged_by_its_outcomes_in_distribution() {
     assert!(json["clearance"]["p_value"].as_f64().unwrap() >= 0.01, "{json}");
     assert_eq!(json["clearance"]["before"], 100);
 
+    // The room's far panels from their series (the default) and from their log: the same
+    // (docs/simulation.md has the 10,000-episode sweeps of every scenario).
+    let dir = temp_dir("compare-far-field");
+    let (out, json) = compare("100", "room.far_field=\"exact\"", "scenarios/rooms/table-and-crowd.toml", &dir);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("the same in distribution: yes"), "{text}");
+    assert!(json["clearance"]["p_value"].as_f64().unwrap() >= 0.01, "{json}");
+
     let dir = temp_dir("compare-clearance");
     let (out, json) = compare("50", "planner.clearance=0.05", E1, &dir);
     let err = String::from_utf8_lossy(&out.stderr);
@@ -297,4 +306,11 @@ fn a_compared_setting_is_judged_by_its_outcomes_in_distribution() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("planner.lane_residual"), "{err}");
+    let out = flowgate()
+        .args(["plan", "--planner-only", "--sweep", "5", "--compare", "room.far_field=\"fast\""])
+        .arg(root.join(E1))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("unknown variant `fast`") && err.contains("far_field"), "{err}");
 }
