@@ -205,8 +205,8 @@ fn two_parallel_walls_tend_to_the_exact_lane_as_they_lengthen() {
 
 /// Two straight walls along x at `y = ±w`, across the whole view, are the paper's lane
 /// (`room.walls_as_lane`): E2 between them ends as E2 in its `[lane]`, its path within a
-/// millimetre of the lane's, planner-only and through the whole stack. Walls that stop
-/// inside the view, or a lane asked to be solved as walls, are a room.
+/// millimetre of the lane's, planner-only and through the whole stack; the drawings show the
+/// walls. Walls that stop inside the view, or a lane asked to be solved as walls, are a room.
 #[test]
 fn two_walls_across_the_view_are_the_lane() {
     let e2 =
@@ -221,6 +221,9 @@ fn two_walls_across_the_view_are_the_lane() {
     };
     let across = walls(-3.0);
     assert!(across.rig().control.room.is_none(), "the lane's exact field, no panels");
+    let drawn = across.rig().room_outline().expect("the walls are drawn");
+    assert_eq!((drawn.walls.len(), drawn.obstacles.len(), drawn.view.is_none()), (2, 0, true));
+    assert!(lane.rig().room_outline().is_none());
     assert!(walls(-0.6).rig().control.room.is_some(), "walls that stop inside the view are a room");
     let own =
         e2.replace("[lane]\nhalf_width = 0.2\n", "").replace("[planner]", "[room]\nwalls_as_lane = false\n[planner]");

@@ -1396,6 +1396,27 @@ pub struct Rig {
     pub config: GatewayConfig,
 }
 
+impl Rig {
+    /// The room as the drawings show it: the solved room's walls, static obstacles and
+    /// view's edge, or the two walls a lane was made from (`room.walls_as_lane`).
+    pub fn room_outline(&self) -> Option<crate::planner::room::RoomShape> {
+        let walls = || crate::planner::room::RoomShape {
+            walls: self
+                .config
+                .walls
+                .iter()
+                .map(|w| w.points.iter().map(|&[x, y]| Point::new(x, y)).collect())
+                .collect(),
+            obstacles: Vec::new(),
+            view: None,
+        };
+        match &self.control.room {
+            Some(room) => Some(room.shape().clone()),
+            None => (!self.config.walls.is_empty()).then(walls),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

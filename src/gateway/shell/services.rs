@@ -186,7 +186,7 @@ fn start_telemetry(
             let setup = RecordingSetup {
                 config_toml: rig.config.to_toml(),
                 lane_half_width: lane_half_width(rig),
-                room: rig.control.room.as_ref().map(|r| r.shape().clone()),
+                room: rig.room_outline(),
                 robot_radius: rig.control.robot_radius,
                 origin_unix_ns,
                 compression: rig.telemetry.record_compression,

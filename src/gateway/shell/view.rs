@@ -29,7 +29,7 @@ use super::http::{self, Asked};
 use super::metrics;
 use crate::gateway::core::scene::SceneRecord;
 use crate::gateway::core::State;
-use crate::planner::room::{OutlineKind, Room};
+use crate::planner::room::{OutlineKind, Room, RoomShape};
 use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
 use crate::time::HostTime;
 
@@ -70,8 +70,10 @@ pub struct ViewSetup {
     pub planner: PlannerConfig,
     pub robot_radius: f64,
     pub lane_half_width: Option<f64>,
-    /// The room the planner keeps to, if any: drawn, and its field streamed.
+    /// The room the planner keeps to, if any: its field streamed.
     pub room: Option<Arc<Room>>,
+    /// The room as drawn ([`Rig::room_outline`](crate::config::Rig::room_outline)).
+    pub outline: Option<RoomShape>,
 }
 
 impl ViewSetup {
@@ -82,6 +84,7 @@ impl ViewSetup {
             robot_radius: rig.control.robot_radius,
             lane_half_width: lane_half_width(rig),
             room: rig.control.room.clone(),
+            outline: rig.room_outline(),
         }
     }
 }
@@ -309,9 +312,8 @@ fn frame_json(
 
 /// The room's items as the page draws them: `[{kind, closed, points}]`, walls first.
 fn room_json(setup: &ViewSetup) -> serde_json::Value {
-    let Some(room) = &setup.room else { return json!([]) };
-    let items: Vec<_> = room
-        .shape()
+    let Some(outline) = &setup.outline else { return json!([]) };
+    let items: Vec<_> = outline
         .outlines()
         .map(|(kind, points)| {
             let points: Vec<[f64; 2]> = points.iter().map(|p| [round(p.re), round(p.im)]).collect();
@@ -341,8 +343,8 @@ fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, path: &[[f64; 2]]) -> (Poi
     if let Some(h) = setup.lane_half_width {
         grow(Point::new(robot.re, 0.0), h);
     }
-    if let Some(room) = &setup.room {
-        for (_, points) in room.shape().outlines().filter(|(kind, _)| *kind != OutlineKind::View) {
+    if let Some(outline) = &setup.outline {
+        for (_, points) in outline.outlines().filter(|(kind, _)| *kind != OutlineKind::View) {
             for &p in points {
                 grow(p, 0.0);
             }
@@ -479,7 +481,7 @@ mod tests {
             anticipation: 0.0,
             lane_residual: crate::planner::multipole::EXACT_AIM,
         };
-        ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3), room: None }
+        ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3), room: None, outline: None }
     }
 
     #[test]
@@ -523,7 +525,6 @@ mod tests {
     /// enters the table grown by the robot's radius.
     #[test]
     fn a_frame_in_a_room_draws_it_and_streams_around_it() {
-        use crate::planner::room::RoomShape;
         let square = |c: Point, h: f64| {
             vec![c + Point::new(-h, -h), c + Point::new(h, -h), c + Point::new(h, h), c + Point::new(-h, h)]
         };
@@ -535,6 +536,7 @@ mod tests {
         let room = Room::new(&shape, 0.05, 0.03).unwrap().unwrap();
         let setup = ViewSetup {
             planner: PlannerConfig { space: Space::Free, ..setup().planner },
+            outline: Some(room.shape().clone()),
             room: Some(Arc::new(room)),
             lane_half_width: None,
             ..setup()

@@ -99,8 +99,8 @@ pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frame
             ..Marker::default()
         });
     }
-    if let Some(room) = &setup.room {
-        for (k, (kind, points)) in room.shape().outlines().enumerate() {
+    if let Some(outline) = &setup.outline {
+        for (k, (kind, points)) in outline.outlines().enumerate() {
             let (ns, color) = match kind {
                 OutlineKind::Wall => ("wall", rgba(0.2, 0.2, 0.2, 1.0)),
                 OutlineKind::StaticObstacle => ("static_obstacle", rgba(0.4, 0.3, 0.2, 1.0)),
