@@ -42,8 +42,8 @@ pub struct RoomSection {
     #[serde(default, skip_serializing_if = "is_zero")]
     pub corner_turn: f64,
     /// How a panel's flow is taken far from it: `"series"` (beyond 8 panel lengths, the
-    /// log's series, within 3.05e-6 of it) or `"exact"` (the log everywhere, a third dearer
-    /// a command; the reference the series is judged against, docs/planner.md).
+    /// log's series, within 3.05e-6 of it) or `"exact"` (the log everywhere: dearer a
+    /// command; the reference the series is judged against, docs/planner.md).
     #[serde(default, skip_serializing_if = "is_series")]
     pub far_field: FarField,
     /// Two straight walls along the floor's x axis, at `y = ±w` and reaching across the

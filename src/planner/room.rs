@@ -200,7 +200,7 @@ pub struct Panels {
 #[serde(rename_all = "lowercase")]
 pub enum FarField {
     /// Beyond `FAR` panel lengths, the log's series about the panel's midpoint to its second
-    /// term: within 3.05e-6 of the log, and about a third cheaper a command.
+    /// term: within 3.05e-6 of the log, and cheaper: a log only for the panels near.
     #[default]
     Series,
     /// The log at every distance: the reference the series is judged against.
