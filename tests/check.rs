@@ -258,6 +258,18 @@ async fn a_goal_walled_off_from_the_robot_fails() {
     );
 }
 
+/// In a lane (here two walls that make one) the robot must stand inside it: E1's robot, 6 cm
+/// off the centre line, is outside a lane of half-width 5.5 cm that holds the goal.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_robot_outside_the_lane_fails() {
+    let (handle, mut cfg) = sim(&[]).await;
+    let y = 0.055 + cfg.robot.radius + cfg.planner.clearance;
+    cfg.walls = [y, -y].map(|y| flowgate::config::PointsSection { points: vec![[-3.0, y], [3.0, y]] }).to_vec();
+    let out = check("narrow-lane", &cfg);
+    handle.stop().await;
+    out.fails_only("goal reachable", &["goal.position", "the robot at (-0.35", "is outside the lane (|y| >= 0.055"]);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn duplicates_on_the_line_are_a_warning() {
     let (handle, cfg) = sim(&["serial_duplicate=0.05"]).await;

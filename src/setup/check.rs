@@ -393,6 +393,18 @@ fn check_goal(rig: &Rig, robot: Option<Point>, report: &mut Report) {
         return;
     };
     let from = format!("({:.3}, {:.3})", robot.re, robot.im);
+    if let crate::planner::Space::Lane { half_width } = rig.control.planner.space {
+        // The goal is inside the lane (the config says so); the robot must be too.
+        if robot.im.abs() >= half_width {
+            let why = format!(
+                "the robot at {from} is outside the lane (|y| >= {half_width:.3} m): the field cannot take it along"
+            );
+            report.fail(GOAL, "goal.position", why);
+        } else {
+            report.pass(GOAL, "goal.position", format!("{:?} along the lane from the robot at {from}", goal.position));
+        }
+        return;
+    }
     let Some(room) = &rig.control.room else {
         report.pass(
             GOAL,
