@@ -314,3 +314,45 @@ fn a_compared_setting_is_judged_by_its_outcomes_in_distribution() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("unknown variant `fast`") && err.contains("far_field"), "{err}");
 }
+
+/// `--sweep N --episode K` runs episode K of the sweep alone and ends as it did in the
+/// sweep: its outcome, and its time and minimum clearance to a nanosecond and a nanometre
+/// (the single run sums them from its records), planner-only and through the whole
+/// stack, with a single run's outputs; an episode beyond the sweep is refused.
+#[test]
+fn one_episode_of_a_sweep_runs_alone_as_in_the_sweep() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scenario = root.join("scenarios/e5-moving-and-standing.toml");
+    for (mode, n, picks) in [("--planner-only", "12", [0u64, 7, 11]), ("--full-stack", "3", [0, 2, 2])] {
+        let mode_args: &[&str] = if mode == "--planner-only" { &[mode] } else { &[] };
+        let dir = temp_dir(&format!("episode-sweep{mode}"));
+        let ok = flowgate().args(["plan", "--sweep", n, "--out"]).arg(&dir).args(mode_args).arg(&scenario).status();
+        assert!(ok.unwrap().success());
+        let (_, episodes) = sweep::episodes_file::read(&dir.join(sweep::EPISODES_FILE)).unwrap();
+        for k in picks {
+            let one = temp_dir(&format!("episode-{k}{mode}"));
+            let out = flowgate()
+                .args(["plan", "--sweep", n, "--episode", &k.to_string(), "--out"])
+                .arg(&one)
+                .args(mode_args)
+                .arg(&scenario)
+                .output()
+                .unwrap();
+            let text = String::from_utf8_lossy(&out.stdout);
+            assert!(out.status.success() && text.contains(&format!("episode {k} of the sweep of {n}")), "{text}");
+            let summary: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(one.join("summary.json")).unwrap()).unwrap();
+            let e = &episodes[k as usize];
+            assert_eq!(summary["outcome"], e.outcome.to_string(), "{mode} episode {k}");
+            let end = summary["end_time"].as_f64().unwrap();
+            assert!((end - e.duration).abs() < 1e-9, "{mode} episode {k}: {end} against {}", e.duration);
+            let clearance = summary["min_obstacle_clearance"].as_f64().unwrap();
+            assert!((clearance - e.min_clearance.unwrap()).abs() < 1e-9, "{mode} episode {k}");
+            let _ = std::fs::remove_dir_all(&one);
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let out = flowgate().args(["plan", "--sweep", "3", "--episode", "3"]).arg(&scenario).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--episode 3: the sweep has episodes 0 to 2"), "{err}");
+}

@@ -44,9 +44,11 @@ pub struct PlanArgs {
     /// resetting, arming and starting after each stop, every episode judged by invariants.
     #[arg(long, value_name = "N", conflicts_with_all = ["all", "sweep", "planner_only"])]
     swarm: Option<u64>,
-    /// Replay one episode of the swarm alone, keeping its cycles.csv, can.log and truth in
-    /// --out (the command a broken invariant prints).
-    #[arg(long, value_name = "K", requires = "swarm", conflicts_with = "shard")]
+    /// Run one episode of the swarm or the sweep alone, keeping its outputs in --out: for the
+    /// swarm its cycles.csv, can.log and truth (the command a broken invariant prints), for
+    /// the sweep what a single run writes (summary.json, the plots, and through the whole
+    /// stack cycles.csv and can.log).
+    #[arg(long, value_name = "K", conflicts_with_all = ["shard", "compare"])]
     episode: Option<u64>,
     /// Merge sweep shards (each DIR holding a shard.json and its episodes.parquet) into one
     /// sweep: sweep.json and episodes.parquet in --out.
@@ -85,6 +87,9 @@ pub fn run(args: PlanArgs) -> Result<()> {
     if args.shard.is_some() && args.sweep.is_none() && args.swarm.is_none() {
         bail!("--shard splits a --sweep or a --swarm");
     }
+    if args.episode.is_some() && args.sweep.is_none() && args.swarm.is_none() {
+        bail!("--episode picks one episode of a --sweep or a --swarm");
+    }
     if let Some(n) = args.sweep {
         return sweep_command(&args, file, &scenario, n, &out, mode);
     }
@@ -111,6 +116,9 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
     if let Some(setting) = &args.compare {
         return compare_command(args, file, scenario, n, setting, out, mode);
     }
+    if let Some(k) = args.episode {
+        return sweep_episode(args.seed, scenario, n as u64, k, out, mode);
+    }
     let started = std::time::Instant::now();
     let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -131,6 +139,22 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
     } else {
         write_sweep(out, &manifest, &episodes, &report)?;
     }
+    Ok(())
+}
+
+/// `--sweep N --episode K`: episode K of the sweep alone, as a single run (its outcome, and
+/// through the whole stack the state it ended in), with a single run's outputs.
+fn sweep_episode(seed: u64, scenario: &Scenario, n: u64, k: u64, out: &Path, mode: Mode) -> Result<()> {
+    if k >= n {
+        bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1);
+    }
+    let s = sweep::perturb(scenario, seed, k);
+    let run = one(&s, mode, Some(out))?;
+    say!("episode {k} of the sweep of {n} around {} (seed {seed}, {mode}):", scenario.name);
+    say!("{}", plots::one_line(&run));
+    write_outputs(&s, &run, out)?;
+    let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
+    say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
     Ok(())
 }
 
