@@ -17,8 +17,21 @@ use flowgate::planner::{PlanInput, Planner};
 use flowgate::track::Estimate;
 use flowgate::Point;
 
+fn scenario_text(path: &str) -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(path)).unwrap()
+}
+
 fn aisle_text() -> String {
-    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms/warehouse-aisle.toml")).unwrap()
+    scenario_text("scenarios/rooms/warehouse-aisle.toml")
+}
+
+/// E2's text, its lane as the scenario gives it, and the walls' faces at `±y` that bound
+/// the robot's centre where the lane's lines are, once grown by the robot and clearance.
+fn e2_lane() -> (String, Scenario, f64) {
+    let e2 = scenario_text("scenarios/e2-lane-head-on.toml");
+    let lane = Scenario::from_toml(&e2, "lane").unwrap();
+    let y = 0.2 + lane.robot.radius + lane.rig().config.planner.clearance;
+    (e2, lane, y)
 }
 
 fn refused(text: &str) -> String {
@@ -166,11 +179,7 @@ fn the_operator_goal_beyond_the_walls_is_refused_as_out_of_reach() {
 /// walls without end, reached at that first-order rate.
 #[test]
 fn two_parallel_walls_tend_to_the_exact_lane_as_they_lengthen() {
-    let e2 =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e2-lane-head-on.toml")).unwrap();
-    let lane = Scenario::from_toml(&e2, "lane").unwrap();
-    // The walls' faces where the lane's lines are, once grown by the robot and clearance.
-    let y = 0.2 + lane.robot.radius + lane.rig().config.planner.clearance;
+    let (e2, lane, y) = e2_lane();
     let field = |s: &Scenario| {
         let c = s.rig().control;
         let input =
@@ -209,10 +218,7 @@ fn two_parallel_walls_tend_to_the_exact_lane_as_they_lengthen() {
 /// walls. Walls that stop inside the view, or a lane asked to be solved as walls, are a room.
 #[test]
 fn two_walls_across_the_view_are_the_lane() {
-    let e2 =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e2-lane-head-on.toml")).unwrap();
-    let lane = Scenario::from_toml(&e2, "lane").unwrap();
-    let y = 0.2 + lane.robot.radius + lane.rig().config.planner.clearance;
+    let (e2, lane, y) = e2_lane();
     let walls = |from: f64| {
         let walls = format!(
             "[[walls]]\npoints = [[{from}, {y}], [3.0, {y}]]\n[[walls]]\npoints = [[3.0, -{y}], [{from}, -{y}]]\n"
