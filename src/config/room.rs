@@ -41,10 +41,12 @@ pub struct RoomSection {
     /// (docs/planner.md, "What the tests assert") for more panels.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub corner_turn: f64,
-    /// How a panel's flow is taken far from it: `"series"` (beyond 8 panel lengths, the
-    /// log's series, within 3.05e-6 of it) or `"exact"` (the log everywhere: dearer a
-    /// command; the reference the series is judged against, docs/planner.md).
-    #[serde(default, skip_serializing_if = "is_series")]
+    /// How the panels' flow is taken far from them: `"multipole"` (runs of panels far from
+    /// the point by one expansion each, within 1.85e-6; each near panel's by its series
+    /// beyond 8 panel lengths), `"series"` (every panel by its series beyond 8 lengths,
+    /// within 3.05e-6 of the log) or `"exact"` (the log everywhere: dearest a command; the
+    /// reference the others are judged against, docs/planner.md).
+    #[serde(default, skip_serializing_if = "is_default_far_field")]
     pub far_field: FarField,
     /// Two straight walls along the floor's x axis, at `y = ±w` and reaching across the
     /// whole calibrated view, with nothing else in the room, are the paper's lane: its exact
@@ -61,8 +63,8 @@ fn is_true(b: &bool) -> bool {
     *b
 }
 
-fn is_series(f: &FarField) -> bool {
-    *f == FarField::Series
+fn is_default_far_field(f: &FarField) -> bool {
+    *f == FarField::default()
 }
 
 fn is_zero(x: &f64) -> bool {
@@ -76,7 +78,7 @@ impl Default for RoomSection {
             view_inset: default_view_inset(),
             panel_spacing: default_panel_spacing(),
             corner_turn: 0.0,
-            far_field: FarField::Series,
+            far_field: FarField::default(),
             walls_as_lane: true,
         }
     }
