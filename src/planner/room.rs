@@ -935,7 +935,7 @@ mod tests {
     /// expansion).
     #[test]
     fn the_sink_flow_is_tangent_at_every_panel() {
-        for (far_field, within) in [(FarField::Series, 1e-7), (FarField::Multipole, 1e-7)] {
+        for (far_field, within) in [(FarField::Series, 2e-8), (FarField::Multipole, 2e-8)] {
             let panels = Panels { spacing: 0.04, corner_turn: None, far_field };
             let room = Room::with_panels(&furnished(), 0.07, panels).unwrap().unwrap();
             let goal = p(0.5, -0.6);
