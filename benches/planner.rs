@@ -9,7 +9,7 @@
 //! cargo bench --bench planner
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
-use flowgate::planner::room::{Room, RoomShape};
+use flowgate::planner::room::{FarField, Panels, Room, RoomShape};
 use flowgate::planner::{Field, Margin, ObstacleEstimate, PlanInput, Planner, PlannerConfig, Sink, Space, TieBreak};
 use flowgate::Point;
 use std::sync::Arc;
@@ -44,8 +44,9 @@ fn planner(space: Space) -> Planner {
 }
 
 /// A 2 m square room walled by four walls, a heptagonal static obstacle (24 cm across) in
-/// each quarter, grown by a 7 cm robot and the 6 mm clearance, panels of 3 cm (the default).
-fn room() -> Arc<Room> {
+/// each quarter, grown by a 7 cm robot and the 6 mm clearance, panels of 3 cm (the default),
+/// their far field taken as `far_field` says.
+fn room(far_field: FarField) -> Arc<Room> {
     let p = Point::new;
     let walls = vec![
         vec![p(-1.0, -1.0), p(1.0, -1.0)],
@@ -57,7 +58,8 @@ fn room() -> Arc<Room> {
         |c: Point| (0..7).map(|k| c + Point::from_polar(0.12, std::f64::consts::TAU * k as f64 / 7.0)).collect();
     let obstacles = [p(-0.55, 0.6), p(0.55, 0.6), p(-0.55, -0.6), p(0.55, -0.6)].into_iter().map(heptagon).collect();
     let shape = RoomShape { walls, obstacles, view: None };
-    Arc::new(Room::new(&shape, 0.076, 0.03).unwrap().unwrap())
+    let panels = Panels { spacing: 0.03, corner_turn: None, far_field };
+    Arc::new(Room::with_panels(&shape, 0.076, panels).unwrap().unwrap())
 }
 
 /// The moving circles of the room case: five crossing its middle.
@@ -116,8 +118,7 @@ fn bench(c: &mut Criterion) {
         });
     }
     plan.finish();
-    let (room, room_obs) = (room(), room_obstacles());
-    let p = Planner::in_room(config(Space::Free), Some(room));
+    let room_obs = room_obstacles();
     let (robot_in, goal_in) = (Point::new(-0.8, 0.02), Point::new(0.8, -0.03));
     let command = |p: &Planner, field: &mut Field| {
         let input = PlanInput {
@@ -129,19 +130,22 @@ fn bench(c: &mut Criterion) {
         };
         p.plan_in(&input, field).unwrap()
     };
-    let mut field = Field::empty(Space::Free, p.sink(goal_in));
-    c.bench_function("room/plan_32_5", |b| b.iter(|| command(&p, &mut field)));
-    let [p50, p99, p999, max] = distribution(20_000, || {
-        black_box(command(&p, &mut field));
-    });
-    println!(
-        "room/plan_32_5: {} panels; single commands p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs",
-        p.room().map_or(0, |r| r.panels().len()),
-        p50 / 1e3,
-        p99 / 1e3,
-        p999 / 1e3,
-        max / 1e3
-    );
+    for (name, far_field) in [("room/plan_32_5", FarField::Multipole), ("room/plan_32_5_series", FarField::Series)] {
+        let p = Planner::in_room(config(Space::Free), Some(room(far_field)));
+        let mut field = Field::empty(Space::Free, p.sink(goal_in));
+        c.bench_function(name, |b| b.iter(|| command(&p, &mut field)));
+        let [p50, p99, p999, max] = distribution(20_000, || {
+            black_box(command(&p, &mut field));
+        });
+        println!(
+            "{name}: {} panels; single commands p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs",
+            p.room().map_or(0, |r| r.panels().len()),
+            p50 / 1e3,
+            p99 / 1e3,
+            p999 / 1e3,
+            max / 1e3
+        );
+    }
     // Field construction alone, for the record.
     let obs: Vec<_> = obstacles(2)
         .iter()
