@@ -256,7 +256,7 @@ fn the_kubernetes_job_runs_one_shard_per_index() {
 
 /// `--compare KEY=VALUE` runs the same episodes twice. E2's lane at the default residual
 /// (`planner.lane_residual = 1e-4`) and at 1e-8 has the same outcomes in distribution, as
-/// has a room's far field from its series and from its log (`room.far_field`);
+/// has a room's far field by runs' expansions and by every panel's log (`room.far_field`);
 /// planning circles grown by 5 cm (`planner.clearance`) keep every rate but move every
 /// minimum clearance, and the command fails, naming the setting.
 #[test]
@@ -282,7 +282,7 @@ fn a_compared_setting_is_judged_by_its_outcomes_in_distribution() {
     assert!(json["clearance"]["p_value"].as_f64().unwrap() >= 0.01, "{json}");
     assert_eq!(json["clearance"]["before"], 100);
 
-    // The room's far panels from their series (the default) and from their log: the same
+    // The room's far panels by runs' expansions (the default) and by their log: the same
     // (docs/simulation.md has the 10,000-episode sweeps of every scenario).
     let dir = temp_dir("compare-far-field");
     let (out, json) = compare("100", "room.far_field=\"exact\"", "scenarios/rooms/table-and-crowd.toml", &dir);
