@@ -677,7 +677,7 @@ impl RoomSink {
     /// Buffers for `room`'s panels, so that solving for a goal never allocates.
     pub fn for_room(room: &Room) -> Self {
         let n = room.panels.len();
-        let moments = Vec::with_capacity(room.tree.nodes().len() * tree::ORDER);
+        let moments = Vec::with_capacity(room.tree.node_count() * tree::ORDER);
         Self { goal: Point::default(), densities: vec![0.0; n], rhs: vec![0.0; n], moments, closure: None }
     }
     pub fn goal(&self) -> Point {

@@ -28,11 +28,11 @@ const LEAF: usize = 8;
 /// One node: the panels `first..end` (consecutive along the boundary's loops), the disc
 /// holding them, and where the walk goes on when it does not enter the node.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Node {
-    pub first: usize,
-    pub end: usize,
-    pub center: Point,
-    pub radius: f64,
+struct Node {
+    first: usize,
+    end: usize,
+    center: Point,
+    radius: f64,
     /// `(radius / THETA)²`: beyond it the expansion stands for the node; infinite where
     /// expansions are not used.
     far_sqr: f64,
@@ -81,8 +81,9 @@ impl PanelTree {
         self.nodes[k].next = self.nodes.len();
     }
 
-    pub fn nodes(&self) -> &[Node] {
-        &self.nodes
+    /// How many nodes the tree has (each keeps `ORDER` moments).
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
     }
 
     /// Each node's expansion for the panels' `densities`, `ORDER` terms a node into
