@@ -119,26 +119,34 @@ impl PanelTree {
         }
     }
 
+    /// The walk every query takes, in preorder: `enter(k, node)` says whether to go into
+    /// node `k` (having taken a leaf's panels itself); a node not entered, and a leaf, is
+    /// passed over whole.
+    fn walk(&self, mut enter: impl FnMut(usize, &Node) -> bool) {
+        let mut k = 0;
+        while let Some(node) = self.nodes.get(k) {
+            k = if enter(k, node) && !node.leaf() { k + 1 } else { node.next };
+        }
+    }
+
     /// The flow (`u - i v`) at `z` of the panels with these densities: far nodes by their
     /// `moments` ([`expand`](Self::expand)), near leaves panel by panel.
     pub fn flow(&self, panels: &[Panel], densities: &[f64], moments: &[Point], z: Point) -> Point {
         let mut f = Point::default();
-        let mut k = 0;
-        while let Some(node) = self.nodes.get(k) {
+        self.walk(|k, node| {
             let rel = z - node.center;
             let r2 = rel.norm_sqr();
             if r2 > node.far_sqr {
                 f += expansion(&moments[k * ORDER..][..ORDER], rel.conj() / r2);
-                k = node.next;
-            } else if node.leaf() {
+                return false;
+            }
+            if node.leaf() {
                 for (panel, &sigma) in panels[node.first..node.end].iter().zip(&densities[node.first..node.end]) {
                     f += panel.source_flow(z) * sigma;
                 }
-                k = node.next;
-            } else {
-                k += 1;
             }
-        }
+            true
+        });
         f
     }
 
@@ -147,50 +155,44 @@ impl PanelTree {
     /// centre): the rows of the boundary's system, so that the densities solved for make
     /// the flow the field evaluates tangent at the collocation points.
     pub fn unit_flows(&self, panels: &[Panel], z: Point, mut visit: impl FnMut(usize, Point)) {
-        let mut k = 0;
-        while let Some(node) = self.nodes.get(k) {
+        self.walk(|_, node| {
             let rel = z - node.center;
             let r2 = rel.norm_sqr();
-            if r2 > node.far_sqr {
-                let w = rel.conj() / r2;
-                for (j, panel) in panels.iter().enumerate().take(node.end).skip(node.first) {
-                    // Σ ((b - c)^k - (a - c)^k) w^k / k, each power scaled by w: below θ.
-                    let (a, b) = ((panel.a - node.center) * w, (panel.b - node.center) * w);
-                    let (mut ak, mut bk, mut sum) = (a, b, Point::default());
-                    for order in 1..=ORDER {
-                        sum += (bk - ak) / order as f64;
-                        ak *= a;
-                        bk *= b;
-                    }
-                    visit(j, sum * panel.inverse_direction);
-                }
-                k = node.next;
-            } else if node.leaf() {
-                for (j, panel) in panels.iter().enumerate().take(node.end).skip(node.first) {
-                    visit(j, panel.source_flow(z));
-                }
-                k = node.next;
-            } else {
-                k += 1;
+            let far = r2 > node.far_sqr;
+            if !far && !node.leaf() {
+                return true;
             }
-        }
+            let w = rel.conj() / r2;
+            for (j, panel) in panels.iter().enumerate().take(node.end).skip(node.first) {
+                if !far {
+                    visit(j, panel.source_flow(z));
+                    continue;
+                }
+                // Σ ((b - c)^k - (a - c)^k) w^k / k, each power scaled by w: below θ.
+                let (a, b) = ((panel.a - node.center) * w, (panel.b - node.center) * w);
+                let (mut ak, mut bk, mut sum) = (a, b, Point::default());
+                for order in 1..=ORDER {
+                    sum += (bk - ak) / order as f64;
+                    ak *= a;
+                    bk *= b;
+                }
+                visit(j, sum * panel.inverse_direction);
+            }
+            false
+        });
     }
 
     /// Calls `visit` with the index of every panel of a node whose disc comes within
     /// `reach` of `p`, in index order: every panel within `reach` of `p` among them.
     pub fn panels_within(&self, p: Point, reach: f64, mut visit: impl FnMut(usize)) {
-        let mut k = 0;
-        while let Some(node) = self.nodes.get(k) {
+        self.walk(|_, node| {
             let far = reach + node.radius;
-            if (p - node.center).norm_sqr() > far * far {
-                k = node.next;
-            } else if node.leaf() {
+            let near = (p - node.center).norm_sqr() <= far * far;
+            if near && node.leaf() {
                 (node.first..node.end).for_each(&mut visit);
-                k = node.next;
-            } else {
-                k += 1;
             }
-        }
+            near
+        });
     }
 }
 
