@@ -66,6 +66,7 @@ impl Axis {
     }
     /// The rate `dt` from now along the ramp, pulses/s (the state is left as it is).
     pub fn rate_after(&self, dt: f64) -> f64 {
+        let dt = dt.max(0.0);
         if dt >= self.ramp_left() {
             return self.target;
         }

@@ -68,6 +68,24 @@ impl ObstaclePath {
     }
 
     /// The leg in force at `t` (`legs.len()`: resting after the last).
+    /// The first instant strictly between `a` and `b` at which the velocity changes (a
+    /// leg ends), if there is one.
+    pub fn change_between(&self, a: f64, b: f64) -> Option<f64> {
+        if self.legs.is_empty() || self.uniform.is_some() || b <= a || self.one_velocity_between(a, b) {
+            return None;
+        }
+        let from = a.max(0.0);
+        let lap = if self.repeat { (from / self.end).floor() * self.end } else { 0.0 };
+        let next = self.legs.iter().map(|l| l.0).find(|&start| lap + start > a).unwrap_or(self.end);
+        let at = lap + next;
+        (at > a && at < b).then_some(at)
+    }
+
+    /// The fastest the obstacle ever moves, m/s.
+    pub fn top_speed(&self) -> f64 {
+        self.legs.iter().map(|l| l.2.norm()).fold(0.0, f64::max)
+    }
+
     fn leg_index(&self, t: f64) -> usize {
         let t = t.max(0.0);
         let t = if self.repeat { self.lap_time(t) } else { t };

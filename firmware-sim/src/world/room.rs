@@ -47,6 +47,11 @@ impl Room {
         &self.polygons
     }
 
+    /// Whether `point` lies inside a static obstacle.
+    pub fn inside_any(&self, point: Point) -> bool {
+        self.polygons.iter().any(|p| inside_polygon(point, p))
+    }
+
     /// The gap between a footprint of `radius` at `centre` and the nearest wall or static
     /// obstacle (`None` in an empty room). A centre inside a polygon overlaps it by the
     /// radius and its depth.
