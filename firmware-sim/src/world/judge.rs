@@ -67,13 +67,22 @@ pub(super) struct Way {
 }
 
 impl Way {
-    /// The way from `from` as far as `span` seconds on (time `t` then), and the robot there.
-    pub fn new(from: Settled, drive: DiffDrive, span: f64, t: f64) -> (Self, Moment) {
-        let mut way = Self { from, drive, swerve: 0.0 };
+    /// The way from `from` as far as `span` seconds on, which ends at `end`.
+    pub fn to(from: Settled, drive: DiffDrive, span: f64) -> Self {
+        // The pieces' wheel speeds alone bound the acceleration: no integration.
+        let mut axes = from.axes;
+        let rim = |axes: &[Axis; 2]| axes.map(|a| a.rate() / drive.pulses_per_metre);
         let mut swerve = 0.0f64;
-        let end = way.follow(span, t, |speeds, length| swerve = swerve.max(drive.swerve(speeds[0], speeds[1], length)));
-        way.swerve = swerve;
-        (way, end)
+        let mut speeds = rim(&axes);
+        for_each_piece(&axes.clone(), span, |length| {
+            axes.iter_mut().for_each(|a| {
+                a.step(length);
+            });
+            let next = rim(&axes);
+            swerve = swerve.max(drive.swerve(speeds, next, length));
+            speeds = next;
+        });
+        Self { from, drive, swerve }
     }
 
     /// The way from `from`, its acceleration left unbounded: for taking instants on it.
@@ -83,31 +92,24 @@ impl Way {
 
     /// The robot at time `t` (from the settled state's time on).
     pub fn at(&self, t: f64) -> Moment {
-        self.follow(t - self.from.time, t, |_, _| ())
+        self.follow(t - self.from.time, t)
     }
 
     /// The robot `span` seconds on from the settled state, at time `t`.
     pub fn after(&self, span: f64, t: f64) -> Moment {
-        self.follow(span, t, |_, _| ())
+        self.follow(span, t)
     }
 
     /// The robot `span` seconds on (at time `t`), integrated in closed form along the pieces
-    /// between the ramps' ends (at most three); `piece` sees each piece's wheel speeds
-    /// (start, end) and length.
-    fn follow(&self, span: f64, t: f64, mut piece: impl FnMut([[f64; 2]; 2], f64)) -> Moment {
+    /// between the ramps' ends (at most three).
+    fn follow(&self, span: f64, t: f64) -> Moment {
         let Settled { time: _, mut pose, mut facing, mut axes } = self.from;
         let span = span.max(0.0);
         let rim = |axes: &[Axis; 2]| axes.map(|a| a.rate() / self.drive.pulses_per_metre);
-        let [first, second] = axes.map(|a| a.ramp_left().min(span));
-        let ends = if first <= second { [first, second] } else { [second, first] };
-        let (mut at, mut travelled) = (0.0, 0.0);
+        let mut travelled = 0.0;
         // Each piece starts at the speeds the last one ended on.
         let mut from = rim(&axes);
-        for end in ends.into_iter().chain([span]) {
-            if end <= at {
-                continue;
-            }
-            let length = end - at;
+        for_each_piece(&axes.clone(), span, |length| {
             axes.iter_mut().for_each(|a| {
                 a.step(length);
             });
@@ -115,12 +117,25 @@ impl Way {
             let m = self.drive.motion(from, to, length);
             (pose, facing) = m.apply(pose, facing);
             travelled += m.length;
-            piece([from, to], length);
-            (at, from) = (end, to);
-        }
+            from = to;
+        });
         // Renormalised at each instant taken, so rounding cannot build up over a run.
         let facing = facing / facing.norm_sqr().sqrt();
         Moment { t, pose, facing, velocity: facing * (0.5 * (from[0] + from[1])), axes, travelled }
+    }
+}
+
+/// The lengths of the pieces of `span` seconds of `axes`' ramps: up to each ramp's end,
+/// then on to the span's end (at most three, none empty).
+fn for_each_piece(axes: &[Axis; 2], span: f64, mut piece: impl FnMut(f64)) {
+    let [first, second] = axes.map(|a| a.ramp_left().min(span));
+    let ends = if first <= second { [first, second] } else { [second, first] };
+    let mut at = 0.0;
+    for end in ends.into_iter().chain([span]) {
+        if end > at {
+            piece(end - at);
+            at = end;
+        }
     }
 }
 

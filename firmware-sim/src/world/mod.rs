@@ -144,7 +144,8 @@ impl World {
             contact_free_until: 0.0,
             wand: None,
         };
-        let (way, start) = Way::new(world.settled, drive, 0.0, 0.0);
+        let way = Way::to(world.settled, drive, 0.0);
+        let start = way.after(0.0, 0.0);
         let mut judge = std::mem::replace(&mut world.judge, Judge::new(0));
         judge.instant(&world.scene(), &way, &start);
         world.judge = judge;
@@ -177,6 +178,7 @@ impl World {
     }
 
     /// The robot now: from the settled state in closed form, once per instant asked.
+    #[inline(never)] // an entry point `scripts/sweep-instructions` counts
     fn moment(&self) -> Moment {
         if let Some(m) = self.now.get() {
             return m;
@@ -188,7 +190,9 @@ impl World {
 
     /// The way from the settled state as far as now, and the robot now.
     fn way_now(&self) -> (Way, Moment) {
-        Way::new(self.settled, self.drive, self.since_settled, self.time)
+        let way = Way::to(self.settled, self.drive, self.since_settled);
+        // The robot now as `moment` has it, taken without it (it is counted on its own).
+        (way, self.now.get().unwrap_or_else(|| way.after(self.since_settled, self.time)))
     }
 
     fn scene(&self) -> Scene<'_> {
@@ -201,6 +205,7 @@ impl World {
     }
 
     /// What happened up to now: the settled judgement, and the way since judged on a copy.
+    #[inline(never)] // an entry point `scripts/sweep-instructions` counts
     fn judged_now(&self) -> (Judge, Moment) {
         let (way, end) = self.way_now();
         let mut judge = self.judge.clone();
@@ -242,6 +247,7 @@ impl World {
         self.judged_now().0.contact.map(|c| c.at)
     }
     /// The axes now.
+    #[inline(never)] // an entry point `scripts/sweep-instructions` counts
     pub fn axes(&self) -> [Axis; 2] {
         let span = self.since_settled;
         self.settled.axes.map(|mut a| {
@@ -275,6 +281,7 @@ impl World {
         self.obstacles[k].1
     }
     /// Wheel rim speeds now, m/s: left, right.
+    #[inline(never)] // an entry point `scripts/sweep-instructions` counts
     pub fn wheel_speeds(&self) -> [f64; 2] {
         let span = self.since_settled;
         self.settled.axes.map(|a| a.rate_after(span) / self.drive.pulses_per_metre)
@@ -341,6 +348,7 @@ impl World {
     /// the axes. The wheels follow the boards' ramps exactly and the pose is integrated
     /// along them (see [`DiffDrive::motion`]) in one piece between the ramps' ends, however
     /// many instants the world was asked about on the way.
+    #[inline(never)] // an entry point `scripts/sweep-instructions` counts
     fn settle(&mut self) {
         if self.since_settled <= 0.0 {
             return;
