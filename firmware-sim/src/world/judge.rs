@@ -67,7 +67,8 @@ pub(super) struct Way {
 }
 
 impl Way {
-    /// The way from `from` as far as `span` seconds on, which ends at `end`.
+    /// The way from `from` as far as `span` seconds on, its acceleration bounded from the
+    /// ramps' pieces.
     pub fn to(from: Settled, drive: DiffDrive, span: f64) -> Self {
         // The pieces' wheel speeds alone bound the acceleration: no integration.
         let mut axes = from.axes;

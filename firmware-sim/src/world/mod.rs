@@ -145,7 +145,7 @@ impl World {
             wand: None,
         };
         let way = Way::to(world.settled, drive, 0.0);
-        let start = way.after(0.0, 0.0);
+        let start = world.moment_settled();
         let mut judge = std::mem::replace(&mut world.judge, Judge::new(0));
         judge.instant(&world.scene(), &way, &start);
         world.judge = judge;
@@ -289,49 +289,64 @@ impl World {
 
     /// Set both axes' target pulse rates (pulses/s), as a velocity command does.
     pub fn command_pulse_rates(&mut self, rates: [i32; 2]) {
-        self.settle();
-        self.settled.axes[LEFT].set_target(rates[LEFT]);
-        self.settled.axes[RIGHT].set_target(rates[RIGHT]);
+        self.change_axes(|axes| {
+            axes[LEFT].set_target(rates[LEFT]);
+            axes[RIGHT].set_target(rates[RIGHT]);
+        });
     }
 
     /// One axis's target rate (one CiA 402 drive a wheel), clamped to its limit.
     pub fn command_axis(&mut self, axis: usize, rate: i32) {
-        self.settle();
-        if let Some(a) = self.settled.axes.get_mut(axis) {
-            a.set_target(rate);
-        }
+        self.change_axes(|axes| {
+            if let Some(a) = axes.get_mut(axis) {
+                a.set_target(rate);
+            }
+        });
     }
 
     /// One axis's ramp and rate limit.
     pub fn configure_axis(&mut self, axis: usize, config: AxisConfig) {
-        self.settle();
-        if let Some(a) = self.settled.axes.get_mut(axis) {
-            a.set_config(config);
-        }
-        self.contact_free_until = self.contact_free_from(&self.moment());
+        self.change_axes(|axes| {
+            if let Some(a) = axes.get_mut(axis) {
+                a.set_config(config);
+            }
+        });
     }
 
     /// Stop one axis at once (its drive lost power, or its wheel is blocked).
     pub fn stop_axis(&mut self, axis: usize) {
-        self.settle();
-        if let Some(a) = self.settled.axes.get_mut(axis) {
-            a.stop_now();
-        }
-        self.now.set(None);
+        self.change_axes(|axes| {
+            if let Some(a) = axes.get_mut(axis) {
+                a.stop_now();
+            }
+        });
     }
 
     /// Set both axes' ramp and rate limit (pulses).
     pub fn configure_axes(&mut self, config: AxisConfig) {
-        self.settle();
-        self.settled.axes.iter_mut().for_each(|a| a.set_config(config));
-        self.contact_free_until = self.contact_free_from(&self.moment());
+        self.change_axes(|axes| axes.iter_mut().for_each(|a| a.set_config(config)));
     }
 
     /// Stop both axes at once (e-stop, command timeout).
     pub fn stop_axes(&mut self) {
+        self.change_axes(|axes| axes.iter_mut().for_each(Axis::stop_now));
+    }
+
+    /// Settle, then change the axes: the way on starts from here.
+    fn change_axes(&mut self, change: impl FnOnce(&mut [Axis; 2])) {
         self.settle();
-        self.settled.axes.iter_mut().for_each(Axis::stop_now);
-        self.now.set(None);
+        change(&mut self.settled.axes);
+        let now = self.moment_settled();
+        self.now.set(Some(now));
+        // A new rate limit changes how soon a contact can begin.
+        self.contact_free_until = self.contact_free_from(&now);
+    }
+
+    /// The robot at the settled state.
+    fn moment_settled(&self) -> Moment {
+        let Settled { time, pose, facing, axes } = self.settled;
+        let [left, right] = axes.map(|a| a.rate() / self.drive.pulses_per_metre);
+        Moment { t: time, pose, facing, velocity: facing * (0.5 * (left + right)), axes, travelled: 0.0 }
     }
 
     /// Advance the world by `dt` seconds: nothing is computed until asked for.
@@ -366,12 +381,11 @@ impl World {
         }
         self.settled = Settled { time: end.t, pose: end.pose, facing: end.facing, axes: end.axes };
         self.since_settled = 0.0;
-        self.now.set(Some(Moment { travelled: 0.0, ..end }));
-        self.contact_free_until = self.contact_free_from(&end);
     }
 
-    /// The earliest a contact can begin after the robot was at `m`: each obstacle's gap
-    /// closed at the robot's top speed and the obstacle's, each wall's at the robot's.
+    /// The earliest a contact can begin after the robot was at `m` (as the axes are now):
+    /// each obstacle's gap closed at the robot's top speed and the obstacle's, each wall's
+    /// at the robot's.
     fn contact_free_from(&self, m: &Moment) -> f64 {
         if self.judge.contact.is_some() {
             return f64::INFINITY;
