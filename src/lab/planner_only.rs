@@ -233,7 +233,9 @@ pub struct CycleCost {
     pub sense_and_track_ns: u64,
     /// The control step: the planner, the wheel speeds and the supervisor.
     pub control_ns: u64,
-    /// The simulator's world: the wheels' ramps, the kinematics, contact and clearance.
+    /// The simulator's world: settling at each command (the way since the last integrated
+    /// and judged for contact and clearance), and the check for a contact. The robot taken
+    /// for the sensing counts there.
     pub world_ns: u64,
 }
 
@@ -442,15 +444,19 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         if let Some(outcome) = tally.count(&out) {
             break outcome;
         }
+        // The world settles at the command: the way since the last one integrated and judged.
+        let settling = clock();
         world.command_pulse_rates(out.pulses);
+        lap(settling, &mut cost.world_ns);
         tracker.commanded(t, out.wheels.left, out.wheels.right);
         if record {
             trace.push(trace_row(&world, t, &out, n));
         }
         let stepping = clock();
         world.step(t_step);
+        let touched = world.first_contact().is_some();
         lap(stepping, &mut cost.world_ns);
-        if world.first_contact().is_some() {
+        if touched {
             break Outcome::Collision;
         }
         if world.time() >= s.time_limit {
