@@ -5,7 +5,7 @@
 //! Time is an argument: [`World::step`] advances by `dt`, nothing reads a clock. Between
 //! commands the robot's way is a closed-form function of the time from where it was last
 //! commanded, so the world costs the same however many instants it is asked about; what
-//! happened over the way (contact, clearance) is judged exactly ([`judge`]), not at
+//! happened over the way (contact, clearance) is judged exactly (`judge.rs`), not at
 //! sampled instants.
 
 mod axis;
