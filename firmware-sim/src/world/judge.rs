@@ -68,21 +68,10 @@ pub(super) struct Way {
 
 impl Way {
     /// The way from `from` as far as `span` seconds on, its acceleration bounded from the
-    /// ramps' pieces.
+    /// ramps' pieces (their wheel speeds alone: no integration).
     pub fn to(from: Settled, drive: DiffDrive, span: f64) -> Self {
-        // The pieces' wheel speeds alone bound the acceleration: no integration.
-        let mut axes = from.axes;
-        let rim = |axes: &[Axis; 2]| axes.map(|a| a.rate() / drive.pulses_per_metre);
         let mut swerve = 0.0f64;
-        let mut speeds = rim(&axes);
-        for_each_piece(&axes.clone(), span, |length| {
-            axes.iter_mut().for_each(|a| {
-                a.step(length);
-            });
-            let next = rim(&axes);
-            swerve = swerve.max(drive.swerve(speeds, next, length));
-            speeds = next;
-        });
+        ramps(from.axes, drive, span, |speeds, to, length| swerve = swerve.max(drive.swerve(speeds, to, length)));
         Self { from, drive, swerve }
     }
 
@@ -104,40 +93,46 @@ impl Way {
     /// The robot `span` seconds on (at time `t`), integrated in closed form along the pieces
     /// between the ramps' ends (at most three).
     fn follow(&self, span: f64, t: f64) -> Moment {
-        let Settled { time: _, mut pose, mut facing, mut axes } = self.from;
-        let span = span.max(0.0);
-        let rim = |axes: &[Axis; 2]| axes.map(|a| a.rate() / self.drive.pulses_per_metre);
+        let Settled { time: _, mut pose, mut facing, axes } = self.from;
         let mut travelled = 0.0;
-        // Each piece starts at the speeds the last one ended on.
-        let mut from = rim(&axes);
-        for_each_piece(&axes.clone(), span, |length| {
+        let (axes, speeds) = ramps(axes, self.drive, span.max(0.0), |from, to, length| {
+            let m = self.drive.motion(from, to, length);
+            (pose, facing) = m.apply(pose, facing);
+            travelled += m.length;
+        });
+        // Renormalised at each instant taken, so rounding cannot build up over a run.
+        let facing = facing / facing.norm_sqr().sqrt();
+        Moment { t, pose, facing, velocity: facing * (0.5 * (speeds[0] + speeds[1])), axes, travelled }
+    }
+}
+
+/// `axes` run on for `span` seconds, in pieces up to each ramp's end and then on to the
+/// span's end (at most three, none empty); `piece` sees each one's rim speeds (m/s; left,
+/// right) at its start and its end, and its length. The axes and the rim speeds at the end.
+fn ramps(
+    mut axes: [Axis; 2],
+    drive: DiffDrive,
+    span: f64,
+    mut piece: impl FnMut([f64; 2], [f64; 2], f64),
+) -> ([Axis; 2], [f64; 2]) {
+    let rim = |axes: &[Axis; 2]| axes.map(|a| a.rate() / drive.pulses_per_metre);
+    let [first, second] = axes.map(|a| a.ramp_left().min(span));
+    let ends = if first <= second { [first, second] } else { [second, first] };
+    let mut at = 0.0;
+    // Each piece starts at the speeds the last one ended on.
+    let mut speeds = rim(&axes);
+    for end in ends.into_iter().chain([span]) {
+        if end > at {
+            let length = end - at;
             axes.iter_mut().for_each(|a| {
                 a.step(length);
             });
             let to = rim(&axes);
-            let m = self.drive.motion(from, to, length);
-            (pose, facing) = m.apply(pose, facing);
-            travelled += m.length;
-            from = to;
-        });
-        // Renormalised at each instant taken, so rounding cannot build up over a run.
-        let facing = facing / facing.norm_sqr().sqrt();
-        Moment { t, pose, facing, velocity: facing * (0.5 * (from[0] + from[1])), axes, travelled }
-    }
-}
-
-/// The lengths of the pieces of `span` seconds of `axes`' ramps: up to each ramp's end,
-/// then on to the span's end (at most three, none empty).
-fn for_each_piece(axes: &[Axis; 2], span: f64, mut piece: impl FnMut(f64)) {
-    let [first, second] = axes.map(|a| a.ramp_left().min(span));
-    let ends = if first <= second { [first, second] } else { [second, first] };
-    let mut at = 0.0;
-    for end in ends.into_iter().chain([span]) {
-        if end > at {
-            piece(end - at);
-            at = end;
+            piece(speeds, to, length);
+            (at, speeds) = (end, to);
         }
     }
+    (axes, speeds)
 }
 
 /// What the judge weighs the way against.
