@@ -582,16 +582,19 @@ impl<K: StageClock> VirtualRig<K> {
         self.faults_due();
         self.firmware_poll();
         self.deliver();
+        // The core's deadline is read once its outputs are drained: a read is decoded as they are.
+        self.drain_core();
         let now = HostTime::from_nanos(self.t);
         if now >= self.core_deadline() {
             self.feed(Input::Tick);
+            self.drain_core();
         }
-        self.drain_core();
         self.firmware_out();
         self.observe();
     }
 
-    /// The core's next deadline (the core changes only through [`feed`] and a rehearsal).
+    /// The core's next deadline (the core changes only through [`feed`], draining its outputs
+    /// and a rehearsal).
     fn core_deadline(&self) -> HostTime {
         debug_assert_eq!(self.core_deadline, self.core.next_deadline(), "the core changed outside `feed`");
         self.core_deadline
@@ -845,6 +848,7 @@ impl<K: StageClock> VirtualRig<K> {
                 Output::Notice { at, notice } => tracing::debug!(t_s = at.secs(), "{notice}"),
             }
         }
+        self.core_deadline = self.core.next_deadline();
     }
 
     /// A velocity command that is not zero, outside Running, is counted: motion only in

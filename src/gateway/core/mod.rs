@@ -8,7 +8,10 @@
 //!   with the host time at which it happened. An operator's request gets its [`Answer`].
 //! - [`Core::poll`], after every `handle`, until it returns `None`: the [`Output`]s to carry
 //!   out, in order (packets for the PSD controller, CAN frames, each cycle's command with its
-//!   timing record, state changes).
+//!   timing record, state changes). A PSD read is decoded as its outputs are drained, so
+//!   what the caller asks of the core while it carries out a cycle's command is that
+//!   cycle's, even when one read carried two frames.
+
 //! - [`Core::next_deadline`], after draining: when to hand the core [`Input::Tick`] if
 //!   nothing else happens first. Watchdogs, heartbeats and retries live there, so they fire
 //!   however the I/O around the core behaves.
@@ -152,6 +155,9 @@ struct Links {
     bus_off: bool,
     /// When the silent controller was last configured again.
     restreamed_at: HostTime,
+    /// The instant of the PSD read whose packets are still being decoded: a read is decoded
+    /// as its outputs are drained, so each cycle's command is drained in that cycle's state.
+    psd_read: Option<HostTime>,
 }
 
 /// The times the watchdogs and the core's own timers count from.
@@ -272,6 +278,7 @@ impl<K: StageClock> Core<K> {
                 rehandshake: false,
                 bus_off: false,
                 restreamed_at: HostTime::ZERO,
+                psd_read: None,
             },
             watch: Watch {
                 last_sample: HostTime::ZERO,
@@ -346,8 +353,14 @@ impl<K: StageClock> Core<K> {
         self.psd.buffered_capacity()
     }
 
-    /// The next output, if any.
+    /// The next output, if any. A PSD read is decoded here, up to its next output: a read
+    /// that carried two frames gives the first cycle's command while the core is still in
+    /// that cycle's state, so what the caller asks of it then ([`Core::scene`]) is that
+    /// cycle's.
     pub fn poll(&mut self) -> Option<Output> {
+        if self.out.is_empty() {
+            self.decode_read(true);
+        }
         self.out.pop()
     }
 
@@ -355,6 +368,8 @@ impl<K: StageClock> Core<K> {
     /// recording of them replays the run (see [`input`]). An operator's request gets its
     /// answer back.
     pub fn handle(&mut self, now: HostTime, input: Input<'_>) -> Option<Answer> {
+        // Inputs are taken in order: what is left of an earlier read is decoded first.
+        self.decode_read(false);
         match input {
             Input::PsdConnected => self.psd_connected(now),
             Input::PsdLost => self.psd_lost(now),

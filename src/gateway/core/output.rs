@@ -56,6 +56,10 @@ impl Outbox {
         self.0.push_back(output);
     }
 
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
     pub fn pop(&mut self) -> Option<Output> {
         self.0.pop_front()
     }

@@ -36,7 +36,8 @@ impl<K: StageClock> Core<K> {
         self.stop(now, StopReason::SerialLost);
     }
 
-    /// Bytes read from the PSD line at `now`.
+    /// Bytes read from the PSD line at `now`: decoded up to the first packet that gives an
+    /// output, the rest as [`Core::poll`] drains them.
     pub(super) fn psd_bytes(&mut self, now: HostTime, bytes: &[u8]) {
         if self.psd.is_down() {
             self.psd.discard(bytes);
@@ -44,7 +45,18 @@ impl<K: StageClock> Core<K> {
             return;
         }
         self.psd.feed(bytes);
+        self.links.psd_read = Some(now);
+        self.decode_read(true);
+    }
+
+    /// Decode the read under way, packet by packet, at its instant: all of it, or
+    /// (`until_output`) until there is an output to drain.
+    pub(super) fn decode_read(&mut self, until_output: bool) {
+        let Some(now) = self.links.psd_read else { return };
         loop {
+            if until_output && !self.out.is_empty() {
+                return;
+            }
             let started = self.clock.now_ns();
             let item = self.psd.next_item();
             let decoded = self.clock.now_ns();
@@ -62,6 +74,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
+        self.links.psd_read = None;
         self.psd.decoded(now);
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
     }

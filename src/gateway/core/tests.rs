@@ -15,6 +15,15 @@ fn core() -> Core<NoClock> {
     Core::new(GatewayConfig::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
 }
 
+impl Core<NoClock> {
+    /// A read at `now`, decoded whole: its outputs stay queued for the test to drain, and
+    /// what it counted is there to ask at once.
+    fn read(&mut self, now: HostTime, bytes: &[u8]) {
+        self.psd_bytes(now, bytes);
+        self.decode_read(false);
+    }
+}
+
 /// An obstacle LED not seen is absent: the arm proceeds, unless the LED is required.
 #[test]
 fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
@@ -45,7 +54,7 @@ fn every_discarded_byte_is_counted() {
     let mut run = vec![0x55u8; 1 << 20];
     run.push(0);
     for chunk in run.chunks(1024) {
-        c.psd_bytes(ms(1), chunk);
+        c.read(ms(1), chunk);
     }
     assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1);
     assert_eq!(c.counters().bad_serial_frames, 1);
@@ -53,7 +62,7 @@ fn every_discarded_byte_is_counted() {
         bytes(Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Streaming });
     let i = garbled.len() - 3;
     garbled[i] ^= if garbled[i] == 0x80 { 0x40 } else { 0x80 };
-    c.psd_bytes(ms(2), &garbled);
+    c.read(ms(2), &garbled);
     assert_eq!(c.counters().serial_dropped_bytes, (1 << 20) + 1 + garbled.len() as u64);
     assert_eq!(c.counters().bad_serial_frames, 2);
 }
@@ -123,7 +132,7 @@ fn answer_with(core: &mut Core<NoClock>, now: HostTime, mut sync_off: impl FnMut
             Message::StopStream => continue,
             m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
         };
-        core.psd_bytes(now, &bytes(reply));
+        core.read(now, &bytes(reply));
     }
     other
 }
@@ -131,9 +140,15 @@ fn answer_with(core: &mut Core<NoClock>, now: HostTime, mut sync_off: impl FnMut
 /// A frame of the robot's two LEDs at the floor origin, stamped `stamp_us` on the
 /// controller's clock.
 fn frame(core: &mut Core<NoClock>, now: HostTime, n: u32, stamp_us: u64) {
+    let out = frame_bytes(core, n, stamp_us, 0.0);
+    core.read(now, &out);
+}
+
+/// The packets of frame `n`, the robot `dx` m along the floor's x from the origin.
+fn frame_bytes(core: &Core<NoClock>, n: u32, stamp_us: u64, dx: f64) -> Vec<u8> {
     let cal = core.rig().calibration;
     let mut out = Vec::new();
-    for (slot, led, x) in [(0u8, 1u8, 0.035), (1, 2, -0.035)] {
+    for (slot, led, x) in [(0u8, 1u8, dx + 0.035), (1, 2, dx - 0.035)] {
         let (rx, ry) = cal.to_raw(Point::new(x, 0.0)).unwrap();
         let s = Sample {
             frame: n,
@@ -148,7 +163,29 @@ fn frame(core: &mut Core<NoClock>, now: HostTime, n: u32, stamp_us: u64) {
         out.extend(bytes(Message::Sample(s)));
     }
     out.extend(bytes(Message::FrameEnd { frame: n, t_ctrl_us: stamp_us, samples: 2 }));
-    core.psd_bytes(now, &out);
+    out
+}
+
+/// One read that carried two frames (a host late to read): each cycle's command is drained
+/// while the core is in that cycle's state, so its scene is that cycle's, not the next's.
+#[test]
+fn a_read_of_two_frames_is_drained_a_cycle_at_a_time() {
+    let mut c = armed_with_a_sample();
+    commands(&mut c);
+    let period_us = c.rig().sample_period.as_micros() as u64;
+    let mut read = frame_bytes(&c, 1, CTRL_EPOCH_US + 19_000 + period_us, 0.001);
+    read.extend(frame_bytes(&c, 2, CTRL_EPOCH_US + 19_000 + 2 * period_us, 0.002));
+    c.handle(ms(60), Input::PsdBytes(&read));
+    let mut seen = Vec::new();
+    while let Some(output) = c.poll() {
+        if let Output::Command { record, .. } = output {
+            let scene = c.scene(HostTime::from_nanos(record.rx_ns));
+            assert_eq!((scene.cycle, scene.pose[0], scene.pose[1]), (record.cycle, record.x, record.y));
+            seen.push(record.x);
+        }
+    }
+    assert_eq!(seen.len(), 2, "a command a frame");
+    assert!(seen[1] > seen[0], "the second cycle saw the robot further on: {seen:?}");
 }
 
 #[test]
@@ -206,7 +243,7 @@ fn replies_naming_another_request_are_not_taken() {
                     )
                 }
                 m => {
-                    c.psd_bytes(now, &bytes(Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 }));
+                    c.read(now, &bytes(Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 }));
                     continue;
                 }
             };
@@ -217,10 +254,10 @@ fn replies_naming_another_request_are_not_taken() {
                 d[d.find("phase:").unwrap()..d.find(", info:").unwrap()].to_string()
             };
             let before = phase(&c);
-            c.psd_bytes(now, &bytes(stale));
+            c.read(now, &bytes(stale));
             assert_eq!(before, phase(&c), "a reply naming another request was taken");
             stale_replies += 1;
-            c.psd_bytes(now, &bytes(good));
+            c.read(now, &bytes(good));
         }
     }
     assert!(streaming && stale_replies == 2, "{stale_replies}");
@@ -287,8 +324,8 @@ fn garbage_in_place_of_samples_is_named_garbled_not_silent() {
     answer(&mut c, ms(1));
     c.request(ms(1), &Request::Arm).unwrap();
     // 3,000 bytes of noise without a frame's end, then one that ends a bad frame.
-    c.psd_bytes(ms(20), &[0x55; 3000]);
-    c.psd_bytes(ms(40), &[0]);
+    c.read(ms(20), &[0x55; 3000]);
+    c.read(ms(40), &[0]);
     while c.state() == State::Armed {
         let now = c.next_deadline();
         c.tick(now);
@@ -340,8 +377,8 @@ fn a_duplicated_frame_gives_one_command() {
     ] {
         wire.extend(bytes(m));
     }
-    c.psd_bytes(ms(20), &wire);
-    c.psd_bytes(ms(20), &wire);
+    c.read(ms(20), &wire);
+    c.read(ms(20), &wire);
     assert_eq!(commands(&mut c), 1, "one command for one frame");
     // The copy of the block: its last packet repeats the last one seen, the two before
     // it are behind it.
@@ -352,7 +389,7 @@ fn a_duplicated_frame_gives_one_command() {
         sample(1, 2, -0.035),
         Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
     ] {
-        c.psd_bytes(ms(21), &bytes(m));
+        c.read(ms(21), &bytes(m));
     }
     assert_eq!(commands(&mut c), 0);
     assert_eq!(c.counters().frames_repeated, 1);
@@ -377,12 +414,12 @@ fn samples_are_checked_against_the_schedule_and_their_frame() {
             flags: SampleFlags(0),
         })
     };
-    c.psd_bytes(ms(2), &bytes(stray(0, 0, 9))); // LED 9 is not scheduled
-    c.psd_bytes(ms(2), &bytes(stray(0, 1, 1))); // LED 1 is slot 0, not 1
+    c.read(ms(2), &bytes(stray(0, 0, 9))); // LED 9 is not scheduled
+    c.read(ms(2), &bytes(stray(0, 1, 1))); // LED 1 is slot 0, not 1
     assert_eq!(c.counters().samples_unscheduled, 2);
     assert_eq!(c.counters().samples, 0);
-    c.psd_bytes(ms(3), &bytes(stray(4, 0, 1))); // a sample of frame 4 ...
-    c.psd_bytes(ms(3), &bytes(Message::FrameEnd { frame: 5, t_ctrl_us: CTRL_EPOCH_US + 2_000, samples: 2 })); // ... ended as 5
+    c.read(ms(3), &bytes(stray(4, 0, 1))); // a sample of frame 4 ...
+    c.read(ms(3), &bytes(Message::FrameEnd { frame: 5, t_ctrl_us: CTRL_EPOCH_US + 2_000, samples: 2 })); // ... ended as 5
     assert_eq!(c.counters().frames_lost, 1);
     assert_eq!(c.counters().frames_incomplete, 1);
     assert!(c.tracker.pose_time().is_none(), "no pose from another frame's sample");
@@ -405,9 +442,9 @@ fn a_boot_announced_before_the_identity_does_not_skip_its_check() {
         }
     }
     let reset = Message::Fault { code: flowgate_protocol::psd::FaultCode::Reset, detail: 0 };
-    c.psd_bytes(ms(1), &bytes(reset));
+    c.read(ms(1), &bytes(reset));
     let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 2, clock_hz: 1_000_000 };
-    c.psd_bytes(ms(2), &bytes(Message::Info { request_seq: asked.expect("GetInfo sent"), info }));
+    c.read(ms(2), &bytes(Message::Info { request_seq: asked.expect("GetInfo sent"), info }));
     let failed = std::iter::from_fn(|| c.poll()).find_map(|o| match o {
         Output::SetupFailed(e) => Some(e),
         _ => None,
@@ -424,7 +461,7 @@ fn a_controller_of_another_kind_is_refused_at_the_handshake() {
     while let Some(o) = c.poll() {
         if let Output::Psd(Packet { seq, message: Message::GetInfo }) = o {
             let info = Info { firmware: [1, 0, 0], psd_counts: [4096; 2], max_leds: 2, clock_hz: 1_000_000 };
-            c.psd_bytes(ms(1), &bytes(Message::Info { request_seq: seq, info }));
+            c.read(ms(1), &bytes(Message::Info { request_seq: seq, info }));
         }
         if let Output::SetupFailed(e) = o {
             failed = Some(e);
@@ -475,7 +512,7 @@ fn a_pose_lost_in_garbage_is_named_garbled() {
             samples: 2,
         });
         garbled[3] ^= 0x5A;
-        c.psd_bytes(ms(20 + 20 * u64::from(k)), &garbled);
+        c.read(ms(20 + 20 * u64::from(k)), &garbled);
         c.sampled(ms(20 + 20 * u64::from(k)));
     }
     let reason = c.pose_lost_cause(ms(200));
@@ -524,7 +561,7 @@ fn a_frame_cut_short_on_a_quiet_line_is_named_garbled() {
     let heartbeat =
         bytes(Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Streaming });
     let cut = &heartbeat[..heartbeat.len() - 1];
-    c.psd_bytes(ms(30), cut);
+    c.read(ms(30), cut);
     let reason = run_to_fault(&mut c, ms(500));
     let n = cut.len() as u32;
     assert_eq!(reason, StopReason::SerialGarbled { frames: 1, bytes: n, found: Garbled::NoSample });
@@ -542,7 +579,7 @@ fn garbage_before_an_arm_names_the_stop_after_it() {
     frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
     let mut garbled = bytes(Message::FrameEnd { frame: 1, t_ctrl_us: CTRL_EPOCH_US + 39_000, samples: 2 });
     garbled[3] ^= 0x5A;
-    c.psd_bytes(ms(40), &garbled);
+    c.read(ms(40), &garbled);
     c.request(ms(50), &Request::Arm).unwrap();
     let reason = run_to_fault(&mut c, ms(500));
     assert!(matches!(reason, StopReason::SerialGarbled { frames: 1, found: Garbled::NoSample, .. }), "{reason:?}");
@@ -563,11 +600,11 @@ fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
         }
     }
     let info = info_reply(info_seq.expect("GetInfo sent"));
-    c.psd_bytes(
+    c.read(
         ms(31),
         &numbered(40_000, Message::Heartbeat { t_ctrl_us: 5, state: flowgate_protocol::psd::ControllerState::Idle }),
     );
-    c.psd_bytes(ms(31), &numbered(7, info));
+    c.read(ms(31), &numbered(7, info));
     assert_eq!(c.counters().psd_sequence_discards(), 1);
     let stop = run_to_fault(&mut c, ms(500));
     assert_eq!(stop, StopReason::PsdSequence { handshake: true });
@@ -610,7 +647,7 @@ fn a_handshake_late_for_held_time_syncs_names_the_clock() {
                 Message::StopStream => continue,
                 m => Message::Ack { seq: p.seq, msg_type: m.msg_type() as u8 },
             };
-            c.psd_bytes(now, &bytes(reply));
+            c.read(now, &bytes(reply));
         }
     }
     // Waiting on the start's answer, not on a time sync.
