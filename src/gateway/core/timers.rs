@@ -75,7 +75,6 @@ impl Timer {
 impl<K: StageClock> Core<K> {
     /// When the core next needs an [`Input::Tick`](super::Input::Tick), whatever else happens;
     /// asked once the outputs are drained ([`Core::poll`] decodes what is left of a read).
-
     pub fn next_deadline(&self) -> HostTime {
         Timer::TABLE.iter().map(|&t| self.deadline(t)).min().unwrap_or(HostTime::NEVER)
     }
