@@ -54,7 +54,11 @@ fn the_demo_reaches_its_goal_ten_times_in_ten_under_load() {
         let out = demo.wait_with_output().unwrap();
         let text = String::from_utf8_lossy(&out.stdout).into_owned();
         let ok = out.status.success() && text.contains("goal reached, no contact");
-        outcomes.push((run, ok, drawn, text.lines().find(|l| l.starts_with("final state")).unwrap_or("").to_string()));
+        let mut said = text.lines().find(|l| l.starts_with("final state")).unwrap_or("").to_string();
+        if !ok {
+            said += &pace(&dir);
+        }
+        outcomes.push((run, ok, drawn, said));
     }
     spinning.store(false, Ordering::Relaxed);
     for h in hogs {
@@ -65,4 +69,26 @@ fn the_demo_reaches_its_goal_ten_times_in_ten_under_load() {
     let failed: Vec<_> = outcomes.iter().filter(|o| !o.1 || o.2 != format!("drawn {}", o.0)).collect();
     assert!(failed.is_empty(), "{} of 10 runs failed: {failed:#?}", failed.len());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// What a failed run's telemetry says of its pace, to tell a host that stopped running the
+/// demo from a fault of its own: the longest wait between two cycles' reads, the last
+/// cycle's read (on the gateway's clock, as the events' `t_s`) and the last events.
+fn pace(dir: &std::path::Path) -> String {
+    let cycles = std::fs::read_to_string(dir.join("cycles.csv")).unwrap_or_default();
+    let mut lines = cycles.lines();
+    let column = lines.next().and_then(|h| h.split(',').position(|c| c == "rx_ns"));
+    let rx: Vec<u64> = match column {
+        Some(k) => lines.filter_map(|l| l.split(',').nth(k)?.parse().ok()).collect(),
+        None => Vec::new(),
+    };
+    let longest = rx.windows(2).map(|w| w[1].saturating_sub(w[0])).max().unwrap_or(0);
+    let last = rx.last().map_or(f64::NAN, |&ns| ns as f64 * 1e-9);
+    let events = std::fs::read_to_string(dir.join("events.jsonl")).unwrap_or_default();
+    let latest: Vec<&str> = events.lines().rev().take(3).collect();
+    format!(
+        "; {} cycles, the longest wait between two {:.1} ms, the last at {last:.3} s; the last events {latest:?}",
+        rx.len(),
+        longest as f64 / 1e6
+    )
 }
