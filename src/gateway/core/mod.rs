@@ -11,7 +11,6 @@
 //!   timing record, state changes). A PSD read is decoded as its outputs are drained, so
 //!   what the caller asks of the core while it carries out a cycle's command is that
 //!   cycle's, even when one read carried two frames.
-
 //! - [`Core::next_deadline`], after draining: when to hand the core [`Input::Tick`] if
 //!   nothing else happens first. Watchdogs, heartbeats and retries live there, so they fire
 //!   however the I/O around the core behaves.
