@@ -330,10 +330,10 @@ impl Judge {
     }
 
     /// Judge the robot at one instant (the start of a run).
-    pub fn instant(&mut self, scene: &Scene<'_>, way: &Way, m: &Moment) {
+    pub fn instant(&mut self, scene: &Scene<'_>, m: &Moment) {
         let mut found = Found::default();
         for target in scene.targets() {
-            self.observe(scene, way, target, None, m, &mut found);
+            self.observe(scene, target, None, m, &mut found);
         }
         self.take(found);
     }
@@ -345,7 +345,7 @@ impl Judge {
         }
         let mut found = Found::default();
         for target in scene.targets() {
-            self.observe(scene, way, target, Some(a), b, &mut found);
+            self.observe(scene, target, Some((way, a)), b, &mut found);
             self.visit(scene, way, target, a, b, &mut found);
         }
         self.take(found);
@@ -389,24 +389,23 @@ impl Judge {
         if length <= INSTANT || (seek_active && length <= ACTIVE_GRAIN) || (bound.tight && !seek_active) {
             if bound.at > a.t && bound.at < b.t {
                 let m = way.at(bound.at);
-                self.observe(scene, way, target, Some(a), &m, found);
+                self.observe(scene, target, Some((way, a)), &m, found);
             }
             return;
         }
         let m = way.at(scene.split(target, a.t, b.t));
-        self.observe(scene, way, target, Some(a), &m, found);
+        self.observe(scene, target, Some((way, a)), &m, found);
         self.visit(scene, way, target, a, &m, found);
         self.visit(scene, way, target, &m, b, found);
     }
 
     /// Record the target's value at `m`; at a contact, find when it began (after `before`,
-    /// where it had not, on the same way) and how the robot was moving.
+    /// where it had not, on the same way as `m`) and how the robot was moving.
     fn observe(
         &mut self,
         scene: &Scene<'_>,
-        way: &Way,
         target: Target,
-        before: Option<&Moment>,
+        before: Option<(&Way, &Moment)>,
         m: &Moment,
         found: &mut Found,
     ) {
@@ -421,7 +420,7 @@ impl Judge {
         }
         let (first, active) = self.pending(found, m.t);
         if first {
-            let began = before.map_or(*m, |before| began(scene, way, target, before, m));
+            let began = before.map_or(*m, |(way, before)| began(scene, way, target, before, m));
             let (_, toward, with) = scene.read(target, &began);
             keep_earliest(&mut found.first, contact(&began, with, toward));
         }

@@ -144,10 +144,9 @@ impl World {
             contact_free_until: 0.0,
             wand: None,
         };
-        let way = Way::to(world.settled, drive, 0.0);
         let start = world.moment_settled();
         let mut judge = std::mem::replace(&mut world.judge, Judge::new(0));
-        judge.instant(&world.scene(), &way, &start);
+        judge.instant(&world.scene(), &start);
         world.judge = judge;
         world.contact_free_until = world.contact_free_from(&start);
         world
