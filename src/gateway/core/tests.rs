@@ -355,28 +355,7 @@ fn a_duplicated_frame_gives_one_command() {
     answer(&mut c, ms(1));
     c.request(ms(1), &Request::Arm).unwrap();
     commands(&mut c);
-    let cal = c.rig().calibration;
-    let sample = |slot: u8, led: u8, x: f64| {
-        let (rx, ry) = cal.to_raw(Point::new(x, 0.0)).unwrap();
-        Message::Sample(Sample {
-            frame: 7,
-            slot,
-            led,
-            t_ctrl_us: CTRL_EPOCH_US + 19_000,
-            x: rx.round() as i32,
-            y: ry.round() as i32,
-            intensity: 3000,
-            flags: SampleFlags(0),
-        })
-    };
-    let mut wire = Vec::new();
-    for m in [
-        sample(0, 1, 0.035),
-        sample(1, 2, -0.035),
-        Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
-    ] {
-        wire.extend(bytes(m));
-    }
+    let wire = frame_bytes(&c, 7, CTRL_EPOCH_US + 19_000, 0.0);
     c.read(ms(20), &wire);
     c.read(ms(20), &wire);
     assert_eq!(commands(&mut c), 1, "one command for one frame");
@@ -384,13 +363,7 @@ fn a_duplicated_frame_gives_one_command() {
     // it are behind it.
     assert_eq!((c.counters().psd_duplicates, c.counters().psd_out_of_order), (1, 2));
     // The same frame again under new sequence numbers (a replayed frame): still no command.
-    for m in [
-        sample(0, 1, 0.035),
-        sample(1, 2, -0.035),
-        Message::FrameEnd { frame: 7, t_ctrl_us: CTRL_EPOCH_US + 19_000, samples: 2 },
-    ] {
-        c.read(ms(21), &bytes(m));
-    }
+    c.read(ms(21), &frame_bytes(&c, 7, CTRL_EPOCH_US + 19_000, 0.0));
     assert_eq!(commands(&mut c), 0);
     assert_eq!(c.counters().frames_repeated, 1);
 }
