@@ -87,19 +87,20 @@ fn main() {
     // user sees it, the median of three (a busy neighbour slows one run).
     let e1 = scenario("e1-standing-obstacle.toml");
     for (name, base, n, target) in [("E2", &e2, 1000, 1000.0), ("E1", &e1, 3000, 3000.0)] {
-        let (rates, report) = sweep_rates(base, n, 3, Mode::FullStack);
+        let (rates, report) = sweep_rates(base, n, 3, 2, Mode::FullStack);
         println!(
             "full-stack sweep around {name}, {n} episodes on 2 threads: {:.0} episodes/s (median of {}; min {:.0}, \
-             max {:.0}): {} the {target:.0} asked; goal {:.1}%",
+             max {:.0}): {}; goal {:.1}%",
             rates[rates.len() / 2],
             rates.len(),
             rates[0],
             rates[rates.len() - 1],
-            if rates[rates.len() / 2] >= target { "meets" } else { "short of" },
+            against(rates[rates.len() / 2], target),
             100.0 * report.goal_rate
         );
     }
-    let (rates, report) = sweep_rates(&e2, 2000, 1, Mode::PlannerOnly);
+    scaling(&e1, 1500, Mode::FullStack, "full-stack");
+    let (rates, report) = sweep_rates(&e2, 2000, 1, 2, Mode::PlannerOnly);
     println!(
         "planner-only sweep around E2, 2000 episodes on 2 threads: {:.0} episodes/s; goal {:.1}%",
         rates[0],
@@ -158,26 +159,63 @@ fn main() {
         ("E5", "e5-moving-and-standing.toml", 5000.0),
         ("E6", "e6-two-moving.toml", 5000.0),
     ] {
-        let (rates, _) = sweep_rates(&scenario(file), EPISODES, REPEATS, Mode::PlannerOnly);
+        let (rates, _) = sweep_rates(&scenario(file), EPISODES, REPEATS, 2, Mode::PlannerOnly);
         let median = rates[REPEATS / 2];
         println!(
             "planner-only sweep around {name}, {EPISODES} episodes on 2 threads: {median:.0} episodes/s (median of \
-             {REPEATS}; min {:.0}, max {:.0}): {} the {target:.0} asked",
+             {REPEATS}; min {:.0}, max {:.0}): {}",
             rates[0],
             rates[REPEATS - 1],
-            if median >= target { "meets" } else { "short of" },
+            against(median, target),
         );
+    }
+    scaling(&scenario("e1-standing-obstacle.toml"), 5000, Mode::PlannerOnly, "planner-only");
+}
+
+/// A rate on two threads against its target: met, or short of it and the threads it would
+/// take at the same rate a thread (a sweep's episodes are independent of one another, so
+/// `--threads` and a batch system's `--shard` spread them; [`scaling`] shows how well).
+fn against(rate: f64, target: f64) -> String {
+    if rate >= target {
+        format!("meets the {target:.0} asked")
+    } else {
+        let per_thread = rate / 2.0;
+        format!(
+            "short of the {target:.0} asked, which at {per_thread:.0} a thread takes {:.0} threads",
+            (target / per_thread).ceil()
+        )
     }
 }
 
-/// The rates of `repeats` sweeps of `n` episodes around `base` on two threads (episodes/s
-/// of wall time, sorted), and the last sweep's report.
-fn sweep_rates(base: &Scenario, n: usize, repeats: usize, mode: Mode) -> (Vec<f64>, sweep::SweepReport) {
+/// How a sweep's rate grows from one thread to two (median of three each): what the
+/// threads [`against`] counts rest on.
+fn scaling(base: &Scenario, n: usize, mode: Mode, what: &str) {
+    let median = |threads| {
+        let (rates, _) = sweep_rates(base, n, 3, threads, mode);
+        rates[1]
+    };
+    let (one, two) = (median(1), median(2));
+    println!(
+        "{what} sweep around {}, {n} episodes: {one:.0} episodes/s on 1 thread, {two:.0} on 2 (x{:.2}; median of 3 each)",
+        base.name,
+        two / one
+    );
+}
+
+/// The rates of `repeats` sweeps of `n` episodes around `base` on `threads` threads
+/// (episodes/s of wall time, sorted), and the last sweep's report.
+fn sweep_rates(
+    base: &Scenario,
+    n: usize,
+    repeats: usize,
+    threads: usize,
+    mode: Mode,
+) -> (Vec<f64>, sweep::SweepReport) {
     let mut rates = Vec::with_capacity(repeats);
     let mut report = None;
     for _ in 0..repeats {
         let started = Instant::now();
-        report = Some(sweep::sweep(base, n, 1, 2, mode));
+        report = Some(sweep::sweep(base, n, 1, threads, mode));
         rates.push(n as f64 / started.elapsed().as_secs_f64());
     }
     rates.sort_by(f64::total_cmp);
