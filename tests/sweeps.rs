@@ -204,6 +204,37 @@ fn an_automatic_shard_takes_its_index_from_the_batch_system() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `--threads` changes how fast a sweep runs, not its episodes: one thread, five and the
+/// default (the CPUs this process may use) write the same episodes, byte for byte. A count
+/// outside 1 to 1024 is refused before anything runs, naming the flag.
+#[test]
+fn threads_change_a_sweeps_pace_not_its_episodes() {
+    let dir = temp_dir("threads");
+    let e1 = Path::new(env!("CARGO_MANIFEST_DIR")).join(E1);
+    let sweep = |threads: Option<&str>, out: &str| {
+        let mut cmd = flowgate();
+        cmd.arg("plan").args(["--planner-only", "--sweep", "12", "--seed", "3"]).arg(&e1);
+        cmd.arg("--out").arg(dir.join(out));
+        cmd.args(threads.map(|t| ["--threads", t]).into_iter().flatten());
+        let out = cmd.output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    for (threads, out) in [(None, "default"), (Some("1"), "one"), (Some("5"), "five")] {
+        let (code, stderr) = sweep(threads, out);
+        assert_eq!(code, Some(0), "{threads:?}: {stderr}");
+    }
+    let read = |out: &str| std::fs::read(dir.join(out).join("episodes.parquet")).unwrap();
+    assert_eq!(read("one"), read("default"));
+    assert_eq!(read("five"), read("default"));
+    for bad in ["0", "1025", "many"] {
+        let (code, stderr) = sweep(Some(bad), "bad");
+        assert_eq!(code, Some(2), "--threads {bad}: {stderr}");
+        assert!(stderr.contains(&format!("invalid value '{bad}' for '--threads <THREADS>'")), "{stderr}");
+        assert!(!dir.join("bad").exists(), "--threads {bad} wrote its output");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// deploy/k8s/sweep-job.yaml, read as Kubernetes reads it (PyYAML), is an Indexed Job of
 /// as many completions as its command has shards; its command, run for every index as the
 /// Job's pods would (JOB_COMPLETION_INDEX set, a smaller sweep, the volume and the image's

@@ -54,9 +54,10 @@ pub struct PlanArgs {
     /// sweep: sweep.json and episodes.parquet in --out.
     #[arg(long, value_name = "DIR", num_args = 1.., conflicts_with_all = ["all", "scenario", "file", "sweep"])]
     merge: Vec<PathBuf>,
-    /// Worker threads for the sweep.
-    #[arg(long, default_value_t = 2)]
-    threads: usize,
+    /// Worker threads for the sweep or the swarm, from 1 to 1024 [default: the CPUs this
+    /// process may use, as its affinity and cgroup quota allow (a batch system's allocation)].
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=sweep::MAX_THREADS as i64))]
+    threads: Option<u16>,
     /// Run the planner alone against a modelled sensing chain (faster), instead of the whole
     /// stack (the gateway core, the firmware and the wire protocols) in virtual time.
     #[arg(long)]
@@ -68,6 +69,13 @@ pub struct PlanArgs {
     /// Where to write summary.json and the plots (default: out/plan/<scenario>).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+}
+
+impl PlanArgs {
+    /// `--threads`, or the CPUs this process may use.
+    fn threads(&self) -> usize {
+        self.threads.map_or_else(sweep::available_threads, usize::from)
+    }
 }
 
 pub fn run(args: PlanArgs) -> Result<()> {
@@ -124,7 +132,7 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
     let episodes =
-        sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, shard.unwrap_or(sweep::Shard::WHOLE));
+        sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, shard.unwrap_or(sweep::Shard::WHOLE));
     let manifest =
         sweep::Manifest::new(scenario, &bytes, mode, args.seed, n as u64, shard.unwrap_or(sweep::Shard::WHOLE));
     let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
@@ -172,8 +180,8 @@ fn compare_command(
     let mut changed = Scenario::load_with(file, setting)?;
     changed.supervised = scenario.supervised;
     let started = std::time::Instant::now();
-    let before = sweep::run_shard(scenario, n as u64, args.seed, args.threads, mode, sweep::Shard::WHOLE);
-    let after = sweep::run_shard(&changed, n as u64, args.seed, args.threads, mode, sweep::Shard::WHOLE);
+    let before = sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, sweep::Shard::WHOLE);
+    let after = sweep::run_shard(&changed, n as u64, args.seed, args.threads(), mode, sweep::Shard::WHOLE);
     let comparison = sweep::compare::compare(&before, &after);
     say!("{n} episodes around {} (seed {}, {mode}), as given and with {setting}:", scenario.name, args.seed);
     say!("{comparison}");
@@ -221,7 +229,7 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     let started = std::time::Instant::now();
     let shard =
         args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?.unwrap_or(sweep::Shard::WHOLE);
-    let outcomes = swarm::run(scenario, n, args.seed, args.threads, shard);
+    let outcomes = swarm::run(scenario, n, args.seed, args.threads(), shard);
     let report = swarm::report(scenario, args.seed, shard, &outcomes);
     say!("{report}");
     say!(

@@ -20,6 +20,7 @@ pub mod compare;
 pub mod episodes_file;
 mod shard;
 
+pub use shard::{available_threads, MAX_THREADS};
 pub use shard::{
     merge, read_shard, write_shard, AutoShardError, BadShard, Manifest, MergeError, Shard, ShardData, ShardDirError,
     ShardSpec, BATCH_INDEX_VARIABLES, EPISODES_FILE, MANIFEST_FILE, MAX_EPISODES,

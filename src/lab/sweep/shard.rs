@@ -30,20 +30,34 @@ impl Shard {
     }
 
     /// `episode(i)` for this shard's episodes of `n` (i modulo the count is the index), on
-    /// `threads` threads; in no particular order.
+    /// `threads` threads (no more than the shard has episodes); in no particular order.
+    /// A worker the system will not start (a process or cgroup limit on threads) has its
+    /// episodes run on the calling thread instead: slower, nothing lost.
     pub fn run<T: Send>(self, n: u64, threads: usize, episode: impl Fn(u64) -> T + Sync) -> Vec<T> {
-        let threads = threads.max(1);
+        let mine = usize::try_from(self.episodes_of(n)).unwrap_or(usize::MAX);
+        let threads = threads.clamp(1, mine.max(1));
         let count = usize::try_from(self.count.max(1)).unwrap_or(usize::MAX);
         let episode = &episode;
+        let share = move |w: usize| (self.index..n).step_by(count).skip(w).step_by(threads).map(episode);
         std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..threads)
+            let workers: Vec<_> = (0..threads)
                 .map(|w| {
-                    scope.spawn(move || {
-                        (self.index..n).step_by(count).skip(w).step_by(threads).map(episode).collect::<Vec<_>>()
-                    })
+                    std::thread::Builder::new().spawn_scoped(scope, move || share(w).collect::<Vec<_>>()).map_err(|_| w)
                 })
                 .collect();
-            handles.into_iter().flat_map(|h| h.join().expect("a worker panicked")).collect()
+            let mut out = Vec::with_capacity(mine);
+            for worker in workers {
+                match worker {
+                    Ok(handle) => out.extend(handle.join().expect("a worker panicked")),
+                    Err(w) => {
+                        tracing::warn!(
+                            "could not start sweep worker {w} of {threads}; its episodes run on this thread"
+                        );
+                        out.extend(share(w));
+                    }
+                }
+            }
+            out
         })
     }
 }
@@ -210,6 +224,14 @@ pub struct ShardData {
 
 /// The most episodes a sweep may have (10^9: a merge holds one flag per episode).
 pub const MAX_EPISODES: u64 = 1_000_000_000;
+/// The most worker threads a sweep or a swarm runs on (`--threads`).
+pub const MAX_THREADS: usize = 1024;
+
+/// The threads a sweep runs on by default: the CPUs this process may use (its affinity
+/// and cgroup quota: a batch system's allocation), at most [`MAX_THREADS`].
+pub fn available_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get).min(MAX_THREADS)
+}
 
 /// Why shards cannot be merged into one sweep.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -329,6 +351,25 @@ mod tests {
 
     fn env<'a>(vars: &'a [(&'a str, &'a str)]) -> impl Fn(&str) -> Option<String> + 'a {
         move |name| vars.iter().find(|(k, _)| *k == name).map(|(_, v)| v.to_string())
+    }
+
+    /// A shard runs each of its episodes once, whatever the threads asked for: fewer than
+    /// its episodes, as many, more (no idle workers are started), or none.
+    #[test]
+    fn a_shard_runs_each_of_its_episodes_once_on_any_number_of_threads() {
+        let shard = Shard { index: 1, count: 3 };
+        let expected: Vec<u64> = (1..20).step_by(3).collect();
+        for threads in [0, 1, 2, 7, 64] {
+            let started = std::sync::atomic::AtomicUsize::new(0);
+            let mut got = shard.run(20, threads, |i| {
+                started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                i
+            });
+            got.sort_unstable();
+            assert_eq!(got, expected, "{threads} threads");
+            assert_eq!(started.into_inner(), expected.len(), "{threads} threads");
+        }
+        assert!(Shard { index: 2, count: 3 }.run(2, 4, |i| i).is_empty());
     }
 
     /// `auto/n` takes its index from whichever batch system set one, a Slurm array from
