@@ -127,7 +127,7 @@ fn main() {
         let per_episode = commands as f64 / sample as f64;
         let bound = 2.0 / (per_command_ns * 1e-9 * per_episode);
         let started = Instant::now();
-        sweep::sweep(base, n, 1, 2, Mode::PlannerOnly);
+        sweep::sweep(base, n, 1, 2, Mode::PlannerOnly).expect("a sweep this small fits");
         let rate = n as f64 / started.elapsed().as_secs_f64();
         println!(
             "planner-only sweep around {name}: one command {:.2} µs (p50) x {per_episode:.0} commands an episode \
@@ -215,7 +215,7 @@ fn sweep_rates(
     let mut report = None;
     for _ in 0..repeats {
         let started = Instant::now();
-        report = Some(sweep::sweep(base, n, 1, threads, mode));
+        report = Some(sweep::sweep(base, n, 1, threads, mode).expect("a sweep this small fits"));
         rates.push(n as f64 / started.elapsed().as_secs_f64());
     }
     rates.sort_by(f64::total_cmp);

@@ -78,3 +78,19 @@ async fn bench_harness_runs_the_gateway_and_accounts_for_every_cycle() {
     assert!(json.contains("late_percent"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `flowgate bench` refuses its flags' bad values before it starts anything, naming the
+/// flag: a real-time CPU beyond what Linux numbers, no cycles at the paper's rate, a
+/// low-latency window that does not fit in a frame.
+#[test]
+fn bench_refuses_bad_flags_before_it_starts() {
+    let refused = |args: &[&str], code: i32, says: &str| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_flowgate")).arg("bench").args(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{args:?}: {stderr}");
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+    };
+    refused(&["--rt-cpu", "1024"], 2, "invalid value '1024' for '--rt-cpu <N>': 1024 is not in 0..1024");
+    refused(&["--paper-cycles", "0"], 1, "--paper-cycles must be positive");
+    refused(&["--spin-us", "30001"], 1, "--spin-us 30001: at most 30000 µs");
+}

@@ -158,13 +158,13 @@ fn e7_flags_an_obstacle_faster_than_the_robot() {
 #[test]
 fn sweep_is_reproducible_and_accounts_for_every_episode() {
     let base = scenario("e2-lane-head-on.toml");
-    let a = sweep::sweep(&base, 60, 7, 2, Mode::PlannerOnly);
-    let b = sweep::sweep(&base, 60, 7, 1, Mode::PlannerOnly);
+    let a = sweep::sweep(&base, 60, 7, 2, Mode::PlannerOnly).expect("a sweep this small fits");
+    let b = sweep::sweep(&base, 60, 7, 1, Mode::PlannerOnly).expect("a sweep this small fits");
     assert_eq!(a.episodes, 60);
     let total = a.goal_rate + a.collision_rate + a.timeout_rate + a.stall_rate;
     assert!((total - 1.0).abs() < 1e-9, "{total}");
     assert_eq!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&b).unwrap(), "same seed, same report");
-    let c = sweep::sweep(&base, 60, 8, 2, Mode::PlannerOnly);
+    let c = sweep::sweep(&base, 60, 8, 2, Mode::PlannerOnly).expect("a sweep this small fits");
     assert_ne!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&c).unwrap(), "another seed differs");
 }
 
@@ -358,7 +358,7 @@ fn the_papers_experiments_end_alike_through_the_whole_stack() {
 fn a_crossing_crowd_is_evaded() {
     let run = |name: &str, mode: Mode| {
         let s = scenario(&format!("crowd/{name}"));
-        sweep::sweep(&s, 1000, 1, 2, mode)
+        sweep::sweep(&s, 1000, 1, 2, mode).expect("a sweep this small fits")
     };
     for (name, mode, goal, passive) in [
         ("circle-crossing-5.toml", Mode::PlannerOnly, 0.996, 0.001),
@@ -382,7 +382,7 @@ fn a_crossing_crowd_is_evaded() {
     }
     let mut without = scenario("crowd/circle-crossing-5.toml");
     without.planner.evasion = Some(false);
-    let r = sweep::sweep(&without, 1000, 1, 2, Mode::PlannerOnly);
+    let r = sweep::sweep(&without, 1000, 1, 2, Mode::PlannerOnly).expect("a sweep this small fits");
     assert!((r.goal_rate - 0.784).abs() < 1e-9 && (r.passive_contact_rate - 0.215).abs() < 1e-9, "{r}");
 }
 
@@ -396,12 +396,12 @@ fn a_crossing_crowd_is_evaded() {
 fn a_lane_obstacle_is_passed_on_the_side_it_leaves() {
     let base = scenario("e2-lane-head-on.toml");
     for (mode, goal, passive) in [(Mode::PlannerOnly, 0.996, 0.004), (Mode::FullStack, 0.996, 0.003)] {
-        let r = sweep::sweep(&base, 1000, 1, 2, mode);
+        let r = sweep::sweep(&base, 1000, 1, 2, mode).expect("a sweep this small fits");
         assert!(r.passive_contact_rate <= 0.01 && r.active_contact_rate == 0.0, "{mode}: {r}");
         assert!((r.goal_rate - goal).abs() < 1e-9 && (r.passive_contact_rate - passive).abs() < 1e-9, "{mode}: {r}");
     }
     let mut standing = base.clone();
     standing.planner.anticipation = 0.0;
-    let r = sweep::sweep(&standing, 1000, 1, 2, Mode::PlannerOnly);
+    let r = sweep::sweep(&standing, 1000, 1, 2, Mode::PlannerOnly).expect("a sweep this small fits");
     assert!((r.goal_rate - 0.917).abs() < 1e-9 && (r.passive_contact_rate - 0.083).abs() < 1e-9, "{r}");
 }

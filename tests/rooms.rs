@@ -292,7 +292,7 @@ fn the_rooms_sweeps_end_as_measured() {
     ];
     for (name, mode, goal, passive, stall, fault) in rows {
         let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms").join(name)).unwrap();
-        let r = sweep::sweep(&s, 1000, 1, 2, mode);
+        let r = sweep::sweep(&s, 1000, 1, 2, mode).expect("a sweep this small fits");
         assert_eq!(r.active_contact_rate, 0.0, "{name} {mode}: {r}");
         let measured = [r.goal_rate, r.passive_contact_rate, r.stall_rate, r.fault_rate];
         let expected = [goal, passive, stall, fault];

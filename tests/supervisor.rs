@@ -401,12 +401,12 @@ fn sweeps_have_no_active_contact_where_obstacles_are_slower() {
         ("e6-two-moving.toml", 300, false),
     ] {
         let mut base = load(name);
-        let report = sweep::sweep(&base, episodes, 1, 2, Mode::PlannerOnly);
+        let report = sweep::sweep(&base, episodes, 1, 2, Mode::PlannerOnly).expect("a sweep this small fits");
         assert!(report.supervised && report.slower_obstacle_episodes > episodes / 3, "{report}");
         assert_eq!(report.active_contacts_slower_obstacles, 0, "{report}");
         if unsupervised_active {
             base.supervised = false;
-            let before = sweep::sweep(&base, episodes, 1, 2, Mode::PlannerOnly);
+            let before = sweep::sweep(&base, episodes, 1, 2, Mode::PlannerOnly).expect("a sweep this small fits");
             assert!(before.active_contacts_slower_obstacles > 0, "{before}");
         }
     }

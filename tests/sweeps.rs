@@ -36,12 +36,12 @@ fn temp_dir(name: &str) -> PathBuf {
 #[test]
 fn sweep_shards_merge_into_the_whole_sweep() {
     let (base, bytes) = e1();
-    let whole = sweep::sweep(&base, 24, 3, 2, Mode::PlannerOnly);
+    let whole = sweep::sweep(&base, 24, 3, 2, Mode::PlannerOnly).expect("a sweep this small fits");
     let shard = |i: u64, seed: u64| {
         let shard = Shard { index: i, count: 3 };
         ShardData {
             manifest: Manifest::new(&base, &bytes, Mode::PlannerOnly, seed, 24, shard),
-            episodes: sweep::run_shard(&base, 24, seed, 1, Mode::PlannerOnly, shard),
+            episodes: sweep::run_shard(&base, 24, seed, 1, Mode::PlannerOnly, shard).expect("a sweep this small fits"),
         }
     };
     let shards = [shard(2, 3), shard(0, 3), shard(1, 3)];
@@ -49,7 +49,10 @@ fn sweep_shards_merge_into_the_whole_sweep() {
     assert!(shards.iter().all(|s| s.manifest.episodes == 8));
     let (manifest, episodes, merged) = sweep::merge(&shards).unwrap();
     assert_eq!(serde_json::to_value(&merged).unwrap(), serde_json::to_value(&whole).unwrap());
-    assert_eq!(episodes, sweep::run_shard(&base, 24, 3, 2, Mode::PlannerOnly, Shard::WHOLE));
+    assert_eq!(
+        episodes,
+        sweep::run_shard(&base, 24, 3, 2, Mode::PlannerOnly, Shard::WHOLE).expect("a sweep this small fits")
+    );
     assert_eq!(manifest, Manifest::new(&base, &bytes, Mode::PlannerOnly, 3, 24, Shard::WHOLE));
 
     let err = |shards: &[ShardData]| sweep::merge(shards).unwrap_err().to_string();
@@ -91,7 +94,8 @@ fn episodes_round_trip_through_parquet() {
     let (base, bytes) = e1();
     let dir = temp_dir("episodes-file");
     std::fs::create_dir_all(&dir).unwrap();
-    let mut episodes = sweep::run_shard(&base, 6, 9, 1, Mode::PlannerOnly, Shard::WHOLE);
+    let mut episodes =
+        sweep::run_shard(&base, 6, 9, 1, Mode::PlannerOnly, Shard::WHOLE).expect("a sweep this small fits");
     episodes[2].min_clearance = None;
     episodes[3].min_wall_clearance = Some(0.25);
     episodes[4].active_contact = true;
@@ -206,7 +210,8 @@ fn an_automatic_shard_takes_its_index_from_the_batch_system() {
 
 /// `--threads` changes how fast a sweep runs, not its episodes: one thread, five and the
 /// default (the CPUs this process may use) write the same episodes, byte for byte. A count
-/// outside 1 to 1024 is refused before anything runs, naming the flag.
+/// outside 1 to 1024, or a swarm of more episodes than a sweep may have, is refused before
+/// anything runs, naming the flag.
 #[test]
 fn threads_change_a_sweeps_pace_not_its_episodes() {
     let dir = temp_dir("threads");
@@ -226,6 +231,16 @@ fn threads_change_a_sweeps_pace_not_its_episodes() {
     let read = |out: &str| std::fs::read(dir.join(out).join("episodes.parquet")).unwrap();
     assert_eq!(read("one"), read("default"));
     assert_eq!(read("five"), read("default"));
+    // A swarm beyond the episodes a sweep may have is refused the same way.
+    let out = flowgate()
+        .args(["plan", "--swarm", "18446744073709551615", "--out"])
+        .arg(dir.join("bad"))
+        .arg(&e1)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("--swarm 18446744073709551615: at most 1000000000 episodes"), "{stderr}");
     for bad in ["0", "1025", "many"] {
         let (code, stderr) = sweep(Some(bad), "bad");
         assert_eq!(code, Some(2), "--threads {bad}: {stderr}");

@@ -27,8 +27,9 @@ pub struct BenchArgs {
     spin_us: u32,
     /// The real-time row at the paper's rate: a gateway (and its null gateway) on this CPU
     /// with SCHED_FIFO at --fifo-priority and locked memory, in the same seconds.
-    #[arg(long, value_name = "N", default_value_t = 1)]
-    rt_cpu: usize,
+    #[arg(long, value_name = "N", default_value_t = 1,
+          value_parser = clap::value_parser!(u16).range(0..rustix::thread::CpuSet::MAX_CPU as i64))]
+    rt_cpu: u16,
     /// SCHED_FIFO priority of the real-time row (0: no real-time row).
     #[arg(long, value_name = "0-99", default_value_t = 50, value_parser = clap::value_parser!(u8).range(0..=99))]
     fifo_priority: u8,
@@ -100,8 +101,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
         phases[0].also.push(Mode { spin_us: args.spin_us, warm_up: true, ..Mode::default() });
     }
     if args.fifo_priority > 0 {
-        let realtime =
-            RealtimeSettings { cpus: vec![args.rt_cpu], fifo_priority: Some(args.fifo_priority), lock_memory: true };
+        let realtime = RealtimeSettings {
+            cpus: vec![usize::from(args.rt_cpu)],
+            fifo_priority: Some(args.fifo_priority),
+            lock_memory: true,
+        };
         phases[0].also.push(Mode { realtime, ..Mode::default() });
     }
     if !args.no_recording_row {

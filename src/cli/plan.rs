@@ -132,7 +132,7 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
     let episodes =
-        sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, shard.unwrap_or(sweep::Shard::WHOLE));
+        sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, shard.unwrap_or(sweep::Shard::WHOLE))?;
     let manifest =
         sweep::Manifest::new(scenario, &bytes, mode, args.seed, n as u64, shard.unwrap_or(sweep::Shard::WHOLE));
     let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);
@@ -180,8 +180,8 @@ fn compare_command(
     let mut changed = Scenario::load_with(file, setting)?;
     changed.supervised = scenario.supervised;
     let started = std::time::Instant::now();
-    let before = sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, sweep::Shard::WHOLE);
-    let after = sweep::run_shard(&changed, n as u64, args.seed, args.threads(), mode, sweep::Shard::WHOLE);
+    let before = sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, sweep::Shard::WHOLE)?;
+    let after = sweep::run_shard(&changed, n as u64, args.seed, args.threads(), mode, sweep::Shard::WHOLE)?;
     let comparison = sweep::compare::compare(&before, &after);
     say!("{n} episodes around {} (seed {}, {mode}), as given and with {setting}:", scenario.name, args.seed);
     say!("{comparison}");
@@ -218,6 +218,9 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     if n == 0 {
         bail!("--swarm needs at least one episode");
     }
+    if n > sweep::MAX_EPISODES {
+        bail!("--swarm {n}: at most {} episodes (shard a larger swarm into several)", sweep::MAX_EPISODES);
+    }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let replay = |k: u64| {
         let unsupervised = if scenario.supervised { "" } else { " --unsupervised" };
@@ -229,7 +232,7 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     let started = std::time::Instant::now();
     let shard =
         args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?.unwrap_or(sweep::Shard::WHOLE);
-    let outcomes = swarm::run(scenario, n, args.seed, args.threads(), shard);
+    let outcomes = swarm::run(scenario, n, args.seed, args.threads(), shard)?;
     let report = swarm::report(scenario, args.seed, shard, &outcomes);
     say!("{report}");
     say!(

@@ -29,7 +29,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::sweep::Shard;
+use super::sweep::{Shard, TooLarge};
 use super::virtual_rig::{CanTransport, Options, VirtualRig};
 use super::Scenario;
 use crate::gateway::core::operator::{Goal, Request};
@@ -1095,10 +1095,10 @@ pub struct EpisodeLine {
 }
 
 /// Run `n` episodes of the swarm (the shard's) around `base` on `threads` threads.
-pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize, shard: Shard) -> Vec<Outcome> {
-    let mut outcomes = shard.run(n, threads, |i| run_episode(base, seed, i, false).0);
+pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize, shard: Shard) -> Result<Vec<Outcome>, TooLarge> {
+    let mut outcomes = shard.run(n, threads, |i| run_episode(base, seed, i, false).0)?;
     outcomes.sort_by_key(|o| o.index);
-    outcomes
+    Ok(outcomes)
 }
 
 /// The report of a swarm's episodes.

@@ -23,7 +23,7 @@ mod shard;
 pub use shard::{available_threads, MAX_THREADS};
 pub use shard::{
     merge, read_shard, write_shard, AutoShardError, BadShard, Manifest, MergeError, Shard, ShardData, ShardDirError,
-    ShardSpec, BATCH_INDEX_VARIABLES, EPISODES_FILE, MANIFEST_FILE, MAX_EPISODES,
+    ShardSpec, TooLarge, BATCH_INDEX_VARIABLES, EPISODES_FILE, MANIFEST_FILE, MAX_EPISODES,
 };
 
 use flowgate_sim::scenario::Motion;
@@ -164,14 +164,21 @@ fn fastest_obstacle(s: &Scenario) -> f64 {
 }
 
 /// Run `n` episodes around `base` on `threads` threads.
-pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -> SweepReport {
-    let episodes = run_shard(base, n as u64, seed, threads, mode, Shard::WHOLE);
-    report(&base.name, seed, mode, base.supervised, &episodes)
+pub fn sweep(base: &Scenario, n: usize, seed: u64, threads: usize, mode: Mode) -> Result<SweepReport, TooLarge> {
+    let episodes = run_shard(base, n as u64, seed, threads, mode, Shard::WHOLE)?;
+    Ok(report(&base.name, seed, mode, base.supervised, &episodes))
 }
 
 /// Run one shard of an `n`-episode sweep around `base` on `threads` threads: its episodes,
 /// in index order.
-pub fn run_shard(base: &Scenario, n: u64, seed: u64, threads: usize, mode: Mode, shard: Shard) -> Vec<Episode> {
+pub fn run_shard(
+    base: &Scenario,
+    n: u64,
+    seed: u64,
+    threads: usize,
+    mode: Mode,
+    shard: Shard,
+) -> Result<Vec<Episode>, TooLarge> {
     let mut episodes = shard.run(n, threads, |i| {
         let s = perturb(base, seed, i);
         let r = mode.episode(&s);
@@ -186,9 +193,9 @@ pub fn run_shard(base: &Scenario, n: u64, seed: u64, threads: usize, mode: Mode,
             duration: r.duration,
             path_length: r.path_length,
         }
-    });
+    })?;
     episodes.sort_by_key(|e| e.index);
-    episodes
+    Ok(episodes)
 }
 
 /// The report over `episodes` (of a whole sweep, or of one shard).

@@ -32,33 +32,62 @@ impl Shard {
     /// `episode(i)` for this shard's episodes of `n` (i modulo the count is the index), on
     /// `threads` threads (no more than the shard has episodes); in no particular order.
     /// A worker the system will not start (a process or cgroup limit on threads) has its
-    /// episodes run on the calling thread instead: slower, nothing lost.
-    pub fn run<T: Send>(self, n: u64, threads: usize, episode: impl Fn(u64) -> T + Sync) -> Vec<T> {
-        let mine = usize::try_from(self.episodes_of(n)).unwrap_or(usize::MAX);
+    /// episodes run on the calling thread instead: slower, nothing lost. Refused before any
+    /// episode runs if this process cannot allocate room for all of them.
+    pub fn run<T: Send>(self, n: u64, threads: usize, episode: impl Fn(u64) -> T + Sync) -> Result<Vec<T>, TooLarge> {
+        let too_large = || TooLarge::of::<T>(self.episodes_of(n));
+        let mine = usize::try_from(self.episodes_of(n)).map_err(|_| too_large())?;
+        let mut out = Vec::new();
+        out.try_reserve_exact(mine).map_err(|_| too_large())?;
         let threads = threads.clamp(1, mine.max(1));
         let count = usize::try_from(self.count.max(1)).unwrap_or(usize::MAX);
         let episode = &episode;
         let share = move |w: usize| (self.index..n).step_by(count).skip(w).step_by(threads).map(episode);
+        // Each worker's room is taken before its first episode, so a sweep too large fails
+        // at once rather than after hours.
+        let run_share = move |w: usize| {
+            let mut done = Vec::new();
+            done.try_reserve_exact(share(w).size_hint().0).ok()?;
+            done.extend(share(w));
+            Some(done)
+        };
         std::thread::scope(|scope| {
             let workers: Vec<_> = (0..threads)
-                .map(|w| {
-                    std::thread::Builder::new().spawn_scoped(scope, move || share(w).collect::<Vec<_>>()).map_err(|_| w)
-                })
+                .map(|w| std::thread::Builder::new().spawn_scoped(scope, move || run_share(w)).map_err(|_| w))
                 .collect();
-            let mut out = Vec::with_capacity(mine);
             for worker in workers {
-                match worker {
-                    Ok(handle) => out.extend(handle.join().expect("a worker panicked")),
+                let done = match worker {
+                    Ok(handle) => handle.join().expect("a worker panicked"),
                     Err(w) => {
                         tracing::warn!(
                             "could not start sweep worker {w} of {threads}; its episodes run on this thread"
                         );
-                        out.extend(share(w));
+                        run_share(w)
                     }
-                }
+                };
+                out.extend(done.ok_or_else(too_large)?);
             }
-            out
+            Ok(out)
         })
+    }
+}
+
+/// A shard with more episodes than this process can hold.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "{episodes} episodes take {gib:.1} GiB to hold, more than this process can allocate: run them in shards \
+     (--shard i/n), each small enough for one machine",
+    gib = *bytes as f64 / f64::from(1u32 << 30)
+)]
+pub struct TooLarge {
+    pub episodes: u64,
+    /// What their records alone take, bytes.
+    pub bytes: u64,
+}
+
+impl TooLarge {
+    fn of<T>(episodes: u64) -> Self {
+        Self { episodes, bytes: episodes.saturating_mul(std::mem::size_of::<T>() as u64) }
     }
 }
 
@@ -361,15 +390,32 @@ mod tests {
         let expected: Vec<u64> = (1..20).step_by(3).collect();
         for threads in [0, 1, 2, 7, 64] {
             let started = std::sync::atomic::AtomicUsize::new(0);
-            let mut got = shard.run(20, threads, |i| {
-                started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                i
-            });
+            let mut got = shard
+                .run(20, threads, |i| {
+                    started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    i
+                })
+                .unwrap();
             got.sort_unstable();
             assert_eq!(got, expected, "{threads} threads");
             assert_eq!(started.into_inner(), expected.len(), "{threads} threads");
         }
-        assert!(Shard { index: 2, count: 3 }.run(2, 4, |i| i).is_empty());
+        assert!(Shard { index: 2, count: 3 }.run(2, 4, |i| i).unwrap().is_empty());
+    }
+
+    /// A shard this process cannot hold is refused before any episode runs, saying how
+    /// much room its episodes take.
+    #[test]
+    fn a_shard_too_large_to_hold_is_refused_before_it_runs() {
+        let ran = std::sync::atomic::AtomicBool::new(false);
+        let huge = Shard::WHOLE.run(u64::MAX, 2, |i| {
+            ran.store(true, std::sync::atomic::Ordering::Relaxed);
+            [i; 8]
+        });
+        let e = huge.unwrap_err();
+        assert_eq!(e, TooLarge { episodes: u64::MAX, bytes: u64::MAX });
+        assert!(e.to_string().contains("run them in shards (--shard i/n)"), "{e}");
+        assert!(!ran.into_inner());
     }
 
     /// `auto/n` takes its index from whichever batch system set one, a Slurm array from
