@@ -184,7 +184,12 @@ impl Scenario {
         if (us - whole).abs() > 1e-6 || !(1.0..=f64::from(u32::MAX)).contains(&whole) {
             return Err(Invalid {
                 key: "sensing.sample_time".into(),
-                why: format!("must be a whole number of microseconds, is {} s", self.sensing.sample_time),
+                why: format!(
+                    "must be a whole number of microseconds from 1 µs to {} s (the PSD schedule's unit and \
+                     range), is {:e} s",
+                    f64::from(u32::MAX) / 1e6,
+                    self.sensing.sample_time
+                ),
             });
         }
         Ok(whole as u32)
@@ -312,11 +317,17 @@ mod tests {
             ("kc = ", "kc = -", "planner.kc"),
             ("rule = \"none\"", "rule = \"delay\", extra_speed = nan", "planner.margin.extra_speed"),
             ("sample_time = 0.02", "sample_time = 0.0200005", "sensing.sample_time"),
+            ("sample_time = 0.02", "sample_time = 1e9", "sensing.sample_time"),
         ] {
             assert!(E2.contains(from), "{from}");
             let err = Scenario::from_toml(&E2.replacen(from, to, 1), "e2").unwrap_err().to_string();
             assert!(err.contains(&format!("`{key}`")), "{to}: {err}");
         }
+        let err = Scenario::from_toml(&E2.replacen("sample_time = 0.02", "sample_time = 1e9", 1), "e2").unwrap_err();
+        assert!(
+            err.to_string().contains("from 1 µs to 4294.967295 s (the PSD schedule's unit and range), is 1e9 s"),
+            "{err}"
+        );
         let err = Scenario::from_toml(&E2.replace("[planner]", "[planner]\nbogus = 1"), "e2").unwrap_err();
         assert!(err.to_string().contains("unknown field `bogus`"), "{err}");
     }
