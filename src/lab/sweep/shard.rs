@@ -42,13 +42,24 @@ impl Shard {
         let threads = threads.clamp(1, mine.max(1));
         let count = usize::try_from(self.count.max(1)).unwrap_or(usize::MAX);
         let episode = &episode;
-        let share = move |w: usize| (self.index..n).step_by(count).skip(w).step_by(threads).map(episode);
-        // Each worker's room is taken before its first episode, so a sweep too large fails
-        // at once rather than after hours.
+        // Each worker takes the room for its episodes before the first, and the others stop
+        // at their next episode when one cannot: a sweep too large fails at once, not after
+        // hours.
+        let refused = std::sync::atomic::AtomicBool::new(false);
+        let refused = &refused;
         let run_share = move |w: usize| {
+            let indices = (self.index..n).step_by(count).skip(w).step_by(threads);
             let mut done = Vec::new();
-            done.try_reserve_exact(share(w).size_hint().0).ok()?;
-            done.extend(share(w));
+            if done.try_reserve_exact(indices.size_hint().0).is_err() {
+                refused.store(true, std::sync::atomic::Ordering::Relaxed);
+                return None;
+            }
+            for i in indices {
+                if refused.load(std::sync::atomic::Ordering::Relaxed) {
+                    return None;
+                }
+                done.push(episode(i));
+            }
             Some(done)
         };
         std::thread::scope(|scope| {
