@@ -4,6 +4,7 @@
 //! sweep ([`merge`]), refusing what belongs to another sweep by the field that differs.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::{Deserialize, Serialize};
 
@@ -45,17 +46,17 @@ impl Shard {
         // Each worker takes the room for its episodes before the first, and the others stop
         // at their next episode when one cannot: a sweep too large fails at once, not after
         // hours.
-        let refused = std::sync::atomic::AtomicBool::new(false);
+        let refused = AtomicBool::new(false);
         let refused = &refused;
         let run_share = move |w: usize| {
             let indices = (self.index..n).step_by(count).skip(w).step_by(threads);
             let mut done = Vec::new();
             if done.try_reserve_exact(indices.size_hint().0).is_err() {
-                refused.store(true, std::sync::atomic::Ordering::Relaxed);
+                refused.store(true, Ordering::Relaxed);
                 return None;
             }
             for i in indices {
-                if refused.load(std::sync::atomic::Ordering::Relaxed) {
+                if refused.load(Ordering::Relaxed) {
                     return None;
                 }
                 done.push(episode(i));
@@ -403,7 +404,7 @@ mod tests {
             let started = std::sync::atomic::AtomicUsize::new(0);
             let mut got = shard
                 .run(20, threads, |i| {
-                    started.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    started.fetch_add(1, Ordering::Relaxed);
                     i
                 })
                 .unwrap();
@@ -418,9 +419,9 @@ mod tests {
     /// much room its episodes take.
     #[test]
     fn a_shard_too_large_to_hold_is_refused_before_it_runs() {
-        let ran = std::sync::atomic::AtomicBool::new(false);
+        let ran = AtomicBool::new(false);
         let huge = Shard::WHOLE.run(u64::MAX, 2, |i| {
-            ran.store(true, std::sync::atomic::Ordering::Relaxed);
+            ran.store(true, Ordering::Relaxed);
             [i; 8]
         });
         let e = huge.unwrap_err();
