@@ -362,3 +362,99 @@ async fn warnings_reach_the_durable_log() {
     assert!(!out.contains("streaming") && !out.contains("obstacle_entered"), "{out}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Seconds since the Unix epoch, as can.log stamps its frames.
+fn unix_now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64()
+}
+
+/// Nobody on the control socket can deny the operator's stop. While the robot drives, other
+/// clients hold eight idle connections, four half-open ones (a request begun and never
+/// finished) and a flood of requests on another; `ctl` still works, and an `estop` from a
+/// new connection puts the e-stop frame on CAN within 100 ms of the request's write.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn no_client_can_deny_the_operators_estop() {
+    const ESTOP_BOUND_S: f64 = 0.100;
+    let (handle, dir, socket) = e1_rig("deny").await;
+    let Gateway { mut child, out } = run_gateway(&dir.join("rig.toml"));
+    let mut seen = Vec::new();
+    let hold = |n: usize, begun: &[u8]| -> Vec<UnixStream> {
+        (0..n)
+            .map(|_| {
+                let mut s = UnixStream::connect(&socket).unwrap();
+                s.write_all(begun).unwrap();
+                s
+            })
+            .collect()
+    };
+    let _idle = hold(8, b"");
+    let _half_open = hold(4, b"{\"cmd\":");
+    let stop_flood = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flood = std::thread::spawn({
+        let (socket, stop) = (socket.clone(), stop_flood.clone());
+        move || {
+            let mut answered = 0u32;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let Ok(mut s) = UnixStream::connect(&socket) else { continue };
+                s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+                let mut replies = BufReader::new(s.try_clone().unwrap());
+                for _ in 0..50 {
+                    if s.write_all(b"{\"cmd\":\"status\"}\n").is_err() {
+                        break;
+                    }
+                    let mut reply = String::new();
+                    if replies.read_line(&mut reply).unwrap_or(0) == 0 {
+                        break;
+                    }
+                    answered += 1;
+                }
+            }
+            answered
+        }
+    });
+    // The operator's session goes on around them, each request a new connection.
+    for args in [&["arm"][..], &["goal", "0.35", "0.05"], &["start"]] {
+        let o = ctl(&socket, args);
+        assert!(o.status.success(), "{args:?}: {}", text(&o));
+    }
+    await_line(&out, "state: running", &mut seen);
+    // More idle connections, to fill the cap again just before the stop.
+    let _idle_again = hold(8, b"");
+    let mut estop = UnixStream::connect(&socket).unwrap();
+    estop.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let written_at = unix_now();
+    estop.write_all(b"{\"cmd\":\"estop\"}\n").unwrap();
+    let mut reply = String::new();
+    BufReader::new(&estop).read_line(&mut reply).unwrap();
+    assert!(reply.contains("\"ok\":true"), "{reply}");
+    await_line(&out, "state: fault: operator emergency stop", &mut seen);
+    stop_flood.store(true, std::sync::atomic::Ordering::Relaxed);
+    assert!(flood.join().unwrap() > 0, "the flood was served too, on its own connections");
+    // `ctl` still answers, and says what stopped the robot.
+    let status = ctl(&socket, &["status"]);
+    assert!(text(&status).contains("state      fault: operator emergency stop"), "{}", text(&status));
+
+    let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
+    assert!(child.wait().unwrap().success());
+    handle.stop().await;
+    // The board's e-stop frame (0x001, reason operator), as the gateway wrote it on CAN.
+    let can = std::fs::read_to_string(dir.join("telemetry/latest/can.log")).unwrap();
+    let stop_at = can
+        .lines()
+        .filter(|l| l.ends_with(" 001#01"))
+        .filter_map(|l| l.strip_prefix('(')?.split(')').next()?.parse::<f64>().ok())
+        .find(|&t| t >= written_at)
+        .unwrap_or_else(|| panic!("no e-stop frame after the request in can.log"));
+    println!("e-stop frame on CAN {:.2} ms after the request's write", (stop_at - written_at) * 1e3);
+    assert!(
+        stop_at - written_at < ESTOP_BOUND_S,
+        "e-stop on CAN {:.1} ms after the request",
+        (stop_at - written_at) * 1e3
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("telemetry/latest/report.json")).unwrap()).unwrap();
+    // Every idle and half-open connection was closed: to make room, or for its silence.
+    let closed = |k: &str| report["counters"][k].as_u64().unwrap();
+    assert!(closed("control_clients_evicted") + closed("control_clients_timed_out") >= 12, "{report}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -254,7 +254,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     use flowgate::gateway;
     use flowgate::gateway::core::operator::Request;
     use flowgate::gateway::core::Progress;
-    use flowgate::gateway::shell::control_socket::{Command, Peer};
+    use flowgate::gateway::shell::control_socket::Peer;
     use flowgate::gateway::shell::Controls;
     use flowgate_sim::rig::{RigConfig, SerialEndpoint};
     let mut s = scenario("e1-standing-obstacle.toml");
@@ -277,10 +277,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     let ask = |request: Request| {
         let operator = operator.clone();
         async move {
-            let (reply, answer) = tokio::sync::oneshot::channel();
-            let peer = Peer::Socket { uid: 0, gid: 0, pid: None };
-            operator.send(Command { request, peer, reply }).await.unwrap();
-            let reply = answer.await.unwrap();
+            let reply = operator.ask(request, Peer::Socket { uid: 0, gid: 0, pid: None }).await;
             assert!(reply.ok, "{reply:?}");
         }
     };

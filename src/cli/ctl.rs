@@ -52,7 +52,7 @@ enum CtlCommand {
         #[arg(num_args = 2, value_names = ["X", "Y"], allow_negative_numbers = true, required_unless_present = "queue")]
         xy: Vec<f64>,
         /// Goals driven in order, each `X,Y`.
-        #[arg(long, num_args = 1.., value_name = "X,Y", allow_negative_numbers = true, conflicts_with = "xy")]
+        #[arg(long, num_args = 1.., value_name = "X,Y", allow_hyphen_values = true, conflicts_with = "xy")]
         queue: Vec<String>,
         /// m.
         #[arg(long, default_value_t = 0.02)]
@@ -118,14 +118,7 @@ pub fn run(args: CtlArgs) -> Result<()> {
         ),
     };
     let req = request(&args.command)?;
-    let mut stream = UnixStream::connect(&socket)
-        .with_context(|| format!("control socket {} (is the gateway running? may you use it?)", socket.display()))?;
-    stream.set_read_timeout(Some(Duration::from_secs(5)))?;
-    let mut line = serde_json::to_string(&req)?;
-    line.push('\n');
-    stream.write_all(line.as_bytes())?;
-    let mut reply = String::new();
-    BufReader::new(&stream).read_line(&mut reply).context("reading the gateway's reply")?;
+    let reply = exchange(&socket, &req)?;
     let value: serde_json::Value = serde_json::from_str(&reply).context("the gateway's reply is not JSON")?;
     if args.json {
         say!("{}", reply.trim_end());
@@ -136,6 +129,41 @@ pub fn run(args: CtlArgs) -> Result<()> {
         bail!("refused: {}", value["error"].as_str().unwrap_or("(no reason given)"));
     }
     Ok(())
+}
+
+/// How long `ctl` waits for a reply: longer than the gateway's own answer deadline
+/// (`control_socket::ANSWER_DEADLINE`), which answers every request it takes in time.
+const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// One request, one reply line; every way it can fail said in words.
+fn exchange(socket: &Path, req: &Request) -> Result<String> {
+    let mut stream = UnixStream::connect(socket)
+        .with_context(|| format!("control socket {} (is the gateway running? may you use it?)", socket.display()))?;
+    stream.set_read_timeout(Some(REPLY_TIMEOUT))?;
+    stream.set_write_timeout(Some(REPLY_TIMEOUT))?;
+    let mut line = serde_json::to_string(req)?;
+    line.push('\n');
+    stream.write_all(line.as_bytes()).with_context(|| format!("sending the request to {}", socket.display()))?;
+    let mut reply = String::new();
+    match BufReader::new(&stream).read_line(&mut reply) {
+        Ok(0) => bail!(
+            "the gateway closed the connection without answering (shutting down, or it closed this connection to \
+             make room for another): check with `flowgate ctl status`"
+        ),
+        Ok(_) => Ok(reply),
+        Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+            let fate = if req.always_obeyed() {
+                "a stop is obeyed whenever the gateway takes it"
+            } else {
+                "the request expires unanswered and is not carried out"
+            };
+            bail!(
+                "no reply within {} s: the gateway is stalled or gone ({fate}); check with `flowgate ctl status`",
+                REPLY_TIMEOUT.as_secs()
+            )
+        }
+        Err(e) => Err(e).context("reading the gateway's reply"),
+    }
 }
 
 fn print_reply(v: &serde_json::Value) {

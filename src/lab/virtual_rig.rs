@@ -928,7 +928,7 @@ impl<K: StageClock> VirtualRig<K> {
             _ => Outcome::Timeout,
         };
         Episode {
-            report: Report::new(&self.core, self.timing.as_ref(), 0, WrittenFiles::default()),
+            report: Report::new(&self.core, self.timing.as_ref(), self.core.counters(), WrittenFiles::default()),
             truth: self.truth,
             outcome,
             reached_goal,

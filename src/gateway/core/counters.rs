@@ -115,6 +115,15 @@ pub struct Counters {
     pub planner_margin_shrunk: u64,
     pub planner_unclosed_at_a_wall: u64,
     pub telemetry_dropped: u64,
+    /// Operator requests dropped unanswered: their client had been told they failed
+    /// (`stop` and `estop` are never dropped).
+    pub requests_expired: u64,
+    /// Control-socket connections closed to make room for a new one (the one idle
+    /// longest), closed for silence or a stalled line, and refused (every held one waiting
+    /// on the gateway).
+    pub control_clients_evicted: u64,
+    pub control_clients_timed_out: u64,
+    pub control_clients_refused: u64,
 }
 
 impl Counters {

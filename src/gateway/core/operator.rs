@@ -54,6 +54,12 @@ impl Request {
     pub fn is_query(&self) -> bool {
         matches!(self, Request::Status | Request::Stats { .. })
     }
+
+    /// `stop` and `estop`: obeyed whenever they arrive, however late, and never queued behind
+    /// other requests.
+    pub fn always_obeyed(&self) -> bool {
+        matches!(self, Request::Stop | Request::EStop)
+    }
 }
 
 /// Why a request was refused: exactly, so the operator knows what to do.

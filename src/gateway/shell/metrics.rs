@@ -238,6 +238,23 @@ fn encode_control_counters(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) ->
         ],
     )?;
     counter(encoder, "flowgate_telemetry_dropped", "Telemetry records dropped (queue full).", c.telemetry_dropped)?;
+    counter(
+        encoder,
+        "flowgate_requests_expired",
+        "Operator requests dropped unanswered: their client had been told they failed.",
+        c.requests_expired,
+    )?;
+    counter_by(
+        encoder,
+        "flowgate_control_clients_closed",
+        "Control-socket connections closed by the gateway, by why.",
+        "why",
+        &[
+            ("evicted", c.control_clients_evicted),
+            ("timed_out", c.control_clients_timed_out),
+            ("refused", c.control_clients_refused),
+        ],
+    )?;
     Ok(())
 }
 

@@ -18,7 +18,7 @@ use std::time::Duration;
 use flowgate_protocol::psd::{self, Packet};
 use flowgate_protocol::CanFrame;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 use tokio::time::{timeout, Instant};
 
 pub mod control_socket;
@@ -37,7 +37,7 @@ pub mod systemd;
 pub mod telemetry;
 pub mod view;
 
-use control_socket::{Command, Reply};
+use control_socket::{Command, Reply, RequestReceiver, RequestSender};
 use low_latency::{SpinWindow, Wait};
 pub use report::Report;
 use services::Services;
@@ -47,7 +47,7 @@ use telemetry::{CanRecord, Record, Timing};
 use self::link::{open_can, open_serial, CanError, CanLink, SerialError};
 use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
 use super::core::operator::Request;
-use super::core::{Core, Level, Output, Progress, SetupError, StageClock, State};
+use super::core::{Core, Counters, Level, Output, Progress, SetupError, StageClock, State};
 use crate::config::CanUrl;
 use crate::config::Rig;
 use crate::gateway::core::input::CanEvent;
@@ -69,20 +69,20 @@ pub struct Controls {
     /// Arm and start towards the config's `[goal]` as soon as the controller streams
     /// (`flowgate run --arm`, the demo). Otherwise the gateway waits, idle, for an operator.
     pub arm_at_start: bool,
-    requests: mpsc::Receiver<Command>,
-    sender: mpsc::Sender<Command>,
+    requests: RequestReceiver,
+    sender: RequestSender,
     /// Shutdown was asked for and handed to the core.
     shutdown_seen: bool,
 }
 
 impl Controls {
     pub fn new(shutdown: watch::Receiver<bool>, arm_at_start: bool) -> Self {
-        let (sender, requests) = mpsc::channel(control_socket::QUEUE);
+        let (sender, requests) = control_socket::request_channel();
         Self { shutdown, arm_at_start, requests, sender, shutdown_seen: false }
     }
 
     /// Where operator requests go (the control socket uses one too).
-    pub fn sender(&self) -> mpsc::Sender<Command> {
+    pub fn sender(&self) -> RequestSender {
         self.sender.clone()
     }
 }
@@ -177,6 +177,8 @@ struct Io {
     stats_from: Option<Timing>,
     /// systemd's notification socket, when it started the gateway.
     notifier: Option<Notifier>,
+    /// Requests dropped because their client had been told they failed.
+    requests_expired: u64,
 }
 
 impl Io {
@@ -206,6 +208,7 @@ impl Io {
             warm_up: rig.warm_up,
             stats_from: None,
             notifier,
+            requests_expired: 0,
         }
     }
 
@@ -472,6 +475,16 @@ impl Io {
     /// An operator's request: the core decides, the peer gets the answer and the state.
     fn answer<K: StageClock>(&mut self, core: &mut Core<K>, cmd: Command) {
         let now = self.now();
+        if cmd.expired(Instant::now()) {
+            // Its client was told it failed: carrying it out now would surprise the operator.
+            self.requests_expired += 1;
+            let text = format!("{}: {:?} dropped: expired before the gateway took it", cmd.peer, cmd.request);
+            tracing::warn!("{text}");
+            let event =
+                telemetry::EventRecord { at_s: now.secs(), level: Level::Warning, kind: "request", text, fields: None };
+            self.services.recorder.record(Record::Event(event));
+            return;
+        }
         let Some(Answer { result, status }) = self.feed(core, now, Input::Request(&cmd.request)) else { return };
         let status = status.map(|mut status| {
             // The write times are the shell's to measure: it adds them to the answer.
@@ -521,25 +534,28 @@ impl Io {
     /// counters and the latency histogram, never per cycle). Returns when the next is due.
     fn publish_metrics<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
         let now = self.now();
-        let view_frames_dropped = self.services.view.as_ref().map_or(0, |(v, _)| v.dropped.load(Ordering::Relaxed));
-        let telemetry_dropped = self.services.recorder.dropped();
-        let Some((tx, next)) = &mut self.services.metrics else { return HostTime::NEVER };
-        if now >= *next {
-            let mut counters = core.counters();
-            counters.telemetry_dropped = telemetry_dropped;
-            tx.send_replace(Arc::new(metrics::Snapshot {
-                state: core.state(),
-                counters,
-                e2e_ns: self.timing.e2e_histogram().clone(),
-                deadline_misses: self.timing.deadline_misses,
-                uptime_s: now.secs(),
-                stops: stops_by_reason(core),
-                view_frames_dropped,
-                stages: self.timing.stage_histograms().clone(),
-                start_time_s: self.services.start_time_s,
-            }));
-            *next = now + metrics::PUBLISH_EVERY;
+        match &self.services.metrics {
+            None => return HostTime::NEVER,
+            Some((_, next)) if now < *next => return *next,
+            Some(_) => {}
         }
+        let view_frames_dropped = self.services.view.as_ref().map_or(0, |(v, _)| v.dropped.load(Ordering::Relaxed));
+        let mut counters = core.counters();
+        counters.telemetry_dropped = self.services.recorder.dropped();
+        self.count_operator(&mut counters);
+        let Some((tx, next)) = &mut self.services.metrics else { return HostTime::NEVER };
+        tx.send_replace(Arc::new(metrics::Snapshot {
+            state: core.state(),
+            counters,
+            e2e_ns: self.timing.e2e_histogram().clone(),
+            deadline_misses: self.timing.deadline_misses,
+            uptime_s: now.secs(),
+            stops: stops_by_reason(core),
+            view_frames_dropped,
+            stages: self.timing.stage_histograms().clone(),
+            start_time_s: self.services.start_time_s,
+        }));
+        *next = now + metrics::PUBLISH_EVERY;
         *next
     }
 
@@ -637,10 +653,22 @@ impl Io {
         }
         self.publish_metrics(core);
         self.publish_view(core);
-        let dropped = self.services.recorder.dropped();
         let timing = std::mem::take(&mut self.timing);
+        let mut counters = core.counters();
+        counters.telemetry_dropped = self.services.recorder.dropped();
+        self.count_operator(&mut counters);
         let files = self.services.finish().await;
-        Report::new(core, Some(&timing), dropped, files)
+        Report::new(core, Some(&timing), counters, files)
+    }
+
+    /// The operator channel's counts, which the shell keeps (the core never sees a dropped
+    /// request or a closed connection).
+    fn count_operator(&self, counters: &mut Counters) {
+        let clients = &self.services.control_clients;
+        counters.requests_expired = self.requests_expired;
+        counters.control_clients_evicted = clients.evicted.load(Ordering::Relaxed);
+        counters.control_clients_timed_out = clients.timed_out.load(Ordering::Relaxed);
+        counters.control_clients_refused = clients.refused.load(Ordering::Relaxed);
     }
 }
 

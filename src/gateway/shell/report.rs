@@ -26,16 +26,15 @@ pub struct Report {
 }
 
 impl Report {
-    /// The report of a run that ended with `core` in its final state.
+    /// The report of a run that ended with `core` in its final state; `counters` are the
+    /// core's with the shell's own counts added.
     pub fn new<K: StageClock>(
         core: &Core<K>,
         timing: Option<&Timing>,
-        telemetry_dropped: u64,
+        counters: Counters,
         files: WrittenFiles,
     ) -> Self {
         let state = core.state();
-        let mut counters = core.counters();
-        counters.telemetry_dropped = telemetry_dropped;
         Report {
             final_state: state,
             stop_reason: state.reason(),
@@ -104,6 +103,11 @@ impl std::fmt::Display for Report {
             "can              {} frames in, {} from other nodes, {} undecodable, {} error frames (all ignored)",
             c.can_frames_in, c.can_foreign, c.can_undecodable, c.can_error_frames
         )?;
-        write!(f, "telemetry        {} records dropped (queue full)", c.telemetry_dropped)
+        writeln!(f, "telemetry        {} records dropped (queue full)", c.telemetry_dropped)?;
+        write!(
+            f,
+            "operator         {} requests dropped (expired before taken), control socket: {} connections closed to make room, {} timed out, {} refused",
+            c.requests_expired, c.control_clients_evicted, c.control_clients_timed_out, c.control_clients_refused
+        )
     }
 }

@@ -7,11 +7,11 @@ use std::path::Path;
 use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
-use super::control_socket::{Command, ControlSocket};
+use super::control_socket::{ClientCounts, ControlSocket, RequestSender};
 use super::foxglove::Live;
 use super::recording::{McapSink, RecordingSetup};
 use super::telemetry::{self, Recorder, Sinks, WrittenFiles};
@@ -36,20 +36,23 @@ pub(super) struct Services {
     pub ros2: Option<(super::ros2::Ros2Node, HostTime, std::time::Duration)>,
     /// When the gateway started, s since the Unix epoch.
     pub start_time_s: f64,
+    /// What the control socket did to its clients.
+    pub control_clients: Arc<ClientCounts>,
     writer: Option<JoinHandle<std::io::Result<WrittenFiles>>>,
     socket: Option<JoinHandle<()>>,
 }
 
 impl Services {
     /// Start what the rig's config asks for; operator requests go to `requests`.
-    pub async fn start(rig: &Rig, origin: Instant, requests: mpsc::Sender<Command>) -> Result<Self, GatewayError> {
+    pub async fn start(rig: &Rig, origin: Instant, requests: RequestSender) -> Result<Self, GatewayError> {
         #[cfg(feature = "ros2")]
         let ros2_requests = requests.clone();
+        let control_clients = Arc::new(ClientCounts::default());
         let socket = match &rig.operator.socket {
             Some(path) => {
                 let socket = ControlSocket::bind(path, rig.operator.group.as_deref())?;
                 tracing::info!("control socket {}", path.display());
-                Some(tokio::spawn(socket.serve(requests)))
+                Some(tokio::spawn(socket.serve(requests, control_clients.clone())))
             }
             None => None,
         };
@@ -93,6 +96,7 @@ impl Services {
             #[cfg(feature = "ros2")]
             ros2,
             start_time_s,
+            control_clients,
             writer,
             socket,
         })
@@ -129,7 +133,7 @@ fn start_ros2(
     config: &crate::config::Ros2Config,
     start_time_s: f64,
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
-    requests: mpsc::Sender<Command>,
+    requests: RequestSender,
 ) -> Result<(super::ros2::Ros2Node, HostTime, std::time::Duration), GatewayError> {
     let settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Config)?;
     let every = settings.publish_every;

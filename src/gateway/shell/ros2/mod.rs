@@ -17,9 +17,9 @@ use ros2_client::{
     Context, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile, Server, ServiceMapping,
     ServiceTypeName,
 };
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::{oneshot, watch};
 
-use super::control_socket::{Command, Peer, Reply, ANSWER_DEADLINE};
+use super::control_socket::{Peer, Reply, RequestSender};
 use super::metrics;
 use super::view::{ViewSetup, ViewSnapshot};
 use crate::config::{DiscoveryRange, Ros2Settings};
@@ -158,7 +158,7 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
 pub fn start(
     setup: Ros2Setup,
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
-    requests: mpsc::Sender<Command>,
+    requests: RequestSender,
 ) -> Result<Ros2Node, Ros2Error> {
     let endpoints = join(&setup.settings)?;
     let (tx, rx) = watch::channel(ViewSnapshot::default());
@@ -179,21 +179,6 @@ pub fn start(
         let _ = done_tx.send(());
     })?;
     Ok(Ros2Node { tx, done })
-}
-
-/// Ask the loop, as the control socket does, within its deadlines.
-async fn ask(requests: &mpsc::Sender<Command>, request: Request) -> Reply {
-    let (reply, answer) = oneshot::channel();
-    let command = Command { request, peer: Peer::Ros2, reply };
-    match tokio::time::timeout(ANSWER_DEADLINE, requests.send(command)).await {
-        Ok(Ok(())) => {}
-        Ok(Err(_)) => return Reply::error("the gateway is shutting down"),
-        Err(_) => return Reply::error("the gateway did not take the request within 2 s"),
-    }
-    match tokio::time::timeout(ANSWER_DEADLINE, answer).await {
-        Ok(Ok(reply)) => reply,
-        _ => Reply::error("no answer from the gateway within 2 s"),
-    }
 }
 
 /// A reply as a Trigger's response: the refusal's words, or the state now.
@@ -228,7 +213,7 @@ async fn serve(
     setup: Ros2Setup,
     mut scenes: watch::Receiver<ViewSnapshot>,
     mut stats: watch::Receiver<Arc<metrics::Snapshot>>,
-    requests: mpsc::Sender<Command>,
+    requests: RequestSender,
 ) {
     let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goal, services } = e;
     let frames = Frames { floor: setup.settings.floor_frame.clone(), base: setup.settings.base_frame.clone() };
@@ -272,7 +257,7 @@ async fn serve(
             },
             Some((request, server, received)) = calls.next() => match received {
                 Ok((id, _)) => {
-                    let reply = ask(&requests, request.clone()).await;
+                    let reply = requests.ask(request.clone(), Peer::Ros2).await;
                     if let Some(e) = &reply.error {
                         state.last_refusal = Some(e.clone());
                     }
@@ -318,7 +303,7 @@ fn publish_scene(
 
 /// A goal from `/goal_pose` (RViz's "2D Goal Pose"), checked by the loop as `ctl goal` is; a
 /// goal in another frame is refused here.
-async fn take_goal(state: &mut NodeState, requests: &mpsc::Sender<Command>, goal: msgs::PoseStamped) {
+async fn take_goal(state: &mut NodeState, requests: &RequestSender, goal: msgs::PoseStamped) {
     let frame = &goal.header.frame_id;
     let (x, y) = (goal.pose.position.x, goal.pose.position.y);
     if !frame.is_empty() && *frame != state.frames.floor {
@@ -328,7 +313,7 @@ async fn take_goal(state: &mut NodeState, requests: &mpsc::Sender<Command>, goal
         return;
     }
     let goals = vec![crate::config::Goal { position: [x, y], tolerance: crate::config::default_tolerance() }];
-    let reply = ask(requests, Request::Goal { goals }).await;
+    let reply = requests.ask(Request::Goal { goals }, Peer::Ros2).await;
     if let Some(e) = reply.error {
         state.last_refusal = Some(e);
     }
