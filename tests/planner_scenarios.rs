@@ -260,7 +260,7 @@ fn impossible_scenarios_are_refused_naming_the_key() {
         (e1.replace("delay = 0.0", "delay = 1000.0"), "sensing.delay", "must be 0-10 s"),
         (e1.replace("time_limit = 30", "time_limit = 1e9"), "time_limit", "at most 3600 s"),
         (e1.replace("max_speed = 0.15", "max_speed = 0.30"), "robot.max_speed", "wheels cannot carry"),
-        (format!("{e1}{obstacles}"), "leds.obstacles", "16 obstacles (18 LEDs in all): at most 14 obstacles"),
+        (format!("{e1}{obstacles}"), "obstacles", "has 16 entries: at most 14"),
         (e1.replace("sample_time = 0.017", "sample_time = 0.000003"), "schedule.frame_us", "shorter than 100 µs"),
         (e1.replace("microsteps = 8", "microsteps = 4000000000"), "robot.microsteps", "must be 1-256"),
     ];

@@ -64,8 +64,31 @@ struct Args {
     truth: Option<PathBuf>,
 }
 
-fn main() -> Result<()> {
-    tracing_subscriber::fmt().with_env_filter(tracing_subscriber::EnvFilter::from_default_env()).init();
+/// Errors as one line on stderr, each cause once, with no backtrace block; log colours only
+/// on a terminal.
+fn main() -> std::process::ExitCode {
+    use std::io::IsTerminal as _;
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_writer(std::io::stderr)
+        .init();
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            let mut text = e.to_string();
+            for cause in e.chain().skip(1).map(ToString::to_string) {
+                if !text.contains(&cause) {
+                    text = format!("{text}: {cause}");
+                }
+            }
+            eprintln!("Error: {text}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<()> {
     let args = Args::parse();
     let scenario = Scenario::load(&args.scenario)?;
     let mut config = RigConfig::new(scenario);
@@ -83,13 +106,13 @@ fn main() -> Result<()> {
         config.cia402 = Some([node(1)?, node(2)?]);
     }
     if let Some(path) = args.camera {
-        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let text = flowgate_sim::scenario::read_text(&path, flowgate_sim::scenario::MAX_FILE_BYTES).with_context(|| format!("reading {}", path.display()))?;
         config.camera = toml::from_str::<CameraModel>(&text).with_context(|| format!("camera {}", path.display()))?;
     }
     config.noise_counts = args.noise;
     let base = match args.faults {
         Some(path) => {
-            let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+            let text = flowgate_sim::scenario::read_text(&path, flowgate_sim::scenario::MAX_FILE_BYTES).with_context(|| format!("reading {}", path.display()))?;
             toml::from_str::<FaultPlan>(&text).with_context(|| format!("faults {}", path.display()))?
         }
         None => config.faults.clone(),

@@ -160,6 +160,44 @@ pub struct ObstacleSpec {
 /// The finest microstepping of a stepper driver, and the most full steps a motor has per
 /// revolution (a 0.036° stepper): beyond them a board could not be configured.
 pub const MAX_MICROSTEPS: u32 = 256;
+/// Most walls, and most static obstacles, a scenario holds: a room for one camera's view
+/// with room to spare (the rooms in `scenarios/rooms` hold up to six). The planner's cost
+/// grows with each.
+pub const MAX_WALLS: usize = 64;
+pub const MAX_STATIC_OBSTACLES: usize = 64;
+/// Most points of one wall, one static obstacle or one obstacle's waypoints, and of all
+/// walls and static obstacles together.
+pub const MAX_POINTS: usize = 256;
+pub const MAX_ROOM_POINTS: usize = 1024;
+/// Most moving obstacles: the PSD schedule's LEDs less the robot's two.
+pub const MAX_OBSTACLES: usize = flowgate_protocol::psd::MAX_SCHEDULE_LEDS - 2;
+/// Plausibility bounds for a rig a PSD camera watches, far beyond any real one: a body or
+/// a noise (m), a floor's extent (m), a speed, an acceleration, a sample time and a filter's
+/// corner.
+pub const MAX_BODY_M: f64 = 2.0;
+pub const MAX_LENGTH_M: f64 = 100.0;
+pub const MAX_SPEED_M_S: f64 = 10.0;
+pub const MAX_ACCEL_M_S2: f64 = 100.0;
+pub const MAX_SAMPLE_TIME_S: f64 = 1.0;
+pub const MAX_LOWPASS_HZ: f64 = 1000.0;
+/// The largest scenario file read, bytes: real ones are a few kB.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// Read a text file of at most `limit` bytes. A larger one, or an endless one (a device, a
+/// pipe), is refused having read `limit` + 1 bytes of it.
+pub fn read_text(path: &Path, limit: u64) -> std::io::Result<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)?.take(limit + 1).read_to_string(&mut text)?;
+    if text.len() as u64 > limit {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("longer than {limit} bytes, far beyond any real one: refused"),
+        ));
+    }
+    Ok(text)
+}
+
 pub const MAX_STEPS_PER_REV: u32 = 10_000;
 
 /// The longest sensing delay a scenario may model, s.
@@ -224,7 +262,7 @@ pub enum ScenarioError {
 impl Scenario {
     /// Read, parse and validate a scenario file.
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
-        let text = std::fs::read_to_string(path)
+        let text = read_text(path, MAX_FILE_BYTES)
             .map_err(|source| ScenarioError::Read { path: path.display().to_string(), source })?;
         Self::from_toml(&text, &path.display().to_string())
     }
@@ -246,8 +284,8 @@ impl Scenario {
     fn validate_crowd(&self) -> Result<(), (String, String)> {
         let Some(c) = self.crowd else { return Ok(()) };
         let bad = |key: &str, why: String| Err((format!("crowd.{key}"), why));
-        if !(1..=16).contains(&c.obstacles) {
-            return bad("obstacles", format!("must be 1-16, is {}", c.obstacles));
+        if !(1..=MAX_OBSTACLES).contains(&c.obstacles) {
+            return bad("obstacles", format!("must be 1-{MAX_OBSTACLES}, is {}", c.obstacles));
         }
         for (key, v) in
             [("circle_radius", c.circle_radius), ("obstacle_radius", c.obstacle_radius), ("speed_ratio", c.speed_ratio)]
@@ -344,10 +382,27 @@ impl Scenario {
             }
         };
         let finite = |key: &str, p: [f64; 2]| {
-            if p.iter().all(|v| v.is_finite()) {
+            if p.iter().all(|v| v.is_finite() && v.abs() <= MAX_LENGTH_M) {
                 Ok(())
             } else {
-                Err((key.to_string(), "must be finite".to_string()))
+                Err((key.to_string(), format!("must be finite, within ±{MAX_LENGTH_M} m, is {p:?}")))
+            }
+        };
+        self.validate_counts()?;
+        // Printed to terminals and into reports: no escape sequence may ride in on them.
+        if let Some(c) = self.name.chars().find(|c| c.is_control()) {
+            return Err(("name".into(), format!("holds the control character {c:?}: names are printed as they are")));
+        }
+        if let Some(c) = self.description.chars().find(|&c| c.is_control() && c != '\n' && c != '\t') {
+            return Err(("description".into(), format!("holds the control character {c:?}: only new lines and tabs")));
+        }
+        // Plausible for any rig a PSD camera watches: far beyond, a value is a typo (a
+        // wheel base of 1e308 m) that would only turn into infinities downstream.
+        let at_most = |key: &str, v: f64, most: f64, unit: &str| {
+            if v > most {
+                Err((key.to_string(), format!("must be at most {most} {unit}, is {v}")))
+            } else {
+                Ok(())
             }
         };
         positive("time_limit", self.time_limit)?;
@@ -356,6 +411,7 @@ impl Scenario {
         }
         if let Some(lane) = self.lane {
             positive("lane.half_width", lane.half_width)?;
+            at_most("lane.half_width", lane.half_width, MAX_LENGTH_M, "m")?;
         }
         let r = &self.robot;
         finite("robot.start", r.start)?;
@@ -365,6 +421,12 @@ impl Scenario {
         positive("robot.max_wheel_speed", r.max_wheel_speed)?;
         positive("robot.wheel_accel", r.wheel_accel)?;
         positive("robot.max_speed", r.max_speed)?;
+        at_most("robot.radius", r.radius, MAX_BODY_M, "m")?;
+        at_most("robot.wheel_base", r.wheel_base, MAX_BODY_M, "m")?;
+        at_most("robot.wheel_radius", r.wheel_radius, MAX_BODY_M, "m")?;
+        at_most("robot.max_wheel_speed", r.max_wheel_speed, MAX_SPEED_M_S, "m/s")?;
+        at_most("robot.wheel_accel", r.wheel_accel, MAX_ACCEL_M_S2, "m/s²")?;
+        at_most("robot.max_speed", r.max_speed, MAX_SPEED_M_S, "m/s")?;
         if r.steps_per_rev == 0 || r.microsteps == 0 {
             return Err(("robot.steps_per_rev".into(), "steps_per_rev and microsteps must be at least 1".into()));
         }
@@ -380,14 +442,21 @@ impl Scenario {
         }
         finite("goal.position", self.goal.position)?;
         positive("goal.tolerance", self.goal.tolerance)?;
+        at_most("goal.tolerance", self.goal.tolerance, MAX_BODY_M, "m")?;
         for (i, o) in self.obstacles.iter().enumerate() {
             positive(&format!("obstacles[{i}].radius"), o.radius)?;
+            at_most(&format!("obstacles[{i}].radius"), o.radius, MAX_BODY_M, "m")?;
             finite(&format!("obstacles[{i}].start"), o.start)?;
             match &o.motion {
                 Motion::Stationary => {}
-                Motion::Constant { velocity } => finite(&format!("obstacles[{i}].motion.velocity"), *velocity)?,
+                Motion::Constant { velocity } => {
+                    let key = format!("obstacles[{i}].motion.velocity");
+                    finite(&key, *velocity)?;
+                    at_most(&key, velocity[0].hypot(velocity[1]), MAX_SPEED_M_S, "m/s")?;
+                }
                 Motion::Waypoints { points, speed, .. } => {
                     positive(&format!("obstacles[{i}].motion.speed"), *speed)?;
+                    at_most(&format!("obstacles[{i}].motion.speed"), *speed, MAX_SPEED_M_S, "m/s")?;
                     if points.is_empty() {
                         return Err((format!("obstacles[{i}].motion.points"), "needs at least one point".into()));
                     }
@@ -407,9 +476,47 @@ impl Scenario {
         if s.delay > MAX_DELAY_S {
             return Err(("sensing.delay".into(), format!("must be 0-{MAX_DELAY_S} s, is {}", s.delay)));
         }
+        at_most("sensing.sample_time", s.sample_time, MAX_SAMPLE_TIME_S, "s")?;
         non_negative("sensing.position_noise", s.position_noise)?;
+        at_most("sensing.position_noise", s.position_noise, MAX_BODY_M, "m")?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
+        at_most("sensing.lowpass_hz", s.lowpass_hz, MAX_LOWPASS_HZ, "Hz")?;
         self.faults.validate()
+    }
+
+    /// How many of each thing: checked first, so that a file of a million walls is refused
+    /// before anything is built from it.
+    fn validate_counts(&self) -> Result<(), (String, String)> {
+        let most = |key: &str, n: usize, limit: usize| {
+            if n > limit {
+                Err((key.to_string(), format!("has {n} entries: at most {limit}")))
+            } else {
+                Ok(())
+            }
+        };
+        most("walls", self.walls.len(), MAX_WALLS)?;
+        most("static_obstacles", self.static_obstacles.len(), MAX_STATIC_OBSTACLES)?;
+        most("obstacles", self.obstacles.len(), MAX_OBSTACLES)?;
+        let walls = self.walls.iter().enumerate().map(|(i, w)| (format!("walls[{i}].points"), w.points.len()));
+        let polygons = (self.static_obstacles.iter().enumerate())
+            .map(|(i, o)| (format!("static_obstacles[{i}].points"), o.points.len()));
+        let mut total = 0;
+        for (key, n) in walls.chain(polygons) {
+            most(&key, n, MAX_POINTS)?;
+            total += n;
+        }
+        if total > MAX_ROOM_POINTS {
+            return Err((
+                "walls".into(),
+                format!("the walls and static obstacles have {total} points together: at most {MAX_ROOM_POINTS}"),
+            ));
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            if let Motion::Waypoints { points, .. } = &o.motion {
+                most(&format!("obstacles[{i}].motion.points"), points.len(), MAX_POINTS)?;
+            }
+        }
+        Ok(())
     }
 
     /// `[[walls]]` and `[[static_obstacles]]`: finite points, enough of them, no edge of no

@@ -128,7 +128,9 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
         return sweep_episode(args.seed, scenario, n as u64, k, out, mode);
     }
     let started = std::time::Instant::now();
-    let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
+    let bytes = flowgate_sim::scenario::read_text(file, flowgate_sim::scenario::MAX_FILE_BYTES)
+        .with_context(|| format!("reading {}", file.display()))?
+        .into_bytes();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
     let episodes =

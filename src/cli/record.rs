@@ -94,6 +94,13 @@ pub fn run(args: RecordArgs) -> Result<bool> {
 fn export_ros2(file: &std::path::Path, dir: &std::path::Path) -> Result<bool> {
     let recording = flowgate::replay::Recording::read(file)?;
     let bag = flowgate::replay::ros2_bag::export(&recording, dir)?;
+    if let Some(why) = &recording.truncated {
+        say!(
+            "{} is cut short at {:.3} s of its run ({why}): the bag holds what came before",
+            file.display(),
+            recording.duration()
+        );
+    }
     let total: u64 = bag.messages.values().sum();
     let seconds = (bag.end_ns - bag.start_ns) as f64 * 1e-9;
     say!("rosbag2 {} ({total} messages over {seconds:.1} s, MCAP storage, CDR):", bag.dir.display());
@@ -101,7 +108,7 @@ fn export_ros2(file: &std::path::Path, dir: &std::path::Path) -> Result<bool> {
         say!("  {topic:<24} {n:>7}");
     }
     say!("  ros2 bag play {} plays it", bag.dir.display());
-    Ok(true)
+    Ok(recording.truncated.is_none())
 }
 
 #[cfg(not(feature = "ros2"))]

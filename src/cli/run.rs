@@ -12,7 +12,7 @@ use clap::Args;
 use flowgate::config::GatewayConfig;
 use flowgate::gateway;
 use flowgate::gateway::core::Progress;
-use flowgate::gateway::shell::Controls;
+use flowgate::gateway::shell::{telemetry, Controls};
 use tokio::signal::unix::{signal, SignalKind};
 use tokio::sync::watch;
 
@@ -45,14 +45,24 @@ pub fn run(args: RunArgs) -> Result<()> {
         config.operator.view = Some(addr);
     }
     let mut rig = config.rig(&args.config.display().to_string())?;
-    if let Some(out_dir) = &rig.telemetry.out_dir {
-        let dir = flowgate::gateway::shell::telemetry::run_directory(out_dir, std::time::SystemTime::now())
-            .with_context(|| format!("telemetry.out_dir = {}: making this run's directory", out_dir.display()))?;
-        rig.telemetry.out_dir = Some(dir);
-    }
     if args.arm && rig.goal.is_none() {
         anyhow::bail!("--arm needs a [goal] in {}", args.config.display());
     }
+    let Some(out_dir) = rig.telemetry.out_dir.clone() else { return serve(rig, args.arm) };
+    let previous = std::fs::read_link(out_dir.join("latest")).ok();
+    let dir = telemetry::run_directory(&out_dir, std::time::SystemTime::now())
+        .with_context(|| format!("telemetry.out_dir = {}: making this run's directory", out_dir.display()))?;
+    rig.telemetry.out_dir = Some(dir.clone());
+    let served = serve(rig, args.arm);
+    if served.is_err() {
+        // A run that failed before writing leaves no empty folder, and `latest` as it was.
+        telemetry::abandon_run_directory(&out_dir, &dir, previous.as_deref());
+    }
+    served
+}
+
+/// Run the gateway until a signal or its end, printing its states and its report.
+fn serve(rig: flowgate::config::Rig, arm: bool) -> Result<()> {
     // The gateway is one loop: a single-threaded runtime keeps its wake-ups on one thread
     // (the telemetry writer has its own blocking thread).
     let telemetry_dir = rig.telemetry.out_dir.clone();
@@ -63,7 +73,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         let mut terminate = signal(SignalKind::terminate())?;
         let (stop_tx, stop_rx) = watch::channel(false);
         let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-        let mut gateway = tokio::spawn(gateway::shell::run(rig, Controls::new(stop_rx, args.arm), Some(progress_tx)));
+        let mut gateway = tokio::spawn(gateway::shell::run(rig, Controls::new(stop_rx, arm), Some(progress_tx)));
         let mut last_state = None;
         let report = loop {
             tokio::select! {

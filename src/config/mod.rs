@@ -580,6 +580,24 @@ pub enum ConfigError {
     Invalid { path: String, invalid: Invalid },
 }
 
+/// The largest config (or scenario) file read, bytes: real ones are a few kB.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// Read a text file of at most `limit` bytes. A larger one, or an endless one (a device, a
+/// pipe), is refused having read `limit` + 1 bytes of it.
+pub fn read_text(path: &Path, limit: u64) -> std::io::Result<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)?.take(limit + 1).read_to_string(&mut text)?;
+    if text.len() as u64 > limit {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("longer than {limit} bytes, far beyond any real one: refused"),
+        ));
+    }
+    Ok(text)
+}
+
 /// A bad value: its key and why.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("`{key}` {why}")]
@@ -592,17 +610,41 @@ fn invalid<T>(key: &str, why: impl Into<String>) -> Result<T, Invalid> {
     Err(Invalid { key: key.to_string(), why: why.into() })
 }
 
-fn positive(key: &str, v: f64) -> Result<(), Invalid> {
-    if v.is_finite() && v > 0.0 {
+/// An upper bound of plausibility, with its unit: far beyond any rig a PSD camera watches,
+/// a value is a typo (a wheel base of 1e308 m) that would only turn into infinities later.
+#[derive(Debug, Clone, Copy)]
+struct Most(f64, &'static str);
+
+/// A body's or a noise's size, m.
+const BODY: Most = Most(2.0, "m");
+/// A speed, m/s; an acceleration, m/s².
+const SPEED: Most = Most(10.0, "m/s");
+const ACCEL: Most = Most(100.0, "m/s²");
+/// A gain of the planner's (dimensionless).
+const GAIN: Most = Most(1e6, "");
+/// The largest goal tolerance, m (a goal set by an operator or a config).
+pub const MAX_GOAL_TOLERANCE: f64 = 1.0;
+
+fn at_most(key: &str, v: f64, Most(most, unit): Most) -> Result<(), Invalid> {
+    if v > most {
+        let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
+        invalid(key, format!("must be at most {most}{unit}, is {v}"))
+    } else {
         Ok(())
+    }
+}
+
+fn positive(key: &str, v: f64, most: Most) -> Result<(), Invalid> {
+    if v.is_finite() && v > 0.0 {
+        at_most(key, v, most)
     } else {
         invalid(key, format!("must be a positive number, is {v}"))
     }
 }
 
-fn non_negative(key: &str, v: f64) -> Result<(), Invalid> {
+fn non_negative(key: &str, v: f64, most: Most) -> Result<(), Invalid> {
     if v.is_finite() && v >= 0.0 {
-        Ok(())
+        at_most(key, v, most)
     } else {
         invalid(key, format!("must be a number >= 0, is {v}"))
     }
@@ -630,27 +672,28 @@ impl LedConfig {
         if self.robot_front == self.robot_rear {
             return invalid("leds.robot_rear", format!("must differ from leds.robot_front ({})", self.robot_front));
         }
-        non_negative("leds.front_offset", self.front_offset)?;
-        non_negative("leds.rear_offset", self.rear_offset)?;
-        positive("leds.front_offset", self.front_offset + self.rear_offset)?;
+        non_negative("leds.front_offset", self.front_offset, BODY)?;
+        non_negative("leds.rear_offset", self.rear_offset, BODY)?;
+        positive("leds.front_offset", self.front_offset + self.rear_offset, BODY)?;
+        // Counted first: a list of thousands is refused before its entries are looked at.
+        let most = MAX_OBSTACLES.min(MAX_SCHEDULE_LEDS - 2);
+        if self.obstacles.len() > most {
+            return invalid(
+                "leds.obstacles",
+                format!(
+                    "{} obstacles ({} LEDs in all): at most {most} obstacles and {MAX_SCHEDULE_LEDS} LEDs",
+                    self.obstacles.len(),
+                    self.obstacles.len() + 2,
+                ),
+            );
+        }
         let mut ids = vec![self.robot_front, self.robot_rear];
         for (i, o) in self.obstacles.iter().enumerate() {
             if ids.contains(&o.led) {
                 return invalid(&format!("leds.obstacles[{i}].led"), format!("LED {} is used twice", o.led));
             }
             ids.push(o.led);
-            positive(&format!("leds.obstacles[{i}].radius"), o.radius)?;
-        }
-        if ids.len() > MAX_SCHEDULE_LEDS || self.obstacles.len() > MAX_OBSTACLES {
-            return invalid(
-                "leds.obstacles",
-                format!(
-                    "{} obstacles ({} LEDs in all): at most {} obstacles and {MAX_SCHEDULE_LEDS} LEDs",
-                    self.obstacles.len(),
-                    ids.len(),
-                    MAX_OBSTACLES.min(MAX_SCHEDULE_LEDS - 2)
-                ),
-            );
+            positive(&format!("leds.obstacles[{i}].radius"), o.radius, BODY)?;
         }
         Ok(ids)
     }
@@ -739,7 +782,7 @@ impl Cia402Section {
                 )
             }
         };
-        positive("cia402.quick_stop_decel", self.quick_stop_decel)?;
+        positive("cia402.quick_stop_decel", self.quick_stop_decel, ACCEL)?;
         Ok(Cia402Settings {
             left,
             right,
@@ -758,10 +801,10 @@ impl Cia402Section {
 
 impl DriveSection {
     fn validate(&self, sample_period: Duration) -> Result<(), Invalid> {
-        positive("drive.wheel_radius", self.wheel_radius)?;
-        positive("drive.wheel_base", self.wheel_base)?;
-        positive("drive.max_wheel_speed", self.max_wheel_speed)?;
-        positive("drive.wheel_accel", self.wheel_accel)?;
+        positive("drive.wheel_radius", self.wheel_radius, BODY)?;
+        positive("drive.wheel_base", self.wheel_base, BODY)?;
+        positive("drive.max_wheel_speed", self.max_wheel_speed, SPEED)?;
+        positive("drive.wheel_accel", self.wheel_accel, ACCEL)?;
         if self.steps_per_rev == 0 || self.microsteps == 0 {
             return invalid("drive.steps_per_rev", "steps_per_rev and microsteps must be at least 1");
         }
@@ -810,8 +853,8 @@ impl DriveSection {
 
 impl RobotSection {
     fn validate(&self, drive: &DriveSection) -> Result<(), Invalid> {
-        positive("robot.radius", self.radius)?;
-        positive("robot.max_speed", self.max_speed)?;
+        positive("robot.radius", self.radius, BODY)?;
+        positive("robot.max_speed", self.max_speed, SPEED)?;
         // The centre moves at the mean of the wheels' rim speeds: never faster than they go.
         if self.max_speed > drive.max_wheel_speed {
             return invalid(
@@ -968,9 +1011,9 @@ impl RealtimeConfig {
 impl PlannerSettings {
     /// The planner's rules, shared by rig configs and scenario files.
     pub fn validate(&self) -> Result<(), Invalid> {
-        positive("planner.cruise_speed", self.cruise_speed)?;
-        positive("planner.c1", self.c1)?;
-        positive("planner.kc", self.kc)?;
+        positive("planner.cruise_speed", self.cruise_speed, SPEED)?;
+        positive("planner.c1", self.c1, GAIN)?;
+        positive("planner.kc", self.kc, GAIN)?;
         if !(self.uncertainty_sigmas.is_finite() && (0.0..=10.0).contains(&self.uncertainty_sigmas)) {
             return invalid(
                 "planner.uncertainty_sigmas",
@@ -994,10 +1037,10 @@ impl PlannerSettings {
         }
         match self.margin {
             Margin::None => Ok(()),
-            Margin::Fixed { metres } => non_negative("planner.margin.metres", metres),
+            Margin::Fixed { metres } => non_negative("planner.margin.metres", metres, BODY),
             Margin::Factor { factor } if factor.is_finite() && factor >= 1.0 => Ok(()),
             Margin::Factor { factor } => invalid("planner.margin.factor", format!("must be >= 1, is {factor}")),
-            Margin::Delay { extra_speed } => non_negative("planner.margin.extra_speed", extra_speed),
+            Margin::Delay { extra_speed } => non_negative("planner.margin.extra_speed", extra_speed, SPEED),
         }
     }
 }
@@ -1043,7 +1086,7 @@ impl GatewayConfig {
 
     /// Read and parse (not yet check) a config file.
     pub fn read(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path)
+        let text = read_text(path, MAX_FILE_BYTES)
             .map_err(|source| ConfigError::Read { path: path.display().to_string(), source })?;
         Self::from_toml(&text, &path.display().to_string())
     }
@@ -1152,7 +1195,7 @@ impl GatewayConfig {
         if !g.position.iter().all(|v| v.is_finite()) {
             return invalid("goal.position", "must be finite");
         }
-        positive("goal.tolerance", g.tolerance)?;
+        positive("goal.tolerance", g.tolerance, Most(MAX_GOAL_TOLERANCE, "m"))?;
         if !calibration.in_view(Point::new(g.position[0], g.position[1])) {
             return invalid(
                 "goal.position",
@@ -1165,7 +1208,7 @@ impl GatewayConfig {
     /// `[lane]`: a width, and the goal inside it.
     fn validate_lane(&self) -> Result<(), Invalid> {
         let Some(lane) = self.lane else { return Ok(()) };
-        positive("lane.half_width", lane.half_width)?;
+        positive("lane.half_width", lane.half_width, Most(100.0, "m"))?;
         if let Some(g) = self.goal.filter(|g| g.position[1].abs() >= lane.half_width) {
             return invalid(
                 "goal.position",

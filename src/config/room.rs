@@ -5,7 +5,7 @@ use std::sync::{Arc, Mutex};
 
 use serde::{Deserialize, Serialize};
 
-use super::{invalid, positive, GatewayConfig, Invalid};
+use super::{invalid, positive, GatewayConfig, Invalid, BODY};
 use crate::calibration::Calibration;
 use crate::planner::room::{FarField, Panels, Room, RoomError, RoomShape};
 use crate::Point;
@@ -105,12 +105,49 @@ impl From<RoomError> for Invalid {
     }
 }
 
+/// Most walls, and most static obstacles, a room holds: one camera's view with room to
+/// spare. Each wall or obstacle, and each point of it, adds to the panels every cycle takes.
+pub const MAX_WALLS: usize = 64;
+pub const MAX_STATIC_OBSTACLES: usize = 64;
+/// Most points of one wall or static obstacle, and of all of them together.
+pub const MAX_POINTS: usize = 256;
+pub const MAX_ROOM_POINTS: usize = 1024;
+
 impl GatewayConfig {
+    /// How many walls, static obstacles and points: checked before anything is built.
+    fn room_counts(&self) -> Result<(), Invalid> {
+        let most = |key: &str, n: usize, limit: usize| {
+            if n > limit {
+                invalid(key, format!("has {n} entries: at most {limit}"))
+            } else {
+                Ok(())
+            }
+        };
+        most("walls", self.walls.len(), MAX_WALLS)?;
+        most("static_obstacles", self.static_obstacles.len(), MAX_STATIC_OBSTACLES)?;
+        let walls = self.walls.iter().enumerate().map(|(i, w)| (format!("walls[{i}].points"), w.points.len()));
+        let polygons = (self.static_obstacles.iter().enumerate())
+            .map(|(i, o)| (format!("static_obstacles[{i}].points"), o.points.len()));
+        let mut total = 0;
+        for (key, n) in walls.chain(polygons) {
+            most(&key, n, MAX_POINTS)?;
+            total += n;
+        }
+        if total > MAX_ROOM_POINTS {
+            return invalid(
+                "walls",
+                format!("the walls and static obstacles have {total} points together: at most {MAX_ROOM_POINTS}"),
+            );
+        }
+        Ok(())
+    }
+
     /// The room's shape as configured: walls, static obstacles, the view's edge (when it
     /// is a boundary) and, with any of those, a lane's lines as two more walls.
     pub fn room_shape(&self, calibration: &Calibration) -> Result<RoomShape, Invalid> {
+        self.room_counts()?;
         let r = &self.room;
-        positive("room.panel_spacing", r.panel_spacing)?;
+        positive("room.panel_spacing", r.panel_spacing, BODY)?;
         if r.panel_spacing < MIN_PANEL_SPACING {
             return invalid(
                 "room.panel_spacing",

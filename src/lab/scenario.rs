@@ -90,7 +90,7 @@ impl Scenario {
     /// scenario is checked with it as if the file said so.
     pub fn load_with(path: &Path, setting: &str) -> Result<Self, ScenarioError> {
         let origin = path.display().to_string();
-        let text = std::fs::read_to_string(path)
+        let text = flowgate_sim::scenario::read_text(path, flowgate_sim::scenario::MAX_FILE_BYTES)
             .map_err(|source| flowgate_sim::scenario::ScenarioError::Read { path: origin.clone(), source })?;
         let changed = with_setting(&text, setting).map_err(|why| ScenarioError::Setting {
             path: origin.clone(),

@@ -23,8 +23,11 @@ use crate::planner::Space;
 use crate::svg::{Axes, Svg};
 use crate::time::HostTime;
 
+pub mod records;
 #[cfg(feature = "ros2")]
 pub mod ros2_bag;
+
+use records::{Chunks, McapRecords};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -32,6 +35,8 @@ pub enum ReplayError {
     Read { path: String, source: std::io::Error },
     #[error("{path} is not an MCAP file: {source}")]
     NotMcap { path: String, source: mcap::McapError },
+    #[error("{path} is not an MCAP file: no MCAP header in its {bytes} bytes")]
+    NoHeader { path: String, bytes: u64 },
     #[error("{path} is not a flowgate recording: no `{what}`")]
     NotFlowgate { path: String, what: &'static str },
     #[error("{path}: message {index} on {topic}: {why}")]
@@ -74,29 +79,35 @@ pub struct Recording {
 }
 
 impl Recording {
-    /// Read a recording. A file cut short (the gateway killed mid-write) is read up to the
-    /// damage, and says so in `truncated`.
+    /// Read a recording. A file cut short (the gateway killed mid-write) or damaged is read
+    /// up to where it stops, and says so in `truncated`.
     pub fn read(path: &Path) -> Result<Self, ReplayError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| ReplayError::Read { path: name.clone(), source })?;
-        let options = mcap::read::Options::IgnoreEndMagic.into();
-        let reader = mcap::read::ChunkFlattener::new_with_options(&bytes, options)
-            .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
+        let file = std::fs::File::open(path).map_err(|source| ReplayError::Read { path: name.clone(), source })?;
+        Self::from_reader(file, &name)
+    }
+
+    /// Read a recording from any source, a piece at a time; `name` names it in errors.
+    pub fn from_reader(source: impl std::io::Read, name: &str) -> Result<Self, ReplayError> {
+        let mut records = McapRecords::new(source, Chunks::Opened);
         let mut gathered = Gathered::default();
         let mut truncated = None;
-        for record in reader {
+        while let Some(record) = records.next_record() {
             match record {
-                Ok(r) => gathered.record(&name, r)?,
+                Ok(r) => gathered.record(name, r)?,
                 Err(e) if gathered.index == 0 && gathered.config.is_none() => {
-                    return Err(ReplayError::NotMcap { path: name, source: e });
+                    return Err(ReplayError::NotMcap { path: name.to_string(), source: e });
                 }
                 Err(e) => {
-                    truncated = Some(e.to_string());
+                    truncated = Some(format!("{e} (at byte {})", records.bytes_read()));
                     break;
                 }
             }
         }
-        gathered.finish(&name, truncated)
+        if truncated.is_none() && !records.saw_footer() {
+            truncated = Some(format!("ends at byte {} without its footer", records.bytes_read()));
+        }
+        gathered.finish(name, truncated)
     }
 
     /// The recorded configuration, parsed.
@@ -558,42 +569,49 @@ pub struct RecordingInfo {
 }
 
 impl RecordingInfo {
-    /// Read the summary of any MCAP file, compressed or not, whole or cut short.
+    /// Read the summary of any MCAP file, compressed or not, whole or cut short, a piece at
+    /// a time (two passes: the chunks as stored, then their messages).
     pub fn read(path: &Path) -> Result<Self, ReplayError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| ReplayError::Read { path: name.clone(), source })?;
-        let mut info = RecordingInfo { bytes: bytes.len() as u64, ..Self::default() };
-        let options = mcap::read::Options::IgnoreEndMagic.into();
-        // The chunks as stored (their compression and sizes), without opening them.
-        let linear = mcap::read::LinearReader::new_with_options(&bytes, options)
-            .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
-        for record in linear {
+        let bytes = std::fs::metadata(path).map_err(|source| ReplayError::Read { path: name.clone(), source })?.len();
+        Self::scan(|| std::fs::File::open(path), bytes, &name)
+    }
+
+    /// The same from any source that `open` gives afresh for each pass, `bytes` long.
+    pub fn scan<R: std::io::Read>(
+        open: impl Fn() -> std::io::Result<R>,
+        bytes: u64,
+        name: &str,
+    ) -> Result<Self, ReplayError> {
+        let open = || open().map_err(|source| ReplayError::Read { path: name.to_string(), source });
+        let name = name.to_string();
+        let mut info = RecordingInfo { bytes, ..Self::default() };
+        let mut stored = McapRecords::new(open()?, Chunks::AsStored);
+        let mut header = false;
+        while let Some(record) = stored.next_record() {
             match record {
-                Ok(mcap::records::Record::Header(h)) => info.profile = h.profile,
-                Ok(mcap::records::Record::Chunk { header, .. }) => {
-                    let compression = header.compression.clone();
-                    match info.chunks.iter_mut().find(|c| c.0 == compression) {
-                        Some(c) => {
-                            c.1 += 1;
-                            c.2 += header.compressed_size;
-                            c.3 += header.uncompressed_size;
-                        }
-                        None => info.chunks.push((compression, 1, header.compressed_size, header.uncompressed_size)),
-                    }
+                Ok(mcap::records::Record::Header(h)) => {
+                    header = true;
+                    info.profile = h.profile;
                 }
+                Ok(mcap::records::Record::Chunk { header, .. }) => info.count_chunk(&header),
                 Ok(_) => {}
+                Err(e) if !header => return Err(ReplayError::NotMcap { path: name, source: e }),
                 Err(e) => {
-                    info.truncated = Some(e.to_string());
+                    info.truncated = Some(format!("{e} (at byte {})", stored.bytes_read()));
                     break;
                 }
             }
         }
-        // The messages, each chunk opened.
-        let flat = mcap::read::ChunkFlattener::new_with_options(&bytes, options)
-            .map_err(|source| ReplayError::NotMcap { path: name.clone(), source })?;
+        if !header {
+            return Err(ReplayError::NoHeader { path: name, bytes });
+        }
+        if info.truncated.is_none() && !stored.saw_footer() {
+            info.truncated = Some(format!("ends at byte {} without its footer", stored.bytes_read()));
+        }
         let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
         let mut channels: BTreeMap<u16, usize> = BTreeMap::new();
-        for record in flat {
+        for record in McapRecords::new(open()?, Chunks::Opened) {
             match record {
                 Ok(mcap::records::Record::Schema { header, .. }) => {
                     schemas.insert(header.id, header.name);
@@ -623,6 +641,18 @@ impl RecordingInfo {
             }
         }
         Ok(info)
+    }
+
+    fn count_chunk(&mut self, header: &mcap::records::ChunkHeader) {
+        let compression = header.compression.clone();
+        match self.chunks.iter_mut().find(|c| c.0 == compression) {
+            Some(c) => {
+                c.1 += 1;
+                c.2 += header.compressed_size;
+                c.3 += header.uncompressed_size;
+            }
+            None => self.chunks.push((compression, 1, header.compressed_size, header.uncompressed_size)),
+        }
     }
 
     /// The chunks' bytes as stored: the messages, which grow with the run (the rest of a

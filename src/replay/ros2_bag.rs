@@ -204,7 +204,8 @@ fn unix_stamp(origin_unix_ns: u64, at: HostTime) -> (u64, Time) {
 }
 
 /// Export `recording` as a rosbag2 in `dir` (a new folder): `<dir name>_0.mcap` and
-/// `metadata.yaml`.
+/// `metadata.yaml`. The bag is written in a hidden folder beside `dir` and renamed to it
+/// once whole: a failed export leaves nothing behind, and `dir` never holds half a bag.
 pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError> {
     if dir.exists() {
         return Err(BagError::Exists(dir.display().to_string()));
@@ -213,14 +214,30 @@ pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError>
         let path = path.display().to_string();
         move |source| BagError::Io { path, source }
     };
-    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let name = dir.file_name().map_or("flowgate".into(), |n| n.to_string_lossy().into_owned());
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(io(parent))?;
+    let partial = parent.join(format!(".{name}.partial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&partial);
+    std::fs::create_dir(&partial).map_err(io(&partial))?;
+    let written = write_bag(recording, &partial, &name).and_then(|summary| {
+        std::fs::rename(&partial, dir).map_err(io(dir))?;
+        Ok(BagSummary { dir: dir.to_path_buf(), file: dir.join(format!("{name}_0.mcap")), ..summary })
+    });
+    if written.is_err() {
+        let _ = std::fs::remove_dir_all(&partial);
+    }
+    written
+}
+
+/// The bag's files in `dir`, named after `name`.
+fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary, BagError> {
     let config = recording.config()?;
     let rig = config.rig("the recorded configuration").map_err(ReplayError::from)?;
     let settings = config.ros2.clone().unwrap_or_else(Ros2Config::default).resolve(|_| None).map_err(BagError::Ros2)?;
     let frames = Frames { floor: settings.floor_frame.clone(), base: settings.base_frame.clone() };
     let fqn = format!("{}/{}", settings.namespace.trim_end_matches('/'), settings.node_name);
     let view = ViewSetup::of(&rig);
-    let name = dir.file_name().map_or("flowgate".into(), |n| n.to_string_lossy().into_owned());
     let file = dir.join(format!("{name}_0.mcap"));
     let mut bag = BagWriter::create(&file, settings.qos_depth)?;
     let origin = recording.origin_unix_ns;
@@ -269,7 +286,7 @@ pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError>
         let diagnostics = convert::diagnostics(&stats, None, stamp, &fqn);
         bag.put("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", ns, &diagnostics)?;
     }
-    finish(bag, dir, &file, &name)
+    finish(bag, dir, &file, name)
 }
 
 /// Close the MCAP file and write `metadata.yaml` beside it, as rosbag2 (Jazzy) does.

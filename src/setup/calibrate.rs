@@ -99,7 +99,7 @@ pub async fn measure(client: &mut PsdClient, led: u8, n: usize, period: Duration
 /// A points file: `points = [[x, y], ...]`, floor metres.
 pub fn load_points(path: &Path) -> Result<Vec<[f64; 2]>, CalibrateError> {
     let bad = |why: String| CalibrateError::Points { path: path.display().to_string(), why };
-    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+    let text = crate::config::read_text(path, crate::config::MAX_FILE_BYTES).map_err(|e| bad(e.to_string()))?;
     #[derive(serde::Deserialize)]
     #[serde(deny_unknown_fields)]
     struct File {

@@ -5,6 +5,7 @@ use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS}
 use super::scene::{ObstacleView, SceneRecord};
 use super::LastEstimate;
 use super::{Answer, Core, StageClock, State, StopReason};
+use crate::config::MAX_GOAL_TOLERANCE;
 use crate::planner::Space;
 use crate::time::HostTime;
 use crate::Point;
@@ -251,6 +252,9 @@ impl<K: StageClock> Core<K> {
             let at = Point::new(x, y);
             if !(x.is_finite() && y.is_finite() && g.tolerance.is_finite() && g.tolerance > 0.0) {
                 return Err(bad("position and tolerance must be finite, the tolerance positive".into()));
+            }
+            if g.tolerance > MAX_GOAL_TOLERANCE {
+                return Err(bad(format!("tolerance {} m: at most {MAX_GOAL_TOLERANCE} m", g.tolerance)));
             }
             if !self.rig.calibration.in_view(at) {
                 return Err(bad(format!("outside the calibrated arena: {}", self.rig.calibration.view_extent())));

@@ -71,6 +71,9 @@ impl Services {
                 .and_then(|l| l.set_nonblocking(true).map(|()| l))
                 .and_then(tokio::net::TcpListener::from_std)
                 .map_err(|source| GatewayError::Metrics { addr, source })?;
+            if !addr.ip().is_loopback() {
+                tracing::warn!("/metrics on {addr} is visible beyond this host (read-only)");
+            }
             tracing::info!("metrics on http://{addr}/metrics");
             tokio::spawn(metrics::serve(listener, rx.clone()));
         }

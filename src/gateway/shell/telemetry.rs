@@ -307,6 +307,31 @@ pub fn run_directory(out_dir: &Path, start: std::time::SystemTime) -> std::io::R
     Ok(dir)
 }
 
+/// Undo [`run_directory`] for a run that failed before writing anything: `dir` is removed
+/// if it is empty, and `out_dir/latest` pointed back at `previous` (the run it named
+/// before; none: removed) if it still names `dir`. A directory with files in it is kept.
+pub fn abandon_run_directory(out_dir: &Path, dir: &Path, previous: Option<&Path>) {
+    if std::fs::remove_dir(dir).is_err() {
+        return;
+    }
+    let latest = out_dir.join("latest");
+    if std::fs::read_link(&latest).ok().as_deref() != dir.file_name().map(Path::new) {
+        return;
+    }
+    match previous {
+        Some(previous) => {
+            let staging = out_dir.join(format!(".latest-{}", std::process::id()));
+            let _ = std::fs::remove_file(&staging);
+            if std::os::unix::fs::symlink(previous, &staging).is_ok() {
+                let _ = std::fs::rename(&staging, &latest);
+            }
+        }
+        None => {
+            let _ = std::fs::remove_file(&latest);
+        }
+    }
+}
+
 /// `YYYYMMDDTHHMMSSZ` of a time on the Unix clock (civil from days: H. Hinnant's algorithm).
 fn utc_stamp(t: std::time::SystemTime) -> String {
     let secs = t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
