@@ -149,6 +149,15 @@ async fn an_operator_session_over_the_control_socket() {
     let inside = ctl(&socket, &["goal", "0.0", "0.02"]);
     assert!(!inside.status.success(), "{}", text(&inside));
     assert!(raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["state"] == "idle");
+    // An implausible tolerance is refused; negative coordinates in a queue are coordinates.
+    let wide = ctl(&socket, &["goal", "0.35", "0.05", "--tolerance", "1e300"]);
+    assert!(!wide.status.success() && text(&wide).contains("tolerance 1e300 m: at most 1 m"), "{}", text(&wide));
+    let queue = ctl(&socket, &["goal", "--queue", "-0.2,-0.05", "0.35,0.05"]);
+    assert!(
+        queue.status.success() && text(&queue).contains("goals      (-0.2, -0.05) then (0.35, 0.05)"),
+        "{}",
+        text(&queue)
+    );
 
     // A flooding client is served at most once per 10 ms, on its own connection.
     let mut flood = UnixStream::connect(&socket).unwrap();

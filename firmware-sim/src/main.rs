@@ -106,13 +106,15 @@ fn run() -> Result<()> {
         config.cia402 = Some([node(1)?, node(2)?]);
     }
     if let Some(path) = args.camera {
-        let text = flowgate_sim::scenario::read_text(&path, flowgate_sim::scenario::MAX_FILE_BYTES).with_context(|| format!("reading {}", path.display()))?;
+        let text = flowgate_sim::scenario::read_text(&path, flowgate_sim::scenario::MAX_FILE_BYTES)
+            .with_context(|| format!("reading {}", path.display()))?;
         config.camera = toml::from_str::<CameraModel>(&text).with_context(|| format!("camera {}", path.display()))?;
     }
     config.noise_counts = args.noise;
     let base = match args.faults {
         Some(path) => {
-            let text = flowgate_sim::scenario::read_text(&path, flowgate_sim::scenario::MAX_FILE_BYTES).with_context(|| format!("reading {}", path.display()))?;
+            let text = flowgate_sim::scenario::read_text(&path, flowgate_sim::scenario::MAX_FILE_BYTES)
+                .with_context(|| format!("reading {}", path.display()))?;
             toml::from_str::<FaultPlan>(&text).with_context(|| format!("faults {}", path.display()))?
         }
         None => config.faults.clone(),

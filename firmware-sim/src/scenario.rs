@@ -175,6 +175,8 @@ pub const MAX_OBSTACLES: usize = flowgate_protocol::psd::MAX_SCHEDULE_LEDS - 2;
 /// a noise (m), a floor's extent (m), a speed, an acceleration, a sample time and a filter's
 /// corner.
 pub const MAX_BODY_M: f64 = 2.0;
+/// The largest goal tolerance, m (the gateway's `config::MAX_GOAL_TOLERANCE`).
+pub const MAX_GOAL_TOLERANCE_M: f64 = 1.0;
 pub const MAX_LENGTH_M: f64 = 100.0;
 pub const MAX_SPEED_M_S: f64 = 10.0;
 pub const MAX_ACCEL_M_S2: f64 = 100.0;
@@ -400,6 +402,7 @@ impl Scenario {
         // wheel base of 1e308 m) that would only turn into infinities downstream.
         let at_most = |key: &str, v: f64, most: f64, unit: &str| {
             if v > most {
+                let v = if v < 1e6 { v.to_string() } else { format!("{v:e}") };
                 Err((key.to_string(), format!("must be at most {most} {unit}, is {v}")))
             } else {
                 Ok(())
@@ -442,7 +445,7 @@ impl Scenario {
         }
         finite("goal.position", self.goal.position)?;
         positive("goal.tolerance", self.goal.tolerance)?;
-        at_most("goal.tolerance", self.goal.tolerance, MAX_BODY_M, "m")?;
+        at_most("goal.tolerance", self.goal.tolerance, MAX_GOAL_TOLERANCE_M, "m")?;
         for (i, o) in self.obstacles.iter().enumerate() {
             positive(&format!("obstacles[{i}].radius"), o.radius)?;
             at_most(&format!("obstacles[{i}].radius"), o.radius, MAX_BODY_M, "m")?;

@@ -84,3 +84,19 @@ fn a_bad_can_endpoint_is_refused_with_a_clear_message() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// An error printed to a pipe is one line: no colours, no backtrace block, whatever
+/// RUST_BACKTRACE says.
+#[test]
+fn an_error_in_a_pipe_is_one_plain_line() {
+    let out = Command::new(env!("CARGO_BIN_EXE_flowgate-sim"))
+        .args(["--scenario", "/dev/zero"])
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.starts_with("Error: cannot read scenario /dev/zero: longer than 1048576 bytes"), "{err}");
+    assert!(!err.contains('\x1b') && !err.contains("backtrace"), "{err}");
+}

@@ -61,7 +61,8 @@ impl Prompt for Terminal {
 
 pub fn run(args: CalibrateArgs) -> Result<()> {
     let origin = args.config.display().to_string();
-    let text = flowgate::config::read_text(&args.config, flowgate::config::MAX_FILE_BYTES).with_context(|| format!("reading {origin}"))?;
+    let text = flowgate::config::read_text(&args.config, flowgate::config::MAX_FILE_BYTES)
+        .with_context(|| format!("reading {origin}"))?;
     let config = GatewayConfig::from_toml(&text, &origin)?;
     let rig = config.rig(&origin)?;
     let led = args.led.unwrap_or(rig.robot_front);

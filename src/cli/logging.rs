@@ -45,8 +45,8 @@ pub fn init() {
     // errors only, unless RUST_LOG asks for more. The Foxglove server's are about its
     // clients (one that resets its connection mid-handshake is logged as an error): off,
     // unless RUST_LOG asks for them.
-    let filter =
-        EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn,rustdds=error,ros2_client=error,foxglove::websocket::server=off"));
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new("warn,rustdds=error,ros2_client=error,foxglove::websocket::server=off"));
     let fmt = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
     if stderr_is_journal() {
         fmt.event_format(Journal).init();

@@ -625,10 +625,19 @@ const GAIN: Most = Most(1e6, "");
 /// The largest goal tolerance, m (a goal set by an operator or a config).
 pub const MAX_GOAL_TOLERANCE: f64 = 1.0;
 
+/// A number as an error shows it: huge and tiny ones in exponent form, not 300 digits.
+pub fn shown(v: f64) -> String {
+    if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        v.to_string()
+    }
+}
+
 fn at_most(key: &str, v: f64, Most(most, unit): Most) -> Result<(), Invalid> {
     if v > most {
         let unit = if unit.is_empty() { String::new() } else { format!(" {unit}") };
-        invalid(key, format!("must be at most {most}{unit}, is {v}"))
+        invalid(key, format!("must be at most {most}{unit}, is {}", shown(v)))
     } else {
         Ok(())
     }

@@ -254,7 +254,10 @@ impl<K: StageClock> Core<K> {
                 return Err(bad("position and tolerance must be finite, the tolerance positive".into()));
             }
             if g.tolerance > MAX_GOAL_TOLERANCE {
-                return Err(bad(format!("tolerance {} m: at most {MAX_GOAL_TOLERANCE} m", g.tolerance)));
+                return Err(bad(format!(
+                    "tolerance {} m: at most {MAX_GOAL_TOLERANCE} m",
+                    crate::config::shown(g.tolerance)
+                )));
             }
             if !self.rig.calibration.in_view(at) {
                 return Err(bad(format!("outside the calibrated arena: {}", self.rig.calibration.view_extent())));
