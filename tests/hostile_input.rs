@@ -214,3 +214,29 @@ fn implausible_rig_quantities_are_refused_naming_the_key() {
         assert!(err.contains(&format!("`{key}` {says}")), "{key}: {err}");
     }
 }
+
+/// A run that fails at start (its serial port and CAN adapter missing) leaves no empty run
+/// folder, and `latest` still names the run before it.
+#[test]
+fn a_failed_run_leaves_no_folder_and_latest_as_it_was() {
+    let dir = temp_dir("run");
+    let out = dir.join("runs");
+    std::fs::create_dir_all(out.join("20260101T000000Z")).unwrap();
+    std::os::unix::fs::symlink("20260101T000000Z", out.join("latest")).unwrap();
+    let mut doc: toml_edit::DocumentMut =
+        std::fs::read_to_string(root().join("rig.example.toml")).unwrap().parse().unwrap();
+    doc["serial"]["port"] = toml_edit::value(dir.join("no-such-tty").display().to_string());
+    doc["can"]["endpoint"] = toml_edit::value(format!("slcan:{}?bitrate=1000000", dir.join("no-such-can").display()));
+    doc["telemetry"]["out_dir"] = toml_edit::value(out.display().to_string());
+    doc["operator"]["socket"] = toml_edit::value(dir.join("control.sock").display().to_string());
+    let config = dir.join("rig.toml");
+    std::fs::write(&config, doc.to_string()).unwrap();
+    let (code, text) = flowgate(&["run", "--config", config.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("does not exist"), "{text}");
+    let runs: Vec<String> =
+        std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert_eq!(runs.len(), 2, "{runs:?}");
+    assert_eq!(std::fs::read_link(out.join("latest")).unwrap(), PathBuf::from("20260101T000000Z"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

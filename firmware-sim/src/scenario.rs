@@ -172,15 +172,14 @@ pub const MAX_ROOM_POINTS: usize = 1024;
 /// Most moving obstacles: the PSD schedule's LEDs less the robot's two.
 pub const MAX_OBSTACLES: usize = flowgate_protocol::psd::MAX_SCHEDULE_LEDS - 2;
 /// Plausibility bounds for a rig a PSD camera watches, far beyond any real one: a body or
-/// a noise (m), a floor's extent (m), a speed, an acceleration, a sample time and a filter's
-/// corner.
+/// a noise (m), a floor's extent (m), a speed, an acceleration and a filter's corner. (The
+/// sample time is bounded by the PSD schedule's range, which the gateway checks.)
 pub const MAX_BODY_M: f64 = 2.0;
 /// The largest goal tolerance, m (the gateway's `config::MAX_GOAL_TOLERANCE`).
 pub const MAX_GOAL_TOLERANCE_M: f64 = 1.0;
 pub const MAX_LENGTH_M: f64 = 100.0;
 pub const MAX_SPEED_M_S: f64 = 10.0;
 pub const MAX_ACCEL_M_S2: f64 = 100.0;
-pub const MAX_SAMPLE_TIME_S: f64 = 1.0;
 pub const MAX_LOWPASS_HZ: f64 = 1000.0;
 /// The largest scenario file read, bytes: real ones are a few kB.
 pub const MAX_FILE_BYTES: u64 = 1 << 20;
@@ -479,7 +478,6 @@ impl Scenario {
         if s.delay > MAX_DELAY_S {
             return Err(("sensing.delay".into(), format!("must be 0-{MAX_DELAY_S} s, is {}", s.delay)));
         }
-        at_most("sensing.sample_time", s.sample_time, MAX_SAMPLE_TIME_S, "s")?;
         non_negative("sensing.position_noise", s.position_noise)?;
         at_most("sensing.position_noise", s.position_noise, MAX_BODY_M, "m")?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
