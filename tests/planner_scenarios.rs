@@ -405,3 +405,33 @@ fn a_lane_obstacle_is_passed_on_the_side_it_leaves() {
     let r = sweep::sweep(&standing, 1000, 1, 2, Mode::PlannerOnly).expect("a sweep this small fits");
     assert!((r.goal_rate - 0.917).abs() < 1e-9 && (r.passive_contact_rate - 0.083).abs() < 1e-9, "{r}");
 }
+
+/// An obstacle that walks into the robot stops it named for what happened, through the
+/// whole stack: which obstacle, and whether the robot stood. E2's obstacle on the centre line
+/// of a lane too narrow to pass reaches the robot standing where the supervisor held it;
+/// one from behind, faster than the robot, reaches it driving ahead of it. Both contacts are
+/// passive; `summary.json` and the state name the obstacle.
+#[test]
+fn an_obstacle_reaching_the_robot_is_named_for_it() {
+    use flowgate::lab::virtual_rig::{self, Options};
+    let e2 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e2-lane-head-on.toml")).unwrap();
+    let narrow =
+        e2.replace("half_width = 0.2", "half_width = 0.1").replace("start = [0.45, 0.06]", "start = [0.45, 0.0]");
+    let behind = e2
+        .replace("start = [0.45, 0.06]", "start = [-0.85, 0.0]")
+        .replace("velocity = [-0.056, 0.0]", "velocity = [0.3, 0.0]");
+    for (text, state) in [
+        (narrow, "fault: obstacle LED 3 reached the standing robot"),
+        (behind, "fault: obstacle LED 3 reached the robot driving, not towards it"),
+    ] {
+        assert_ne!(text, e2);
+        let s = Scenario::from_toml(&text, "s.toml").unwrap();
+        let run = virtual_rig::run(&s, Options::default());
+        assert_eq!(run.report.final_state.to_string(), state);
+        let contact = run.truth.summary.contact.unwrap_or_else(|| panic!("{state}: no contact"));
+        assert!(!contact.active, "{state}: {contact:?}");
+        let summary = planner_only::Run::from_episode(&s, &run).summary;
+        assert_eq!(summary.stop_reason.as_deref(), Some(state));
+    }
+}

@@ -781,9 +781,9 @@ fn judge_stop(
         named_for: named_for.map(|f| f.kind),
         rest_after: seen.rest.map(|r| r - seen.at),
     };
-    // The world's own: an obstacle that walked onto the stopped robot leaves it inside
-    // the obstacle's planning circle, where the planner refuses (and must).
-    let worldly = seen.reason == StopReason::PlannerInvalid;
+    // The world's own: an obstacle that walked onto the robot (inside its planning circle
+    // the field is not defined), or a planner refusing what the world made of its input.
+    let worldly = matches!(seen.reason, StopReason::ObstacleReachedRobot { .. } | StopReason::PlannerInvalid);
     if named_for.is_none() && !worldly {
         v.push(format!(
             "fault at {:.3} s named \"{}\": no fault present names it ({})",

@@ -4,6 +4,7 @@
 
 use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
+use super::safety::RobotMotion;
 use super::timing::CycleRecord;
 use super::LastEstimate;
 use super::{Core, Notice, Output, StageClock, State, StopReason};
@@ -148,17 +149,44 @@ impl<K: StageClock> Core<K> {
                 self.notice(now, Notice::GoalBlocked { led, wait_s: wait });
                 self.stop(now, StopReason::GoalBlocked);
             }
+            StepStatus::Invalid(PlannerError::InsideObstacle { index }) => {
+                // The robot inside an obstacle's planning circle: the obstacle came to it.
+                self.counters.planner_invalid += 1;
+                let (led, robot) = (self.obstacle_led(index), self.robot_motion_towards(now, index));
+                self.stop(now, StopReason::ObstacleReachedRobot { led, robot });
+            }
             StepStatus::Invalid(e) => {
                 self.counters.planner_invalid += 1;
                 let led = match e {
-                    PlannerError::InsideObstacle { index }
-                    | PlannerError::GoalInsideObstacle { index }
-                    | PlannerError::BadRadius { index } => Some(self.obstacle_led(index)),
+                    PlannerError::GoalInsideObstacle { index } | PlannerError::BadRadius { index } => {
+                        Some(self.obstacle_led(index))
+                    }
                     _ => None,
                 };
                 self.notice(now, Notice::PlannerRefused { error: e, led });
                 self.stop(now, StopReason::PlannerInvalid);
             }
+        }
+    }
+
+    /// How the robot moved relative to the obstacle the planner calls `index`, by this
+    /// cycle's estimate: standing (under [`RobotMotion::STANDING_SPEED`]), driving towards it
+    /// faster than that, or otherwise driving (turning, or away from it).
+    fn robot_motion_towards(&self, now: HostTime, index: usize) -> RobotMotion {
+        let Some(e) = self.last_estimate else { return RobotMotion::Standing };
+        let speed = (e.wheels[0] + e.wheels[1]) / 2.0;
+        if speed.abs() < RobotMotion::STANDING_SPEED {
+            return RobotMotion::Standing;
+        }
+        let obstacle = self.tracker.tracked().nth(index).and_then(|k| self.tracker.obstacle_prediction(k, now.secs()));
+        let Some(ahead) = obstacle.map(|o| o - e.pose.position).filter(|a| a.norm() > 0.0) else {
+            return RobotMotion::Away;
+        };
+        let towards = speed * (ahead.re * e.pose.heading.cos() + ahead.im * e.pose.heading.sin()) / ahead.norm();
+        if towards >= RobotMotion::STANDING_SPEED {
+            RobotMotion::Towards
+        } else {
+            RobotMotion::Away
         }
     }
 

@@ -92,7 +92,7 @@ pub use input::{Answer, CanEvent, Input};
 pub use notice::{Level, Notice};
 pub use output::Output;
 pub use psd_session::{SerialBytes, SetupError};
-pub use safety::{State, StopReason};
+pub use safety::{RobotMotion, State, StopReason};
 
 use budget::Budget;
 use frame::FrameAssembler;

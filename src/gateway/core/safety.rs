@@ -14,6 +14,34 @@
 use flowgate_protocol::canopen::DriveState;
 use flowgate_protocol::motor::GatewayState;
 
+/// How the robot moved when an obstacle reached it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RobotMotion {
+    /// Slower than [`Self::STANDING_SPEED`].
+    Standing,
+    /// Closing on the obstacle at [`Self::STANDING_SPEED`] or more.
+    Towards,
+    /// Driving otherwise: turning, or away from the obstacle.
+    Away,
+}
+
+impl RobotMotion {
+    /// Below this the robot counts as standing, m/s: the speed towards an obstacle above
+    /// which the simulator's world judges a contact active.
+    pub const STANDING_SPEED: f64 = 0.01;
+}
+
+/// The robot as a stop names it: "the standing robot", "the robot driving towards it".
+impl std::fmt::Display for RobotMotion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Standing => "standing robot",
+            Self::Towards => "robot driving towards it",
+            Self::Away => "robot driving, not towards it",
+        })
+    }
+}
+
 /// Why the gateway stopped or faulted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum StopReason {
@@ -91,6 +119,13 @@ pub enum StopReason {
     ObstacleOccluded {
         led: u8,
     },
+    /// A moving obstacle's planning circle took in the robot: the obstacle came to it (the
+    /// supervisor keeps the robot from driving into one), and the field is not defined
+    /// there. Which obstacle, and how the robot moved relative to it.
+    ObstacleReachedRobot {
+        led: u8,
+        robot: RobotMotion,
+    },
     /// The gateway's own CAN controller went bus-off (an error frame or the adapter's flags).
     BusOff,
     /// The motor board reports its CAN controller error passive or bus-off.
@@ -156,7 +191,7 @@ pub enum StopReason {
 
 impl StopReason {
     /// One of each reason (the LED or node 0): every label `/metrics` carries from the start.
-    pub const ALL: [StopReason; 41] = [
+    pub const ALL: [StopReason; 42] = [
         Self::GoalReached,
         Self::Stalled,
         Self::Operator,
@@ -184,6 +219,7 @@ impl StopReason {
         Self::BoardReboot { node: 0 },
         Self::SecondMaster { node: 0 },
         Self::ObstacleOccluded { led: 0 },
+        Self::ObstacleReachedRobot { led: 0, robot: RobotMotion::Standing },
         Self::BusOff,
         Self::BoardBusOff { node: 0 },
         Self::BoardFault { node: 0 },
@@ -318,6 +354,7 @@ impl std::fmt::Display for StopReason {
             Self::ObstacleOccluded { led } => {
                 write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
             }
+            Self::ObstacleReachedRobot { led, robot } => write!(f, "obstacle LED {led} reached the {robot}"),
             Self::BoardBusOff { node } => write!(f, "motor board {node} CAN bus-off"),
             Self::BoardFault { node } => write!(f, "motor board {node} fault"),
             Self::BoardEStop { node } => write!(f, "e-stop latched by motor board {node} (its e-stop input)"),
@@ -540,6 +577,7 @@ mod tests {
                 | StopReason::BoardReboot { .. }
                 | StopReason::SecondMaster { .. }
                 | StopReason::ObstacleOccluded { .. }
+                | StopReason::ObstacleReachedRobot { .. }
                 | StopReason::BusOff
                 | StopReason::BoardBusOff { .. }
                 | StopReason::BoardFault { .. }
