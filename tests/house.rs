@@ -1,5 +1,6 @@
 //! The shape of the code, held by a test: modules import only the layers below them (so
-//! there is no import back up and no circle), functions stay short enough to read, every
+//! there is no import back up), no two files of any crate import each other round a circle,
+//! functions stay short enough to read, every
 //! test file is in docs/testing.md, and every Python peer sits at `tests/peers/<test>.py`
 //! beside the test that runs it. docs/architecture.md explains the layers.
 
@@ -326,4 +327,186 @@ fn every_python_peer_sits_beside_its_test() {
         }
     }
     assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// The file of module `path` (its segments below the crate's `src/`), if there is one.
+fn module_file(src: &Path, path: &[String]) -> Option<PathBuf> {
+    if path.is_empty() {
+        return Some(src.join("lib.rs"));
+    }
+    let joined: PathBuf = path.iter().collect();
+    [src.join(&joined).with_extension("rs"), src.join(&joined).join("mod.rs")].into_iter().find(|f| f.exists())
+}
+
+/// The module path of a file of a crate's `src/` (`planner/room.rs`: `["planner", "room"]`).
+fn module_path(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).unwrap().with_extension("");
+    let mut parts: Vec<String> = rel.iter().map(|p| p.to_string_lossy().into_owned()).collect();
+    if parts.last().is_some_and(|p| p == "mod" || p == "lib" || p == "main") {
+        parts.pop();
+    }
+    parts
+}
+
+/// The paths a file names through `crate::`, `super::` and `self::`, as module paths from
+/// the crate's root; a group (`super::{a::X, b}`) gives one path for each of its items.
+fn named_paths(code: &str, own: &[String]) -> Vec<Vec<String>> {
+    let word = |s: &str| s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect::<String>();
+    let mut out = Vec::new();
+    for (at, _) in code.match_indices("::") {
+        // Only the start of a path: the word before `::` not itself after another `::`.
+        let before = &code[..at];
+        let head: String = before.chars().rev().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        let head: String = head.chars().rev().collect();
+        if before[..before.len() - head.len()].ends_with("::") {
+            continue;
+        }
+        // From the file's own module: `self` is it, `super` its parent.
+        let mut base: Vec<String> = match head.as_str() {
+            "crate" => Vec::new(),
+            "self" => own.to_vec(),
+            "super" => {
+                let mut b = own.to_vec();
+                b.pop();
+                b
+            }
+            _ => continue,
+        };
+        if head == "super" && own.is_empty() {
+            continue;
+        }
+        let mut rest = &code[at + 2..];
+        // More `super::`s.
+        while let Some(r) = rest.strip_prefix("super::") {
+            base.pop();
+            rest = r;
+        }
+        let mut path = base;
+        loop {
+            let w = word(rest);
+            if w.is_empty() {
+                break;
+            }
+            path.push(w.clone());
+            rest = &rest[w.len()..];
+            match rest.strip_prefix("::") {
+                Some(r) => rest = r,
+                None => break,
+            }
+        }
+        if let Some(group) = rest.strip_prefix('{') {
+            // The group's items at its first level, each by its first segment.
+            let (mut depth, mut items, mut item) = (0, Vec::new(), String::new());
+            for ch in group.chars() {
+                match ch {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => break,
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => {
+                        items.push(std::mem::take(&mut item));
+                        continue;
+                    }
+                    _ => {}
+                }
+                item.push(ch);
+            }
+            items.push(item);
+            for first in items.iter().map(|i| word(i.trim())).filter(|w| !w.is_empty() && w != "self") {
+                let mut p = path.clone();
+                p.push(first);
+                out.push(p);
+            }
+        }
+        out.push(path);
+    }
+    // `use child::X;`: a path from the file's own module (2018 paths), which resolves to
+    // a file only when `child` is a module below it.
+    for (at, _) in code.match_indices("use ") {
+        let starts_word = at == 0 || !code[..at].ends_with(|c: char| c.is_alphanumeric() || c == '_');
+        let first = word(&code[at + 4..]);
+        if starts_word && !first.is_empty() && !["crate", "self", "super"].contains(&first.as_str()) {
+            let mut p = own.to_vec();
+            p.push(first);
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// Import circles among a crate's files: `a.rs` naming something of `b.rs` and `b.rs`
+/// naming something of `a.rs`, directly or round a longer loop. A module naming its own
+/// parent's items (`super::X` in a child) is not counted: a parent holds what its children
+/// share.
+fn import_circles(src: &Path) -> Vec<String> {
+    let files = rust_files(src);
+    let mut edges: BTreeMap<PathBuf, std::collections::BTreeSet<PathBuf>> = BTreeMap::new();
+    for file in &files {
+        let own = module_path(src, file);
+        let code = code_only(&std::fs::read_to_string(file).unwrap());
+        let targets = edges.entry(file.clone()).or_default();
+        for path in named_paths(&code, &own) {
+            let target = (0..=path.len()).rev().find_map(|n| module_file(src, &path[..n]));
+            let Some(target) = target.filter(|t| t != file) else { continue };
+            let target_module = module_path(src, &target);
+            // An ancestor of this file's module (its parent, the crate root): not an edge.
+            if own.starts_with(&target_module) {
+                continue;
+            }
+            targets.insert(target);
+        }
+    }
+    // Each strongly connected set of more than one file is a circle.
+    let mut circles = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    let reach = |from: &PathBuf| {
+        let mut stack = vec![from.clone()];
+        let mut reached = std::collections::BTreeSet::new();
+        while let Some(f) = stack.pop() {
+            for next in edges.get(&f).into_iter().flatten() {
+                if reached.insert(next.clone()) {
+                    stack.push(next.clone());
+                }
+            }
+        }
+        reached
+    };
+    for file in &files {
+        if seen.contains(file) {
+            continue;
+        }
+        let ahead = reach(file);
+        let circle: Vec<&PathBuf> = ahead.iter().filter(|f| *f == file || reach(f).contains(file)).collect();
+        if circle.len() > 1 || (circle.len() == 1 && circle[0] != file) {
+            let mut names: Vec<String> =
+                circle.iter().map(|f| f.strip_prefix(root()).unwrap_or(f).display().to_string()).collect();
+            names.sort();
+            names.dedup();
+            seen.extend(circle.into_iter().cloned());
+            circles.push(names.join(" <-> "));
+        }
+    }
+    circles
+}
+
+#[test]
+fn no_import_circles_in_any_crate() {
+    let mut all = Vec::new();
+    for krate in ["src", "firmware-sim/src", "protocol/src"] {
+        all.extend(import_circles(&root().join(krate)));
+    }
+    assert!(all.is_empty(), "import circles:\n{}", all.join("\n"));
+}
+
+#[test]
+fn the_circle_finder_finds_a_circle() {
+    let dir = std::env::temp_dir().join(format!("flowgate-house-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("planner")).unwrap();
+    std::fs::write(dir.join("lib.rs"), "pub mod planner;\n").unwrap();
+    std::fs::write(dir.join("planner/mod.rs"), "pub mod a;\npub mod b;\npub use a::A;\n").unwrap();
+    std::fs::write(dir.join("planner/a.rs"), "use super::{b::B, A2};\npub struct A;\n").unwrap();
+    std::fs::write(dir.join("planner/b.rs"), "use crate::planner::a::A;\nuse super::Shared;\npub struct B;\n").unwrap();
+    let circles = import_circles(&dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(circles.len(), 1, "{circles:?}");
+    assert!(circles[0].ends_with("planner/a.rs <-> ") || circles[0].ends_with("planner/b.rs"), "{circles:?}");
 }

@@ -541,13 +541,8 @@ impl Scenario {
                 return Err((key, format!("the edge from point {k} to point {} has no length", k + 1)));
             }
         }
-        let room = crate::world::Room::new(self);
         for (key, at) in [("robot.start", self.robot.start), ("goal.position", self.goal.position)] {
-            if let Some(g) = room.gap(point(at), self.robot.radius).filter(|g| g.gap <= 0.0) {
-                let what = match g.with {
-                    crate::world::Touched::StaticObstacle(k) => format!("static_obstacles[{k}]"),
-                    _ => "a wall".to_string(),
-                };
+            if let Some(what) = self.touching(point(at), self.robot.radius) {
                 return Err((
                     key.into(),
                     format!("{at:?} puts the robot against {what} (its radius {} m)", self.robot.radius),
@@ -555,6 +550,23 @@ impl Scenario {
             }
         }
         Ok(())
+    }
+
+    /// What a footprint of `radius` at `centre` touches or overlaps, the walls first: "a
+    /// wall" or "static_obstacles[k]".
+    fn touching(&self, centre: Point, radius: f64) -> Option<String> {
+        use flowgate_protocol::plane::{inside_polygon, polygon_edges, segment_distance_sqr};
+        let reach = radius * radius;
+        let wall = self.walls.iter().flat_map(|w| w.points.windows(2));
+        if wall.into_iter().any(|s| segment_distance_sqr(centre, point(s[0]), point(s[1])) <= reach) {
+            return Some("a wall".into());
+        }
+        self.static_obstacles.iter().enumerate().find_map(|(k, o)| {
+            let polygon: Vec<Point> = o.points.iter().map(|&p| point(p)).collect();
+            let touches = inside_polygon(centre, &polygon)
+                || polygon_edges(&polygon).any(|(a, b)| segment_distance_sqr(centre, a, b) <= reach);
+            touches.then(|| format!("static_obstacles[{k}]"))
+        })
     }
 
     /// Where things stand at the start: what no run could begin from, or ever end in, is

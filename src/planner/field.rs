@@ -38,87 +38,11 @@ use crate::geometry::Length;
 use std::sync::Arc;
 
 use super::multipole::{self, Fitted, Series, ORDERS, POINTS};
-use super::room::{Room, RoomSink};
+use super::room::{Room, RoomSink, ROOM_HOLD};
+use super::space::Space;
 
 /// The most obstacles one field holds (fixed arrays: evaluation never allocates).
 pub const MAX_OBSTACLES: usize = 16;
-
-/// Free space, or a lane between walls at `y = ±h`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Space {
-    Free,
-    Lane { half_width: f64 },
-}
-
-impl Space {
-    /// `ϖ = π / 4h` of a lane.
-    fn varpi(half_width: f64) -> f64 {
-        std::f64::consts::PI / (4.0 * half_width)
-    }
-
-    /// A unit sink at `a` (as `u - i v`): `-1/(z - a)`, plus its wall images in a lane:
-    /// `-ϖ [coth(ϖ(z - a)) + tanh(ϖ(z - conj a))]`.
-    #[inline(always)]
-    pub fn sink(self, z: Point, a: Point) -> Point {
-        match self {
-            Space::Free => -(z - a).inv(),
-            Space::Lane { half_width } => Self::lane_sink(half_width, z, a),
-        }
-    }
-
-    // The lane's terms out of line, so that free space's inline to a few operations.
-    fn lane_sink(half_width: f64, z: Point, a: Point) -> Point {
-        let w = Self::varpi(half_width);
-        -w * (coth(w * (z - a)) + tanh(w * (z - a.conj())))
-    }
-
-    /// A doublet of moment `mu` at `a`: `mu/(z - a)²`, plus its wall images in a lane:
-    /// `ϖ² [mu csch²(ϖ(z - a)) - conj(mu) sech²(ϖ(z - conj a))]`.
-    #[inline(always)]
-    pub fn doublet(self, z: Point, a: Point, mu: Point) -> Point {
-        match self {
-            Space::Free => mu * ((z - a) * (z - a)).inv(),
-            Space::Lane { half_width } => Self::lane_doublet(half_width, z, a, mu),
-        }
-    }
-
-    fn lane_doublet(half_width: f64, z: Point, a: Point, mu: Point) -> Point {
-        let w = Self::varpi(half_width);
-        w * w * (mu * csch2(w * (z - a)) - mu.conj() * sech2(w * (z - a.conj())))
-    }
-}
-
-// Lane primitives from one complex exponential each: with q = e^{-2x} (taking x with
-// Re x >= 0 by symmetry, so |q| <= 1 and nothing overflows),
-// tanh x = (1 - q)/(1 + q), coth x = (1 + q)/(1 - q), csch² x = 4q/(1 - q)², sech² x = 4q/(1 + q)².
-#[inline]
-fn half_plane(x: Point) -> (Point, f64) {
-    if x.re >= 0.0 {
-        ((-2.0 * x).exp(), 1.0)
-    } else {
-        ((2.0 * x).exp(), -1.0)
-    }
-}
-#[inline]
-fn tanh(x: Point) -> Point {
-    let (q, sign) = half_plane(x);
-    sign * (1.0 - q) / (1.0 + q)
-}
-#[inline]
-fn coth(x: Point) -> Point {
-    let (q, sign) = half_plane(x);
-    sign * (1.0 + q) / (1.0 - q)
-}
-#[inline]
-fn csch2(x: Point) -> Point {
-    let (q, _) = half_plane(x);
-    4.0 * q / ((1.0 - q) * (1.0 - q))
-}
-#[inline]
-fn sech2(x: Point) -> Point {
-    let (q, _) = half_plane(x);
-    4.0 * q / ((1.0 + q) * (1.0 + q))
-}
 
 /// An obstacle as the planner sees it: centre, velocity, planning radius `R`
 /// (obstacle radius + robot radius + margin).
@@ -212,11 +136,6 @@ struct RoomField {
     sink: RoomSink,
     solved: bool,
 }
-
-/// A robot closer than this to the room's boundary (or beyond it, up to
-/// [`ROOM_TOLERANCE`]) is steered by the room's flow this far inside, along the boundary's
-/// normal: the panels' flow is not the field's beyond them.
-pub(crate) const ROOM_HOLD: f64 = 0.005;
 
 /// Within this distance of the room's boundary, the field loses its part that heads into
 /// the boundary, wholly on it, m ([`keep_off`]).

@@ -35,13 +35,15 @@
 pub mod field;
 pub mod multipole;
 pub mod room;
+pub mod space;
 
 use std::sync::Arc;
 
 use crate::Point;
 use arrayvec::ArrayVec;
-pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, Space, MAX_OBSTACLES};
+pub use field::{streamlines, Field, FieldError, PlanObstacle, Sink, MAX_OBSTACLES};
 use room::Room;
+pub use space::Space;
 
 use crate::geometry::Length;
 
