@@ -510,3 +510,22 @@ fn the_circle_finder_finds_a_circle() {
     assert_eq!(circles.len(), 1, "{circles:?}");
     assert!(circles[0].ends_with("planner/a.rs <-> ") || circles[0].ends_with("planner/b.rs"), "{circles:?}");
 }
+
+/// The core asks the same of either motor backend: `MotorMaster`'s variants are named
+/// only inside `src/gateway/core/motors/`.
+#[test]
+fn no_branch_on_the_motor_backend_outside_motors() {
+    let mut found = Vec::new();
+    for file in rust_files(&root().join("src")) {
+        if file.starts_with(root().join("src/gateway/core/motors")) {
+            continue;
+        }
+        let code = code_only(&std::fs::read_to_string(&file).unwrap());
+        for name in ["MotorMaster::Board", "MotorMaster::Cia402", "motors::MotorMaster::"] {
+            if code.contains(name) {
+                found.push(format!("{} names {name}", file.strip_prefix(root()).unwrap().display()));
+            }
+        }
+    }
+    assert!(found.is_empty(), "{}", found.join("\n"));
+}

@@ -416,7 +416,7 @@ impl<K: StageClock> Core<K> {
             Action::None => {}
             Action::EnableBoard => {
                 self.motors.enable(now, &mut self.out.can());
-                if self.motors.board().is_some() {
+                if self.motors.time_out_without_commands() {
                     self.watch.last_command = Some(now);
                 }
             }

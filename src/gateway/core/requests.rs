@@ -153,7 +153,7 @@ impl<K: StageClock> Core<K> {
             // a latch the reset itself clears (refusing the reset for it would never end).
             // Our controller back on the bus (its flags, or a frame heard since), and a board
             // heard again (drives may be silent: see above).
-            StopReason::BusOff => self.links.bus_off || (!heard && self.motors.board().is_some()),
+            StopReason::BusOff => self.links.bus_off || (!heard && self.motors.always_heard()),
             StopReason::BoardBusOff { .. } => !heard,
             StopReason::BoardEStop { .. } => !heard || self.motors.latched(reason),
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.links.can_up,

@@ -166,9 +166,7 @@ impl<K: StageClock> Core<K> {
             Timer::StopGrace => self.check_at_rest(now),
             Timer::KeepAlive => {
                 self.watch.last_command = Some(now);
-                if let super::motors::MotorMaster::Board(b) = &mut self.motors {
-                    b.keep_alive(&mut self.out.can());
-                }
+                self.motors.keep_alive(&mut self.out.can());
             }
         }
     }
@@ -258,7 +256,9 @@ impl<K: StageClock> Core<K> {
     /// that delivers none yet (a long sensing delay, the first pose still on its way).
     fn keep_alive_due(&self) -> Option<HostTime> {
         let idle_enabled = matches!(self.state(), State::Armed | State::Stopping(_));
-        let board = self.motors.board().filter(|_| idle_enabled)?;
-        board.keep_alive_due(self.watch.last_command)
+        if !idle_enabled {
+            return None;
+        }
+        self.motors.keep_alive_due(self.watch.last_command)
     }
 }

@@ -58,13 +58,32 @@ impl MotorMaster {
         }
     }
 
-    /// The board, which stops by itself when commands stop coming (its command timeout) and
-    /// so needs zero commands while enabled and idle. CiA 402 drives watch the gateway's
-    /// heartbeat instead.
-    pub fn board(&self) -> Option<&BoardMaster> {
+    /// The motors stop by themselves when commands stop coming (the board's command
+    /// timeout, which the enable starts): enabled and idle, they need zero commands
+    /// ([`Self::keep_alive_due`]). CiA 402 drives watch the gateway's heartbeat instead.
+    pub fn time_out_without_commands(&self) -> bool {
+        matches!(self, Self::Board(_))
+    }
+
+    /// The motors report a heartbeat in every state: one unheard is gone, or off the bus. A
+    /// CiA 402 drive stays silent until configured, so silence alone says nothing of it.
+    pub fn always_heard(&self) -> bool {
+        matches!(self, Self::Board(_))
+    }
+
+    /// When motors enabled and idle need their zero command (`None`: they do not), from
+    /// the last command sent.
+    pub fn keep_alive_due(&self, last_command: Option<HostTime>) -> Option<HostTime> {
         match self {
-            Self::Board(b) => Some(b),
+            Self::Board(b) => b.keep_alive_due(last_command),
             Self::Cia402(_) => None,
+        }
+    }
+
+    /// The zero command that keeps enabled, idle motors from timing out.
+    pub fn keep_alive(&mut self, send: &mut impl FnMut(CanFrame)) {
+        if let Self::Board(b) = self {
+            b.keep_alive(send);
         }
     }
 
