@@ -529,3 +529,48 @@ fn no_branch_on_the_motor_backend_outside_motors() {
     }
     assert!(found.is_empty(), "{}", found.join("\n"));
 }
+
+/// docs/architecture.md names only what exists: every path it quotes, from the repository's
+/// root or as the end of a path in it (`motors/board.rs`, `cycle.rs`).
+#[test]
+fn the_architecture_page_names_only_paths_that_exist() {
+    let page = std::fs::read_to_string(root().join("docs/architecture.md")).unwrap();
+    let mut paths: Vec<String> = Vec::new();
+    let mut stack = vec![root()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            let p = e.path();
+            let name = e.file_name().to_string_lossy().into_owned();
+            if p.is_dir() && (name == "target" || name == "corpus" || name.starts_with('.')) {
+                continue;
+            }
+            let rel = p.strip_prefix(root()).unwrap().display().to_string();
+            if p.is_dir() {
+                paths.push(format!("{rel}/"));
+                stack.push(p);
+            } else {
+                paths.push(rel);
+            }
+        }
+    }
+    // The operator's own config, named as the docs name it.
+    const THE_USERS: &[&str] = &["rig.toml"];
+    let mut missing = Vec::new();
+    let mut quoted = 0;
+    for token in page.split('`').skip(1).step_by(2) {
+        let looks_like_path = !token.contains(' ')
+            && (token.contains('/') || [".rs", ".md", ".py", ".toml", ".dbc"].iter().any(|e| token.ends_with(e)));
+        let not_a_path = token.contains("::") || token.contains('<') || token.starts_with('/') || token.contains('*');
+        if !looks_like_path || not_a_path || THE_USERS.contains(&token) {
+            continue;
+        }
+        quoted += 1;
+        let token = token.trim_start_matches("../");
+        let exists = paths.iter().any(|p| p == token || p.ends_with(&format!("/{token}")));
+        if !exists {
+            missing.push(token.to_string());
+        }
+    }
+    assert!(quoted > 30, "only {quoted} paths found: the scan is broken");
+    assert!(missing.is_empty(), "docs/architecture.md names what does not exist: {missing:?}");
+}
