@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use flowgate::lab::planner_only::{self, Mode};
-use flowgate::lab::{plots, virtual_rig, Scenario};
+use flowgate::lab::planner_only::Mode;
+use flowgate::lab::{outputs, plots, Scenario};
 use flowgate::lab::{swarm, sweep};
 
 #[derive(Args, Debug)]
@@ -104,11 +104,10 @@ pub fn run(args: PlanArgs) -> Result<()> {
     if let Some(n) = args.swarm {
         return swarm_command(&args, file, &scenario, n, &out);
     }
-    let run = one(&scenario, mode, Some(&out))?;
+    let run = outputs::run_one(&scenario, mode, Some(&out))?;
     say!("{}  ({mode})", plots::one_line(&run));
-    write_outputs(&scenario, &run, &out)?;
-    let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
-    say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
+    outputs::write_run(&out, &scenario, &run)?;
+    say_run_files(&out, mode);
     Ok(())
 }
 
@@ -131,7 +130,7 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
     let bytes = flowgate_sim::scenario::read_text(file, flowgate_sim::scenario::MAX_FILE_BYTES)
         .with_context(|| format!("reading {}", file.display()))?
         .into_bytes();
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    outputs::folder(out)?;
     let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
     let episodes =
         sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, shard.unwrap_or(sweep::Shard::WHOLE))?;
@@ -147,7 +146,8 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
         sweep::write_shard(out, &manifest, &episodes)?;
         say!("  wrote {}/{{{},{}}}", out.display(), sweep::MANIFEST_FILE, sweep::EPISODES_FILE);
     } else {
-        write_sweep(out, &manifest, &episodes, &report)?;
+        outputs::write_sweep(out, &manifest, &episodes, &report)?;
+        say!("  wrote {}/{{sweep.json,{}}}", out.display(), sweep::EPISODES_FILE);
     }
     Ok(())
 }
@@ -159,12 +159,11 @@ fn sweep_episode(seed: u64, scenario: &Scenario, n: u64, k: u64, out: &Path, mod
         bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1);
     }
     let s = sweep::perturb(scenario, seed, k);
-    let run = one(&s, mode, Some(out))?;
+    let run = outputs::run_one(&s, mode, Some(out))?;
     say!("episode {k} of the sweep of {n} around {} (seed {seed}, {mode}):", scenario.name);
     say!("{}", plots::one_line(&run));
-    write_outputs(&s, &run, out)?;
-    let extra = if mode == Mode::FullStack { ",cycles.csv,can.log" } else { "" };
-    say!("  wrote {}/{{summary.json,trajectory.svg,history.svg{extra}}}", out.display());
+    outputs::write_run(out, &s, &run)?;
+    say_run_files(out, mode);
     Ok(())
 }
 
@@ -188,30 +187,11 @@ fn compare_command(
     say!("{n} episodes around {} (seed {}, {mode}), as given and with {setting}:", scenario.name, args.seed);
     say!("{comparison}");
     say!("  ({} episodes in {:.1} s)", 2 * n, started.elapsed().as_secs_f64());
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let path = out.join("compare.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&comparison)?)
-        .with_context(|| format!("writing {}", path.display()))?;
+    let path = outputs::write_comparison(out, &comparison)?;
     say!("  wrote {}", path.display());
     if !comparison.same {
         bail!("with {setting} the outcomes are not the same in distribution");
     }
-    Ok(())
-}
-
-/// A whole sweep's report (`sweep.json`) and episodes.
-fn write_sweep(
-    out: &Path,
-    manifest: &sweep::Manifest,
-    episodes: &[sweep::Episode],
-    report: &sweep::SweepReport,
-) -> Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    sweep::episodes_file::write(&out.join(sweep::EPISODES_FILE), manifest, episodes)?;
-    let path = out.join("sweep.json");
-    std::fs::write(&path, serde_json::to_string_pretty(report)?)
-        .with_context(|| format!("writing {}", path.display()))?;
-    say!("  wrote {}/{{sweep.json,{}}}", out.display(), sweep::EPISODES_FILE);
     Ok(())
 }
 
@@ -223,7 +203,7 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     if n > sweep::MAX_EPISODES {
         bail!("--swarm {n}: at most {} episodes (shard a larger swarm into several)", sweep::MAX_EPISODES);
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    outputs::folder(out)?;
     let replay = |k: u64| {
         let unsupervised = if scenario.supervised { "" } else { " --unsupervised" };
         format!("flowgate plan --swarm {n} --seed {} --episode {k}{unsupervised} {}", args.seed, file.display())
@@ -243,8 +223,7 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
         report.virtual_s,
         started.elapsed().as_secs_f64()
     );
-    let path = out.join("swarm.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&report)?)?;
+    let path = outputs::write_swarm(out, &report)?;
     say!("  wrote {}", path.display());
     for o in &report.failures {
         say!("episode {} ({}) broke:", o.index, o.backend.name());
@@ -284,13 +263,8 @@ fn swarm_episode(args: &PlanArgs, scenario: &Scenario, n: u64, k: u64, out: &Pat
         outcome.duration
     );
     say!("  bytes sent: digest {}", outcome.digest);
-    if let Some(t) = &run.telemetry {
-        t.write(out).with_context(|| format!("writing {}", out.display()))?;
-    }
-    run.truth.write(&out.join("truth.csv")).with_context(|| format!("writing {}", out.display()))?;
-    std::fs::write(out.join("faults.toml"), toml::to_string(&schedule.scenario.faults)?)?;
-    std::fs::write(out.join("episode.json"), serde_json::to_string_pretty(&outcome)?)?;
-    say!("  wrote {}/{{episode.json,faults.toml,cycles.csv,can.log,truth.csv}}", out.display());
+    outputs::write_swarm_episode(out, &outcome, &run, &schedule)?;
+    say!("  wrote {}/{{{}}}", out.display(), outputs::SWARM_EPISODE_FILES);
     if !outcome.violations.is_empty() {
         bail!("episode {k} broke {} invariants:\n  {}", outcome.violations.len(), outcome.violations.join("\n  "));
     }
@@ -304,42 +278,19 @@ fn merge(dirs: &[PathBuf], out: Option<&Path>) -> Result<()> {
     say!("{report}");
     say!("  (merged from {} shards)", shards.len());
     let out = out.map_or_else(|| Path::new("out/plan").join("merged"), Path::to_path_buf);
-    write_sweep(&out, &manifest, &episodes, &report)
-}
-
-/// One run in `mode`; a full-stack run also leaves its `cycles.csv` and `can.log` in `out`.
-fn one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<planner_only::Run> {
-    Ok(match mode {
-        Mode::PlannerOnly => planner_only::run(scenario, out.is_some()),
-        Mode::FullStack => {
-            let options = virtual_rig::Options { truth_samples: out.is_some(), telemetry: true, ..Default::default() };
-            let episode = virtual_rig::run_timed(scenario, options);
-            if let Some(e) = episode.setup_error {
-                bail!("{}: the simulated PSD controller could not be configured: {e}", scenario.name);
-            }
-            let mut run = planner_only::Run::from_episode(scenario, &episode);
-            if let Some(t) = &episode.telemetry {
-                let [p50_us, p99_us, max_us] = t.plan_us();
-                run.summary.planner_compute = planner_only::ComputeTime { p50_us, p99_us, max_us };
-                if let Some(out) = out {
-                    t.write(out).with_context(|| format!("writing {}", out.display()))?;
-                }
-            }
-            run
-        }
-    })
+    outputs::write_sweep(&out, &manifest, &episodes, &report)?;
+    say!("  wrote {}/{{sweep.json,{}}}", out.display(), sweep::EPISODES_FILE);
+    Ok(())
 }
 
 fn stem(path: &Path) -> String {
     path.file_stem().map_or_else(|| "scenario".into(), |s| s.to_string_lossy().into_owned())
 }
 
-fn write_outputs(scenario: &Scenario, run: &planner_only::Run, out: &Path) -> Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&run.summary)?)?;
-    std::fs::write(out.join("trajectory.svg"), plots::trajectory_svg(scenario, &run.trace, (&run.summary).into()))?;
-    std::fs::write(out.join("history.svg"), plots::history_svg(scenario, run))?;
-    Ok(())
+/// What a single run wrote.
+fn say_run_files(out: &Path, mode: Mode) {
+    let extra = if mode == Mode::FullStack { format!(",{}", outputs::TELEMETRY_FILES) } else { String::new() };
+    say!("  wrote {}/{{{}{extra}}}", out.display(), outputs::RUN_FILES);
 }
 
 fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Result<()> {
@@ -369,7 +320,7 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
         let mut scenario = Scenario::load(&file)?;
         scenario.supervised = supervised;
         let dir = out.map(|o| o.join(stem(&file)));
-        let run = one(&scenario, mode, dir.as_deref())?;
+        let run = outputs::run_one(&scenario, mode, dir.as_deref())?;
         let s = &run.summary;
         say!(
             "{:<26} {:<9} {:<8} {:>7.1} {:>11} {:>9} {:>6.2} {:>10.0} {:>10}",
@@ -384,7 +335,7 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
             format!("{:.1}", s.planner_compute.p99_us)
         );
         if let Some(dir) = dir {
-            write_outputs(&scenario, &run, &dir)?;
+            outputs::write_run(&dir, &scenario, &run)?;
         }
     }
     Ok(())

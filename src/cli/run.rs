@@ -93,9 +93,7 @@ fn serve(rig: flowgate::config::Rig, arm: bool) -> Result<()> {
         };
         say(&report.to_string());
         if let Some(dir) = &telemetry_dir {
-            let path = dir.join("report.json");
-            std::fs::write(&path, serde_json::to_string_pretty(&report)?)
-                .with_context(|| format!("writing {}", path.display()))?;
+            report.write_json(dir).with_context(|| format!("writing {}/report.json", dir.display()))?;
             say(&format!("telemetry and report.json in {}", dir.display()));
         }
         if let Some(path) = &recording {

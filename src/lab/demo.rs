@@ -69,7 +69,7 @@ impl DemoRun {
             Ending { outcome: self.outcome(), min_obstacle_clearance: t.min_obstacle_clearance, end_time: t.duration };
         std::fs::write(dir.join("trajectory.svg"), trajectory_svg(scenario, &self.trace(), ending))?;
         self.truth.write(&dir.join("truth.json"))?;
-        std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(&self.report)?)
+        self.report.write_json(dir).map(drop)
     }
 }
 

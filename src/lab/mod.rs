@@ -15,6 +15,7 @@
 
 pub mod bench;
 pub mod demo;
+pub mod outputs;
 pub mod planner_only;
 pub mod plots;
 pub mod scenario;

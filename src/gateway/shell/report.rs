@@ -26,6 +26,13 @@ pub struct Report {
 }
 
 impl Report {
+    /// The report as `report.json` in `dir`, beside a run's other files; its path.
+    pub fn write_json(&self, dir: &std::path::Path) -> std::io::Result<std::path::PathBuf> {
+        let path = dir.join("report.json");
+        std::fs::write(&path, serde_json::to_string_pretty(self)?)?;
+        Ok(path)
+    }
+
     /// The report of a run that ended with `core` in its final state; `counters` are the
     /// core's with the shell's own counts added.
     pub fn new<K: StageClock>(
