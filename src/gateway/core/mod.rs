@@ -94,11 +94,12 @@ pub use output::Output;
 pub use psd_session::{SerialBytes, SetupError};
 pub use safety::{RobotMotion, State, StopReason};
 
-use budget::Budget;
+use can_link::CanLinkHealth;
 use frame::FrameAssembler;
 use motors::MotorMaster;
 use operator::{Goal, MAX_GOALS};
 use output::Outbox;
+use psd_link::PsdLinkHealth;
 use psd_session::PsdSession;
 use safety::{Action, Safety};
 
@@ -125,38 +126,6 @@ impl StageClock for NoClock {
     fn now_ns(&mut self) -> u64 {
         0
     }
-}
-
-/// The two links' health: what was discarded within the last second, and when a lost link
-/// is asked for again.
-#[derive(Debug)]
-struct Links {
-    /// Bad serial frames, and the controller's sequence errors, within the last second.
-    bad_frames: Budget,
-    sequence_errors: Budget,
-    /// Transmits the SLCAN adapter refused, and when its status was last asked for.
-    tx_refused: Budget,
-    status_polled: HostTime,
-    /// The CAN link is open (not failed or down since it last opened).
-    can_up: bool,
-    /// When to ask for the lost PSD line, and the lost CAN link, to be opened again.
-    psd_reopen_at: HostTime,
-    can_reopen_at: HostTime,
-    /// When another device's command to our motors was last heard.
-    second_master_heard: Option<HostTime>,
-    /// The controller has streamed at least once.
-    streamed: bool,
-    /// The PSD session is being configured again, for an operator's reset or a controller
-    /// gone silent (not a reconnect).
-    rehandshake: bool,
-    /// Our CAN controller reported bus-off, and nothing has been heard on the bus since:
-    /// what goes unheard meanwhile is the bus-off's doing.
-    bus_off: bool,
-    /// When the silent controller was last configured again.
-    restreamed_at: HostTime,
-    /// The instant of the PSD read whose packets are still being decoded: a read is decoded
-    /// as its outputs are drained, so each cycle's command is drained in that cycle's state.
-    psd_read: Option<HostTime>,
 }
 
 /// The times the watchdogs and the core's own timers count from.
@@ -232,7 +201,9 @@ pub struct Core<K: StageClock> {
     control: ControlStep,
     safety: Safety,
     motors: MotorMaster,
-    links: Links,
+    /// The two links' health.
+    psd_link: PsdLinkHealth,
+    can_link: CanLinkHealth,
     watch: Watch,
     mission: Mission,
     stages: StageTimes,
@@ -264,21 +235,8 @@ impl<K: StageClock> Core<K> {
             safety: Safety::default(),
             motors: MotorMaster::new(&rig),
             out: Outbox::new(),
-            links: Links {
-                bad_frames: Budget::new(budget),
-                sequence_errors: Budget::new(budget),
-                tx_refused: Budget::new(can_link::TX_REFUSED_PER_S),
-                status_polled: HostTime::ZERO,
-                can_up: true,
-                psd_reopen_at: HostTime::NEVER,
-                can_reopen_at: HostTime::NEVER,
-                second_master_heard: None,
-                streamed: false,
-                rehandshake: false,
-                bus_off: false,
-                restreamed_at: HostTime::ZERO,
-                psd_read: None,
-            },
+            psd_link: PsdLinkHealth::new(budget),
+            can_link: CanLinkHealth::new(),
             watch: Watch {
                 last_sample: HostTime::ZERO,
                 garbage_at_last_sample: (0, 0),
@@ -331,7 +289,7 @@ impl<K: StageClock> Core<K> {
     /// Whether the controller has streamed at least once (a setup failure before that is a
     /// startup failure).
     pub fn has_streamed(&self) -> bool {
-        self.links.streamed
+        self.psd_link.has_streamed()
     }
     /// Shutdown was asked for and the robot is at rest: the caller may end the run.
     pub fn finished(&self) -> bool {
@@ -340,10 +298,7 @@ impl<K: StageClock> Core<K> {
     /// What the core holds in its queues, in elements of capacity: the output queue, the
     /// budgets' windows, the goals. A soak asserts it stops growing once warm.
     pub fn footprint(&self) -> usize {
-        let l = &self.links;
-        self.out.capacity()
-            + [&l.bad_frames, &l.sequence_errors, &l.tx_refused].iter().map(|b| b.capacity()).sum::<usize>()
-            + self.mission.goals.capacity()
+        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.mission.goals.capacity()
     }
 
     /// The PSD receive buffer's capacity, bytes: it rises and falls as frames are taken

@@ -7,6 +7,7 @@
 use flowgate_protocol::codec::StreamError;
 use flowgate_protocol::psd::{FaultCode, Message, Packet};
 
+use super::budget::Budget;
 use super::counter_window::Verdict;
 use super::frame::{Ended, Taken};
 use super::operator::Refusal;
@@ -15,10 +16,120 @@ use super::safety::Garbled;
 use super::{Core, Notice, Output, StageClock, StopReason, REOPEN_EVERY};
 use crate::time::{CtrlTime, HostTime};
 
+/// The PSD line's health: its bad frames and sequence errors within the last second,
+/// whether the controller has streamed and is being configured again, and when a lost line
+/// is asked for again. One value a line: its fields change only through its methods.
+#[derive(Debug)]
+pub(super) struct PsdLinkHealth {
+    bad_frames: Budget,
+    sequence_errors: Budget,
+    /// When to ask for the lost line to be opened again.
+    reopen_at: HostTime,
+    /// The controller has streamed at least once.
+    streamed: bool,
+    /// The session is being configured again, for an operator's reset or a controller
+    /// gone silent (not a reconnect).
+    reconfiguring: bool,
+    /// When the silent controller was last configured again.
+    restreamed_at: HostTime,
+    /// The instant of the read whose packets are still being decoded: a read is decoded
+    /// as its outputs are drained, so each cycle's command is drained in that cycle's state.
+    read_at: Option<HostTime>,
+}
+
+impl PsdLinkHealth {
+    /// A line not yet open, its budgets `per_second` bad frames and sequence errors.
+    pub(super) fn new(per_second: u32) -> Self {
+        Self {
+            bad_frames: Budget::new(per_second),
+            sequence_errors: Budget::new(per_second),
+            reopen_at: HostTime::NEVER,
+            streamed: false,
+            reconfiguring: false,
+            restreamed_at: HostTime::ZERO,
+            read_at: None,
+        }
+    }
+
+    /// A bad frame at `now`: whether more than the budget came within the last second.
+    pub(super) fn bad_frame(&mut self, now: HostTime) -> bool {
+        self.bad_frames.exceeded(now)
+    }
+
+    /// A packet discarded for its sequence at `now`: whether beyond the budget.
+    pub(super) fn sequence_error(&mut self, now: HostTime) -> bool {
+        self.sequence_errors.exceeded(now)
+    }
+
+    /// The line opened.
+    pub(super) fn opened(&mut self) {
+        self.reopen_at = HostTime::NEVER;
+    }
+
+    /// The line is lost at `now`: ask for it again a little later (once per loss); a
+    /// configuration under way on it is not the next line's.
+    pub(super) fn lost(&mut self, now: HostTime) {
+        if self.reopen_at == HostTime::NEVER {
+            self.reopen_at = now + REOPEN_EVERY;
+        }
+        self.reconfiguring = false;
+    }
+
+    /// The reopen was asked for at `now`: the next ask, should this one fail.
+    pub(super) fn reopen_asked(&mut self, now: HostTime) {
+        self.reopen_at = now + REOPEN_EVERY;
+    }
+
+    /// The controller on the same line is configured again (an operator's reset).
+    pub(super) fn reconfigure(&mut self) {
+        self.reconfiguring = true;
+    }
+
+    /// The silent controller is configured again at `now`.
+    pub(super) fn restream(&mut self, now: HostTime) {
+        self.restreamed_at = now;
+        self.reconfiguring = true;
+    }
+
+    /// The controller streams: whether this is a reconnect (it streamed before, and no
+    /// reconfiguration on the same line was under way).
+    pub(super) fn streaming(&mut self) -> bool {
+        let reconnect = self.streamed && !std::mem::take(&mut self.reconfiguring);
+        self.streamed = true;
+        reconnect
+    }
+
+    /// A read at `now` is being decoded; `None`: done.
+    pub(super) fn decoding(&mut self, read_at: Option<HostTime>) {
+        self.read_at = read_at;
+    }
+
+    pub(super) fn read_at(&self) -> Option<HostTime> {
+        self.read_at
+    }
+
+    pub(super) fn has_streamed(&self) -> bool {
+        self.streamed
+    }
+
+    pub(super) fn reopen_at(&self) -> HostTime {
+        self.reopen_at
+    }
+
+    pub(super) fn restreamed_at(&self) -> HostTime {
+        self.restreamed_at
+    }
+
+    /// The budgets' windows, in elements of capacity.
+    pub(super) fn footprint(&self) -> usize {
+        self.bad_frames.capacity() + self.sequence_errors.capacity()
+    }
+}
+
 impl<K: StageClock> Core<K> {
     /// The PSD line opened: configure the controller.
     pub(super) fn psd_connected(&mut self, now: HostTime) {
-        self.links.psd_reopen_at = HostTime::NEVER;
+        self.psd_link.opened();
         // A line opened afresh carries nothing of the last one's order.
         (self.watch.last_frame_end, self.watch.frame_before_stream) = (None, None);
         self.psd.connect(now, &mut self.out.psd());
@@ -26,12 +137,8 @@ impl<K: StageClock> Core<K> {
 
     /// The PSD line failed (read error, end of file, write timeout): a serial fault.
     pub(super) fn psd_lost(&mut self, now: HostTime) {
-        if self.links.psd_reopen_at == HostTime::NEVER {
-            self.links.psd_reopen_at = now + REOPEN_EVERY;
-        }
+        self.psd_link.lost(now);
         self.psd.down();
-        // A configuration under way on the lost line is not the next line's.
-        self.links.rehandshake = false;
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
         self.stop(now, StopReason::SerialLost);
     }
@@ -45,14 +152,14 @@ impl<K: StageClock> Core<K> {
             return;
         }
         self.psd.feed(bytes);
-        self.links.psd_read = Some(now);
+        self.psd_link.decoding(Some(now));
         self.decode_read(true);
     }
 
     /// Decode the read under way, packet by packet, at its instant: all of it, or
     /// (`until_output`) until there is an output to drain.
     pub(super) fn decode_read(&mut self, until_output: bool) {
-        let Some(now) = self.links.psd_read else { return };
+        let Some(now) = self.psd_link.read_at() else { return };
         loop {
             if until_output && !self.out.is_empty() {
                 return;
@@ -74,7 +181,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
-        self.links.psd_read = None;
+        self.psd_link.decoding(None);
         self.psd.decoded(now);
         self.counters.serial_dropped_bytes = self.psd.dropped_bytes();
     }
@@ -82,7 +189,7 @@ impl<K: StageClock> Core<K> {
     fn bad_frame(&mut self, now: HostTime, e: StreamError<flowgate_protocol::psd::Error>) {
         self.counters.bad_serial_frames += 1;
         tracing::debug!("bad serial frame: {e}");
-        if self.links.bad_frames.exceeded(now) {
+        if self.psd_link.bad_frame(now) {
             self.stop_if_active(now, self.garbled_since_last_sample(Garbled::BeyondBudget));
         }
     }
@@ -164,7 +271,7 @@ impl<K: StageClock> Core<K> {
     /// A packet discarded for its place in the sequence or the schedule: counted (by the
     /// caller), and against the budget.
     fn sequence_error(&mut self, now: HostTime) {
-        if self.links.sequence_errors.exceeded(now) {
+        if self.psd_link.sequence_error(now) {
             self.stop_if_active(now, StopReason::PsdSequence { handshake: false });
         }
     }
@@ -241,11 +348,10 @@ impl<K: StageClock> Core<K> {
         self.forget_frame_pace();
         self.watch.new_stream_since = Some(now);
         self.frame.restart(&self.rig.schedule);
-        if self.links.streamed && !std::mem::take(&mut self.links.rehandshake) {
+        if self.psd_link.streaming() {
             self.counters.serial_reconnects += 1;
             self.progress.serial_reconnects = self.counters.serial_reconnects;
         }
-        self.links.streamed = true;
         let firmware = self.psd.info().map(|info| info.firmware);
         self.notice(now, Notice::Streaming { firmware });
         self.out.push(Output::Streaming);
@@ -309,5 +415,30 @@ impl<K: StageClock> Core<K> {
             }
             _ => {} // heartbeats
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two lines are two values: a reconnect on one, a reconfiguration on the other.
+    #[test]
+    fn two_psd_links_side_by_side() {
+        let t = |ms: u64| HostTime::from_nanos(ms * 1_000_000);
+        let (mut a, mut b) = (PsdLinkHealth::new(2), PsdLinkHealth::new(2));
+        assert!(!a.streaming() && !b.streaming(), "a first stream is no reconnect");
+        a.lost(t(10));
+        b.reconfigure();
+        assert_eq!(a.reopen_at(), t(10) + REOPEN_EVERY);
+        assert_eq!(b.reopen_at(), HostTime::NEVER);
+        a.opened();
+        assert!(a.streaming(), "streaming again after a loss is a reconnect");
+        assert!(!b.streaming(), "streaming again after a reconfiguration is not");
+        // Each counts its bad frames against its own budget of 2 a second.
+        assert!(!a.bad_frame(t(20)) && !a.bad_frame(t(21)) && a.bad_frame(t(22)));
+        assert!(!b.bad_frame(t(22)));
+        b.restream(t(30));
+        assert_eq!((a.restreamed_at(), b.restreamed_at()), (HostTime::ZERO, t(30)));
     }
 }

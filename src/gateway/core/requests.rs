@@ -113,7 +113,7 @@ impl<K: StageClock> Core<K> {
             self.watch.robot_from_future = None;
             self.forget_frame_pace();
             self.watch.stamps_stepped = None;
-            self.links.rehandshake = true;
+            self.psd_link.reconfigure();
         }
         self.safety.reset(now.secs());
         self.state_changed(now);
@@ -153,13 +153,13 @@ impl<K: StageClock> Core<K> {
             // a latch the reset itself clears (refusing the reset for it would never end).
             // Our controller back on the bus (its flags, or a frame heard since), and a board
             // heard again (drives may be silent: see above).
-            StopReason::BusOff => self.links.bus_off || (!heard && self.motors.always_heard()),
+            StopReason::BusOff => self.can_link.is_bus_off() || (!heard && self.motors.always_heard()),
             StopReason::BoardBusOff { .. } => !heard,
             StopReason::BoardEStop { .. } => !heard || self.motors.latched(reason),
-            StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.links.can_up,
+            StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link.is_up(),
             // Two masters must never drive one board: refused while the other is heard.
             StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {
-                self.links.second_master_heard.is_some_and(|at| now < at + s.heartbeat_timeout)
+                self.can_link.second_master_within(now, s.heartbeat_timeout)
             }
             // The reset clears the board's latched fault; a driver fault that persists
             // faults the gateway again once it runs.

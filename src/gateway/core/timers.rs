@@ -9,7 +9,7 @@
 //! [`Input::Tick`]: super::Input::Tick
 
 use super::safety::Garbled;
-use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, REOPEN_EVERY, STOP_GRACE};
+use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, STOP_GRACE};
 use crate::time::HostTime;
 
 /// A streaming controller silent this long is configured again.
@@ -88,10 +88,10 @@ impl<K: StageClock> Core<K> {
             Timer::Heartbeat => self.watch.next_heartbeat,
             Timer::PsdSession => self.psd.deadline(),
             Timer::Restream if self.psd.is_streaming() => {
-                self.watch.last_sample.max(self.links.restreamed_at) + RESTREAM_AFTER
+                self.watch.last_sample.max(self.psd_link.restreamed_at()) + RESTREAM_AFTER
             }
-            Timer::ReopenPsd => self.links.psd_reopen_at,
-            Timer::ReopenCan => self.links.can_reopen_at,
+            Timer::ReopenPsd => self.psd_link.reopen_at(),
+            Timer::ReopenCan => self.can_link.reopen_at(),
             Timer::Samples if active => self.watch.last_sample + s.sample_timeout,
             Timer::Pose if running => self.pose_deadline(),
             Timer::Occlusion if running => self.occlusion_deadline().map_or(HostTime::NEVER, |(at, _)| at),
@@ -130,18 +130,18 @@ impl<K: StageClock> Core<K> {
                 self.watch.next_heartbeat = now + HEARTBEAT_PERIOD;
                 // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
                 if self.rig.can.polls_status() {
-                    self.links.status_polled = now;
+                    self.can_link.status_asked(now);
                     self.out.push(Output::PollCanStatus);
                 }
             }
             Timer::PsdSession => self.psd_session_due(now),
             Timer::Restream => self.restream(now),
             Timer::ReopenPsd => {
-                self.links.psd_reopen_at = now + REOPEN_EVERY;
+                self.psd_link.reopen_asked(now);
                 self.out.push(Output::OpenPsd);
             }
             Timer::ReopenCan => {
-                self.links.can_reopen_at = now + REOPEN_EVERY;
+                self.can_link.reopen_asked(now);
                 self.out.push(Output::OpenCan);
             }
             Timer::Samples => self.stop(now, self.samples_stopped_cause(now)),
@@ -155,7 +155,7 @@ impl<K: StageClock> Core<K> {
                 let (_, reason) =
                     self.motors.heartbeat_deadline(self.watch.armed_at, self.rig.safety.heartbeat_timeout);
                 // Unheard because our own controller is off the bus: named for that.
-                self.stop(now, if self.links.bus_off { StopReason::BusOff } else { reason });
+                self.stop(now, if self.can_link.is_bus_off() { StopReason::BusOff } else { reason });
             }
             Timer::ClockSync => self.stop(now, StopReason::ClockUnsynced),
             Timer::Motors => {
@@ -184,7 +184,7 @@ impl<K: StageClock> Core<K> {
     /// The handshake gave up (unanswered, or refused): a robot armed meanwhile stops,
     /// named as the sample watchdog would have named it.
     pub(super) fn setup_failed(&mut self, now: HostTime, e: super::psd_session::SetupError) {
-        if self.links.streamed {
+        if self.psd_link.has_streamed() {
             let reason = match self.samples_stopped_cause(now) {
                 // Given up on, not waiting: the controller did not answer.
                 StopReason::ClockUnsynced => StopReason::SamplesStopped,
@@ -199,9 +199,8 @@ impl<K: StageClock> Core<K> {
     fn restream(&mut self, now: HostTime) {
         let silent_ms = now.since(self.watch.last_sample).as_millis() as u64;
         self.notice(now, super::Notice::ControllerSilent { silent_ms });
-        self.links.restreamed_at = now;
         // The same line, configured again: not a reconnect (the notice counts it).
-        self.links.rehandshake = true;
+        self.psd_link.restream(now);
         self.psd.connect(now, &mut self.out.psd());
     }
 
