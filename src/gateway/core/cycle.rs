@@ -14,17 +14,6 @@ use crate::time::{ClockOffset, CtrlTime, HostTime};
 use crate::track::Pose;
 use crate::Point;
 
-/// A frame's end stamp may stray this far from the frames counted, µs, beyond drift.
-const STAMP_SLACK_US: f64 = 2000.0;
-/// Frames apart beyond which two frame ends are not compared.
-const STAMP_CHECK_FRAMES: u32 = 64;
-/// The most frames the controller may count between the last frame before a restart and
-/// the new stream's first (a minute at 1 kHz): beyond, its counter is taken to have begun
-/// again (a reboot).
-const RESTART_FRAMES: u32 = 1 << 16;
-/// The controller's clock drift bound (1000 ppm, as the time syncs allow).
-const DRIFT_BOUND: f64 = 1e-3;
-
 /// What the tracker and the control step made of a frame.
 struct Decision {
     pose: Pose,
@@ -211,7 +200,7 @@ impl<K: StageClock> Core<K> {
             frame,
             t_ctrl_us: end.0,
             rx_ns: now.as_nanos(),
-            period_ns: self.watch.last_command.map_or(0, |lc| now.since(lc).as_nanos() as u64),
+            period_ns: self.run.last_command().map_or(0, |lc| now.since(lc).as_nanos() as u64),
             delay_s: delay,
             state: self.state(),
             pulses,
@@ -237,44 +226,14 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// Whether the frame's end stamp keeps pace with the frames counted since the last, and
-    /// with the time between their arrivals: a stamp that keeps pace with neither (beyond
-    /// drift and jitter) is the controller's clock stepping. A pose stop soon after is then
-    /// named for the clock, whichever way it stepped: backwards, the poses only look old.
-    /// (A stream restarted behind a delay breaks the count's pace but keeps the arrivals';
-    /// a creeping delay the other way round.)
+    /// The frame's end stamp against the frames before it ([`StampWatch::frame`]): a pose
+    /// stop soon after a step is named for the clock, whichever way it stepped (backwards,
+    /// the poses only look old).
+    ///
+    /// [`StampWatch::frame`]: super::watch::StampWatch::frame
     fn check_stamps(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
-        // Frames of the stream before a restart, still on their way behind a delay, come
-        // first: neither judged nor judged against until the new stream's first frame.
-        if let Some(since) = self.watch.new_stream_since {
-            // Its first frame ends a period after the restart; the old ones before it (half
-            // a period apart from either is more than the clock offset's error).
-            if self.psd.clock().to_host(end) < since + self.rig.sample_period / 2 {
-                // The line keeps order: a frame counted after the last one before the
-                // restart but stamped before it was not left in flight. The clock stepped
-                // back after the handshake's sync.
-                let counted_after = |last: u32| (1..=RESTART_FRAMES).contains(&frame_no.wrapping_sub(last));
-                if self.watch.frame_before_stream.is_some_and(|(last, last_end)| counted_after(last) && end < last_end)
-                {
-                    self.watch.stamps_stepped = Some(now);
-                }
-                return;
-            }
-            (self.watch.new_stream_since, self.watch.frame_before_stream) = (None, None);
-        }
-        let within =
-            |&(last, _, _): &(u32, CtrlTime, HostTime)| (1..=STAMP_CHECK_FRAMES).contains(&frame_no.wrapping_sub(last));
-        if let Some((last, last_end, arrived)) = self.watch.last_frame_end.filter(within) {
-            let frames = f64::from(frame_no.wrapping_sub(last));
-            let counted = frames * self.rig.sample_period.as_secs_f64() * 1e6;
-            let stamped = end.0 as f64 - last_end.0 as f64;
-            let between = now.since(arrived).as_secs_f64() * 1e6;
-            let off = |expected: f64| (stamped - expected).abs() > STAMP_SLACK_US + expected.abs() * DRIFT_BOUND;
-            if off(counted) && off(between) {
-                self.watch.stamps_stepped = Some(now);
-            }
-        }
-        self.watch.last_frame_end = Some((frame_no, end, now));
+        let end_host = self.psd.clock().to_host(end);
+        self.stamps.frame(now, frame_no, end, end_host, self.rig.sample_period);
     }
 
     /// The frame's samples into the tracker, in floor coordinates on the host clock. A
@@ -285,7 +244,7 @@ impl<K: StageClock> Core<K> {
         let latest = now + self.rig.sample_period;
         let robot = [self.rig.robot_front, self.rig.robot_rear];
         if self.frame.discard_future(clock, latest, &self.rig.schedule, robot, &mut self.counters) {
-            self.watch.robot_from_future = Some(now);
+            self.pose_watch.stamped_in_future(now);
         }
         self.observe_robot(now, clock);
         self.observe_obstacles(now, clock);
@@ -298,7 +257,8 @@ impl<K: StageClock> Core<K> {
         let (Some(f), Some(r)) = (self.frame.usable(front), self.frame.usable(rear)) else {
             // Seen but weak (occluded), as against not come at all (lost with its frame).
             let weak = |led| self.frame.received(led) && self.frame.usable(led).is_none();
-            self.watch.robot_weak |= weak(front) || weak(rear);
+            let weak = weak(front) || weak(rear);
+            self.pose_watch.seen_weak(weak);
             return;
         };
         let cal = &self.rig.calibration;
@@ -311,19 +271,14 @@ impl<K: StageClock> Core<K> {
         let reach = self.rig.control.drive.max_wheel_speed;
         match self.tracker.plausible(at, fp, rp, reach, self.rig.safety.pose_tolerance) {
             Ok(()) => {
-                self.watch.implausible = None;
-                self.watch.robot_arrived = now;
-                self.watch.robot_weak = false;
-                self.watch.quiet_since_pose = false;
-                self.watch.garbage_at_last_pose = (self.counters.bad_serial_frames, self.psd.garbage_bytes());
+                self.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
                 self.tracker.observe_robot(at, fp, rp);
             }
             Err(e) => {
                 self.counters.poses_implausible += 1;
-                if self.watch.implausible.is_none() {
+                if self.pose_watch.implausible(e) {
                     self.notice(now, Notice::PoseDiscarded { why: e });
                 }
-                self.watch.implausible = Some(e);
             }
         }
     }
@@ -374,7 +329,7 @@ impl<K: StageClock> Core<K> {
             self.stop(now, StopReason::PlannerInvalid);
             return;
         };
-        self.watch.last_command = Some(now);
+        self.run.commanded(now);
         self.counters.cycles += 1;
         self.progress.t = now.secs();
         self.progress.cycles = self.counters.cycles;

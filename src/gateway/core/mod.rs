@@ -65,8 +65,8 @@ use std::time::Duration;
 
 use crate::config::Rig;
 use crate::control::ControlStep;
-use crate::time::{CtrlTime, HostTime};
-use crate::track::{Implausible, Pose, Tracker};
+use crate::time::HostTime;
+use crate::track::{Pose, Tracker};
 
 mod budget;
 mod can_link;
@@ -86,6 +86,7 @@ pub mod safety;
 pub mod scene;
 pub mod timers;
 pub mod timing;
+mod watch;
 
 pub use counters::{Counters, Progress};
 pub use input::{Answer, CanEvent, Input};
@@ -102,6 +103,7 @@ use output::Outbox;
 use psd_link::PsdLinkHealth;
 use psd_session::PsdSession;
 use safety::{Action, Safety};
+use watch::{PoseWatch, RunWatch, SampleWatch, StampWatch};
 
 /// How often the gateway sends its heartbeat.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
@@ -126,45 +128,6 @@ impl StageClock for NoClock {
     fn now_ns(&mut self) -> u64 {
         0
     }
-}
-
-/// The times the watchdogs and the core's own timers count from.
-#[derive(Debug)]
-struct Watch {
-    last_sample: HostTime,
-    /// The serial link's bad frames and dropped bytes as counted at the last sample: what
-    /// came since is garbage, and a line that carried only garbage is garbled, not silent.
-    garbage_at_last_sample: (u64, u64),
-    /// The packets discarded for their sequence numbers, as counted at the last sample.
-    discards_at_last_sample: u64,
-    armed_at: HostTime,
-    /// When the last plausible robot pose arrived (host time, whatever its age).
-    robot_arrived: HostTime,
-    /// Why the last robot sample was discarded as implausible, until a plausible one comes.
-    implausible: Option<Implausible>,
-    /// When a robot sample was last discarded as stamped in the future (the clock, not the
-    /// robot, is then what went wrong).
-    robot_from_future: Option<HostTime>,
-    /// The last frame's number and end stamp, and when a frame's stamp last disagreed with
-    /// the frames counted since (the controller's clock stepped, whichever way).
-    last_frame_end: Option<(u32, CtrlTime, HostTime)>,
-    /// The controller began to stream again at this time, and its new stream's first
-    /// frame has not come yet.
-    new_stream_since: Option<HostTime>,
-    /// The last frame judged before the stream restarted (its number and end stamp), until
-    /// the new stream's first frame comes.
-    frame_before_stream: Option<(u32, CtrlTime)>,
-    stamps_stepped: Option<HostTime>,
-    /// The garbage counted at the last plausible robot pose, and whether the robot's LEDs
-    /// have since come in frames but unusable (weak: occluded), rather than not at all.
-    garbage_at_last_pose: (u64, u64),
-    robot_weak: bool,
-    /// The samples stopped for longer than two periods since the last plausible pose (the
-    /// line went quiet, even if it came back before the sample watchdog fired).
-    quiet_since_pose: bool,
-    next_heartbeat: HostTime,
-    stopping_since: Option<HostTime>,
-    last_command: Option<HostTime>,
 }
 
 /// What the operator asked the robot to do.
@@ -204,7 +167,11 @@ pub struct Core<K: StageClock> {
     /// The two links' health.
     psd_link: PsdLinkHealth,
     can_link: CanLinkHealth,
-    watch: Watch,
+    /// What the watchdogs and the core's own timers count from.
+    samples: SampleWatch,
+    pose_watch: PoseWatch,
+    stamps: StampWatch,
+    run: RunWatch,
     mission: Mission,
     stages: StageTimes,
     counters: Counters,
@@ -237,25 +204,10 @@ impl<K: StageClock> Core<K> {
             out: Outbox::new(),
             psd_link: PsdLinkHealth::new(budget),
             can_link: CanLinkHealth::new(),
-            watch: Watch {
-                last_sample: HostTime::ZERO,
-                garbage_at_last_sample: (0, 0),
-                discards_at_last_sample: 0,
-                armed_at: HostTime::ZERO,
-                robot_arrived: HostTime::ZERO,
-                implausible: None,
-                robot_from_future: None,
-                last_frame_end: None,
-                new_stream_since: None,
-                frame_before_stream: None,
-                stamps_stepped: None,
-                garbage_at_last_pose: (0, 0),
-                robot_weak: false,
-                quiet_since_pose: false,
-                next_heartbeat: HostTime::ZERO,
-                stopping_since: None,
-                last_command: None,
-            },
+            samples: SampleWatch::default(),
+            pose_watch: PoseWatch::default(),
+            stamps: StampWatch::default(),
+            run: RunWatch::default(),
             mission: Mission { goals: VecDeque::with_capacity(MAX_GOALS), start_requested: false, arm_at_start: false },
             stages: StageTimes::default(),
             counters: Counters::default(),
@@ -372,10 +324,10 @@ impl<K: StageClock> Core<K> {
             Action::EnableBoard => {
                 self.motors.enable(now, &mut self.out.can());
                 if self.motors.time_out_without_commands() {
-                    self.watch.last_command = Some(now);
+                    self.run.commanded(now);
                 }
             }
-            Action::OrderlyStop => self.watch.stopping_since = Some(now),
+            Action::OrderlyStop => self.run.stopping(Some(now)),
             Action::EmergencyStop => {
                 let reason = if self.state() == State::Fault(StopReason::OperatorEStop) {
                     flowgate_protocol::motor::EStopReason::Operator
@@ -383,7 +335,7 @@ impl<K: StageClock> Core<K> {
                     flowgate_protocol::motor::EStopReason::GatewayFault
                 };
                 self.motors.emergency_stop(reason, &mut self.out.can());
-                self.watch.stopping_since = None;
+                self.run.stopping(None);
                 self.tracker.forget_pose();
                 self.tracker.halted(); // the boards stop at once: dead reckoning starts from rest
                 self.notice(now, Notice::EmergencyStop { state: self.state() });
@@ -394,10 +346,10 @@ impl<K: StageClock> Core<K> {
 
     /// An orderly stop ends once the motors are at rest, or its grace has passed.
     fn check_at_rest(&mut self, now: HostTime) {
-        if let (State::Stopping(_), Some(since)) = (self.state(), self.watch.stopping_since) {
+        if let (State::Stopping(_), Some(since)) = (self.state(), self.run.stopping_since()) {
             if self.motors.at_rest() || now >= since + STOP_GRACE {
                 self.safety.at_rest(now.secs());
-                self.watch.stopping_since = None;
+                self.run.stopping(None);
                 self.motors.disable(self.shutdown, &mut self.out.can());
                 self.state_changed(now);
             }

@@ -131,7 +131,7 @@ impl<K: StageClock> Core<K> {
     pub(super) fn psd_connected(&mut self, now: HostTime) {
         self.psd_link.opened();
         // A line opened afresh carries nothing of the last one's order.
-        (self.watch.last_frame_end, self.watch.frame_before_stream) = (None, None);
+        self.stamps.new_baseline();
         self.psd.connect(now, &mut self.out.psd());
     }
 
@@ -198,28 +198,26 @@ impl<K: StageClock> Core<K> {
     /// again, and so does the count of garbage since the last sample.
     pub(super) fn sampled(&mut self, now: HostTime) {
         self.samples_watched_from(now);
-        self.watch.garbage_at_last_sample = (self.counters.bad_serial_frames, self.psd.garbage_bytes());
-        self.watch.discards_at_last_sample = self.counters.psd_sequence_discards();
+        let garbage = (self.counters.bad_serial_frames, self.psd.garbage_bytes());
+        self.samples.sampled(garbage, self.counters.psd_sequence_discards());
     }
 
     /// The sample watchdog counts from `now` (a sample, the stream's start, an arm). An arm
     /// is no sample: the garbage since the last one still names a stop that follows.
     pub(super) fn samples_watched_from(&mut self, now: HostTime) {
-        self.watch.quiet_since_pose |= now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
-        self.watch.last_sample = now;
+        let quiet = self.samples.count_from(now, self.rig.sample_period);
+        self.pose_watch.line_quiet(quiet);
     }
 
     /// Frames are no longer judged against the last one (a new stream, a reset); it is
     /// kept to tell the new stream's frames from the old one's still in flight.
     pub(super) fn forget_frame_pace(&mut self) {
-        if let Some((last, end, _)) = self.watch.last_frame_end.take() {
-            self.watch.frame_before_stream = Some((last, end));
-        }
+        self.stamps.forget_pace();
     }
 
     /// The serial link garbled: the bad frames and dropped bytes since the last sample.
     pub(super) fn garbled_since_last_sample(&self, found: Garbled) -> StopReason {
-        self.garbled_since(self.watch.garbage_at_last_sample, found)
+        self.garbled_since(self.samples.garbage_at_last(), found)
     }
 
     /// The serial link garbled: the bad frames and dropped bytes since they were
@@ -254,12 +252,12 @@ impl<K: StageClock> Core<K> {
         if self.psd.is_down() {
             return StopReason::SerialLost;
         }
-        match self.garbled_when_quiet(now, self.watch.garbage_at_last_sample, Garbled::NoSample) {
+        match self.garbled_when_quiet(now, self.samples.garbage_at_last(), Garbled::NoSample) {
             StopReason::SerialGarbled { frames: 0, bytes: 0, .. } => {}
             garbled => return garbled,
         }
         // A handshake's answer may be among them: the stream waits for it.
-        if self.psd.in_handshake() && self.counters.psd_sequence_discards() > self.watch.discards_at_last_sample {
+        if self.psd.in_handshake() && self.counters.psd_sequence_discards() > self.samples.discards_at_last() {
             return StopReason::PsdSequence { handshake: true };
         }
         if self.psd.clock_waiting(now) {
@@ -346,7 +344,7 @@ impl<K: StageClock> Core<K> {
     fn streaming(&mut self, now: HostTime) {
         self.sampled(now);
         self.forget_frame_pace();
-        self.watch.new_stream_since = Some(now);
+        self.stamps.stream_started(now);
         self.frame.restart(&self.rig.schedule);
         if self.psd_link.streaming() {
             self.counters.serial_reconnects += 1;
@@ -396,7 +394,7 @@ impl<K: StageClock> Core<K> {
                 // quick reconfigure must not hide a reboot); the controller is configured
                 // again so an operator can reset and arm.
                 // Its clock and frame counter begin again: no frame before is a baseline.
-                (self.watch.last_frame_end, self.watch.frame_before_stream) = (None, None);
+                self.stamps.new_baseline();
                 let restarted = self.psd.restart(now, &mut self.out.psd());
                 if restarted {
                     self.notice(now, Notice::ControllerReset);

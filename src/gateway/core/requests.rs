@@ -46,7 +46,7 @@ impl<K: StageClock> Core<K> {
             return Err(Refusal::RequiredObstacleUnseen { led: o.led, index });
         }
         let action = self.safety.arm(now.secs());
-        self.watch.armed_at = now;
+        self.run.armed(now);
         self.samples_watched_from(now);
         self.motors.armed();
         self.mission.start_requested = false;
@@ -110,9 +110,9 @@ impl<K: StageClock> Core<K> {
         if !self.psd.is_down() {
             self.psd.connect(now, &mut self.out.psd());
             self.frame.forget_counter();
-            self.watch.robot_from_future = None;
+            self.pose_watch.forget_future();
             self.forget_frame_pace();
-            self.watch.stamps_stepped = None;
+            self.stamps.forget_step();
             self.psd_link.reconfigure();
         }
         self.safety.reset(now.secs());
@@ -131,7 +131,7 @@ impl<K: StageClock> Core<K> {
     fn cause_present(&self, now: HostTime, reason: StopReason) -> bool {
         let s = &self.rig.safety;
         let heard = self.motors.heard_within(now, s.heartbeat_timeout);
-        let sampling = !self.psd.is_down() && now < self.watch.last_sample + s.sample_timeout;
+        let sampling = !self.psd.is_down() && now < self.samples.last() + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
             StopReason::ClockUnsynced => self.psd.clock_waiting(now),

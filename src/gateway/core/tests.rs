@@ -494,7 +494,7 @@ fn a_pose_lost_in_garbage_is_named_garbled() {
         reason.to_string().starts_with("garbled serial data and no robot pose through it (11 bad frames"),
         "{reason}"
     );
-    c.watch.robot_weak = true;
+    c.pose_watch.seen_weak(true);
     assert_eq!(c.pose_lost_cause(ms(200)), StopReason::PoseLost);
 }
 
@@ -649,9 +649,9 @@ fn a_clock_stepped_back_after_the_handshake_is_named_the_clock() {
     answer(&mut c, ms(111));
     // The old stream's last frame, still in flight: no step.
     frame(&mut c, ms(112), 5, CTRL_EPOCH_US + 119_000 - 20_000);
-    assert_eq!(c.watch.stamps_stepped, None);
+    assert_eq!(c.stamps.stepped(), None);
     // The new stream's, its clock stepped back 461 ms.
     frame(&mut c, ms(131), 6, CTRL_EPOCH_US + 130_000 - 461_000);
-    assert_eq!(c.watch.stamps_stepped, Some(ms(131)));
+    assert_eq!(c.stamps.stepped(), Some(ms(131)));
     assert_eq!(c.pose_lost_cause(ms(140)), StopReason::ClockJumped);
 }

@@ -85,22 +85,22 @@ impl<K: StageClock> Core<K> {
         let (active, running) = (state.is_active(), state == State::Running);
         let s = &self.rig.safety;
         match timer {
-            Timer::Heartbeat => self.watch.next_heartbeat,
+            Timer::Heartbeat => self.run.next_heartbeat(),
             Timer::PsdSession => self.psd.deadline(),
             Timer::Restream if self.psd.is_streaming() => {
-                self.watch.last_sample.max(self.psd_link.restreamed_at()) + RESTREAM_AFTER
+                self.samples.last().max(self.psd_link.restreamed_at()) + RESTREAM_AFTER
             }
             Timer::ReopenPsd => self.psd_link.reopen_at(),
             Timer::ReopenCan => self.can_link.reopen_at(),
-            Timer::Samples if active => self.watch.last_sample + s.sample_timeout,
+            Timer::Samples if active => self.samples.last() + s.sample_timeout,
             Timer::Pose if running => self.pose_deadline(),
             Timer::Occlusion if running => self.occlusion_deadline().map_or(HostTime::NEVER, |(at, _)| at),
             Timer::MotorHeartbeat if active => {
-                self.motors.heartbeat_deadline(self.watch.armed_at, s.heartbeat_timeout).0
+                self.motors.heartbeat_deadline(self.run.armed_at(), s.heartbeat_timeout).0
             }
             Timer::ClockSync if active => self.psd.sync_deadline(),
             Timer::Motors => self.motors.deadline(),
-            Timer::StopGrace => self.watch.stopping_since.map_or(HostTime::NEVER, |since| since + STOP_GRACE),
+            Timer::StopGrace => self.run.stopping_since().map_or(HostTime::NEVER, |since| since + STOP_GRACE),
             Timer::KeepAlive => self.keep_alive_due().unwrap_or(HostTime::NEVER),
             _ => HostTime::NEVER,
         }
@@ -111,7 +111,7 @@ impl<K: StageClock> Core<K> {
         let mut stopped_by_watchdog = false;
         for timer in Timer::TABLE {
             let due = match timer {
-                Timer::StopGrace => self.watch.stopping_since.is_some(),
+                Timer::StopGrace => self.run.stopping_since().is_some(),
                 _ => now >= self.deadline(timer),
             };
             if !due || (timer.is_watchdog() && stopped_by_watchdog) {
@@ -127,7 +127,7 @@ impl<K: StageClock> Core<K> {
             Timer::Heartbeat => {
                 let state = self.state();
                 self.motors.heartbeat(state, &mut self.out.can());
-                self.watch.next_heartbeat = now + HEARTBEAT_PERIOD;
+                self.run.heartbeat_sent(now + HEARTBEAT_PERIOD);
                 // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
                 if self.rig.can.polls_status() {
                     self.can_link.status_asked(now);
@@ -153,7 +153,7 @@ impl<K: StageClock> Core<K> {
             }
             Timer::MotorHeartbeat => {
                 let (_, reason) =
-                    self.motors.heartbeat_deadline(self.watch.armed_at, self.rig.safety.heartbeat_timeout);
+                    self.motors.heartbeat_deadline(self.run.armed_at(), self.rig.safety.heartbeat_timeout);
                 // Unheard because our own controller is off the bus: named for that.
                 self.stop(now, if self.can_link.is_bus_off() { StopReason::BusOff } else { reason });
             }
@@ -165,7 +165,7 @@ impl<K: StageClock> Core<K> {
             }
             Timer::StopGrace => self.check_at_rest(now),
             Timer::KeepAlive => {
-                self.watch.last_command = Some(now);
+                self.run.commanded(now);
                 self.motors.keep_alive(&mut self.out.can());
             }
         }
@@ -197,7 +197,7 @@ impl<K: StageClock> Core<K> {
 
     /// The streaming controller has been silent for [`RESTREAM_AFTER`]: configure it again.
     fn restream(&mut self, now: HostTime) {
-        let silent_ms = now.since(self.watch.last_sample).as_millis() as u64;
+        let silent_ms = now.since(self.samples.last()).as_millis() as u64;
         self.notice(now, super::Notice::ControllerSilent { silent_ms });
         // The same line, configured again: not a reconnect (the notice counts it).
         self.psd_link.restream(now);
@@ -211,22 +211,22 @@ impl<K: StageClock> Core<K> {
     /// lost while the line went quiet for a while; or not arriving.
     pub(super) fn pose_lost_cause(&self, now: HostTime) -> StopReason {
         let s = &self.rig.safety;
-        let quiet = now.since(self.watch.last_sample) > 2 * self.rig.sample_period;
+        let quiet = now.since(self.samples.last()) > 2 * self.rig.sample_period;
         let recent = |at: Option<HostTime>, within| at.is_some_and(|at| now.since(at) < within);
-        let garbled = self.garbled_when_quiet(now, self.watch.garbage_at_last_pose, Garbled::NoPose);
+        let garbled = self.garbled_when_quiet(now, self.pose_watch.garbage_at_last(), Garbled::NoPose);
         if quiet {
             self.samples_stopped_cause(now)
-        } else if recent(self.watch.robot_from_future, s.sample_timeout)
-            || recent(self.watch.stamps_stepped, s.sample_timeout + s.pose_timeout)
+        } else if recent(self.pose_watch.last_from_future(), s.sample_timeout)
+            || recent(self.stamps.stepped(), s.sample_timeout + s.pose_timeout)
         {
             StopReason::ClockJumped
-        } else if self.watch.implausible.is_some() {
+        } else if self.pose_watch.is_implausible() {
             StopReason::PoseImplausible
-        } else if now.since(self.watch.robot_arrived) < s.sample_timeout {
+        } else if now.since(self.pose_watch.arrived()) < s.sample_timeout {
             StopReason::PoseDelayed
-        } else if !self.watch.robot_weak && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. }) {
+        } else if !self.pose_watch.weak() && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. }) {
             garbled
-        } else if self.watch.quiet_since_pose && !self.watch.robot_weak {
+        } else if self.pose_watch.quiet_since() && !self.pose_watch.weak() {
             StopReason::SamplesStopped
         } else {
             StopReason::PoseLost
@@ -245,7 +245,7 @@ impl<K: StageClock> Core<K> {
     fn occlusion_deadline(&self) -> Option<(HostTime, usize)> {
         self.tracker
             .tracked()
-            .filter_map(|k| Some((HostTime::from_secs_f64(self.tracker.obstacle_time(k)?).max(self.watch.armed_at), k)))
+            .filter_map(|k| Some((HostTime::from_secs_f64(self.tracker.obstacle_time(k)?).max(self.run.armed_at()), k)))
             .min_by_key(|&(seen, _)| seen)
             .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
     }
@@ -258,6 +258,6 @@ impl<K: StageClock> Core<K> {
         if !idle_enabled {
             return None;
         }
-        self.motors.keep_alive_due(self.watch.last_command)
+        self.motors.keep_alive_due(self.run.last_command())
     }
 }
