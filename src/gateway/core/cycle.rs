@@ -33,12 +33,9 @@ impl<K: StageClock> Core<K> {
     /// One time-division frame is complete: track, decide, command.
     pub(super) fn cycle(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
         let track_start = self.clock.now_ns();
-        if let Some(from) = self.stages.checks_from.take() {
-            self.stages.checks_ns += track_start.saturating_sub(from);
-        }
+        self.stages.checks_end(|| track_start);
         // This frame's decode and checks, whether or not it ends in a command.
-        let decode_ns = std::mem::take(&mut self.stages.decode_ns);
-        let checks_ns = std::mem::take(&mut self.stages.checks_ns);
+        let (decode_ns, checks_ns) = self.stages.take_for_cycle();
         self.check_stamps(now, frame_no, end);
         self.track_frame(now);
         // No fresh pose: no command (the pose watchdog stops a running robot; the keep-alive
@@ -78,8 +75,7 @@ impl<K: StageClock> Core<K> {
         let wheel_base = self.rig.control.drive.wheel_base;
         let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
         let motors_ready = self.motors.ready();
-        let m = &self.mission;
-        let ready = m.start_requested && !m.goals.is_empty() && motors_ready;
+        let ready = self.mission.ready_to_start() && motors_ready;
         // The tracker's estimate borrows it: decide inside, act on the decision after.
         let tracked = self.tracker.estimate(t, period, wheel_base).filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
         let track_ns = self.clock.now_ns().saturating_sub(track_start);
@@ -213,14 +209,13 @@ impl<K: StageClock> Core<K> {
 
     /// A goal is reached: on to the next in the queue, or stop.
     fn goal_reached(&mut self, now: HostTime) {
-        self.mission.goals.pop_front();
-        match self.mission.goals.front() {
+        match self.mission.next_goal() {
             Some(next) => {
                 self.out.push(Output::Notice { at: now, notice: Notice::NextGoal { position: next.position } });
                 self.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
             }
             None => {
-                self.mission.start_requested = false;
+                self.mission.set_start_requested(false);
                 self.stop(now, StopReason::GoalReached);
             }
         }

@@ -60,7 +60,6 @@
 //! requests (`requests`); and one timer table ([`timers`]) that both gives the next
 //! deadline and fires what is due.
 
-use std::collections::VecDeque;
 use std::time::Duration;
 
 use crate::config::Rig;
@@ -75,6 +74,7 @@ mod counters;
 mod cycle;
 pub mod frame;
 pub mod input;
+mod mission;
 pub mod motors;
 pub mod notice;
 pub mod operator;
@@ -97,8 +97,8 @@ pub use safety::{RobotMotion, State, StopReason};
 
 use can_link::CanLinkHealth;
 use frame::FrameAssembler;
+use mission::Mission;
 use motors::MotorMaster;
-use operator::{Goal, MAX_GOALS};
 use output::Outbox;
 use psd_link::PsdLinkHealth;
 use psd_session::PsdSession;
@@ -130,17 +130,6 @@ impl StageClock for NoClock {
     }
 }
 
-/// What the operator asked the robot to do.
-#[derive(Debug)]
-struct Mission {
-    /// The goal being driven to, then the rest of the queue.
-    goals: VecDeque<Goal>,
-    /// The operator asked to start: go from Armed to Running once ready.
-    start_requested: bool,
-    /// Arm and start towards the rig's goal when the controller first streams (`--arm`).
-    arm_at_start: bool,
-}
-
 /// Stage times gathered before a frame's cycle runs, ns.
 #[derive(Debug, Default)]
 struct StageTimes {
@@ -150,6 +139,30 @@ struct StageTimes {
     checks_ns: u64,
     /// When the packet being handled was decoded (stage clock): its checks run from here.
     checks_from: Option<u64>,
+}
+
+impl StageTimes {
+    /// A packet took `ns` to decode.
+    fn decoded(&mut self, ns: u64) {
+        self.decode_ns += ns;
+    }
+
+    /// A packet's checks begin at `at` (stage clock).
+    fn checks_begin(&mut self, at: u64) {
+        self.checks_from = Some(at);
+    }
+
+    /// The checks under way, if any (a cycle may have taken them), end at `now()`.
+    fn checks_end(&mut self, now: impl FnOnce() -> u64) {
+        if let Some(from) = self.checks_from.take() {
+            self.checks_ns += now().saturating_sub(from);
+        }
+    }
+
+    /// This frame's decode and checks, for its cycle; the next frame's count from zero.
+    fn take_for_cycle(&mut self) -> (u64, u64) {
+        (std::mem::take(&mut self.decode_ns), std::mem::take(&mut self.checks_ns))
+    }
 }
 
 /// The gateway core. `K` times the stages of a cycle.
@@ -208,7 +221,7 @@ impl<K: StageClock> Core<K> {
             pose_watch: PoseWatch::default(),
             stamps: StampWatch::default(),
             run: RunWatch::default(),
-            mission: Mission { goals: VecDeque::with_capacity(MAX_GOALS), start_requested: false, arm_at_start: false },
+            mission: Mission::new(),
             stages: StageTimes::default(),
             counters: Counters::default(),
             progress: Progress::default(),
@@ -250,7 +263,7 @@ impl<K: StageClock> Core<K> {
     /// What the core holds in its queues, in elements of capacity: the output queue, the
     /// budgets' windows, the goals. A soak asserts it stops growing once warm.
     pub fn footprint(&self) -> usize {
-        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.mission.goals.capacity()
+        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.mission.capacity()
     }
 
     /// The PSD receive buffer's capacity, bytes: it rises and falls as frames are taken
@@ -284,7 +297,7 @@ impl<K: StageClock> Core<K> {
             Input::CanFailed => self.can_failed(now),
             Input::CanReopened => self.can_reopened(),
             Input::Request(request) => return Some(self.answer(now, request)),
-            Input::ArmAtStart => self.mission.arm_at_start = true,
+            Input::ArmAtStart => self.mission.arm_at_start(),
             Input::Shutdown => self.shutdown(now),
             Input::Tick => self.tick(now),
         }

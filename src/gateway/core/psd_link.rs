@@ -167,17 +167,16 @@ impl<K: StageClock> Core<K> {
             let started = self.clock.now_ns();
             let item = self.psd.next_item();
             let decoded = self.clock.now_ns();
-            self.stages.decode_ns += decoded.saturating_sub(started);
+            self.stages.decoded(decoded.saturating_sub(started));
             match item {
                 None => break,
                 Some(Err(e)) => self.bad_frame(now, e),
                 Some(Ok(packet)) => {
                     // A frame end's checks end where its cycle starts (`cycle` takes them).
-                    self.stages.checks_from = Some(decoded);
+                    self.stages.checks_begin(decoded);
                     self.packet(now, packet);
-                    if let Some(from) = self.stages.checks_from.take() {
-                        self.stages.checks_ns += self.clock.now_ns().saturating_sub(from);
-                    }
+                    let clock = &mut self.clock;
+                    self.stages.checks_end(|| clock.now_ns());
                 }
             }
         }
@@ -353,7 +352,7 @@ impl<K: StageClock> Core<K> {
         let firmware = self.psd.info().map(|info| info.firmware);
         self.notice(now, Notice::Streaming { firmware });
         self.out.push(Output::Streaming);
-        if std::mem::take(&mut self.mission.arm_at_start) {
+        if self.mission.take_arm_at_start() {
             let result = match self.rig.goal {
                 Some(goal) => self.arm_and_start(now, goal),
                 None => Err(Refusal::NoGoal),

@@ -49,7 +49,7 @@ impl<K: StageClock> Core<K> {
         self.run.armed(now);
         self.samples_watched_from(now);
         self.motors.armed();
-        self.mission.start_requested = false;
+        self.mission.set_start_requested(false);
         self.act(now, action);
         Ok(())
     }
@@ -57,9 +57,9 @@ impl<K: StageClock> Core<K> {
     fn start(&mut self) -> Result<(), Refusal> {
         let state = self.state();
         match state {
-            State::Armed if self.mission.goals.is_empty() => Err(Refusal::NoGoal),
+            State::Armed if !self.mission.has_goals() => Err(Refusal::NoGoal),
             State::Armed => {
-                self.mission.start_requested = true;
+                self.mission.set_start_requested(true);
                 Ok(())
             }
             State::Running => Err(Refusal::Already(state)),
@@ -71,9 +71,9 @@ impl<K: StageClock> Core<K> {
     /// Stop in order (`cancel`: and forget the goals).
     fn stop_request(&mut self, now: HostTime, cancel: bool) -> Result<(), Refusal> {
         if cancel {
-            self.mission.goals.clear();
+            self.mission.clear_goals();
         }
-        self.mission.start_requested = false;
+        self.mission.set_start_requested(false);
         if matches!(self.state(), State::Running | State::Armed) {
             self.stop(now, StopReason::Operator);
         }
@@ -83,7 +83,7 @@ impl<K: StageClock> Core<K> {
     /// Accepted whatever the state. In a fault the motors were e-stopped already; they hear
     /// the operator's e-stop again all the same.
     fn estop(&mut self, now: HostTime) -> Result<(), Refusal> {
-        self.mission.start_requested = false;
+        self.mission.set_start_requested(false);
         if matches!(self.state(), State::Fault(_)) {
             self.motors.emergency_stop(flowgate_protocol::motor::EStopReason::Operator, &mut self.out.can());
         } else {
@@ -197,7 +197,7 @@ impl<K: StageClock> Core<K> {
         Status {
             state: self.state(),
             last_stop: self.safety.history.iter().rev().find_map(|(_, s)| s.reason()),
-            goals: self.mission.goals.iter().copied().collect(),
+            goals: self.mission.goals().collect(),
             pose,
             obstacles,
             absent: (0..self.rig.obstacles.len())
@@ -290,8 +290,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
-        self.mission.goals.clear();
-        self.mission.goals.extend(goals.iter().copied());
+        self.mission.set_goals(goals);
         let first = goals[0];
         self.control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
         Ok(())
