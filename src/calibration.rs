@@ -10,7 +10,7 @@ use crate::Point;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum CalibError {
+pub enum CalibrationError {
     #[error("calibration needs at least 4 reference points, has {0}")]
     TooFewPoints(usize),
     #[error("reference points are degenerate (collinear or repeated): no homography fits them")]
@@ -67,27 +67,27 @@ pub struct Calibration {
 impl Calibration {
     /// From a homography (floor metres -> counts, row-major), distortion `k1` and the PSD's
     /// full-scale counts.
-    pub fn from_homography(h: [[f64; 3]; 3], k1: f64, counts: u16) -> Result<Self, CalibError> {
+    pub fn from_homography(h: [[f64; 3]; 3], k1: f64, counts: u16) -> Result<Self, CalibrationError> {
         let h = Matrix3::from_fn(|r, c| h[r][c]);
-        let h_inv = h.try_inverse().filter(|m| m.iter().all(|v| v.is_finite())).ok_or(CalibError::Singular)?;
+        let h_inv = h.try_inverse().filter(|m| m.iter().all(|v| v.is_finite())).ok_or(CalibrationError::Singular)?;
         Ok(Self { h, h_inv, k1, half_scale: f64::from(counts) / 2.0 })
     }
 
     /// Fit the homography to `(raw counts, floor metres)` pairs by least squares. Returns the
     /// calibration and the RMS reprojection error in counts.
-    pub fn fit(points: &[([f64; 2], [f64; 2])], k1: f64, counts: u16) -> Result<(Self, f64), CalibError> {
+    pub fn fit(points: &[([f64; 2], [f64; 2])], k1: f64, counts: u16) -> Result<(Self, f64), CalibrationError> {
         if points.len() < 4 {
-            return Err(CalibError::TooFewPoints(points.len()));
+            return Err(CalibrationError::TooFewPoints(points.len()));
         }
         let half = f64::from(counts) / 2.0;
         // Undistort the raw points first, then fit floor -> undistorted counts.
         let probe = Self { h: Matrix3::identity(), h_inv: Matrix3::identity(), k1, half_scale: half };
         let pairs: Vec<([f64; 2], [f64; 2])> =
             points.iter().map(|(raw, floor)| (*floor, probe.undistort(*raw))).collect();
-        let h = dlt(&pairs).ok_or(CalibError::Degenerate)?;
+        let h = dlt(&pairs).ok_or(CalibrationError::Degenerate)?;
         let h_arr =
             [[h[(0, 0)], h[(0, 1)], h[(0, 2)]], [h[(1, 0)], h[(1, 1)], h[(1, 2)]], [h[(2, 0)], h[(2, 1)], h[(2, 2)]]];
-        let cal = Self::from_homography(h_arr, k1, counts).map_err(|_| CalibError::Degenerate)?;
+        let cal = Self::from_homography(h_arr, k1, counts).map_err(|_| CalibrationError::Degenerate)?;
         let sq: f64 = points
             .iter()
             .map(|(raw, floor)| {
@@ -102,16 +102,16 @@ impl Calibration {
     /// metres)` pairs: the linear fit (normalised DLT, `k1 = 0`) as a start, then
     /// Levenberg-Marquardt on the reprojection error in counts. Refuses too few points, a
     /// degenerate set, and a badly conditioned one.
-    pub fn fit_with_distortion(points: &[([f64; 2], [f64; 2])], counts: u16) -> Result<Fit, CalibError> {
+    pub fn fit_with_distortion(points: &[([f64; 2], [f64; 2])], counts: u16) -> Result<Fit, CalibrationError> {
         if points.len() < MIN_POINTS_WITH_DISTORTION {
-            return Err(CalibError::TooFewPoints(points.len()));
+            return Err(CalibrationError::TooFewPoints(points.len()));
         }
         if points.iter().any(|(r, f)| !(r.iter().chain(f).all(|v| v.is_finite()))) {
-            return Err(CalibError::Degenerate);
+            return Err(CalibrationError::Degenerate);
         }
         let half = f64::from(counts) / 2.0;
         let pairs: Vec<([f64; 2], [f64; 2])> = points.iter().map(|(raw, floor)| (*floor, *raw)).collect();
-        let h0 = dlt(&pairs).ok_or(CalibError::Degenerate)?;
+        let h0 = dlt(&pairs).ok_or(CalibrationError::Degenerate)?;
         // Parameters: h00..h21 (h22 = 1) and k1.
         let mut p = nalgebra::SVector::<f64, 9>::zeros();
         for i in 0..8 {
@@ -142,14 +142,14 @@ impl Calibration {
         let rms_counts = (cost / points.len() as f64).sqrt();
         let noise_gain = noise_gain(&p, &jacobian(&p), span(points), half);
         if !noise_gain.is_finite() || noise_gain > MAX_NOISE_GAIN {
-            return Err(CalibError::IllConditioned { noise_gain });
+            return Err(CalibrationError::IllConditioned { noise_gain });
         }
         // A fit a count of noise cannot explain: wrong units or points swapped.
         if rms_counts.is_nan() || rms_counts >= half / 20.0 {
-            return Err(CalibError::NoConvergence { rms_counts });
+            return Err(CalibrationError::NoConvergence { rms_counts });
         }
         let h = [[p[0], p[1], p[2]], [p[3], p[4], p[5]], [p[6], p[7], 1.0]];
-        let calibration = Self::from_homography(h, p[8], counts).map_err(|_| CalibError::Degenerate)?;
+        let calibration = Self::from_homography(h, p[8], counts).map_err(|_| CalibrationError::Degenerate)?;
         let residuals: Vec<[f64; 2]> = points
             .iter()
             .map(|(raw, floor)| {
@@ -471,7 +471,7 @@ mod tests {
         let line: Vec<Point> =
             (0..8).map(|i| Point::new(0.1 * f64::from(i) - 0.35, 0.001 * f64::from(i % 2))).collect();
         match Calibration::fit_with_distortion(&measured(&cam, &line, 0.5, 3), 4096) {
-            Err(CalibError::IllConditioned { noise_gain }) => {
+            Err(CalibrationError::IllConditioned { noise_gain }) => {
                 assert!(noise_gain > 100.0 * MAX_NOISE_GAIN, "{noise_gain}")
             }
             other => panic!("{other:?}"),
@@ -479,7 +479,7 @@ mod tests {
         let few: Vec<Point> = (0..5).map(|i| Point::new(0.1 * f64::from(i), 0.07 * f64::from(i * i))).collect();
         assert_eq!(
             Calibration::fit_with_distortion(&measured(&cam, &few, 0.5, 3), 4096).unwrap_err(),
-            CalibError::TooFewPoints(5)
+            CalibrationError::TooFewPoints(5)
         );
         // Floor points in centimetres, not metres: no camera explains them.
         let grid: Vec<Point> =
@@ -493,10 +493,10 @@ mod tests {
     fn refuses_what_cannot_calibrate() {
         assert_eq!(
             Calibration::fit(&[([0.0, 0.0], [0.0, 0.0]); 3], 0.0, 4096).unwrap_err(),
-            CalibError::TooFewPoints(3)
+            CalibrationError::TooFewPoints(3)
         );
         let line: Vec<_> = (0..6).map(|i| ([f64::from(i), 0.0], [f64::from(i) * 0.1, 0.0])).collect();
-        assert_eq!(Calibration::fit(&line, 0.0, 4096).unwrap_err(), CalibError::Degenerate);
-        assert_eq!(Calibration::from_homography([[0.0; 3]; 3], 0.0, 4096).unwrap_err(), CalibError::Singular);
+        assert_eq!(Calibration::fit(&line, 0.0, 4096).unwrap_err(), CalibrationError::Degenerate);
+        assert_eq!(Calibration::from_homography([[0.0; 3]; 3], 0.0, 4096).unwrap_err(), CalibrationError::Singular);
     }
 }

@@ -14,7 +14,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use flowgate::calibration::MIN_POINTS_WITH_DISTORTION;
 use flowgate::config::GatewayConfig;
-use flowgate::setup::calibrate::{self, Calibrated, Plan, Prompt};
+use flowgate::setup::calibrate::{self, Calibrated, CalibrationPlan, Prompt};
 use flowgate::setup::psd_client::PsdClient;
 
 #[derive(Args, Debug)]
@@ -69,7 +69,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let schedule = config.schedule_for(&[led]).map_err(|invalid| anyhow::anyhow!("{origin}: {invalid}"))?;
     let period = std::time::Duration::from_micros(u64::from(schedule.frame_period_us()));
     let points = args.points.as_deref().map(planned_points).transpose()?;
-    let plan = Plan { led, samples: usize::from(args.samples), period, points };
+    let plan = CalibrationPlan { led, samples: usize::from(args.samples), period, points };
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let measured = runtime.block_on(async {
         let mut client = PsdClient::open(&rig.serial, schedule, rig.psd_counts)?;

@@ -111,9 +111,9 @@ pub fn write_swarm(dir: &Path, report: &SwarmReport) -> Result<PathBuf, OutputEr
 /// One swarm episode, kept to be looked into ([`SWARM_EPISODE_FILES`]).
 pub fn write_swarm_episode(
     dir: &Path,
-    outcome: &swarm::Outcome,
+    outcome: &swarm::JudgedEpisode,
     episode: &virtual_rig::Episode,
-    schedule: &swarm::Schedule,
+    schedule: &swarm::FaultSchedule,
 ) -> Result<(), OutputError> {
     folder(dir)?;
     if let Some(t) = &episode.telemetry {

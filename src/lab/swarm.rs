@@ -19,7 +19,7 @@
 //! - the run advances.
 //!
 //! An episode is a pure function of the scenario, the seed and its index: a violation is
-//! replayed alone, to the same bytes ([`Outcome::digest`]), with `--episode K`.
+//! replayed alone, to the same bytes ([`JudgedEpisode::digest`]), with `--episode K`.
 
 use std::collections::BTreeMap;
 
@@ -320,14 +320,14 @@ pub struct Injected {
 
 /// An episode's draw: the backend, the faults, and the scenario they make.
 #[derive(Debug, Clone)]
-pub struct Schedule {
+pub struct FaultSchedule {
     pub backend: Backend,
     pub faults: Vec<Injected>,
     /// The scenario with the faults in its `[faults]` (and a passer-by in its obstacles).
     pub scenario: Scenario,
 }
 
-impl Schedule {
+impl FaultSchedule {
     /// When the last cause that ends has ended, s.
     pub fn last_end(&self) -> f64 {
         self.faults.iter().map(|f| f.to).filter(|t| t.is_finite()).fold(0.0, f64::max)
@@ -345,7 +345,7 @@ const START_WINDOW: (f64, f64) = (0.5, 7.0);
 const MAX_FAULTS: usize = 4;
 
 /// Draw episode `episode`'s schedule around `base`.
-pub fn schedule(base: &Scenario, seed: u64, episode: u64) -> Schedule {
+pub fn schedule(base: &Scenario, seed: u64, episode: u64) -> FaultSchedule {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0005_a7a2_u64 ^ episode.wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let backend = Backend::ALL[rng.random_range(0..Backend::ALL.len())];
     let mut pool: Vec<Kind> = Kind::ALL.iter().copied().filter(|k| k.applies(backend)).collect();
@@ -393,7 +393,7 @@ pub fn schedule(base: &Scenario, seed: u64, episode: u64) -> Schedule {
         faults.push(Injected { kind, from: a, to, led });
     }
     scenario.sim.faults = plan;
-    Schedule { backend, faults, scenario }
+    FaultSchedule { backend, faults, scenario }
 }
 
 /// A fault of the PSD line's bytes and timing, drawn into `plan` from `a`: when its cause
@@ -615,7 +615,7 @@ pub struct Stop {
 
 /// An episode as run and judged.
 #[derive(Debug, Clone, Serialize)]
-pub struct Outcome {
+pub struct JudgedEpisode {
     pub index: u64,
     pub backend: Backend,
     pub faults: Vec<Injected>,
@@ -638,7 +638,7 @@ pub struct Outcome {
 
 /// What the episode's operator and the world showed over the run.
 #[derive(Debug, Default)]
-struct Watch {
+struct EpisodeLog {
     faults: Vec<Seen>,
     refusals: usize,
     last_refusal: Option<String>,
@@ -660,7 +660,7 @@ struct Seen {
     rest: Option<f64>,
 }
 
-impl Watch {
+impl EpisodeLog {
     fn faulted(&mut self, t: f64, reason: StopReason, at_rest: Option<f64>) {
         self.faults.push(Seen { at: t, reason, rest: at_rest });
     }
@@ -731,7 +731,7 @@ fn board_stops_itself(kind: Kind) -> bool {
 /// 402 drives: their quick stop from top speed, and a cycle. Commands that may not reach
 /// the motors (CAN loss, bus-off): the motors' own command timeout, and a cycle.
 /// Otherwise: within a cycle of the fault.
-fn rest_by(settings: &Settings, schedule: &Schedule, at: f64, cause: Option<&Injected>) -> f64 {
+fn rest_by(settings: &Settings, schedule: &FaultSchedule, at: f64, cause: Option<&Injected>) -> f64 {
     if let Some(cause) = cause.filter(|c| settings.backend.board() && board_stops_itself(c.kind)) {
         return cause.from + 1e-3;
     }
@@ -749,7 +749,7 @@ fn rest_by(settings: &Settings, schedule: &Schedule, at: f64, cause: Option<&Inj
 
 /// The invariants on one episode's fault states, arms and end.
 /// The schedule's faults, as a violation lists them.
-fn listed(schedule: &Schedule) -> String {
+fn listed(schedule: &FaultSchedule) -> String {
     let each = schedule.faults.iter().map(|f| format!("{:?} {:.3}-{:.3} s", f.kind, f.from, f.to));
     each.collect::<Vec<_>>().join(", ")
 }
@@ -757,10 +757,10 @@ fn listed(schedule: &Schedule) -> String {
 /// The invariants on one fault state: named for a fault present, found within its
 /// watchdog, the wheels at rest within budget. Violations go to `v`.
 fn judge_stop(
-    schedule: &Schedule,
+    schedule: &FaultSchedule,
     settings: &Settings,
     history: &[(f64, State)],
-    watch: &Watch,
+    watch: &EpisodeLog,
     seen: &Seen,
     v: &mut Vec<String>,
 ) -> Stop {
@@ -839,7 +839,7 @@ fn judge_stop(
 
 /// Armed only when the operator armed (or at start, before any fault: `ArmAtStart`);
 /// Running only after a start since the last arm.
-fn judge_arms(history: &[(f64, State)], watch: &Watch, v: &mut Vec<String>) {
+fn judge_arms(history: &[(f64, State)], watch: &EpisodeLog, v: &mut Vec<String>) {
     // Running only after a start since the last arm.
     let first_fault = history.iter().find(|(_, s)| matches!(s, State::Fault(_))).map_or(f64::INFINITY, |x| x.0);
     let mut last_armed = None;
@@ -869,10 +869,10 @@ fn judge_arms(history: &[(f64, State)], watch: &Watch, v: &mut Vec<String>) {
 }
 
 fn judge(
-    schedule: &Schedule,
+    schedule: &FaultSchedule,
     settings: &Settings,
     history: &[(f64, State)],
-    watch: &Watch,
+    watch: &EpisodeLog,
     reached_goal: bool,
     final_state: State,
 ) -> (Vec<String>, Vec<Stop>) {
@@ -905,7 +905,7 @@ fn judge(
 
 /// Run episode `index` of the swarm around `base`, and judge it. With `keep`, the run's
 /// telemetry and truth samples come back too (for a replay's files).
-pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outcome, super::virtual_rig::Episode) {
+pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (JudgedEpisode, super::virtual_rig::Episode) {
     let schedule = schedule(base, seed, index);
     let backend = schedule.backend;
     let mut options = Options { telemetry: keep, truth_samples: keep, ..backend.options() };
@@ -934,7 +934,7 @@ pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outco
     let reached_goal = final_state == State::Stopped(StopReason::GoalReached) && run.reached_goal;
     let (mut violations, stops) = judge(&schedule, &settings, &history, &watch, reached_goal, final_state);
     violations.append(&mut accounting);
-    let outcome = Outcome {
+    let outcome = JudgedEpisode {
         index,
         backend,
         faults: schedule.faults,
@@ -952,13 +952,13 @@ pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (Outco
 
 /// Run `rig` to the goal after the schedule's last fault (or its time limit past it), the
 /// operator resetting, arming, setting the goal and starting after each stop; what it saw.
-fn operate(rig: &mut VirtualRig, schedule: &Schedule) -> Watch {
+fn operate(rig: &mut VirtualRig, schedule: &FaultSchedule) -> EpisodeLog {
     let s = &schedule.scenario;
     let period = rig.core().rig().sample_period.as_secs_f64();
     let goal = Request::Goal { goals: vec![Goal { position: s.goal.position, tolerance: s.goal.tolerance }] };
     let last_end = schedule.last_end();
     let limit = last_end + s.time_limit;
-    let mut watch = Watch::default();
+    let mut watch = EpisodeLog::default();
     let (mut next_try, mut shown) = (f64::INFINITY, State::Idle);
     // Liveness: a run that takes far more events than a rig has (a few thousand a second)
     // is stuck, and said so.
@@ -1076,7 +1076,7 @@ pub struct SwarmReport {
     /// The virtual time run, s.
     pub virtual_s: f64,
     /// Every episode that broke an invariant, in full.
-    pub failures: Vec<Outcome>,
+    pub failures: Vec<JudgedEpisode>,
     /// Every episode in one line: what a replay must reproduce.
     pub episode_lines: Vec<EpisodeLine>,
 }
@@ -1095,14 +1095,14 @@ pub struct EpisodeLine {
 }
 
 /// Run `n` episodes of the swarm (the shard's) around `base` on `threads` threads.
-pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize, shard: Shard) -> Result<Vec<Outcome>, TooLarge> {
+pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize, shard: Shard) -> Result<Vec<JudgedEpisode>, TooLarge> {
     let mut outcomes = shard.run(n, threads, |i| run_episode(base, seed, i, false).0)?;
     outcomes.sort_by_key(|o| o.index);
     Ok(outcomes)
 }
 
 /// The report of a swarm's episodes.
-pub fn report(base: &Scenario, seed: u64, shard: Shard, outcomes: &[Outcome]) -> SwarmReport {
+pub fn report(base: &Scenario, seed: u64, shard: Shard, outcomes: &[JudgedEpisode]) -> SwarmReport {
     let mut by_kind: BTreeMap<Kind, KindRow> = BTreeMap::new();
     let mut by_backend = BTreeMap::new();
     for o in outcomes {
@@ -1214,8 +1214,8 @@ mod tests {
         Settings { period: 0.02, safety: rig.safety, board_timeout: 0.2, backend: Backend::BoardSlcan }
     }
 
-    fn with(faults: Vec<Injected>) -> Schedule {
-        Schedule { backend: Backend::BoardSlcan, faults, scenario: e2() }
+    fn with(faults: Vec<Injected>) -> FaultSchedule {
+        FaultSchedule { backend: Backend::BoardSlcan, faults, scenario: e2() }
     }
 
     fn silence(from: f64, to: f64) -> Injected {
@@ -1233,8 +1233,10 @@ mod tests {
             h.push((at, State::Fault(reason)));
             h
         };
-        let seen =
-            |at: f64, reason, rest: Option<f64>| Watch { faults: vec![Seen { at, reason, rest }], ..Watch::default() };
+        let seen = |at: f64, reason, rest: Option<f64>| EpisodeLog {
+            faults: vec![Seen { at, reason, rest }],
+            ..EpisodeLog::default()
+        };
         // Named and stopped in budget, then back to the goal: nothing to say.
         let good = with(vec![silence(2.0, 2.3)]);
         let h = fault(2.1, StopReason::SamplesStopped);
@@ -1281,7 +1283,7 @@ mod tests {
         let s = settings();
         let hidden = with(vec![Injected { kind: Kind::ObstacleOccluded, from: 5.3, to: 7.6, led: Some(3) }]);
         let reason = StopReason::ObstacleOccluded { led: 3 };
-        let seen = |at: f64| Watch { faults: vec![Seen { at, reason, rest: Some(at) }], ..Watch::default() };
+        let seen = |at: f64| EpisodeLog { faults: vec![Seen { at, reason, rest: Some(at) }], ..EpisodeLog::default() };
         let armed = vec![(0.0, State::Idle), (4.36, State::Armed)];
         let ran_at = |t: f64| {
             let mut h = armed.clone();

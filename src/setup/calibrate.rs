@@ -15,7 +15,7 @@ use flowgate_protocol::psd::{Sample, SampleFlags};
 use tokio::time::Instant;
 
 use super::psd_client::{PsdClient, PsdClientError};
-use crate::calibration::{CalibError, Fit};
+use crate::calibration::{CalibrationError, Fit};
 use crate::svg::{Axes, Svg};
 
 /// Samples skipped after the stream starts (the LED's first frame).
@@ -46,7 +46,7 @@ pub enum CalibrateError {
     #[error(transparent)]
     Psd(#[from] PsdClientError),
     #[error(transparent)]
-    Fit(#[from] CalibError),
+    Fit(#[from] CalibrationError),
     #[error("points file {path}: {why}")]
     Points { path: String, why: String },
     #[error("{path}: cannot write the calibration back: {why}")]
@@ -262,7 +262,7 @@ pub trait Prompt {
 /// What to measure: which LED, how many samples a point, one frame's period, and the floor
 /// points (`None`: typed one by one).
 #[derive(Debug, Clone)]
-pub struct Plan {
+pub struct CalibrationPlan {
     pub led: u8,
     pub samples: usize,
     pub period: Duration,
@@ -274,7 +274,7 @@ pub struct Plan {
 /// A point whose samples are unusable is offered again.
 pub async fn measure_points(
     client: &mut PsdClient,
-    plan: &Plan,
+    plan: &CalibrationPlan,
     prompt: &mut impl Prompt,
 ) -> Result<Vec<([f64; 2], Reading)>, CalibrateError> {
     let mut measured = Vec::new();
@@ -289,7 +289,7 @@ pub async fn measure_points(
 }
 
 /// The `k`th floor point: planned, or typed (an empty line: done).
-fn next_point(plan: &Plan, k: usize, prompt: &mut impl Prompt) -> Result<Option<[f64; 2]>, CalibrateError> {
+fn next_point(plan: &CalibrationPlan, k: usize, prompt: &mut impl Prompt) -> Result<Option<[f64; 2]>, CalibrateError> {
     if let Some(points) = &plan.points {
         return Ok(points.get(k).copied());
     }
@@ -309,7 +309,7 @@ fn next_point(plan: &Plan, k: usize, prompt: &mut impl Prompt) -> Result<Option<
 /// One point, asked for until measured or skipped (`None`).
 async fn measure_point(
     client: &mut PsdClient,
-    plan: &Plan,
+    plan: &CalibrationPlan,
     floor: [f64; 2],
     prompt: &mut impl Prompt,
 ) -> Result<Option<Reading>, CalibrateError> {

@@ -59,11 +59,11 @@ pub struct Line {
 
 /// The preflight's findings, in order.
 #[derive(Debug, Default)]
-pub struct Report {
+pub struct CheckReport {
     pub lines: Vec<Line>,
 }
 
-impl Report {
+impl CheckReport {
     fn add(&mut self, item: &'static str, subject: impl Into<String>, verdict: Verdict, detail: impl Into<String>) {
         self.lines.push(Line { item, subject: subject.into(), verdict, detail: detail.into() });
     }
@@ -87,7 +87,7 @@ impl Report {
     }
 }
 
-impl fmt::Display for Report {
+impl fmt::Display for CheckReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let w_item = self.lines.iter().map(|l| l.item.len()).max().unwrap_or(0);
         let w_subject = self.lines.iter().map(|l| l.subject.chars().count()).max().unwrap_or(0);
@@ -138,8 +138,8 @@ const STATUS_WAIT: Duration = Duration::from_millis(500);
 const CAN_OPEN: Duration = Duration::from_secs(5);
 
 /// Check the rig `config` describes. Never fails itself: every problem is a line.
-pub async fn check(config: &Path) -> Report {
-    let mut report = Report::default();
+pub async fn check(config: &Path) -> CheckReport {
+    let mut report = CheckReport::default();
     let origin = config.display().to_string();
     let rig = match load(config) {
         Ok(rig) => rig,
@@ -174,7 +174,7 @@ fn load(path: &Path) -> Result<Rig, (String, String)> {
     })
 }
 
-fn config_cross_checks(rig: &Rig, report: &mut Report) {
+fn config_cross_checks(rig: &Rig, report: &mut CheckReport) {
     // Loading refused a config whose watchdogs would let the board's own timeout fire
     // first; these lines show the figures that rule was checked with.
     let s = &rig.safety;
@@ -203,7 +203,7 @@ fn config_cross_checks(rig: &Rig, report: &mut Report) {
     );
 }
 
-async fn check_psd(rig: &Rig, report: &mut Report) {
+async fn check_psd(rig: &Rig, report: &mut CheckReport) {
     let port = rig.serial.port.display().to_string();
     let mut client = match PsdClient::open(&rig.serial, rig.schedule, rig.psd_counts) {
         Ok(c) => c,
@@ -266,7 +266,7 @@ async fn check_psd(rig: &Rig, report: &mut Report) {
 }
 
 /// The handshake's steps in order: which one failed says which lines passed.
-fn handshake_failed(e: &PsdClientError, port: &str, report: &mut Report) {
+fn handshake_failed(e: &PsdClientError, port: &str, report: &mut CheckReport) {
     let (failed, passed): (&str, &[&'static str]) = match e {
         PsdClientError::Setup(SetupError::Silent { request: "GetInfo" }) => (ANSWERS, &[]),
         PsdClientError::Setup(SetupError::Identity(_)) => (IDENTITY, &[ANSWERS]),
@@ -287,7 +287,7 @@ fn handshake_failed(e: &PsdClientError, port: &str, report: &mut Report) {
     report.skip(&rest, port, "the controller's setup failed");
 }
 
-async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mut Report) {
+async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mut CheckReport) {
     let leds: Vec<u8> = rig.schedule.slots().iter().map(|s| s.led).collect();
     let mut seen = vec![0u64; leds.len()];
     let mut weak = vec![0u64; leds.len()];
@@ -343,7 +343,7 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
 
 /// The robot's two LEDs and every required obstacle's must be seen to arm; any other
 /// obstacle out of view is absent until it comes into view: worth a warning.
-fn judge_leds(rig: &Rig, leds: &[u8], seen: &[u64], weak: &[u64], saturated: &[u64], report: &mut Report) {
+fn judge_leds(rig: &Rig, leds: &[u8], seen: &[u64], weak: &[u64], saturated: &[u64], report: &mut CheckReport) {
     let mut problems = Vec::new();
     let mut fail = false;
     for (k, &led) in leds.iter().enumerate() {
@@ -382,7 +382,7 @@ fn judge_leds(rig: &Rig, leds: &[u8], seen: &[u64], weak: &[u64], saturated: &[u
 /// Whether the robot, where the camera sees it, can reach the configured goal: the room's
 /// walls, static obstacles and view's edge may close it off (`ctl goal` judges an
 /// operator's goal the same way).
-fn check_goal(rig: &Rig, robot: Option<Point>, report: &mut Report) {
+fn check_goal(rig: &Rig, robot: Option<Point>, report: &mut CheckReport) {
     let Some(goal) = &rig.goal else {
         report.pass(GOAL, "goal", "no [goal]: each operator's goal is checked as it is given (`ctl goal`)");
         return;
@@ -444,7 +444,7 @@ fn stream_verdict(frames: u64, expected: f64, faults: u64, anomalies: u64) -> Ve
     }
 }
 
-async fn check_can(rig: &Rig, report: &mut Report) {
+async fn check_can(rig: &Rig, report: &mut CheckReport) {
     let endpoint = match &rig.can {
         CanUrl::SocketCan { interface } => interface.clone(),
         CanUrl::Slcan { path, .. } => path.display().to_string(),
@@ -483,7 +483,7 @@ async fn open_checked(rig: &Rig) -> Result<(CanLink, Heard), String> {
 }
 
 /// The interface: error frames, or an SLCAN adapter's status flags.
-fn judge_interface(rig: &Rig, heard: &Heard, endpoint: &str, report: &mut Report) {
+fn judge_interface(rig: &Rig, heard: &Heard, endpoint: &str, report: &mut CheckReport) {
     match (&rig.can, heard.adapter) {
         (_, _) if heard.error_frames > 0 => report.fail(
             CAN_IF,
@@ -506,7 +506,7 @@ fn judge_interface(rig: &Rig, heard: &Heard, endpoint: &str, report: &mut Report
 }
 
 /// The board: its heartbeat and state, no other master, and its configuration.
-async fn check_board(rig: &Rig, link: &mut CanLink, heard: &Heard, endpoint: &str, report: &mut Report) {
+async fn check_board(rig: &Rig, link: &mut CanLink, heard: &Heard, endpoint: &str, report: &mut CheckReport) {
     let board = format!("{endpoint}, node {}", rig.node.get());
     // The board's heartbeat and state.
     let others = if heard.other_nodes.is_empty() {
@@ -573,7 +573,7 @@ async fn check_board(rig: &Rig, link: &mut CanLink, heard: &Heard, endpoint: &st
 /// Each CiA 402 drive, read by SDO only: its device type (CiA 402), its supported drive
 /// modes (profile velocity) and its state (not faulted, not already enabled by another
 /// master). Then whether another master speaks to them.
-async fn check_drives(link: &mut CanLink, settings: &Cia402Settings, endpoint: &str, report: &mut Report) {
+async fn check_drives(link: &mut CanLink, settings: &Cia402Settings, endpoint: &str, report: &mut CheckReport) {
     use flowgate_protocol::canopen::{object, DriveState};
     let mut others = 0;
     for (item, node) in [(LEFT_DRIVE, settings.left), (RIGHT_DRIVE, settings.right)] {
@@ -841,7 +841,7 @@ mod tests {
 
     #[test]
     fn the_table_counts_failures() {
-        let mut r = Report::default();
+        let mut r = CheckReport::default();
         r.pass(CONFIG, "rig.toml", "ok");
         r.fail(SERIAL, "/dev/x", "missing");
         r.skip(&[ANSWERS], "/dev/x", "the serial port failed");
