@@ -23,7 +23,8 @@ const LAYERS: &[&[&str]] = &[
     &["cli"],
 ];
 
-/// The longest function anywhere in `src/`, and in the core and the CLI, lines.
+/// The longest function anywhere in any crate (`src/`, `firmware-sim/`, `protocol/`), and
+/// in the core and the CLI, lines.
 const LONGEST: usize = 80;
 const LONGEST_IN_CORE_AND_CLI: usize = 60;
 
@@ -253,7 +254,8 @@ fn modules_import_only_the_layers_below_them() {
 fn functions_are_short_enough_to_read() {
     let mut long = Vec::new();
     let mut longest = (0, String::new());
-    for file in rust_files(&root().join("src")) {
+    let files = ["src", "firmware-sim/src", "protocol/src"].iter().flat_map(|c| rust_files(&root().join(c)));
+    for file in files {
         let rel = file.strip_prefix(root()).unwrap().display().to_string();
         let limit = if rel.starts_with("src/gateway/core/") || rel.starts_with("src/cli/") {
             LONGEST_IN_CORE_AND_CLI
@@ -271,7 +273,7 @@ fn functions_are_short_enough_to_read() {
         }
     }
     assert!(long.is_empty(), "functions too long:\n{}", long.join("\n"));
-    println!("longest function in src/: {} lines ({})", longest.0, longest.1);
+    println!("longest function in any crate: {} lines ({})", longest.0, longest.1);
 }
 
 /// The scanner itself: braces in strings, comments and characters are not the code's, and

@@ -169,6 +169,13 @@ impl FaultPlan {
     /// Check every value; on error, the key (under `faults.`) and why. Nothing a scenario or
     /// a `--fault` setting says may panic the simulator later.
     pub fn validate(&self) -> Result<(), (String, String)> {
+        self.validate_rates_and_times()?;
+        self.validate_windows()?;
+        self.validate_events()
+    }
+
+    /// Probabilities, one-time events' times and spans.
+    fn validate_rates_and_times(&self) -> Result<(), (String, String)> {
         let err = |key: &str, why: String| Err((format!("faults.{key}"), why));
         for (key, p) in [
             ("serial_drop", self.serial_drop),
@@ -210,6 +217,12 @@ impl FaultPlan {
                 return err(key, format!("must be finite times >= 0, has {t}"));
             }
         }
+        Ok(())
+    }
+
+    /// Windows `[from, to]` of time, and the held and ramped replies.
+    fn validate_windows(&self) -> Result<(), (String, String)> {
+        let err = |key: &str, why: String| Err((format!("faults.{key}"), why));
         for (key, w) in [
             ("serial_corrupt_during", self.serial_corrupt_during),
             ("serial_drop_during", self.serial_drop_during),
@@ -243,6 +256,12 @@ impl FaultPlan {
                 );
             }
         }
+        Ok(())
+    }
+
+    /// The clock's drift and steps, occlusions, reflections, stray LEDs, controller faults.
+    fn validate_events(&self) -> Result<(), (String, String)> {
+        let err = |key: &str, why: String| Err((format!("faults.{key}"), why));
         if !(self.clock_drift_ppm.is_finite() && self.clock_drift_ppm.abs() <= 100_000.0) {
             return err("clock_drift_ppm", format!("must be within ±100000, is {}", self.clock_drift_ppm));
         }

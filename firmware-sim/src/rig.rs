@@ -326,6 +326,36 @@ enum Bus {
     Socket { rx: mpsc::Receiver<CanFrame>, tx: mpsc::Sender<CanFrame> },
 }
 
+/// A SocketCAN interface as the loop's bus: frames read into one queue, written from
+/// another, by a task of its own.
+fn socketcan_bus(interface: &str) -> Result<(Bus, tokio::task::JoinHandle<()>), RigError> {
+    let socket = socketcan::tokio::CanSocket::open(interface)
+        .map_err(|source| RigError::SocketCan { interface: interface.to_string(), source })?;
+    let (in_tx, rx) = mpsc::channel(256);
+    let (tx, mut out_rx) = mpsc::channel::<CanFrame>(256);
+    let task = tokio::spawn(async move {
+        let mut socket = socket;
+        loop {
+            tokio::select! {
+                frame = socket.next() => match frame {
+                    Some(Ok(f)) => {
+                        if let Ok(f) = CanFrame::try_from(&f) {
+                            if in_tx.send(f).await.is_err() { break }
+                        }
+                    }
+                    Some(Err(e)) => tracing::warn!("CAN read: {e}"),
+                    None => break,
+                },
+                out = out_rx.recv() => match out {
+                    Some(f) => { if let Err(e) = socket.write_frame(f.into()).await { tracing::warn!("CAN write: {e}") } }
+                    None => break,
+                },
+            }
+        }
+    });
+    Ok((Bus::Socket { rx, tx }, task))
+}
+
 /// Start the rig. Returns once its endpoints exist, so a host can open them at once.
 pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
     if let Some(key) = Motors::unplayed(config.motor_kind(), &config.faults) {
@@ -366,33 +396,7 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
             let (rx, tx, task) = spawn_serial(master, SlcanAdapterCodec::new(), slcan_item);
             (Bus::Slcan { adapter: SlcanAdapter::default(), rx, tx }, task)
         }
-        CanEndpoint::SocketCan { interface } => {
-            let socket = socketcan::tokio::CanSocket::open(interface)
-                .map_err(|source| RigError::SocketCan { interface: interface.clone(), source })?;
-            let (in_tx, rx) = mpsc::channel(256);
-            let (tx, mut out_rx) = mpsc::channel::<CanFrame>(256);
-            let task = tokio::spawn(async move {
-                let mut socket = socket;
-                loop {
-                    tokio::select! {
-                        frame = socket.next() => match frame {
-                            Some(Ok(f)) => {
-                                if let Ok(f) = CanFrame::try_from(&f) {
-                                    if in_tx.send(f).await.is_err() { break }
-                                }
-                            }
-                            Some(Err(e)) => tracing::warn!("CAN read: {e}"),
-                            None => break,
-                        },
-                        out = out_rx.recv() => match out {
-                            Some(f) => { if let Err(e) = socket.write_frame(f.into()).await { tracing::warn!("CAN write: {e}") } }
-                            None => break,
-                        },
-                    }
-                }
-            });
-            (Bus::Socket { rx, tx }, task)
-        }
+        CanEndpoint::SocketCan { interface } => socketcan_bus(interface)?,
     };
 
     let stats = Arc::new(RigStats::default());
@@ -456,131 +460,171 @@ pub fn second_master_command(node: NodeId) -> CanFrame {
 /// Period of the second master's commands, s.
 pub const SECOND_MASTER_PERIOD: f64 = 0.02;
 
-async fn run(
+/// The rig's loop in real time: the world, the PSD controller and the motors stepped to
+/// the host's clock, their output put on the serial line and the bus with the faults the
+/// config injects, and what comes back handed to them.
+struct Realtime {
     config: RigConfig,
-    mut psd: PsdIo,
-    mut bus: Bus,
-    mut stop: oneshot::Receiver<()>,
-    wand: tokio::sync::watch::Receiver<Option<(u8, Option<crate::Point>)>>,
+    psd: PsdIo,
+    bus: Bus,
     stats: Arc<RigStats>,
-) -> (TruthRecord, PsdIo) {
-    let mut world = World::new(&config.scenario);
-    let mut controller =
-        PsdController::new(config.camera, config.leds, config.noise_counts, config.seed, config.faults.clone());
-    let mut board = Motors::new(config.motor_kind(), &config.faults);
-    let mut serial_faults = SerialFaults::new(&config.faults);
-    let mut can_faults = CanFaults::new(&config.faults);
-    let mut bursts: VecDeque<f64> = config.faults.serial_burst_at.iter().copied().collect();
-    let burst_len = config.faults.serial_burst_len;
-    let mut truth = TruthRecord::default();
-    let mut next_truth = 0.0;
-    let psd_link = match &config.psd {
-        SerialEndpoint::Pty { link } => link.clone(),
-        SerialEndpoint::Device { .. } => None,
-    };
-    // (vanish at, back at), while pending.
-    let mut vanish = config.faults.serial_vanish_at.map(|at| (at, at + config.faults.serial_vanish_s));
-    let mut psd_gone = false;
-    let mut next_foreign = if config.faults.foreign_frames { 0.0 } else { f64::INFINITY };
-    let mut next_master = config.faults.second_master_at.unwrap_or(f64::INFINITY);
+    world: World,
+    controller: PsdController,
+    board: Motors,
+    serial_faults: SerialFaults,
+    can_faults: CanFaults,
+    bursts: VecDeque<f64>,
+    truth: TruthRecord,
+    next_truth: f64,
+    psd_link: Option<PathBuf>,
+    /// (vanish at, back at), while pending.
+    vanish: Option<(f64, f64)>,
+    psd_gone: bool,
+    next_foreign: f64,
+    next_master: f64,
+    origin: Instant,
+    psd_out: Vec<Outgoing>,
+    pending: SerialQueue,
+    can_out: Vec<CanFrame>,
+    to_host: Vec<Response>,
+    to_bus: Vec<CanFrame>,
+}
 
-    let origin = Instant::now();
-    let now = || origin.elapsed().as_secs_f64();
-    let mut psd_out: Vec<Outgoing> = Vec::new();
-    let mut pending = SerialQueue::default();
-    let mut can_out: Vec<CanFrame> = Vec::new();
-    let mut to_host: Vec<Response> = Vec::new();
-    let mut to_bus: Vec<CanFrame> = Vec::new();
-    let mut wire = [0u8; psd::MAX_WIRE_LEN];
-
-    controller.boot(0.0, &mut psd_out);
-    board.boot(0.0, &mut world, &mut can_out);
-
-    loop {
-        let t = now();
-        if t > world.time() {
-            world.step(t - world.time());
+impl Realtime {
+    fn new(config: RigConfig, psd: PsdIo, bus: Bus, stats: Arc<RigStats>) -> Self {
+        let mut world = World::new(&config.scenario);
+        let mut controller =
+            PsdController::new(config.camera, config.leds, config.noise_counts, config.seed, config.faults.clone());
+        let mut board = Motors::new(config.motor_kind(), &config.faults);
+        let psd_link = match &config.psd {
+            SerialEndpoint::Pty { link } => link.clone(),
+            SerialEndpoint::Device { .. } => None,
+        };
+        let f = &config.faults;
+        let (mut psd_out, mut can_out) = (Vec::new(), Vec::new());
+        controller.boot(0.0, &mut psd_out);
+        board.boot(0.0, &mut world, &mut can_out);
+        Self {
+            serial_faults: SerialFaults::new(f),
+            can_faults: CanFaults::new(f),
+            bursts: f.serial_burst_at.iter().copied().collect(),
+            vanish: f.serial_vanish_at.map(|at| (at, at + f.serial_vanish_s)),
+            next_foreign: if f.foreign_frames { 0.0 } else { f64::INFINITY },
+            next_master: f.second_master_at.unwrap_or(f64::INFINITY),
+            truth: TruthRecord::default(),
+            next_truth: 0.0,
+            psd_gone: false,
+            origin: Instant::now(),
+            pending: SerialQueue::default(),
+            to_host: Vec::new(),
+            to_bus: Vec::new(),
+            config,
+            psd,
+            bus,
+            stats,
+            world,
+            controller,
+            board,
+            psd_link,
+            psd_out,
+            can_out,
         }
-        if let Some((led, at)) = *wand.borrow() {
-            world.place_wand(led, at);
+    }
+
+    fn now(&self) -> f64 {
+        self.origin.elapsed().as_secs_f64()
+    }
+
+    /// The world, the controller and the motors brought to `t`, the injected events due.
+    fn advance(&mut self, t: f64, wand: Option<(u8, Option<crate::Point>)>) {
+        if t > self.world.time() {
+            self.world.step(t - self.world.time());
         }
-        controller.poll(t, &world, &mut psd_out);
-        board.poll(t, &mut world, &mut can_out);
-        if let Some((gone_at, back_at)) = vanish {
-            if !psd_gone && t >= gone_at {
-                // Pull the plug: the pty closes; the host's reads fail.
-                psd.task.abort();
-                psd.keep = None;
-                psd_gone = true;
-                pending.clear();
-                psd_out.clear();
-            } else if psd_gone && t >= back_at {
-                vanish = None;
-                match psd_link.as_deref().map(PsdIo::reopen) {
-                    Some(Ok(io)) => {
-                        psd = io;
-                        psd_gone = false;
-                        controller = PsdController::new(
-                            config.camera,
-                            config.leds,
-                            config.noise_counts,
-                            config.seed,
-                            config.faults.booted_at(t),
-                        );
-                        controller.boot(t, &mut psd_out);
-                    }
-                    Some(Err(e)) => tracing::error!("serial device cannot come back: {e}"),
-                    None => tracing::error!("serial_vanish_at needs a pty endpoint with a link"),
+        if let Some((led, at)) = wand {
+            self.world.place_wand(led, at);
+        }
+        self.controller.poll(t, &self.world, &mut self.psd_out);
+        self.board.poll(t, &mut self.world, &mut self.can_out);
+        self.vanish(t);
+        if t >= self.next_foreign {
+            self.next_foreign = t + 0.1;
+            self.can_out.extend(foreign_frames(self.config.node));
+        }
+        if t >= self.next_master {
+            self.next_master = t + SECOND_MASTER_PERIOD;
+            let frame = second_master_command(self.config.node);
+            self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+            self.can_out.push(frame);
+        }
+    }
+
+    /// The serial device vanishing (the pty closes; the host's reads fail) and coming back.
+    fn vanish(&mut self, t: f64) {
+        let Some((gone_at, back_at)) = self.vanish else { return };
+        if !self.psd_gone && t >= gone_at {
+            self.psd.task.abort();
+            self.psd.keep = None;
+            self.psd_gone = true;
+            self.pending.clear();
+            self.psd_out.clear();
+        } else if self.psd_gone && t >= back_at {
+            self.vanish = None;
+            match self.psd_link.as_deref().map(PsdIo::reopen) {
+                Some(Ok(io)) => {
+                    self.psd = io;
+                    self.psd_gone = false;
+                    let c = &self.config;
+                    self.controller =
+                        PsdController::new(c.camera, c.leds, c.noise_counts, c.seed, c.faults.booted_at(t));
+                    self.controller.boot(t, &mut self.psd_out);
                 }
+                Some(Err(e)) => tracing::error!("serial device cannot come back: {e}"),
+                None => tracing::error!("serial_vanish_at needs a pty endpoint with a link"),
             }
         }
-        if t >= next_foreign {
-            next_foreign = t + 0.1;
-            can_out.extend(foreign_frames(config.node));
-        }
-        if t >= next_master {
-            next_master = t + SECOND_MASTER_PERIOD;
-            let frame = second_master_command(config.node);
-            board.handle(t, &frame, &mut world, &mut can_out);
-            can_out.push(frame);
-        }
+    }
 
-        // Serial out: in order, each message no earlier than its time (injected delay).
-        for o in psd_out.drain(..) {
-            pending.push(o);
+    /// Serial out: in order, each message no earlier than its time (injected delay), with
+    /// the line's faults.
+    fn serial_out(&mut self, t: f64) {
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        for o in self.psd_out.drain(..) {
+            self.pending.push(o);
         }
         let mut bytes = Vec::new();
-        while let Some(packet) = pending.pop_due(t) {
-            serial_faults.packets(t, packet, &mut |p| {
+        while let Some(packet) = self.pending.pop_due(t) {
+            self.serial_faults.packets(t, packet, &mut |p| {
                 if let Ok(n) = p.encode(&mut wire) {
                     bytes.extend_from_slice(&wire[..n]);
                 }
             });
         }
-        while bursts.front().is_some_and(|&at| at <= t) {
-            bursts.pop_front();
-            bytes.extend(serial_faults.burst(burst_len));
+        while self.bursts.front().is_some_and(|&at| at <= t) {
+            self.bursts.pop_front();
+            bytes.extend(self.serial_faults.burst(self.config.faults.serial_burst_len));
         }
         if !bytes.is_empty() {
-            serial_faults.apply(t, &mut bytes);
-            stats.serial_bytes_dropped.store(serial_faults.dropped, Ordering::Relaxed);
-            stats.serial_bytes_corrupted.store(serial_faults.corrupted, Ordering::Relaxed);
+            self.serial_faults.apply(t, &mut bytes);
+            self.stats.serial_bytes_dropped.store(self.serial_faults.dropped, Ordering::Relaxed);
+            self.stats.serial_bytes_corrupted.store(self.serial_faults.corrupted, Ordering::Relaxed);
             let n = bytes.len() as u64;
-            if psd_gone || psd.tx.try_send(bytes).is_err() {
-                stats.serial_overflow_bytes.fetch_add(n, Ordering::Relaxed);
+            if self.psd_gone || self.psd.tx.try_send(bytes).is_err() {
+                self.stats.serial_overflow_bytes.fetch_add(n, Ordering::Relaxed);
             }
         }
+    }
 
-        // CAN out: the board's frames onto the bus (unless bus-off or lost).
-        let bus_off = config.faults.bus_off(t);
-        for f in can_out.drain(..) {
-            if bus_off || can_faults.lose(t) {
+    /// CAN out: the board's frames onto the bus (unless bus-off or lost).
+    fn can_out(&mut self, t: f64) {
+        let bus_off = self.config.faults.bus_off(t);
+        for f in self.can_out.drain(..) {
+            if bus_off || self.can_faults.lose(t) {
                 continue;
             }
-            stats.can_frames_out.fetch_add(1, Ordering::Relaxed);
-            match &mut bus {
+            self.stats.can_frames_out.fetch_add(1, Ordering::Relaxed);
+            match &mut self.bus {
                 Bus::Slcan { adapter, tx, .. } => {
-                    adapter.bus_off = config.faults.adapter_bus_off(t);
+                    adapter.bus_off = self.config.faults.adapter_bus_off(t);
                     if let Some(r) = adapter.from_bus(f, t) {
                         send_line(tx, &r);
                     }
@@ -590,41 +634,78 @@ async fn run(
                 }
             }
         }
-        stats.can_frames_lost.store(can_faults.lost, Ordering::Relaxed);
+        self.stats.can_frames_lost.store(self.can_faults.lost, Ordering::Relaxed);
+    }
 
-        while next_truth <= t {
-            truth.record(&world);
-            next_truth += SAMPLE_PERIOD;
+    /// The world's truth, sampled every [`SAMPLE_PERIOD`] up to `t`.
+    fn record_truth(&mut self, t: f64) {
+        while self.next_truth <= t {
+            self.truth.record(&self.world);
+            self.next_truth += SAMPLE_PERIOD;
         }
+    }
 
-        let mut next = controller.next_event().min(board.next_event()).min(next_truth).min(t + 0.005);
-        next = next.min(pending.next_at());
-        if let Some(&b) = bursts.front() {
+    /// When the loop next has something to do, s.
+    fn next_wake(&self, t: f64) -> f64 {
+        let mut next = self.controller.next_event().min(self.board.next_event()).min(self.next_truth).min(t + 0.005);
+        next = next.min(self.pending.next_at());
+        if let Some(&b) = self.bursts.front() {
             next = next.min(b);
         }
-        if let Some((gone_at, back_at)) = vanish {
-            next = next.min(if psd_gone { back_at } else { gone_at });
+        if let Some((gone_at, back_at)) = self.vanish {
+            next = next.min(if self.psd_gone { back_at } else { gone_at });
         }
-        next = next.min(next_foreign).min(next_master);
-        let deadline = origin + Duration::from_secs_f64(next.max(t));
-        let (slcan_rx, socket_rx) = match &mut bus {
+        next.min(self.next_foreign).min(self.next_master)
+    }
+
+    /// Frames the host sent onto the bus, to the motors (unless bus-off or lost).
+    fn frames_in(&mut self) {
+        let t = self.now();
+        for f in self.to_bus.drain(..) {
+            self.stats.can_frames_in.fetch_add(1, Ordering::Relaxed);
+            if !self.config.faults.bus_off(t) && !self.can_faults.lose(t) {
+                self.board.handle(t, &f, &mut self.world, &mut self.can_out);
+            }
+        }
+    }
+}
+
+async fn run(
+    config: RigConfig,
+    psd: PsdIo,
+    bus: Bus,
+    mut stop: oneshot::Receiver<()>,
+    wand: tokio::sync::watch::Receiver<Option<(u8, Option<crate::Point>)>>,
+    stats: Arc<RigStats>,
+) -> (TruthRecord, PsdIo) {
+    let mut rig = Realtime::new(config, psd, bus, stats);
+    loop {
+        let t = rig.now();
+        rig.advance(t, *wand.borrow());
+        rig.serial_out(t);
+        rig.can_out(t);
+        rig.record_truth(t);
+        let deadline = rig.origin + Duration::from_secs_f64(rig.next_wake(t).max(t));
+        let Realtime { psd, bus, controller, config, stats, to_host, to_bus, psd_out, psd_gone, origin, .. } = &mut rig;
+        let now = || origin.elapsed().as_secs_f64();
+        let (slcan_rx, socket_rx) = match bus {
             Bus::Slcan { rx, .. } => (Some(rx), None),
             Bus::Socket { rx, .. } => (None, Some(rx)),
         };
         tokio::select! {
             _ = &mut stop => break,
             _ = tokio::time::sleep_until(deadline) => {}
-            Some(request) = psd.rx.recv(), if !psd_gone => {
+            Some(request) = psd.rx.recv(), if !*psd_gone => {
                 stats.psd_requests.fetch_add(1, Ordering::Relaxed);
                 if request.is_err() {
                     stats.psd_bad_requests.fetch_add(1, Ordering::Relaxed);
                 }
-                controller.handle(now(), request, &mut psd_out);
+                controller.handle(now(), request, psd_out);
             }
             Some(line) = async { match slcan_rx { Some(rx) => rx.recv().await, None => std::future::pending().await } } => {
-                if let Bus::Slcan { adapter, tx, .. } = &mut bus {
+                if let Bus::Slcan { adapter, tx, .. } = bus {
                     adapter.bus_off = config.faults.adapter_bus_off(now());
-                    adapter.handle(line, &mut to_host, &mut to_bus);
+                    adapter.handle(line, to_host, to_bus);
                     for r in to_host.drain(..) {
                         send_line(tx, &r);
                     }
@@ -634,16 +715,10 @@ async fn run(
                 to_bus.push(frame);
             }
         }
-        let t = now();
-        for f in to_bus.drain(..) {
-            stats.can_frames_in.fetch_add(1, Ordering::Relaxed);
-            if !config.faults.bus_off(t) && !can_faults.lose(t) {
-                board.handle(t, &f, &mut world, &mut can_out);
-            }
-        }
+        rig.frames_in();
     }
-    truth.record(&world);
-    (truth, psd)
+    rig.truth.record(&rig.world);
+    (rig.truth, rig.psd)
 }
 
 fn send_line(tx: &mpsc::Sender<Vec<u8>>, r: &Response) {

@@ -368,53 +368,38 @@ impl Scenario {
 
     /// Check every value; on error, the key and why.
     pub fn validate(&self) -> Result<(), (String, String)> {
-        let positive = |key: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err((key.to_string(), format!("must be a positive number, is {v}")))
-            }
-        };
-        let non_negative = |key: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err((key.to_string(), format!("must be >= 0, is {v}")))
-            }
-        };
-        let finite = |key: &str, p: [f64; 2]| {
-            if p.iter().all(|v| v.is_finite() && v.abs() <= MAX_LENGTH_M) {
-                Ok(())
-            } else {
-                Err((key.to_string(), format!("must be finite, within ±{MAX_LENGTH_M} m, is {p:?}")))
-            }
-        };
         self.validate_counts()?;
-        // Printed to terminals and into reports: no escape sequence may ride in on them.
+        self.validate_text()?;
+        positive("time_limit", self.time_limit)?;
+        if self.time_limit > MAX_TIME_LIMIT_S {
+            return Err(("time_limit".into(), format!("must be at most {MAX_TIME_LIMIT_S} s, is {}", self.time_limit)));
+        }
+        if let Some(lane) = self.lane {
+            within("lane.half_width", lane.half_width, MAX_LENGTH_M, "m")?;
+        }
+        self.validate_robot()?;
+        finite("goal.position", self.goal.position)?;
+        within("goal.tolerance", self.goal.tolerance, MAX_GOAL_TOLERANCE_M, "m")?;
+        self.validate_obstacles()?;
+        self.validate_room()?;
+        self.validate_geometry()?;
+        self.validate_sensing()?;
+        self.faults.validate()
+    }
+
+    /// The name and description are printed to terminals and into reports: no escape
+    /// sequence may ride in on them.
+    fn validate_text(&self) -> Result<(), (String, String)> {
         if let Some(c) = self.name.chars().find(|c| c.is_control()) {
             return Err(("name".into(), format!("holds the control character {c:?}: names are printed as they are")));
         }
         if let Some(c) = self.description.chars().find(|&c| c.is_control() && c != '\n' && c != '\t') {
             return Err(("description".into(), format!("holds the control character {c:?}: only new lines and tabs")));
         }
-        // Plausible for any rig a PSD camera watches: far beyond, a value is a typo (a
-        // wheel base of 1e308 m) that would only turn into infinities downstream.
-        let at_most = |key: &str, v: f64, most: f64, unit: &str| {
-            if v > most {
-                let v = if v < 1e6 { v.to_string() } else { format!("{v:e}") };
-                Err((key.to_string(), format!("must be at most {most} {unit}, is {v}")))
-            } else {
-                Ok(())
-            }
-        };
-        positive("time_limit", self.time_limit)?;
-        if self.time_limit > MAX_TIME_LIMIT_S {
-            return Err(("time_limit".into(), format!("must be at most {MAX_TIME_LIMIT_S} s, is {}", self.time_limit)));
-        }
-        if let Some(lane) = self.lane {
-            positive("lane.half_width", lane.half_width)?;
-            at_most("lane.half_width", lane.half_width, MAX_LENGTH_M, "m")?;
-        }
+        Ok(())
+    }
+
+    fn validate_robot(&self) -> Result<(), (String, String)> {
         let r = &self.robot;
         finite("robot.start", r.start)?;
         positive("robot.radius", r.radius)?;
@@ -442,12 +427,12 @@ impl Scenario {
                 format!("must be 1-{MAX_STEPS_PER_REV}, is {}", r.steps_per_rev),
             ));
         }
-        finite("goal.position", self.goal.position)?;
-        positive("goal.tolerance", self.goal.tolerance)?;
-        at_most("goal.tolerance", self.goal.tolerance, MAX_GOAL_TOLERANCE_M, "m")?;
+        Ok(())
+    }
+
+    fn validate_obstacles(&self) -> Result<(), (String, String)> {
         for (i, o) in self.obstacles.iter().enumerate() {
-            positive(&format!("obstacles[{i}].radius"), o.radius)?;
-            at_most(&format!("obstacles[{i}].radius"), o.radius, MAX_BODY_M, "m")?;
+            within(&format!("obstacles[{i}].radius"), o.radius, MAX_BODY_M, "m")?;
             finite(&format!("obstacles[{i}].start"), o.start)?;
             match &o.motion {
                 Motion::Stationary => {}
@@ -457,8 +442,7 @@ impl Scenario {
                     at_most(&key, velocity[0].hypot(velocity[1]), MAX_SPEED_M_S, "m/s")?;
                 }
                 Motion::Waypoints { points, speed, .. } => {
-                    positive(&format!("obstacles[{i}].motion.speed"), *speed)?;
-                    at_most(&format!("obstacles[{i}].motion.speed"), *speed, MAX_SPEED_M_S, "m/s")?;
+                    within(&format!("obstacles[{i}].motion.speed"), *speed, MAX_SPEED_M_S, "m/s")?;
                     if points.is_empty() {
                         return Err((format!("obstacles[{i}].motion.points"), "needs at least one point".into()));
                     }
@@ -468,8 +452,10 @@ impl Scenario {
                 }
             }
         }
-        self.validate_room()?;
-        self.validate_geometry()?;
+        Ok(())
+    }
+
+    fn validate_sensing(&self) -> Result<(), (String, String)> {
         let s = &self.sensing;
         positive("sensing.sample_time", s.sample_time)?;
         non_negative("sensing.delay", s.delay)?;
@@ -481,8 +467,7 @@ impl Scenario {
         non_negative("sensing.position_noise", s.position_noise)?;
         at_most("sensing.position_noise", s.position_noise, MAX_BODY_M, "m")?;
         non_negative("sensing.lowpass_hz", s.lowpass_hz)?;
-        at_most("sensing.lowpass_hz", s.lowpass_hz, MAX_LOWPASS_HZ, "Hz")?;
-        self.faults.validate()
+        at_most("sensing.lowpass_hz", s.lowpass_hz, MAX_LOWPASS_HZ, "Hz")
     }
 
     /// How many of each thing: checked first, so that a file of a million walls is refused
@@ -652,6 +637,50 @@ impl Scenario {
 /// `[x, y]` as a point.
 pub fn point(p: [f64; 2]) -> Point {
     Point::new(p[0], p[1])
+}
+
+/// A check's failure: the key and why.
+type Refused = Result<(), (String, String)>;
+
+fn positive(key: &str, v: f64) -> Refused {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err((key.to_string(), format!("must be a positive number, is {v}")))
+    }
+}
+
+fn non_negative(key: &str, v: f64) -> Refused {
+    if v.is_finite() && v >= 0.0 {
+        Ok(())
+    } else {
+        Err((key.to_string(), format!("must be >= 0, is {v}")))
+    }
+}
+
+/// Plausible for any rig a PSD camera watches: far beyond, a value is a typo (a wheel base
+/// of 1e308 m) that would only turn into infinities downstream.
+fn at_most(key: &str, v: f64, most: f64, unit: &str) -> Refused {
+    if v > most {
+        let v = if v < 1e6 { v.to_string() } else { format!("{v:e}") };
+        Err((key.to_string(), format!("must be at most {most} {unit}, is {v}")))
+    } else {
+        Ok(())
+    }
+}
+
+/// Positive, and at most `most`.
+fn within(key: &str, v: f64, most: f64, unit: &str) -> Refused {
+    positive(key, v)?;
+    at_most(key, v, most, unit)
+}
+
+fn finite(key: &str, p: [f64; 2]) -> Refused {
+    if p.iter().all(|v| v.is_finite() && v.abs() <= MAX_LENGTH_M) {
+        Ok(())
+    } else {
+        Err((key.to_string(), format!("must be finite, within ±{MAX_LENGTH_M} m, is {p:?}")))
+    }
 }
 
 #[cfg(test)]

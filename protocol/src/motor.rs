@@ -228,6 +228,12 @@ pub enum MotorError {
     Field { kind: MotorKind, field: &'static str },
 }
 
+/// A frame's identifier and length read ([`MotorMessage::classify`]).
+enum Classified {
+    EStop(MotorMessage),
+    Message { id: u16, kind: MotorKind, node: Option<NodeId>, node_bits: u8, expected: u8 },
+}
+
 impl MotorMessage {
     pub fn kind(&self) -> MotorKind {
         match self {
@@ -261,8 +267,9 @@ impl MotorMessage {
         }
     }
 
-    /// Read a CAN frame as a motor-protocol message.
-    pub fn parse(frame: &CanFrame) -> Result<Self, MotorError> {
+    /// What a frame's identifier and length say it is: an e-stop (read whole), or a kind
+    /// of message for a node (or all), its length checked.
+    fn classify(frame: &CanFrame) -> Result<Classified, MotorError> {
         let id = match frame.id() {
             CanId::Standard(id) => id,
             CanId::Extended(id) => return Err(MotorError::ExtendedId(id)),
@@ -271,12 +278,11 @@ impl MotorMessage {
             return Err(MotorError::Remote(id));
         }
         let (func, node_bits) = (id >> 4, (id & 0x0F) as u8);
-        let data = frame.data();
-        let node = NodeId::new(node_bits);
         // E-stop first and leniently: any length, any reason byte.
         if func == function::ESTOP {
-            let reason = data.first().and_then(|&b| EStopReason::from_u8(b)).unwrap_or(EStopReason::Unspecified);
-            return Ok(Self::EStop { target: Target::from_bits(node_bits), reason });
+            let reason =
+                frame.data().first().and_then(|&b| EStopReason::from_u8(b)).unwrap_or(EStopReason::Unspecified);
+            return Ok(Classified::EStop(Self::EStop { target: Target::from_bits(node_bits), reason }));
         }
         let (kind, expected) = match func {
             function::NMT => (MotorKind::Nmt, 1),
@@ -290,7 +296,7 @@ impl MotorMessage {
             _ => return Err(MotorError::UnknownId(id)),
         };
         // Only NMT and heartbeat have a meaning for node 0.
-        let node = match (node, kind) {
+        let node = match (NodeId::new(node_bits), kind) {
             (Some(n), _) => Some(n),
             (None, MotorKind::Nmt | MotorKind::Heartbeat) => None,
             (None, _) => return Err(MotorError::UnknownId(id)),
@@ -298,6 +304,16 @@ impl MotorMessage {
         if frame.dlc() != expected {
             return Err(MotorError::Length { kind, id, dlc: frame.dlc(), expected });
         }
+        Ok(Classified::Message { id, kind, node, node_bits, expected })
+    }
+
+    /// Read a CAN frame as a motor-protocol message.
+    pub fn parse(frame: &CanFrame) -> Result<Self, MotorError> {
+        let (id, kind, node, node_bits, expected) = match Self::classify(frame)? {
+            Classified::EStop(estop) => return Ok(estop),
+            Classified::Message { id, kind, node, node_bits, expected } => (id, kind, node, node_bits, expected),
+        };
+        let data = frame.data();
         let field = |field| MotorError::Field { kind, field };
         // i24 reads -2^23 too; the protocol's rates are symmetric, ±MAX_PULSE_RATE.
         let rate = |v: Option<i32>, name| match v {

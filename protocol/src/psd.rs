@@ -386,6 +386,46 @@ impl Message {
         }
     }
 
+    /// A `SetSchedule`'s payload after its type; `field` names a bad field.
+    fn schedule_payload(r: &mut Reader<'_>, field: impl Fn(&'static str) -> Error) -> Option<Result<Self, Error>> {
+        let flags = r.u8()?;
+        let averaging = r.u8()?;
+        let dark_slot_us = r.u16()?;
+        let n = usize::from(r.u8()?);
+        if flags != 0 {
+            return Some(Err(field("flags")));
+        }
+        if n > MAX_SCHEDULE_LEDS {
+            return Some(Err(field("n")));
+        }
+        let mut slots = [LedSlot::default(); MAX_SCHEDULE_LEDS];
+        for s in &mut slots[..n] {
+            *s = LedSlot { led: r.u8()?, slot_us: r.u16()? };
+        }
+        Some(match Schedule::new(&slots[..n], dark_slot_us, averaging) {
+            Ok(s) => Ok(Message::SetSchedule(s)),
+            Err(_) => Err(field("slots")),
+        })
+    }
+
+    /// A `Sample`'s payload after its type; `field` names a bad field.
+    fn sample_payload(r: &mut Reader<'_>, field: impl Fn(&'static str) -> Error) -> Option<Result<Self, Error>> {
+        let s = Sample {
+            frame: r.u32()?,
+            slot: r.u8()?,
+            led: r.u8()?,
+            t_ctrl_us: r.u64()?,
+            x: r.i32()?,
+            y: r.i32()?,
+            intensity: r.u16()?,
+            flags: SampleFlags(r.u8()?),
+        };
+        if s.flags.0 & !SampleFlags::KNOWN != 0 {
+            return Some(Err(field("flags")));
+        }
+        Some(Ok(Message::Sample(s)))
+    }
+
     fn parse_payload(msg_type: MessageType, payload: &[u8]) -> Result<Self, Error> {
         let mut r = Reader::new(payload);
         let short = Error::PayloadLength { msg_type, len: payload.len() };
@@ -397,26 +437,7 @@ impl Message {
                 MessageType::StopStream => Message::StopStream,
                 MessageType::Ping => Message::Ping { nonce: r.u32()? },
                 MessageType::TimeSync => Message::TimeSync { host_time_us: r.u64()? },
-                MessageType::SetSchedule => {
-                    let flags = r.u8()?;
-                    let averaging = r.u8()?;
-                    let dark_slot_us = r.u16()?;
-                    let n = usize::from(r.u8()?);
-                    if flags != 0 {
-                        return Some(Err(field("flags")));
-                    }
-                    if n > MAX_SCHEDULE_LEDS {
-                        return Some(Err(field("n")));
-                    }
-                    let mut slots = [LedSlot::default(); MAX_SCHEDULE_LEDS];
-                    for s in &mut slots[..n] {
-                        *s = LedSlot { led: r.u8()?, slot_us: r.u16()? };
-                    }
-                    match Schedule::new(&slots[..n], dark_slot_us, averaging) {
-                        Ok(s) => Message::SetSchedule(s),
-                        Err(_) => return Some(Err(field("slots"))),
-                    }
-                }
+                MessageType::SetSchedule => return Self::schedule_payload(&mut r, field),
                 MessageType::Info => Message::Info {
                     request_seq: r.u16()?,
                     info: Info {
@@ -434,22 +455,7 @@ impl Message {
                         None => return Some(Err(field("reason"))),
                     }
                 }
-                MessageType::Sample => {
-                    let s = Sample {
-                        frame: r.u32()?,
-                        slot: r.u8()?,
-                        led: r.u8()?,
-                        t_ctrl_us: r.u64()?,
-                        x: r.i32()?,
-                        y: r.i32()?,
-                        intensity: r.u16()?,
-                        flags: SampleFlags(r.u8()?),
-                    };
-                    if s.flags.0 & !SampleFlags::KNOWN != 0 {
-                        return Some(Err(field("flags")));
-                    }
-                    Message::Sample(s)
-                }
+                MessageType::Sample => return Self::sample_payload(&mut r, field),
                 MessageType::FrameEnd => Message::FrameEnd { frame: r.u32()?, t_ctrl_us: r.u64()?, samples: r.u8()? },
                 MessageType::Fault => match FaultCode::from_u8(r.u8()?) {
                     Some(code) => Message::Fault { code, detail: r.u32()? },
