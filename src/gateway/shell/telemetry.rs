@@ -419,11 +419,16 @@ pub enum EventsError {
     Bad { path: String, line: usize, why: String },
 }
 
+/// The largest `events.jsonl` read, bytes: a run's events are state changes, requests and
+/// notices, a few hundred bytes each; a file past this is no run's log.
+pub const MAX_EVENTS_BYTES: u64 = 256 << 20;
+
 /// The events of a run: `path` is its `events.jsonl` or the telemetry directory holding it.
 pub fn read_events(path: &Path) -> Result<Vec<LoggedEvent>, EventsError> {
     let file = if path.is_dir() { path.join("events.jsonl") } else { path.to_path_buf() };
     let name = file.display().to_string();
-    let text = std::fs::read_to_string(&file).map_err(|source| EventsError::Io { path: name.clone(), source })?;
+    let text = crate::config::read_text(&file, MAX_EVENTS_BYTES)
+        .map_err(|source| EventsError::Io { path: name.clone(), source })?;
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())

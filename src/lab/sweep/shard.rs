@@ -375,7 +375,8 @@ pub fn write_shard(dir: &Path, manifest: &Manifest, episodes: &[Episode]) -> Res
 pub fn read_shard(dir: &Path) -> Result<ShardData, ShardDirError> {
     let path = dir.join(MANIFEST_FILE);
     let at = path.display().to_string();
-    let text = std::fs::read_to_string(&path).map_err(|source| ShardDirError::Io { path: at.clone(), source })?;
+    let text = crate::config::read_text(&path, crate::config::MAX_FILE_BYTES)
+        .map_err(|source| ShardDirError::Io { path: at.clone(), source })?;
     let manifest: Manifest =
         serde_json::from_str(&text).map_err(|source| ShardDirError::NotAManifest { path: at.clone(), source })?;
     let episodes_path = dir.join(EPISODES_FILE);
