@@ -249,3 +249,36 @@ fn an_obstacle_entering_the_view_is_tracked_and_avoided() {
     assert_eq!((c.obstacles_entered_view, c.obstacles_left_view), (1, 1), "{c:?}");
     assert!(e.truth.summary.min_obstacle_clearance.unwrap() > 0.0);
 }
+
+/// An obstacle that walks into the standing robot faults it, named for the obstacle; once it
+/// has walked on past, the operator's reset, arm and start drive the robot on to its goal,
+/// without a restart. (E2's obstacle on the centre line of a lane too narrow to pass.)
+#[test]
+fn after_an_obstacle_reached_the_robot_the_operator_drives_on() {
+    let e2 =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e2-lane-head-on.toml")).unwrap();
+    let narrow =
+        e2.replace("half_width = 0.2", "half_width = 0.1").replace("start = [0.45, 0.06]", "start = [0.45, 0.0]");
+    let s = Scenario::from_toml(&narrow, "narrow.toml").unwrap();
+    let mut rig = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() });
+    while !matches!(rig.core().state(), State::Fault(_)) {
+        assert!(rig.time() < 10.0, "no fault: {}", rig.core().state());
+        rig.step();
+    }
+    use flowgate::gateway::core::RobotMotion;
+    assert_eq!(
+        rig.core().state(),
+        State::Fault(StopReason::ObstacleReachedRobot { led: 3, robot: RobotMotion::Standing })
+    );
+    // The obstacle walks on through and away behind the robot; then the way back.
+    rig.run_until(rig.time() + 8.0);
+    rig.request(&Request::Reset).unwrap();
+    assert_eq!(rig.core().state(), State::Idle);
+    rig.request(&Request::Arm).unwrap();
+    rig.request(&goal(s.goal.position[0], s.goal.position[1])).unwrap();
+    rig.request(&Request::Start).unwrap();
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert!(e.reached_goal, "{}", e.report);
+    assert_eq!(e.report.final_state, State::Stopped(StopReason::GoalReached), "{}", e.report);
+    assert!(e.truth.summary.contact.is_some_and(|c| !c.active), "the one contact, passive");
+}
