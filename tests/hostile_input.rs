@@ -86,7 +86,7 @@ fn damaged_recordings_are_read_to_the_damage_and_never_crash_the_tools() {
     // Most flips land in a chunk: its CRC stops the reading there, and says so.
     assert!(cut_short > 300, "{cut_short} of {} read as cut short", damaged.len());
 
-    // The tools, on a flip inside a compressed chunk (the probe that once aborted), a cut
+    // The tools, on a flip inside a compressed chunk (where a length is read from damage), a cut
     // and noise: each ends in words, and says the recording is cut short.
     let probes = [(60_000.min(len - 1), "flipped"), (len * 2 / 3, "cut"), (0, "noise")];
     for (at, kind) in probes {
