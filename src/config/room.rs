@@ -5,7 +5,8 @@ use std::sync::{Arc, Mutex};
 
 use serde::{Deserialize, Serialize};
 
-use super::{invalid, positive, GatewayConfig, Invalid, BODY};
+use super::checks::{invalid, positive, Invalid, BODY};
+use super::GatewayConfig;
 use crate::calibration::Calibration;
 use crate::planner::room::{FarField, Panels, Room, RoomError, RoomShape};
 use crate::Point;

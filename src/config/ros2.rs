@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{invalid, Invalid};
+use super::checks::{invalid, Invalid};
 
 /// The highest domain id ROS 2 allows on Linux (its ports stay below 65536 up to 232).
 pub const MAX_DOMAIN_ID: u16 = 232;
