@@ -1,5 +1,5 @@
-use super::*;
 use super::planning::{default_clearance, default_uncertainty_sigmas};
+use super::*;
 
 const EXAMPLE: &str = include_str!("../../rig.example.toml");
 

@@ -1,0 +1,57 @@
+use super::*;
+use crate::gateway::core::operator::{Goal, Request};
+use crate::gateway::core::Input;
+
+#[test]
+fn every_kind_of_input_survives_its_json() {
+    let frame = CanFrame::new(CanId::Standard(0x181), &[1, 2, 3]).unwrap();
+    let goal = Goal { position: [1.0, -0.25], tolerance: 0.05 };
+    let inputs = [
+        Input::PsdConnected,
+        Input::PsdLost,
+        Input::PsdBytes(&[0, 1, 0xfe, 0xff]),
+        Input::Can(CanEvent::Frame(frame)),
+        Input::Can(CanEvent::Frame(CanFrame::remote(CanId::Extended(0x1234567), 4).unwrap())),
+        Input::Can(CanEvent::ErrorFrame { bus_off: true }),
+        Input::Can(CanEvent::Garbled),
+        Input::Can(CanEvent::TransmitRefused),
+        Input::Can(CanEvent::InterfaceDown),
+        Input::Can(CanEvent::AdapterStatus { bus_off: false, error_passive: true }),
+        Input::CanFailed,
+        Input::CanReopened,
+        Input::Request(&Request::Goal { goals: vec![goal] }),
+        Input::Request(&Request::Stats { reset: true }),
+        Input::ArmAtStart,
+        Input::Shutdown,
+        Input::Tick,
+    ];
+    for (k, input) in inputs.into_iter().enumerate() {
+        let record =
+            InputRecord { seq: k as u64, at: HostTime::from_nanos(123_456_789_012), input: RecordedInput::of(input) };
+        let text = serde_json::to_string(&input_json(&record)).unwrap();
+        let back = input_from_json(&serde_json::from_str(&text).unwrap(), record.seq, record.at).unwrap();
+        assert_eq!(back, record, "{text}");
+        assert_eq!(back.input.as_input(), input);
+    }
+}
+
+#[test]
+fn an_input_that_carries_its_own_sequence_and_time_is_read_by_them() {
+    let v = serde_json::json!({ "seq": 9, "t_ns": 700, "kind": "tick" });
+    let r = input_from_json(&v, 3, HostTime::from_nanos(5)).unwrap();
+    assert_eq!((r.seq, r.at), (9, HostTime::from_nanos(700)));
+    let r = input_from_json(&serde_json::json!({ "kind": "tick" }), 3, HostTime::from_nanos(5)).unwrap();
+    assert_eq!((r.seq, r.at), (3, HostTime::from_nanos(5)));
+}
+
+#[test]
+fn a_damaged_input_is_refused_saying_what_is_wrong() {
+    let bad =
+        |text: &str| input_from_json(&serde_json::from_str(text).unwrap(), 1, HostTime::from_nanos(5)).unwrap_err();
+    assert_eq!(bad(r#"{"seq":1,"t_ns":-5,"kind":"tick"}"#), "`t_ns` is not a count");
+    assert_eq!(bad(r#"{"bytes":"0g"}"#), "no `kind`");
+    assert_eq!(bad(r#"{"kind":"psd_bytes","bytes":"0g"}"#), "`bytes` is not hex");
+    assert_eq!(bad(r#"{"kind":"warp"}"#), "unknown input `warp`");
+    let long = format!(r#"{{"kind":"psd_bytes","bytes":"{}"}}"#, "00".repeat(PSD_CHUNK + 1));
+    assert_eq!(bad(&long), format!("{} bytes in one read: at most {PSD_CHUNK}", PSD_CHUNK + 1));
+}

@@ -1,0 +1,159 @@
+use super::*;
+
+#[test]
+fn pose_from_leds_round_trips() {
+    let g = LedGeometry { front: 0.04, rear: 0.02 };
+    let pose = Pose { position: Point::new(0.1, -0.2), heading: 2.0 };
+    let (f, r) = g.leds(pose.position, Point::from_polar(1.0, pose.heading));
+    let back = g.pose(f, r).unwrap();
+    assert!((back.position - pose.position).length() < 1e-12);
+    assert!((back.heading - pose.heading).abs() < 1e-12);
+    assert!(g.pose(f, f).is_none());
+}
+
+/// A noiseless constant-velocity target: the filter learns its velocity and predicts
+/// ahead of the measurements.
+#[test]
+fn kalman_tracks_constant_velocity() {
+    let v = Point::new(0.141, -0.05);
+    let at = |t: f64| Point::new(-0.3, 0.2) + v * t;
+    let mut kf = ConstantVelocityKf::new(KalmanConfig::default(), 0.0, at(0.0));
+    for k in 1..=100 {
+        let t = f64::from(k) * 0.02;
+        assert!(kf.update(t, at(t)));
+    }
+    let (p, est_v) = kf.predict(2.0 + 0.6);
+    assert!((est_v - v).length() < 2e-3, "{est_v}");
+    assert!((p - at(2.6)).length() < 2e-3, "{p}");
+    assert!(!kf.update(1.0, at(1.0)), "an older measurement is refused");
+}
+
+/// The per-axis filter is the textbook 4×4 one: run side by side on noisy, unevenly
+/// timed measurements of a manoeuvring point, state and covariance agree to rounding.
+#[test]
+fn the_per_axis_filter_is_the_full_one() {
+    use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
+    let config = KalmanConfig::default();
+    let (q, r) = (config.process_noise, config.measurement_noise.powi(2));
+    let at = |t: f64| Point::new(0.3 * (0.7 * t).sin() - 0.1 * t, 0.2 * (1.1 * t).cos());
+    let mut kf = ConstantVelocityKf::new(config, 0.0, at(0.0));
+    let mut x = Vector4::new(at(0.0).re, at(0.0).im, 0.0, 0.0);
+    let mut p = Matrix4::from_diagonal(&Vector4::new(r, r, 0.25, 0.25));
+    let h = Matrix2x4::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0);
+    let mut t = 0.0;
+    for k in 1..=300 {
+        let dt = 0.017 + 0.004 * f64::from(k % 5);
+        t += dt;
+        let wobble = 0.002 * (f64::from(k) * 2.3).sin();
+        let z = at(t) + Point::new(wobble, -wobble);
+        assert!(kf.update(t, z));
+        let mut f = Matrix4::identity();
+        f[(0, 2)] = dt;
+        f[(1, 3)] = dt;
+        let (a, b, c) = (dt.powi(3) / 3.0 * q, dt.powi(2) / 2.0 * q, dt * q);
+        let process = Matrix4::new(a, 0.0, b, 0.0, 0.0, a, 0.0, b, b, 0.0, c, 0.0, 0.0, b, 0.0, c);
+        x = f * x;
+        p = f * p * f.transpose() + process;
+        let s = h * p * h.transpose() + Matrix2::identity() * r;
+        let gain = p * h.transpose() * s.try_inverse().unwrap();
+        x += gain * (Vector2::new(z.re, z.im) - h * x);
+        p = (Matrix4::identity() - gain * h) * p;
+        let (position, velocity) = kf.predict(t);
+        assert!((position - Point::new(x[0], x[1])).norm() < 1e-12, "{k}");
+        assert!((velocity - Point::new(x[2], x[3])).norm() < 1e-10, "{k}");
+        let cov = kf.position_covariance(t);
+        assert!((cov[0] - p[(0, 0)]).abs() < 1e-12 * p[(0, 0)] && (cov[2] - p[(1, 1)]).abs() < 1e-12 * p[(1, 1)]);
+        assert!(p[(0, 1)].abs() < 1e-18 && p[(0, 3)].abs() < 1e-18, "nothing between the axes");
+        let (_, velocity_sd) = kf.uncertainty(t);
+        assert!((velocity_sd - p[(2, 2)].sqrt()).abs() < 1e-12 * p[(2, 2)].sqrt(), "{k}");
+    }
+}
+
+#[test]
+fn dead_reckoning_bridges_the_delay() {
+    let mut dr = DeadReckoning::default();
+    dr.command(0.0, 0.1, 0.1); // straight at 0.1 m/s
+    dr.command(1.0, 0.0, 0.0); // then stopped
+    let (start, east) = (Point::new(0.0, 0.0), Point::new(1.0, 0.0));
+    let (p, _) = dr.predict(start, east, 0.5, 2.0, 0.1);
+    assert!((p - Point::new(0.05, 0.0)).length() < 1e-12, "{p}");
+    dr.forget_before(1.5);
+    assert_eq!(dr.predict(start, east, 1.5, 2.0, 0.1), (start, east));
+}
+
+/// With the boards' ramp: the wheels' speeds follow each command at the acceleration,
+/// and the predicted pose matches the drive integrated in 0.1 ms steps within 10 µm
+/// after a second of turning, ramping up and braking.
+#[test]
+fn dead_reckoning_follows_the_ramp() {
+    let accel = 1.0;
+    let mut dr = DeadReckoning::with_capacity(8, accel);
+    assert_eq!(dr.wheels_at(0.0), [0.0; 2], "at rest before any command");
+    dr.command(0.0, 0.15, 0.25); // from rest: 0.15 s and 0.25 s of ramp
+    assert!((dr.wheels_at(0.1)[0] - 0.1).abs() < 1e-12 && (dr.wheels_at(0.1)[1] - 0.1).abs() < 1e-12);
+    dr.command(0.2, 0.0, 0.0); // braking from (0.15, 0.2)
+    let w = dr.wheels_at(0.25);
+    assert!((w[0] - 0.10).abs() < 1e-12 && (w[1] - 0.15).abs() < 1e-12, "{w:?}");
+    assert_eq!(dr.wheels_at(1.0), [0.0; 2]);
+    // The same commands, integrated finely as the simulator's world does.
+    let (base, start) = (0.108, Pose { position: Point::new(0.1, 0.2), heading: 0.3 });
+    let (mut pose, mut wheels, dt) = (start, [0.0f64; 2], 1e-4);
+    for k in 0..10_000 {
+        let t = f64::from(k) * dt;
+        let target = if t < 0.2 { [0.15, 0.25] } else { [0.0, 0.0] };
+        let next = [0, 1].map(|w| wheels[w] + (target[w] - wheels[w]).clamp(-accel * dt, accel * dt));
+        let (l, r) = (0.5 * (wheels[0] + next[0]), 0.5 * (wheels[1] + next[1]));
+        let angle = (r - l) / base * dt;
+        pose.position += Point::from_polar(0.5 * (l + r) * dt, pose.heading + 0.5 * angle);
+        pose.heading += angle;
+        wheels = next;
+    }
+    let (p, facing) = dr.predict(start.position, Point::from_polar(1.0, start.heading), 0.0, 1.0, base);
+    assert!((p - pose.position).length() < 1e-5, "{p} vs {}", pose.position);
+    // The heading, carried as a unit vector without angles.
+    assert!((facing - Point::from_polar(1.0, pose.heading)).length() < 1e-9, "{facing} vs {}", pose.heading);
+}
+
+/// A prediction takes the whole spans inside its window from the odometry that earlier
+/// cycles integrated: sliding the window over 20 s of ramping, turning commands, it
+/// agrees to rounding with integrating every span in the window afresh, one after the
+/// other.
+#[test]
+fn dead_reckoning_reuses_the_odometry() {
+    let (period, delay, base, accel) = (0.02, 0.3, 0.108, 1.0);
+    let mut dr = DeadReckoning::with_capacity(32, accel);
+    let start = Pose { position: Point::new(-0.4, 0.1), heading: -0.2 };
+    for k in 0..1000 {
+        let t = f64::from(k) * period;
+        let phase = f64::from(k) * 0.37;
+        dr.command(t, 0.12 + 0.1 * phase.sin(), 0.12 + 0.1 * (1.3 * phase).cos());
+        let t_valid = (t - delay + 0.007).max(0.0);
+        dr.forget_before(t_valid - period);
+        let now = t + 0.5 * period;
+        let (predicted, facing) = dr.predict(start.position, Point::from_polar(1.0, start.heading), t_valid, now, base);
+        let mut afresh = Odometry { position: start.position, facing: Point::from_polar(1.0, start.heading) };
+        for (i, c) in dr.commands.iter().enumerate() {
+            let end = dr.commands.get(i + 1).map_or(now, |n| n.t.min(now));
+            let from = c.t.max(t_valid);
+            if end > from {
+                afresh = afresh.then(c.motion(from, end, accel, base));
+            }
+        }
+        assert!((predicted - afresh.position).length() < 1e-13, "{k}");
+        assert!((facing - afresh.facing).length() < 1e-13, "{k}");
+    }
+    assert!(dr.commands.iter().filter(|c| c.odometry.is_some()).count() >= 10, "the odometry is kept");
+}
+
+#[test]
+fn low_pass_lags_a_ramp_by_its_time_constant() {
+    // A first-order filter lags a ramp by τ = 1/(2π fc): 0.159 s at 1 Hz.
+    let mut lp = LowPass::new(1.0);
+    let dt = 0.001;
+    let mut y = Point::default();
+    for k in 0..20_000 {
+        y = lp.filter(Point::new(f64::from(k) * dt, 0.0), dt);
+    }
+    let lag = 19_999.0 * dt - y.re;
+    assert!((lag - 1.0 / std::f64::consts::TAU).abs() < 2e-3, "{lag}");
+}
