@@ -1,0 +1,338 @@
+//! One step of the stack: the next event found, the faults due, the firmware polled and
+//! every line's bytes delivered, the core drained onto its lines.
+
+use crate::gateway::core::input::CanEvent;
+use crate::gateway::core::input::PSD_CHUNK;
+use crate::gateway::core::{Input, Output, StageClock, State};
+use crate::gateway::shell::link::slcan_event;
+use crate::gateway::shell::telemetry::CanRecord;
+use crate::time::HostTime;
+use flowgate_protocol::psd;
+use flowgate_protocol::slcan::{Command, Line as _, MAX_LINE_LEN};
+use flowgate_protocol::CanFrame;
+use flowgate_sim::psd_controller::BadRequest;
+use flowgate_sim::truth::SAMPLE_PERIOD;
+use tokio_util::codec::Decoder as _;
+
+use super::{feed, fnv, ns, CanTransport, VirtualRig, MAX_STEP_NS};
+
+impl<K: StageClock> VirtualRig<K> {
+    /// The core's next deadline (the core changes only through [`feed`], draining its outputs
+    /// and a rehearsal).
+    pub(super) fn core_deadline(&self) -> HostTime {
+        debug_assert_eq!(self.core_deadline, self.core.next_deadline(), "the core changed outside `feed`");
+        self.core_deadline
+    }
+
+    pub(super) fn next_event(&self) -> u64 {
+        // The firmware's and the faults' times in seconds, their soonest taken to whole
+        // nanoseconds once (`ns` keeps their order).
+        let mut soonest = f64::INFINITY;
+        let mut at = |s: f64| soonest = soonest.min(s);
+        if !self.psd_gone {
+            at(self.controller.next_event());
+        }
+        at(self.board.next_event());
+        at(self.pending.next_at());
+        at(self.next_truth);
+        at(self.bursts.front().copied().unwrap_or(f64::INFINITY));
+        at(self.vanish.map_or(f64::INFINITY, |(gone, back)| if self.psd_gone { back } else { gone }));
+        at(self.next_foreign);
+        at(self.next_master);
+        if let Some([from, to]) = self.plan.adapter_bus_off {
+            let t = self.time();
+            at(if t < from {
+                from
+            } else if t < to {
+                to
+            } else {
+                f64::INFINITY
+            });
+        }
+        let mut next = self.core_deadline().as_nanos().min(self.t + MAX_STEP_NS).min(ns(soonest));
+        for w in [&self.to_host, &self.to_controller, &self.can_up, &self.can_down] {
+            next = next.min(w.next());
+        }
+        next.min(self.host_tx.next()).min(self.host_rx_frames.next())
+    }
+
+    /// The serial device vanishing and coming back; foreign traffic on the bus.
+    pub(super) fn faults_due(&mut self) {
+        let t = self.time();
+        if let Some((gone_at, back_at)) = self.vanish {
+            if !self.psd_gone && t >= gone_at {
+                // The pty closes: the host's read fails at once.
+                self.psd_gone = true;
+                self.to_host.clear();
+                self.to_controller.clear();
+                self.pending.clear();
+                self.psd_out.clear();
+                self.feed(Input::PsdLost);
+            } else if self.psd_gone && t >= back_at {
+                self.vanish = None;
+                self.psd_gone = false;
+                self.controller = self.spec.build(t);
+                self.controller.boot(t, &mut self.psd_out);
+            }
+        }
+        if t >= self.next_foreign {
+            self.next_foreign += 0.1;
+            if let Some(node) = self.board.board_node() {
+                self.can_out.extend(flowgate_sim::rig::foreign_frames(node));
+            }
+        }
+        if t >= self.next_master {
+            // Another device on the bus commands our board: both the board and the host see it.
+            self.next_master += flowgate_sim::rig::SECOND_MASTER_PERIOD;
+            if let Some(node) = self.board.board_node() {
+                let frame = flowgate_sim::rig::second_master_command(node);
+                self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+                self.can_out.push(frame);
+            }
+        }
+    }
+
+    pub(super) fn firmware_poll(&mut self) {
+        let t = self.time();
+        if !self.psd_gone {
+            self.controller.poll(t, &self.world, &mut self.psd_out);
+        }
+        self.board.poll(t, &mut self.world, &mut self.can_out);
+        self.firmware_out();
+    }
+
+    /// The firmware's outputs onto the lines: the controller's packets in order, each no
+    /// earlier than its time (injected delay), through the serial faults; the board's
+    /// frames through the adapter to the host.
+    pub(super) fn firmware_out(&mut self) {
+        let t = self.time();
+        for o in self.psd_out.drain(..) {
+            self.pending.push(o);
+        }
+        self.scratch.clear();
+        let mut wire = [0u8; psd::MAX_WIRE_LEN];
+        while let Some(packet) = self.pending.pop_due(t) {
+            let scratch = &mut self.scratch;
+            self.serial_faults.packets(t, packet, &mut |p| {
+                if let Ok(n) = p.encode(&mut wire) {
+                    scratch.extend_from_slice(&wire[..n]);
+                }
+            });
+        }
+        while self.bursts.front().is_some_and(|&at| at <= t) {
+            self.bursts.pop_front();
+            let burst = self.serial_faults.burst(self.plan.serial_burst_len);
+            self.scratch.extend(burst);
+        }
+        if !self.scratch.is_empty() && !self.psd_gone {
+            self.serial_faults.apply(t, &mut self.scratch);
+            self.to_host.send(self.t, &self.scratch);
+        }
+        let bus_off = self.plan.bus_off(t);
+        let mut line = [0u8; MAX_LINE_LEN];
+        let host_bus_off = self.plan.adapter_bus_off(t);
+        self.adapter.bus_off = host_bus_off;
+        for f in self.can_out.drain(..) {
+            if bus_off || self.can_faults.lose(t) {
+                continue;
+            }
+            match self.options.can {
+                CanTransport::Slcan => {
+                    if let Some(Ok(n)) = self.adapter.from_bus(f, t).map(|r| r.emit(&mut line)) {
+                        self.can_up.send(self.t, &line[..n]);
+                    }
+                }
+                CanTransport::SocketCan if !host_bus_off => {
+                    self.host_rx_frames.send(self.t, f);
+                }
+                CanTransport::SocketCan => {}
+            }
+        }
+    }
+
+    /// Everything the lines deliver by now.
+    pub(super) fn deliver(&mut self) {
+        let t = self.time();
+        let now = HostTime::from_nanos(self.t);
+        while self.to_controller.take(self.t, &mut self.scratch) {
+            self.controller_rx.extend_from_slice(&self.scratch);
+            while let Ok(Some(item)) = self.controller_codec.decode(&mut self.controller_rx) {
+                let request = item.map_err(|e| BadRequest::from_stream(e, &self.controller_codec));
+                self.controller.handle(t, request, &mut self.psd_out);
+            }
+        }
+        while self.to_host.take(self.t, &mut self.scratch) {
+            self.lines.psd_delivered += self.scratch.len() as u64;
+            // In reads of at most a chunk, as the shell's.
+            for chunk in self.scratch.chunks(PSD_CHUNK) {
+                feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::PsdBytes(chunk));
+            }
+        }
+        while self.can_down.take(self.t, &mut self.scratch) {
+            self.adapter_rx.extend_from_slice(&self.scratch);
+            while let Ok(Some(line)) = self.adapter_codec.decode(&mut self.adapter_rx) {
+                self.adapter.bus_off = self.plan.adapter_bus_off(t);
+                self.adapter.handle(line.ok(), &mut self.adapter_replies, &mut self.to_bus);
+            }
+            let mut buf = [0u8; MAX_LINE_LEN];
+            for r in self.adapter_replies.drain(..) {
+                if let Ok(n) = r.emit(&mut buf) {
+                    self.can_up.send(self.t, &buf[..n]);
+                }
+            }
+        }
+        while let Some(f) = self.host_tx.take(self.t) {
+            self.to_bus.push(f);
+        }
+        let bus_off = self.plan.bus_off(t);
+        for f in self.to_bus.drain(..) {
+            if !bus_off && !self.can_faults.lose(t) {
+                self.board.handle(t, &f, &mut self.world, &mut self.can_out);
+            }
+        }
+        let interface = self.options.can.interface();
+        while let Some(frame) = self.host_rx_frames.take(self.t) {
+            if let Some(tel) = &mut self.telemetry {
+                let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
+            }
+            self.lines.can_delivered += 1;
+            self.feed(Input::Can(CanEvent::Frame(frame)));
+        }
+        // SocketCAN tells of its controller going bus-off with an error frame, unasked.
+        let host_bus_off = self.options.can == CanTransport::SocketCan && self.plan.adapter_bus_off(t);
+        if host_bus_off && !self.host_bus_off {
+            self.feed(Input::Can(CanEvent::ErrorFrame { bus_off: true }));
+        }
+        self.host_bus_off = host_bus_off;
+        while self.can_up.take(self.t, &mut self.scratch) {
+            self.host_rx.extend_from_slice(&self.scratch);
+            while let Ok(Some(line)) = self.host_codec.decode(&mut self.host_rx) {
+                if let Some(event) = slcan_event(line) {
+                    if let CanEvent::Frame(frame) = event {
+                        self.lines.can_delivered += 1;
+                        if let Some(tel) = &mut self.telemetry {
+                            let _ = CanRecord { at_s: t, frame, sent: false }.candump(interface, &mut tel.can_log);
+                        }
+                    }
+                    feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::Can(event));
+                }
+            }
+        }
+    }
+
+    /// Hand each of the core's outputs to its line, as the shell does.
+    pub(super) fn drain_core(&mut self) {
+        while let Some(output) = self.core.poll() {
+            match output {
+                Output::Psd(packet) => {
+                    let mut wire = [0u8; psd::MAX_WIRE_LEN];
+                    if let Ok(n) = packet.encode(&mut wire) {
+                        self.lines.sent_digest = fnv(self.lines.sent_digest, &wire[..n]);
+                        if !self.psd_gone {
+                            self.to_controller.send(self.t, &wire[..n]);
+                        }
+                    }
+                }
+                Output::Can(frame) => {
+                    self.check_motion(&frame);
+                    self.send_can(frame);
+                }
+                Output::Command { frame, mut record } => {
+                    self.check_motion(&frame);
+                    let done = self.send_can(frame);
+                    record.written(done - self.t, HostTime::from_nanos(done), self.core.rig().sample_period);
+                    if let Some(timing) = &mut self.timing {
+                        timing.add(&record);
+                    }
+                    if let Some(tel) = &mut self.telemetry {
+                        let _ = record.csv(&mut tel.cycles_csv);
+                    }
+                }
+                Output::PollCanStatus => {
+                    if self.options.can == CanTransport::Slcan {
+                        self.host_line(Command::StatusFlags);
+                    }
+                }
+                Output::State { state, .. } => self.announced = state,
+                Output::Streaming => {}
+                Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
+                Output::SetupFailed(_) => {
+                    self.feed(Input::PsdLost);
+                }
+                // The pty opens again once the device is back.
+                Output::OpenPsd if !self.psd_gone => {
+                    self.controller_rx.clear();
+                    self.feed(Input::PsdConnected);
+                }
+                Output::OpenPsd => {}
+                // The virtual rig's CAN link is never lost.
+                Output::OpenCan => {}
+                // A sweep's thousands of episodes keep quiet; one run shows them with
+                // `RUST_LOG=debug`.
+                Output::Notice { at, notice } => tracing::debug!(t_s = at.secs(), "{notice}"),
+            }
+        }
+        self.core_deadline = self.core.next_deadline();
+    }
+
+    /// A velocity command that is not zero, outside Running, is counted: motion only in
+    /// Running.
+    pub(super) fn check_motion(&mut self, frame: &CanFrame) {
+        if let Ok(flowgate_protocol::motor::MotorMessage::Velocity { left, right, .. }) =
+            flowgate_protocol::motor::MotorMessage::parse(frame)
+        {
+            if (left, right) != (0, 0) && self.announced != State::Running {
+                self.motion_outside_running += 1;
+            }
+        }
+    }
+
+    /// Velocity commands that were not zero, given outside Running (the invariant: none).
+    pub fn motion_outside_running(&self) -> u64 {
+        self.motion_outside_running
+    }
+
+    /// One SLCAN command from the host to the adapter; returns when it has left the line.
+    pub(super) fn host_line(&mut self, cmd: Command) -> u64 {
+        let mut line = [0u8; MAX_LINE_LEN];
+        match cmd.emit(&mut line) {
+            Ok(n) => self.can_down.send(self.t, &line[..n]),
+            Err(_) => self.t,
+        }
+    }
+
+    pub(super) fn send_can(&mut self, frame: CanFrame) -> u64 {
+        let at_s = self.time();
+        let id = match frame.id() {
+            flowgate_protocol::CanId::Standard(id) => u32::from(id),
+            flowgate_protocol::CanId::Extended(id) => id | 1 << 31,
+        };
+        self.lines.sent_digest = fnv(fnv(self.lines.sent_digest, &id.to_le_bytes()), frame.data());
+        if self.inputs.is_some() {
+            self.can_sent.push(frame);
+        }
+        if let Some(tel) = &mut self.telemetry {
+            let _ = CanRecord { at_s, frame, sent: true }.candump(self.options.can.interface(), &mut tel.can_log);
+        }
+        match self.options.can {
+            CanTransport::Slcan => self.host_line(Command::Transmit(frame)),
+            // A bus-off controller sends nothing.
+            CanTransport::SocketCan if self.plan.adapter_bus_off(at_s) => self.t,
+            CanTransport::SocketCan => self.host_tx.send(self.t, frame),
+        }
+    }
+
+    /// The world's truth: samples for plots, and since when the wheels stand still.
+    pub(super) fn observe(&mut self) {
+        let t = self.time();
+        if self.world.wheel_speeds().iter().all(|v| v.abs() < 1e-9) {
+            self.at_rest_since.get_or_insert(t);
+        } else {
+            self.at_rest_since = None;
+        }
+        while self.next_truth <= t {
+            self.truth.record(&self.world);
+            self.next_truth += SAMPLE_PERIOD;
+        }
+    }
+}
