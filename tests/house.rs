@@ -27,6 +27,9 @@ const LAYERS: &[&[&str]] = &[
 /// in the core and the CLI, lines.
 const LONGEST: usize = 80;
 const LONGEST_IN_CORE_AND_CLI: usize = 60;
+/// The longest source file in any crate, lines (its unit tests, in a file of their own,
+/// count apart).
+const LONGEST_FILE: usize = 800;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -274,6 +277,19 @@ fn functions_are_short_enough_to_read() {
     }
     assert!(long.is_empty(), "functions too long:\n{}", long.join("\n"));
     println!("longest function in any crate: {} lines ({})", longest.0, longest.1);
+}
+
+#[test]
+fn source_files_are_short_enough_to_read() {
+    let mut long = Vec::new();
+    let files = ["src", "firmware-sim/src", "protocol/src"].iter().flat_map(|c| rust_files(&root().join(c)));
+    for file in files {
+        let lines = std::fs::read_to_string(&file).unwrap().lines().count();
+        if lines > LONGEST_FILE {
+            long.push(format!("{}: {lines} lines (at most {LONGEST_FILE})", file.strip_prefix(root()).unwrap().display()));
+        }
+    }
+    assert!(long.is_empty(), "files too long:\n{}", long.join("\n"));
 }
 
 /// The scanner itself: braces in strings, comments and characters are not the code's, and

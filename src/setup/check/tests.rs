@@ -1,4 +1,5 @@
 use super::*;
+use flowgate_protocol::motor::FaultBits;
 
 #[test]
 fn fault_bits_are_named() {

@@ -1,6 +1,10 @@
 use super::*;
 use crate::gateway::core::operator::{Goal, Request};
 use crate::gateway::core::Input;
+use crate::gateway::core::input::{InputRecord, RecordedInput};
+use crate::time::HostTime;
+use crate::gateway::core::input::CanEvent;
+use flowgate_protocol::{CanFrame, CanId};
 
 #[test]
 fn every_kind_of_input_survives_its_json() {
