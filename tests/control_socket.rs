@@ -10,6 +10,8 @@ use std::process::{Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
+use flowgate::gateway::core::operator::{Reply, StateName, Status};
+use flowgate::gateway::shell::control_client::ControlClient;
 use flowgate::lab::Scenario;
 
 fn flowgate() -> Command {
@@ -24,14 +26,19 @@ fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
-/// One raw request line, one reply line.
-fn raw(socket: &Path, line: &[u8]) -> serde_json::Value {
+/// One raw request line (whatever its bytes), one reply.
+fn raw(socket: &Path, line: &[u8]) -> Reply {
     let mut s = UnixStream::connect(socket).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
     s.write_all(line).unwrap();
     let mut reply = String::new();
     BufReader::new(&s).read_line(&mut reply).unwrap();
     serde_json::from_str(&reply).unwrap_or_else(|e| panic!("{e}: {reply}"))
+}
+
+/// The gateway's status, through the client `flowgate ctl` uses.
+fn status_of(socket: &Path) -> Status {
+    ControlClient::connect(socket).unwrap().status().unwrap()
 }
 
 /// Lines of the gateway's output, as they come.
@@ -128,13 +135,13 @@ async fn an_operator_session_over_the_control_socket() {
 
     // Bad requests: a clear error each, and nothing changes.
     let malformed = raw(&socket, b"{\"cmd\":\n");
-    assert!(malformed["error"].as_str().unwrap().starts_with("malformed request"), "{malformed}");
+    assert!(malformed.error.unwrap().starts_with("malformed request"));
     let unknown = raw(&socket, b"{\"cmd\":\"fly\"}\n");
-    assert!(unknown["error"].as_str().unwrap().contains("unknown variant `fly`"), "{unknown}");
+    assert!(unknown.error.unwrap().contains("unknown variant `fly`"));
     let mut long = vec![b' '; 5000];
     long.push(b'\n');
     let oversized = raw(&socket, &long);
-    assert_eq!(oversized["error"], "request longer than 4096 bytes: ignored");
+    assert_eq!(oversized.error.unwrap(), "request longer than 4096 bytes: ignored");
     let refused = ctl(&socket, &["start"]);
     assert!(
         !refused.status.success() && text(&refused).contains("refused: not armed (state idle)"),
@@ -143,12 +150,12 @@ async fn an_operator_session_over_the_control_socket() {
     );
     // Await the first pose and obstacle estimate (the controller's first frames).
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["obstacles"].as_array().is_none_or(Vec::is_empty) {
+    while status_of(&socket).obstacles.is_empty() {
         assert!(std::time::Instant::now() < deadline, "no obstacle estimate within 10 s");
     }
     let inside = ctl(&socket, &["goal", "0.0", "0.02"]);
     assert!(!inside.status.success(), "{}", text(&inside));
-    assert!(raw(&socket, b"{\"cmd\":\"status\"}\n")["status"]["state"] == "idle");
+    assert_eq!(status_of(&socket).state.name, StateName::Idle);
     // An implausible tolerance is refused; negative coordinates in a queue are coordinates.
     let wide = ctl(&socket, &["goal", "0.35", "0.05", "--tolerance", "1e300"]);
     assert!(!wide.status.success() && text(&wide).contains("tolerance 1e300 m: at most 1 m"), "{}", text(&wide));
@@ -207,14 +214,14 @@ async fn an_operator_session_over_the_control_socket() {
     for stage in ["decode", "checks", "track", "plan", "encode", "can_write"] {
         assert!(text(&stats).lines().any(|l| l.contains(stage)), "{stage}: {}", text(&stats));
     }
-    let window = raw(&socket, b"{\"cmd\":\"stats\"}\n");
-    assert!(window["status"]["latency_us"].is_null(), "{window}");
-    let stages = window["status"]["stages"].as_array().unwrap();
+    let window = ControlClient::connect(&socket).unwrap().stats(false).unwrap();
+    assert!(window.latency_us.is_none(), "{window:?}");
+    let stages = window.stages.as_ref().unwrap();
     assert_eq!(stages.len(), 6);
-    assert!(stages.iter().all(|s| s["max_us"] == 0.0), "{window}");
+    assert!(stages.iter().all(|s| s.max_us == 0.0), "{window:?}");
     // `status` carries no stage table, and the run's latency still counts every cycle.
-    let status = raw(&socket, b"{\"cmd\":\"status\"}\n");
-    assert!(status["status"].get("stages").is_none() && !status["status"]["latency_us"].is_null(), "{status}");
+    let now = status_of(&socket);
+    assert!(now.stages.is_none() && now.latency_us.is_some(), "{now:?}");
 
     let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
     assert!(child.wait().unwrap().success());

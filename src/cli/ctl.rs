@@ -4,17 +4,14 @@
 //! is non-zero when the gateway refuses, with its reason.
 
 use crate::cli::{say, say_raw};
-use std::io::{BufRead, BufReader, Write};
-use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use flowgate::config::GatewayConfig;
-use flowgate::gateway::core::operator::{Goal, Request};
-use flowgate::gateway::shell::telemetry::{write_stage_table, StageSummary};
-use serde::Deserialize as _;
+use flowgate::gateway::core::operator::{Goal, Reply, Request};
+use flowgate::gateway::shell::control_client::ControlClient;
+use flowgate::gateway::shell::telemetry::write_stage_table;
 
 #[derive(Args, Debug)]
 pub struct CtlArgs {
@@ -118,108 +115,61 @@ pub fn run(args: CtlArgs) -> Result<()> {
         ),
     };
     let req = request(&args.command)?;
-    let reply = exchange(&socket, &req)?;
-    let value: serde_json::Value = serde_json::from_str(&reply).context("the gateway's reply is not JSON")?;
+    let reply = ControlClient::connect(&socket)?.ask(&req)?;
     if args.json {
-        say!("{}", reply.trim_end());
+        say!("{}", serde_json::to_string(&reply)?);
     } else {
-        print_reply(&value);
+        print_reply(&reply);
     }
-    if value["ok"] != serde_json::Value::Bool(true) {
-        bail!("refused: {}", value["error"].as_str().unwrap_or("(no reason given)"));
+    if !reply.ok {
+        bail!("refused: {}", reply.error.as_deref().unwrap_or("(no reason given)"));
     }
     Ok(())
 }
 
-/// How long `ctl` waits for a reply: longer than the gateway's own answer deadline
-/// (`control_socket::ANSWER_DEADLINE`), which answers every request it takes in time.
-const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
-
-/// One request, one reply line; every way it can fail said in words.
-fn exchange(socket: &Path, req: &Request) -> Result<String> {
-    let mut stream = UnixStream::connect(socket)
-        .with_context(|| format!("control socket {} (is the gateway running? may you use it?)", socket.display()))?;
-    stream.set_read_timeout(Some(REPLY_TIMEOUT))?;
-    stream.set_write_timeout(Some(REPLY_TIMEOUT))?;
-    let mut line = serde_json::to_string(req)?;
-    line.push('\n');
-    stream.write_all(line.as_bytes()).with_context(|| format!("sending the request to {}", socket.display()))?;
-    let mut reply = String::new();
-    match BufReader::new(&stream).read_line(&mut reply) {
-        Ok(0) => bail!(
-            "the gateway closed the connection without answering (shutting down, or it closed this connection to \
-             make room for another): check with `flowgate ctl status`"
-        ),
-        Ok(_) => Ok(reply),
-        Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
-            let fate = if req.always_obeyed() {
-                "a stop is obeyed whenever the gateway takes it"
-            } else {
-                "the request expires unanswered and is not carried out"
-            };
-            bail!(
-                "no reply within {} s: the gateway is stalled or gone ({fate}); check with `flowgate ctl status`",
-                REPLY_TIMEOUT.as_secs()
-            )
-        }
-        Err(e) => Err(e).context("reading the gateway's reply"),
-    }
-}
-
-fn print_reply(v: &serde_json::Value) {
-    let Some(s) = v.get("status").filter(|s| !s.is_null()) else {
-        if v["ok"] == serde_json::Value::Bool(true) {
+fn print_reply(reply: &Reply) {
+    let Some(s) = &reply.status else {
+        if reply.ok {
             say!("ok");
         }
         return;
     };
-    say!("state      {}", s["state"].as_str().unwrap_or("?"));
-    say!("last stop  {}", s["last_stop"].as_str().unwrap_or("-"));
-    let goals: Vec<String> = s["goals"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .map(|g| format!("({}, {})", g["position"][0], g["position"][1]))
-        .collect();
+    say!("state      {}", s.state);
+    say!("last stop  {}", s.last_stop.as_deref().unwrap_or("-"));
+    let goals: Vec<String> = s.goals.iter().map(|g| format!("({}, {})", g.position[0], g.position[1])).collect();
     say!("goals      {}", if goals.is_empty() { "-".into() } else { goals.join(" then ") });
-    match s["pose"].as_array() {
-        Some(p) => say!(
-            "pose       x {:.3} m  y {:.3} m  heading {:.1}°",
-            p[0].as_f64().unwrap_or(f64::NAN),
-            p[1].as_f64().unwrap_or(f64::NAN),
-            p[2].as_f64().unwrap_or(f64::NAN).to_degrees()
-        ),
+    match s.pose {
+        Some([x, y, heading]) => say!("pose       x {x:.3} m  y {y:.3} m  heading {:.1}°", heading.to_degrees()),
         None => say!("pose       -"),
     }
-    for o in s["obstacles"].as_array().into_iter().flatten() {
-        let seen = if o["occluded"].as_bool() == Some(true) { "occluded, last seen" } else { "at" };
+    for o in &s.obstacles {
+        let seen = if o.occluded { "occluded, last seen" } else { "at" };
         say!(
             "obstacle LED {} {seen} ({:.3}, {:.3}) m, velocity ({:.3}, {:.3}) m/s, planning radius {:.3} m",
-            o["led"],
-            o["position"][0].as_f64().unwrap_or(f64::NAN),
-            o["position"][1].as_f64().unwrap_or(f64::NAN),
-            o["velocity"][0].as_f64().unwrap_or(f64::NAN),
-            o["velocity"][1].as_f64().unwrap_or(f64::NAN),
-            o["planning_radius"].as_f64().unwrap_or(f64::NAN)
+            o.led,
+            o.position[0],
+            o.position[1],
+            o.velocity[0],
+            o.velocity[1],
+            o.planning_radius
         );
     }
-    let absent: Vec<String> = s["absent"].as_array().into_iter().flatten().map(|l| format!("LED {l}")).collect();
+    let absent: Vec<String> = s.absent.iter().map(|l| format!("LED {l}")).collect();
     if !absent.is_empty() {
         say!("not in view {}", absent.join(", "));
     }
-    say!("cycles     {}", s["cycles"]);
-    if let Some(l) = s.get("latency_us").filter(|l| !l.is_null()) {
+    say!("cycles     {}", s.cycles);
+    if let Some(l) = &s.latency_us {
         say!(
             "latency    p50 {:.0} µs  p99 {:.0} µs  max {:.0} µs   (serial read -> CAN write done)",
-            l["p50_us"].as_f64().unwrap_or(f64::NAN),
-            l["p99_us"].as_f64().unwrap_or(f64::NAN),
-            l["max_us"].as_f64().unwrap_or(f64::NAN)
+            l.p50_us,
+            l.p99_us,
+            l.max_us
         );
     }
-    let stages = s.get("stages").and_then(|v| Vec::<StageSummary>::deserialize(v).ok());
-    if let Some(stages) = stages {
+    if let Some(stages) = &s.stages {
         let mut table = String::new();
-        let _ = write_stage_table(&mut table, &stages, "stages (µs) ");
+        let _ = write_stage_table(&mut table, stages, "stages (µs) ");
         say_raw!("{table}");
     }
 }

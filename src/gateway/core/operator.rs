@@ -13,6 +13,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::safety::{State, StopReason};
+pub use super::safety::StateName;
 
 pub use crate::config::Goal;
 
@@ -90,7 +91,7 @@ pub enum Refusal {
 }
 
 /// An obstacle as the gateway estimates it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ObstacleStatus {
     /// The obstacle's LED.
     pub led: u8,
@@ -103,12 +104,12 @@ pub struct ObstacleStatus {
     pub planning_radius: f64,
 }
 
-/// The answer to `status`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// The answer to `status`, as the control socket carries it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Status {
-    pub state: State,
-    /// Why the gateway last stopped or faulted.
-    pub last_stop: Option<StopReason>,
+    pub state: StateReport,
+    /// Why the gateway last stopped or faulted, in words.
+    pub last_stop: Option<String>,
     /// The goal being driven to, then the rest of the queue.
     pub goals: Vec<Goal>,
     /// x, y (m), heading (rad), when the gateway has a pose.
@@ -122,6 +123,71 @@ pub struct Status {
     /// which measures it; none in virtual time).
     pub latency_us: Option<super::timing::Distribution>,
     /// Each stage's statistics over the same cycles (`stats` only).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stages: Option<Vec<super::timing::StageSummary>>,
+}
+
+/// One reply line of the control socket: `{"ok":true,"status":{...}}`, or
+/// `{"ok":false,"error":"not armed (state idle): arm first"}` (with the status when the
+/// gateway had one to give).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Reply {
+    pub ok: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub status: Option<Status>,
+}
+
+impl Reply {
+    pub fn error(why: impl Into<String>) -> Self {
+        Self { ok: false, error: Some(why.into()), status: None }
+    }
+}
+
+/// A state as the control socket reports it: its name, and its reason in words. On the
+/// wire it is the state's text, `"running"` or `"fault: robot pose lost"`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StateReport {
+    pub name: StateName,
+    pub reason: Option<String>,
+}
+
+impl StateReport {
+    /// Stopped or faulted: nothing more will happen without an operator.
+    pub fn is_terminal(&self) -> bool {
+        matches!(self.name, StateName::Stopped | StateName::Fault)
+    }
+}
+
+impl From<State> for StateReport {
+    fn from(state: State) -> Self {
+        Self { name: state.kind(), reason: state.reason().map(|r| r.to_string()) }
+    }
+}
+
+impl std::fmt::Display for StateReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.reason {
+            Some(r) => write!(f, "{}: {r}", self.name.as_str()),
+            None => f.write_str(self.name.as_str()),
+        }
+    }
+}
+
+impl Serialize for StateReport {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for StateReport {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        let (name, reason) = match text.split_once(": ") {
+            Some((name, reason)) => (name, Some(reason.to_owned())),
+            None => (text.as_str(), None),
+        };
+        Ok(Self { name: name.parse().map_err(serde::de::Error::custom)?, reason })
+    }
 }

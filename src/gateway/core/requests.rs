@@ -195,8 +195,8 @@ impl<K: StageClock> Core<K> {
             None => (None, Vec::new()),
         };
         Status {
-            state: self.state(),
-            last_stop: self.safety.history.iter().rev().find_map(|(_, s)| s.reason()),
+            state: self.state().into(),
+            last_stop: self.safety.history.iter().rev().find_map(|(_, s)| s.reason()).map(|r| r.to_string()),
             goals: self.mission.goals().collect(),
             pose,
             obstacles,

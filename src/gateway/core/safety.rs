@@ -388,6 +388,41 @@ impl std::fmt::Display for StopReason {
     }
 }
 
+/// The states' names, as a client matches on them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StateName {
+    Idle,
+    Armed,
+    Running,
+    Stopping,
+    Stopped,
+    Fault,
+}
+
+impl StateName {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Idle => "idle",
+            Self::Armed => "armed",
+            Self::Running => "running",
+            Self::Stopping => "stopping",
+            Self::Stopped => "stopped",
+            Self::Fault => "fault",
+        }
+    }
+}
+
+impl std::str::FromStr for StateName {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Self::Idle, Self::Armed, Self::Running, Self::Stopping, Self::Stopped, Self::Fault]
+            .into_iter()
+            .find(|n| n.as_str() == s)
+            .ok_or_else(|| format!("`{s}` is not a state (idle, armed, running, stopping, stopped, fault)"))
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum State {
     #[default]
@@ -402,13 +437,18 @@ pub enum State {
 impl State {
     /// Its name in logs, CSV and JSON.
     pub fn name(self) -> &'static str {
+        self.kind().as_str()
+    }
+
+    /// Which state, without its reason.
+    pub fn kind(self) -> StateName {
         match self {
-            State::Idle => "idle",
-            State::Armed => "armed",
-            State::Running => "running",
-            State::Stopping(_) => "stopping",
-            State::Stopped(_) => "stopped",
-            State::Fault(_) => "fault",
+            State::Idle => StateName::Idle,
+            State::Armed => StateName::Armed,
+            State::Running => StateName::Running,
+            State::Stopping(_) => StateName::Stopping,
+            State::Stopped(_) => StateName::Stopped,
+            State::Fault(_) => StateName::Fault,
         }
     }
 

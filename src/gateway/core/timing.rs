@@ -171,7 +171,7 @@ fn histogram(digits: u8) -> Histogram<u64> {
 }
 
 /// Percentiles, µs.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Distribution {
     pub p50_us: f64,
     pub p99_us: f64,

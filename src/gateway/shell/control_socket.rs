@@ -30,7 +30,7 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::AbortHandle;
 use tokio::time::{timeout, timeout_at, Instant};
 
-use crate::gateway::core::operator::{Request, Status};
+use crate::gateway::core::operator::{Reply, Request};
 
 /// Longest request line accepted, bytes.
 pub const MAX_REQUEST: usize = 4096;
@@ -165,22 +165,6 @@ impl RequestSender {
     /// Whether the loop is gone.
     pub fn is_closed(&self) -> bool {
         self.queue.is_closed()
-    }
-}
-
-/// One reply line.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Reply {
-    pub ok: bool,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub status: Option<Status>,
-}
-
-impl Reply {
-    pub fn error(why: impl Into<String>) -> Self {
-        Self { ok: false, error: Some(why.into()), status: None }
     }
 }
 

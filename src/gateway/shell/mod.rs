@@ -21,6 +21,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::watch;
 use tokio::time::{timeout, Instant};
 
+pub mod control_client;
 pub mod control_socket;
 pub mod foxglove;
 pub mod http;
@@ -37,7 +38,7 @@ pub mod systemd;
 pub mod telemetry;
 pub mod view;
 
-use control_socket::{Command, Reply, RequestReceiver, RequestSender};
+use control_socket::{Command, RequestReceiver, RequestSender};
 use low_latency::{SpinWindow, Wait};
 pub use report::Report;
 use services::Services;
@@ -46,7 +47,7 @@ use telemetry::{CanRecord, Record, Timing};
 
 use self::link::{open_can, open_serial, CanError, CanLink, SerialError};
 use super::core::input::{Answer, Input, InputRecord, RecordedInput, PSD_CHUNK};
-use super::core::operator::Request;
+use super::core::operator::{Reply, Request};
 use super::core::{Core, Counters, Level, Output, Progress, SetupError, StageClock, State};
 use crate::config::CanUrl;
 use crate::config::Rig;

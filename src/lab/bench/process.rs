@@ -3,6 +3,7 @@
 use super::pace::Pacer;
 use super::peers::{CanSide, Commands, Controller};
 use super::{board_alive, can_side, BenchMotors, Mode, Transport};
+use crate::gateway::shell::control_client::{ClientError, ControlClient};
 use crate::gateway::shell::telemetry::StageSummary;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -136,20 +137,15 @@ impl GatewayProcess {
     /// Its stage statistics since the last call (`flowgate ctl stats --reset` over its
     /// control socket), within 2 s.
     pub(super) async fn stages(&self) -> std::io::Result<Vec<StageSummary>> {
-        use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
-        let ask = async {
-            let mut stream = tokio::net::UnixStream::connect(&self.socket).await?;
-            stream.write_all(b"{\"cmd\":\"stats\",\"reset\":true}\n").await?;
-            let mut line = String::new();
-            tokio::io::BufReader::new(stream).read_line(&mut line).await?;
-            let reply: serde_json::Value = serde_json::from_str(&line).map_err(std::io::Error::other)?;
-            let stages = reply["status"]["stages"].clone();
-            serde_json::from_value::<Vec<StageSummary>>(stages)
-                .map_err(|e| std::io::Error::other(format!("stats reply {}: {e}", line.trim())))
+        let socket = self.socket.clone();
+        let ask = move || {
+            let status = ControlClient::connect_with(&socket, Duration::from_secs(2))?.stats(true)?;
+            status.stages.ok_or(ClientError::NoStatus("stats"))
         };
-        tokio::time::timeout(Duration::from_secs(2), ask)
+        tokio::task::spawn_blocking(ask)
             .await
-            .map_err(|_| std::io::Error::other(format!("{}: no stats within 2 s", self.socket.display())))?
+            .map_err(std::io::Error::other)?
+            .map_err(|e| std::io::Error::other(format!("{}: {e}", self.socket.display())))
     }
 
     /// Stop it; its state lines ("state: running", ...) say why it stopped commanding, if it did.

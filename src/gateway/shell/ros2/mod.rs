@@ -19,7 +19,8 @@ use ros2_client::{
 };
 use tokio::sync::{oneshot, watch};
 
-use super::control_socket::{Peer, Reply, RequestSender};
+use super::control_socket::{Peer, RequestSender};
+use crate::gateway::core::operator::Reply;
 use super::metrics;
 use super::view::{ViewSetup, ViewSnapshot};
 use crate::config::{DiscoveryRange, Ros2Settings};
