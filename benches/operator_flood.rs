@@ -26,7 +26,7 @@ async fn once(s: &Scenario, flood: bool) -> (gateway::shell::Report, f64) {
     let dir = std::env::temp_dir().join(format!("flowgate-flood-{}-{flood}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("dir");
     let socket = dir.join("control.sock");
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
+    let mut cfg = s.rig_file(&handle.psd_path, &can, None);
     cfg.operator.socket = Some(socket.clone());
     let rig = cfg.rig("bench").expect("rig config");
     let (stop_tx, stop_rx) = watch::channel(false);

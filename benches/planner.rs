@@ -35,7 +35,7 @@ fn config(space: Space) -> PlannerConfig {
         clearance: 0.006,
         tie_break: Some(TieBreak::default()),
         anticipation: 0.0,
-        lane_residual: flowgate::planner::multipole::EXACT_AIM,
+        lane_residual: flowgate::planner::lane_series::EXACT_AIM,
     }
 }
 

@@ -47,7 +47,7 @@ fn refuse(why: &str) -> ! {
 fn main() {
     let goal = C::new(0.8, 0.0);
     let aim = match std::env::args().nth(1).map(|a| (a.parse::<f64>(), a)) {
-        None => flowgate::planner::multipole::EXACT_AIM,
+        None => flowgate::planner::lane_series::EXACT_AIM,
         Some((Ok(aim), _)) => aim,
         Some((Err(_), a)) => refuse(&format!("AIM is a number (1e-10 to 1e-4), not {a}")),
     };

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::lab::Scenario;
 use flowgate::Point;
 use flowgate_sim::camera::CameraModel;
@@ -36,7 +36,7 @@ async fn rig(dir: &Path) -> (RigHandle, PathBuf, String) {
     sim.noise_counts = 1.0;
     let handle = flowgate_sim::rig::start(sim).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let mut cfg: GatewayConfig = s.gateway_config(&handle.psd_path, &can, None);
+    let mut cfg: RigFile = s.rig_file(&handle.psd_path, &can, None);
     cfg.calibration.homography = Some([[2000.0, 0.0, 0.0], [0.0, 2000.0, 0.0], [0.0, 0.0, 1.0]]);
     cfg.calibration.points.clear();
     cfg.calibration.k1 = 0.0;
@@ -101,7 +101,7 @@ async fn calibrate(
 /// The calibration in `config` against the true camera: RMS floor error over a 21x21 grid
 /// of the square `half` m about the origin, m.
 fn error_against_truth(config: &Path, half: f64) -> f64 {
-    let rig = GatewayConfig::load(config).unwrap();
+    let rig = RigFile::load(config).unwrap();
     let cam = camera();
     let n = 21;
     let mut sq = 0.0;

@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::lab::Scenario;
 use flowgate_sim::rig::{RigConfig, RigHandle};
 
@@ -53,12 +53,12 @@ fn dir(name: &str) -> PathBuf {
 }
 
 /// The simulator with `faults` (key=value), and the gateway config for it.
-async fn sim(faults: &[&str]) -> (RigHandle, GatewayConfig) {
+async fn sim(faults: &[&str]) -> (RigHandle, RigFile) {
     sim_with(faults, false).await
 }
 
 /// The same with CiA 402 drives (nodes 1 and 2) in place of the board when `cia402`.
-async fn sim_with(faults: &[&str], cia402: bool) -> (RigHandle, GatewayConfig) {
+async fn sim_with(faults: &[&str], cia402: bool) -> (RigHandle, RigFile) {
     let s = e1();
     let mut rig = RigConfig::new(s.sim.clone());
     if cia402 {
@@ -69,7 +69,7 @@ async fn sim_with(faults: &[&str], cia402: bool) -> (RigHandle, GatewayConfig) {
     rig.faults = rig.faults.with_settings(&settings).unwrap();
     let handle = flowgate_sim::rig::start(rig).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
+    let mut cfg = s.rig_file(&handle.psd_path, &can, None);
     if cia402 {
         cfg.use_cia402(flowgate::config::Cia402Section::with_nodes(1, 2));
     }
@@ -84,7 +84,7 @@ fn check_file(name: &str, text: &str) -> Outcome {
     Outcome { ok: out.status.success(), stdout }
 }
 
-fn check(name: &str, cfg: &GatewayConfig) -> Outcome {
+fn check(name: &str, cfg: &RigFile) -> Outcome {
     check_file(name, &cfg.to_toml())
 }
 
@@ -124,7 +124,7 @@ async fn a_healthy_rig_passes_every_line() {
 #[test]
 fn a_bad_key_is_named_and_nothing_is_opened() {
     let s = e1();
-    let mut cfg = s.gateway_config(Path::new("/dev/null"), "slcan:/dev/null", None);
+    let mut cfg = s.rig_file(Path::new("/dev/null"), "slcan:/dev/null", None);
     cfg.safety.pose_timeout_ms = 0;
     let out = check("bad-key", &cfg);
     out.fails_only("config", &["safety.pose_timeout_ms", "must be 1-60000 ms, is 0"]);
@@ -229,7 +229,7 @@ async fn a_hidden_obstacle_led_warns_and_fails_when_required() {
 #[test]
 fn a_goal_outside_the_arena_fails_the_config() {
     let s = e1();
-    let mut cfg = s.gateway_config(Path::new("/dev/null"), "slcan:/dev/null", None);
+    let mut cfg = s.rig_file(Path::new("/dev/null"), "slcan:/dev/null", None);
     cfg.goal.as_mut().unwrap().position = [50.0, 0.0];
     let out = check("far-goal", &cfg);
     out.fails_only(
@@ -339,7 +339,7 @@ fn realtime_granted() -> bool {
 
 /// `flowgate check` under `setpriv`/`prlimit` without CAP_SYS_NICE and CAP_IPC_LOCK, and
 /// with RLIMIT_RTPRIO 0 and RLIMIT_MEMLOCK 64 KiB: what an unprivileged service meets.
-fn check_unprivileged(name: &str, cfg: &GatewayConfig) -> Outcome {
+fn check_unprivileged(name: &str, cfg: &RigFile) -> Outcome {
     let path = dir(name).join("rig.toml");
     std::fs::write(&path, cfg.to_toml()).unwrap();
     let out = Command::new("setpriv")

@@ -162,6 +162,6 @@ fn cycles_wait_for_the_drives_to_be_enabled() {
     state_machine_first(&messages);
 }
 
-fn transition(e: &flowgate::lab::virtual_rig::Episode, state: State) -> f64 {
+fn transition(e: &flowgate::lab::virtual_rig::VirtualRun, state: State) -> f64 {
     e.report.transitions.iter().find(|(_, s)| *s == state).map(|(t, _)| *t).unwrap_or_else(|| panic!("never {state}"))
 }

@@ -49,7 +49,7 @@ async fn flowgate_commands_python_canopen_drives() {
     // The simulator plays the PSD controller and the world; its own board is not on this bus.
     let scenario = Scenario::load(&dir.join("scenarios/e1-standing-obstacle.toml")).unwrap();
     let sim = rig::spawn(RigConfig::new(scenario.sim.clone())).await.unwrap();
-    let mut config = scenario.gateway_config(&sim.psd_path, &format!("slcan:{pty}?bitrate=1000000"), None);
+    let mut config = scenario.rig_file(&sim.psd_path, &format!("slcan:{pty}?bitrate=1000000"), None);
     config.use_cia402(Cia402Section::with_nodes(1, 2));
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, progress_rx) = watch::channel(Progress::default());

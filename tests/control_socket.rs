@@ -115,7 +115,7 @@ async fn e1_rig_with(name: &str, faults: &[&str]) -> (flowgate_sim::rig::RigHand
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
     let socket = dir.join("control.sock");
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, Some(dir.join("telemetry")));
+    let mut cfg = s.rig_file(&handle.psd_path, &can, Some(dir.join("telemetry")));
     cfg.goal = None; // goals come from the operator
     cfg.operator.socket = Some(socket.clone());
     std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();

@@ -15,7 +15,7 @@ use flowgate::gateway::core::safety::Garbled;
 use flowgate::gateway::core::{State, StopReason};
 use flowgate::gateway::shell::telemetry::CycleRecord;
 use flowgate::lab::planner_only::Outcome;
-use flowgate::lab::virtual_rig::{self, CanTransport, Episode, Options, VirtualRig};
+use flowgate::lab::virtual_rig::{self, CanTransport, Options, VirtualRig, VirtualRun};
 use flowgate::lab::Scenario;
 
 /// One cycle of E1, ms.
@@ -101,7 +101,7 @@ enum Expect {
     Fault { reason: StopReason, fault_ms: f64, rest_ms: f64, budget: Budget },
     /// Discarded or counted, and the run reaches its goal: `check` asserts the counters
     /// and says what it found.
-    Counted { check: fn(&Episode) -> String },
+    Counted { check: fn(&VirtualRun) -> String },
 }
 
 /// The way back after a fault: the operator's reset, arm, goal and start once the injected
@@ -475,13 +475,13 @@ fn table() -> Vec<Row> {
     rows
 }
 
-fn one_reflection(e: &Episode) -> String {
+fn one_reflection(e: &VirtualRun) -> String {
     let n = e.report.counters.poses_implausible;
     assert_eq!(n, 1, "{}", e.report);
     format!("{n} pose discarded as implausible")
 }
 
-fn duplicates(e: &Episode) -> String {
+fn duplicates(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert!(e.injected[0] > 30);
     assert_eq!(c.psd_duplicates, e.injected[0], "every injected duplicate is caught: {c:?}");
@@ -489,7 +489,7 @@ fn duplicates(e: &Episode) -> String {
     format!("{} of {} discarded", c.psd_duplicates, e.injected[0])
 }
 
-fn replays(e: &Episode) -> String {
+fn replays(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert!(e.injected[1] > 30);
     // A replay of the packet just sent is a duplicate; of an earlier one, out of order.
@@ -498,7 +498,7 @@ fn replays(e: &Episode) -> String {
     format!("{} of {} discarded", c.psd_out_of_order + c.psd_duplicates, e.injected[1])
 }
 
-fn byte_loss(e: &Episode) -> String {
+fn byte_loss(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert!(c.psd_packets_lost > 5 && c.bad_serial_frames > 5, "{c:?}");
     assert!(c.frames_lost + c.frames_incomplete > 0, "{c:?}");
@@ -511,7 +511,7 @@ fn byte_loss(e: &Episode) -> String {
     )
 }
 
-fn bursts(e: &Episode) -> String {
+fn bursts(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert_eq!(c.bad_serial_frames, 3, "{c:?}");
     format!("{} bad frames counted, {} bytes dropped", c.bad_serial_frames, c.serial_dropped_bytes)
@@ -519,7 +519,7 @@ fn bursts(e: &Episode) -> String {
 
 /// Past the pose timeout the occluded obstacle is driven around as the region it may have
 /// reached; seen again, it is tracked as before.
-fn brief_occlusion(e: &Episode) -> String {
+fn brief_occlusion(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert!(c.obstacle_occluded_cycles > 5, "{c:?}");
     assert_eq!((c.obstacles_left_view, c.obstacles_entered_view), (0, 1), "{c:?}");
@@ -527,7 +527,7 @@ fn brief_occlusion(e: &Episode) -> String {
 }
 
 /// The far-ahead packet is discarded; the real ones after it go on as before.
-fn seq_jump(e: &Episode) -> String {
+fn seq_jump(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert_eq!((c.psd_seq_jumps, c.psd_seq_rebased, c.psd_out_of_order), (1, 0, 0), "{c:?}");
     one_command_per_frame(e);
@@ -535,7 +535,7 @@ fn seq_jump(e: &Episode) -> String {
 }
 
 /// The jumped frame is discarded (no command from it); the frames after go on as before.
-fn frame_jump(e: &Episode) -> String {
+fn frame_jump(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert_eq!((c.frames_jumped, c.frames_rebased, c.frames_repeated), (1, 0, 0), "{c:?}");
     one_command_per_frame(e);
@@ -543,14 +543,14 @@ fn frame_jump(e: &Episode) -> String {
 }
 
 /// The odd reply is refused and the clock checked again at once: the next sync is taken.
-fn odd_sync(e: &Episode) -> String {
+fn odd_sync(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert_eq!(c.time_syncs_implausible, 1, "{c:?}");
     assert!(c.time_syncs >= 9, "{c:?}");
     format!("{} sync refused as a step, the next taken", c.time_syncs_implausible)
 }
 
-fn overrun(e: &Episode) -> String {
+fn overrun(e: &VirtualRun) -> String {
     let n = e.report.counters.controller_overruns;
     assert_eq!(n, 1, "{}", e.report);
     format!("{n} overrun counted against the budget")
@@ -558,7 +558,7 @@ fn overrun(e: &Episode) -> String {
 
 /// The periodic time sync keeps the measured sensing delay where it was; one sync at start
 /// would let it drift by 10 ms over the run (checked by hand: this fails without resync).
-fn drift(e: &Episode) -> String {
+fn drift(e: &VirtualRun) -> String {
     let c = e.report.counters;
     let csv = String::from_utf8(e.telemetry.clone().unwrap().cycles_csv).unwrap();
     let col = CycleRecord::column("delay_s").unwrap();
@@ -570,20 +570,20 @@ fn drift(e: &Episode) -> String {
     format!("{} time syncs; the measured delay spans {:.2} ms", c.time_syncs, (hi - lo) * 1e3)
 }
 
-fn can_loss(e: &Episode) -> String {
+fn can_loss(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert!(c.board_seq_errors > 0, "{}", e.report);
     format!("{} sequence errors the board counted, counted", c.board_seq_errors)
 }
 
-fn foreign(e: &Episode) -> String {
+fn foreign(e: &VirtualRun) -> String {
     let c = e.report.counters;
     assert!(c.can_foreign > 50 && c.can_undecodable > 50, "{c:?}");
     format!("{} foreign, {} undecodable, ignored and counted", c.can_foreign, c.can_undecodable)
 }
 
 /// Each frame commanded once, in order: the `frame` column of cycles.csv strictly increases.
-fn one_command_per_frame(e: &Episode) {
+fn one_command_per_frame(e: &VirtualRun) {
     let csv = String::from_utf8(e.telemetry.as_ref().unwrap().cycles_csv.clone()).unwrap();
     let col = CycleRecord::column("frame").unwrap();
     let frames: Vec<u32> = csv.lines().skip(1).map(|l| l.split(',').nth(col).unwrap().parse().unwrap()).collect();
@@ -603,7 +603,7 @@ fn options(row: &Row) -> Options {
     Options { truth_samples: true, telemetry: true, can, cia402: row.link == Link::CanOpen, ..Options::default() }
 }
 
-fn run(row: &Row) -> Episode {
+fn run(row: &Row) -> VirtualRun {
     virtual_rig::run(&scenario(row), options(row))
 }
 

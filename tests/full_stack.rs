@@ -114,7 +114,7 @@ async fn sigint_stops_the_wheels() {
     let origin = tokio::time::Instant::now();
     let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let cfg = s.gateway_config(&handle.psd_path, &can, None);
+    let cfg = s.rig_file(&handle.psd_path, &can, None);
     let dir = std::env::temp_dir().join(format!("flowgate-sigint-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let config_path = dir.join("rig.toml");
@@ -203,7 +203,7 @@ async fn a_second_gateway_process_is_refused_as_an_ordinary_user() {
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o755)).unwrap();
     let config_path = dir.join("rig.toml");
-    std::fs::write(&config_path, s.gateway_config(&device, "memory", None).to_toml()).unwrap();
+    std::fs::write(&config_path, s.rig_file(&device, "memory", None).to_toml()).unwrap();
     let gateway = || {
         let mut c = if root {
             let mut c = Command::new("setpriv");
@@ -267,7 +267,7 @@ async fn serial_vanishing_stops_reconnects_and_waits_for_rearm() {
     let origin = tokio::time::Instant::now();
     let handle = flowgate_sim::rig::start(rig_cfg).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let rig = s.gateway_config(&link, &can, None).rig("test").unwrap();
+    let rig = s.rig_file(&link, &can, None).rig("test").unwrap();
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let (progress_tx, mut progress) = tokio::sync::watch::channel(Progress::default());
     let controls = Controls::new(stop_rx, true);

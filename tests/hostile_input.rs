@@ -206,7 +206,7 @@ fn implausible_rig_quantities_are_refused_naming_the_key() {
         ("goal.tolerance", "1e300", "must be at most 1 m"),
         ("planner.kc", "1e300", "must be at most 1000000"),
     ] {
-        let err = flowgate::config::GatewayConfig::from_toml(&set(key, value), "rig.toml")
+        let err = flowgate::config::RigFile::from_toml(&set(key, value), "rig.toml")
             .and_then(|c| c.rig("rig.toml"))
             .err()
             .map(|e| e.to_string())

@@ -286,7 +286,10 @@ fn source_files_are_short_enough_to_read() {
     for file in files {
         let lines = std::fs::read_to_string(&file).unwrap().lines().count();
         if lines > LONGEST_FILE {
-            long.push(format!("{}: {lines} lines (at most {LONGEST_FILE})", file.strip_prefix(root()).unwrap().display()));
+            long.push(format!(
+                "{}: {lines} lines (at most {LONGEST_FILE})",
+                file.strip_prefix(root()).unwrap().display()
+            ));
         }
     }
     assert!(long.is_empty(), "files too long:\n{}", long.join("\n"));

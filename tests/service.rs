@@ -16,7 +16,7 @@ async fn rig(dir: &Path) -> (flowgate_sim::rig::RigHandle, PathBuf) {
     let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
     let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
-    let mut cfg = s.gateway_config(&handle.psd_path, &can, None);
+    let mut cfg = s.rig_file(&handle.psd_path, &can, None);
     cfg.goal = None;
     // Its control socket: the gateway logs it at info level on start.
     cfg.operator.socket = Some(dir.join("control.sock"));

@@ -299,7 +299,7 @@ async fn the_preflight_checks_a_socketcan_interface() {
     rig.can = flowgate_sim::rig::CanEndpoint::SocketCan { interface: iface.clone() };
     let handle = flowgate_sim::rig::start(rig).await.unwrap();
     let check = |endpoint: &str, name: &str| {
-        let cfg = s.gateway_config(&handle.psd_path, endpoint, None);
+        let cfg = s.rig_file(&handle.psd_path, endpoint, None);
         let path = dir.join(format!("{name}.toml"));
         std::fs::write(&path, cfg.to_toml()).unwrap();
         let out = Command::new(env!("CARGO_BIN_EXE_flowgate")).args(["check", "--config"]).arg(&path).output().unwrap();

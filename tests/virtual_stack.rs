@@ -10,7 +10,7 @@ use flowgate::gateway::core::operator::{Refusal, Request};
 use flowgate::gateway::core::{State, StopReason};
 use flowgate::gateway::shell::telemetry::CycleRecord;
 use flowgate::lab::planner_only::Outcome;
-use flowgate::lab::virtual_rig::{self, Episode, Options, VirtualRig};
+use flowgate::lab::virtual_rig::{self, Options, VirtualRig, VirtualRun};
 use flowgate::lab::Scenario;
 use flowgate_sim::scenario::Motion;
 
@@ -102,12 +102,12 @@ fn the_control_period_is_exact() {
 }
 
 /// The time of the first transition into `state`.
-fn when(e: &Episode, pred: impl Fn(State) -> bool) -> f64 {
+fn when(e: &VirtualRun, pred: impl Fn(State) -> bool) -> f64 {
     e.report.transitions.iter().find(|(_, s)| pred(*s)).map(|(t, _)| *t).unwrap_or_else(|| panic!("{}", e.report))
 }
 
 /// The wheels stood still from `by` on, and turned before `fault`; returns when they stopped.
-fn stopped(e: &Episode, fault: f64, by: f64) -> f64 {
+fn stopped(e: &VirtualRun, fault: f64, by: f64) -> f64 {
     let moving = e.truth.samples.iter().any(|s| s.t > 1.0 && s.t < fault && s.wheel_speeds[0].abs() > 0.02);
     assert!(moving, "the robot was not moving before the fault");
     let rest = e.at_rest_since.unwrap_or_else(|| panic!("still turning at the end: {}", e.report));

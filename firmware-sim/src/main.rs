@@ -9,7 +9,7 @@ use flowgate_protocol::motor::NodeId;
 use flowgate_sim::camera::CameraModel;
 use flowgate_sim::faults::FaultPlan;
 use flowgate_sim::rig::{self, CanEndpoint, RigConfig, SerialEndpoint};
-use flowgate_sim::scenario::Scenario;
+use flowgate_sim::scenario::SimScenario;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -90,7 +90,7 @@ fn main() -> std::process::ExitCode {
 
 fn run() -> Result<()> {
     let args = Args::parse();
-    let scenario = Scenario::load(&args.scenario)?;
+    let scenario = SimScenario::load(&args.scenario)?;
     let mut config = RigConfig::new(scenario);
     config.psd = match args.psd_device {
         Some(path) => SerialEndpoint::Device { path, baud: args.baud },

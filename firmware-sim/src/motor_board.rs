@@ -285,7 +285,7 @@ mod tests {
     const E1: &str = include_str!("../../scenarios/e1-standing-obstacle.toml");
 
     fn board() -> (MotorBoard, World, Vec<CanFrame>) {
-        let scenario = crate::scenario::Scenario::from_toml(E1, "e1").unwrap();
+        let scenario = crate::scenario::SimScenario::from_toml(E1, "e1").unwrap();
         let mut world = World::new(&scenario);
         let mut board = MotorBoard::new(NodeId::new(1).unwrap(), FaultPlan::default());
         let mut out = Vec::new();

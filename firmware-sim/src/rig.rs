@@ -38,7 +38,7 @@ use crate::camera::CameraModel;
 use crate::faults::{CanFaults, FaultPlan, SerialFaults};
 use crate::motors::{MotorKind, Motors};
 use crate::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};
-use crate::scenario::Scenario;
+use crate::scenario::SimScenario;
 use crate::slcan_adapter::SlcanAdapter;
 use crate::truth::{TruthRecord, SAMPLE_PERIOD};
 use crate::world::World;
@@ -75,7 +75,7 @@ impl FromStr for CanEndpoint {
 /// Everything the rig is made of.
 #[derive(Debug, Clone)]
 pub struct RigConfig {
-    pub scenario: Scenario,
+    pub scenario: SimScenario,
     pub camera: CameraModel,
     pub leds: LedMap,
     pub psd: SerialEndpoint,
@@ -92,7 +92,7 @@ pub struct RigConfig {
 impl RigConfig {
     /// A rig for `scenario` with the standard camera and LEDs, SLCAN on a pty, node 1, and
     /// the scenario's faults.
-    pub fn new(scenario: Scenario) -> Self {
+    pub fn new(scenario: SimScenario) -> Self {
         let leds = LedMap::standard(scenario.robot.radius);
         let seed = scenario.sensing.seed;
         let faults = scenario.faults.clone();

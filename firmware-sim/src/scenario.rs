@@ -1,8 +1,8 @@
-//! Scenario files (TOML): the rig, the robot, the goal, the obstacles' motion, the sensing
-//! chain and the planner settings of one run. The `[planner]` table is the gateway's: the
+//! Scenario files (TOML) as the simulator reads them ([`SimScenario`]): the rig, the robot,
+//! the goal, the obstacles' motion, the sensing chain and the planner settings of one run. The `[planner]` table is the gateway's: the
 //! simulator carries it unread, and flowgate parses and checks it with the same type and
 //! rules as a rig config's `[planner]`. Documented with examples in
-//! `scenarios/README.md`. Unknown keys are refused, and [`Scenario::validate`] names the
+//! `scenarios/README.md`. Unknown keys are refused, and [`SimScenario::validate`] names the
 //! key of any bad value.
 
 use flowgate_protocol::plane::Point;
@@ -12,7 +12,7 @@ use std::path::Path;
 /// A whole scenario.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Scenario {
+pub struct SimScenario {
     pub name: String,
     #[serde(default)]
     pub description: String,
@@ -48,7 +48,7 @@ pub struct Scenario {
     #[serde(default)]
     pub camera: crate::camera::CameraModel,
     /// A crowd crossing a circle (CrowdNav's circle crossing): the robot and the obstacles
-    /// are placed by [`Scenario::crowd_episode`], afresh for every episode of a sweep.
+    /// are placed by [`SimScenario::crowd_episode`], afresh for every episode of a sweep.
     #[serde(default)]
     pub crowd: Option<CrowdSpec>,
 }
@@ -260,7 +260,7 @@ pub enum ScenarioError {
     Invalid { path: String, key: String, why: String },
 }
 
-impl Scenario {
+impl SimScenario {
     /// Read, parse and validate a scenario file.
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
         let text = read_text(path, MAX_FILE_BYTES)
@@ -271,7 +271,7 @@ impl Scenario {
     /// Parse and validate scenario text; `origin` names it in errors. A crowd is placed for
     /// its first episode, from `sensing.seed`.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ScenarioError> {
-        let mut s: Scenario =
+        let mut s: SimScenario =
             toml::from_str(text).map_err(|e| ScenarioError::Parse { path: origin.into(), source: Box::new(e) })?;
         let invalid = |(key, why)| ScenarioError::Invalid { path: origin.into(), key, why };
         if s.crowd.is_some() {
@@ -307,7 +307,7 @@ impl Scenario {
     /// This scenario with its crowd placed for episode `i` of seed `seed` (reproducibly from
     /// the two), or as it is without a crowd. A crowd that cannot be placed without overlap
     /// in `CROWD_TRIES` tries an obstacle is refused, naming the key.
-    pub fn crowd_episode(&self, seed: u64, i: u64) -> Result<Scenario, (String, String)> {
+    pub fn crowd_episode(&self, seed: u64, i: u64) -> Result<SimScenario, (String, String)> {
         use rand::{Rng, SeedableRng};
         let Some(c) = self.crowd else { return Ok(self.clone()) };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ i.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xC20D);
@@ -717,7 +717,7 @@ mod tests {
 
     #[test]
     fn parses_a_scenario() {
-        let s = Scenario::from_toml(MINIMAL, "t").unwrap();
+        let s = SimScenario::from_toml(MINIMAL, "t").unwrap();
         assert_eq!(s.obstacles[0].motion, Motion::Constant { velocity: [-0.05, 0.0] });
         assert_eq!(s.planner["kc"].as_float(), Some(0.06), "carried for the gateway, unread");
         assert_eq!(s.goal.tolerance, 0.02);
@@ -726,23 +726,23 @@ mod tests {
     #[test]
     fn refuses_bad_values_naming_the_key() {
         let bad = MINIMAL.replace("radius = 0.07\n        start = [0.5, 0]", "radius = -1\n        start = [0.5, 0]");
-        let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
+        let err = SimScenario::from_toml(&bad, "t").unwrap_err().to_string();
         assert!(err.contains("`obstacles[0].radius` must be a positive number"), "{err}");
     }
 
     #[test]
     fn carries_a_fault_plan() {
         let with = format!("{MINIMAL}\n[faults]\nserial_drop = 0.01\nboard_fault_at = 2.5\n");
-        let s = Scenario::from_toml(&with, "t").unwrap();
+        let s = SimScenario::from_toml(&with, "t").unwrap();
         assert_eq!(s.faults.serial_drop, 0.01);
         assert_eq!(s.faults.board_fault_at, Some(2.5));
-        assert_eq!(Scenario::from_toml(MINIMAL, "t").unwrap().faults, crate::faults::FaultPlan::default());
+        assert_eq!(SimScenario::from_toml(MINIMAL, "t").unwrap().faults, crate::faults::FaultPlan::default());
     }
 
     #[test]
     fn refuses_unknown_keys() {
         let bad = MINIMAL.replace("[sensing]", "[sensing]\nbogus = 3");
-        let err = Scenario::from_toml(&bad, "t").unwrap_err().to_string();
+        let err = SimScenario::from_toml(&bad, "t").unwrap_err().to_string();
         assert!(err.contains("unknown field `bogus`"), "{err}");
     }
 }

@@ -232,7 +232,7 @@ async fn bus_off_arrives_as_silence_then_a_bus_fault() {
 async fn faults_from_the_scenario_file_are_injected() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/e1-standing-obstacle.toml");
     let text = std::fs::read_to_string(&path).unwrap() + "\n[faults]\ncontroller_reset_at = 0.4\n";
-    let scenario = flowgate_sim::scenario::Scenario::from_toml(&text, "e1 + faults").unwrap();
+    let scenario = flowgate_sim::scenario::SimScenario::from_toml(&text, "e1 + faults").unwrap();
     let rig = rig(RigConfig::new(scenario)).await;
     let mut host = streaming(&rig).await;
     host.until(|m| matches!(m, Message::Fault { code: FaultCode::Reset, .. })).await;

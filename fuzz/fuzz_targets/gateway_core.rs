@@ -6,7 +6,7 @@
 //! come raw or with a correct CRC and COBS framing (so the fuzzer reaches the handshake and
 //! the stream, not only the CRC check); CAN frames are any id and payload.
 #![no_main]
-use flowgate::config::{GatewayConfig, Goal, Rig};
+use flowgate::config::{RigFile, Goal, Rig};
 use flowgate::gateway::core::operator::Request;
 use flowgate::gateway::core::{Core, Input, NoClock, Output, State};
 use flowgate::gateway::core::CanEvent;
@@ -150,7 +150,7 @@ fn rig() -> Rig {
     static RIG_ONCE: OnceLock<Rig> = OnceLock::new();
     RIG_ONCE
         .get_or_init(|| {
-            let config: GatewayConfig = toml::from_str(RIG).expect("the example parses");
+            let config: RigFile = toml::from_str(RIG).expect("the example parses");
             config.validate().expect("the example is valid")
         })
         .clone()

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use flowgate::calibration::MIN_POINTS_WITH_DISTORTION;
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::setup::calibrate::{self, Calibrated, CalibrationPlan, Prompt};
 use flowgate::setup::psd_client::PsdClient;
 
@@ -63,7 +63,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let origin = args.config.display().to_string();
     let text = flowgate::config::read_text(&args.config, flowgate::config::MAX_FILE_BYTES)
         .with_context(|| format!("reading {origin}"))?;
-    let config = GatewayConfig::from_toml(&text, &origin)?;
+    let config = RigFile::from_toml(&text, &origin)?;
     let rig = config.rig(&origin)?;
     let led = args.led.unwrap_or(rig.robot_front);
     let schedule = config.schedule_for(&[led]).map_err(|invalid| anyhow::anyhow!("{origin}: {invalid}"))?;

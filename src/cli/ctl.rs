@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::gateway::core::operator::{Goal, Reply, Request};
 use flowgate::gateway::shell::control_client::ControlClient;
 use flowgate::gateway::shell::telemetry::write_stage_table;
@@ -103,7 +103,7 @@ pub fn run(args: CtlArgs) -> Result<()> {
     let socket = match (&args.socket, &args.config) {
         (Some(s), _) => s.clone(),
         (None, Some(c)) => {
-            let rig = GatewayConfig::load(c)?;
+            let rig = RigFile::load(c)?;
             rig.operator.socket.with_context(|| format!("{} has no [operator] socket", c.display()))?
         }
         // The installed service's socket (its unit's RuntimeDirectory, the packaged config's

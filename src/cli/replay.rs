@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::replay::{self, Recording};
 
 #[derive(Args, Debug)]
@@ -49,11 +49,11 @@ pub fn run(args: ReplayArgs) -> Result<bool> {
         return Ok(false);
     }
     let config = match &args.config {
-        Some(path) => GatewayConfig::read(path)?,
+        Some(path) => RigFile::read(path)?,
         None if args.set.is_empty() => return verify(&recording),
         None => {
             let text = replay::apply_sets(&recording.config_toml, &args.set)?;
-            GatewayConfig::from_toml(&text, "the recorded configuration with --set")?
+            RigFile::from_toml(&text, "the recorded configuration with --set")?
         }
     };
     let title = match &args.config {

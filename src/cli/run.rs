@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::gateway;
 use flowgate::gateway::core::Progress;
 use flowgate::gateway::shell::{telemetry, Controls};
@@ -37,7 +37,7 @@ pub struct RunArgs {
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
-    let mut config = GatewayConfig::read(&args.config)?;
+    let mut config = RigFile::read(&args.config)?;
     if let Some(path) = &args.record {
         config.telemetry.record = Some(path.clone());
     }

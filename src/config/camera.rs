@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct SerialConfig {
+pub struct SerialSection {
     pub port: PathBuf,
     #[serde(default = "default_baud")]
     pub baud: u32,
@@ -21,7 +21,7 @@ pub(super) fn default_baud() -> u32 {
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct LedConfig {
+pub struct LedSection {
     pub robot_front: u8,
     pub robot_rear: u8,
     /// Distance of the front LED ahead of the robot's centre, m.
@@ -49,7 +49,7 @@ pub struct ObstacleLed {
 /// (`frame_us`, split over the LEDs to the microsecond so the period is exact).
 #[derive(Debug, Clone, Copy, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct ScheduleConfig {
+pub struct ScheduleSection {
     /// Each LED's slot, µs (default 4000 when `frame_us` is not given).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub slot_us: Option<u32>,
@@ -71,7 +71,7 @@ pub(super) const DEFAULT_SLOT_US: u32 = 4000;
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct CalibrationConfig {
+pub struct CalibrationSection {
     /// Floor metres -> PSD counts, row-major. Either this or `points`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub homography: Option<[[f64; 3]; 3]>,
@@ -95,7 +95,7 @@ pub struct RefPoint {
     pub floor: [f64; 2],
 }
 
-impl SerialConfig {
+impl SerialSection {
     pub(super) fn validate(&self) -> Result<(), Invalid> {
         if self.baud == 0 {
             return invalid("serial.baud", "must be positive");
@@ -107,7 +107,7 @@ impl SerialConfig {
     }
 }
 
-impl LedConfig {
+impl LedSection {
     /// The LEDs' ids in firing order: the robot's two, then the obstacles'.
     pub(super) fn validate(&self) -> Result<Vec<u8>, Invalid> {
         if self.robot_front == self.robot_rear {
@@ -140,7 +140,7 @@ impl LedConfig {
     }
 }
 
-impl ScheduleConfig {
+impl ScheduleSection {
     /// The schedule for `leds` in firing order.
     pub(super) fn build(&self, leds: &[u8]) -> Result<Schedule, Invalid> {
         let n = leds.len() as u32;

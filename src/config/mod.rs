@@ -1,11 +1,11 @@
 //! The rig configuration (`flowgate run --config rig.toml`), parsed once into a typed
 //! [`Rig`].
 //!
-//! [`GatewayConfig`] is the file as written (`rig.example.toml` documents every key):
-//! unknown keys are refused, and [`GatewayConfig::validate`] names the key of any bad value
+//! [`RigFile`] is the file as written (`rig.example.toml` documents every key):
+//! unknown keys are refused, and [`RigFile::validate`] names the key of any bad value
 //! and says why. [`Rig`] is what the gateway runs with: the CAN URL parsed, the node id
 //! checked, the LED schedule built, the calibration fitted, the control settings made,
-//! every duration a `Duration`. The lab tools build the same `GatewayConfig` from a
+//! every duration a `Duration`. The lab tools build the same `RigFile` from a
 //! scenario file, so rig configs and scenarios share one set of rules and one
 //! constructor of the control settings.
 
@@ -23,19 +23,19 @@ mod motors;
 mod planning;
 mod safety;
 mod service;
-pub use camera::{CalibrationConfig, LedConfig, ObstacleLed, RefPoint, ScheduleConfig, SerialConfig};
+pub use camera::{CalibrationSection, LedSection, ObstacleLed, RefPoint, ScheduleSection, SerialSection};
 use checks::{invalid, ms, positive, Most};
 pub use checks::{read_text, shown, Invalid, MAX_FILE_BYTES, MAX_GOAL_TOLERANCE};
-pub use motors::{BoardSettings, CanConfig, Cia402Section, Cia402Settings, DriveSection, MotorProtocolName, Motors};
-pub use planning::{default_tolerance, Goal, LaneSection, PlannerSettings, RobotSection};
-pub use safety::{SafetyConfig, SafetySettings};
-pub use service::{OperatorConfig, RealtimeConfig, RealtimeSettings, RecordCompression, TelemetryConfig};
+pub use motors::{BoardSettings, CanSection, Cia402Section, Cia402Settings, DriveSection, MotorProtocolName, Motors};
+pub use planning::{default_tolerance, Goal, LaneSection, PlannerSection, RobotSection};
+pub use safety::{SafetySection, SafetySettings};
+pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
 mod can_url;
 mod room;
 mod ros2;
 pub use can_url::CanUrl;
 pub use room::{PointsSection, RoomSection};
-pub use ros2::{DiscoveryRange, Ros2Config, Ros2Settings, MAX_DOMAIN_ID};
+pub use ros2::{DiscoveryRange, Ros2Section, Ros2Settings, MAX_DOMAIN_ID};
 
 use crate::calibration::Calibration;
 use crate::control::drive::DriveConfig;
@@ -46,13 +46,13 @@ use crate::track::{KalmanConfig, LedGeometry};
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct GatewayConfig {
-    pub serial: SerialConfig,
-    pub leds: LedConfig,
+pub struct RigFile {
+    pub serial: SerialSection,
+    pub leds: LedSection,
     #[serde(default)]
-    pub schedule: ScheduleConfig,
-    pub calibration: CalibrationConfig,
-    pub can: CanConfig,
+    pub schedule: ScheduleSection,
+    pub calibration: CalibrationSection,
+    pub can: CanSection,
     /// The CiA 402 drives, with `can.protocol = "cia402"`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cia402: Option<Cia402Section>,
@@ -62,7 +62,7 @@ pub struct GatewayConfig {
     /// operator at run time (`flowgate ctl goal X Y`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub goal: Option<Goal>,
-    pub planner: PlannerSettings,
+    pub planner: PlannerSection,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lane: Option<LaneSection>,
     /// Walls: polylines the robot keeps off (`[[walls]] points = [[x, y], ...]`).
@@ -75,16 +75,16 @@ pub struct GatewayConfig {
     #[serde(default)]
     pub room: RoomSection,
     #[serde(default)]
-    pub safety: SafetyConfig,
+    pub safety: SafetySection,
     #[serde(default)]
-    pub telemetry: TelemetryConfig,
+    pub telemetry: TelemetrySection,
     #[serde(default)]
-    pub operator: OperatorConfig,
+    pub operator: OperatorSection,
     #[serde(default)]
-    pub realtime: RealtimeConfig,
+    pub realtime: RealtimeSection,
     /// flowgate as a ROS 2 node (`[ros2]`, off without it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub ros2: Option<Ros2Config>,
+    pub ros2: Option<Ros2Section>,
 }
 
 /// A configuration that cannot be used, naming the file and the key.
@@ -98,7 +98,7 @@ pub enum ConfigError {
     Invalid { path: String, invalid: Invalid },
 }
 
-impl GatewayConfig {
+impl RigFile {
     /// Read, parse and check a rig config, into the typed rig.
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
         Self::read(path)?.rig(&path.display().to_string())
@@ -333,7 +333,7 @@ impl GatewayConfig {
 /// The rig as the gateway runs it: every setting parsed, checked and typed, once.
 #[derive(Debug, Clone)]
 pub struct Rig {
-    pub serial: SerialConfig,
+    pub serial: SerialSection,
     pub can: CanUrl,
     pub node: NodeId,
     /// What the motors speak.
@@ -353,10 +353,10 @@ pub struct Rig {
     pub board: BoardSettings,
     pub tracking: TrackingSettings,
     pub safety: SafetySettings,
-    pub telemetry: TelemetryConfig,
+    pub telemetry: TelemetrySection,
     /// The goal to drive to when armed at start (`flowgate run --arm`).
     pub goal: Option<Goal>,
-    pub operator: OperatorConfig,
+    pub operator: OperatorSection,
     /// The low-latency mode's polling window either side of the next frame (`None`: off).
     pub spin: Option<Duration>,
     /// Rehearse the cycle as each low-latency window opens (`[realtime] warm_up`).
@@ -364,11 +364,11 @@ pub struct Rig {
     /// CPU affinity, `SCHED_FIFO` and locked memory, applied at start.
     pub realtime: RealtimeSettings,
     /// `[ros2]` when enabled.
-    pub ros2: Option<Ros2Config>,
+    pub ros2: Option<Ros2Section>,
     /// The configuration this rig was built from (a recording keeps it as TOML, so a
     /// replay rebuilds the same rig). Kept as it is, not as text: the offline runner builds
     /// a rig every episode, and writing TOML was a twentieth of a sweep.
-    pub config: GatewayConfig,
+    pub config: RigFile,
 }
 
 impl Rig {

@@ -2,7 +2,7 @@
 
 use super::can_url::CanUrl;
 use super::checks::{invalid, ms, positive, Invalid, ACCEL, BODY, MAX_WATCHDOG_MS, SPEED};
-use super::safety::SafetyConfig;
+use super::safety::SafetySection;
 use flowgate_protocol::canopen;
 use flowgate_protocol::motor::{NodeId, MAX_U24};
 use serde::{Deserialize, Serialize};
@@ -10,7 +10,7 @@ use std::time::Duration;
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct CanConfig {
+pub struct CanSection {
     /// `socketcan:can0`, `slcan:/dev/ttyACM0?bitrate=1000000`.
     pub endpoint: String,
     /// What the motors speak: one PCL-80K-like board for both wheels (the default), or one
@@ -113,7 +113,7 @@ pub(super) fn default_cmd_timeout() -> u16 {
 pub(super) const MAX_MICROSTEPS: u32 = 256;
 pub(super) const MAX_STEPS_PER_REV: u32 = 10_000;
 
-impl CanConfig {
+impl CanSection {
     pub(super) fn validate(&self) -> Result<(CanUrl, NodeId), Invalid> {
         let can: CanUrl = self.endpoint.parse().or_else(|e: String| invalid("can.endpoint", e))?;
         let Some(node) = NodeId::new(self.node) else {
@@ -143,7 +143,7 @@ impl Cia402Section {
     /// the drives' 32-bit objects.
     pub(super) fn settings(
         &self,
-        safety: &SafetyConfig,
+        safety: &SafetySection,
         drive: &DriveSection,
         pulses_per_metre: f64,
     ) -> Result<Cia402Settings, Invalid> {

@@ -33,7 +33,7 @@ pub fn default_tolerance() -> f64 {
 /// The planner's settings: the `[planner]` section of rig configs and scenario files alike.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct PlannerSettings {
+pub struct PlannerSection {
     /// Far-field speed of the goal sink, m/s (`m = cruise_speed · R_ref`).
     pub cruise_speed: f64,
     /// Goal smoothing factor `c1` of `K(r)`, 1/m.
@@ -107,7 +107,7 @@ pub(super) fn default_anticipation() -> f64 {
 }
 
 pub(super) fn default_lane_residual() -> f64 {
-    crate::planner::multipole::LOOSEST_AIM
+    crate::planner::lane_series::LOOSEST_AIM
 }
 
 pub(super) fn default_goal_wait() -> f64 {
@@ -138,7 +138,7 @@ impl RobotSection {
     }
 }
 
-impl PlannerSettings {
+impl PlannerSection {
     /// The planner's rules, shared by rig configs and scenario files.
     pub fn validate(&self) -> Result<(), Invalid> {
         positive("planner.cruise_speed", self.cruise_speed, SPEED)?;
@@ -156,7 +156,7 @@ impl PlannerSettings {
         if !(self.anticipation.is_finite() && (0.0..=30.0).contains(&self.anticipation)) {
             return invalid("planner.anticipation", format!("must be from 0 to 30 s, is {}", self.anticipation));
         }
-        if !crate::planner::multipole::aim_allowed(self.lane_residual) {
+        if !crate::planner::lane_series::aim_allowed(self.lane_residual) {
             return invalid(
                 "planner.lane_residual",
                 format!("must be from 1e-10 to 1e-4, is {:e}", self.lane_residual),

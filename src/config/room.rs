@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex};
 use serde::{Deserialize, Serialize};
 
 use super::checks::{invalid, positive, Invalid, BODY};
-use super::GatewayConfig;
+use super::RigFile;
 use crate::calibration::Calibration;
 use crate::planner::room::{FarField, Panels, Room, RoomError, RoomShape};
 use crate::Point;
@@ -114,7 +114,7 @@ pub const MAX_STATIC_OBSTACLES: usize = 64;
 pub const MAX_POINTS: usize = 256;
 pub const MAX_ROOM_POINTS: usize = 1024;
 
-impl GatewayConfig {
+impl RigFile {
     /// How many walls, static obstacles and points: checked before anything is built.
     fn room_counts(&self) -> Result<(), Invalid> {
         let most = |key: &str, n: usize, limit: usize| {

@@ -1,6 +1,6 @@
 //! `[ros2]`: flowgate as a ROS 2 node (off by default). The domain and the discovery range
 //! follow ROS 2's own environment (`ROS_DOMAIN_ID`, `ROS_AUTOMATIC_DISCOVERY_RANGE`) unless
-//! the file sets them; [`Ros2Config::resolve`] reads that environment when the node starts.
+//! the file sets them; [`Ros2Section::resolve`] reads that environment when the node starts.
 
 use serde::{Deserialize, Serialize};
 
@@ -32,7 +32,7 @@ impl DiscoveryRange {
 /// `[ros2]` as written.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct Ros2Config {
+pub struct Ros2Section {
     /// Join a ROS 2 system (default: no).
     #[serde(default)]
     pub enabled: bool,
@@ -81,7 +81,7 @@ fn default_rate() -> f64 {
     20.0
 }
 
-impl Default for Ros2Config {
+impl Default for Ros2Section {
     fn default() -> Self {
         Self {
             enabled: false,
@@ -117,7 +117,7 @@ fn name_token(token: &str) -> bool {
         && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
-impl Ros2Config {
+impl Ros2Section {
     pub(super) fn validate(&self) -> Result<(), Invalid> {
         if let Some(id) = self.domain_id.filter(|&id| id > MAX_DOMAIN_ID) {
             return invalid("ros2.domain_id", format!("is {id}: ROS 2 domains are 0-{MAX_DOMAIN_ID}"));
@@ -201,13 +201,13 @@ mod tests {
     /// is refused naming the variable, a bad key naming the key.
     #[test]
     fn the_file_wins_over_ros_environment() {
-        let c = Ros2Config { enabled: true, ..Ros2Config::default() };
+        let c = Ros2Section { enabled: true, ..Ros2Section::default() };
         let s = c.resolve(env(&[])).unwrap();
         assert_eq!((s.domain_id, s.discovery_range), (0, DiscoveryRange::Subnet));
         let ros = [("ROS_DOMAIN_ID", "42"), ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")];
         let s = c.resolve(env(&ros)).unwrap();
         assert_eq!((s.domain_id, s.discovery_range), (42, DiscoveryRange::Localhost));
-        let pinned = Ros2Config { domain_id: Some(7), discovery_range: Some(DiscoveryRange::Subnet), ..c.clone() };
+        let pinned = Ros2Section { domain_id: Some(7), discovery_range: Some(DiscoveryRange::Subnet), ..c.clone() };
         let s = pinned.resolve(env(&ros)).unwrap();
         assert_eq!((s.domain_id, s.discovery_range), (7, DiscoveryRange::Subnet));
         let e = c.resolve(env(&[("ROS_DOMAIN_ID", "300")])).unwrap_err();
@@ -215,16 +215,16 @@ mod tests {
         let e = c.resolve(env(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")])).unwrap_err();
         assert_eq!(e.key, "ROS_AUTOMATIC_DISCOVERY_RANGE");
         for (bad, key) in [
-            (Ros2Config { domain_id: Some(233), ..c.clone() }, "ros2.domain_id"),
-            (Ros2Config { namespace: "lab".into(), ..c.clone() }, "ros2.namespace"),
-            (Ros2Config { namespace: "/lab/".into(), ..c.clone() }, "ros2.namespace"),
-            (Ros2Config { node_name: "1gate".into(), ..c.clone() }, "ros2.node_name"),
-            (Ros2Config { base_frame: "map".into(), ..c.clone() }, "ros2.base_frame"),
-            (Ros2Config { qos_depth: 0, ..c.clone() }, "ros2.qos_depth"),
-            (Ros2Config { publish_hz: 0.0, ..c.clone() }, "ros2.publish_hz"),
+            (Ros2Section { domain_id: Some(233), ..c.clone() }, "ros2.domain_id"),
+            (Ros2Section { namespace: "lab".into(), ..c.clone() }, "ros2.namespace"),
+            (Ros2Section { namespace: "/lab/".into(), ..c.clone() }, "ros2.namespace"),
+            (Ros2Section { node_name: "1gate".into(), ..c.clone() }, "ros2.node_name"),
+            (Ros2Section { base_frame: "map".into(), ..c.clone() }, "ros2.base_frame"),
+            (Ros2Section { qos_depth: 0, ..c.clone() }, "ros2.qos_depth"),
+            (Ros2Section { publish_hz: 0.0, ..c.clone() }, "ros2.publish_hz"),
         ] {
             assert_eq!(bad.validate().unwrap_err().key, key);
         }
-        assert!(Ros2Config { namespace: "/lab/rig_1".into(), ..c }.validate().is_ok());
+        assert!(Ros2Section { namespace: "/lab/rig_1".into(), ..c }.validate().is_ok());
     }
 }

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 #[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct SafetyConfig {
+pub struct SafetySection {
     /// Stop when the robot's pose has not been seen for this long, ms.
     #[serde(default = "default_pose_timeout")]
     pub pose_timeout_ms: u32,
@@ -74,7 +74,7 @@ pub(super) fn default_sample_timeout() -> u32 {
     100
 }
 
-impl Default for SafetyConfig {
+impl Default for SafetySection {
     fn default() -> Self {
         Self {
             pose_timeout_ms: default_pose_timeout(),
@@ -92,7 +92,7 @@ impl Default for SafetyConfig {
 
 /// The fastest obstacle speed a config may give, m/s (a running person is about 5).
 pub(super) const MAX_OBSTACLE_SPEED: f64 = 10.0;
-impl SafetyConfig {
+impl SafetySection {
     /// The watchdogs, against each other and against the board's command timeout.
     pub(super) fn validate(&self, sample_period: Duration, board_timeout_ms: u16) -> Result<(), Invalid> {
         for (key, v) in [

@@ -10,7 +10,7 @@ use std::time::Duration;
 /// How the gateway trades CPU for latency on a rig that gives it a core.
 #[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct RealtimeConfig {
+pub struct RealtimeSection {
     /// Low-latency mode: poll for the next frame from this long before it is due until this
     /// long after, instead of sleeping (src/gateway/shell/low_latency.rs); 0 = off (default). Costs
     /// about (spin_us + 1 ms) / T of a core (`flowgate bench` measures it).
@@ -39,7 +39,7 @@ pub struct RealtimeConfig {
 /// The local control interface: the only way to command motion.
 #[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct OperatorConfig {
+pub struct OperatorSection {
     /// The control socket (a unix socket, mode 0660); none = no control interface.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub socket: Option<PathBuf>,
@@ -66,7 +66,7 @@ pub(super) const MAX_QUEUE: usize = 1 << 20;
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct TelemetryConfig {
+pub struct TelemetrySection {
     /// Where trace.json, cycles.csv and can.log go; none = no files.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_dir: Option<PathBuf>,
@@ -97,13 +97,13 @@ pub(super) fn default_queue() -> usize {
     8192
 }
 
-impl Default for TelemetryConfig {
+impl Default for TelemetrySection {
     fn default() -> Self {
         Self { out_dir: None, record: None, record_compression: RecordCompression::default(), queue: default_queue() }
     }
 }
 
-impl OperatorConfig {
+impl OperatorSection {
     pub(super) fn validate(&self) -> Result<(), Invalid> {
         if self.socket.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
             return invalid("operator.socket", "is empty");
@@ -112,7 +112,7 @@ impl OperatorConfig {
     }
 }
 
-impl TelemetryConfig {
+impl TelemetrySection {
     pub(super) fn validate(&self) -> Result<(), Invalid> {
         if self.queue == 0 || self.queue > MAX_QUEUE {
             return invalid("telemetry.queue", format!("must be 1-{MAX_QUEUE} records, is {}", self.queue));
@@ -121,7 +121,7 @@ impl TelemetryConfig {
     }
 }
 
-impl RealtimeConfig {
+impl RealtimeSection {
     pub(super) fn validate(&self, sample_period: Duration) -> Result<(), Invalid> {
         let spin = Duration::from_micros(u64::from(self.spin_us));
         if spin * 2 >= sample_period {

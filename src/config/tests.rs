@@ -4,7 +4,7 @@ use super::*;
 const EXAMPLE: &str = include_str!("../../rig.example.toml");
 
 fn rig(text: &str) -> Result<Rig, ConfigError> {
-    GatewayConfig::from_toml(text, "rig.toml")?.rig("rig.toml")
+    RigFile::from_toml(text, "rig.toml")?.rig("rig.toml")
 }
 
 /// The planner's default room is twice what the supervisor keeps beyond its uncertainty
@@ -109,7 +109,7 @@ fn frame_us_keeps_the_period_exact() {
 /// What `to_toml` writes reads back as the same rig.
 #[test]
 fn round_trips_through_toml() {
-    let c = GatewayConfig::from_toml(EXAMPLE, "rig.toml").unwrap();
-    let again = GatewayConfig::from_toml(&c.to_toml(), "again").unwrap();
+    let c = RigFile::from_toml(EXAMPLE, "rig.toml").unwrap();
+    let again = RigFile::from_toml(&c.to_toml(), "again").unwrap();
     assert_eq!(again.rig("again").unwrap().control, c.rig("rig.toml").unwrap().control);
 }

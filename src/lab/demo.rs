@@ -146,7 +146,7 @@ pub async fn run(
     } else {
         can_url
     };
-    let mut config = scenario.gateway_config(&handle.psd_path, &can_url, outputs.dir);
+    let mut config = scenario.rig_file(&handle.psd_path, &can_url, outputs.dir);
     if drive == DemoDrive::Cia402 {
         config.use_cia402(crate::config::Cia402Section::with_nodes(1, 2));
     }
@@ -155,7 +155,7 @@ pub async fn run(
     config.operator.foxglove = outputs.foxglove;
     config.operator.socket = outputs.socket;
     if outputs.ros2 {
-        config.ros2 = Some(crate::config::Ros2Config { enabled: true, ..Default::default() });
+        config.ros2 = Some(crate::config::Ros2Section { enabled: true, ..Default::default() });
     }
     let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);

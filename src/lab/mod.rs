@@ -3,7 +3,7 @@
 //! contains the simulator.
 //!
 //! - [`scenario`]: scenario files as the gateway sees them, and the rig config a scenario
-//!   implies (the same [`crate::config::GatewayConfig`] and rules a rig uses);
+//!   implies (the same [`crate::config::RigFile`] and rules a rig uses);
 //! - [`virtual_rig`]: the whole stack in deterministic virtual time: the real gateway core
 //!   wired to the simulator's firmware and world through the real encoders and decoders;
 //! - [`planner_only`]: the planner-only runner (control step against the world, with a

@@ -112,7 +112,7 @@ pub fn write_swarm(dir: &Path, report: &SwarmReport) -> Result<PathBuf, OutputEr
 pub fn write_swarm_episode(
     dir: &Path,
     outcome: &swarm::JudgedEpisode,
-    episode: &virtual_rig::Episode,
+    episode: &virtual_rig::VirtualRun,
     schedule: &swarm::FaultSchedule,
 ) -> Result<(), OutputError> {
     folder(dir)?;

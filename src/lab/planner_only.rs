@@ -89,7 +89,7 @@ impl Mode {
 
 impl Run {
     /// A full-stack episode as a run for the plots and the table, from the world's truth.
-    pub fn from_episode(s: &Scenario, e: &super::virtual_rig::Episode) -> Self {
+    pub fn from_episode(s: &Scenario, e: &super::virtual_rig::VirtualRun) -> Self {
         let t = &e.truth.summary;
         let straight = (s.goal() - s.robot_start()).norm();
         let trace: Vec<TraceRow> = e

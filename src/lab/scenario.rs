@@ -2,7 +2,7 @@
 //! checked by the simulator) and the gateway's `[planner]` settings, parsed and checked by
 //! the same type and rules as a rig config. A scenario also implies a rig config (the
 //! simulator's camera and LEDs, the scenario's robot, goal and planner), built here once
-//! and checked by [`GatewayConfig::validate`] like any rig's.
+//! and checked by [`RigFile::validate`] like any rig's.
 
 use std::ops::{Deref, DerefMut};
 use std::path::{Path, PathBuf};
@@ -15,8 +15,8 @@ use crate::config::*;
 /// A scenario: the simulator's part and the gateway's planner settings.
 #[derive(Debug, Clone)]
 pub struct Scenario {
-    pub sim: flowgate_sim::scenario::Scenario,
-    pub planner: PlannerSettings,
+    pub sim: flowgate_sim::scenario::SimScenario,
+    pub planner: PlannerSection,
     /// The gateway's `[room]` settings.
     pub room: RoomSection,
     /// The safety supervisor checks every command (the default). `false` lets the planner
@@ -28,7 +28,7 @@ pub struct Scenario {
 /// A scenario reads like the simulator's (`s.robot`, `s.obstacles`, `s.sensing`, ...), with
 /// the planner settings typed.
 impl Deref for Scenario {
-    type Target = flowgate_sim::scenario::Scenario;
+    type Target = flowgate_sim::scenario::SimScenario;
     fn deref(&self) -> &Self::Target {
         &self.sim
     }
@@ -81,7 +81,7 @@ const SIM_COMMAND_TIMEOUT_MS: u16 = 200;
 impl Scenario {
     /// Read, parse and check a scenario file.
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
-        let sim = flowgate_sim::scenario::Scenario::load(path)?;
+        let sim = flowgate_sim::scenario::SimScenario::load(path)?;
         Self::new(sim, &path.display().to_string())
     }
 
@@ -102,12 +102,12 @@ impl Scenario {
 
     /// Parse and check scenario text; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, ScenarioError> {
-        Self::new(flowgate_sim::scenario::Scenario::from_toml(text, origin)?, origin)
+        Self::new(flowgate_sim::scenario::SimScenario::from_toml(text, origin)?, origin)
     }
 
     /// The gateway's part of a parsed simulator scenario, checked.
-    pub fn new(sim: flowgate_sim::scenario::Scenario, origin: &str) -> Result<Self, ScenarioError> {
-        let planner = PlannerSettings::deserialize(toml::Value::Table(sim.planner.clone()))
+    pub fn new(sim: flowgate_sim::scenario::SimScenario, origin: &str) -> Result<Self, ScenarioError> {
+        let planner = PlannerSection::deserialize(toml::Value::Table(sim.planner.clone()))
             .map_err(|e| ScenarioError::Planner { path: origin.into(), source: Box::new(e) })?;
         let room = RoomSection::deserialize(toml::Value::Table(sim.room.clone()))
             .map_err(|e| ScenarioError::Room { path: origin.into(), source: Box::new(e) })?;
@@ -197,7 +197,7 @@ impl Scenario {
 
     /// The rig config of this scenario's simulated rig, with the PSD controller at `psd`
     /// and the CAN bus at `can`.
-    pub fn gateway_config(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>) -> GatewayConfig {
+    pub fn rig_file(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>) -> RigFile {
         let frame_us = self.frame_us().expect("checked when loaded");
         self.config_with(psd, can, out_dir, frame_us)
     }
@@ -215,7 +215,7 @@ impl Scenario {
     /// The typed rig, its motors the simulator's CiA 402 drives (nodes 1 and 2) when
     /// `cia402`.
     pub fn rig_with(&self, can: &str, cia402: bool) -> Rig {
-        let mut config = self.gateway_config(Path::new("/dev/null"), can, None);
+        let mut config = self.rig_file(Path::new("/dev/null"), can, None);
         if cia402 {
             config.use_cia402(crate::config::Cia402Section::with_nodes(1, 2));
         }
@@ -226,23 +226,23 @@ impl Scenario {
         rig
     }
 
-    fn config_with(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>, frame_us: u32) -> GatewayConfig {
+    fn config_with(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>, frame_us: u32) -> RigFile {
         let leds = LedMap::standard(self.robot.radius);
         let cam = self.camera;
         let r = &self.robot;
         let delay_ms = (self.sensing.delay * 1e3).ceil().clamp(0.0, 60_000.0) as u32;
         // A rig with a known sensing delay accepts poses that old (and no older), and its
         // first samples come that much later.
-        let safety = SafetyConfig::default();
+        let safety = SafetySection::default();
         let (pose_timeout_ms, sample_timeout_ms) =
             (safety.pose_timeout_ms + delay_ms, safety.sample_timeout_ms + delay_ms);
         // The board's timeout must leave the gateway's watchdogs a cycle to fire first.
         let timeout_ms = (pose_timeout_ms.max(sample_timeout_ms) + 2 * frame_us.div_ceil(1000))
             .max(3 * frame_us / 1000 + 1)
             .max(u32::from(SIM_COMMAND_TIMEOUT_MS));
-        GatewayConfig {
-            serial: SerialConfig { port: psd.to_path_buf(), baud: 921_600 },
-            leds: LedConfig {
+        RigFile {
+            serial: SerialSection { port: psd.to_path_buf(), baud: 921_600 },
+            leds: LedSection {
                 robot_front: leds.robot_front,
                 robot_rear: leds.robot_rear,
                 front_offset: leds.robot_led_offset,
@@ -258,14 +258,14 @@ impl Scenario {
                     })
                     .collect(),
             },
-            schedule: ScheduleConfig { slot_us: None, frame_us: Some(frame_us), dark_slot_us: 0, averaging: 1 },
-            calibration: CalibrationConfig {
+            schedule: ScheduleSection { slot_us: None, frame_us: Some(frame_us), dark_slot_us: 0, averaging: 1 },
+            calibration: CalibrationSection {
                 homography: Some(cam.homography),
                 points: Vec::new(),
                 k1: cam.k1,
                 counts: cam.counts,
             },
-            can: CanConfig { endpoint: can.to_string(), protocol: Default::default(), node: 1 },
+            can: CanSection { endpoint: can.to_string(), protocol: Default::default(), node: 1 },
             cia402: None,
             drive: DriveSection {
                 wheel_radius: r.wheel_radius,
@@ -288,15 +288,15 @@ impl Scenario {
                 .collect(),
             room: self.room,
             // An unseen obstacle's region grows at the fastest any of them can go.
-            safety: SafetyConfig {
+            safety: SafetySection {
                 pose_timeout_ms,
                 sample_timeout_ms,
                 occlusion_timeout_ms: safety.occlusion_timeout_ms + delay_ms,
                 max_obstacle_speed: safety.max_obstacle_speed.max(self.fastest_obstacle()),
                 ..safety
             },
-            telemetry: TelemetryConfig { out_dir, ..TelemetryConfig::default() },
-            operator: OperatorConfig::default(),
+            telemetry: TelemetrySection { out_dir, ..TelemetrySection::default() },
+            operator: OperatorSection::default(),
             realtime: Default::default(),
             ros2: None,
         }

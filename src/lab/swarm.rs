@@ -39,7 +39,12 @@ pub use judge::{JudgedEpisode, Stop};
 
 /// Run episode `index` of the swarm around `base`, and judge it. With `keep`, the run's
 /// telemetry and truth samples come back too (for a replay's files).
-pub fn run_episode(base: &Scenario, seed: u64, index: u64, keep: bool) -> (JudgedEpisode, super::virtual_rig::Episode) {
+pub fn run_episode(
+    base: &Scenario,
+    seed: u64,
+    index: u64,
+    keep: bool,
+) -> (JudgedEpisode, super::virtual_rig::VirtualRun) {
     let schedule = schedule(base, seed, index);
     let backend = schedule.backend;
     let mut options = Options { telemetry: keep, truth_samples: keep, ..backend.options() };

@@ -63,7 +63,7 @@ pub struct Options {
     /// Settings of the gateway's rig beyond what the scenario implies (a test's watchdogs).
     pub adjust_rig: Option<fn(&mut crate::config::Rig)>,
     /// Keep every input handed to the core, as a recording's input channels keep them
-    /// ([`Episode::inputs`]): replayed into a fresh core, they give the same outputs.
+    /// ([`VirtualRun::inputs`]): replayed into a fresh core, they give the same outputs.
     pub record_inputs: bool,
     /// Rehearse the cycle ([`Core::rehearse`], the low-latency mode's warm-up) at every
     /// event of the run, far more often than a rig does: it must change nothing.
@@ -245,7 +245,7 @@ impl Telemetry {
 
 /// A finished virtual run.
 #[derive(Debug, Clone)]
-pub struct Episode {
+pub struct VirtualRun {
     pub report: Report,
     pub truth: TruthRecord,
     pub outcome: Outcome,
@@ -514,7 +514,7 @@ impl<K: StageClock> VirtualRig<K> {
 
     /// Run the scenario: until the gateway has stopped (goal, stall, fault) and the world
     /// has run [`LINGER`] more, or the scenario's time limit.
-    pub fn run(mut self, time_limit: f64, goal: [f64; 2], tolerance: f64) -> Episode {
+    pub fn run(mut self, time_limit: f64, goal: [f64; 2], tolerance: f64) -> VirtualRun {
         let mut end = time_limit;
         while self.time() < end && self.setup_error.is_none() {
             self.step();
@@ -592,7 +592,7 @@ impl<K: StageClock> VirtualRig<K> {
     }
 
     /// End the run here: the episode as it stands.
-    pub fn finish(mut self, goal: [f64; 2], tolerance: f64) -> Episode {
+    pub fn finish(mut self, goal: [f64; 2], tolerance: f64) -> VirtualRun {
         self.truth.record(&self.world);
         let summary = &self.truth.summary;
         let end = summary.final_position;
@@ -606,7 +606,7 @@ impl<K: StageClock> VirtualRig<K> {
             State::Stopped(_) | State::Stopping(_) => Outcome::Stopped,
             _ => Outcome::Timeout,
         };
-        Episode {
+        VirtualRun {
             report: Report::new(&self.core, self.timing.as_ref(), self.core.counters(), WrittenFiles::default()),
             truth: self.truth,
             outcome,
@@ -645,13 +645,13 @@ fn feed<K: StageClock>(
 }
 
 /// Run `scenario` through the whole stack in virtual time, deterministically.
-pub fn run(scenario: &Scenario, options: Options) -> Episode {
+pub fn run(scenario: &Scenario, options: Options) -> VirtualRun {
     VirtualRig::new(scenario, options).run(scenario.time_limit, scenario.goal.position, scenario.goal.tolerance)
 }
 
 /// The same, with the core's stages timed on the host's clock (for reports, not for
 /// byte-for-byte comparisons).
-pub fn run_timed(scenario: &Scenario, options: Options) -> Episode {
+pub fn run_timed(scenario: &Scenario, options: Options) -> VirtualRun {
     VirtualRig::with_clock(scenario, HostClock::default(), options).run(
         scenario.time_limit,
         scenario.goal.position,

@@ -37,7 +37,7 @@ use crate::geometry::Length;
 
 use std::sync::Arc;
 
-use super::multipole::{self, Fitted, Series, ORDERS, POINTS};
+use super::lane_series::{self, Fitted, Series, ORDERS, POINTS};
 use super::room::{Room, RoomSink, ROOM_HOLD};
 use super::space::Space;
 
@@ -96,7 +96,7 @@ pub enum FieldError {
     GoalOutsideRoom,
     #[error("point lies {0:.3} m outside the room's free region")]
     OutsideRoom(f64),
-    #[error("the lane's aim {0:e} is outside {lo:e} to {hi:e}", lo = multipole::TIGHTEST_AIM, hi = multipole::LOOSEST_AIM)]
+    #[error("the lane's aim {0:e} is outside {lo:e} to {hi:e}", lo = lane_series::TIGHTEST_AIM, hi = lane_series::LOOSEST_AIM)]
     BadLaneAim(f64),
 }
 
@@ -118,9 +118,9 @@ pub struct Field {
     /// goal (see `in_lane`): its series is the less exact arc fit.
     unclosed_at_a_wall: bool,
     /// Where the lane series are fitted, kept across rebuilds (see
-    /// [`multipole::Workspace`]); made with a lane's field, so that a control cycle's
+    /// [`lane_series::Workspace`]); made with a lane's field, so that a control cycle's
     /// rebuild does not allocate.
-    fit_work: Option<Box<multipole::Workspace>>,
+    fit_work: Option<Box<lane_series::Workspace>>,
     /// What the lane series aim at: their truncation error relative to the flow on the
     /// circle ([`Field::set_lane_aim`]).
     lane_aim: f64,
@@ -226,18 +226,18 @@ impl Field {
             sink_images: [Point::default(); MAX_OBSTACLES],
             lane_series: ArrayVec::new(),
             unclosed_at_a_wall: false,
-            fit_work: matches!(space, Space::Lane { .. }).then(multipole::Workspace::new),
-            lane_aim: multipole::EXACT_AIM,
+            fit_work: matches!(space, Space::Lane { .. }).then(lane_series::Workspace::new),
+            lane_aim: lane_series::EXACT_AIM,
             room: None,
         }
     }
 
     /// The lane series' aim from the next rebuild on: their truncation error relative to
-    /// the flow on each circle, from [`multipole::TIGHTEST_AIM`] to [`multipole::LOOSEST_AIM`],
-    /// [`multipole::EXACT_AIM`] unless set. A looser aim fits fewer orders. An aim outside
+    /// the flow on each circle, from [`lane_series::TIGHTEST_AIM`] to [`lane_series::LOOSEST_AIM`],
+    /// [`lane_series::EXACT_AIM`] unless set. A looser aim fits fewer orders. An aim outside
     /// that range (or NaN) is refused and the field keeps its aim.
     pub fn set_lane_aim(&mut self, aim: f64) -> Result<(), FieldError> {
-        if !multipole::aim_allowed(aim) {
+        if !lane_series::aim_allowed(aim) {
             return Err(FieldError::BadLaneAim(aim));
         }
         self.lane_aim = aim;
@@ -335,7 +335,7 @@ impl Field {
         }
         let n = obstacles.len();
         if let Space::Lane { half_width } = space {
-            let mut work = self.fit_work.take().unwrap_or_else(multipole::Workspace::new);
+            let mut work = self.fit_work.take().unwrap_or_else(lane_series::Workspace::new);
             for k in 0..n {
                 let fitted = self.fit_lane_series(k, n, half_width, &mut work);
                 self.lane_series.push(fitted);
@@ -349,16 +349,16 @@ impl Field {
     /// Fit obstacle `k`'s multipole series: on its circle the normal flow of the sink terms
     /// becomes zero, and that of the motion terms (every obstacle's doublet, the other
     /// doublets' images in this circle) becomes the obstacle's own normal speed.
-    fn fit_lane_series(&self, k: usize, n: usize, half_width: f64, work: &mut multipole::Workspace) -> LaneSeries {
+    fn fit_lane_series(&self, k: usize, n: usize, half_width: f64, work: &mut lane_series::Workspace) -> LaneSeries {
         let space = self.space;
         let o = self.obstacles[k];
         let series = Series::new(half_width, o.center, o.radius);
         let others = self.obstacles[..n].iter().enumerate().filter(|&(i, _)| i != k).map(|(_, p)| p.center);
-        let rho = multipole::convergence_rate(half_width, o.center, o.radius, others.chain([self.sink.goal]));
-        let orders = multipole::orders_for(rho, series.real(), self.lane_aim);
-        let regularisation = if rho >= 1.0 { multipole::WALL_REGULARISATION } else { 0.0 };
+        let rho = lane_series::convergence_rate(half_width, o.center, o.radius, others.chain([self.sink.goal]));
+        let orders = lane_series::orders_for(rho, series.real(), self.lane_aim);
+        let regularisation = if rho >= 1.0 { lane_series::WALL_REGULARISATION } else { 0.0 };
         let mut points = [(Point::default(), Point::default()); POINTS];
-        let m = multipole::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, work, &mut points);
+        let m = lane_series::collocation(half_width, o.center, o.radius, orders, rho >= 1.0, work, &mut points);
         let (mut sink_target, mut motion_target, mut source_flow) = ([0.0; POINTS], [0.0; POINTS], [0.0; POINTS]);
         for (j, &(z, normal)) in points[..m].iter().enumerate() {
             let source = space.sink(z, o.center);
@@ -376,7 +376,7 @@ impl Field {
             source_flow[j] = -(source * normal).re;
             motion_target[j] = (o.velocity * normal.conj()).re - (motion_flow * normal).re;
         }
-        let [sink_fit, motion_fit] = multipole::fit(
+        let [sink_fit, motion_fit] = lane_series::fit(
             &series,
             orders,
             &points[..m],
@@ -547,7 +547,7 @@ impl Field {
 /// no series converges at either. Either is closed against the wall: replaced by the
 /// smallest circle centred on the wall that covers it (its part in the lane, for a centre
 /// estimated beyond the wall). Centred there it meets the wall at right angles, and the
-/// wall is a line of symmetry of its flow (see [`multipole::Series::new`]). Its far side
+/// wall is a line of symmetry of its flow (see [`lane_series::Series::new`]). Its far side
 /// is the true circle's, so it blocks the lane no more; it is longer along the wall.
 ///
 /// The closed circle slides along the wall with the obstacle's velocity along it. Its

@@ -33,7 +33,7 @@
 //!   outruns the robot is judged over time, with hysteresis, in the control step.)
 
 pub mod field;
-pub mod multipole;
+pub mod lane_series;
 pub mod room;
 pub mod space;
 

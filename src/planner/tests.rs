@@ -1,7 +1,7 @@
 //! The checks of the planner's mathematics (docs/planner.md, "The checks that prove the
 //! terms"), as properties over random configurations.
 
-use super::multipole;
+use super::lane_series;
 use super::*;
 use proptest::prelude::*;
 use std::f64::consts::PI;
@@ -287,7 +287,7 @@ fn planner(tie_break: Option<TieBreak>) -> Planner {
         clearance: 0.0,
         tie_break,
         anticipation: 0.0,
-        lane_residual: crate::planner::multipole::EXACT_AIM,
+        lane_residual: crate::planner::lane_series::EXACT_AIM,
     })
 }
 
@@ -408,7 +408,7 @@ fn clear_lane_circle(h: f64) -> impl Strategy<Value = (Point, f64)> {
 }
 
 /// The band where the lane series is held to 1e-6: a convergence rate (see
-/// [`multipole::convergence_rate`]) up to 0.65. It holds every circle clear of the walls
+/// [`lane_series::convergence_rate`]) up to 0.65. It holds every circle clear of the walls
 /// (a wall at least 1.1 R away, rate 0.64; a 90% blockage of the lane has 0.63) whose
 /// goal and neighbours' wall images lie beyond R/0.65 = 1.54 R of its centre.
 const CONVERGENT: f64 = 0.65;
@@ -438,7 +438,7 @@ proptest! {
         prop_assume!(obs.iter().all(|o| (goal - o.center).norm() > 1.05 * o.radius));
         for (k, o) in obs.iter().enumerate() {
             let others = obs.iter().enumerate().filter(|&(j, _)| j != k).map(|(_, p)| p.center).chain([goal]);
-            prop_assume!(multipole::convergence_rate(h, o.center, o.radius, others) <= CONVERGENT);
+            prop_assume!(lane_series::convergence_rate(h, o.center, o.radius, others) <= CONVERGENT);
         }
         let field = Field::new(Space::Lane { half_width: h }, sink(goal), &obs).unwrap();
         for o in field.obstacles() {
@@ -478,7 +478,7 @@ proptest! {
         // A goal near the circle: within the band where the series is held to 1e-6 (its
         // image in the far wall beyond 1.54 R; its image in this wall is in the flow the
         // series corrects). Far from it, every closed circle, up to a 95% closed blockage.
-        let rate = multipole::convergence_rate(h, planned.center, planned.radius, [goal].into_iter());
+        let rate = lane_series::convergence_rate(h, planned.center, planned.radius, [goal].into_iter());
         prop_assume!(far || rate <= CONVERGENT);
         prop_assert!((planned.center - a).norm() + r <= planned.radius + 1e-12, "the planned circle covers the true one");
         prop_assert_eq!(planned.center.im.abs(), h, "centred on the wall");

@@ -15,7 +15,7 @@ use crate::Point;
 use flowgate_protocol::CanFrame;
 use serde::Serialize;
 
-use crate::config::{GatewayConfig, Rig};
+use crate::config::{Rig, RigFile};
 use crate::gateway::core::input::InputRecord;
 use crate::gateway::core::{Core, NoClock, Output};
 use crate::gateway::shell::recording::{self, frame_from_json};
@@ -111,8 +111,8 @@ impl Recording {
     }
 
     /// The recorded configuration, parsed.
-    pub fn config(&self) -> Result<GatewayConfig, ReplayError> {
-        Ok(GatewayConfig::from_toml(&self.config_toml, "the recording")?)
+    pub fn config(&self) -> Result<RigFile, ReplayError> {
+        Ok(RigFile::from_toml(&self.config_toml, "the recording")?)
     }
 
     /// Whether every input the loop took is here: the replay can then be exact.

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use super::{Recording, ReplayError};
-use crate::config::Ros2Config;
+use crate::config::Ros2Section;
 use crate::gateway::core::{Core, NoClock, Output};
 use crate::gateway::shell::metrics::Snapshot;
 use crate::gateway::shell::recording::first_in_slot;
@@ -234,7 +234,8 @@ pub fn export(recording: &Recording, dir: &Path) -> Result<BagSummary, BagError>
 fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary, BagError> {
     let config = recording.config()?;
     let rig = config.rig("the recorded configuration").map_err(ReplayError::from)?;
-    let settings = config.ros2.clone().unwrap_or_else(Ros2Config::default).resolve(|_| None).map_err(BagError::Ros2)?;
+    let settings =
+        config.ros2.clone().unwrap_or_else(Ros2Section::default).resolve(|_| None).map_err(BagError::Ros2)?;
     let frames = Frames { floor: settings.floor_frame.clone(), base: settings.base_frame.clone() };
     let fqn = format!("{}/{}", settings.namespace.trim_end_matches('/'), settings.node_name);
     let view = ViewSetup::of(&rig);

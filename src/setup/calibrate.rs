@@ -419,7 +419,7 @@ impl Calibrated {
         );
         let write_back_error = |why: String| CalibrateError::WriteBack { path: origin.clone(), why };
         let new_text = write_back(text, f, &note).map_err(write_back_error)?;
-        crate::config::GatewayConfig::from_toml(&new_text, &origin)?.rig(&origin)?;
+        crate::config::RigFile::from_toml(&new_text, &origin)?.rig(&origin)?;
         let io = |what: &str, e: std::io::Error| write_back_error(format!("{what}: {e}"));
         let backup = path.with_extension("toml.bak");
         std::fs::copy(path, &backup).map_err(|e| io("keeping the previous file", e))?;

@@ -16,7 +16,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::psd_client::{PsdClient, PsdClientError};
-use crate::config::{ConfigError, GatewayConfig, Rig};
+use crate::config::{ConfigError, Rig, RigFile};
 use crate::gateway::core::psd_session::MAX_RTT;
 use crate::gateway::core::SetupError;
 use crate::Point;
@@ -167,7 +167,7 @@ pub async fn check(config: &Path) -> CheckReport {
 
 /// The config, or (the key or file, why).
 fn load(path: &Path) -> Result<Rig, (String, String)> {
-    GatewayConfig::load(path).map_err(|e| match e {
+    RigFile::load(path).map_err(|e| match e {
         ConfigError::Invalid { invalid, .. } => (invalid.key.clone(), invalid.why.clone()),
         other => (path.display().to_string(), other.to_string()),
     })

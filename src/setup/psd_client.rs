@@ -10,7 +10,7 @@ use flowgate_protocol::psd::{self, Info, Message, Packet, Sample, Schedule};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::time::{timeout_at, Instant};
 
-use crate::config::SerialConfig;
+use crate::config::SerialSection;
 use crate::gateway::core::counter_window::Verdict;
 use crate::gateway::core::psd_session::{PsdSession, SessionEvent, RETRY_AFTER, TRIES};
 use crate::gateway::core::SetupError;
@@ -69,7 +69,7 @@ pub struct PsdClient {
 
 impl PsdClient {
     /// Open the port (exclusively, as the gateway does).
-    pub fn open(serial: &SerialConfig, schedule: Schedule, counts: u16) -> Result<Self, PsdClientError> {
+    pub fn open(serial: &SerialSection, schedule: Schedule, counts: u16) -> Result<Self, PsdClientError> {
         let port = open_serial(&serial.port, serial.baud)?;
         Ok(Self {
             port_path: serial.port.clone(),

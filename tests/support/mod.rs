@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
-use flowgate::config::GatewayConfig;
+use flowgate::config::RigFile;
 use flowgate::lab::Scenario;
 use flowgate_sim::rig::{RigConfig, RigHandle};
 
@@ -21,13 +21,13 @@ pub fn free_loopback_addr() -> std::net::SocketAddr {
 }
 
 /// Start the simulator and `flowgate run --arm` on it, its config adjusted by `configure`.
-pub async fn run_on_sim(name: &str, configure: impl FnOnce(&mut GatewayConfig)) -> RunningGateway {
+pub async fn run_on_sim(name: &str, configure: impl FnOnce(&mut RigFile)) -> RunningGateway {
     let dir = std::env::temp_dir().join(format!("flowgate-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let s = Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/e1-standing-obstacle.toml")).unwrap();
     let rig = flowgate_sim::rig::start(RigConfig::new(s.sim.clone())).await.unwrap();
     let can = format!("slcan:{}?bitrate=1000000", rig.can_path.as_ref().unwrap().display());
-    let mut cfg = s.gateway_config(&rig.psd_path, &can, None);
+    let mut cfg = s.rig_file(&rig.psd_path, &can, None);
     configure(&mut cfg);
     let config = dir.join("rig.toml");
     std::fs::write(&config, cfg.to_toml()).unwrap();

@@ -23,7 +23,7 @@ pub use obstacle::ObstaclePath;
 pub use robot::{DiffDrive, Motion, Pose};
 pub use room::{Room, RoomGap};
 
-use crate::scenario::Scenario;
+use crate::scenario::SimScenario;
 use crate::Point;
 
 /// Which wheel an axis drives.
@@ -115,7 +115,7 @@ pub struct Truth {
 
 impl World {
     /// The world at time 0 of a scenario.
-    pub fn new(scenario: &Scenario) -> Self {
+    pub fn new(scenario: &SimScenario) -> Self {
         let r = &scenario.robot;
         let drive = DiffDrive { wheel_base: r.wheel_base, pulses_per_metre: r.pulses_per_metre() };
         let axis = AxisConfig {
@@ -436,7 +436,7 @@ mod tests {
     fn random_world(rng: &mut ChaCha8Rng) -> (World, Vec<[i32; 2]>) {
         // Drawn again until the loader takes it (no obstacle on the start or the goal).
         let scenario = loop {
-            if let Ok(scenario) = Scenario::from_toml(&random_scenario(rng), "random") {
+            if let Ok(scenario) = SimScenario::from_toml(&random_scenario(rng), "random") {
                 break scenario;
             }
         };
@@ -658,7 +658,7 @@ mod tests {
                     table_x + 0.2,
                     table_x + 0.2
                 );
-            if let Ok(s) = Scenario::from_toml(&text, "random room") {
+            if let Ok(s) = SimScenario::from_toml(&text, "random room") {
                 break s;
             }
         };
@@ -676,7 +676,7 @@ mod tests {
                     wheel_base = 0.108\nwheel_radius = 0.025\nsteps_per_rev = 200\nmicrosteps = 8\nmax_wheel_speed = 0.25\n\
                     wheel_accel = 1.0\nmax_speed = 0.25\n[goal]\nposition = [0.5, 0.0]\n[sensing]\nsample_time = 0.02\n";
         let run = |room: &str| {
-            let mut world = World::new(&Scenario::from_toml(&format!("{base}{room}"), "room").unwrap());
+            let mut world = World::new(&SimScenario::from_toml(&format!("{base}{room}"), "room").unwrap());
             let rate = (0.1 * world.drive.pulses_per_metre) as i32;
             world.command_pulse_rates([rate, rate]);
             for _ in 0..200 {
@@ -692,7 +692,7 @@ mod tests {
         assert!(wall.min_wall_clearance < 0.0);
         let table = run("[[static_obstacles]]\npoints = [[-0.2, 0.4], [0.2, 0.4], [0.0, 0.6]]\n");
         assert_eq!(table.contact.unwrap().with, Touched::StaticObstacle(0));
-        let e = Scenario::from_toml(
+        let e = SimScenario::from_toml(
             &format!("{base}[[static_obstacles]]\npoints = [[-0.2, -0.05], [0.2, -0.05], [0.0, 0.2]]\n"),
             "room",
         )

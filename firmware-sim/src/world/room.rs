@@ -8,7 +8,7 @@
 use flowgate_protocol::plane::{inside_polygon, nearest_on_segment, polygon_edges, segment_distance_sqr};
 
 use super::Touched;
-use crate::scenario::Scenario;
+use crate::scenario::SimScenario;
 use crate::Point;
 
 /// The walls and static obstacles of a scenario.
@@ -28,7 +28,7 @@ pub struct RoomGap {
 }
 
 impl Room {
-    pub fn new(scenario: &Scenario) -> Self {
+    pub fn new(scenario: &SimScenario) -> Self {
         let points = |p: &Vec<[f64; 2]>| p.iter().map(|&[x, y]| Point::new(x, y)).collect();
         Self {
             walls: scenario.walls.iter().map(|w| points(&w.points)).collect(),

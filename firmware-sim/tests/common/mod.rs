@@ -8,7 +8,7 @@ use std::time::Duration;
 use flowgate_protocol::codec::{PsdCodec, StreamError};
 use flowgate_protocol::psd::{self, Message, Packet};
 use flowgate_sim::rig::{self, RigConfig, RigHandle};
-use flowgate_sim::scenario::Scenario;
+use flowgate_sim::scenario::SimScenario;
 use futures_util::{SinkExt, StreamExt};
 use tokio::time::{timeout, Instant};
 use tokio_serial::SerialPortBuilderExt;
@@ -16,9 +16,9 @@ use tokio_util::codec::Framed;
 
 pub const WAIT: Duration = Duration::from_secs(3);
 
-pub fn scenario(name: &str) -> Scenario {
+pub fn scenario(name: &str) -> SimScenario {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name);
-    Scenario::load(&path).unwrap()
+    SimScenario::load(&path).unwrap()
 }
 
 pub async fn rig(config: RigConfig) -> RigHandle {

@@ -22,11 +22,11 @@
 //! [`Core::scene`], ...) change nothing.
 //!
 //! ```
-//! use flowgate::config::GatewayConfig;
+//! use flowgate::config::RigFile;
 //! use flowgate::gateway::core::{Core, Input, NoClock, Output};
 //! use flowgate::time::HostTime;
 //!
-//! let config = GatewayConfig::from_toml(include_str!("../../../rig.example.toml"), "rig.toml").unwrap();
+//! let config = RigFile::from_toml(include_str!("../../../rig.example.toml"), "rig.toml").unwrap();
 //! let mut core = Core::new(config.rig("rig.toml").unwrap(), NoClock);
 //! let mut now = HostTime::ZERO;
 //! core.handle(now, Input::PsdConnected);

@@ -12,8 +12,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::safety::{State, StopReason};
 pub use super::safety::StateName;
+use super::safety::{State, StopReason};
 
 pub use crate::config::Goal;
 

@@ -5,14 +5,14 @@ use flowgate_protocol::psd::{Info, Message, Packet, Sample, SampleFlags, MAX_WIR
 use super::operator::{Refusal, Request};
 use super::safety::Garbled;
 use super::*;
-use crate::config::GatewayConfig;
+use crate::config::RigFile;
 use crate::Point;
 
 const CTRL_EPOCH_US: u64 = 5_000_000; // the controller booted 5 s before us
 
 fn core() -> Core<NoClock> {
     let text = include_str!("../../../rig.example.toml");
-    Core::new(GatewayConfig::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
+    Core::new(RigFile::from_toml(text, "rig").unwrap().rig("rig").unwrap(), NoClock)
 }
 
 impl Core<NoClock> {
@@ -36,7 +36,7 @@ fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
         "{ led = 4, radius = 0.07, required = true }",
         1,
     );
-    let mut c = Core::new(GatewayConfig::from_toml(&text, "rig").unwrap().rig("rig").unwrap(), NoClock);
+    let mut c = Core::new(RigFile::from_toml(&text, "rig").unwrap().rig("rig").unwrap(), NoClock);
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
     let refusal = c.request(ms(1), &Request::Arm).unwrap_err();

@@ -156,7 +156,7 @@ enum Event {
 struct Io {
     origin: Instant,
     port: String,
-    serial: crate::config::SerialConfig,
+    serial: crate::config::SerialSection,
     psd: Option<tokio_serial::SerialStream>,
     /// One read is one input (a recording holds it whole).
     read_buf: [u8; PSD_CHUNK],
@@ -721,7 +721,7 @@ pub enum GatewayError {
     #[error("operator.foxglove = \"{addr}\": cannot serve Foxglove live there: {source}")]
     Foxglove { addr: std::net::SocketAddr, source: ::foxglove::FoxgloveError },
     #[error("{0}")]
-    Ros2Config(crate::config::Invalid),
+    Ros2Section(crate::config::Invalid),
     #[cfg(feature = "ros2")]
     #[error(transparent)]
     Ros2(#[from] ros2::Ros2Error),

@@ -133,12 +133,12 @@ use view::lane_half_width;
 #[cfg(feature = "ros2")]
 fn start_ros2(
     rig: &Rig,
-    config: &crate::config::Ros2Config,
+    config: &crate::config::Ros2Section,
     start_time_s: f64,
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: RequestSender,
 ) -> Result<(super::ros2::Ros2Node, HostTime, std::time::Duration), GatewayError> {
-    let settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Config)?;
+    let settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Section)?;
     let every = settings.publish_every;
     let setup = super::ros2::Ros2Setup { settings, view: view::ViewSetup::of(rig), start_time_s };
     let node = super::ros2::start(setup, stats, requests)?;

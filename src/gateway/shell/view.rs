@@ -479,7 +479,7 @@ mod tests {
             clearance: 0.0,
             tie_break: None,
             anticipation: 0.0,
-            lane_residual: crate::planner::multipole::EXACT_AIM,
+            lane_residual: crate::planner::lane_series::EXACT_AIM,
         };
         ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3), room: None, outline: None }
     }

@@ -1,7 +1,7 @@
 //! Monte-Carlo sweeps around a scenario: the evidence for the safety envelope.
 //!
 //! Each episode perturbs the base scenario, reproducibly from `(seed, episode)` (a crowd
-//! scenario instead places its crowd afresh: [`flowgate_sim::scenario::Scenario::crowd_episode`]):
+//! scenario instead places its crowd afresh: [`flowgate_sim::scenario::SimScenario::crowd_episode`]):
 //! - every moving obstacle's speed × U(0.5, 1.5), its heading ± U(20°);
 //! - the robot's start ± U(3 cm) in x and y (kept inside the lane);
 //! - the sensing delay U(0, max(2 × base delay, 0.3 s));

@@ -525,10 +525,10 @@ fn emit(send: &mut impl FnMut(CanFrame), message: CanOpenMessage) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{Cia402Section, GatewayConfig, Motors};
+    use crate::config::{Cia402Section, Motors, RigFile};
 
     fn master() -> Cia402Master {
-        let mut config = GatewayConfig::from_toml(include_str!("../../../../rig.example.toml"), "rig").unwrap();
+        let mut config = RigFile::from_toml(include_str!("../../../../rig.example.toml"), "rig").unwrap();
         config.use_cia402(Cia402Section::with_nodes(3, 4));
         let Motors::Cia402(settings) = config.validate().unwrap().motors else { panic!("not cia402") };
         Cia402Master::new(settings)

@@ -1,9 +1,9 @@
 use super::*;
+use crate::gateway::core::input::CanEvent;
+use crate::gateway::core::input::{InputRecord, RecordedInput};
 use crate::gateway::core::operator::{Goal, Request};
 use crate::gateway::core::Input;
-use crate::gateway::core::input::{InputRecord, RecordedInput};
 use crate::time::HostTime;
-use crate::gateway::core::input::CanEvent;
 use flowgate_protocol::{CanFrame, CanId};
 
 #[test]

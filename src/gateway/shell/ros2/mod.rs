@@ -20,10 +20,10 @@ use ros2_client::{
 use tokio::sync::{oneshot, watch};
 
 use super::control_socket::{Peer, RequestSender};
-use crate::gateway::core::operator::Reply;
 use super::metrics;
 use super::view::{ViewSetup, ViewSnapshot};
 use crate::config::{DiscoveryRange, Ros2Settings};
+use crate::gateway::core::operator::Reply;
 use crate::gateway::core::operator::Request;
 use convert::Frames;
 use msgs::{Time, TriggerRequest, TriggerResponse};
