@@ -551,6 +551,45 @@ fn no_branch_on_the_motor_backend_outside_motors() {
     assert!(found.is_empty(), "{}", found.join("\n"));
 }
 
+/// The core's counts have owners: each of `Counters`' fields is written in one module of
+/// the core (a file, or `motors/`), through `counters.FIELD` or its short `c.FIELD` (the
+/// core's convention); the motors count in a `MotorCounters` of their own.
+#[test]
+fn every_counter_is_written_in_one_module() {
+    let core = root().join("src/gateway/core");
+    let fields = std::fs::read_to_string(core.join("counters.rs")).unwrap();
+    let fields: Vec<&str> =
+        fields.lines().filter_map(|l| l.trim().strip_prefix("pub ")?.strip_suffix(": u64,")).collect();
+    assert!(fields.len() > 40, "{fields:?}");
+    let mut writers: BTreeMap<String, std::collections::BTreeSet<String>> = BTreeMap::new();
+    for file in rust_files(&core) {
+        let rel = file.strip_prefix(&core).unwrap().display().to_string();
+        if rel.ends_with("tests.rs") {
+            continue;
+        }
+        let module = rel.split('/').next().unwrap().to_string();
+        let code = code_only(&std::fs::read_to_string(&file).unwrap());
+        for field in &fields {
+            for receiver in ["counters.", "c."] {
+                let written = code.match_indices(&format!("{receiver}{field}")).any(|(at, m)| {
+                    let before = code[..at].chars().next_back().is_none_or(|c| !c.is_alphanumeric() && c != '_');
+                    let after = code[at + m.len()..].trim_start();
+                    let assigns = ["+=", "-=", "|="].iter().any(|op| after.starts_with(op))
+                        || (after.starts_with('=') && !after.starts_with("=="));
+                    before && assigns
+                });
+                if written {
+                    writers.entry(field.to_string()).or_default().insert(module.clone());
+                }
+            }
+        }
+    }
+    let shared: Vec<String> =
+        writers.iter().filter(|(_, m)| m.len() > 1).map(|(f, m)| format!("{f}: written in {m:?}")).collect();
+    assert!(shared.is_empty(), "counters written from more than one module:\n{}", shared.join("\n"));
+    assert!(writers.len() > 40, "the scan finds the writes: {writers:?}");
+}
+
 /// docs/architecture.md names only what exists: every path it quotes, from the repository's
 /// root or as the end of a path in it (`motors/board.rs`, `cycle.rs`).
 #[test]

@@ -2,6 +2,7 @@
 
 use serde::Serialize;
 
+use super::motors::MotorCounters;
 use super::safety::State;
 
 /// What the gateway shows while it runs (for a live display). Receivers are woken when the
@@ -127,6 +128,16 @@ pub struct Counters {
 }
 
 impl Counters {
+    /// These counters with the motors' (the core's own `can_undecodable` counts the SLCAN
+    /// adapter's garbled lines; the motors', the frames they could not decode).
+    pub fn with_motors(mut self, motors: MotorCounters) -> Self {
+        self.can_foreign += motors.foreign;
+        self.can_undecodable += motors.undecodable;
+        self.board_seq_errors += motors.board_seq_errors;
+        self.board_enable_retries += motors.board_enable_retries;
+        self
+    }
+
     /// Controller packets discarded for their sequence numbers: seen twice, behind the
     /// sequence, or beyond its window.
     pub fn psd_sequence_discards(&self) -> u64 {

@@ -98,7 +98,7 @@ pub use safety::{RobotMotion, State, StopReason};
 use can_link::CanLinkHealth;
 use frame::FrameAssembler;
 use mission::Mission;
-use motors::MotorMaster;
+use motors::{MotorCounters, MotorMaster};
 use output::Outbox;
 use psd_link::PsdLinkHealth;
 use psd_session::PsdSession;
@@ -177,6 +177,7 @@ pub struct Core<K: StageClock> {
     control: ControlStep,
     safety: Safety,
     motors: MotorMaster,
+    motor_counters: MotorCounters,
     /// The two links' health.
     psd_link: PsdLinkHealth,
     can_link: CanLinkHealth,
@@ -214,6 +215,7 @@ impl<K: StageClock> Core<K> {
             control: ControlStep::new(rig.control.clone()),
             safety: Safety::default(),
             motors: MotorMaster::new(&rig),
+            motor_counters: MotorCounters::default(),
             out: Outbox::new(),
             psd_link: PsdLinkHealth::new(budget),
             can_link: CanLinkHealth::new(),
@@ -242,7 +244,7 @@ impl<K: StageClock> Core<K> {
         &self.safety
     }
     pub fn counters(&self) -> Counters {
-        self.counters
+        self.counters.with_motors(self.motor_counters)
     }
     /// Where the PSD line's bytes went (every one accounted for).
     pub fn serial_bytes(&self) -> SerialBytes {

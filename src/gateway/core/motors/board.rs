@@ -12,9 +12,9 @@ use flowgate_protocol::motor::{BoardState, EStopReason, FaultBits, MotorMessage,
 use flowgate_protocol::CanFrame;
 
 use super::FrameEffect;
+use super::MotorCounters;
 use crate::config::BoardSettings;
 use crate::gateway::core::budget::Budget;
-use crate::gateway::core::counters::Counters;
 use crate::gateway::core::safety::{State, StopReason};
 use crate::time::HostTime;
 
@@ -151,7 +151,13 @@ impl BoardMaster {
     }
 
     /// A frame from the bus at `now`, in gateway state `state`.
-    pub fn frame(&mut self, now: HostTime, frame: &CanFrame, state: State, counters: &mut Counters) -> FrameEffect {
+    pub fn frame(
+        &mut self,
+        now: HostTime,
+        frame: &CanFrame,
+        state: State,
+        counters: &mut MotorCounters,
+    ) -> FrameEffect {
         let mut effect = FrameEffect::default();
         let node = self.node.get();
         match MotorMessage::parse(frame) {
@@ -178,9 +184,9 @@ impl BoardMaster {
                 _ => {}
             },
             Ok(MotorMessage::GatewayHeartbeat { .. }) => {}
-            Ok(m) if m.node().is_some() => counters.can_foreign += 1,
+            Ok(m) if m.node().is_some() => counters.foreign += 1,
             Ok(_) => {}
-            Err(_) => counters.can_undecodable += 1,
+            Err(_) => counters.undecodable += 1,
         }
         effect
     }
@@ -194,7 +200,7 @@ impl BoardMaster {
         board: BoardState,
         faults: FaultBits,
         seq_errors: u8,
-        counters: &mut Counters,
+        counters: &mut MotorCounters,
     ) -> FrameEffect {
         let node = self.node.get();
         let mut effect = FrameEffect::default();

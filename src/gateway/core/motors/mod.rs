@@ -8,12 +8,24 @@ pub mod cia402;
 use flowgate_protocol::motor::EStopReason;
 use flowgate_protocol::CanFrame;
 
-use super::counters::Counters;
 use super::safety::{State, StopReason};
 use crate::config::{Motors, Rig};
 use crate::time::HostTime;
 use board::BoardMaster;
 use cia402::{Cia402Master, Heard};
+
+/// What the motors' side of the core counts: frames from the bus it could not take, and
+/// the board's own sequence errors and the enables sent again. Written here only; the
+/// core's counters take them in ([`Counters::with_motors`](super::Counters::with_motors)).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MotorCounters {
+    /// Frames from node ids that are not configured.
+    pub foreign: u64,
+    /// Frames that do not decode as motor messages.
+    pub undecodable: u64,
+    pub board_seq_errors: u64,
+    pub board_enable_retries: u64,
+}
 
 /// The gateway's side of the motors the rig has (`can.protocol`).
 #[derive(Debug)]
@@ -222,7 +234,7 @@ impl MotorMaster {
         now: HostTime,
         frame: &CanFrame,
         state: State,
-        counters: &mut Counters,
+        counters: &mut MotorCounters,
         send: &mut impl FnMut(CanFrame),
     ) -> FrameEffect {
         match self {
@@ -231,8 +243,8 @@ impl MotorMaster {
                 let (heard, stop) = m.frame(now, frame, state.is_active(), send);
                 match heard {
                     Heard::Ours => {}
-                    Heard::Foreign => counters.can_foreign += 1,
-                    Heard::Undecodable => counters.can_undecodable += 1,
+                    Heard::Foreign => counters.foreign += 1,
+                    Heard::Undecodable => counters.undecodable += 1,
                 }
                 let second_master = matches!(stop, Some(StopReason::DriveSecondMaster { .. }));
                 FrameEffect { stop, second_master, enable_again: false, settle: true }
