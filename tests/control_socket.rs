@@ -2,7 +2,7 @@
 //! `flowgate ctl` drives a session (status, arm, goal, start); bad requests get clear errors
 //! and change nothing; the socket admits only its owner and group.
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
@@ -10,9 +10,13 @@ use std::process::{Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
+#[path = "support/lines.rs"]
+mod lines;
+
 use flowgate::gateway::core::operator::{Reply, StateName, Status};
 use flowgate::gateway::shell::control_client::ControlClient;
 use flowgate::lab::Scenario;
+use lines::{await_line, lines};
 
 fn flowgate() -> Command {
     Command::new(env!("CARGO_BIN_EXE_flowgate"))
@@ -39,35 +43,6 @@ fn raw(socket: &Path, line: &[u8]) -> Reply {
 /// The gateway's status, through the client `flowgate ctl` uses.
 fn status_of(socket: &Path) -> Status {
     ControlClient::connect(socket).unwrap().status().unwrap()
-}
-
-/// Lines of the gateway's output, as they come.
-fn lines(from: impl Read + Send + 'static) -> mpsc::Receiver<String> {
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(from).lines().map_while(Result::ok) {
-            let _ = tx.send(line);
-        }
-    });
-    rx
-}
-
-/// Wait (10 s at most) for a line containing `what`.
-fn await_line(rx: &mpsc::Receiver<String>, what: &str, seen: &mut Vec<String>) {
-    let deadline = std::time::Instant::now() + Duration::from_secs(30);
-    while let Some(left) = deadline.checked_duration_since(std::time::Instant::now()) {
-        match rx.recv_timeout(left) {
-            Ok(line) => {
-                let hit = line.contains(what);
-                seen.push(line);
-                if hit {
-                    return;
-                }
-            }
-            Err(_) => break,
-        }
-    }
-    panic!("no line with `{what}`: {seen:#?}");
 }
 
 /// A running `flowgate run --config CONFIG` and its output lines, once its control socket

@@ -27,7 +27,7 @@ pub use camera::{CalibrationSection, LedSection, ObstacleLed, RefPoint, Schedule
 use checks::{invalid, ms, positive, Most};
 pub use checks::{read_text, shown, Invalid, MAX_FILE_BYTES, MAX_GOAL_TOLERANCE};
 pub use motors::{BoardSettings, CanSection, Cia402Section, Cia402Settings, DriveSection, MotorProtocolName, Motors};
-pub use planning::{default_tolerance, Goal, LaneSection, PlannerSection, RobotSection};
+pub use planning::{default_tolerance, Goal, LaneSection, PlannerMethod, PlannerSection, RobotSection};
 pub use safety::{SafetySection, SafetySettings};
 pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
 mod can_url;
@@ -39,7 +39,7 @@ pub use ros2::{DiscoveryRange, Ros2Section, Ros2Settings, MAX_DOMAIN_ID};
 
 use crate::calibration::Calibration;
 use crate::control::drive::DriveConfig;
-use crate::control::{ControlConfig, StallConfig, SupervisorConfig};
+use crate::control::{CommandSource, ControlConfig, StallConfig, SupervisorConfig};
 use crate::planner::{PlannerConfig, Space, TieBreak};
 pub use crate::track::TrackingSettings;
 use crate::track::{KalmanConfig, LedGeometry};
@@ -101,7 +101,16 @@ pub enum ConfigError {
 impl RigFile {
     /// Read, parse and check a rig config, into the typed rig.
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
-        Self::read(path)?.rig(&path.display().to_string())
+        let file = Self::read(path)?;
+        let origin = path.display().to_string();
+        // A rig's outside planner reaches it on the control socket (a scenario's, in the
+        // lab, through the virtual rig's requests).
+        if file.planner.method == PlannerMethod::Socket && file.operator.socket.is_none() {
+            let why = "\"socket\" takes the robot's commands on the control socket: set [operator] socket";
+            let invalid = invalid::<()>("planner.method", why).unwrap_err();
+            return Err(ConfigError::Invalid { path: origin, invalid });
+        }
+        file.rig(&origin)
     }
 
     /// Read and parse (not yet check) a config file.
@@ -326,6 +335,10 @@ impl RigFile {
             supervisor: Some(supervisor),
             goal_wait: p.goal_wait,
             evasion: p.evasion.unwrap_or(self.lane.is_none()),
+            source: match p.method {
+                PlannerMethod::Field => CommandSource::Field,
+                PlannerMethod::Socket => CommandSource::Outside { max_age: f64::from(p.command_max_age_ms) * 1e-3 },
+            },
         }
     }
 }

@@ -88,7 +88,43 @@ pub struct PlannerSection {
     /// fits fewer orders, for a cheaper cycle.
     #[serde(default = "default_lane_residual")]
     pub lane_residual: f64,
+    /// Where the robot's commands come from: `"field"`, the hydrodynamic field (the
+    /// default), or `"socket"`, a planner outside flowgate sending `drive` or `wheels`
+    /// lines on the control socket (docs/policies.md). Every command, whoever made it, goes
+    /// through the safety supervisor.
+    #[serde(default, skip_serializing_if = "PlannerMethod::is_field")]
+    pub method: PlannerMethod,
+    /// With an outside method: a command older than this when a cycle would drive on it
+    /// stops the robot in order, and the stop holds until the operator's `start`, ms.
+    #[serde(default = "default_command_max_age", skip_serializing_if = "is_default_command_max_age")]
+    pub command_max_age_ms: u32,
 }
+
+/// `planner.method`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlannerMethod {
+    #[default]
+    Field,
+    Socket,
+}
+
+impl PlannerMethod {
+    fn is_field(&self) -> bool {
+        *self == Self::Field
+    }
+}
+
+pub(super) fn default_command_max_age() -> u32 {
+    250
+}
+
+fn is_default_command_max_age(ms: &u32) -> bool {
+    *ms == default_command_max_age()
+}
+
+/// The most and least `planner.command_max_age_ms` accepted.
+const COMMAND_MAX_AGE_MS: std::ops::RangeInclusive<u32> = 20..=5000;
 
 pub(super) fn default_true() -> bool {
     true
@@ -160,6 +196,17 @@ impl PlannerSection {
             return invalid(
                 "planner.lane_residual",
                 format!("must be from 1e-10 to 1e-4, is {:e}", self.lane_residual),
+            );
+        }
+        if !COMMAND_MAX_AGE_MS.contains(&self.command_max_age_ms) {
+            return invalid(
+                "planner.command_max_age_ms",
+                format!(
+                    "must be from {} to {} ms, is {}",
+                    COMMAND_MAX_AGE_MS.start(),
+                    COMMAND_MAX_AGE_MS.end(),
+                    self.command_max_age_ms
+                ),
             );
         }
         if !(self.goal_wait.is_finite() && (0.0..=3600.0).contains(&self.goal_wait)) {

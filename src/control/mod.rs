@@ -3,9 +3,11 @@
 //! runs live, offline, in replay and in benchmarks.
 
 pub mod drive;
+pub mod outside;
 mod step;
 pub mod supervisor;
 
 pub use crate::track::Estimate;
+pub use outside::{CommandSource, OutsideCommand};
 pub use step::{ControlConfig, ControlStep, Envelope, StallConfig, StepOutput, StepStatus};
 pub use supervisor::{evade, supervise, Evasion, Supervision, SupervisorConfig};

@@ -1,6 +1,7 @@
 //! One control cycle: the estimate in, the planner's velocity, the supervisor's verdict and
 //! evasion, and the pulse rates out; with the stall and goal-occupied checks around them.
 
+use super::outside::{CommandSource, OutsideCommand, OutsideCommands};
 use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
 use crate::control::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::geometry::Length;
@@ -46,6 +47,8 @@ pub struct ControlConfig {
     pub goal_wait: f64,
     /// Evade where the robot would be run into ([`super::supervisor::evade`]).
     pub evasion: bool,
+    /// The field, or a planner outside flowgate.
+    pub source: CommandSource,
 }
 
 /// What the step decided.
@@ -66,6 +69,9 @@ pub enum StepStatus {
     },
     /// The planner refused the input: the robot is commanded to stop.
     Invalid(PlannerError),
+    /// Driven from outside, the latest command is older than the source's `max_age` (or
+    /// none came since the start): the robot is commanded to stop.
+    CommandStale,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -74,6 +80,11 @@ pub struct StepOutput {
     pub plan: Option<Plan>,
     /// What the safety supervisor did to the planner's command.
     pub supervision: Supervision,
+    /// The wheel speeds the planner asked for, before the supervisor (`wheels`: what it
+    /// passed).
+    pub asked: WheelSpeeds,
+    /// An outside command beyond the robot's limits was scaled down to them.
+    pub saturated: bool,
     /// Some obstacle outruns what the robot can deliver: avoidance is not guaranteed
     /// (judged with hysteresis, see [`Envelope`]).
     pub outrun: bool,
@@ -88,6 +99,8 @@ impl StepOutput {
             status,
             plan,
             supervision: Supervision::Passed,
+            asked: WheelSpeeds::default(),
+            saturated: false,
             outrun: false,
             wheels: WheelSpeeds::default(),
             pulses: [0, 0],
@@ -143,6 +156,7 @@ pub struct ControlStep {
     /// Since when the goal has been inside an obstacle's planning circle.
     goal_occupied_since: Option<f64>,
     envelope: Envelope,
+    outside: OutsideCommands,
 }
 
 impl ControlStep {
@@ -151,7 +165,28 @@ impl ControlStep {
         let mut field = Field::empty(config.planner.space, planner.sink(config.goal));
         // The room's buffers are made here, not in the first cycle.
         field.set_room(config.room.as_ref());
-        Self { config, planner, field, progress_anchor: None, goal_occupied_since: None, envelope: Envelope::default() }
+        Self {
+            config,
+            planner,
+            field,
+            progress_anchor: None,
+            goal_occupied_since: None,
+            envelope: Envelope::default(),
+            outside: OutsideCommands::default(),
+        }
+    }
+
+    /// An outside planner's command, taken at `t` (driven on only with
+    /// [`CommandSource::Outside`]).
+    pub fn take_command(&mut self, t: f64, command: OutsideCommand) {
+        self.outside.take(t, command);
+    }
+
+    /// Driving starts at `t` (the operator's `start`): an outside planner has its
+    /// `max_age` from now to send its first command.
+    pub fn start(&mut self, t: f64) {
+        self.outside.start(t);
+        self.progress_anchor = None;
     }
     /// Drive to a new goal from the next step (progress is judged afresh).
     pub fn set_goal(&mut self, goal: Point, tolerance: f64) {
@@ -200,6 +235,9 @@ impl ControlStep {
         if (position - self.config.goal).length() <= self.config.goal_tolerance {
             return StepOutput::stop(StepStatus::AtGoal, None);
         }
+        if let CommandSource::Outside { max_age } = self.config.source {
+            return self.drive_outside(t, estimate, outrun, max_age);
+        }
         let input = PlanInput {
             position,
             goal: self.config.goal,
@@ -228,7 +266,43 @@ impl ControlStep {
             return StepOutput::stop(StepStatus::Stalled, Some(plan));
         }
         let proposed = wheel_speeds(plan.velocity, estimate.facing, &self.config.drive);
-        let (wheels, supervision) = match &self.config.supervisor {
+        let (wheels, supervision) = self.supervised(estimate, proposed, outrun);
+        let pulses = pulse_rates(wheels, &self.config.drive);
+        StepOutput {
+            status: StepStatus::Driving,
+            plan: Some(plan),
+            supervision,
+            asked: proposed,
+            saturated: false,
+            outrun: false,
+            wheels,
+            pulses,
+        }
+    }
+
+    /// The outside planner's latest command, within the robot's limits and supervised.
+    fn drive_outside(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool, max_age: f64) -> StepOutput {
+        let Some(command) = self.outside.current(t, max_age) else {
+            return StepOutput::stop(StepStatus::CommandStale, None);
+        };
+        let (asked, saturated) = command.wheels(&self.config.drive, self.config.planner.max_speed);
+        let (wheels, supervision) = self.supervised(estimate, asked, outrun);
+        let pulses = pulse_rates(wheels, &self.config.drive);
+        StepOutput {
+            status: StepStatus::Driving,
+            plan: None,
+            supervision,
+            asked,
+            saturated,
+            outrun: false,
+            wheels,
+            pulses,
+        }
+    }
+
+    /// What the supervisor (and evasion, where on) passes of `proposed`.
+    fn supervised(&self, estimate: &Estimate<'_>, proposed: WheelSpeeds, outrun: bool) -> (WheelSpeeds, Supervision) {
+        match &self.config.supervisor {
             Some(cfg) => {
                 let (chosen, verdict) = supervise(cfg, estimate, proposed);
                 let hazard = match verdict {
@@ -247,9 +321,7 @@ impl ControlStep {
                 }
             }
             None => (proposed, Supervision::Passed),
-        };
-        let pulses = pulse_rates(wheels, &self.config.drive);
-        StepOutput { status: StepStatus::Driving, plan: Some(plan), supervision, outrun: false, wheels, pulses }
+        }
     }
 
     fn stalled(&mut self, t: f64, position: Point) -> bool {

@@ -359,7 +359,7 @@ impl Tally {
             StepStatus::AtGoal => return Some(Outcome::Goal),
             StepStatus::Stalled => return Some(Outcome::Stall),
             StepStatus::GoalOccupied { .. } => self.goal_occupied += 1,
-            StepStatus::GoalBlocked { .. } => return Some(Outcome::Stopped),
+            StepStatus::GoalBlocked { .. } | StepStatus::CommandStale => return Some(Outcome::Stopped),
             StepStatus::Invalid(_) => self.invalid += 1,
             StepStatus::Driving => {}
         }

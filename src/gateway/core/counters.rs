@@ -116,6 +116,10 @@ pub struct Counters {
     pub planner_margin_shrunk: u64,
     pub planner_unclosed_at_a_wall: u64,
     pub telemetry_dropped: u64,
+    /// Commands taken from a planner outside flowgate, and the cycles that drove on one
+    /// beyond the robot's limits (scaled down to them).
+    pub outside_commands: u64,
+    pub outside_commands_saturated: u64,
     /// Operator requests dropped unanswered: their client had been told they failed
     /// (`stop` and `estop` are never dropped).
     pub requests_expired: u64,

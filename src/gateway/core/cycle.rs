@@ -46,6 +46,7 @@ impl<K: StageClock> Core<K> {
         }
         self.last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
         self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
+        let asked = d.step.map_or([0.0; 2], |out| [out.asked.left, out.asked.right]);
         let (pulses, wheels) = match d.step {
             Some(out) => self.carry_out(now, out),
             None => ([0; 2], (0.0, 0.0)),
@@ -62,6 +63,8 @@ impl<K: StageClock> Core<K> {
             checks_ns,
             track_ns: d.track_ns,
             plan_ns,
+            asked,
+            passed: [wheels.0, wheels.1],
             ..self.record(now, frame_no, end, pulses, d.delay, d.pose.position)
         };
         self.command(now, pulses, record, d.pose.position);
@@ -82,6 +85,7 @@ impl<K: StageClock> Core<K> {
         let started = ready && self.safety.state() == State::Armed;
         if started {
             self.safety.ready(t);
+            self.control.start(t);
         }
         let plan_start = self.clock.now_ns();
         let step = self.safety.state().may_move().then(|| self.control.step(t, &tracked.estimate));
@@ -106,6 +110,7 @@ impl<K: StageClock> Core<K> {
             self.step_stopped(now, out.status);
             return ([0; 2], (0.0, 0.0));
         }
+        c.outside_commands_saturated += u64::from(out.saturated);
         match out.supervision {
             Supervision::Passed => {}
             Supervision::Slowed { .. } => c.supervisor_slowed += 1,
@@ -121,6 +126,7 @@ impl<K: StageClock> Core<K> {
             StepStatus::Driving => {}
             StepStatus::AtGoal => self.goal_reached(now),
             StepStatus::Stalled => self.stop(now, StopReason::Stalled),
+            StepStatus::CommandStale => self.stop(now, StopReason::CommandStale),
             StepStatus::GoalOccupied { index, since } => {
                 self.counters.goal_occupied += 1;
                 if since == now.secs() {

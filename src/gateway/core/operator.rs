@@ -5,6 +5,7 @@
 //! {"cmd":"status"}   {"cmd":"arm"}   {"cmd":"start"}   {"cmd":"stop"}   {"cmd":"estop"}
 //! {"cmd":"reset"}    {"cmd":"cancel"}    {"cmd":"stats"}    {"cmd":"stats","reset":true}
 //! {"cmd":"goal","goals":[{"position":[0.6,0.0],"tolerance":0.02}, ...]}   (one goal, or a queue)
+//! {"cmd":"drive","v":0.1,"w":0.0}    {"cmd":"wheels","left":0.1,"right":0.12}   (planner.method = "socket")
 //! ```
 //!
 //! Answers are `{"ok":true,"status":{...}}` or `{"ok":false,"error":"not armed",...}`. The
@@ -48,12 +49,50 @@ pub enum Request {
         #[serde(default)]
         reset: bool,
     },
+    /// Drive on this command, with `planner.method = "socket"`: the robot's forward speed
+    /// `v`, m/s, and turn rate `w`, rad/s. Held until the next; the supervisor checks it
+    /// every cycle. It never arms or starts the robot.
+    Drive {
+        #[serde(deserialize_with = "number_or_nan")]
+        v: f64,
+        #[serde(deserialize_with = "number_or_nan")]
+        w: f64,
+    },
+    /// The same as the wheels' rim speeds, m/s.
+    Wheels {
+        #[serde(deserialize_with = "number_or_nan")]
+        left: f64,
+        #[serde(deserialize_with = "number_or_nan")]
+        right: f64,
+    },
+}
+
+/// A number, or `null` for one JSON cannot carry (a NaN or an infinity: the control socket
+/// reads Python's `NaN` and `Infinity` as `null`), which is then NaN and stops the robot.
+fn number_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 impl Request {
     /// Asks only for information: changes nothing, goes unlogged.
     pub fn is_query(&self) -> bool {
         matches!(self, Request::Status | Request::Stats { .. })
+    }
+
+    /// A command from a planner outside flowgate: answered without the status, unlogged (one
+    /// a cycle).
+    pub fn is_command(&self) -> bool {
+        matches!(self, Request::Drive { .. } | Request::Wheels { .. })
+    }
+
+    /// The outside command it carries.
+    pub fn command(&self) -> Option<crate::control::OutsideCommand> {
+        use crate::control::OutsideCommand;
+        match *self {
+            Request::Drive { v, w } => Some(OutsideCommand::Twist { v, w }),
+            Request::Wheels { left, right } => Some(OutsideCommand::Wheels { left, right }),
+            _ => None,
+        }
     }
 
     /// `stop` and `estop`: obeyed whenever they arrive, however late, and never queued behind
@@ -88,6 +127,10 @@ pub enum Refusal {
     TooManyGoals(usize),
     #[error("goal {index} ({x}, {y}): {why}")]
     BadGoal { index: usize, x: f64, y: f64, why: String },
+    #[error("planner.method is \"field\": the field drives (set planner.method = \"socket\" to drive from outside)")]
+    FieldDrives,
+    #[error("command not finite (NaN or infinite): the robot stops")]
+    CommandNotFinite,
 }
 
 /// An obstacle as the gateway estimates it.

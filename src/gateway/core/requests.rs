@@ -15,7 +15,7 @@ impl<K: StageClock> Core<K> {
     /// request.
     pub(super) fn answer(&mut self, now: HostTime, request: &Request) -> Answer {
         let result = self.request(now, request);
-        let status = (request.is_query() || result.is_ok()).then(|| self.status(now));
+        let status = (request.is_query() || (result.is_ok() && !request.is_command())).then(|| self.status(now));
         Answer { result, status }
     }
 
@@ -30,7 +30,26 @@ impl<K: StageClock> Core<K> {
             Request::EStop => self.estop(now),
             Request::Reset => self.reset(now),
             Request::Goal { goals } => self.set_goals(now, goals),
+            Request::Drive { .. } | Request::Wheels { .. } => self.outside_command(now, request),
         }
+    }
+
+    /// A command from a planner outside flowgate: held for the cycles to drive on; one not
+    /// finite stops a moving robot, named.
+    fn outside_command(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
+        let Some(command) = request.command() else { return Ok(()) };
+        if self.rig.control.source == crate::control::CommandSource::Field {
+            return Err(Refusal::FieldDrives);
+        }
+        if !command.is_finite() {
+            if self.state().is_active() {
+                self.stop(now, StopReason::CommandNotFinite);
+            }
+            return Err(Refusal::CommandNotFinite);
+        }
+        self.counters.outside_commands += 1;
+        self.control.take_command(now.secs(), command);
+        Ok(())
     }
 
     fn arm(&mut self, now: HostTime) -> Result<(), Refusal> {

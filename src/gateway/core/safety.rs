@@ -146,6 +146,11 @@ pub enum StopReason {
         node: u8,
     },
     PlannerInvalid,
+    /// Driven by a planner outside flowgate (`planner.method`), its latest command was older
+    /// than `planner.command_max_age_ms` when a cycle would drive on it (orderly stop).
+    CommandStale,
+    /// A planner outside flowgate sent a command that is not a number (NaN) or infinite.
+    CommandNotFinite,
     /// A CiA 402 drive's heartbeat stopped for longer than `safety.heartbeat_timeout_ms`.
     DriveHeartbeatLost {
         node: u8,
@@ -191,7 +196,7 @@ pub enum StopReason {
 
 impl StopReason {
     /// One of each reason (the LED or node 0): every label `/metrics` carries from the start.
-    pub const ALL: [StopReason; 42] = [
+    pub const ALL: [StopReason; 44] = [
         Self::GoalReached,
         Self::Stalled,
         Self::Operator,
@@ -226,6 +231,8 @@ impl StopReason {
         Self::BoardEStop { node: 0 },
         Self::BoardNotEnabled { node: 0 },
         Self::PlannerInvalid,
+        Self::CommandStale,
+        Self::CommandNotFinite,
         Self::DriveHeartbeatLost { node: 0 },
         Self::DriveRebooted { node: 0 },
         Self::DriveSecondMaster { node: 0 },
@@ -253,7 +260,15 @@ impl StopReason {
     }
 
     pub fn is_fault(self) -> bool {
-        !matches!(self, Self::GoalReached | Self::Stalled | Self::Operator | Self::Shutdown | Self::GoalBlocked)
+        !matches!(
+            self,
+            Self::GoalReached
+                | Self::Stalled
+                | Self::Operator
+                | Self::Shutdown
+                | Self::GoalBlocked
+                | Self::CommandStale
+        )
     }
 }
 
@@ -287,6 +302,8 @@ impl StopReason {
             Self::GoalBlocked => "goal inside an obstacle's planning circle for longer than planner.goal_wait",
             Self::OperatorEStop => "operator emergency stop",
             Self::Stalled => "stalled (no progress)",
+            Self::CommandStale => "the outside planner's command older than planner.command_max_age_ms",
+            Self::CommandNotFinite => "the outside planner's command not finite (NaN or infinite)",
             Self::Operator => "operator stop",
             Self::Shutdown => "shutdown signal",
             Self::PoseLost => "robot pose lost",
@@ -624,6 +641,8 @@ mod tests {
                 | StopReason::BoardEStop { .. }
                 | StopReason::BoardNotEnabled { .. }
                 | StopReason::PlannerInvalid
+                | StopReason::CommandStale
+                | StopReason::CommandNotFinite
                 | StopReason::DriveHeartbeatLost { .. }
                 | StopReason::DriveRebooted { .. }
                 | StopReason::DriveSecondMaster { .. }

@@ -40,10 +40,14 @@ pub struct CycleRecord {
     pub x: f64,
     pub y: f64,
     pub goal_distance: f64,
+    /// The wheels' rim speeds the planner asked for (the field, or an outside planner), and
+    /// those the supervisor passed, m/s: left, right.
+    pub asked: [f64; 2],
+    pub passed: [f64; 2],
 }
 
 impl CycleRecord {
-    pub const CSV_HEADER: &'static str = "cycle,frame,t_ctrl_us,rx_ns,decode_ns,checks_ns,track_ns,plan_ns,encode_ns,can_write_ns,can_done_ns,e2e_ns,period_ns,deadline_miss,delay_s,state,pulses_left,pulses_right,x,y,goal_distance";
+    pub const CSV_HEADER: &'static str = "cycle,frame,t_ctrl_us,rx_ns,decode_ns,checks_ns,track_ns,plan_ns,encode_ns,can_write_ns,can_done_ns,e2e_ns,period_ns,deadline_miss,delay_s,state,pulses_left,pulses_right,x,y,goal_distance,asked_left,asked_right,passed_left,passed_right";
 
     /// The command frame was written: it took `write_ns` and was done at `done`.
     pub fn written(&mut self, write_ns: u64, done: HostTime, sample_period: std::time::Duration) {
@@ -78,7 +82,7 @@ impl CycleRecord {
     pub fn csv(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
         writeln!(
             out,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.6},{},{},{},{:.5},{:.5},{:.5}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.6},{},{},{},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5}",
             self.cycle,
             self.frame,
             self.t_ctrl_us,
@@ -99,7 +103,11 @@ impl CycleRecord {
             self.pulses[1],
             self.x,
             self.y,
-            self.goal_distance
+            self.goal_distance,
+            self.asked[0],
+            self.asked[1],
+            self.passed[0],
+            self.passed[1]
         )
     }
 }

@@ -168,6 +168,25 @@ impl RequestSender {
     }
 }
 
+/// A request line. A command (`drive`, `wheels`) may carry Python's `NaN`, `Infinity` or
+/// `-Infinity`, which JSON has no words for: read as not finite, so that it stops the robot
+/// by its name rather than going unread as malformed.
+fn parse_request(line: &[u8]) -> Result<Request, serde_json::Error> {
+    let error = match serde_json::from_slice::<Request>(line) {
+        Ok(request) => return Ok(request),
+        Err(e) => e,
+    };
+    let Ok(text) = std::str::from_utf8(line) else { return Err(error) };
+    if !(text.contains("NaN") || text.contains("Infinity")) {
+        return Err(error);
+    }
+    let lenient = text.replace("-Infinity", "null").replace("Infinity", "null").replace("NaN", "null");
+    match serde_json::from_str::<Request>(&lenient) {
+        Ok(request) if request.is_command() => Ok(request),
+        _ => Err(error),
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum ControlSocketError {
     #[error(
@@ -422,7 +441,7 @@ async fn serve_lines(stream: UnixStream, tx: &RequestSender, seat: &Seat) -> End
             // The client hung up mid-line: nothing to answer.
             return Ending::HungUp;
         } else {
-            match serde_json::from_slice::<Request>(&line) {
+            match parse_request(&line) {
                 Err(e) => Reply::error(format!("malformed request: {e}")),
                 Ok(request) => {
                     seat.set(true);

@@ -211,7 +211,19 @@ fn encode_control_counters(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) ->
         "flowgate_supervisor_interventions",
         "Cycles whose command the safety supervisor changed, by how.",
         "how",
-        &[("slowed", c.supervisor_slowed), ("braking", c.supervisor_braking)],
+        &[("slowed", c.supervisor_slowed), ("braking", c.supervisor_braking), ("evaded", c.supervisor_evaded)],
+    )?;
+    counter(
+        encoder,
+        "flowgate_outside_commands",
+        "Commands taken from a planner outside flowgate (planner.method).",
+        c.outside_commands,
+    )?;
+    counter(
+        encoder,
+        "flowgate_outside_commands_saturated",
+        "Cycles that drove on an outside planner's command beyond the robot's limits, scaled down to them.",
+        c.outside_commands_saturated,
     )?;
     counter(
         encoder,

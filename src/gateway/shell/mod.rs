@@ -502,7 +502,7 @@ impl Io {
             Ok(()) => format!("{}: {:?} accepted", cmd.peer, cmd.request),
             Err(e) => format!("{}: {:?} refused: {e}", cmd.peer, cmd.request),
         };
-        if !cmd.request.is_query() {
+        if !cmd.request.is_query() && !cmd.request.is_command() {
             match &result {
                 Ok(()) => tracing::info!("{text}"),
                 Err(_) => tracing::warn!("{text}"),

@@ -239,7 +239,9 @@ const CYCLE_DERIVED: [&str; 1] = ["can_done_ns"];
 fn cycle_field_type(name: &str) -> &'static str {
     match name {
         "state" => "string",
-        "delay_s" | "goal_distance" | "x" | "y" => "number",
+        "delay_s" | "goal_distance" | "x" | "y" | "asked_left" | "asked_right" | "passed_left" | "passed_right" => {
+            "number"
+        }
         _ => "integer",
     }
 }
