@@ -66,6 +66,15 @@ pub struct PlanArgs {
     /// comparisons; the gateway always runs it).
     #[arg(long)]
     unsupervised: bool,
+    /// Let a planner outside flowgate drive: CMD (run by `sh -c`) speaks JSON lines with the
+    /// whole stack in virtual time, its commands supervised (docs/policies.md); with
+    /// --sweep, one process a worker.
+    #[arg(long, value_name = "CMD", conflicts_with_all = ["all", "swarm", "planner_only", "unsupervised", "compare", "merge"])]
+    policy: Option<String>,
+    /// How long the policy may take to answer one observation, host time, ms.
+    #[arg(long, value_name = "MS", default_value_t = 1000, requires = "policy",
+          value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    policy_budget_ms: u64,
     /// Where to write summary.json and the plots (default: out/plan/<scenario>).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -75,6 +84,10 @@ impl PlanArgs {
     /// `--threads`, or the CPUs this process may use.
     fn threads(&self) -> usize {
         self.threads.map_or_else(sweep::available_threads, usize::from)
+    }
+
+    fn policy_budget(&self) -> std::time::Duration {
+        std::time::Duration::from_millis(self.policy_budget_ms)
     }
 }
 
@@ -104,8 +117,14 @@ pub fn run(args: PlanArgs) -> Result<()> {
     if let Some(n) = args.swarm {
         return swarm_command(&args, file, &scenario, n, &out);
     }
-    let run = outputs::run_one(&scenario, mode, Some(&out))?;
+    let run = match &args.policy {
+        Some(command) => outputs::run_policy(&scenario, command, args.policy_budget(), Some(&out))?,
+        None => outputs::run_one(&scenario, mode, Some(&out))?,
+    };
     say!("{}  ({mode})", plots::one_line(&run));
+    if let Some(stop) = run.summary.stop_reason.as_deref().filter(|s| s.starts_with("policy:")) {
+        say!("  {stop}");
+    }
     outputs::write_run(&out, &scenario, &run)?;
     say_run_files(&out, mode);
     Ok(())
@@ -132,8 +151,19 @@ fn sweep_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: usize, ou
         .into_bytes();
     outputs::folder(out)?;
     let shard = args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?;
-    let episodes =
-        sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, shard.unwrap_or(sweep::Shard::WHOLE))?;
+    let whole = shard.unwrap_or(sweep::Shard::WHOLE);
+    let episodes = match &args.policy {
+        Some(command) => sweep::run_policy_shard(
+            scenario,
+            n as u64,
+            args.seed,
+            args.threads(),
+            whole,
+            command,
+            args.policy_budget(),
+        )?,
+        None => sweep::run_shard(scenario, n as u64, args.seed, args.threads(), mode, whole)?,
+    };
     let manifest =
         sweep::Manifest::new(scenario, &bytes, mode, args.seed, n as u64, shard.unwrap_or(sweep::Shard::WHOLE));
     let report = sweep::report(&scenario.name, args.seed, mode, scenario.supervised, &episodes);

@@ -268,7 +268,7 @@ impl DriveSection {
 /// The motors the gateway drives, as checked at load.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Motors {
-    /// One PCL-80K-like board for both wheels, at [`Rig::node`].
+    /// One PCL-80K-like board for both wheels, at [`Rig::node`](super::Rig::node).
     Pcl80k,
     /// One CiA 402 drive a wheel.
     Cia402(Cia402Settings),

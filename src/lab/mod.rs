@@ -6,6 +6,8 @@
 //!   implies (the same [`crate::config::RigFile`] and rules a rig uses);
 //! - [`virtual_rig`]: the whole stack in deterministic virtual time: the real gateway core
 //!   wired to the simulator's firmware and world through the real encoders and decoders;
+//! - [`policy`]: a planner outside flowgate as a process speaking JSON lines with the
+//!   whole stack in virtual time (`plan --policy`);
 //! - [`planner_only`]: the planner-only runner (control step against the world, with a
 //!   modelled sensing chain), and one run of either mode;
 //! - [`sweep`]: many seeded episodes of either mode, sharded and merged;
@@ -18,6 +20,7 @@ pub mod demo;
 pub mod outputs;
 pub mod planner_only;
 pub mod plots;
+pub mod policy;
 pub mod scenario;
 pub mod swarm;
 pub mod sweep;

@@ -72,6 +72,33 @@ pub fn run_one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<pl
     })
 }
 
+/// One run of `scenario` through the whole stack with an outside policy (`command`) as its
+/// planner, in virtual time on no host clock: the same policy gives the same bytes. Its
+/// `cycles.csv` and `can.log` go into `out`, when given; a policy's failure is the run's
+/// stop (`policy: ...`).
+pub fn run_policy(
+    scenario: &Scenario,
+    command: &str,
+    budget: std::time::Duration,
+    out: Option<&Path>,
+) -> Result<planner_only::Run, OutputError> {
+    let options = virtual_rig::Options { truth_samples: out.is_some(), telemetry: true, ..Default::default() };
+    let mut worker = super::policy::Worker::new(command, budget);
+    let (episode, failure) = worker.episode(scenario, options);
+    worker.close();
+    if let Some(e) = episode.setup_error {
+        return Err(OutputError::Setup { scenario: scenario.name.clone(), error: e.to_string() });
+    }
+    let mut run = planner_only::Run::from_episode(scenario, &episode);
+    if let Some(e) = failure {
+        run.summary.stop_reason = Some(e.to_string());
+    }
+    if let (Some(t), Some(out)) = (&episode.telemetry, out) {
+        t.write(out).map_err(io_at(out))?;
+    }
+    Ok(run)
+}
+
 /// A single run's summary and plots ([`RUN_FILES`]).
 pub fn write_run(dir: &Path, scenario: &Scenario, run: &planner_only::Run) -> Result<(), OutputError> {
     folder(dir)?;

@@ -72,17 +72,23 @@ impl Mode {
             }
             Mode::FullStack => {
                 let options = super::virtual_rig::Options { stop_at_contact: true, ..Default::default() };
-                let e = super::virtual_rig::run(s, options);
-                let t = &e.truth.summary;
-                EpisodeResult {
-                    outcome: e.outcome,
-                    min_obstacle_clearance: t.min_obstacle_clearance,
-                    min_wall_clearance: t.min_wall_clearance,
-                    contact: t.contact,
-                    duration: t.duration,
-                    path_length: t.path_length,
-                }
+                EpisodeResult::of(&super::virtual_rig::run(s, options))
             }
+        }
+    }
+}
+
+impl EpisodeResult {
+    /// A whole-stack run's result.
+    pub fn of(e: &super::virtual_rig::VirtualRun) -> Self {
+        let t = &e.truth.summary;
+        Self {
+            outcome: e.outcome,
+            min_obstacle_clearance: t.min_obstacle_clearance,
+            min_wall_clearance: t.min_wall_clearance,
+            contact: t.contact,
+            duration: t.duration,
+            path_length: t.path_length,
         }
     }
 }

@@ -528,6 +528,42 @@ impl<K: StageClock> VirtualRig<K> {
         self.finish(goal, tolerance)
     }
 
+    /// Run as [`run`](Self::run), handing the rig to `drive` once every `period` s of virtual
+    /// time from the start (an outside planner's turn: it looks, and asks). An error from
+    /// `drive` ends its turns: the robot is stopped in order, the world runs [`LINGER`] more,
+    /// and the error comes back beside the run.
+    pub fn run_driven<E>(
+        mut self,
+        time_limit: f64,
+        goal: [f64; 2],
+        tolerance: f64,
+        period: f64,
+        mut drive: impl FnMut(&mut Self) -> Result<(), E>,
+    ) -> (VirtualRun, Option<E>) {
+        let mut end = time_limit;
+        let mut turn = 0.0;
+        let mut failure = None;
+        while self.time() < end && self.setup_error.is_none() {
+            if failure.is_none() && self.time() >= turn {
+                turn += period;
+                if let Err(e) = drive(&mut self) {
+                    failure = Some(e);
+                    let _ = self.request(&Request::Stop);
+                    end = (self.time() + LINGER).min(time_limit);
+                    continue;
+                }
+            }
+            self.step();
+            if self.options.stop_at_contact && self.world.first_contact().is_some() {
+                break;
+            }
+            if self.core.state().is_terminal() && end == time_limit {
+                end = (self.time() + LINGER).min(time_limit);
+            }
+        }
+        (self.finish(goal, tolerance), failure)
+    }
+
     /// Run until virtual time `t` (s).
     pub fn run_until(&mut self, t: f64) {
         while self.time() < t && self.setup_error.is_none() {
@@ -551,6 +587,11 @@ impl<K: StageClock> VirtualRig<K> {
     /// An operator's request now.
     pub fn request(&mut self, request: &Request) -> Result<(), Refusal> {
         self.ask(request).result
+    }
+
+    /// What the gateway believes now (its last cycle's pose and speeds, its obstacles).
+    pub fn scene(&self) -> crate::gateway::core::scene::SceneRecord {
+        self.core.scene(HostTime::from_nanos(self.t))
     }
 
     /// The operator's status view now.

@@ -26,7 +26,7 @@
 //! circle only nearly a streamline (21% of the flow's speed at E2's 70% blockage). `M_k`
 //! cancels what is left: a series of lane multipoles at `z_k` (with a source carrying the
 //! flux a circle across a wall sweeps), fitted by least squares on the circle each time the
-//! field is built ([`super::multipole`]). It leaves the walls exact and each circle a
+//! field is built ([`super::lane_series`]). It leaves the walls exact and each circle a
 //! streamline to the fit's residual: below 1e-6 of the flow's speed up to a 90% blockage,
 //! clear of the walls or reaching one (which `in_lane` first closes against it).
 
@@ -112,7 +112,7 @@ pub struct Field {
     /// Image of the goal sink in circle k.
     sink_images: [Point; MAX_OBSTACLES],
     /// Lane only (empty in free space, which so never pays for it): each obstacle's
-    /// multipole series that makes its circle a streamline (see [`super::multipole`]).
+    /// multipole series that makes its circle a streamline (see [`super::lane_series`]).
     lane_series: ArrayVec<LaneSeries, MAX_OBSTACLES>,
     /// Some circle reaching a wall was left unclosed, its closure taking in the robot or the
     /// goal (see `in_lane`): its series is the less exact arc fit.

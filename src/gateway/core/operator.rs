@@ -67,9 +67,16 @@ pub enum Request {
     },
 }
 
+/// `text` with Python's `NaN`, `Infinity` and `-Infinity` (which JSON has no words for) as
+/// `null`, when it has any: for reading a command that carries one as not finite.
+pub fn non_finite_as_null(text: &str) -> Option<String> {
+    (text.contains("NaN") || text.contains("Infinity"))
+        .then(|| text.replace("-Infinity", "null").replace("Infinity", "null").replace("NaN", "null"))
+}
+
 /// A number, or `null` for one JSON cannot carry (a NaN or an infinity: the control socket
 /// reads Python's `NaN` and `Infinity` as `null`), which is then NaN and stops the robot.
-fn number_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+pub fn number_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 

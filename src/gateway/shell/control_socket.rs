@@ -30,7 +30,7 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::AbortHandle;
 use tokio::time::{timeout, timeout_at, Instant};
 
-use crate::gateway::core::operator::{Reply, Request};
+use crate::gateway::core::operator::{non_finite_as_null, Reply, Request};
 
 /// Longest request line accepted, bytes.
 pub const MAX_REQUEST: usize = 4096;
@@ -176,11 +176,7 @@ fn parse_request(line: &[u8]) -> Result<Request, serde_json::Error> {
         Ok(request) => return Ok(request),
         Err(e) => e,
     };
-    let Ok(text) = std::str::from_utf8(line) else { return Err(error) };
-    if !(text.contains("NaN") || text.contains("Infinity")) {
-        return Err(error);
-    }
-    let lenient = text.replace("-Infinity", "null").replace("Infinity", "null").replace("NaN", "null");
+    let Some(lenient) = std::str::from_utf8(line).ok().and_then(non_finite_as_null) else { return Err(error) };
     match serde_json::from_str::<Request>(&lenient) {
         Ok(request) if request.is_command() => Ok(request),
         _ => Err(error),

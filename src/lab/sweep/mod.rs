@@ -181,21 +181,53 @@ pub fn run_shard(
 ) -> Result<Vec<Episode>, TooLarge> {
     let mut episodes = shard.run(n, threads, |i| {
         let s = perturb(base, seed, i);
-        let r = mode.episode(&s);
-        Episode {
-            index: i,
+        Episode::of(i, &s, &mode.episode(&s))
+    })?;
+    episodes.sort_by_key(|e| e.index);
+    Ok(episodes)
+}
+
+/// The same through the whole stack with an outside policy as the planner (`plan --policy
+/// CMD --sweep N`): one policy process a worker. An episode the policy fails ends stopped,
+/// its reason logged.
+pub fn run_policy_shard(
+    base: &Scenario,
+    n: u64,
+    seed: u64,
+    threads: usize,
+    shard: Shard,
+    command: &str,
+    budget: std::time::Duration,
+) -> Result<Vec<Episode>, TooLarge> {
+    let worker = || super::policy::Worker::new(command, budget);
+    let mut episodes = shard.run_with(n, threads, worker, |policy, i| {
+        let s = perturb(base, seed, i);
+        let options = super::virtual_rig::Options { stop_at_contact: true, ..Default::default() };
+        let (run, failure) = policy.episode(&s, options);
+        if let Some(e) = failure {
+            tracing::warn!("episode {i}: {e}");
+        }
+        Episode::of(i, &s, &super::planner_only::EpisodeResult::of(&run))
+    })?;
+    episodes.sort_by_key(|e| e.index);
+    Ok(episodes)
+}
+
+impl Episode {
+    /// Episode `index`, scenario `s`, ended as `r` says.
+    fn of(index: u64, s: &Scenario, r: &super::planner_only::EpisodeResult) -> Self {
+        Self {
+            index,
             outcome: r.outcome,
             min_clearance: r.min_obstacle_clearance,
-            speed_ratio: fastest_obstacle(&s) / s.robot.max_speed,
+            speed_ratio: fastest_obstacle(s) / s.robot.max_speed,
             delay: s.sensing.delay,
             active_contact: r.outcome == Outcome::Collision && r.contact.is_some_and(|c| c.active),
             min_wall_clearance: r.min_wall_clearance,
             duration: r.duration,
             path_length: r.path_length,
         }
-    })?;
-    episodes.sort_by_key(|e| e.index);
-    Ok(episodes)
+    }
 }
 
 /// The report over `episodes` (of a whole sweep, or of one shard).

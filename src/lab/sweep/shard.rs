@@ -36,13 +36,25 @@ impl Shard {
     /// episodes run on the calling thread instead: slower, nothing lost. Refused before any
     /// episode runs if this process cannot allocate room for all of them.
     pub fn run<T: Send>(self, n: u64, threads: usize, episode: impl Fn(u64) -> T + Sync) -> Result<Vec<T>, TooLarge> {
+        self.run_with(n, threads, || (), |(), i| episode(i))
+    }
+
+    /// The same, each worker keeping what `worker` makes for all its episodes (an outside
+    /// policy's process: one a worker).
+    pub fn run_with<W, T: Send>(
+        self,
+        n: u64,
+        threads: usize,
+        worker: impl Fn() -> W + Sync,
+        episode: impl Fn(&mut W, u64) -> T + Sync,
+    ) -> Result<Vec<T>, TooLarge> {
         let too_large = || TooLarge::of::<T>(self.episodes_of(n));
         let mine = usize::try_from(self.episodes_of(n)).map_err(|_| too_large())?;
         let mut out = Vec::new();
         out.try_reserve_exact(mine).map_err(|_| too_large())?;
         let threads = threads.clamp(1, mine.max(1));
         let count = usize::try_from(self.count.max(1)).unwrap_or(usize::MAX);
-        let episode = &episode;
+        let (episode, worker) = (&episode, &worker);
         // Each worker takes the room for its episodes before the first, and the others stop
         // at their next episode when one cannot: a sweep too large fails at once, not after
         // hours.
@@ -55,11 +67,12 @@ impl Shard {
                 refused.store(true, Ordering::Relaxed);
                 return None;
             }
+            let mut state = worker();
             for i in indices {
                 if refused.load(Ordering::Relaxed) {
                     return None;
                 }
-                done.push(episode(i));
+                done.push(episode(&mut state, i));
             }
             Some(done)
         };

@@ -1,0 +1,118 @@
+//! Outside policies in the simulator (`flowgate plan --policy CMD`): the twenty-line Python
+//! policy printed in docs/policies.md reaches E1's goal, the same bytes over two runs, and
+//! a sweep of it runs one policy process a worker; a policy that sleeps, dies, prints
+//! garbage or sends NaN ends its episode with its name.
+
+#[path = "support/python.rs"]
+mod python;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn e1() -> PathBuf {
+    root().join("scenarios/e1-standing-obstacle.toml")
+}
+
+fn plan(args: &[&str], out: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_flowgate")).arg("plan").args(args).arg("--out").arg(out).output().unwrap()
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("flowgate-policies-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// The policy docs/policies.md prints (its second Python block), written to `dir`.
+fn documented_policy(dir: &Path) -> PathBuf {
+    let page = std::fs::read_to_string(root().join("docs/policies.md")).unwrap();
+    let block = page.split("```python\n").nth(2).expect("docs/policies.md prints the policy");
+    let code = &block[..block.find("```").unwrap()];
+    assert!(code.lines().count() <= 20, "the documented policy is {} lines", code.lines().count());
+    let file = dir.join("policy.py");
+    std::fs::write(&file, code).unwrap();
+    file
+}
+
+fn command(policy: &Path) -> String {
+    format!("{} {}", python::python().display(), policy.display())
+}
+
+#[test]
+fn the_documented_policy_reaches_e1s_goal_the_same_bytes_twice() {
+    let dir = temp("e1");
+    let policy = command(&documented_policy(&dir));
+    let runs: Vec<PathBuf> = (0..2).map(|k| dir.join(format!("run{k}"))).collect();
+    for out in &runs {
+        let o = plan(&["--policy", &policy, e1().to_str().unwrap()], out);
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(text(&o).contains("goal ") && text(&o).contains("stop: stopped: goal reached"), "{}", text(&o));
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(runs[0].join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["outcome"], "goal", "{summary}");
+    assert!(summary["contact"].is_null() && summary["min_obstacle_clearance"].as_f64().unwrap() > 0.02, "{summary}");
+    for file in ["cycles.csv", "can.log", "summary.json", "trajectory.svg"] {
+        let (a, b) = (std::fs::read(runs[0].join(file)).unwrap(), std::fs::read(runs[1].join(file)).unwrap());
+        assert!(a == b, "{file} differs between two runs of the same policy");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A sweep of the documented policy, one process a worker: each process notes its id.
+#[test]
+fn a_sweep_of_a_policy_runs_one_process_a_worker() {
+    let dir = temp("sweep");
+    let policy = documented_policy(&dir);
+    let pids = dir.join("pids");
+    std::fs::create_dir_all(&pids).unwrap();
+    let noted = format!("touch {}/$$; exec {}", pids.display(), command(&policy));
+    let out = dir.join("sweep");
+    let o = plan(&["--policy", &noted, "--sweep", "1000", "--threads", "2", e1().to_str().unwrap()], &out);
+    assert!(o.status.success(), "{}", text(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).unwrap()).unwrap();
+    assert_eq!(report["episodes"], 1000, "{report}");
+    assert!(report["goal_rate"].as_f64().unwrap() > 0.99, "{report}");
+    assert_eq!(report["active_contact_rate"].as_f64(), Some(0.0), "{report}");
+    assert_eq!(std::fs::read_dir(&pids).unwrap().count(), 2, "one policy process a worker");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Each way a policy can fail ends its episode, the robot stopped, the failure named.
+#[test]
+fn a_policy_that_sleeps_dies_babbles_or_sends_nan_ends_its_episode_by_name() {
+    let dir = temp("bad");
+    let python = python::python();
+    let answer_nan = format!(
+        "{} -c 'import sys\nfor line in sys.stdin:\n    print(\"{{\\\"v\\\": NaN, \\\"w\\\": 0}}\", flush=True)'",
+        python.display()
+    );
+    let cases = [
+        ("sleep 5", "policy: no answer within 200 ms"),
+        ("head -c 1 >/dev/null; exit 3", "policy: exited (exit status: 3)"),
+        ("while read -r line; do echo 'turn left'; done", "policy: answered `turn left`, not"),
+        (answer_nan.as_str(), "policy: answered a command not finite (NaN or infinite)"),
+    ];
+    for (k, (policy, named)) in cases.iter().enumerate() {
+        let out = dir.join(k.to_string());
+        let o = plan(&["--policy", policy, "--policy-budget-ms", "200", e1().to_str().unwrap()], &out);
+        assert!(o.status.success(), "{policy}: {}", text(&o));
+        assert!(text(&o).contains(named), "{policy}: {}", text(&o));
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+        assert!(summary["stop_reason"].as_str().unwrap().starts_with(named), "{summary}");
+        assert_ne!(summary["outcome"], "goal", "{summary}");
+        assert!(summary["contact"].is_null(), "{summary}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
