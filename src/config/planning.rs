@@ -48,7 +48,7 @@ pub struct PlannerSection {
     /// as if it were exact.
     #[serde(default = "default_uncertainty_sigmas")]
     pub uncertainty_sigmas: f64,
-    /// Added to every planning radius, m: room for the safety supervisor, which keeps
+    /// Added to every planning radius, m: a margin for the safety supervisor, which keeps
     /// 3 mm beyond the radii and one standard deviation (the default is twice that, so the
     /// field steers the robot round the supervisor's zone rather than into it).
     #[serde(default = "default_clearance")]

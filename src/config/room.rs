@@ -215,7 +215,7 @@ impl RigFile {
     }
 
     /// How far walls and static obstacles are grown for the robot's centre: its radius and
-    /// the supervisor's room (`planner.clearance`), m.
+    /// the supervisor's margin (`planner.clearance`), m.
     pub fn room_growth(&self) -> f64 {
         self.robot.radius + self.planner.clearance
     }

@@ -187,7 +187,7 @@ const ROOM_ROUNDING_SLIVER: f64 = 0.05;
 
 /// How far beyond the room's boundary (the grown walls and furniture, the view's edge,
 /// their corners rounded) the field still steers the robot back, m. The boundary is grown
-/// by the robot's radius and the supervisor's room, so a centre up to here still clears the
+/// by the robot's radius and the supervisor's margin, so a centre up to here still clears the
 /// real room; beyond, there is no field.
 pub const ROOM_TOLERANCE: f64 = 0.05;
 

@@ -21,7 +21,7 @@
 //! - **Uncertainty**: the planning radius grows further by
 //!   [`PlannerConfig::uncertainty_sigmas`] standard deviations of the obstacle's predicted
 //!   centre (the tracker's Kalman covariance at the moment the command acts), and by
-//!   [`PlannerConfig::clearance`], the supervisor's room.
+//!   [`PlannerConfig::clearance`], the supervisor's margin.
 //! - **No freeze inside a margin**: a robot that finds itself inside a planning circle but
 //!   outside the true one gets that circle shrunk to just short of it (never below what
 //!   covers the true circle), so the field keeps steering it instead of stopping it while

@@ -561,7 +561,7 @@ fn a_robot_inside_a_margin_is_steered_not_frozen() {
 }
 
 /// The planning radius grows by the configured standard deviations of the predicted
-/// centre, and by the supervisor's room.
+/// centre, and by the supervisor's margin.
 #[test]
 fn the_margin_includes_the_prediction_uncertainty() {
     let planner = Planner::new(PlannerConfig { uncertainty_sigmas: 2.0, clearance: 0.006, ..*planner(None).config() });

@@ -34,7 +34,7 @@ impl Shard {
     /// `threads` threads (no more than the shard has episodes); in no particular order.
     /// A worker the system will not start (a process or cgroup limit on threads) has its
     /// episodes run on the calling thread instead: slower, nothing lost. Refused before any
-    /// episode runs if this process cannot allocate room for all of them.
+    /// episode runs if this process cannot allocate the space for all of them.
     pub fn run<T: Send>(self, n: u64, threads: usize, episode: impl Fn(u64) -> T + Sync) -> Result<Vec<T>, TooLarge> {
         self.run_with(n, threads, || (), |(), i| episode(i))
     }
@@ -55,7 +55,7 @@ impl Shard {
         let threads = threads.clamp(1, mine.max(1));
         let count = usize::try_from(self.count.max(1)).unwrap_or(usize::MAX);
         let (episode, worker) = (&episode, &worker);
-        // Each worker takes the room for its episodes before the first, and the others stop
+        // Each worker takes the space for its episodes before the first, and the others stop
         // at their next episode when one cannot: a sweep too large fails at once, not after
         // hours.
         let refused = AtomicBool::new(false);
@@ -430,7 +430,7 @@ mod tests {
     }
 
     /// A shard this process cannot hold is refused before any episode runs, saying how
-    /// much room its episodes take.
+    /// much memory its episodes take.
     #[test]
     fn a_shard_too_large_to_hold_is_refused_before_it_runs() {
         let ran = AtomicBool::new(false);

@@ -462,7 +462,7 @@ impl Room {
         &self.shape
     }
     /// How far the walls and static obstacles are grown (the robot's radius and the
-    /// supervisor's room), m.
+    /// supervisor's margin), m.
     pub fn grow(&self) -> f64 {
         self.grow
     }
@@ -577,7 +577,7 @@ impl Room {
     }
 
     /// Why a robot's centre cannot be at `p`, naming the item: inside a wall or static
-    /// obstacle grown by the robot (and the supervisor's room), beyond the view's edge, or
+    /// obstacle grown by the robot (and the supervisor's margin), beyond the view's edge, or
     /// in a corner the field's boundary rounds off. `None` where it can.
     pub fn blocked_at(&self, p: Point) -> Option<String> {
         let grow = self.grow;
