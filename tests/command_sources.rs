@@ -75,7 +75,9 @@ fn a_policy_driving_at_an_obstacle_is_stopped_short_of_it() {
     assert!(c.supervisor_slowed + c.supervisor_braking + c.supervisor_evaded > 50, "{c:?}");
     let e = rig.finish(s.goal.position, s.goal.tolerance);
     let truth = &e.truth.summary;
-    assert!(truth.contact.is_none_or(|c| !c.active && c.approach_speed < 0.01), "an active contact: {truth:?}");
+    // Stopped short: pushed at for seconds, it never creeps in.
+    assert!(truth.contact.is_none(), "a contact: {truth:?}");
+    assert!(truth.min_obstacle_clearance.is_some_and(|c| c > 0.0), "{truth:?}");
     assert!(truth.path_length > 0.1, "the robot drove towards it: {truth:?}");
     // The cycles record both: asked for 0.15 m/s a wheel (the limit), passed less.
     let csv = String::from_utf8(e.telemetry.unwrap().cycles_csv).unwrap();

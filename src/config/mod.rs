@@ -301,6 +301,9 @@ impl RigFile {
         let led = self.leds.front_offset.max(self.leds.rear_offset);
         supervisor.arena = calibration.inner_rect().map(|[x0, x1, y0, y1]| [x0 + led, x1 - led, y0 + led, y1 - led]);
         supervisor.room = room.clone();
+        if p.method != PlannerMethod::Field {
+            supervisor.approach_tolerance = 0.0;
+        }
         ControlConfig {
             room,
             planner: PlannerConfig {

@@ -75,6 +75,11 @@ pub struct SupervisorConfig {
     /// The room's walls, static obstacles and view's edge: the robot keeps off them as off
     /// a lane's lines. `None`: no room.
     pub room: Option<std::sync::Arc<Room>>,
+    /// How fast the robot may still move toward an obstacle within its reach, m/s:
+    /// [`APPROACH_TOLERANCE`] behind the field, which never pushes into an obstacle; 0
+    /// behind a planner outside flowgate, which may push for as long as it likes, and at
+    /// any speed above 0 would creep into what it pushes at.
+    pub approach_tolerance: f64,
 }
 
 impl SupervisorConfig {
@@ -92,6 +97,7 @@ impl SupervisorConfig {
             sigmas: 1.0,
             clearance: 0.002,
             arena: None,
+            approach_tolerance: APPROACH_TOLERANCE,
         }
     }
 }
@@ -151,17 +157,15 @@ impl Hazard {
     /// An obstacle is judged where it is at the step's start, so its reach takes in what
     /// it can close over the step (its speed and its uncertainty's growth): a contact
     /// anywhere in the step is then seen at its start, the last one included.
-    fn driven_into(&self, s: f64, h: f64, position: Point, velocity: Point, slack: f64) -> bool {
+    fn driven_into(&self, s: f64, h: f64, position: Point, velocity: Point, slack: f64, tolerance: f64) -> bool {
         match *self {
             Hazard::Obstacle { center, velocity: v, speed, keep, growth, .. } => {
                 let d = center + v * s - position;
                 let reach = keep + slack + growth * (s + h) + speed * h;
-                // Toward it faster than [`APPROACH_TOLERANCE`]: `d · v > tol |d|`.
+                // Toward it faster than the tolerance: `d · v > tol |d|`.
                 let toward = d.re * velocity.re + d.im * velocity.im;
                 let distance_sqr = d.norm_sqr();
-                distance_sqr < reach * reach
-                    && toward > 0.0
-                    && toward * toward > APPROACH_TOLERANCE * APPROACH_TOLERANCE * distance_sqr
+                distance_sqr < reach * reach && toward > 0.0 && toward * toward > tolerance * tolerance * distance_sqr
             }
             Hazard::Line { normal, offset, keep } => {
                 offset - dot(normal, position) < keep + slack && dot(normal, velocity) > 0.0
@@ -665,7 +669,8 @@ impl Context<'_> {
         let velocity = facing * v;
         // Backing up drives into what lies behind as driving on does into what lies ahead.
         if v != 0.0 {
-            let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, slack));
+            let tolerance = self.cfg.approach_tolerance;
+            let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, slack, tolerance));
             if hit.is_some() {
                 return hit.copied();
             }
