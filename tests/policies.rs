@@ -116,3 +116,38 @@ fn a_policy_that_sleeps_dies_babbles_or_sends_nan_ends_its_episode_by_name() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A policy written with the package's helper (`flowgate_policy.serve`) drives through
+/// `--policy` to E3b's goal (free space, its obstacle crossing late).
+#[test]
+fn a_policy_written_with_the_python_package_reaches_its_goal() {
+    let dir = temp("helper");
+    let policy = format!("{} {} helper", python::python().display(), python::peer("policies").display());
+    let scenario = root().join("scenarios/e3b-delay-margin.toml");
+    let o = plan(&["--policy", &policy, scenario.to_str().unwrap()], &dir);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("stop: stopped: goal reached"), "{}", text(&o));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The package's Gymnasium environment: `check_env` passes; the same seed gives the same
+/// first observation; an episode steered at the goal reaches it, rewarded and named.
+#[test]
+fn the_gymnasium_environment_passes_check_env_and_runs_an_episode() {
+    let scenario = root().join("scenarios/e3b-delay-margin.toml");
+    let o = Command::new(python::python())
+        .arg(python::peer("policies"))
+        .args(["gym", scenario.to_str().unwrap(), env!("CARGO_BIN_EXE_flowgate")])
+        .output()
+        .unwrap();
+    let seen: serde_json::Value =
+        serde_json::from_slice(&o.stdout).unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&o.stderr)));
+    assert_eq!(seen["checked"], true, "{seen}");
+    assert_eq!(seen["same_on_same_seed"], true, "{seen}");
+    assert_eq!(seen["info"]["outcome"], "goal", "{seen}");
+    assert_eq!(seen["info"]["contact"], false, "{seen}");
+    // The goal's 1, the way's progress (positive), less 0.001 a step.
+    let (reward, steps) = (seen["reward"].as_f64().unwrap(), seen["steps"].as_f64().unwrap());
+    assert!(reward > 1.0 - 0.001 * steps && reward < 2.0 - 0.001 * steps, "{seen}");
+    assert_eq!(seen["observation"], 8 + 6 * 4, "{seen}");
+}
