@@ -221,3 +221,86 @@ fn the_rviz_configuration_shows_what_the_node_publishes() {
     );
     assert_eq!(rviz["tools"], serde_json::json!({"rviz_default_plugins/SetGoal": "/goal_pose"}));
 }
+
+/// `flowgate demo --ros2` on E1 with `planner.method = "ros2"`, and an rclpy node driving
+/// it on `/cmd_vel` (`mode`, see the peer): the demo's words and its recording.
+fn drive_on_cmd_vel(name: &str, mode: &str, domain: u32) -> (Value, (bool, String), Vec<Value>) {
+    let dir = temp_dir(name);
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let e1 = std::fs::read_to_string(root.join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let scenario = dir.join("e1-ros2.toml");
+    std::fs::write(&scenario, e1.replace("[planner]\n", "[planner]\nmethod = \"ros2\"\n")).unwrap();
+    let recording = dir.join("run.mcap");
+    // A domain of its own: the tests of this file run side by side.
+    let domain = (100 + (std::process::id() + domain) % 100).to_string();
+    let ros_env = [
+        ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
+        ("ROS_DOMAIN_ID", domain.as_str()),
+        ("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"),
+    ];
+    let demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--ros2", "--scenario"])
+        .arg(&scenario)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .arg("--record")
+        .arg(&recording)
+        .envs(ros_env)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let peer = Command::new(python::python())
+        .arg(python::peer("ros2"))
+        .args(["--cmd-vel", mode, "0.35", "0.05"])
+        .envs(ros_env)
+        .output()
+        .unwrap();
+    let demo = demo.wait_with_output().unwrap();
+    let said = |o: &std::process::Output| {
+        String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
+    };
+    assert!(peer.status.success(), "peer: {}\ndemo: {}", said(&peer), said(&demo));
+    let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
+    let cycles = recorded(&recording, "/cycle").into_iter().map(|(_, c)| c).collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    (seen, (demo.status.success(), said(&demo)), cycles)
+}
+
+/// An rclpy node publishes `cmd_vel` straight at the standing obstacle: the supervisor
+/// stops the robot short of it, each cycle recording what was asked and what passed; when
+/// the node goes silent the robot stops in order, named.
+#[test]
+fn an_rclpy_node_driving_at_an_obstacle_is_stopped_short_and_its_silence_stops_the_robot() {
+    let (seen, (_, demo), cycles) = drive_on_cmd_vel("cmd-vel-obstacle", "at_obstacle", 37);
+    assert_eq!(seen["arm"]["success"], true, "{seen}");
+    assert_eq!(seen["silent"], true, "{seen}");
+    assert_eq!(
+        seen["stopped"], "stopped: the outside planner's command older than planner.command_max_age_ms",
+        "{seen}"
+    );
+    // Not at the goal (the demo says so), and clear of the obstacle it was driven at.
+    assert!(demo.contains("outcome          goal not reached"), "{demo}");
+    let clearance: f64 = demo
+        .lines()
+        .find_map(|l| l.strip_prefix("world truth      min clearance ")?.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no clearance in {demo}"));
+    assert!(clearance > 0.0, "{clearance} mm: {demo}");
+    let held_back = cycles
+        .iter()
+        .filter(|c| c["asked_left"].as_f64().unwrap() > 0.1 && c["passed_left"].as_f64().unwrap() < 0.05)
+        .count();
+    assert!(held_back > 20, "{held_back} cycles where the supervisor held back what cmd_vel asked");
+}
+
+/// An rclpy node steering on `/odom` round the obstacle to the goal reaches it.
+#[test]
+fn an_rclpy_node_steering_on_cmd_vel_reaches_the_goal() {
+    let (seen, (finished, demo), _) = drive_on_cmd_vel("cmd-vel-goal", "to_goal", 71);
+    assert!(finished, "{demo}");
+    assert_eq!(seen["stopped"], "stopped: goal reached", "{seen}");
+    let last = &seen["last_pose"];
+    let off = (last[0].as_f64().unwrap() - 0.35).hypot(last[1].as_f64().unwrap() - 0.05);
+    assert!(off < 0.03, "{off}");
+    assert!(demo.contains("no contact"), "{demo}");
+}

@@ -103,14 +103,23 @@ impl RigFile {
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
         let file = Self::read(path)?;
         let origin = path.display().to_string();
-        // A rig's outside planner reaches it on the control socket (a scenario's, in the
-        // lab, through the virtual rig's requests).
-        if file.planner.method == PlannerMethod::Socket && file.operator.socket.is_none() {
-            let why = "\"socket\" takes the robot's commands on the control socket: set [operator] socket";
-            let invalid = invalid::<()>("planner.method", why).unwrap_err();
-            return Err(ConfigError::Invalid { path: origin, invalid });
-        }
+        file.check_command_source().map_err(|invalid| ConfigError::Invalid { path: origin.clone(), invalid })?;
         file.rig(&origin)
+    }
+
+    /// An outside planner reaches a rig on the control socket or on ROS 2 (a scenario's, in
+    /// the lab, through the virtual rig's requests): that way must be open.
+    pub fn check_command_source(&self) -> Result<(), Invalid> {
+        match self.planner.method {
+            PlannerMethod::Socket if self.operator.socket.is_none() => invalid(
+                "planner.method",
+                "\"socket\" takes the robot's commands on the control socket: set [operator] socket",
+            ),
+            PlannerMethod::Ros2 if !self.ros2.as_ref().is_some_and(|r| r.enabled) => {
+                invalid("planner.method", "\"ros2\" takes the robot's commands on cmd_vel: set [ros2] enabled = true")
+            }
+            _ => Ok(()),
+        }
     }
 
     /// Read and parse (not yet check) a config file.
@@ -340,7 +349,9 @@ impl RigFile {
             evasion: p.evasion.unwrap_or(self.lane.is_none()),
             source: match p.method {
                 PlannerMethod::Field => CommandSource::Field,
-                PlannerMethod::Socket => CommandSource::Outside { max_age: f64::from(p.command_max_age_ms) * 1e-3 },
+                PlannerMethod::Socket | PlannerMethod::Ros2 => {
+                    CommandSource::Outside { max_age: f64::from(p.command_max_age_ms) * 1e-3 }
+                }
             },
         }
     }

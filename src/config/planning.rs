@@ -89,9 +89,10 @@ pub struct PlannerSection {
     #[serde(default = "default_lane_residual")]
     pub lane_residual: f64,
     /// Where the robot's commands come from: `"field"`, the hydrodynamic field (the
-    /// default), or `"socket"`, a planner outside flowgate sending `drive` or `wheels`
-    /// lines on the control socket (docs/policies.md). Every command, whoever made it, goes
-    /// through the safety supervisor.
+    /// default); `"socket"`, a planner outside flowgate sending `drive` or `wheels` lines on
+    /// the control socket; or `"ros2"`, one publishing `geometry_msgs/Twist` on
+    /// `[ros2] cmd_vel` (docs/policies.md). Every command, whoever made it, goes through the
+    /// safety supervisor.
     #[serde(default, skip_serializing_if = "PlannerMethod::is_field")]
     pub method: PlannerMethod,
     /// With an outside method: a command older than this when a cycle would drive on it
@@ -107,6 +108,7 @@ pub enum PlannerMethod {
     #[default]
     Field,
     Socket,
+    Ros2,
 }
 
 impl PlannerMethod {

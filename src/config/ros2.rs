@@ -60,6 +60,12 @@ pub struct Ros2Section {
     /// (`/diagnostics`: once a second).
     #[serde(default = "default_rate")]
     pub publish_hz: f64,
+    /// With `planner.method = "ros2"`: the topic the robot's velocity commands come on.
+    #[serde(default = "default_cmd_vel")]
+    pub cmd_vel: String,
+    /// Take `geometry_msgs/TwistStamped` there instead of `Twist`.
+    #[serde(default)]
+    pub cmd_vel_stamped: bool,
 }
 
 fn default_namespace() -> String {
@@ -80,6 +86,9 @@ fn default_depth() -> u16 {
 fn default_rate() -> f64 {
     20.0
 }
+fn default_cmd_vel() -> String {
+    "/cmd_vel".into()
+}
 
 impl Default for Ros2Section {
     fn default() -> Self {
@@ -93,6 +102,8 @@ impl Default for Ros2Section {
             base_frame: default_base_frame(),
             qos_depth: default_depth(),
             publish_hz: default_rate(),
+            cmd_vel: default_cmd_vel(),
+            cmd_vel_stamped: false,
         }
     }
 }
@@ -108,6 +119,9 @@ pub struct Ros2Settings {
     pub base_frame: String,
     pub qos_depth: u16,
     pub publish_every: std::time::Duration,
+    /// The topic of the robot's velocity commands and whether they are stamped, when an
+    /// outside planner drives on ROS 2 (`planner.method = "ros2"`).
+    pub cmd_vel: Option<(String, bool)>,
 }
 
 /// A ROS 2 name part: letters, digits and underscores, not starting with a digit.
@@ -145,6 +159,13 @@ impl Ros2Section {
         }
         if self.qos_depth == 0 {
             return invalid("ros2.qos_depth", "must be at least 1");
+        }
+        let topic = self.cmd_vel.strip_prefix('/').filter(|rest| !rest.is_empty() && rest.split('/').all(name_token));
+        if topic.is_none() {
+            return invalid(
+                "ros2.cmd_vel",
+                format!("{:?} is not an absolute ROS 2 topic (\"/cmd_vel\")", self.cmd_vel),
+            );
         }
         if !(self.publish_hz.is_finite() && (0.1..=1000.0).contains(&self.publish_hz)) {
             return invalid("ros2.publish_hz", format!("must be 0.1-1000 Hz, is {}", self.publish_hz));
@@ -185,6 +206,7 @@ impl Ros2Section {
             base_frame: self.base_frame.clone(),
             qos_depth: self.qos_depth,
             publish_every: std::time::Duration::from_secs_f64(1.0 / self.publish_hz),
+            cmd_vel: None,
         })
     }
 }
@@ -222,6 +244,7 @@ mod tests {
             (Ros2Section { base_frame: "map".into(), ..c.clone() }, "ros2.base_frame"),
             (Ros2Section { qos_depth: 0, ..c.clone() }, "ros2.qos_depth"),
             (Ros2Section { publish_hz: 0.0, ..c.clone() }, "ros2.publish_hz"),
+            (Ros2Section { cmd_vel: "cmd vel".into(), ..c.clone() }, "ros2.cmd_vel"),
         ] {
             assert_eq!(bad.validate().unwrap_err().key, key);
         }

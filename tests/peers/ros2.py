@@ -8,6 +8,10 @@ control socket; sends a reachable goal, calls ~/start, and waits for the gateway
 it. Prints one JSON object with what it saw.
 
 usage: ros2.py FLOWGATE SOCKET GOAL_X GOAL_Y
+       ros2.py --cmd-vel at_obstacle|to_goal GOAL_X GOAL_Y
+                          (an outside planner on /cmd_vel, flowgate's planner.method = "ros2":
+                          straight at E1's obstacle for 8 s then silent, or steering round it
+                          to the goal; arms and starts over the services, waits for the stop)
        ros2.py --bag DIR      (reads a `flowgate record export --ros2` bag with rosbags)
        ros2.py --rviz FILE    (the RViz configuration's fixed frame and topics, as JSON)
 """
@@ -19,7 +23,9 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
+import math
+
+from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -140,7 +146,53 @@ def rviz(path):
     print(json.dumps({"fixed_frame": manager["Global Options"]["Fixed Frame"], "displays": topics, "tools": tools}))
 
 
+def drive(mode, gx, gy):
+    """An outside planner publishing /cmd_vel at 20 Hz from before the start."""
+    rclpy.init()
+    peer = Peer()
+    cmd_vel = peer.create_publisher(Twist, "/cmd_vel", 10)
+    plan = {"started": None, "past": False, "silent": False, "sent": 0}
+
+    def command():
+        msg = Twist()
+        if plan["started"] is not None and peer.odom:
+            p = peer.odom[-1][1].pose.pose
+            x, y = p.position.x, p.position.y
+            heading = 2 * math.atan2(p.orientation.z, p.orientation.w)
+            if mode == "at_obstacle":
+                if time.monotonic() - plan["started"] > 8.0:
+                    plan["silent"] = True
+                    return
+                msg.linear.x = 0.15
+            else:
+                plan["past"] = plan["past"] or math.hypot(x, y + 0.25) < 0.05
+                aim = (gx, gy) if plan["past"] else (0.0, -0.25)
+                turn = math.atan2(aim[1] - y, aim[0] - x) - heading
+                turn = math.atan2(math.sin(turn), math.cos(turn))
+                msg.linear.x, msg.angular.z = 0.1 * max(math.cos(turn), 0.0), 3.0 * turn
+        cmd_vel.publish(msg)
+        plan["sent"] += 1
+
+    peer.create_timer(0.05, command)
+    peer.spin_until(lambda: len(peer.odom) >= 5 and peer.diagnostics, 30, "the topics")
+    peer.spin_until(lambda: cmd_vel.get_subscription_count() > 0, 20, "flowgate to hear /cmd_vel")
+    arm = peer.call("arm")
+    peer.send_goal(gx, gy)
+    time.sleep(0.3)  # the goal travels on its topic; the start below goes through a service
+    start = peer.call("start")
+    plan["started"] = time.monotonic()
+    peer.spin_until(lambda: (s := peer.state()) and s.startswith("running"), 20, "the gateway to run")
+    stopped = peer.spin_until(lambda: (s := peer.state()) and s.startswith("stopped") and s, 60, "the gateway to stop")
+    last = peer.odom[-1][1].pose.pose.position
+    print(json.dumps({"arm": arm, "start": start, "stopped": stopped, "sent": plan["sent"], "silent": plan["silent"],
+                      "last_pose": [last.x, last.y]}))
+    peer.destroy_node()
+    rclpy.shutdown()
+
+
 def main():
+    if sys.argv[1] == "--cmd-vel":
+        return drive(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
     if sys.argv[1] == "--rviz":
         return rviz(sys.argv[2])
     if sys.argv[1] == "--bag":

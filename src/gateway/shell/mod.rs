@@ -486,6 +486,10 @@ impl Io {
             self.services.recorder.record(Record::Event(event));
             return;
         }
+        if let Some(refusal) = command_from_elsewhere(core.rig(), &cmd) {
+            let _ = cmd.reply.send(Reply::error(refusal));
+            return;
+        }
         let Some(Answer { result, status }) = self.feed(core, now, Input::Request(&cmd.request)) else { return };
         let status = status.map(|mut status| {
             // The write times are the shell's to measure: it adds them to the answer.
@@ -728,4 +732,23 @@ pub enum GatewayError {
     #[cfg(not(feature = "ros2"))]
     #[error("[ros2] is enabled, but this flowgate was built without ROS 2 (the `ros2` feature)")]
     Ros2Missing,
+}
+
+/// An outside planner's command that came another way than `planner.method` names (the
+/// control socket's with `"ros2"`, a ROS 2 one with `"socket"`): refused before the core,
+/// so one planner drives.
+fn command_from_elsewhere(rig: &crate::config::Rig, cmd: &Command) -> Option<String> {
+    use crate::config::PlannerMethod;
+    if !cmd.request.is_command() {
+        return None;
+    }
+    match (rig.config.planner.method, cmd.peer) {
+        (PlannerMethod::Ros2, control_socket::Peer::Socket { .. }) => {
+            Some("planner.method is \"ros2\": the robot's commands come on cmd_vel".into())
+        }
+        (PlannerMethod::Socket, control_socket::Peer::Ros2) => {
+            Some("planner.method is \"socket\": the robot's commands come on the control socket".into())
+        }
+        _ => None,
+    }
 }

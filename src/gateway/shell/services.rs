@@ -138,7 +138,10 @@ fn start_ros2(
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: RequestSender,
 ) -> Result<(super::ros2::Ros2Node, HostTime, std::time::Duration), GatewayError> {
-    let settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Section)?;
+    let mut settings = config.resolve(|name| std::env::var(name).ok()).map_err(GatewayError::Ros2Section)?;
+    if rig.config.planner.method == crate::config::PlannerMethod::Ros2 {
+        settings.cmd_vel = Some((config.cmd_vel.clone(), config.cmd_vel_stamped));
+    }
     let every = settings.publish_every;
     let setup = super::ros2::Ros2Setup { settings, view: view::ViewSetup::of(rig), start_time_s };
     let node = super::ros2::start(setup, stats, requests)?;

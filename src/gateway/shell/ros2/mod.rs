@@ -34,6 +34,8 @@ impl ros2_client::Message for msgs::MarkerArray {}
 impl ros2_client::Message for msgs::Path {}
 impl ros2_client::Message for msgs::DiagnosticArray {}
 impl ros2_client::Message for msgs::PoseStamped {}
+impl ros2_client::Message for msgs::Twist {}
+impl ros2_client::Message for msgs::TwistStamped {}
 impl ros2_client::Message for TriggerRequest {}
 impl ros2_client::Message for TriggerResponse {}
 
@@ -91,7 +93,29 @@ struct Endpoints {
     path: Publisher<msgs::Path>,
     diagnostics: Publisher<msgs::DiagnosticArray>,
     goal: ros2_client::Subscription<msgs::PoseStamped>,
+    /// An outside planner's velocity commands (`planner.method = "ros2"`).
+    cmd_vel: Option<CmdVel>,
     services: Vec<(Request, Server<TriggerRequest, TriggerResponse>)>,
+}
+
+/// `cmd_vel`, plain or stamped.
+enum CmdVel {
+    Plain(ros2_client::Subscription<msgs::Twist>),
+    Stamped(ros2_client::Subscription<msgs::TwistStamped>),
+}
+
+/// The commands a subscription brings, as twists (none without one).
+fn twists(
+    cmd_vel: &Option<CmdVel>,
+) -> std::pin::Pin<Box<dyn futures_util::Stream<Item = Result<msgs::Twist, String>> + '_>> {
+    let error = |e: &dyn std::fmt::Debug| format!("{e:?}");
+    match cmd_vel {
+        None => Box::pin(futures_util::stream::pending()),
+        Some(CmdVel::Plain(s)) => Box::pin(s.async_stream().map(move |r| r.map(|(t, _)| t).map_err(|e| error(&e)))),
+        Some(CmdVel::Stamped(s)) => {
+            Box::pin(s.async_stream().map(move |r| r.map(|(t, _)| t.twist).map_err(|e| error(&e))))
+        }
+    }
 }
 
 /// The node's fully qualified name, the prefix of its private (`~/`) names.
@@ -129,6 +153,14 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
     let t_path = topic(&fqn, "path", "nav_msgs", "Path")?;
     let t_diagnostics = topic("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray")?;
     let t_goal = topic("/", "goal_pose", "geometry_msgs", "PoseStamped")?;
+    let t_cmd_vel = match &s.cmd_vel {
+        Some((name, stamped)) => {
+            let kind = if *stamped { "TwistStamped" } else { "Twist" };
+            let (ns, base) = name.rsplit_once('/').unwrap_or(("", name));
+            Some(topic(if ns.is_empty() { "/" } else { ns }, base, "geometry_msgs", kind)?)
+        }
+        None => None,
+    };
     let publisher_err = create("publisher");
     let odom = node.create_publisher(&t_odom, None).map_err(|e| publisher_err(&e))?;
     let tf = node.create_publisher(&t_tf, None).map_err(|e| publisher_err(&e))?;
@@ -136,6 +168,17 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
     let path = node.create_publisher(&t_path, None).map_err(|e| publisher_err(&e))?;
     let diagnostics = node.create_publisher(&t_diagnostics, None).map_err(|e| publisher_err(&e))?;
     let goal = node.create_subscription(&t_goal, None).map_err(|e| create("/goal_pose")(&e))?;
+    let cmd_vel = match (&s.cmd_vel, t_cmd_vel) {
+        (Some((name, stamped)), Some(t)) => {
+            let failed = |e: &dyn std::fmt::Display| create(name)(e);
+            Some(if *stamped {
+                CmdVel::Stamped(node.create_subscription(&t, None).map_err(|e| failed(&e))?)
+            } else {
+                CmdVel::Plain(node.create_subscription(&t, None).map_err(|e| failed(&e))?)
+            })
+        }
+        _ => None,
+    };
     let mut services = Vec::new();
     for (request, base) in [
         (Request::Arm, "arm"),
@@ -151,7 +194,7 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
             .map_err(|e| create(&format!("~/{base}"))(&e))?;
         services.push((request, server));
     }
-    Ok(Endpoints { context, node, odom, tf, obstacles, path, diagnostics, goal, services })
+    Ok(Endpoints { context, node, odom, tf, obstacles, path, diagnostics, goal, cmd_vel, services })
 }
 
 /// Join the ROS 2 domain and start the node's thread. It ends when the returned node is
@@ -216,7 +259,7 @@ async fn serve(
     mut stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: RequestSender,
 ) {
-    let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goal, services } = e;
+    let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goal, cmd_vel, services } = e;
     let frames = Frames { floor: setup.settings.floor_frame.clone(), base: setup.settings.base_frame.clone() };
     let hardware_id = node_fqn(&setup.settings);
     let mut state = NodeState { setup, frames, hardware_id, last_refusal: None };
@@ -226,6 +269,7 @@ async fn serve(
     };
     let mut spin = Box::pin(spin);
     let mut goals = Box::pin(goal.async_stream());
+    let mut commands = twists(&cmd_vel);
     let mut calls = futures_util::stream::select_all(
         services.iter().map(|(request, server)| server.receive_request_stream().map(move |r| (request, server, r))),
     );
@@ -252,6 +296,10 @@ async fn serve(
                     tracing::debug!("ROS 2: /diagnostics: {e:?}");
                 }
             }
+            Some(received) = commands.next() => match received {
+                Ok(twist) => take_command(&mut state, &requests, twist).await,
+                Err(e) => tracing::warn!("ROS 2: cmd_vel: {e}"),
+            },
             Some(received) = goals.next() => match received {
                 Ok((pose, _)) => take_goal(&mut state, &requests, pose).await,
                 Err(e) => tracing::warn!("ROS 2: /goal_pose: {e:?}"),
@@ -274,7 +322,8 @@ async fn serve(
     // (which tells the spinner to stop), the spinner's own endpoints, the participant last.
     drop(calls);
     drop(goals);
-    drop((services, goal, odom, tf, obstacles, path, diagnostics));
+    drop(commands);
+    drop((services, goal, cmd_vel, odom, tf, obstacles, path, diagnostics));
     drop(node);
     drop(spin);
     drop(context);
@@ -300,6 +349,15 @@ fn publish_scene(
         path.publish(convert::path(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
     }
     obstacles.publish(convert::obstacles(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/obstacles", &e));
+}
+
+/// A velocity command from `cmd_vel`: forward speed and yaw rate, to the loop as a `drive`
+/// request (its other components a differential-drive robot cannot follow).
+async fn take_command(state: &mut NodeState, requests: &RequestSender, twist: msgs::Twist) {
+    let reply = requests.ask(Request::Drive { v: twist.linear.x, w: twist.angular.z }, Peer::Ros2).await;
+    if let Some(e) = reply.error {
+        state.last_refusal = Some(e);
+    }
 }
 
 /// A goal from `/goal_pose` (RViz's "2D Goal Pose"), checked by the loop as `ctl goal` is; a

@@ -154,6 +154,13 @@ pub struct Twist {
     pub angular: Vector3,
 }
 
+/// `geometry_msgs/msg/TwistStamped`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TwistStamped {
+    pub header: Header,
+    pub twist: Twist,
+}
+
 /// `geometry_msgs/msg/TwistWithCovariance`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct TwistWithCovariance {
