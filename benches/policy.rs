@@ -60,5 +60,8 @@ fn main() {
         f_max / 1e3,
         p_max / 1e3
     );
-    println!("the protocol's own cost: {:.1} µs a period (the policy's answer, two pipes, JSON both ways)", (p50 - f50) / 1e3);
+    println!(
+        "the protocol's own cost: {:.1} µs a period (the policy's answer, two pipes, JSON both ways)",
+        (p50 - f50) / 1e3
+    );
 }

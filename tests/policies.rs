@@ -151,3 +151,29 @@ fn the_gymnasium_environment_passes_check_env_and_runs_an_episode() {
     assert!(reward > 1.0 - 0.001 * steps && reward < 2.0 - 0.001 * steps, "{seen}");
     assert_eq!(seen["observation"], 8 + 6 * 4, "{seen}");
 }
+
+/// A swarm with a policy driving: the documented policy meets every invariant and reaches
+/// its goal after the last fault; an adversary driving at the nearest obstacle at top speed
+/// meets every invariant too (no active contact, every stop named, no motion while faulted).
+#[test]
+fn a_swarm_driven_by_a_policy_or_an_adversary_breaks_no_invariant() {
+    let dir = temp("swarm");
+    let documented = command(&documented_policy(&dir));
+    let adversary = format!("{} {} push", python::python().display(), python::peer("policies").display());
+    for (name, policy, n) in [("documented", documented.as_str(), "200"), ("adversary", adversary.as_str(), "300")] {
+        let out = dir.join(name);
+        let o = plan(&["--policy", policy, "--swarm", n, "--threads", "2", e1().to_str().unwrap()], &out);
+        assert!(o.status.success(), "{name}: {}", text(&o));
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("swarm.json")).unwrap()).unwrap();
+        assert_eq!(report["violated"], 0, "{name}: {}", text(&o));
+        let (episodes, lasting) = (report["episodes"].as_u64().unwrap(), report["lasting"].as_u64().unwrap());
+        let reached = report["reached_goal"].as_u64().unwrap();
+        if name == "documented" {
+            assert_eq!(reached, episodes - lasting, "{name}: {}", text(&o));
+        } else {
+            assert_eq!(reached, 0, "the adversary never heads for the goal: {}", text(&o));
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use flowgate::lab::planner_only::Mode;
 use flowgate::lab::{outputs, plots, Scenario};
-use flowgate::lab::{swarm, sweep};
+use flowgate::lab::{policy, swarm, sweep};
 
 #[derive(Args, Debug)]
 pub struct PlanArgs {
@@ -68,8 +68,8 @@ pub struct PlanArgs {
     unsupervised: bool,
     /// Let a planner outside flowgate drive: CMD (run by `sh -c`) speaks JSON lines with the
     /// whole stack in virtual time, its commands supervised (docs/policies.md); with
-    /// --sweep, one process a worker.
-    #[arg(long, value_name = "CMD", conflicts_with_all = ["all", "swarm", "planner_only", "unsupervised", "compare", "merge"])]
+    /// --sweep or --swarm, one process a worker.
+    #[arg(long, value_name = "CMD", conflicts_with_all = ["all", "planner_only", "unsupervised", "compare", "merge"])]
     policy: Option<String>,
     /// How long the policy may take to answer one observation, host time, ms.
     #[arg(long, value_name = "MS", default_value_t = 1000, requires = "policy",
@@ -236,7 +236,8 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     outputs::folder(out)?;
     let replay = |k: u64| {
         let unsupervised = if scenario.supervised { "" } else { " --unsupervised" };
-        format!("flowgate plan --swarm {n} --seed {} --episode {k}{unsupervised} {}", args.seed, file.display())
+        let policy = args.policy.as_ref().map_or(String::new(), |p| format!(" --policy '{p}'"));
+        format!("flowgate plan --swarm {n} --seed {} --episode {k}{unsupervised}{policy} {}", args.seed, file.display())
     };
     if let Some(k) = args.episode {
         return swarm_episode(args, scenario, n, k, out);
@@ -244,7 +245,8 @@ fn swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out:
     let started = std::time::Instant::now();
     let shard =
         args.shard.map(|s| s.resolve(|name| std::env::var(name).ok())).transpose()?.unwrap_or(sweep::Shard::WHOLE);
-    let outcomes = swarm::run(scenario, n, args.seed, args.threads(), shard)?;
+    let policy = args.policy.as_deref().map(|command| (command, args.policy_budget()));
+    let outcomes = swarm::run(scenario, n, args.seed, args.threads(), shard, policy)?;
     let report = swarm::report(scenario, args.seed, shard, &outcomes);
     say!("{report}");
     say!(
@@ -273,7 +275,8 @@ fn swarm_episode(args: &PlanArgs, scenario: &Scenario, n: u64, k: u64, out: &Pat
     if k >= n {
         bail!("--episode {k}: the swarm has episodes 0 to {}", n - 1);
     }
-    let (outcome, run) = swarm::run_episode(scenario, args.seed, k, true);
+    let mut worker = args.policy.as_deref().map(|command| policy::Worker::new(command, args.policy_budget()));
+    let (outcome, run) = swarm::run_episode(scenario, args.seed, k, true, worker.as_mut());
     let schedule = swarm::schedule(scenario, args.seed, k);
     say!("episode {k} of the swarm around {} (seed {}), {}:", scenario.name, args.seed, outcome.backend.name());
     for f in &outcome.faults {

@@ -318,6 +318,14 @@ fn observe(rig: &VirtualRig, goal: [f64; 2]) -> Observation {
     Observation { t: rig.time(), robot: RobotObservation { x, y, heading, v, w }, goal, obstacles }
 }
 
+/// `scenario` with its commands from outside (`planner.method = "socket"`, the virtual
+/// rig's requests its socket).
+pub fn driven_from_outside(scenario: &Scenario) -> Scenario {
+    let mut scenario = scenario.clone();
+    scenario.planner.method = PlannerMethod::Socket;
+    scenario
+}
+
 /// A policy's process kept across episodes (a sweep's worker): started at the first
 /// episode, and again after an episode it failed.
 #[derive(Debug)]
@@ -336,52 +344,58 @@ impl Worker {
     /// supervisor between them. The policy's failure ends the episode: the robot is stopped
     /// in order, and the failure comes back beside the run.
     pub fn episode(&mut self, scenario: &Scenario, options: Options) -> (VirtualRun, Option<PolicyError>) {
-        let mut scenario = scenario.clone();
-        scenario.planner.method = PlannerMethod::Socket;
-        let rig = VirtualRig::new(&scenario, options);
-        let started = match self.process.take() {
-            Some(p) => Ok(p),
-            None => PolicyProcess::start(&self.command, self.budget),
-        };
-        let mut policy = match started {
-            Ok(p) => Some(p),
-            Err(e) => {
-                return (
-                    rig.run_driven(scenario.time_limit, scenario.goal.position, 0.0, 1.0, |_| Err(e.clone())).0,
-                    Some(e),
-                )
-            }
-        };
-        let goal = scenario.goal.position;
+        let scenario = driven_from_outside(scenario);
+        let mut rig = VirtualRig::new(&scenario, options);
+        let opened = self.begin(&scenario, &rig);
+        let (goal, tolerance) = (scenario.goal.position, scenario.goal.tolerance);
         let period = rig.core().rig().sample_period.as_secs_f64();
-        let opened = policy.as_mut().map_or(Ok(()), |p| p.hello(&hello(&scenario, &rig)));
-        let (run, failure) = rig.run_driven(scenario.time_limit, goal, scenario.goal.tolerance, period, |rig| {
-            opened.clone()?;
-            let observation = observe(rig, goal);
-            let command =
-                policy.as_mut().map_or(Ok(OutsideCommand::Twist { v: 0.0, w: 0.0 }), |p| p.ask(&observation))?;
-            let request = match command {
-                OutsideCommand::Twist { v, w } => Request::Drive { v, w },
-                OutsideCommand::Wheels { left, right } => Request::Wheels { left, right },
-            };
-            let _ = rig.request(&request);
-            Ok(())
-        });
-        let stop = failure
-            .as_ref()
-            .map(|e: &PolicyError| e.to_string())
-            .or_else(|| run.report.stop_reason.map(|r| r.to_string()));
+        if let Err(e) = opened {
+            let _ = rig.request(&Request::Stop);
+            return (rig.run_driven(scenario.time_limit, goal, tolerance, period, |_| Ok::<(), ()>(())).0, Some(e));
+        }
+        let (run, failure) = rig.run_driven(scenario.time_limit, goal, tolerance, period, |rig| self.turn(rig, goal));
+        self.end(&run, failure.as_ref());
+        (run, failure)
+    }
+
+    /// An episode begins on `rig`: the process started if it is not, and the hello.
+    pub fn begin(&mut self, scenario: &Scenario, rig: &VirtualRig) -> Result<(), PolicyError> {
+        let mut process = match self.process.take() {
+            Some(p) => p,
+            None => PolicyProcess::start(&self.command, self.budget)?,
+        };
+        process.hello(&hello(scenario, rig))?;
+        self.process = Some(process);
+        Ok(())
+    }
+
+    /// The policy's turn: it observes `rig` and its command goes in as a request.
+    pub fn turn(&mut self, rig: &mut VirtualRig, goal: [f64; 2]) -> Result<(), PolicyError> {
+        let Some(process) = self.process.as_mut() else {
+            return Err(PolicyError::Exited { status: "not running".into() });
+        };
+        let command = process.ask(&observe(rig, goal))?;
+        let request = match command {
+            OutsideCommand::Twist { v, w } => Request::Drive { v, w },
+            OutsideCommand::Wheels { left, right } => Request::Wheels { left, right },
+        };
+        let _ = rig.request(&request);
+        Ok(())
+    }
+
+    /// The episode's end: its last line; a process that failed it ends, and starts afresh
+    /// for the next.
+    pub fn end(&mut self, run: &VirtualRun, failure: Option<&PolicyError>) {
+        let stop = failure.map(|e| e.to_string()).or_else(|| run.report.stop_reason.map(|r| r.to_string()));
         let ending = Ending { outcome: run.outcome.to_string(), contact: run.truth.summary.contact.is_some(), stop };
-        if let Some(mut p) = policy {
+        if let Some(mut p) = self.process.take() {
             p.end_episode(&ending);
-            // A process that failed an episode starts afresh for the next.
             if failure.is_none() {
                 self.process = Some(p);
             } else {
                 p.close();
             }
         }
-        (run, failure)
     }
 
     /// End the process.

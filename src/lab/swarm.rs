@@ -25,6 +25,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
+use super::policy::{driven_from_outside, Worker};
 use super::sweep::{Shard, TooLarge};
 use super::virtual_rig::{Options, VirtualRig};
 use super::Scenario;
@@ -44,6 +45,7 @@ pub fn run_episode(
     seed: u64,
     index: u64,
     keep: bool,
+    policy: Option<&mut Worker>,
 ) -> (JudgedEpisode, super::virtual_rig::VirtualRun) {
     let schedule = schedule(base, seed, index);
     let backend = schedule.backend;
@@ -55,9 +57,23 @@ pub fn run_episode(
             }
         });
     }
-    let s = &schedule.scenario;
+    let driven = policy.is_some().then(|| driven_from_outside(&schedule.scenario));
+    let s = driven.as_ref().unwrap_or(&schedule.scenario);
     let mut rig = VirtualRig::new(s, options);
-    let watch = operate(&mut rig, &schedule);
+    let goal_is_the_policys = policy.is_some();
+    let (watch, policy) = match policy {
+        Some(worker) => {
+            let failure = worker.begin(s, &rig).err();
+            let mut failure = failure;
+            let watch = operate(&mut rig, &schedule, &mut |rig| {
+                if failure.is_none() {
+                    failure = worker.turn(rig, s.goal.position).err();
+                }
+            });
+            (watch, Some((worker, failure)))
+        }
+        None => (operate(&mut rig, &schedule, &mut |_| {}), None),
+    };
     let core = rig.core();
     let history = core.safety().history.clone();
     let settings = Settings {
@@ -70,8 +86,13 @@ pub fn run_episode(
     let mut accounting = accounting(&rig);
     let digest = format!("{:016x}", rig.sent_digest());
     let run = rig.finish(s.goal.position, s.goal.tolerance);
+    if let Some((worker, failure)) = policy {
+        worker.end(&run, failure.as_ref());
+    }
     let reached_goal = final_state == State::Stopped(StopReason::GoalReached) && run.reached_goal;
-    let (mut violations, stops) = judge(&schedule, &settings, &history, &watch, reached_goal, final_state);
+    // Driven by a policy, reaching the goal is the policy's part, not the gateway's.
+    let judged_goal = reached_goal || goal_is_the_policys;
+    let (mut violations, stops) = judge(&schedule, &settings, &history, &watch, judged_goal, final_state);
     violations.append(&mut accounting);
     let outcome = JudgedEpisode {
         index,
@@ -91,7 +112,7 @@ pub fn run_episode(
 
 /// Run `rig` to the goal after the schedule's last fault (or its time limit past it), the
 /// operator resetting, arming, setting the goal and starting after each stop; what it saw.
-fn operate(rig: &mut VirtualRig, schedule: &FaultSchedule) -> EpisodeLog {
+fn operate(rig: &mut VirtualRig, schedule: &FaultSchedule, turn: &mut dyn FnMut(&mut VirtualRig)) -> EpisodeLog {
     let s = &schedule.scenario;
     let period = rig.core().rig().sample_period.as_secs_f64();
     let goal = Request::Goal { goals: vec![Goal { position: s.goal.position, tolerance: s.goal.tolerance }] };
@@ -103,11 +124,16 @@ fn operate(rig: &mut VirtualRig, schedule: &FaultSchedule) -> EpisodeLog {
     // is stuck, and said so.
     let most_steps = (limit * STEPS_PER_S) as u64;
     let mut steps = 0u64;
+    let mut next_turn = 0.0;
     while rig.time() < limit {
         steps += 1;
         if steps > most_steps {
             watch.stuck = Some(rig.time());
             break;
+        }
+        if rig.time() >= next_turn {
+            next_turn += period;
+            turn(rig);
         }
         rig.step();
         let (t, state) = (rig.time(), rig.core().state());
@@ -234,8 +260,16 @@ pub struct EpisodeLine {
 }
 
 /// Run `n` episodes of the swarm (the shard's) around `base` on `threads` threads.
-pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize, shard: Shard) -> Result<Vec<JudgedEpisode>, TooLarge> {
-    let mut outcomes = shard.run(n, threads, |i| run_episode(base, seed, i, false).0)?;
+pub fn run(
+    base: &Scenario,
+    n: u64,
+    seed: u64,
+    threads: usize,
+    shard: Shard,
+    policy: Option<(&str, std::time::Duration)>,
+) -> Result<Vec<JudgedEpisode>, TooLarge> {
+    let worker = || policy.map(|(command, budget)| Worker::new(command, budget));
+    let mut outcomes = shard.run_with(n, threads, worker, |w, i| run_episode(base, seed, i, false, w.as_mut()).0)?;
     outcomes.sort_by_key(|o| o.index);
     Ok(outcomes)
 }

@@ -1,6 +1,7 @@
 """The repository's Python package (python/, `flowgate_policy`) as a user writes with it.
 
 Usage: policies.py helper               a policy written with `serve` (flowgate runs it: --policy)
+       policies.py push                 an adversary: at top speed straight at the nearest obstacle
        policies.py gym SCENARIO FLOWGATE  Gymnasium's check_env on FlowgateEnv, then one episode
                                           steered at the goal; prints JSON."""
 import json
@@ -17,6 +18,18 @@ if sys.argv[1] == "helper":
         return Command(v=min(hello.limits.max_speed, o.goal_distance()) * max(math.cos(turn), 0.0), w=2 * turn)
 
     serve(policy)
+    sys.exit(0)
+
+if sys.argv[1] == "push":
+    def push(o, hello):
+        r = o.robot
+        if not o.obstacles:
+            return Command(v=hello.limits.max_speed, w=0.0)
+        b = min(o.obstacles, key=lambda b: b.distance(r))
+        turn = math.atan2(b.y - r.y, b.x - r.x) - r.heading
+        return Command(v=hello.limits.max_speed, w=2 * math.atan2(math.sin(turn), math.cos(turn)))
+
+    serve(push)
     sys.exit(0)
 
 from gymnasium.utils.env_checker import check_env
