@@ -39,6 +39,40 @@ fn recorded(path: &Path, topic: &str) -> Vec<(u64, Value)> {
     out
 }
 
+/// ROS 2's environment for a run of this file's tests: discovery on loopback, in domain
+/// `100 + (pid + offset) % 100` (two runs of the suite, or two tests of it side by side, do
+/// not hear each other).
+fn ros_env(offset: u32) -> [(&'static str, String); 3] {
+    [
+        ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST".into()),
+        ("ROS_DOMAIN_ID", (100 + (std::process::id() + offset) % 100).to_string()),
+        ("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp".into()),
+    ]
+}
+
+/// `flowgate demo --ros2 --scenario SCENARIO` in `dir`, recording to `dir/run.mcap`, with
+/// `extra` arguments, its output piped.
+fn demo_ros2(
+    dir: &Path,
+    scenario: &Path,
+    extra: &[&std::ffi::OsStr],
+    env: &[(&'static str, String); 3],
+) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--ros2", "--scenario"])
+        .arg(scenario)
+        .args(extra)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .arg("--record")
+        .arg(dir.join("run.mcap"))
+        .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 #[test]
 fn a_ros2_node_watches_and_drives_flowgate() {
     let dir = temp_dir("ros2");
@@ -46,33 +80,15 @@ fn a_ros2_node_watches_and_drives_flowgate() {
     let flowgate = env!("CARGO_BIN_EXE_flowgate");
     let socket = dir.join("control.sock");
     let recording = dir.join("run.mcap");
-    // A domain of this test's own: two runs of the suite on one machine do not hear each other.
-    let domain = (100 + std::process::id() % 100).to_string();
-    let ros_env = [
-        ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
-        ("ROS_DOMAIN_ID", domain.as_str()),
-        ("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"),
-    ];
-    let demo = Command::new(flowgate)
-        .args(["demo", "--ros2", "--scenario"])
-        .arg(root.join("scenarios/e1-standing-obstacle.toml"))
-        .arg("--socket")
-        .arg(&socket)
-        .arg("--out")
-        .arg(dir.join("out"))
-        .arg("--record")
-        .arg(&recording)
-        .envs(ros_env)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let env = ros_env(0);
+    let e1 = root.join("scenarios/e1-standing-obstacle.toml");
+    let demo = demo_ros2(&dir, &e1, &["--socket".as_ref(), socket.as_os_str()], &env);
     // The peer waits on each topic and service with a deadline of its own.
     let (gx, gy) = (0.3, 0.06);
     let peer = Command::new(python::python())
         .arg(python::peer("ros2"))
         .args([flowgate, socket.to_str().unwrap(), &gx.to_string(), &gy.to_string()])
-        .envs(ros_env)
+        .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
         .output()
         .unwrap();
     let demo = demo.wait_with_output().unwrap();
@@ -231,29 +247,12 @@ fn drive_on_cmd_vel(name: &str, mode: &str, domain: u32) -> (Value, (bool, Strin
     let scenario = dir.join("e1-ros2.toml");
     std::fs::write(&scenario, e1.replace("[planner]\n", "[planner]\nmethod = \"ros2\"\n")).unwrap();
     let recording = dir.join("run.mcap");
-    // A domain of its own: the tests of this file run side by side.
-    let domain = (100 + (std::process::id() + domain) % 100).to_string();
-    let ros_env = [
-        ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
-        ("ROS_DOMAIN_ID", domain.as_str()),
-        ("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"),
-    ];
-    let demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["demo", "--ros2", "--scenario"])
-        .arg(&scenario)
-        .arg("--out")
-        .arg(dir.join("out"))
-        .arg("--record")
-        .arg(&recording)
-        .envs(ros_env)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let env = ros_env(domain);
+    let demo = demo_ros2(&dir, &scenario, &[], &env);
     let peer = Command::new(python::python())
         .arg(python::peer("ros2"))
         .args(["--cmd-vel", mode, "0.35", "0.05"])
-        .envs(ros_env)
+        .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
         .output()
         .unwrap();
     let demo = demo.wait_with_output().unwrap();
