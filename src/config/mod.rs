@@ -26,7 +26,10 @@ mod service;
 pub use camera::{CalibrationSection, LedSection, ObstacleLed, RefPoint, ScheduleSection, SerialSection};
 use checks::{invalid, ms, positive, Most};
 pub use checks::{read_text, shown, Invalid, MAX_FILE_BYTES, MAX_GOAL_TOLERANCE};
-pub use motors::{BoardSettings, CanSection, Cia402Section, Cia402Settings, DriveSection, MotorProtocolName, Motors};
+pub use motors::{
+    BoardSettings, CanSection, Cia402Section, Cia402Settings, DriveSection, MotorProtocolName, Motors,
+    CIA402_CONSUMER_TIME_MS,
+};
 pub use planning::{default_tolerance, Goal, LaneSection, PlannerMethod, PlannerSection, RobotSection};
 pub use safety::{SafetySection, SafetySettings};
 pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
@@ -311,7 +314,15 @@ impl RigFile {
         supervisor.arena = calibration.inner_rect().map(|[x0, x1, y0, y1]| [x0 + led, x1 - led, y0 + led, y1 - led]);
         supervisor.room = room.clone();
         if p.method != PlannerMethod::Field {
+            // An outside planner may drive straight at an obstacle, so the supervisor's
+            // promise must hold when the commands stop reaching the wheels (the bus off,
+            // the adapter gone): the motors then hold the last one until their own timeout.
             supervisor.approach_tolerance = 0.0;
+            let motors_hold_s = match self.can.protocol {
+                MotorProtocolName::Cia402 => f64::from(CIA402_CONSUMER_TIME_MS) * 1e-3,
+                _ => f64::from(d.command_timeout_ms) * 1e-3,
+            };
+            supervisor.reaction_time += motors_hold_s;
         }
         ControlConfig {
             room,

@@ -35,6 +35,10 @@ pub enum MotorProtocolName {
     Cia402,
 }
 
+/// How long a CiA 402 drive waits for the gateway's heartbeat before it stops itself, ms
+/// (its consumer heartbeat time, 0x1016, written at configuration).
+pub const CIA402_CONSUMER_TIME_MS: u32 = 300;
+
 /// `[cia402]`: one CiA 402 drive a wheel, in profile velocity mode (docs/cia402.md).
 #[derive(Debug, Clone, Copy, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]

@@ -25,7 +25,7 @@ use crate::time::HostTime;
 
 /// How long a drive may miss the gateway's heartbeat before it stops by itself (0x1016): three
 /// of the gateway's periods.
-pub const CONSUMER_TIME_MS: u32 = 300;
+pub const CONSUMER_TIME_MS: u32 = crate::config::CIA402_CONSUMER_TIME_MS;
 
 /// How recent a drive's report of its velocity must be to say its wheel turns now (ten of
 /// its report periods at the default 10 ms).
