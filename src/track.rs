@@ -73,6 +73,7 @@ impl TrackingSettings {
                 velocity_sd: 0.0,
                 drift: Point::default(),
                 spread: self.max_obstacle_speed,
+                keep: 0.0,
             }
         })
     }
@@ -225,7 +226,16 @@ impl ConstantVelocityKf {
     pub fn estimate(&self, radius: f64, t: f64) -> ObstacleEstimate {
         let (center, velocity) = self.predict(t);
         let (position_sd, velocity_sd) = self.uncertainty(t);
-        ObstacleEstimate { center, velocity, radius, position_sd, velocity_sd, drift: self.drift, spread: 0.0 }
+        ObstacleEstimate {
+            center,
+            velocity,
+            radius,
+            position_sd,
+            velocity_sd,
+            drift: self.drift,
+            spread: 0.0,
+            keep: 0.0,
+        }
     }
 
     /// The velocity smoothed over [`DRIFT_TIME_CONSTANT`], m/s.

@@ -51,6 +51,15 @@ pub struct SimScenario {
     /// are placed by [`SimScenario::crowd_episode`], afresh for every episode of a sweep.
     #[serde(default)]
     pub crowd: Option<CrowdSpec>,
+    /// Vehicles beside the robot (the first vehicle), each scripted or navigating.
+    #[serde(default)]
+    pub vehicles: Vec<crate::vehicles::VehicleSpec>,
+    /// The antipodal swap: a fleet placed on a circle for each episode.
+    #[serde(default)]
+    pub swap: Option<crate::vehicles::SwapSpec>,
+    /// What loading changed and the user should hear (a script cut at the view's edge).
+    #[serde(skip)]
+    pub notes: Vec<String>,
 }
 
 /// The robot and `obstacles` non-reactive obstacles on a circle of `circle_radius` about
@@ -278,7 +287,12 @@ impl SimScenario {
             s.validate_crowd().map_err(invalid)?;
             s = s.crowd_episode(s.sensing.seed, 0).map_err(invalid)?;
         }
+        if s.swap.is_some() {
+            s.validate_swap().map_err(invalid)?;
+            s = s.swap_episode(s.sensing.seed, 0);
+        }
         s.validate().map_err(invalid)?;
+        s.cut_scripts_at_the_view();
         Ok(s)
     }
 
@@ -384,6 +398,7 @@ impl SimScenario {
         self.validate_room()?;
         self.validate_geometry()?;
         self.validate_sensing()?;
+        self.validate_vehicles()?;
         self.faults.validate()
     }
 
@@ -400,57 +415,14 @@ impl SimScenario {
     }
 
     fn validate_robot(&self) -> Result<(), (String, String)> {
-        let r = &self.robot;
-        finite("robot.start", r.start)?;
-        positive("robot.radius", r.radius)?;
-        positive("robot.wheel_base", r.wheel_base)?;
-        positive("robot.wheel_radius", r.wheel_radius)?;
-        positive("robot.max_wheel_speed", r.max_wheel_speed)?;
-        positive("robot.wheel_accel", r.wheel_accel)?;
-        positive("robot.max_speed", r.max_speed)?;
-        at_most("robot.radius", r.radius, MAX_BODY_M, "m")?;
-        at_most("robot.wheel_base", r.wheel_base, MAX_BODY_M, "m")?;
-        at_most("robot.wheel_radius", r.wheel_radius, MAX_BODY_M, "m")?;
-        at_most("robot.max_wheel_speed", r.max_wheel_speed, MAX_SPEED_M_S, "m/s")?;
-        at_most("robot.wheel_accel", r.wheel_accel, MAX_ACCEL_M_S2, "m/s²")?;
-        at_most("robot.max_speed", r.max_speed, MAX_SPEED_M_S, "m/s")?;
-        if r.steps_per_rev == 0 || r.microsteps == 0 {
-            return Err(("robot.steps_per_rev".into(), "steps_per_rev and microsteps must be at least 1".into()));
-        }
-        // What stepper drivers do: 1/256 is the finest microstep any common driver offers.
-        if r.microsteps > MAX_MICROSTEPS {
-            return Err(("robot.microsteps".into(), format!("must be 1-{MAX_MICROSTEPS}, is {}", r.microsteps)));
-        }
-        if r.steps_per_rev > MAX_STEPS_PER_REV {
-            return Err((
-                "robot.steps_per_rev".into(),
-                format!("must be 1-{MAX_STEPS_PER_REV}, is {}", r.steps_per_rev),
-            ));
-        }
-        Ok(())
+        validate_body(&self.robot, "robot")
     }
 
     fn validate_obstacles(&self) -> Result<(), (String, String)> {
         for (i, o) in self.obstacles.iter().enumerate() {
             within(&format!("obstacles[{i}].radius"), o.radius, MAX_BODY_M, "m")?;
             finite(&format!("obstacles[{i}].start"), o.start)?;
-            match &o.motion {
-                Motion::Stationary => {}
-                Motion::Constant { velocity } => {
-                    let key = format!("obstacles[{i}].motion.velocity");
-                    finite(&key, *velocity)?;
-                    at_most(&key, velocity[0].hypot(velocity[1]), MAX_SPEED_M_S, "m/s")?;
-                }
-                Motion::Waypoints { points, speed, .. } => {
-                    within(&format!("obstacles[{i}].motion.speed"), *speed, MAX_SPEED_M_S, "m/s")?;
-                    if points.is_empty() {
-                        return Err((format!("obstacles[{i}].motion.points"), "needs at least one point".into()));
-                    }
-                    for p in points {
-                        finite(&format!("obstacles[{i}].motion.points"), *p)?;
-                    }
-                }
-            }
+            validate_motion(&format!("obstacles[{i}].motion"), &o.motion)?;
         }
         Ok(())
     }
@@ -539,7 +511,7 @@ impl SimScenario {
 
     /// What a footprint of `radius` at `centre` touches or overlaps, the walls first: "a
     /// wall" or "static_obstacles[k]".
-    fn touching(&self, centre: Point, radius: f64) -> Option<String> {
+    pub(crate) fn touching(&self, centre: Point, radius: f64) -> Option<String> {
         use flowgate_protocol::plane::{inside_polygon, polygon_edges, segment_distance_sqr};
         let reach = radius * radius;
         let wall = self.walls.iter().flat_map(|w| w.points.windows(2));
@@ -632,6 +604,72 @@ impl SimScenario {
     pub fn goal(&self) -> Point {
         point(self.goal.position)
     }
+}
+
+/// A vehicle's body (`[robot]`'s keys) under `prefix`.
+pub(crate) fn validate_body(r: &RobotSpec, prefix: &str) -> Refused {
+    finite(&format!("{prefix}.start"), r.start)?;
+    positive(&format!("{prefix}.radius"), r.radius)?;
+    positive(&format!("{prefix}.wheel_base"), r.wheel_base)?;
+    positive(&format!("{prefix}.wheel_radius"), r.wheel_radius)?;
+    positive(&format!("{prefix}.max_wheel_speed"), r.max_wheel_speed)?;
+    positive(&format!("{prefix}.wheel_accel"), r.wheel_accel)?;
+    positive(&format!("{prefix}.max_speed"), r.max_speed)?;
+    at_most(&format!("{prefix}.radius"), r.radius, MAX_BODY_M, "m")?;
+    at_most(&format!("{prefix}.wheel_base"), r.wheel_base, MAX_BODY_M, "m")?;
+    at_most(&format!("{prefix}.wheel_radius"), r.wheel_radius, MAX_BODY_M, "m")?;
+    at_most(&format!("{prefix}.max_wheel_speed"), r.max_wheel_speed, MAX_SPEED_M_S, "m/s")?;
+    at_most(&format!("{prefix}.wheel_accel"), r.wheel_accel, MAX_ACCEL_M_S2, "m/s²")?;
+    at_most(&format!("{prefix}.max_speed"), r.max_speed, MAX_SPEED_M_S, "m/s")?;
+    if r.steps_per_rev == 0 || r.microsteps == 0 {
+        return Err((format!("{prefix}.steps_per_rev"), "steps_per_rev and microsteps must be at least 1".into()));
+    }
+    // What stepper drivers do: 1/256 is the finest microstep any common driver offers.
+    if r.microsteps > MAX_MICROSTEPS {
+        return Err((format!("{prefix}.microsteps"), format!("must be 1-{MAX_MICROSTEPS}, is {}", r.microsteps)));
+    }
+    if r.steps_per_rev > MAX_STEPS_PER_REV {
+        return Err((
+            format!("{prefix}.steps_per_rev"),
+            format!("must be 1-{MAX_STEPS_PER_REV}, is {}", r.steps_per_rev),
+        ));
+    }
+    Ok(())
+}
+
+/// A motion's numbers: finite, at most a plausible speed, waypoints to go to.
+pub(crate) fn validate_motion(key: &str, motion: &Motion) -> Refused {
+    match motion {
+        Motion::Stationary => {}
+        Motion::Constant { velocity } => {
+            let key = format!("{key}.velocity");
+            finite(&key, *velocity)?;
+            at_most(&key, velocity[0].hypot(velocity[1]), MAX_SPEED_M_S, "m/s")?;
+        }
+        Motion::Waypoints { points, speed, .. } => {
+            within(&format!("{key}.speed"), *speed, MAX_SPEED_M_S, "m/s")?;
+            if points.is_empty() {
+                return Err((format!("{key}.points"), "needs at least one point".into()));
+            }
+            if points.len() > MAX_POINTS {
+                return Err((format!("{key}.points"), format!("has {} entries: at most {MAX_POINTS}", points.len())));
+            }
+            for p in points {
+                finite(&format!("{key}.points"), *p)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A point: finite, within the plausible floor.
+pub(crate) fn validate_point(key: &str, p: [f64; 2]) -> Refused {
+    finite(key, p)
+}
+
+/// A length: positive, at most `most` m.
+pub(crate) fn validate_length(key: &str, v: f64, most: f64) -> Refused {
+    within(key, v, most, "m")
 }
 
 /// `[x, y]` as a point.

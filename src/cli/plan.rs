@@ -75,6 +75,10 @@ pub struct PlanArgs {
     #[arg(long, value_name = "MS", default_value_t = 1000, requires = "policy",
           value_parser = clap::value_parser!(u64).range(1..=60_000))]
     policy_budget_ms: u64,
+    /// With --sweep of a fleet: run every episode twice, the scripted vehicles as vehicles
+    /// and as obstacles on the same scripts, and compare the robot's outcomes.
+    #[arg(long, requires = "sweep")]
+    compare_obstacles: bool,
     /// Where to write summary.json and the plots (default: out/plan/<scenario>).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -104,7 +108,13 @@ pub fn run(args: PlanArgs) -> Result<()> {
     };
     let mut scenario = Scenario::load(file)?;
     scenario.supervised = !args.unsupervised;
+    for note in &scenario.notes {
+        say!("note: {note}");
+    }
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
+    if scenario.is_fleet() || scenario.swap.is_some() {
+        return fleet_command(&args, &scenario, &out);
+    }
     if args.shard.is_some() && args.sweep.is_none() && args.swarm.is_none() {
         bail!("--shard splits a --sweep or a --swarm");
     }
@@ -371,5 +381,63 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
             outputs::write_run(&dir, &scenario, &run)?;
         }
     }
+    Ok(())
+}
+
+/// A scenario of several vehicles: one run, `--sweep N`, or `--sweep N --episode K`. The
+/// fleet runs at the planner level (`flowgate::lab::fleet`); the rest of `plan`'s modes
+/// drive one robot.
+fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()> {
+    use flowgate::lab::fleet::{self, sweep as fleet_sweep, FleetOptions};
+    for (given, flag) in [
+        (args.policy.is_some(), "--policy"),
+        (args.swarm.is_some(), "--swarm"),
+        (args.compare.is_some(), "--compare"),
+        (args.shard.is_some(), "--shard"),
+    ] {
+        if given {
+            bail!(
+                "{flag} drives one robot: {} is a fleet of {} vehicles, run with --sweep N or alone",
+                scenario.name,
+                1 + scenario.vehicles.len()
+            );
+        }
+    }
+    let options = FleetOptions::default();
+    let Some(n) = args.sweep else {
+        let summary = fleet::run(scenario, options);
+        fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
+        outputs::write_fleet_run(out, &summary)?;
+        say!("  wrote {}/summary.json  (fleet, planner level)", out.display());
+        return Ok(());
+    };
+    if n == 0 || n as u64 > sweep::MAX_EPISODES {
+        bail!("--sweep {n}: 1 to {} episodes", sweep::MAX_EPISODES);
+    }
+    if let Some(k) = args.episode {
+        if k >= n as u64 {
+            bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1);
+        }
+        let s = fleet_sweep::place(scenario, args.seed, k);
+        let summary = fleet::run(&s, options);
+        say!("episode {k} of the sweep of {n} around {} (seed {}):", scenario.name, args.seed);
+        fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
+        outputs::write_fleet_run(out, &summary)?;
+        return Ok(());
+    }
+    let started = std::time::Instant::now();
+    if args.compare_obstacles {
+        let comparison = fleet_sweep::compare_scripts(scenario, n as u64, args.seed, args.threads(), options)?;
+        say!("{comparison}");
+        say!("  ({} episodes twice in {:.1} s, fleet, planner level)", n, started.elapsed().as_secs_f64());
+        outputs::write_json(&out.join("scripts_compared.json"), &comparison)?;
+        say!("  wrote {}/scripts_compared.json", out.display());
+        return Ok(());
+    }
+    let (report, episodes) = fleet_sweep::sweep(scenario, n as u64, args.seed, args.threads(), options)?;
+    say!("{report}");
+    say!("  ({} episodes in {:.1} s, fleet, planner level)", episodes.len(), started.elapsed().as_secs_f64());
+    outputs::write_fleet_sweep(out, &report, &episodes)?;
+    say!("  wrote {}/{{fleet_sweep.json,fleet_episodes.jsonl}}", out.display());
     Ok(())
 }

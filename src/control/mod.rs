@@ -3,6 +3,7 @@
 //! runs live, offline, in replay and in benchmarks.
 
 pub mod drive;
+pub mod fleet;
 pub mod outside;
 mod step;
 pub mod supervisor;

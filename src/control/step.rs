@@ -157,6 +157,8 @@ pub struct ControlStep {
     goal_occupied_since: Option<f64>,
     envelope: Envelope,
     outside: OutsideCommands,
+    /// Where the field heads instead of the goal ([`ControlStep::aim_at`]).
+    aim: Option<Point>,
 }
 
 impl ControlStep {
@@ -173,6 +175,7 @@ impl ControlStep {
             goal_occupied_since: None,
             envelope: Envelope::default(),
             outside: OutsideCommands::default(),
+            aim: None,
         }
     }
 
@@ -188,6 +191,13 @@ impl ControlStep {
         self.outside.start(t);
         self.progress_anchor = None;
     }
+    /// Let the field head for `aim` instead of the goal (`None`: the goal again): a fleet's
+    /// vehicle whose goal another vehicle still stands on. Reaching the goal is still what
+    /// ends the drive.
+    pub fn aim_at(&mut self, aim: Option<Point>) {
+        self.aim = aim;
+    }
+
     /// Drive to a new goal from the next step (progress is judged afresh).
     pub fn set_goal(&mut self, goal: Point, tolerance: f64) {
         self.config.goal = goal;
@@ -217,7 +227,7 @@ impl ControlStep {
     pub fn rehearse(&mut self, estimate: &Estimate<'_>) {
         let input = PlanInput {
             position: estimate.position,
-            goal: self.config.goal,
+            goal: self.aim.unwrap_or(self.config.goal),
             robot_radius: self.config.robot_radius,
             obstacles: estimate.obstacles,
             delay: estimate.delay,
@@ -240,7 +250,7 @@ impl ControlStep {
         }
         let input = PlanInput {
             position,
-            goal: self.config.goal,
+            goal: self.aim.unwrap_or(self.config.goal),
             robot_radius: self.config.robot_radius,
             obstacles: estimate.obstacles,
             delay: estimate.delay,

@@ -17,6 +17,7 @@
 
 pub mod bench;
 pub mod demo;
+pub mod fleet;
 pub mod outputs;
 pub mod planner_only;
 pub mod plots;

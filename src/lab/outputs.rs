@@ -154,3 +154,30 @@ pub fn write_swarm_episode(
     write(&faults_path, faults)?;
     write(&dir.join("episode.json"), json(outcome))
 }
+
+/// A fleet run: its `summary.json` (the fleet's outcome and each vehicle's).
+pub fn write_fleet_run(dir: &Path, summary: &super::fleet::FleetSummary) -> Result<(), OutputError> {
+    folder(dir)?;
+    write(&dir.join("summary.json"), json(summary))
+}
+
+/// A fleet sweep: its report (`fleet_sweep.json`) and one JSON line an episode
+/// (`fleet_episodes.jsonl`).
+pub fn write_fleet_sweep(
+    dir: &Path,
+    report: &super::fleet::sweep::FleetSweepReport,
+    episodes: &[super::fleet::sweep::FleetEpisode],
+) -> Result<(), OutputError> {
+    folder(dir)?;
+    write(&dir.join("fleet_sweep.json"), json(report))?;
+    let lines: String = episodes.iter().map(|e| serde_json::to_string(e).unwrap_or_default() + "\n").collect();
+    write(&dir.join("fleet_episodes.jsonl"), lines)
+}
+
+/// Any report as pretty JSON at `path` (its folder made if missing).
+pub fn write_json(path: &Path, value: &impl Serialize) -> Result<(), OutputError> {
+    if let Some(dir) = path.parent() {
+        folder(dir)?;
+    }
+    write(path, json(value))
+}

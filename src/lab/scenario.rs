@@ -111,15 +111,59 @@ impl Scenario {
             .map_err(|e| ScenarioError::Planner { path: origin.into(), source: Box::new(e) })?;
         let room = RoomSection::deserialize(toml::Value::Table(sim.room.clone()))
             .map_err(|e| ScenarioError::Room { path: origin.into(), source: Box::new(e) })?;
-        let s = Self { sim, planner, room, supervised: true };
+        let mut s = Self { sim, planner, room, supervised: true };
         let frame_us = s.frame_us().map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        s.cut_scripts_at_the_room(frame_us)
+            .map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         let rig = s
             .config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us)
             .validate()
             .map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         s.robot_in_view(&rig).map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
         s.start_reaches_the_goal(&rig).map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        for k in 1..=s.vehicles.len() {
+            s.vehicle(k)
+                .check_as_vehicle(k, frame_us)
+                .map_err(|invalid| ScenarioError::Invalid { path: origin.into(), invalid })?;
+        }
         Ok(s)
+    }
+
+    /// Vehicle `k` (0: the robot) alone: its body, start and goal in this scenario's room,
+    /// with its obstacles and planner settings.
+    pub fn vehicle(&self, k: usize) -> Scenario {
+        Scenario { sim: self.sim.vehicle_alone(k), ..self.clone() }
+    }
+
+    /// Cut each script where its vehicle would leave the room the gateway plans in (the
+    /// view's edge less the LEDs' reach and `room.view_inset`, the walls, the furniture): the
+    /// vehicle stops at its last point inside, and a note says so.
+    fn cut_scripts_at_the_room(&mut self, frame_us: u32) -> Result<(), Invalid> {
+        for i in 0..self.vehicles.len() {
+            let mut alone = self.vehicle(i + 1);
+            alone.sim.goal.position = alone.sim.robot.start;
+            let rig = alone.config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us).validate();
+            let Some(room) = rig.map_err(|e| vehicle_key(i + 1, e))?.control.room else { continue };
+            let start = alone.robot_start();
+            let inside = |p, _| room.blocked_at(p).is_none() && room.reachable(start, p);
+            if let Some(note) = self.sim.cut_script(i, "leaves the room", inside) {
+                // Cut shorter than at the camera's view: this note says where it ends.
+                let vehicle = format!("vehicles[{i}] (");
+                self.sim.notes.retain(|n| !n.starts_with(&vehicle));
+                self.sim.notes.push(note);
+            }
+        }
+        Ok(())
+    }
+
+    /// The checks of a robot, on vehicle `k` of a fleet (this scenario its alone), naming
+    /// its keys.
+    fn check_as_vehicle(&self, k: usize, frame_us: u32) -> Result<(), Invalid> {
+        let name = |invalid: Invalid| vehicle_key(k, invalid);
+        let rig =
+            self.config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us).validate().map_err(name)?;
+        self.robot_in_view(&rig).map_err(name)?;
+        self.start_reaches_the_goal(&rig).map_err(name)
     }
 
     /// In a room, the robot's start must be clear of it and the goal within its reach.
@@ -301,6 +345,17 @@ impl Scenario {
             ros2: None,
         }
     }
+}
+
+/// A robot's check failed on vehicle `k` of a fleet: its key named as the vehicle's.
+fn vehicle_key(k: usize, invalid: Invalid) -> Invalid {
+    let prefix = format!("vehicles[{}]", k - 1);
+    let key = match invalid.key.as_str() {
+        "goal.position" => format!("{prefix}.goal"),
+        "goal.tolerance" => format!("{prefix}.goal_tolerance"),
+        key => key.replacen("robot.", &format!("{prefix}."), 1),
+    };
+    Invalid { key, ..invalid }
 }
 
 #[cfg(test)]

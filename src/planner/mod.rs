@@ -146,12 +146,16 @@ pub struct ObstacleEstimate {
     /// obstacle; the top obstacle speed for one unseen inside the view, whose `radius`
     /// is then how far it may have gone since it was last seen (a region, not a body).
     pub spread: f64,
+    /// Room the planner keeps from it beyond the margin, m: a margin like the rest, given up
+    /// (shrunk) rather than freeze the robot or cover its goal. A fleet's vehicles keep it
+    /// between each other.
+    pub keep: f64,
 }
 
 impl ObstacleEstimate {
     /// An obstacle known exactly (a scripted one, a test's).
     pub const fn exact(center: Point, velocity: Point, radius: f64) -> Self {
-        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0, drift: velocity, spread: 0.0 }
+        Self { center, velocity, radius, position_sd: 0.0, velocity_sd: 0.0, drift: velocity, spread: 0.0, keep: 0.0 }
     }
 }
 
@@ -258,7 +262,8 @@ impl Planner {
                 velocity: o.velocity,
                 radius: self.config.margin.radius(r0, speed, input.delay)
                     + self.config.uncertainty_sigmas * o.position_sd
-                    + self.config.clearance,
+                    + self.config.clearance
+                    + o.keep,
             };
             if let Some(tb) = self.config.tie_break {
                 let shift = tie_break_shift(&tb, input.position, input.goal, &p);

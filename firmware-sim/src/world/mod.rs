@@ -9,6 +9,7 @@
 //! sampled instants.
 
 mod axis;
+pub mod fleet;
 mod judge;
 mod obstacle;
 mod robot;

@@ -45,6 +45,32 @@ impl ObstaclePath {
         }
     }
 
+    /// When the path ends (infinite for one velocity forever; one lap of a repeating one).
+    pub fn end_time(&self) -> f64 {
+        self.end
+    }
+
+    /// The points where the path turned before `t`, in order (a repeating path's every lap).
+    pub fn corners_before(&self, t: f64) -> Vec<Point> {
+        let mut corners = Vec::new();
+        if self.uniform.is_some() || self.legs.is_empty() {
+            return corners;
+        }
+        let mut lap = 0.0;
+        while lap <= t {
+            for &(t0, p0, _) in &self.legs {
+                if lap + t0 > 0.0 && lap + t0 <= t {
+                    corners.push(p0);
+                }
+            }
+            if !self.repeat {
+                break;
+            }
+            lap += self.end;
+        }
+        corners
+    }
+
     fn leg_at(&self, t: f64) -> Option<(f64, Point, Point)> {
         let t = if self.repeat { self.lap_time(t) } else { t };
         if t >= self.end {

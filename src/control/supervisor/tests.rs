@@ -63,6 +63,7 @@ fn scene() -> impl Strategy<Value = Scene> {
                     velocity_sd,
                     drift: Point::from_polar(speed, course),
                     spread: 0.0,
+                    keep: 0.0,
                 })
                 .collect();
             Scene { cfg, position, facing: Point::from_polar(1.0, heading), wheels, predicted }

@@ -1,0 +1,345 @@
+//! A fleet scenario run: every vehicle's control step (its field, or its script through the
+//! script follower, and its supervisor) in closed loop with the simulator's [`Fleet`], in
+//! virtual time, judged by the world's truth.
+//!
+//! Each vehicle plans on the others as [`crate::control::fleet`] states (known positions,
+//! commanded velocities, the priority order), on the scenario's obstacles as they truly
+//! move, and on its own true pose and wheel speeds: the camera's noise and delay are not
+//! modelled here. Single-robot scenarios run as before ([`super::planner_only`],
+//! [`super::virtual_rig`]).
+
+use flowgate_sim::scenario::SimScenario;
+use flowgate_sim::vehicles::Role;
+use flowgate_sim::world::fleet::Fleet;
+use flowgate_sim::world::{Contact, ObstaclePath, Touched};
+use serde::Serialize;
+
+use super::{Outcome, Scenario};
+use crate::control::fleet::{follow, FleetRule, FollowerGains, VehicleView};
+use crate::control::{CommandSource, ControlStep, OutsideCommand, StepOutput, StepStatus, Supervision};
+use crate::planner::ObstacleEstimate;
+use crate::track::Estimate;
+use crate::Point;
+
+pub mod sweep;
+
+/// What one vehicle touched first.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VehicleContactReport {
+    pub at: f64,
+    /// `vehicle NAME`, `obstacles[k]`, `static_obstacles[k]` or `a wall`.
+    pub with: String,
+    /// This vehicle's speed toward it, m/s.
+    pub approach_speed: f64,
+    /// This vehicle drove into it (above 1 cm/s toward it).
+    pub active: bool,
+}
+
+/// One vehicle's run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VehicleSummary {
+    pub name: String,
+    pub role: Role,
+    /// A navigating vehicle: `goal` at its goal. A scripted one: `goal` when it kept to its
+    /// script to the end (or to the run's end), `stopped` when it lost it.
+    pub outcome: Outcome,
+    pub contact: Option<VehicleContactReport>,
+    /// A scripted vehicle's largest distance from its script where its supervisor passed
+    /// the follower's command, m.
+    pub script_error: Option<f64>,
+    /// The same over the whole run, held or not, m.
+    pub script_error_held: Option<f64>,
+    pub time_to_goal: Option<f64>,
+    pub path_length: f64,
+    /// Smallest gap to another vehicle's footprint, m.
+    pub min_vehicle_gap: f64,
+    /// Smallest gap to another vehicle's or an obstacle's footprint, m.
+    pub min_clearance: f64,
+    /// Cycles the supervisor slowed, braked or evaded this vehicle's command.
+    pub supervised_cycles: u64,
+    /// Why it stopped, when not at its goal.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stop_reason: Option<String>,
+}
+
+/// A fleet run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FleetSummary {
+    pub scenario: String,
+    /// `goal` only when every navigating vehicle reached its goal and no vehicle touched
+    /// anything; else the first vehicle's other outcome, a collision first.
+    pub outcome: Outcome,
+    pub end_time: f64,
+    /// When the last navigating vehicle reached its goal, s.
+    pub makespan: Option<f64>,
+    pub vehicles: Vec<VehicleSummary>,
+}
+
+/// One vehicle while the run goes on.
+struct Driver {
+    step: ControlStep,
+    role: Role,
+    script: Option<ObstaclePath>,
+    tolerance: f64,
+    radius: f64,
+    /// Commanded velocity, m/s.
+    commanded: Point,
+    done: Option<(Outcome, f64, Option<String>)>,
+    error: f64,
+    error_held: f64,
+    supervised: u64,
+}
+
+/// The options of a fleet run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FleetOptions {
+    pub rule: FleetRule,
+    pub gains: FollowerGains,
+    /// End the run at the first contact (sweeps); else run on to see what follows.
+    pub stop_at_contact: bool,
+}
+
+impl Default for FleetOptions {
+    fn default() -> Self {
+        Self { rule: FleetRule::default(), gains: FollowerGains::default(), stop_at_contact: true }
+    }
+}
+
+/// Run a fleet scenario to its end.
+pub fn run(s: &Scenario, options: FleetOptions) -> FleetSummary {
+    let mut fleet = Fleet::new(&s.sim);
+    let mut drivers: Vec<Driver> = (0..fleet.len()).map(|k| driver(s, k)).collect();
+    let period = s.sensing.sample_time;
+    let obstacles: Vec<(ObstaclePath, f64)> = s.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect();
+    let mut seen = Vec::with_capacity(obstacles.len() + drivers.len());
+    let mut views =
+        vec![
+            VehicleView { position: Point::default(), velocity: Point::default(), radius: 0.0, moving_on: false };
+            drivers.len()
+        ];
+    loop {
+        let t = fleet.time();
+        for (k, d) in drivers.iter().enumerate() {
+            let moving = if d.done.is_some() { fleet.velocity(k) } else { d.commanded };
+            let moving_on = d.done.is_none() && d.role == Role::Navigate;
+            views[k] =
+                VehicleView { position: fleet.world(k).pose().position, velocity: moving, radius: d.radius, moving_on };
+        }
+        for k in 0..drivers.len() {
+            seen.clear();
+            seen.extend(obstacles.iter().map(|(p, r)| ObstacleEstimate::exact(p.position(t), p.velocity(t), *r)));
+            options.rule.others_as_obstacles(k, &views, &mut seen);
+            if drivers[k].role == Role::Navigate {
+                let goal = drivers[k].step.config().goal;
+                drivers[k].step.aim_at(options.rule.aim(k, views[k].position, goal, &views));
+            }
+            let pulses = drive_one(&mut drivers[k], &fleet, k, t, &seen, &options.gains);
+            views[k].velocity = drivers[k].commanded;
+            fleet.world_mut(k).command_pulse_rates(pulses);
+        }
+        fleet.step(period);
+        let touched = (0..drivers.len()).any(|k| contact_of(&fleet, s, k).is_some());
+        let running = drivers.iter().any(|d| d.done.is_none() && (d.role == Role::Navigate || d.script_runs(t)));
+        if (touched && options.stop_at_contact) || !running || fleet.time() >= s.time_limit {
+            return summary(s, &fleet, &drivers);
+        }
+    }
+}
+
+impl Driver {
+    /// Whether the script still moves at `t` (an endless one runs to the time limit).
+    fn script_runs(&self, t: f64) -> bool {
+        self.script.as_ref().is_some_and(|p| t < p.end_time())
+    }
+}
+
+/// Vehicle `k`'s control step, from its rig as the robot's is.
+fn driver(s: &Scenario, k: usize) -> Driver {
+    let alone = s.vehicle(k);
+    let mut config = alone.rig().control;
+    let role = if k == 0 { Role::Navigate } else { s.vehicles[k - 1].role };
+    let (mut script, mut tolerance) = (None, 0.0);
+    if role == Role::Script {
+        let v = &s.vehicles[k - 1];
+        script = Some(ObstaclePath::new(&v.script(alone.robot.radius)));
+        tolerance = v.script_tolerance();
+        // The follower's command, a cycle old at most, is what the supervisor checks.
+        config.source = CommandSource::Outside { max_age: 2.0 * s.sensing.sample_time };
+        config.goal_tolerance = 0.0;
+    }
+    let mut step = ControlStep::new(config);
+    step.start(0.0);
+    Driver {
+        step,
+        role,
+        script,
+        tolerance,
+        radius: alone.robot.radius,
+        commanded: Point::default(),
+        done: None,
+        error: 0.0,
+        error_held: 0.0,
+        supervised: 0,
+    }
+}
+
+/// One vehicle's cycle: its pulse rates.
+fn drive_one(
+    d: &mut Driver,
+    fleet: &Fleet,
+    k: usize,
+    t: f64,
+    seen: &[ObstacleEstimate],
+    gains: &FollowerGains,
+) -> [i32; 2] {
+    if d.done.is_some() {
+        d.commanded = Point::default();
+        return [0; 2];
+    }
+    let world = fleet.world(k);
+    let (position, facing) = (world.pose().position, world.facing());
+    let estimate =
+        Estimate { position, facing, wheels: world.wheel_speeds(), obstacles: seen, predicted: seen, delay: 0.0 };
+    if let Some(path) = &d.script {
+        let (reference, velocity) = (path.position(t), path.velocity(t));
+        let error = (reference - position).norm();
+        d.error_held = d.error_held.max(error);
+        if error > d.tolerance {
+            d.done = Some((
+                Outcome::Stopped,
+                t,
+                Some(format!("{:.1} cm off its script (tolerance {:.1} cm)", error * 100.0, d.tolerance * 100.0)),
+            ));
+            return [0; 2];
+        }
+        let (v, w) = follow(gains, position, facing, reference, velocity);
+        d.step.take_command(t, OutsideCommand::Twist { v, w });
+        let out = d.step.step(t, &estimate);
+        if out.supervision == Supervision::Passed {
+            d.error = d.error.max(error);
+        }
+        return carry_out(d, facing, &out, t);
+    }
+    let out = d.step.step(t, &estimate);
+    carry_out(d, facing, &out, t)
+}
+
+fn carry_out(d: &mut Driver, facing: Point, out: &StepOutput, t: f64) -> [i32; 2] {
+    if out.supervision != Supervision::Passed {
+        d.supervised += 1;
+    }
+    let ended = match out.status {
+        StepStatus::Driving | StepStatus::GoalOccupied { .. } | StepStatus::Invalid(_) => None,
+        StepStatus::AtGoal => Some((Outcome::Goal, None)),
+        StepStatus::Stalled => Some((Outcome::Stall, Some("stalled".to_string()))),
+        StepStatus::GoalBlocked { index } => {
+            Some((Outcome::Stopped, Some(format!("goal blocked by obstacle {index}"))))
+        }
+        StepStatus::CommandStale => Some((Outcome::Stopped, Some("script command stale".to_string()))),
+    };
+    if let Some((outcome, why)) = ended {
+        d.done = Some((outcome, t, why));
+    }
+    d.commanded = facing * (0.5 * (out.wheels.left + out.wheels.right));
+    out.pulses
+}
+
+/// Vehicle `k`'s first contact with anything: a vehicle, an obstacle or a wall.
+fn contact_of(fleet: &Fleet, s: &SimScenario, k: usize) -> Option<VehicleContactReport> {
+    let world: Option<Contact> = fleet.world(k).first_contact().and_then(|_| fleet.world(k).truth().contact);
+    let with_world = world.map(|c| VehicleContactReport {
+        at: c.at,
+        with: match c.with {
+            Touched::Obstacle(i) => format!("obstacles[{i}]"),
+            Touched::StaticObstacle(i) => format!("static_obstacles[{i}]"),
+            Touched::Wall => "a wall".to_string(),
+        },
+        approach_speed: c.approach_speed,
+        active: c.active,
+    });
+    let with_vehicle = fleet.vehicle_contact(k).map(|c| VehicleContactReport {
+        at: c.at,
+        with: format!("vehicle {}", s.fleet().nth(c.with).map_or("?", |v| v.0)),
+        approach_speed: c.approach_speed,
+        active: c.active,
+    });
+    match (with_world, with_vehicle) {
+        (Some(a), Some(b)) => Some(if a.at <= b.at { a } else { b }),
+        (a, b) => a.or(b),
+    }
+}
+
+fn summary(s: &Scenario, fleet: &Fleet, drivers: &[Driver]) -> FleetSummary {
+    let end = fleet.time();
+    let vehicles: Vec<VehicleSummary> = s
+        .fleet()
+        .zip(drivers)
+        .enumerate()
+        .map(|(k, ((name, _, role), d))| {
+            let contact = contact_of(fleet, s, k);
+            let (mut outcome, at, why) = d.done.clone().unwrap_or((
+                if role == Role::Script { Outcome::Goal } else { Outcome::Timeout },
+                end,
+                None,
+            ));
+            if contact.is_some() {
+                outcome = Outcome::Collision;
+            }
+            VehicleSummary {
+                name: name.to_string(),
+                role,
+                outcome,
+                contact,
+                script_error: (role == Role::Script).then_some(d.error),
+                script_error_held: (role == Role::Script).then_some(d.error_held),
+                time_to_goal: (outcome == Outcome::Goal && role == Role::Navigate).then_some(at),
+                path_length: fleet.world(k).truth().path_length,
+                min_vehicle_gap: fleet.min_vehicle_gap(k),
+                min_clearance: fleet.min_vehicle_gap(k).min(fleet.world(k).truth().min_obstacle_clearance),
+                supervised_cycles: d.supervised,
+                stop_reason: why,
+            }
+        })
+        .collect();
+    let navigating = || vehicles.iter().filter(|v| v.role == Role::Navigate);
+    let all_home = vehicles.iter().all(|v| v.outcome == Outcome::Goal);
+    let outcome = if all_home {
+        Outcome::Goal
+    } else if vehicles.iter().any(|v| v.outcome == Outcome::Collision) {
+        Outcome::Collision
+    } else {
+        vehicles.iter().map(|v| v.outcome).find(|&o| o != Outcome::Goal).unwrap_or(Outcome::Goal)
+    };
+    let makespan = all_home.then(|| navigating().filter_map(|v| v.time_to_goal).fold(0.0, f64::max));
+    FleetSummary { scenario: s.name.clone(), outcome, end_time: end, makespan, vehicles }
+}
+
+/// One line a vehicle, for the terminal.
+pub fn lines(summary: &FleetSummary) -> Vec<String> {
+    let mut out = vec![format!(
+        "{}: {} after {:.2} s{}",
+        summary.scenario,
+        summary.outcome,
+        summary.end_time,
+        summary.makespan.map(|m| format!(", every navigating vehicle home at {m:.2} s")).unwrap_or_default()
+    )];
+    for v in &summary.vehicles {
+        let mut line =
+            format!("  {:<12} {:<8} {:<9}", v.name, format!("{:?}", v.role).to_lowercase(), v.outcome.to_string());
+        if let Some(t) = v.time_to_goal {
+            line += &format!(" at {t:.2} s");
+        }
+        if let Some(e) = v.script_error {
+            line += &format!(" script within {:.1} mm", e * 1e3);
+        }
+        line += &format!(", {:.2} m, nearest vehicle {:.1} cm", v.path_length, v.min_vehicle_gap * 100.0);
+        if let Some(c) = &v.contact {
+            line += &format!(", touched {} at {:.2} s ({})", c.with, c.at, if c.active { "active" } else { "passive" });
+        }
+        if let Some(why) = &v.stop_reason {
+            line += &format!(", {why}");
+        }
+        out.push(line);
+    }
+    out
+}

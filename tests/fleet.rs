@@ -1,0 +1,225 @@
+//! Several vehicles under one camera (`[[vehicles]]`, `[swap]`), at the planner level:
+//! antipodal swaps of 2, 4 and 8 navigating vehicles bring every vehicle home with no
+//! contact and within 1.5 times the slowest one's time alone; E2, E5 and E6 with their
+//! moving obstacles as scripted vehicles leave the robot as well off as the obstacles do,
+//! each script kept within 1 cm; a script driven into a vehicle is held by its supervisor;
+//! `plan` names every vehicle in summary.json; a fleet that cannot run is refused at load,
+//! naming the key.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use flowgate::lab::fleet::sweep::{compare_scripts, sweep};
+use flowgate::lab::fleet::{run, FleetOptions};
+use flowgate::lab::{Outcome, Scenario};
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn scenario(name: &str) -> Scenario {
+    Scenario::load(&root().join("scenarios/fleet").join(name)).unwrap()
+}
+
+/// Every swap, 40 episodes each (the docs' 10,000 are printed by `flowgate plan --sweep
+/// 10000 scenarios/fleet/swap-N.toml`).
+#[test]
+fn swaps_bring_every_vehicle_home_without_contact() {
+    for (file, episodes) in [("swap-2.toml", 40), ("swap-4.toml", 40), ("swap-8.toml", 40)] {
+        let s = scenario(file);
+        let (report, _) = sweep(&s, episodes, 1, 2, FleetOptions::default()).unwrap();
+        assert_eq!(report.all_home.count, episodes as usize, "{file}: {report}");
+        assert_eq!(report.vehicle_contact_episodes, 0, "{file}: {report}");
+        assert!(report.makespan_ratio_max <= 1.5, "{file}: {report}");
+        assert!(report.makespan_ratio_p50 >= 1.0, "no vehicle beats its own time alone: {report}");
+    }
+}
+
+/// E2, E5 and E6 with their moving obstacles as scripted vehicles, 100 episodes each, each
+/// episode run twice: the robot reaches its goal as often and keeps as far off as with
+/// the obstacles, and every script is followed within 1 cm where nothing held it.
+#[test]
+fn scripted_vehicles_keep_to_their_scripts() {
+    for file in ["e2-scripted.toml", "e5-scripted.toml", "e6-scripted.toml"] {
+        let c = compare_scripts(&scenario(file), 100, 1, 2, FleetOptions::default()).unwrap();
+        assert!(c.as_vehicles.count >= c.as_obstacles.count, "{file}: {c}");
+        assert!(c.clearance_as_vehicles[0] >= c.clearance_as_obstacles[0], "{file}: {c}");
+        assert!(c.script_error_max <= 0.01 && c.script_error_max > 0.0, "{file}: {c}");
+        assert_eq!((c.script_error_over_1cm, c.scripts_lost), (0, 0), "{file}: {c}");
+    }
+}
+
+const DRIVEN_INTO: &str = r#"
+name = "A script through a standing vehicle"
+time_limit = 30
+
+[robot]
+start = [-0.3, 0.0]
+radius = 0.07
+wheel_base = 0.108
+wheel_radius = 0.025
+steps_per_rev = 200
+microsteps = 8
+max_wheel_speed = 0.25
+wheel_accel = 1.0
+max_speed = 0.15
+
+[goal]
+position = [0.0, 0.0]
+
+[[vehicles]]
+name = "ram"
+role = "script"
+start = [0.45, 0.0]
+motion = { kind = "waypoints", points = [[-0.45, 0.0]], speed = 0.05 }
+
+[sensing]
+sample_time = 0.02
+
+[planner]
+cruise_speed = 0.1
+c1 = 20
+kc = 0.15
+margin = { rule = "none" }
+"#;
+
+/// A script that runs through the robot standing at its goal: the scripted vehicle's
+/// supervisor holds it short of the robot, nothing touches, and the vehicle is stopped,
+/// named, once it is further than its tolerance from its script.
+#[test]
+fn a_script_into_a_vehicle_is_held_and_stopped() {
+    let s = Scenario::from_toml(DRIVEN_INTO, "driven-into").unwrap();
+    let f = run(&s, FleetOptions::default());
+    let (robot, ram) = (&f.vehicles[0], &f.vehicles[1]);
+    assert_eq!(robot.outcome, Outcome::Goal, "{f:?}");
+    assert!(robot.contact.is_none() && ram.contact.is_none(), "{f:?}");
+    assert_eq!(ram.outcome, Outcome::Stopped, "{f:?}");
+    let why = ram.stop_reason.as_deref().unwrap();
+    assert!(why.contains("off its script (tolerance 5.0 cm)"), "{why}");
+    assert!(ram.script_error.unwrap() <= 0.01, "where its supervisor passed it: {f:?}");
+    assert!(ram.script_error_held.unwrap() > 0.05, "held, it fell behind: {f:?}");
+    assert!(ram.min_vehicle_gap > 0.0 && ram.supervised_cycles > 0, "{f:?}");
+    assert_eq!(f.outcome, Outcome::Stopped);
+}
+
+fn plan(args: &[&str], out: &Path) -> String {
+    let o = Command::new(env!("CARGO_BIN_EXE_flowgate")).arg("plan").args(args).arg("--out").arg(out).output().unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{text}");
+    text
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("flowgate-fleet-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// `plan` on a fleet prints a line a vehicle and writes each into summary.json: name,
+/// role, outcome, contact, and a scripted vehicle's script error; the fleet's outcome is
+/// `goal` only with every navigating vehicle home.
+#[test]
+fn plan_names_every_vehicle() {
+    let out = temp("e2");
+    let e2 = root().join("scenarios/fleet/e2-scripted.toml");
+    let text = plan(&[e2.to_str().unwrap()], &out);
+    assert!(
+        text.contains("note: vehicles[0] (oncoming): its script leaves the camera's view at (-0.815, 0.060)"),
+        "{text}"
+    );
+    assert!(text.contains("oncoming     script   goal      script within"), "{text}");
+    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["outcome"], "goal");
+    let vehicles = summary["vehicles"].as_array().unwrap();
+    assert_eq!(vehicles.iter().map(|v| v["name"].as_str().unwrap()).collect::<Vec<_>>(), ["robot", "oncoming"]);
+    assert_eq!((vehicles[1]["role"].as_str(), vehicles[1]["outcome"].as_str()), (Some("script"), Some("goal")));
+    assert!(vehicles[1]["contact"].is_null() && vehicles[1]["script_error"].as_f64().unwrap() < 0.01);
+    assert!(vehicles[0]["script_error"].is_null());
+
+    let out = temp("swap");
+    let swap = root().join("scenarios/fleet/swap-4.toml");
+    let text = plan(&[swap.to_str().unwrap(), "--sweep", "6"], &out);
+    assert!(text.contains("every vehicle home, no contact: 100.00%"), "{text}");
+    let lines = std::fs::read_to_string(out.join("fleet_episodes.jsonl")).unwrap();
+    assert_eq!(lines.lines().count(), 6);
+    let refused = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["plan", swap.to_str().unwrap(), "--swarm", "3"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && text.contains("--swarm drives one robot"), "{text}");
+}
+
+/// What no fleet could run from is refused at load, naming the key and the numbers.
+#[test]
+fn a_fleet_that_cannot_run_is_refused_naming_the_key() {
+    let base = DRIVEN_INTO;
+    let vehicle = "[[vehicles]]\nname = \"ram\"\nrole = \"script\"\nstart = [0.45, 0.0]\nmotion = { kind = \"waypoints\", points = [[-0.45, 0.0]], speed = 0.05 }\n";
+    let other = |extra: &str| base.replace(vehicle, &format!("{vehicle}\n{extra}\n"));
+    let nav = |name: &str, start: &str, goal: &str| {
+        format!("[[vehicles]]\nname = \"{name}\"\nrole = \"navigate\"\nstart = {start}\ngoal = {goal}\n")
+    };
+    let cases: Vec<(String, &str, &str)> = vec![
+        (other(&nav("ram", "[0.0, 0.4]", "[0.0, -0.4]")), "`vehicles[1].name`", "is taken"),
+        (other(&nav("Big One", "[0.0, 0.4]", "[0.0, -0.4]")), "`vehicles[1].name`", "lower-case letters"),
+        (other(&nav("b", "[0.4, 0.05]", "[0.0, -0.4]")), "`vehicles[1].start`", "overlaps `vehicles[0].start`"),
+        (other(&nav("b", "[0.0, 0.4]", "[0.05, 0.0]")), "`vehicles[1].goal`", "from the goal of `robot`"),
+        (other(&nav("b", "[0.0, 0.4]", "[5.0, 0.0]")), "`vehicles[1].goal`", "outside the calibrated arena"),
+        (
+            other("[[vehicles]]\nname = \"b\"\nrole = \"navigate\"\nstart = [0.0, 0.4]\n"),
+            "`vehicles[1].goal`",
+            "needs a `goal`",
+        ),
+        (
+            base.replace("speed = 0.05 }", "speed = 0.2 }"),
+            "`vehicles[0].motion`",
+            "faster than the vehicle's max_speed, 0.15 m/s",
+        ),
+        (
+            base.replace("speed = 0.05 }", "speed = 0.12 }\nwheel_accel = 0.5"),
+            "`vehicles[0].motion`",
+            "falls 14.4 mm behind",
+        ),
+        (
+            base.replace("points = [[-0.45, 0.0]], speed = 0.05", "points = [[0.0, 0.0], [0.0, 0.4]], speed = 0.08"),
+            "`vehicles[0].motion.points`",
+            "turns 90° at point 0 at 0.08 m/s",
+        ),
+        (
+            base.replace("start = [0.45, 0.0]\n", "start = [0.45, 0.0]\nheading_deg = 90\n"),
+            "`vehicles[0].heading_deg`",
+            "off the script's first direction",
+        ),
+        (
+            base.replace("start = [0.45, 0.0]\n", "start = [0.45, 0.0]\nradius = -1\n"),
+            "`vehicles[0].radius`",
+            "positive",
+        ),
+        (
+            (0..7).fold(base.to_string(), |s, k| {
+                s + &nav(
+                    &format!("n{k}"),
+                    &format!("[{:.2}, 0.5]", -0.6 + 0.2 * k as f64),
+                    &format!("[{:.2}, -0.5]", -0.6 + 0.2 * k as f64),
+                )
+            }),
+            "`vehicles`",
+            "at most 7",
+        ),
+        (
+            base.replace(vehicle, "")
+                .replace("[sensing]", "[swap]\nvehicles = 8\ncircle_radius = 0.2\njitter = 0.01\n\n[sensing]"),
+            "`swap.circle_radius`",
+            "puts 8 vehicles 15.3 cm apart",
+        ),
+        (
+            base.replace("[sensing]", "[swap]\nvehicles = 2\ncircle_radius = 0.3\n\n[sensing]"),
+            "`vehicles`",
+            "a swap places its own vehicles",
+        ),
+    ];
+    for (text, key, why) in cases {
+        let err = Scenario::from_toml(&text, "fleet").unwrap_err().to_string();
+        assert!(err.contains(key) && err.contains(why), "{key} {why}: {err}");
+    }
+}
