@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use flowgate::lab::fleet::sweep::{compare_scripts, sweep};
+use flowgate::lab::fleet::sweep::{compare_scripts, place, sweep};
 use flowgate::lab::fleet::{run, FleetOptions};
 use flowgate::lab::{Outcome, Scenario};
 
@@ -221,5 +221,47 @@ fn a_fleet_that_cannot_run_is_refused_naming_the_key() {
     for (text, key, why) in cases {
         let err = Scenario::from_toml(&text, "fleet").unwrap_err().to_string();
         assert!(err.contains(key) && err.contains(why), "{key} {why}: {err}");
+    }
+}
+
+/// The bus load table in docs/fleet.md is what the whole stack measures: one vehicle's
+/// frames over E1 (board, and CiA 402 drives), at their worst-case length, scaled to eight;
+/// with boards, eight vehicles take under 40% of a 1 Mbit/s bus.
+#[test]
+fn the_bus_load_table_is_measured() {
+    use flowgate::lab::bus_load::{measure, table};
+    let e1 = Scenario::load(&root().join("scenarios/e1-standing-obstacle.toml")).unwrap();
+    let measured = table(&e1);
+    println!("{measured}");
+    let page = std::fs::read_to_string(root().join("docs/fleet.md")).unwrap();
+    assert!(page.contains(&measured), "docs/fleet.md should carry, as measured:\n{measured}");
+    let boards = measure(&e1, false).load(8);
+    assert!(boards.bus < 0.40, "{boards:?}");
+    assert!(boards.to_adapter < 1.0 && boards.from_adapter < 1.0, "{boards:?}");
+}
+
+/// A vehicle whose own link fails mid-crossing is stopped, named; its motors hold their last
+/// command for their timeout and stop; the others treat it as a region until it stands, then
+/// go round it to their goals, and nothing touches (60 episodes, each start moved by up to
+/// 3 cm).
+#[test]
+fn a_vehicle_that_loses_its_link_stops_and_the_others_go_round() {
+    let s = scenario("crossing-link-lost.toml");
+    for i in 0..60 {
+        let f = run(&place(&s, 1, i), FleetOptions::default());
+        let b = &f.vehicles[2];
+        assert_eq!((b.name.as_str(), b.outcome), ("b", Outcome::Fault), "episode {i}: {f:?}");
+        let why = b.stop_reason.as_deref().unwrap();
+        assert!(
+            why.contains("its link failed at 2.50 s: its motors held their last command 200 ms, then stopped"),
+            "{why}"
+        );
+        // 2.5 s at most 0.15 m/s and its hold after: it went no further.
+        assert!(b.path_length < 0.15 * 2.7, "episode {i}: {f:?}");
+        for v in f.vehicles.iter().filter(|v| v.name != "b") {
+            assert_eq!(v.outcome, Outcome::Goal, "episode {i}: {} {f:?}", v.name);
+        }
+        assert!(f.vehicles.iter().all(|v| v.contact.is_none()), "episode {i}: {f:?}");
+        assert_eq!(f.outcome, Outcome::Fault);
     }
 }

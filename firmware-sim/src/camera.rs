@@ -53,11 +53,6 @@ impl CameraModel {
     }
 
     /// Whether a raw position lies on the PSD.
-    /// Whether the camera sees a point of the floor.
-    pub fn sees(&self, p: Point) -> bool {
-        self.project(p).is_some_and(|raw| self.in_view(raw))
-    }
-
     pub fn in_view(&self, raw: (f64, f64)) -> bool {
         let half = f64::from(self.counts) / 2.0;
         raw.0.abs() < half && raw.1.abs() < half

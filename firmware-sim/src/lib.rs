@@ -19,7 +19,6 @@ pub mod rig;
 pub mod scenario;
 pub mod slcan_adapter;
 pub mod truth;
-pub mod vehicles;
 pub mod world;
 
 pub use flowgate_protocol::plane::{wrap_angle, Point};

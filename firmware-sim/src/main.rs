@@ -88,10 +88,24 @@ fn main() -> std::process::ExitCode {
     }
 }
 
+/// The scenario at `path`. The simulated rig holds one robot's controller and motors: a
+/// fleet is refused by name.
+fn one_robot(path: &std::path::Path) -> Result<SimScenario> {
+    let scenario = SimScenario::load(path)?;
+    if scenario.is_fleet() {
+        anyhow::bail!(
+            "{}: a fleet of {} vehicles; the simulated rig holds one robot's controller and motors (run a fleet with \
+             `flowgate plan`)",
+            path.display(),
+            1 + scenario.vehicles.len()
+        );
+    }
+    Ok(scenario)
+}
+
 fn run() -> Result<()> {
     let args = Args::parse();
-    let scenario = SimScenario::load(&args.scenario)?;
-    let mut config = RigConfig::new(scenario);
+    let mut config = RigConfig::new(one_robot(&args.scenario)?);
     config.psd = match args.psd_device {
         Some(path) => SerialEndpoint::Device { path, baud: args.baud },
         None => SerialEndpoint::Pty { link: args.psd_link },

@@ -5,6 +5,8 @@
 //! `scenarios/README.md`. Unknown keys are refused, and [`SimScenario::validate`] names the
 //! key of any bad value.
 
+pub mod vehicles;
+
 use flowgate_protocol::plane::Point;
 use serde::Deserialize;
 use std::path::Path;
@@ -53,11 +55,12 @@ pub struct SimScenario {
     pub crowd: Option<CrowdSpec>,
     /// Vehicles beside the robot (the first vehicle), each scripted or navigating.
     #[serde(default)]
-    pub vehicles: Vec<crate::vehicles::VehicleSpec>,
+    pub vehicles: Vec<vehicles::VehicleSpec>,
     /// The antipodal swap: a fleet placed on a circle for each episode.
     #[serde(default)]
-    pub swap: Option<crate::vehicles::SwapSpec>,
-    /// What loading changed and the user should hear (a script cut at the view's edge).
+    pub swap: Option<vehicles::SwapSpec>,
+    /// What loading changed and the user should hear (a script cut where it leaves the
+    /// room).
     #[serde(skip)]
     pub notes: Vec<String>,
 }
@@ -292,7 +295,6 @@ impl SimScenario {
             s = s.swap_episode(s.sensing.seed, 0);
         }
         s.validate().map_err(invalid)?;
-        s.cut_scripts_at_the_view();
         Ok(s)
     }
 

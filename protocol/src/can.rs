@@ -89,6 +89,16 @@ pub struct CanFrame {
 }
 
 impl CanFrame {
+    /// The most bit times this frame can take on the bus: its fields, the most stuff bits
+    /// its contents can need, and the 3-bit interframe space, `g + 8s + 13 + ⌊(g + 8s - 1) /
+    /// 4⌋` with `g` = 34 (standard) or 54 (extended) and `s` data bytes (Davis, Burns, Bril
+    /// and Lukkien, 2007). A remote frame carries no data.
+    pub const fn worst_case_bits(&self) -> u32 {
+        let g = if self.id.is_extended() { 54 } else { 34 };
+        let s = if self.remote { 0 } else { self.len as u32 };
+        g + 8 * s + 13 + (g + 8 * s - 1) / 4
+    }
+
     /// A data frame. The id must be in range for its kind, the data at most 8 bytes.
     pub fn new(id: CanId, data: &[u8]) -> Result<Self, CanFrameError> {
         check_id(id)?;
@@ -163,6 +173,15 @@ impl core::fmt::Debug for CanFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Worked values of the worst-case length: 8 bytes standard 135 bit times, none 55,
+    /// 8 bytes extended 160.
+    #[test]
+    fn worst_case_lengths_match_worked_values() {
+        assert_eq!(CanFrame::new(CanId::Standard(0x123), &[0; 8]).unwrap().worst_case_bits(), 135);
+        assert_eq!(CanFrame::new(CanId::Standard(0x123), &[]).unwrap().worst_case_bits(), 55);
+        assert_eq!(CanFrame::new(CanId::Extended(0x123), &[0; 8]).unwrap().worst_case_bits(), 160);
+    }
 
     #[test]
     fn validates_ids_and_length() {

@@ -74,11 +74,24 @@ fn announce(args: &DemoArgs, scenario: &Scenario) {
     }
 }
 
+/// The demo's gateway drives one robot: a fleet is refused by name.
+fn one_robot(scenario: &Scenario) -> Result<()> {
+    if scenario.is_fleet() {
+        anyhow::bail!(
+            "{}: a fleet of {} vehicles; the demo's gateway drives one robot (run a fleet with `flowgate plan`)",
+            scenario.name,
+            1 + scenario.vehicles.len()
+        );
+    }
+    Ok(())
+}
+
 pub fn run(args: DemoArgs) -> Result<()> {
     let scenario = match &args.scenario {
         Some(path) => Scenario::load(path)?,
         None => Scenario::from_toml(demo::DEFAULT_SCENARIO, "E2 (built in)")?,
     };
+    one_robot(&scenario)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = std::fs::canonicalize(&args.out)?;
     announce(&args, &scenario);

@@ -336,6 +336,22 @@ fn say_run_files(out: &Path, mode: Mode) {
     say!("  wrote {}/{{{}{extra}}}", out.display(), outputs::RUN_FILES);
 }
 
+/// A fleet's row of `--all`'s table: its outcome, any contact, and its makespan.
+fn fleet_row(file: &Path, scenario: &Scenario) -> String {
+    let f = flowgate::lab::fleet::run(scenario, flowgate::lab::fleet::FleetOptions::default());
+    let contact = f.vehicles.iter().filter_map(|v| v.contact.as_ref()).map(|c| c.active).reduce(|a, b| a || b);
+    let contact = contact.map_or("-", |active| if active { "active" } else { "passive" });
+    let time = f.makespan.unwrap_or(f.end_time);
+    let n = f.vehicles.len();
+    format!(
+        "{:<26} {:<9} {:<8} {:>7.1}  (fleet of {n}, planner level)",
+        stem(file),
+        f.outcome.to_string(),
+        contact,
+        time
+    )
+}
+
 fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Result<()> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
@@ -363,6 +379,10 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
         let mut scenario = Scenario::load(&file)?;
         scenario.supervised = supervised;
         let dir = out.map(|o| o.join(stem(&file)));
+        if scenario.is_fleet() {
+            say!("{}", fleet_row(&file, &scenario));
+            continue;
+        }
         let run = outputs::run_one(&scenario, mode, dir.as_deref())?;
         let s = &run.summary;
         say!(

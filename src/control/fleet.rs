@@ -31,6 +31,9 @@ pub struct VehicleView {
     pub radius: f64,
     /// It navigates on: where it stands now it will leave.
     pub moving_on: bool,
+    /// How far it may still move, m, beyond where it is, out of control (its link lost, its
+    /// motors holding their last command until they stop): 0 for one under control.
+    pub reach: f64,
 }
 
 /// The rule the vehicles share.
@@ -56,10 +59,11 @@ impl FleetRule {
     /// priority order) appended to `out` after what is already there.
     pub fn others_as_obstacles(&self, me: usize, vehicles: &[VehicleView], out: &mut Vec<ObstacleEstimate>) {
         for (_, v) in vehicles.iter().enumerate().filter(|&(k, _)| k != me) {
-            out.push(ObstacleEstimate {
-                keep: self.spacing,
-                ..ObstacleEstimate::exact(v.position, v.velocity, v.radius)
-            });
+            let exact = ObstacleEstimate::exact(v.position, v.velocity, v.radius + v.reach);
+            // Out of control, it is a region (the planner leaves this vehicle and its goal
+            // outside it; the supervisor keeps clear of all of it), as an unseen obstacle is.
+            let spread = if v.reach > 0.0 { v.velocity.norm().max(f64::MIN_POSITIVE) } else { 0.0 };
+            out.push(ObstacleEstimate { keep: self.spacing, spread, ..exact });
         }
     }
 }
@@ -70,8 +74,17 @@ impl FleetRule {
     /// would deadlock a swap, each waiting on the other; heading for the near side of it
     /// would bring the two face to face. Instead the vehicle heads for the point beside its
     /// goal on its right, clear of the other: the other, doing the same, passes on its own
-    /// right, and the goal is taken once it is free.
-    pub fn aim(&self, me: usize, position: Point, goal: Point, vehicles: &[VehicleView]) -> Option<Point> {
+    /// right, and the goal is taken once it is free. The aim it `held` last cycle is kept
+    /// while it is free and within [`AIM_HOLD`] of where it would be now: a field in a room
+    /// is solved afresh for each new point it heads for.
+    pub fn aim(
+        &self,
+        me: usize,
+        position: Point,
+        goal: Point,
+        vehicles: &[VehicleView],
+        held: Option<Point>,
+    ) -> Option<Point> {
         let my_radius = vehicles[me].radius;
         let way = goal - position;
         if way.norm() == 0.0 {
@@ -89,12 +102,15 @@ impl FleetRule {
                 .enumerate()
                 .all(|(k, v)| k == me || (p - v.position).norm() >= v.radius + my_radius + self.spacing)
         };
-        (0..=6)
+        let fresh = (0..=6)
             .map(|step| blocker.1.position + right * Point::from_polar(clear, -f64::from(step) * AIM_TURN))
-            .find(|&p| free(p))
+            .find(|&p| free(p))?;
+        Some(held.filter(|&p| free(p) && (p - fresh).norm() < AIM_HOLD).unwrap_or(fresh))
     }
 }
 
+/// How far the aim may lag where it would be before it is moved, m.
+pub const AIM_HOLD: f64 = 0.01;
 /// How far outside the blocking vehicle's circle a vehicle aims, m.
 const AIM_CLEARANCE: f64 = 0.03;
 /// The steps, radians, by which the aim turns round the blocker toward the vehicle when
@@ -166,12 +182,18 @@ mod tests {
             velocity: Point::new(0.0, x),
             radius: 0.07,
             moving_on: true,
+            reach: 0.0,
         });
         let mut seen = Vec::new();
         rule.others_as_obstacles(1, &views, &mut seen);
         assert_eq!(seen.iter().map(|o| o.center.re).collect::<Vec<_>>(), [0.0, 2.0]);
         assert_eq!(seen[1].velocity, Point::new(0.0, 2.0), "as commanded");
-        assert!(seen.iter().all(|o| o.radius == 0.07 && o.keep == 0.04));
+        assert!(seen.iter().all(|o| o.radius == 0.07 && o.keep == 0.04 && o.spread == 0.0));
+        let mut lost = views;
+        lost[2].reach = 0.05;
+        seen.clear();
+        rule.others_as_obstacles(1, &lost, &mut seen);
+        assert!((seen[1].radius - 0.12).abs() < 1e-12 && seen[1].spread > 0.0, "a region: {:?}", seen[1]);
     }
 
     /// A vehicle standing on another's goal sends the other to the point beside it on the
@@ -184,10 +206,15 @@ mod tests {
             velocity: Point::default(),
             radius: 0.07,
             moving_on: true,
+            reach: 0.0,
         });
-        let aim = rule.aim(0, views[0].position, Point::new(0.0, 0.5), &views).unwrap();
+        let aim = rule.aim(0, views[0].position, Point::new(0.0, 0.5), &views, None).unwrap();
         assert!(aim.re > 0.17 && (aim.im - 0.5).abs() < 1e-9, "east of the goal, heading north: {aim}");
+        let kept = aim + Point::new(0.005, 0.0);
+        assert_eq!(rule.aim(0, views[0].position, Point::new(0.0, 0.5), &views, Some(kept)), Some(kept), "held");
+        let stale = aim + Point::new(0.02, 0.0);
+        assert_eq!(rule.aim(0, views[0].position, Point::new(0.0, 0.5), &views, Some(stale)), Some(aim), "moved");
         views[1].moving_on = false;
-        assert_eq!(rule.aim(0, views[0].position, Point::new(0.0, 0.5), &views), None);
+        assert_eq!(rule.aim(0, views[0].position, Point::new(0.0, 0.5), &views, None), None);
     }
 }

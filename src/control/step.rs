@@ -198,6 +198,11 @@ impl ControlStep {
         self.aim = aim;
     }
 
+    /// Where the field heads instead of the goal, if anywhere ([`ControlStep::aim_at`]).
+    pub fn aim(&self) -> Option<Point> {
+        self.aim
+    }
+
     /// Drive to a new goal from the next step (progress is judged afresh).
     pub fn set_goal(&mut self, goal: Point, tolerance: f64) {
         self.config.goal = goal;

@@ -8,8 +8,8 @@
 //! modelled here. Single-robot scenarios run as before ([`super::planner_only`],
 //! [`super::virtual_rig`]).
 
+use flowgate_sim::scenario::vehicles::Role;
 use flowgate_sim::scenario::SimScenario;
-use flowgate_sim::vehicles::Role;
 use flowgate_sim::world::fleet::Fleet;
 use flowgate_sim::world::{Contact, ObstaclePath, Touched};
 use serde::Serialize;
@@ -76,6 +76,7 @@ pub struct FleetSummary {
 }
 
 /// One vehicle while the run goes on.
+#[derive(Debug)]
 struct Driver {
     step: ControlStep,
     role: Role,
@@ -88,6 +89,42 @@ struct Driver {
     error: f64,
     error_held: f64,
     supervised: u64,
+    /// When its own link fails (`link_lost_at`), and how long its motors then hold their
+    /// last command before they stop by themselves (the board's command timeout), s.
+    link_lost_at: Option<f64>,
+    hold: f64,
+}
+
+impl Driver {
+    /// Its link has failed by `t`.
+    fn link_lost(&self, t: f64) -> bool {
+        self.link_lost_at.is_some_and(|at| t >= at)
+    }
+
+    /// How far it may still move beyond where it is at `t`, going at `speed`: out of
+    /// control, on its last command until its motors' timeout stops them.
+    fn reach(&self, t: f64, speed: f64) -> f64 {
+        match self.link_lost_at {
+            Some(at) if t >= at => speed * (at + self.hold - t).max(0.0),
+            _ => 0.0,
+        }
+    }
+
+    /// No command reaches it: at its link's failure the run names it, and once its motors'
+    /// timeout has run out they stop.
+    fn out_of_control(&mut self, world: &mut flowgate_sim::world::World, t: f64) {
+        let Some(at) = self.link_lost_at else { return };
+        if self.done.is_none() {
+            let why = format!(
+                "its link failed at {at:.2} s: its motors held their last command {:.0} ms, then stopped",
+                self.hold * 1e3
+            );
+            self.done = Some((Outcome::Fault, t, Some(why)));
+        }
+        if t >= at + self.hold && world.wheel_speeds() != [0.0; 2] {
+            world.stop_axes();
+        }
+    }
 }
 
 /// The options of a fleet run.
@@ -105,43 +142,87 @@ impl Default for FleetOptions {
     }
 }
 
+/// Every vehicle's control, cycle by cycle: what a gateway driving the fleet decides.
+#[derive(Debug)]
+pub struct FleetControl {
+    drivers: Vec<Driver>,
+    obstacles: Vec<(ObstaclePath, f64)>,
+    options: FleetOptions,
+    /// Scratch: one vehicle's obstacles, and every vehicle as the others see it.
+    seen: Vec<ObstacleEstimate>,
+    views: Vec<VehicleView>,
+}
+
+impl FleetControl {
+    pub fn new(s: &Scenario, options: FleetOptions) -> Self {
+        let drivers: Vec<Driver> = (0..=s.vehicles.len()).map(|k| driver(s, k)).collect();
+        let obstacles: Vec<(ObstaclePath, f64)> =
+            s.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect();
+        let idle = VehicleView {
+            position: Point::default(),
+            velocity: Point::default(),
+            radius: 0.0,
+            moving_on: false,
+            reach: 0.0,
+        };
+        Self {
+            seen: Vec::with_capacity(obstacles.len() + drivers.len()),
+            views: vec![idle; drivers.len()],
+            drivers,
+            obstacles,
+            options,
+        }
+    }
+
+    /// One cycle at the fleet's time: every vehicle's command, in priority order, into its
+    /// world's axes.
+    pub fn cycle(&mut self, fleet: &mut Fleet) {
+        let t = fleet.time();
+        for (k, d) in self.drivers.iter().enumerate() {
+            let moving = if d.done.is_some() { fleet.velocity(k) } else { d.commanded };
+            let moving_on = d.done.is_none() && d.role == Role::Navigate;
+            let position = fleet.world(k).pose().position;
+            let reach = d.reach(t, fleet.velocity(k).norm());
+            self.views[k] = VehicleView { position, velocity: moving, radius: d.radius, moving_on, reach };
+        }
+        for k in 0..self.drivers.len() {
+            if self.drivers[k].link_lost(t) {
+                self.drivers[k].out_of_control(fleet.world_mut(k), t);
+                continue;
+            }
+            self.seen.clear();
+            let obstacles = self.obstacles.iter();
+            self.seen.extend(obstacles.map(|(p, r)| ObstacleEstimate::exact(p.position(t), p.velocity(t), *r)));
+            self.options.rule.others_as_obstacles(k, &self.views, &mut self.seen);
+            let d = &mut self.drivers[k];
+            if d.role == Role::Navigate {
+                let goal = d.step.config().goal;
+                let aim = self.options.rule.aim(k, self.views[k].position, goal, &self.views, d.step.aim());
+                d.step.aim_at(aim);
+            }
+            let pulses = drive_one(d, fleet, k, t, &self.seen, &self.options.gains);
+            self.views[k].velocity = d.commanded;
+            fleet.world_mut(k).command_pulse_rates(pulses);
+        }
+    }
+
+    /// Whether any vehicle still has somewhere to go at `t`.
+    pub fn running(&self, t: f64) -> bool {
+        self.drivers.iter().any(|d| d.done.is_none() && (d.role == Role::Navigate || d.script_runs(t)))
+    }
+}
+
 /// Run a fleet scenario to its end.
 pub fn run(s: &Scenario, options: FleetOptions) -> FleetSummary {
     let mut fleet = Fleet::new(&s.sim);
-    let mut drivers: Vec<Driver> = (0..fleet.len()).map(|k| driver(s, k)).collect();
-    let period = s.sensing.sample_time;
-    let obstacles: Vec<(ObstaclePath, f64)> = s.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect();
-    let mut seen = Vec::with_capacity(obstacles.len() + drivers.len());
-    let mut views =
-        vec![
-            VehicleView { position: Point::default(), velocity: Point::default(), radius: 0.0, moving_on: false };
-            drivers.len()
-        ];
+    let mut control = FleetControl::new(s, options);
     loop {
         let t = fleet.time();
-        for (k, d) in drivers.iter().enumerate() {
-            let moving = if d.done.is_some() { fleet.velocity(k) } else { d.commanded };
-            let moving_on = d.done.is_none() && d.role == Role::Navigate;
-            views[k] =
-                VehicleView { position: fleet.world(k).pose().position, velocity: moving, radius: d.radius, moving_on };
-        }
-        for k in 0..drivers.len() {
-            seen.clear();
-            seen.extend(obstacles.iter().map(|(p, r)| ObstacleEstimate::exact(p.position(t), p.velocity(t), *r)));
-            options.rule.others_as_obstacles(k, &views, &mut seen);
-            if drivers[k].role == Role::Navigate {
-                let goal = drivers[k].step.config().goal;
-                drivers[k].step.aim_at(options.rule.aim(k, views[k].position, goal, &views));
-            }
-            let pulses = drive_one(&mut drivers[k], &fleet, k, t, &seen, &options.gains);
-            views[k].velocity = drivers[k].commanded;
-            fleet.world_mut(k).command_pulse_rates(pulses);
-        }
-        fleet.step(period);
-        let touched = (0..drivers.len()).any(|k| contact_of(&fleet, s, k).is_some());
-        let running = drivers.iter().any(|d| d.done.is_none() && (d.role == Role::Navigate || d.script_runs(t)));
-        if (touched && options.stop_at_contact) || !running || fleet.time() >= s.time_limit {
-            return summary(s, &fleet, &drivers);
+        control.cycle(&mut fleet);
+        fleet.step(s.sensing.sample_time);
+        let touched = (0..fleet.len()).any(|k| contact_of(&fleet, s, k).is_some());
+        if (touched && options.stop_at_contact) || !control.running(t) || fleet.time() >= s.time_limit {
+            return summary(s, &fleet, &control.drivers);
         }
     }
 }
@@ -169,6 +250,10 @@ fn driver(s: &Scenario, k: usize) -> Driver {
     }
     let mut step = ControlStep::new(config);
     step.start(0.0);
+    let hold =
+        f64::from(alone.rig_file(std::path::Path::new("/dev/null"), "slcan:/dev/null", None).drive.command_timeout_ms)
+            / 1e3;
+    let link_lost_at = k.checked_sub(1).and_then(|i| s.vehicles[i].link_lost_at);
     Driver {
         step,
         role,
@@ -180,6 +265,8 @@ fn driver(s: &Scenario, k: usize) -> Driver {
         error: 0.0,
         error_held: 0.0,
         supervised: 0,
+        link_lost_at,
+        hold,
     }
 }
 

@@ -16,6 +16,7 @@
 //! - [`bench`](mod@bench): the gateway benchmark over ptys and SocketCAN.
 
 pub mod bench;
+pub mod bus_load;
 pub mod demo;
 pub mod fleet;
 pub mod outputs;
@@ -39,7 +40,7 @@ pub enum Outcome {
     Collision,
     Timeout,
     Stall,
-    /// The gateway faulted (full-stack runs only).
+    /// The gateway faulted (full-stack runs), or a fleet's vehicle lost its own link.
     Fault,
     /// The run stopped in order for another reason than the goal or a stall (e.g. the goal
     /// stayed inside an obstacle's planning circle for longer than `planner.goal_wait`).

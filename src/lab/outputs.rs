@@ -28,6 +28,8 @@ pub enum OutputError {
     Episodes(#[from] sweep::episodes_file::EpisodesFileError),
     #[error("{scenario}: the simulated PSD controller could not be configured: {error}")]
     Setup { scenario: String, error: String },
+    #[error("{scenario}: a fleet of {vehicles} vehicles, run by `flowgate plan` at the planner level (docs/fleet.md)")]
+    Fleet { scenario: String, vehicles: usize },
 }
 
 fn io_at(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
@@ -51,6 +53,9 @@ pub fn folder(dir: &Path) -> Result<(), OutputError> {
 /// One run of `scenario` in `mode`; through the whole stack its `cycles.csv` and `can.log`
 /// go into `out`, when given.
 pub fn run_one(scenario: &Scenario, mode: Mode, out: Option<&Path>) -> Result<planner_only::Run, OutputError> {
+    if scenario.is_fleet() {
+        return Err(OutputError::Fleet { scenario: scenario.name.clone(), vehicles: 1 + scenario.vehicles.len() });
+    }
     Ok(match mode {
         Mode::PlannerOnly => planner_only::run(scenario, out.is_some()),
         Mode::FullStack => {

@@ -136,22 +136,30 @@ impl Scenario {
     }
 
     /// Cut each script where its vehicle would leave the room the gateway plans in (the
-    /// view's edge less the LEDs' reach and `room.view_inset`, the walls, the furniture): the
-    /// vehicle stops at its last point inside, and a note says so.
+    /// view's edge less the LEDs' reach and `room.view_inset`, the walls, the furniture), or
+    /// without a room where the camera would lose either LED: the vehicle stops at its last
+    /// point inside, and a note says so.
     fn cut_scripts_at_the_room(&mut self, frame_us: u32) -> Result<(), Invalid> {
+        use flowgate_sim::world::fleet::cut_script;
         for i in 0..self.vehicles.len() {
             let mut alone = self.vehicle(i + 1);
             alone.sim.goal.position = alone.sim.robot.start;
             let rig = alone.config_with(Path::new("/dev/null"), "slcan:/dev/null", None, frame_us).validate();
-            let Some(room) = rig.map_err(|e| vehicle_key(i + 1, e))?.control.room else { continue };
-            let start = alone.robot_start();
-            let inside = |p, _| room.blocked_at(p).is_none() && room.reachable(start, p);
-            if let Some(note) = self.sim.cut_script(i, "leaves the room", inside) {
-                // Cut shorter than at the camera's view: this note says where it ends.
-                let vehicle = format!("vehicles[{i}] (");
-                self.sim.notes.retain(|n| !n.starts_with(&vehicle));
-                self.sim.notes.push(note);
-            }
+            let rig = rig.map_err(|e| vehicle_key(i + 1, e))?;
+            let note = match &rig.control.room {
+                Some(room) => {
+                    let start = alone.robot_start();
+                    cut_script(&mut self.sim, i, "leaves the room", |p, _| {
+                        room.blocked_at(p).is_none() && room.reachable(start, p)
+                    })
+                }
+                None => cut_script(&mut self.sim, i, "leaves the camera's view", |p, way| {
+                    let along = if way.norm() > 0.0 { way / way.norm() } else { way };
+                    let (front, rear) = rig.led_geometry.leds(p, along);
+                    way.norm() == 0.0 || (rig.calibration.in_view(front) && rig.calibration.in_view(rear))
+                }),
+            };
+            self.sim.notes.extend(note);
         }
         Ok(())
     }

@@ -8,8 +8,9 @@
 //! judged per vehicle, as for the robot: a vehicle moving toward the other faster than
 //! [`ACTIVE_CONTACT_SPEED`] drove into it.
 
-use super::{World, ACTIVE_CONTACT_SPEED};
-use crate::scenario::SimScenario;
+use super::{ObstaclePath, World, ACTIVE_CONTACT_SPEED};
+use crate::scenario::vehicles::Role;
+use crate::scenario::{Motion, SimScenario};
 use crate::Point;
 
 /// The most a vehicle moves between two samples of the pair judge, m.
@@ -144,5 +145,110 @@ impl Fleet {
                 }
             }
         }
+    }
+}
+
+/// Cut vehicle `i`'s script at its last point for which `inside` (given a point and the
+/// way the script moves there) holds, if it leaves it: the vehicle stops there. A note that
+/// says where, `what` saying why (it "leaves the room").
+pub fn cut_script(s: &mut SimScenario, i: usize, what: &str, inside: impl Fn(Point, Point) -> bool) -> Option<String> {
+    let v = s.vehicles.get(i)?;
+    let motion = v.motion.as_ref()?;
+    if v.role != Role::Script || *motion == Motion::Stationary {
+        return None;
+    }
+    let path = ObstaclePath::new(&v.script(v.body(&s.robot).radius));
+    let speed = path.top_speed();
+    let horizon = match motion {
+        Motion::Waypoints { repeat: false, .. } => path.end_time().min(s.time_limit),
+        _ => s.time_limit,
+    };
+    // Steps of a millimetre along the way.
+    let dt = 0.001 / speed.max(1e-6);
+    let mut t = 0.0;
+    while t < horizon && inside(path.position(t + dt), path.velocity(t + dt)) {
+        t += dt;
+    }
+    if t >= horizon {
+        return None;
+    }
+    let end = path.position(t);
+    let note = format!(
+        "vehicles[{i}] ({}): its script {what} at ({:.3}, {:.3}) after {t:.2} s: the vehicle stops there",
+        v.name, end.re, end.im
+    );
+    let points = path.corners_before(t).into_iter().chain(std::iter::once(end)).map(|p| [p.re, p.im]).collect();
+    s.vehicles[i].motion = Some(Motion::Waypoints { points, speed, repeat: false });
+    Some(note)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TWO: &str = r#"
+        name = "two"
+        time_limit = 10
+        [robot]
+        start = [-0.15, 0]
+        radius = 0.07
+        wheel_base = 0.108
+        wheel_radius = 0.025
+        steps_per_rev = 200
+        microsteps = 8
+        max_wheel_speed = 0.25
+        wheel_accel = 1.0
+        max_speed = 0.15
+        [goal]
+        position = [0.5, 0.5]
+        [[vehicles]]
+        name = "other"
+        role = "navigate"
+        start = [0.15, 0]
+        heading_deg = 180
+        goal = [-0.5, -0.5]
+        [sensing]
+        sample_time = 0.02
+    "#;
+
+    /// Drive the vehicles at these wheel speeds (m/s, both wheels) until one touches the
+    /// other or `seconds` pass.
+    fn drive(speeds: [f64; 2], seconds: f64) -> Fleet {
+        let s = SimScenario::from_toml(TWO, "two").unwrap();
+        let mut fleet = Fleet::new(&s);
+        let ppm = s.robot.pulses_per_metre();
+        for (k, v) in speeds.iter().enumerate() {
+            let rate = (v * ppm).round() as i32;
+            fleet.world_mut(k).command_pulse_rates([rate, rate]);
+        }
+        while fleet.time() < seconds && fleet.vehicle_contact(0).is_none() {
+            fleet.step(0.02);
+        }
+        fleet
+    }
+
+    /// Head-on, both drove in; one standing and one driving, only the driver did; the gap
+    /// closes to no more than the judge's resolution past touching.
+    #[test]
+    fn contact_between_vehicles_is_judged_per_vehicle() {
+        let both = drive([0.1, 0.1], 5.0);
+        let (a, b) = (both.vehicle_contact(0).unwrap(), both.vehicle_contact(1).unwrap());
+        assert!(a.active && b.active && a.with == 1 && b.with == 0, "{a:?} {b:?}");
+        // 16 cm apart to begin with, 15 cm once both have ramped up (0.1 s), closed at
+        // 0.2 m/s: they touch at 0.85 s, dated within one sample (the fastest vehicle moves
+        // PAIR_RESOLUTION in one: 2 ms).
+        assert!(a.at >= 0.85 - 1e-9 && a.at <= 0.852 + 1e-9, "{a:?}");
+
+        let one = drive([0.1, 0.0], 5.0);
+        let (a, b) = (one.vehicle_contact(0).unwrap(), one.vehicle_contact(1).unwrap());
+        assert!(a.active && !b.active, "{a:?} {b:?}");
+        assert!(b.approach_speed.abs() < 1e-9, "{b:?}");
+
+        let apart = drive([-0.1, -0.1], 3.0);
+        assert!(
+            apart.vehicle_contact(0).is_none() && (apart.min_vehicle_gap(0) - 0.16).abs() < 1e-9,
+            "{}",
+            apart.min_vehicle_gap(0)
+        );
     }
 }

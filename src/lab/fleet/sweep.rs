@@ -11,8 +11,8 @@ use super::{run, FleetOptions, FleetSummary};
 use crate::lab::sweep::compare::Interval;
 use crate::lab::sweep::{Shard, TooLarge};
 use crate::lab::{Outcome, Scenario};
+use flowgate_sim::scenario::vehicles::Role;
 use flowgate_sim::scenario::Motion;
-use flowgate_sim::vehicles::Role;
 
 /// One episode of a fleet sweep.
 #[derive(Debug, Clone, Serialize)]
@@ -205,14 +205,18 @@ impl std::fmt::Display for FleetSweepReport {
             "  episodes with a contact between vehicles: {}; with an active contact: {}",
             self.vehicle_contact_episodes, self.active_contact_episodes
         )?;
-        write!(
-            f,
-            "  makespan / slowest alone: p50 {:.2}, p99 {:.2}, max {:.2}; within 1.5: {}",
-            self.makespan_ratio_p50,
-            self.makespan_ratio_p99,
-            self.makespan_ratio_max,
-            pct(&self.makespan_within_1_5)
-        )?;
+        if self.makespan_within_1_5.episodes == 0 {
+            write!(f, "  makespan / slowest alone: no episode had every vehicle home")?;
+        } else {
+            write!(
+                f,
+                "  makespan / slowest alone: p50 {:.2}, p99 {:.2}, max {:.2}; within 1.5: {}",
+                self.makespan_ratio_p50,
+                self.makespan_ratio_p99,
+                self.makespan_ratio_max,
+                pct(&self.makespan_within_1_5)
+            )?;
+        }
         if let Some(e) = self.script_error_max {
             write!(f, "\n  largest script error where not held: {:.1} mm", e * 1e3)?;
         }

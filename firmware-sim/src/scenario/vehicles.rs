@@ -5,13 +5,12 @@
 //! Everything that no run could begin from is refused here, naming the key and the numbers:
 //! two vehicles overlapping at the start, goals closer together than their radii, a script
 //! faster or sharper than its vehicle can follow within [`SCRIPT_PRECISION`], more LEDs than
-//! the PSD schedule drives. A script that leaves the camera's view is cut at its last point
-//! inside it, and the cut is said ([`SimScenario::notes`]).
+//! the PSD schedule drives. (A script that leaves the room is cut where it leaves by
+//! [`crate::world::fleet::cut_script`].)
 
 use serde::Deserialize;
 
-use crate::scenario::{point, Motion, ObstacleSpec, RobotSpec, SimScenario};
-use crate::world::ObstaclePath;
+use super::{point, Motion, ObstacleSpec, RobotSpec, SimScenario};
 use crate::Point;
 
 /// How closely a scripted vehicle follows its script where nothing holds it, m: a script
@@ -60,6 +59,10 @@ pub struct VehicleSpec {
     /// A scripted vehicle further than this from its script is stopped, m.
     #[serde(default)]
     pub script_tolerance: Option<f64>,
+    /// A fault to inject: the vehicle's own CAN link fails at this time, s. Its motors hold
+    /// the last command for their command timeout, then stop.
+    #[serde(default)]
+    pub link_lost_at: Option<f64>,
     #[serde(default)]
     pub radius: Option<f64>,
     #[serde(default)]
@@ -298,19 +301,22 @@ impl SimScenario {
             return Err((key("name"), format!("{:?} is taken: every vehicle needs a name of its own", v.name)));
         }
         let body = v.body(&self.robot);
-        crate::scenario::validate_body(&body, &format!("vehicles[{i}]"))?;
+        super::validate_body(&body, &format!("vehicles[{i}]"))?;
         if let Some(t) = v.goal_tolerance {
-            crate::scenario::validate_length(&key("goal_tolerance"), t, crate::scenario::MAX_GOAL_TOLERANCE_M)?;
+            super::validate_length(&key("goal_tolerance"), t, super::MAX_GOAL_TOLERANCE_M)?;
         }
         if let Some(t) = v.script_tolerance {
-            crate::scenario::validate_length(&key("script_tolerance"), t, crate::scenario::MAX_BODY_M)?;
+            super::validate_length(&key("script_tolerance"), t, super::MAX_BODY_M)?;
             if t < SCRIPT_PRECISION {
                 return Err((key("script_tolerance"), format!("must be at least {SCRIPT_PRECISION} m, is {t}")));
             }
         }
+        if let Some(at) = v.link_lost_at.filter(|at| !(at.is_finite() && *at >= 0.0 && *at <= self.time_limit)) {
+            return Err((key("link_lost_at"), format!("must be 0 to time_limit ({} s), is {at}", self.time_limit)));
+        }
         match (v.role, &v.motion, v.goal) {
             (Role::Script, Some(motion), None) => self.validate_script(i, v, motion, &body),
-            (Role::Navigate, None, Some(goal)) => crate::scenario::validate_point(&key("goal"), goal),
+            (Role::Navigate, None, Some(goal)) => super::validate_point(&key("goal"), goal),
             (Role::Script, _, _) => {
                 Err((key("motion"), "a scripted vehicle needs a `motion` and no `goal` (role = \"script\")".into()))
             }
@@ -324,7 +330,7 @@ impl SimScenario {
     /// vehicle's speed limit, a start its ramps reach, corners its wheels can turn.
     fn validate_script(&self, i: usize, v: &VehicleSpec, motion: &Motion, body: &RobotSpec) -> Refused {
         let key = format!("vehicles[{i}].motion");
-        crate::scenario::validate_motion(&key, motion)?;
+        super::validate_motion(&key, motion)?;
         let speed = match motion {
             Motion::Stationary => 0.0,
             Motion::Constant { velocity } => point(*velocity).norm(),
@@ -473,57 +479,6 @@ impl SimScenario {
         }
         Ok(())
     }
-
-    /// Cut each script that leaves the camera's view at its last point inside (the vehicle
-    /// stops there), saying so in [`SimScenario::notes`].
-    pub(crate) fn cut_scripts_at_the_view(&mut self) {
-        let camera = self.camera;
-        for i in 0..self.vehicles.len() {
-            let radius = self.vehicles[i].body(&self.robot).radius;
-            // Both LEDs, half the radius ahead and behind along the way.
-            let seen = |p: Point, way: Point| {
-                let along = if way.norm() > 0.0 { way / way.norm() * (0.5 * radius) } else { Point::new(0.0, 0.0) };
-                camera.sees(p + along) && camera.sees(p - along)
-            };
-            if let Some(note) = self.cut_script(i, "leaves the camera's view", seen) {
-                self.notes.push(note);
-            }
-        }
-    }
-
-    /// Cut vehicle `i`'s script at its last point `inside` (given a point and the way the
-    /// script moves there) holds for, if it leaves: a note that says where, `what` saying
-    /// why (it "leaves the camera's view").
-    pub fn cut_script(&mut self, i: usize, what: &str, inside: impl Fn(Point, Point) -> bool) -> Option<String> {
-        let v = &self.vehicles[i];
-        let motion = v.motion.as_ref()?;
-        if v.role != Role::Script || *motion == Motion::Stationary {
-            return None;
-        }
-        let path = ObstaclePath::new(&v.script(v.body(&self.robot).radius));
-        let speed = path.top_speed();
-        let horizon = match motion {
-            Motion::Waypoints { repeat: false, .. } => path.end_time().min(self.time_limit),
-            _ => self.time_limit,
-        };
-        // Steps of a millimetre along the way.
-        let dt = 0.001 / speed.max(1e-6);
-        let mut t = 0.0;
-        while t < horizon && inside(path.position(t + dt), path.velocity(t + dt)) {
-            t += dt;
-        }
-        if t >= horizon {
-            return None;
-        }
-        let end = path.position(t);
-        let note = format!(
-            "vehicles[{i}] ({}): its script {what} at ({:.3}, {:.3}) after {t:.2} s: the vehicle stops there",
-            v.name, end.re, end.im
-        );
-        let points = path.corners_before(t).into_iter().chain(std::iter::once(end)).map(|p| [p.re, p.im]).collect();
-        self.vehicles[i].motion = Some(Motion::Waypoints { points, speed, repeat: false });
-        Some(note)
-    }
 }
 
 impl VehicleSpec {
@@ -539,6 +494,7 @@ impl VehicleSpec {
             goal: None,
             goal_tolerance: None,
             script_tolerance: None,
+            link_lost_at: None,
             radius: None,
             wheel_base: None,
             wheel_radius: None,
