@@ -135,6 +135,8 @@ fn plan_names_every_vehicle() {
     assert_eq!((vehicles[1]["role"].as_str(), vehicles[1]["outcome"].as_str()), (Some("script"), Some("goal")));
     assert!(vehicles[1]["contact"].is_null() && vehicles[1]["script_error"].as_f64().unwrap() < 0.01);
     assert!(vehicles[0]["script_error"].is_null());
+    let plot = std::fs::read_to_string(out.join("trajectory.svg")).unwrap();
+    assert!(plot.contains(">oncoming<") && plot.contains(">robot<") && plot.contains("outcome: goal"), "{plot}");
 
     let out = temp("swap");
     let swap = root().join("scenarios/fleet/swap-4.toml");

@@ -425,10 +425,10 @@ fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()>
     }
     let options = FleetOptions::default();
     let Some(n) = args.sweep else {
-        let summary = fleet::run(scenario, options);
+        let (summary, trace) = fleet::run_traced(scenario, options);
         fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
-        outputs::write_fleet_run(out, &summary)?;
-        say!("  wrote {}/summary.json  (fleet, planner level)", out.display());
+        outputs::write_fleet_run(out, scenario, &summary, &trace)?;
+        say!("  wrote {}/{{summary.json,trajectory.svg}}  (fleet, planner level)", out.display());
         return Ok(());
     };
     if n == 0 || n as u64 > sweep::MAX_EPISODES {
@@ -439,10 +439,10 @@ fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()>
             bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1);
         }
         let s = fleet_sweep::place(scenario, args.seed, k);
-        let summary = fleet::run(&s, options);
+        let (summary, trace) = fleet::run_traced(&s, options);
         say!("episode {k} of the sweep of {n} around {} (seed {}):", scenario.name, args.seed);
         fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
-        outputs::write_fleet_run(out, &summary)?;
+        outputs::write_fleet_run(out, &s, &summary, &trace)?;
         return Ok(());
     }
     let started = std::time::Instant::now();

@@ -214,15 +214,53 @@ impl FleetControl {
 
 /// Run a fleet scenario to its end.
 pub fn run(s: &Scenario, options: FleetOptions) -> FleetSummary {
+    drive(s, options, None)
+}
+
+/// Where each vehicle and each obstacle was, cycle by cycle, for the plot.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FleetTrace {
+    /// The cycles' times, s.
+    pub t: Vec<f64>,
+    /// Each vehicle's centre, the robot first.
+    pub vehicles: Vec<Vec<Point>>,
+    pub obstacles: Vec<Vec<Point>>,
+}
+
+/// Run a fleet scenario to its end, keeping its trace.
+pub fn run_traced(s: &Scenario, options: FleetOptions) -> (FleetSummary, FleetTrace) {
+    let mut trace = FleetTrace::default();
+    let summary = drive(s, options, Some(&mut trace));
+    (summary, trace)
+}
+
+fn drive(s: &Scenario, options: FleetOptions, mut trace: Option<&mut FleetTrace>) -> FleetSummary {
     let mut fleet = Fleet::new(&s.sim);
     let mut control = FleetControl::new(s, options);
     loop {
         let t = fleet.time();
+        if let Some(trace) = trace.as_deref_mut() {
+            trace.record(&fleet, &control, t);
+        }
         control.cycle(&mut fleet);
         fleet.step(s.sensing.sample_time);
         let touched = (0..fleet.len()).any(|k| contact_of(&fleet, s, k).is_some());
         if (touched && options.stop_at_contact) || !control.running(t) || fleet.time() >= s.time_limit {
             return summary(s, &fleet, &control.drivers);
+        }
+    }
+}
+
+impl FleetTrace {
+    fn record(&mut self, fleet: &Fleet, control: &FleetControl, t: f64) {
+        self.t.push(t);
+        self.vehicles.resize(fleet.len(), Vec::new());
+        for (k, path) in self.vehicles.iter_mut().enumerate() {
+            path.push(fleet.world(k).pose().position);
+        }
+        self.obstacles.resize(control.obstacles.len(), Vec::new());
+        for (path, (o, _)) in self.obstacles.iter_mut().zip(&control.obstacles) {
+            path.push(o.position(t));
         }
     }
 }

@@ -160,10 +160,17 @@ pub fn write_swarm_episode(
     write(&dir.join("episode.json"), json(outcome))
 }
 
-/// A fleet run: its `summary.json` (the fleet's outcome and each vehicle's).
-pub fn write_fleet_run(dir: &Path, summary: &super::fleet::FleetSummary) -> Result<(), OutputError> {
+/// A fleet run: its `summary.json` (the fleet's outcome and each vehicle's) and its
+/// `trajectory.svg`.
+pub fn write_fleet_run(
+    dir: &Path,
+    scenario: &Scenario,
+    summary: &super::fleet::FleetSummary,
+    trace: &super::fleet::FleetTrace,
+) -> Result<(), OutputError> {
     folder(dir)?;
-    write(&dir.join("summary.json"), json(summary))
+    write(&dir.join("summary.json"), json(summary))?;
+    write(&dir.join("trajectory.svg"), plots::fleet_svg(scenario, summary, trace))
 }
 
 /// A fleet sweep: its report (`fleet_sweep.json`) and one JSON line an episode

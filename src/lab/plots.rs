@@ -214,3 +214,55 @@ pub fn one_line(run: &Run) -> String {
     }
     line
 }
+
+/// A colour a vehicle, the robot's first.
+const VEHICLES: [&str; 8] = [ROBOT, "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"];
+
+/// `trajectory.svg` of a fleet: the room, each vehicle's path in its colour with its start,
+/// its footprint where it ended and its goal, and the obstacles' paths.
+pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &super::fleet::FleetTrace) -> String {
+    let mut pts: Vec<Point> = trace.vehicles.iter().chain(&trace.obstacles).flatten().copied().collect();
+    let room = room_outlines(s);
+    pts.extend(room.iter().flatten().copied());
+    let (lo, hi) = bounds(&pts, 0.15);
+    let mut svg = Svg::new(760.0, 560.0);
+    let ax = Axes::equal(&svg, lo, hi, (60.0, 40.0, 20.0, 50.0));
+    ax.frame(&mut svg, "x (m)", "y (m)");
+    let title = format!(
+        "{} | {} vehicles | outcome: {} | t = {:.1} s",
+        s.name,
+        summary.vehicles.len(),
+        summary.outcome,
+        summary.end_time
+    );
+    svg.text(svg.width / 2.0, 22.0, &title, "middle", 14.0, "#000");
+    if let Some(lane) = s.lane {
+        for y in [lane.half_width, -lane.half_width] {
+            ax.polyline(&mut svg, &[Point::new(lo.re, y), Point::new(hi.re, y)], "#444", 3.0, None);
+        }
+    }
+    for outline in &room {
+        ax.polyline(&mut svg, outline, "#444", 3.0, None);
+    }
+    for path in &trace.obstacles {
+        ax.polyline(&mut svg, path, OBSTACLE, 1.5, Some("4 3"));
+    }
+    for (k, (path, ((name, body, _), v))) in trace.vehicles.iter().zip(s.fleet().zip(&summary.vehicles)).enumerate() {
+        let color = VEHICLES[k % VEHICLES.len()];
+        ax.polyline(&mut svg, path, color, 2.0, None);
+        if let (Some(&first), Some(&last)) = (path.first(), path.last()) {
+            ax.marker(&mut svg, first, color, name);
+            ax.circle(&mut svg, last, body.radius, color, 1.0, 0.1);
+        }
+        if let Some(c) = &v.contact {
+            let at = path.last().copied().unwrap_or_default();
+            ax.label(
+                &mut svg,
+                at,
+                &format!("touched {} ({})", c.with, if c.active { "active" } else { "passive" }),
+                "#000",
+            );
+        }
+    }
+    svg.finish()
+}
