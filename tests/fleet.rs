@@ -198,6 +198,16 @@ fn a_fleet_that_cannot_run_is_refused_naming_the_key() {
             "positive",
         ),
         (
+            base.replace("start = [0.45, 0.0]\n", "start = [0.45, 0.0]\nheading_deg = nan\n"),
+            "`vehicles[0].heading_deg`",
+            "within ±360°, is NaN",
+        ),
+        (
+            base.replace("start = [0.45, 0.0]\n", "start = [0.45, 0.0]\nlink_lost_at = -1\n"),
+            "`vehicles[0].link_lost_at`",
+            "must be 0 to time_limit (30 s)",
+        ),
+        (
             (0..7).fold(base.to_string(), |s, k| {
                 s + &nav(
                     &format!("n{k}"),

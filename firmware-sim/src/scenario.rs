@@ -611,6 +611,11 @@ impl SimScenario {
 /// A vehicle's body (`[robot]`'s keys) under `prefix`.
 pub(crate) fn validate_body(r: &RobotSpec, prefix: &str) -> Refused {
     finite(&format!("{prefix}.start"), r.start)?;
+    if !(r.heading_deg.is_finite() && r.heading_deg.abs() <= 360.0) {
+        let h = r.heading_deg;
+        let h = if h.abs() < 1e6 { h.to_string() } else { format!("{h:e}") };
+        return Err((format!("{prefix}.heading_deg"), format!("must be within ±360°, is {h}")));
+    }
     positive(&format!("{prefix}.radius"), r.radius)?;
     positive(&format!("{prefix}.wheel_base"), r.wheel_base)?;
     positive(&format!("{prefix}.wheel_radius"), r.wheel_radius)?;
