@@ -291,8 +291,8 @@ impl SimScenario {
             return Err((
                 key("name"),
                 format!(
-                    "{:?}: 1-{MAX_NAME_LEN} lower-case letters, digits and `_`, starting with a letter (it names \
-                     ROS topics and files)",
+                    "{:?}: 1-{MAX_NAME_LEN} lower-case letters, digits and `_`, starting with a letter (a valid ROS \
+                     name and file name)",
                     v.name
                 ),
             ));
