@@ -168,6 +168,22 @@ fn sweep_is_reproducible_and_accounts_for_every_episode() {
     assert_ne!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&c).unwrap(), "another seed differs");
 }
 
+/// The baseline `planner.method = "straight"` (straight at the goal, the supervisor alone)
+/// on the same 300 episodes of the five-obstacle circle crossing as the field: the
+/// supervisor keeps it from driving into anyone, and it reaches the goal less often, walked
+/// into where it is held (docs/simulation.md, "A baseline").
+#[test]
+fn the_straight_baseline_is_held_by_the_supervisor_and_trails_the_field() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/crowd/circle-crossing-5.toml");
+    let field = Scenario::load(&path).unwrap();
+    let straight = Scenario::load_with(&path, "planner.method=\"straight\"").unwrap();
+    let a = sweep::sweep(&field, 300, 1, 2, Mode::PlannerOnly).unwrap();
+    let b = sweep::sweep(&straight, 300, 1, 2, Mode::PlannerOnly).unwrap();
+    assert_eq!((a.goal_rate, a.collision_rate), (1.0, 0.0), "{a:?}");
+    assert_eq!(b.active_contact_rate, 0.0, "{b:?}");
+    assert!((b.goal_rate - 0.96).abs() < 1e-9 && (b.passive_contact_rate - 0.04).abs() < 1e-9, "{b:?}");
+}
+
 fn flowgate() -> Command {
     Command::new(env!("CARGO_BIN_EXE_flowgate"))
 }

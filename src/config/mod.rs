@@ -313,7 +313,7 @@ impl RigFile {
         let led = self.leds.front_offset.max(self.leds.rear_offset);
         supervisor.arena = calibration.inner_rect().map(|[x0, x1, y0, y1]| [x0 + led, x1 - led, y0 + led, y1 - led]);
         supervisor.room = room.clone();
-        if p.method != PlannerMethod::Field {
+        if matches!(p.method, PlannerMethod::Socket | PlannerMethod::Ros2) {
             // An outside planner may drive straight at an obstacle, so the supervisor's
             // promise must hold when the commands stop reaching the wheels (the bus off,
             // the adapter gone): the motors then hold the last one until their own timeout.
@@ -360,6 +360,7 @@ impl RigFile {
             evasion: p.evasion.unwrap_or(self.lane.is_none()),
             source: match p.method {
                 PlannerMethod::Field => CommandSource::Field,
+                PlannerMethod::Straight => CommandSource::Straight,
                 PlannerMethod::Socket | PlannerMethod::Ros2 => {
                     CommandSource::Outside { max_age: f64::from(p.command_max_age_ms) * 1e-3 }
                 }

@@ -109,6 +109,9 @@ pub enum PlannerMethod {
     Field,
     Socket,
     Ros2,
+    /// A baseline: straight at the goal at the cruise speed, turning toward it, the safety
+    /// supervisor alone keeping the robot off what is in the way.
+    Straight,
 }
 
 impl PlannerMethod {

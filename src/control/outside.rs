@@ -10,6 +10,9 @@ use super::drive::{DriveConfig, WheelSpeeds};
 pub enum CommandSource {
     /// The hydrodynamic field (the default).
     Field,
+    /// A baseline: straight at the goal, turning toward it, the supervisor alone in the
+    /// way of what is there.
+    Straight,
     /// A planner outside flowgate; a command older than `max_age` s stops the robot.
     Outside { max_age: f64 },
 }

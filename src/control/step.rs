@@ -12,6 +12,9 @@ use crate::planner::{Field, ObstacleEstimate, Plan, PlanInput, Planner, PlannerC
 use crate::track::Estimate;
 use crate::Point;
 
+/// How fast the straight baseline turns toward the goal, rad/s a radian off it.
+const STRAIGHT_TURN_GAIN: f64 = 3.0;
+
 /// When the robot counts as stalled: it moved less than `min_progress` in `window` seconds
 /// while away from the goal (a stagnation point, or a deadlock the field cannot resolve).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -250,8 +253,10 @@ impl ControlStep {
         if (position - self.config.goal).length() <= self.config.goal_tolerance {
             return StepOutput::stop(StepStatus::AtGoal, None);
         }
-        if let CommandSource::Outside { max_age } = self.config.source {
-            return self.drive_outside(t, estimate, outrun, max_age);
+        match self.config.source {
+            CommandSource::Outside { max_age } => return self.drive_outside(t, estimate, outrun, max_age),
+            CommandSource::Straight => return self.drive_straight(t, estimate, outrun),
+            CommandSource::Field => {}
         }
         let input = PlanInput {
             position,
@@ -309,6 +314,31 @@ impl ControlStep {
             supervision,
             asked,
             saturated,
+            outrun: false,
+            wheels,
+            pulses,
+        }
+    }
+
+    /// The baseline: at the cruise speed straight for the goal, turning toward it (forward
+    /// only within a quarter turn of it), supervised as the field's commands are.
+    fn drive_straight(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool) -> StepOutput {
+        if self.stalled(t, estimate.position) {
+            return StepOutput::stop(StepStatus::Stalled, None);
+        }
+        let off = ((self.config.goal - estimate.position) * estimate.facing.conj()).arg();
+        let v = self.config.planner.cruise_speed * off.cos().max(0.0);
+        let w = STRAIGHT_TURN_GAIN * off;
+        // Scaled to the limits as an outside command is (not counted as one).
+        let (asked, _) = OutsideCommand::Twist { v, w }.wheels(&self.config.drive, self.config.planner.max_speed);
+        let (wheels, supervision) = self.supervised(estimate, asked, outrun);
+        let pulses = pulse_rates(wheels, &self.config.drive);
+        StepOutput {
+            status: StepStatus::Driving,
+            plan: None,
+            supervision,
+            asked,
+            saturated: false,
             outrun: false,
             wheels,
             pulses,

@@ -38,8 +38,10 @@ impl<K: StageClock> Core<K> {
     /// finite stops a moving robot, named.
     fn outside_command(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
         let Some(command) = request.command() else { return Ok(()) };
-        if self.rig.control.source == crate::control::CommandSource::Field {
-            return Err(Refusal::FieldDrives);
+        match self.rig.control.source {
+            crate::control::CommandSource::Field => return Err(Refusal::FieldDrives),
+            crate::control::CommandSource::Straight => return Err(Refusal::StraightDrives),
+            crate::control::CommandSource::Outside { .. } => {}
         }
         if !command.is_finite() {
             if self.state().is_active() {
