@@ -95,7 +95,7 @@ fn a_script_into_a_vehicle_is_held_and_stopped() {
     assert!(robot.contact.is_none() && ram.contact.is_none(), "{f:?}");
     assert_eq!(ram.outcome, Outcome::Stopped, "{f:?}");
     let why = ram.stop_reason.as_deref().unwrap();
-    assert!(why.contains("off its script (tolerance 5.0 cm)"), "{why}");
+    assert!(why.contains("mm off its script (tolerance 50.0 mm)"), "{why}");
     assert!(ram.script_error.unwrap() <= 0.01, "where its supervisor passed it: {f:?}");
     assert!(ram.script_error_held.unwrap() > 0.05, "held, it fell behind: {f:?}");
     assert!(ram.min_vehicle_gap > 0.0 && ram.supervised_cycles > 0, "{f:?}");

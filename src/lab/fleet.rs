@@ -333,7 +333,7 @@ fn drive_one(
             d.done = Some((
                 Outcome::Stopped,
                 t,
-                Some(format!("{:.1} cm off its script (tolerance {:.1} cm)", error * 100.0, d.tolerance * 100.0)),
+                Some(format!("{:.1} mm off its script (tolerance {:.1} mm)", error * 1e3, d.tolerance * 1e3)),
             ));
             return [0; 2];
         }
