@@ -286,18 +286,7 @@ impl ControlStep {
             return StepOutput::stop(StepStatus::Stalled, Some(plan));
         }
         let proposed = wheel_speeds(plan.velocity, estimate.facing, &self.config.drive);
-        let (wheels, supervision) = self.supervised(estimate, proposed, outrun);
-        let pulses = pulse_rates(wheels, &self.config.drive);
-        StepOutput {
-            status: StepStatus::Driving,
-            plan: Some(plan),
-            supervision,
-            asked: proposed,
-            saturated: false,
-            outrun: false,
-            wheels,
-            pulses,
-        }
+        self.driving(estimate, proposed, outrun, Some(plan), false)
     }
 
     /// The outside planner's latest command, within the robot's limits and supervised.
@@ -306,18 +295,7 @@ impl ControlStep {
             return StepOutput::stop(StepStatus::CommandStale, None);
         };
         let (asked, saturated) = command.wheels(&self.config.drive, self.config.planner.max_speed);
-        let (wheels, supervision) = self.supervised(estimate, asked, outrun);
-        let pulses = pulse_rates(wheels, &self.config.drive);
-        StepOutput {
-            status: StepStatus::Driving,
-            plan: None,
-            supervision,
-            asked,
-            saturated,
-            outrun: false,
-            wheels,
-            pulses,
-        }
+        self.driving(estimate, asked, outrun, None, saturated)
     }
 
     /// The baseline: at the cruise speed straight for the goal, turning toward it (forward
@@ -331,18 +309,22 @@ impl ControlStep {
         let w = STRAIGHT_TURN_GAIN * off;
         // Scaled to the limits as an outside command is (not counted as one).
         let (asked, _) = OutsideCommand::Twist { v, w }.wheels(&self.config.drive, self.config.planner.max_speed);
+        self.driving(estimate, asked, outrun, None, false)
+    }
+
+    /// Drive on what was `asked` (the field's `plan`'s wheels, or a command's, `saturated`
+    /// when it was scaled to the limits): what the supervisor passes of it, as pulse rates.
+    fn driving(
+        &self,
+        estimate: &Estimate<'_>,
+        asked: WheelSpeeds,
+        outrun: bool,
+        plan: Option<Plan>,
+        saturated: bool,
+    ) -> StepOutput {
         let (wheels, supervision) = self.supervised(estimate, asked, outrun);
         let pulses = pulse_rates(wheels, &self.config.drive);
-        StepOutput {
-            status: StepStatus::Driving,
-            plan: None,
-            supervision,
-            asked,
-            saturated: false,
-            outrun: false,
-            wheels,
-            pulses,
-        }
+        StepOutput { status: StepStatus::Driving, plan, supervision, asked, saturated, outrun: false, wheels, pulses }
     }
 
     /// What the supervisor (and evasion, where on) passes of `proposed`.
