@@ -277,3 +277,26 @@ fn a_vehicle_that_loses_its_link_stops_and_the_others_go_round() {
         assert_eq!(f.outcome, Outcome::Fault);
     }
 }
+
+/// A placement the scenario's checks would refuse at load (here a start jittered onto the
+/// vehicle beside it) is not run: the episode runs the placement the file was loaded with.
+#[test]
+fn a_placement_the_checks_refuse_runs_as_loaded() {
+    let side_by_side = DRIVEN_INTO
+        .replace("start = [-0.3, 0.0]", "start = [-0.3, -0.0725]")
+        .replace("position = [0.0, 0.0]", "position = [0.3, -0.0725]")
+        .replace(
+            "role = \"script\"\nstart = [0.45, 0.0]\nmotion = { kind = \"waypoints\", points = [[-0.45, 0.0]], speed = 0.05 }",
+            "role = \"navigate\"\nstart = [-0.3, 0.0725]\ngoal = [0.3, 0.0725]",
+        );
+    let s = Scenario::from_toml(&side_by_side, "side-by-side").unwrap();
+    let mut refused = 0;
+    for i in 0..40 {
+        let placed = place(&s, 1, i);
+        let (a, b) = (placed.robot.start, placed.vehicles[0].start);
+        let gap = (a[0] - b[0]).hypot(a[1] - b[1]) - 0.14;
+        assert!(gap >= 0.0, "episode {i}: starts overlap by {:.1} mm", -gap * 1e3);
+        refused += usize::from(a == s.robot.start && b == s.vehicles[0].start);
+    }
+    assert!(refused > 0 && refused < 40, "{refused} of 40 episodes fell back to the loaded placement");
+}

@@ -114,7 +114,7 @@ pub const AIM_HOLD: f64 = 0.01;
 /// How far outside the blocking vehicle's circle a vehicle aims, m.
 const AIM_CLEARANCE: f64 = 0.03;
 /// The steps, radians, by which the aim turns round the blocker toward the vehicle when
-/// the point on the right is taken (six of them: a quarter turn at most... and a bit).
+/// the point on the right is taken: six of them, a quarter turn at most.
 const AIM_TURN: f64 = std::f64::consts::PI / 12.0;
 
 /// Gains of the script follower: a tracking controller on the unicycle (after Kanayama et

@@ -43,8 +43,27 @@ impl FleetEpisode {
 
 /// Episode `i`'s fleet: a swap placed afresh; any other fleet with every navigating
 /// vehicle's start moved by up to 3 cm in x and y and every script's and moving obstacle's
-/// speed scaled by U(0.75, 1.25) (at most the vehicle's speed limit).
+/// speed scaled by U(0.75, 1.25) (at most the vehicle's speed limit). A placement the
+/// scenario's checks refuse (a start jittered onto another vehicle, a swap turned so that a
+/// goal falls out of view or onto furniture) is said, and the episode runs the placement the
+/// file was loaded with, as a crowd's does.
 pub fn place(base: &Scenario, seed: u64, i: u64) -> Scenario {
+    let placed = placed(base, seed, i);
+    let checked = placed
+        .sim
+        .validate()
+        .map_err(|(key, why)| format!("`{key}` {why}"))
+        .and_then(|()| Scenario::new(placed.sim.clone(), &format!("episode {i}")).map_err(|e| e.to_string()));
+    match checked {
+        Ok(s) => Scenario { supervised: base.supervised, ..s },
+        Err(why) => {
+            tracing::warn!("episode {i}: {why}: the episode runs the placement the scenario was loaded with");
+            base.clone()
+        }
+    }
+}
+
+fn placed(base: &Scenario, seed: u64, i: u64) -> Scenario {
     let mut s = base.clone();
     if base.swap.is_some() {
         s.sim = base.sim.swap_episode(seed, i);
