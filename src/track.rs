@@ -86,6 +86,26 @@ pub enum Implausible {
     LedSpacing { measured: f64, mounted: f64 },
     #[error("the robot moved {moved:.3} m, it can {reach:.3} m")]
     Jump { moved: f64, reach: f64 },
+    /// A reflection of one LED onto the far side of the other keeps their spacing and moves
+    /// the centre by half the spacing's change, but turns the heading about.
+    #[error("the robot turned {turned:.2} rad, it can {reach:.2} rad")]
+    Turn { turned: f64, reach: f64 },
+}
+
+/// How long a pose refused after a stop must stand still to be taken, s: longer than a
+/// reflection on the floor lasts while the robot passes it.
+pub const SETTLE: f64 = 2.0;
+
+/// What a robot pose is checked against: how far and how fast the robot can move between
+/// two poses, and how far a measured pose may be off that.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseReach {
+    /// The centre's top speed, m/s (the wheels' rim speed limit).
+    pub speed: f64,
+    /// The top turn rate, rad/s (both wheels at their limit, opposite ways).
+    pub turn_rate: f64,
+    /// How far each LED may be off, m.
+    pub tolerance: f64,
 }
 
 /// Where the robot's LEDs sit along its heading, measured from its centre (m).
@@ -401,6 +421,11 @@ impl DeadReckoning {
     }
 
     /// The wheels stopped at once (an emergency stop): forget every command.
+    /// When the newest command's ramp ends (at rest from then, when it asked for rest).
+    pub fn at_rest_from(&self) -> f64 {
+        self.commands.back().map_or(f64::NEG_INFINITY, |c| c.ramp_end)
+    }
+
     pub fn halt(&mut self) {
         self.commands.clear();
         self.newest_span = None;
@@ -525,6 +550,15 @@ pub struct Tracker {
     measured: [Point; MAX_OBSTACLES],
     /// When the last measured pose was valid, its centre, and its heading as a unit vector.
     pose: Option<(f64, Point, Point)>,
+    /// The last plausible pose, kept when the pose is forgotten at a stop (so a stale one is
+    /// never driven on): the pose seen again is checked against it.
+    reference: Option<(f64, Point, Point)>,
+    /// Since when the wheels have been at rest and commanded to stay so (None: they may be
+    /// moving).
+    still_since: Option<f64>,
+    /// A pose refused against the reference, and where it stood since: taken once it has
+    /// stood still for [`SETTLE`] (the robot carried to a new place by hand).
+    settling: Option<(f64, Point, Point)>,
     dead_reckoning: DeadReckoning,
     estimates: [ObstacleEstimate; MAX_OBSTACLES],
     /// The same obstacles, always predicted to the estimate's time.
@@ -572,6 +606,9 @@ impl Tracker {
             filters: [None; MAX_OBSTACLES],
             measured: [Point::default(); MAX_OBSTACLES],
             pose: None,
+            reference: None,
+            still_since: Some(f64::NEG_INFINITY),
+            settling: None,
             dead_reckoning: DeadReckoning::with_capacity(64, settings.wheel_accel),
             estimates: [ObstacleEstimate::exact(Point::default(), Point::default(), 0.0); MAX_OBSTACLES],
             predicted: [ObstacleEstimate::exact(Point::default(), Point::default(), 0.0); MAX_OBSTACLES],
@@ -584,6 +621,8 @@ impl Tracker {
         match self.geometry.locate(front, rear) {
             Some((position, facing)) if self.pose.is_none_or(|(t, ..)| t_valid >= t) => {
                 self.pose = Some((t_valid, position, facing));
+                self.reference = self.pose;
+                self.settling = None;
                 true
             }
             _ => false,
@@ -591,32 +630,77 @@ impl Tracker {
     }
 
     /// Whether the robot's two LEDs at `t_valid` can be its pose: they sit their mounted
-    /// distance apart, and the centre moved no further since the last pose than the robot can
-    /// drive at `max_speed`, each within `tolerance` (m). A CRC-valid but wrong sample (a
-    /// reflection, a mixed-up slot) fails one of the two.
-    pub fn plausible(
-        &self,
-        t_valid: f64,
-        front: Point,
-        rear: Point,
-        max_speed: f64,
-        tolerance: f64,
-    ) -> Result<(), Implausible> {
+    /// distance apart, and since the last pose the centre moved no further than the robot
+    /// can drive and the heading turned no further than its wheels can turn it, each within
+    /// `reach.tolerance`. A CRC-valid but wrong sample (a reflection, a mixed-up slot) fails
+    /// one of the three.
+    ///
+    /// After a stop the pose is seen again against the last plausible one, and the wheels
+    /// could move it only while they were not at rest: a reflection that outlasts the stop
+    /// is refused, where against the time since the stop alone it would soon be in reach. A
+    /// pose refused so that stands still for [`SETTLE`] is taken (the robot carried to a new
+    /// place by hand while stopped).
+    pub fn plausible(&mut self, t_valid: f64, front: Point, rear: Point, reach: PoseReach) -> Result<(), Implausible> {
         let spacing = (front - rear).length();
         let mounted = self.geometry.front + self.geometry.rear;
         let off = (spacing - mounted).abs();
-        if off.is_nan() || off > tolerance {
+        if off.is_nan() || off > reach.tolerance {
             return Err(Implausible::LedSpacing { measured: spacing, mounted });
         }
-        let (Some((t0, last, _)), Some((position, _))) = (self.pose, self.geometry.locate(front, rear)) else {
-            return Ok(());
+        let Some((position, facing)) = self.geometry.locate(front, rear) else { return Ok(()) };
+        let (last, moving) = match (self.pose, self.reference) {
+            (Some(last), _) => (last, (t_valid - last.0).abs()),
+            (None, Some(last)) => {
+                let until = self.still_since.map_or(t_valid, |still| still.min(t_valid));
+                (last, (until - last.0).max(0.0))
+            }
+            (None, None) => return Ok(()),
         };
+        let check = Self::within(last, position, facing, moving, reach, mounted);
+        if check.is_err()
+            && self.pose.is_none()
+            && self.still_since.is_some()
+            && self.settled(t_valid, position, facing, reach, mounted)
+        {
+            return Ok(());
+        }
+        check
+    }
+
+    /// Whether a pose at `position`, `facing` is within what the wheels can do in `moving`
+    /// seconds from `last`.
+    fn within(
+        (_, last, last_facing): (f64, Point, Point),
+        position: Point,
+        facing: Point,
+        moving: f64,
+        reach: PoseReach,
+        mounted: f64,
+    ) -> Result<(), Implausible> {
         let moved = (position - last).length();
-        let reach = max_speed * (t_valid - t0).abs() + tolerance;
-        if moved.is_nan() || moved > reach {
-            return Err(Implausible::Jump { moved, reach });
+        let can_move = reach.speed * moving + reach.tolerance;
+        if moved.is_nan() || moved > can_move {
+            return Err(Implausible::Jump { moved, reach: can_move });
+        }
+        // Each LED off by the tolerance across the axis, opposite ways, turns it this far.
+        let can_turn = reach.turn_rate * moving + (2.0 * reach.tolerance).atan2(mounted);
+        let turned = (facing * last_facing.conj()).arg().abs();
+        if turned.is_nan() || turned > can_turn {
+            return Err(Implausible::Turn { turned, reach: can_turn });
         }
         Ok(())
+    }
+
+    /// A refused pose at `t`: whether it has stood within the tolerance of where it stands
+    /// now for [`SETTLE`].
+    fn settled(&mut self, t: f64, position: Point, facing: Point, reach: PoseReach, mounted: f64) -> bool {
+        match self.settling {
+            Some(since) if Self::within(since, position, facing, 0.0, reach, mounted).is_ok() => t - since.0 >= SETTLE,
+            _ => {
+                self.settling = Some((t, position, facing));
+                false
+            }
+        }
     }
 
     /// Obstacle `k` seen at `p`, valid at `t_valid`. Returns whether its filter took it
@@ -685,13 +769,19 @@ impl Tracker {
 
     /// The wheels were stopped at once (an emergency stop): they are at rest, whatever
     /// was commanded before.
-    pub fn halted(&mut self) {
+    pub fn halted(&mut self, t: f64) {
         self.dead_reckoning.halt();
+        self.still_since = Some(t);
     }
 
     /// The robot was commanded these wheel speeds at `t` (for dead reckoning).
     pub fn commanded(&mut self, t: f64, left: f64, right: f64) {
         self.dead_reckoning.command(t, left, right);
+        self.still_since = if left == 0.0 && right == 0.0 {
+            self.still_since.or(Some(self.dead_reckoning.at_rest_from()))
+        } else {
+            None
+        };
     }
 
     /// The state at `t`, when the command will act: the pose dead-reckoned from its time of

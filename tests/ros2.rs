@@ -241,6 +241,7 @@ fn the_rviz_configuration_shows_what_the_node_publishes() {
 /// `flowgate demo --ros2` on E1 with `planner.method = "ros2"`, and an rclpy node driving
 /// it on `/cmd_vel` (`mode`, see the peer): the demo's words and its recording.
 fn drive_on_cmd_vel(name: &str, mode: &str, domain: u32) -> (Value, (bool, String), Vec<Value>) {
+    let stamped: &[&std::ffi::OsStr] = if mode.ends_with("_stamped") { &["--cmd-vel-stamped".as_ref()] } else { &[] };
     let dir = temp_dir(name);
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let e1 = std::fs::read_to_string(root.join("scenarios/e1-standing-obstacle.toml")).unwrap();
@@ -248,7 +249,7 @@ fn drive_on_cmd_vel(name: &str, mode: &str, domain: u32) -> (Value, (bool, Strin
     std::fs::write(&scenario, e1.replace("[planner]\n", "[planner]\nmethod = \"ros2\"\n")).unwrap();
     let recording = dir.join("run.mcap");
     let env = ros_env(domain);
-    let demo = demo_ros2(&dir, &scenario, &[], &env);
+    let demo = demo_ros2(&dir, &scenario, stamped, &env);
     let peer = Command::new(python::python())
         .arg(python::peer("ros2"))
         .args(["--cmd-vel", mode, "0.35", "0.05"])
@@ -292,10 +293,17 @@ fn an_rclpy_node_driving_at_an_obstacle_is_stopped_short_and_its_silence_stops_t
     assert!(held_back > 20, "{held_back} cycles where the supervisor held back what cmd_vel asked");
 }
 
-/// An rclpy node steering on `/odom` round the obstacle to the goal reaches it.
+/// An rclpy node steering on `/odom` round the obstacle to the goal reaches it, in Twist
+/// and, with `[ros2] cmd_vel_stamped`, in TwistStamped (as nav2's controllers publish).
 #[test]
 fn an_rclpy_node_steering_on_cmd_vel_reaches_the_goal() {
-    let (seen, (finished, demo), _) = drive_on_cmd_vel("cmd-vel-goal", "to_goal", 71);
+    for (name, mode, domain) in [("cmd-vel-goal", "to_goal", 71), ("cmd-vel-stamped", "to_goal_stamped", 73)] {
+        steer_to_goal(name, mode, domain);
+    }
+}
+
+fn steer_to_goal(name: &str, mode: &str, domain: u32) {
+    let (seen, (finished, demo), _) = drive_on_cmd_vel(name, mode, domain);
     assert!(finished, "{demo}");
     assert_eq!(seen["stopped"], "stopped: goal reached", "{seen}");
     let last = &seen["last_pose"];

@@ -41,6 +41,11 @@ pub struct DemoArgs {
     /// of driving to the scenario's goal at once.
     #[arg(long)]
     ros2: bool,
+    /// With `--ros2` and the scenario's `planner.method = "ros2"`: take
+    /// `geometry_msgs/msg/TwistStamped` on /cmd_vel (`[ros2] cmd_vel_stamped`) instead of
+    /// Twist, as nav2's controllers publish it by default since Jazzy.
+    #[arg(long, requires = "ros2")]
+    cmd_vel_stamped: bool,
 }
 
 /// One line of the run's progress, about twice a second.
@@ -106,7 +111,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
             view: args.view,
             foxglove: args.foxglove,
             socket: args.socket.clone(),
-            ros2: args.ros2,
+            ros2: args.ros2.then_some(flowgate::config::Ros2Section {
+                enabled: true,
+                cmd_vel_stamped: args.cmd_vel_stamped,
+                ..Default::default()
+            }),
         },
         say_progress,
     ))?;

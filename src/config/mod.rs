@@ -45,7 +45,7 @@ use crate::control::drive::DriveConfig;
 use crate::control::{CommandSource, ControlConfig, StallConfig, SupervisorConfig};
 use crate::planner::{PlannerConfig, Space, TieBreak};
 pub use crate::track::TrackingSettings;
-use crate::track::{KalmanConfig, LedGeometry};
+use crate::track::{KalmanConfig, LedGeometry, PoseReach};
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -411,6 +411,16 @@ pub struct Rig {
 }
 
 impl Rig {
+    /// What each robot pose is checked against: the wheels' limits and the pose tolerance.
+    pub fn pose_reach(&self) -> PoseReach {
+        let d = &self.control.drive;
+        PoseReach {
+            speed: d.max_wheel_speed,
+            turn_rate: 2.0 * d.max_wheel_speed / d.wheel_base,
+            tolerance: self.safety.pose_tolerance,
+        }
+    }
+
     /// The room as the drawings show it: the solved room's walls, static obstacles and
     /// view's edge, or the two walls a lane was made from (`room.walls_as_lane`).
     pub fn room_outline(&self) -> Option<crate::planner::room::RoomShape> {

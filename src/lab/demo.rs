@@ -100,9 +100,9 @@ pub struct Outputs {
     pub foxglove: Option<std::net::SocketAddr>,
     /// A control socket for `flowgate ctl`.
     pub socket: Option<PathBuf>,
-    /// Join ROS 2 (`[ros2]` at its defaults, ROS 2's environment honoured) and wait for its
-    /// goal, arm and start instead of driving to the scenario's goal at once.
-    pub ros2: bool,
+    /// Join ROS 2 with this `[ros2]` (ROS 2's environment honoured) and wait for its goal,
+    /// arm and start instead of driving to the scenario's goal at once.
+    pub ros2: Option<crate::config::Ros2Section>,
 }
 
 /// How long a demo driven from ROS 2 waits for its operator, beyond the scenario's time.
@@ -154,15 +154,13 @@ pub async fn run(
     config.operator.view = outputs.view;
     config.operator.foxglove = outputs.foxglove;
     config.operator.socket = outputs.socket;
-    if outputs.ros2 {
-        config.ros2 = Some(crate::config::Ros2Section { enabled: true, ..Default::default() });
-    }
+    config.ros2 = outputs.ros2.clone();
     let rig = config.rig("the demo's rig")?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let (progress_tx, mut progress_rx) = watch::channel(Progress::default());
-    let controls = Controls::new(stop_rx, !outputs.ros2);
+    let controls = Controls::new(stop_rx, outputs.ros2.is_none());
     let gw = tokio::spawn(gateway::shell::run(rig, controls, Some(progress_tx)));
-    let wait = if outputs.ros2 { ROS2_OPERATOR_WAIT } else { Duration::ZERO };
+    let wait = if outputs.ros2.is_some() { ROS2_OPERATOR_WAIT } else { Duration::ZERO };
     let limit = tokio::time::Instant::now() + Duration::from_secs_f64(scenario.time_limit) + wait;
     let mut ticker = tokio::time::interval(Duration::from_millis(500));
     loop {

@@ -157,3 +157,75 @@ fn low_pass_lags_a_ramp_by_its_time_constant() {
     let lag = 19_999.0 * dt - y.re;
     assert!((lag - 1.0 / std::f64::consts::TAU).abs() < 2e-3, "{lag}");
 }
+
+/// A pose is plausible only as far as the wheels could have moved and turned the robot
+/// since the last one. A reflection of the front LED onto the far side of the rear one
+/// keeps their spacing and moves the centre within the jump's reach a few frames on, but
+/// turns the heading about: that is refused, and a true turn at the wheels' limit is not.
+#[test]
+fn a_pose_turned_further_than_the_wheels_can_turn_it_is_refused() {
+    let geometry = LedGeometry { front: 0.035, rear: 0.035 };
+    let mut tracker = Tracker::new(settings(), geometry, &[]);
+    let reach = PoseReach { speed: 0.25, turn_rate: 2.0 * 0.25 / 0.108, tolerance: 0.02 };
+    let (centre, facing) = (Point::new(-0.2, -0.05), Point::from_polar(1.0, 0.18));
+    let (front, rear) = geometry.leds(centre, facing);
+    assert!(tracker.observe_robot(1.0, front, rear));
+    // Twelve frames later (0.2 s): the front LED read 13.3 cm back along x.
+    let t = 1.2;
+    let reflected = front - Point::new(0.133, 0.0);
+    let moved = (geometry.locate(reflected, rear).unwrap().0 - centre).length();
+    assert!(moved < reach.speed * 0.2 + reach.tolerance, "the centre alone is within reach ({moved} m)");
+    match tracker.plausible(t, reflected, rear, reach) {
+        Err(Implausible::Turn { turned, reach }) => assert!(turned > 2.5 && reach < 1.5, "{turned} {reach}"),
+        other => panic!("the reflection was taken: {other:?}"),
+    }
+    // Both wheels at their limit, opposite ways, for 0.2 s: a true turn, taken.
+    let turned = Point::from_polar(1.0, 0.18 + reach.turn_rate * 0.2);
+    let (front, rear) = geometry.leds(centre, turned);
+    assert_eq!(tracker.plausible(t, front, rear, reach), Ok(()));
+}
+
+fn settings() -> TrackingSettings {
+    TrackingSettings {
+        predict_robot: true,
+        wheel_accel: 1.0,
+        predict_obstacles: true,
+        kalman: KalmanConfig::default(),
+        occluded_after: 0.15,
+        max_obstacle_speed: 0.5,
+    }
+}
+
+/// After a stop the pose is forgotten, and the one seen again is checked against the last
+/// plausible one as far as the wheels, at rest since, could have moved it: however long the
+/// stop, a reflection that outlasts it is refused and the true pose taken. A pose refused so
+/// that stands still for SETTLE is taken (the robot carried elsewhere by hand).
+#[test]
+fn a_pose_seen_again_after_a_stop_is_where_the_wheels_left_it() {
+    let geometry = LedGeometry { front: 0.035, rear: 0.035 };
+    let mut tracker = Tracker::new(settings(), geometry, &[]);
+    let reach = PoseReach { speed: 0.25, turn_rate: 2.0 * 0.25 / 0.108, tolerance: 0.02 };
+    let (centre, facing) = (Point::new(-0.2, -0.05), Point::from_polar(1.0, 0.18));
+    let (front, rear) = geometry.leds(centre, facing);
+    tracker.commanded(0.9, 0.1, 0.1);
+    assert!(tracker.observe_robot(1.0, front, rear));
+    tracker.halted(1.0);
+    tracker.forget_pose();
+    let reflected = front - Point::new(0.133, 0.0);
+    for t in [1.5, 2.0, 2.9] {
+        assert!(tracker.plausible(t, reflected, rear, reach).is_err(), "the reflection taken at {t} s");
+    }
+    assert_eq!(tracker.plausible(3.0, front, rear, reach), Ok(()), "the true pose, where the wheels left it");
+    // Carried 30 cm by hand and set down: refused until it has stood still for SETTLE.
+    let carried = geometry.leds(centre + Point::new(0.3, 0.0), facing);
+    assert!(matches!(tracker.plausible(3.1, carried.0, carried.1, reach), Err(Implausible::Jump { .. })));
+    assert!(tracker.plausible(3.1 + SETTLE - 0.1, carried.0, carried.1, reach).is_err());
+    assert_eq!(tracker.plausible(3.1 + SETTLE + 0.02, carried.0, carried.1, reach), Ok(()));
+    // While the wheels drive, the reach grows with the time since the last pose, as before.
+    let mut driving = Tracker::new(settings(), geometry, &[]);
+    assert!(driving.observe_robot(1.0, front, rear));
+    driving.commanded(1.0, 0.25, 0.25);
+    driving.forget_pose();
+    let ahead = geometry.leds(centre + facing * 0.2, facing);
+    assert_eq!(driving.plausible(2.0, ahead.0, ahead.1, reach), Ok(()));
+}

@@ -8,10 +8,11 @@ control socket; sends a reachable goal, calls ~/start, and waits for the gateway
 it. Prints one JSON object with what it saw.
 
 usage: ros2.py FLOWGATE SOCKET GOAL_X GOAL_Y
-       ros2.py --cmd-vel at_obstacle|to_goal GOAL_X GOAL_Y
+       ros2.py --cmd-vel at_obstacle|to_goal|to_goal_stamped GOAL_X GOAL_Y
                           (an outside planner on /cmd_vel, flowgate's planner.method = "ros2":
                           straight at E1's obstacle for 8 s then silent, or steering round it
-                          to the goal; arms and starts over the services, waits for the stop)
+                          to the goal, in Twist or TwistStamped; arms and starts over the
+                          services, waits for the stop)
        ros2.py --bag DIR      (reads a `flowgate record export --ros2` bag with rosbags)
        ros2.py --rviz FILE    (the RViz configuration's fixed frame and topics, as JSON)
 """
@@ -25,7 +26,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 import math
 
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -150,7 +151,8 @@ def drive(mode, gx, gy):
     """An outside planner publishing /cmd_vel at 20 Hz from before the start."""
     rclpy.init()
     peer = Peer()
-    cmd_vel = peer.create_publisher(Twist, "/cmd_vel", 10)
+    stamped = mode.endswith("_stamped")
+    cmd_vel = peer.create_publisher(TwistStamped if stamped else Twist, "/cmd_vel", 10)
     plan = {"started": None, "past": False, "silent": False, "sent": 0}
 
     def command():
@@ -170,6 +172,10 @@ def drive(mode, gx, gy):
                 turn = math.atan2(aim[1] - y, aim[0] - x) - heading
                 turn = math.atan2(math.sin(turn), math.cos(turn))
                 msg.linear.x, msg.angular.z = 0.1 * max(math.cos(turn), 0.0), 3.0 * turn
+        if stamped:
+            msg = TwistStamped(twist=msg)
+            msg.header.stamp = peer.get_clock().now().to_msg()
+            msg.header.frame_id = "base_link"
         cmd_vel.publish(msg)
         plan["sent"] += 1
 

@@ -269,8 +269,7 @@ impl<K: StageClock> Core<K> {
             return;
         };
         let at = clock.to_host(f.at.midpoint(r.at)).secs();
-        let reach = self.rig.control.drive.max_wheel_speed;
-        match self.tracker.plausible(at, fp, rp, reach, self.rig.safety.pose_tolerance) {
+        match self.tracker.plausible(at, fp, rp, self.rig.pose_reach()) {
             Ok(()) => {
                 self.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
                 self.tracker.observe_robot(at, fp, rp);

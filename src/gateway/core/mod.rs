@@ -352,7 +352,7 @@ impl<K: StageClock> Core<K> {
                 self.motors.emergency_stop(reason, &mut self.out.can());
                 self.run.stopping(None);
                 self.tracker.forget_pose();
-                self.tracker.halted(); // the boards stop at once: dead reckoning starts from rest
+                self.tracker.halted(now.secs()); // the boards stop at once: dead reckoning starts from rest
                 self.notice(now, Notice::EmergencyStop { state: self.state() });
             }
         }

@@ -307,7 +307,7 @@ impl StopReason {
             Self::Operator => "operator stop",
             Self::Shutdown => "shutdown signal",
             Self::PoseLost => "robot pose lost",
-            Self::PoseImplausible => "robot pose implausible (LED spacing or jump)",
+            Self::PoseImplausible => "robot pose implausible (LED spacing, jump or turn)",
             Self::PoseDelayed => "robot pose delayed beyond the pose timeout",
             Self::SamplesStopped => "no samples from the PSD controller",
             Self::PsdSequence { handshake: false } => "PSD packets out of sequence beyond budget",
