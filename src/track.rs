@@ -306,14 +306,14 @@ pub struct Tracker {
     measured: [Point; MAX_OBSTACLES],
     /// When the last measured pose was valid, its centre, and its heading as a unit vector.
     pose: Option<(f64, Point, Point)>,
-    /// The last plausible pose, kept when the pose is forgotten at a stop (so a stale one is
-    /// never driven on): the pose seen again is checked against it.
+    /// The last plausible pose, kept when the pose is forgotten at a stop (so that a stale
+    /// one is never driven on): every pose is checked against it.
     reference: Option<(f64, Point, Point)>,
     /// Since when the wheels have been at rest and commanded to stay so (None: they may be
     /// moving).
     still_since: Option<f64>,
-    /// A pose refused against the reference, and where it stood since: taken once it has
-    /// stood still for [`SETTLE`] (the robot carried to a new place by hand).
+    /// A pose refused while the wheels are at rest, and where it stood since: taken once it
+    /// has stood still for [`SETTLE`] (the robot carried to a new place by hand).
     settling: Option<(f64, Point, Point)>,
     dead_reckoning: DeadReckoning,
     estimates: [ObstacleEstimate; MAX_OBSTACLES],
@@ -386,16 +386,17 @@ impl Tracker {
     }
 
     /// Whether the robot's two LEDs at `t_valid` can be its pose: they sit their mounted
-    /// distance apart, and since the last pose the centre moved no further than the robot
-    /// can drive and the heading turned no further than its wheels can turn it, each within
-    /// `reach.tolerance`. A CRC-valid but wrong sample (a reflection, a mixed-up slot) fails
-    /// one of the three.
+    /// distance apart, and since the last plausible pose the centre moved no further than
+    /// the robot can drive and the heading turned no further than its wheels can turn it,
+    /// each within `reach.tolerance`. A CRC-valid but wrong sample (a reflection, a mixed-up
+    /// slot) fails one of the three.
     ///
-    /// After a stop the pose is seen again against the last plausible one, and the wheels
-    /// could move it only while they were not at rest: a reflection that outlasts the stop
-    /// is refused, where against the time since the stop alone it would soon be in reach. A
-    /// pose refused so that stands still for [`SETTLE`] is taken (the robot carried to a new
-    /// place by hand while stopped).
+    /// The wheels move the robot only while they are not at rest: a reflection that comes
+    /// while the robot stands (stopped, faulted, armed) is refused however long it lasts,
+    /// where against the time since the last pose alone it would soon be in reach. The last
+    /// plausible pose is kept when the pose is forgotten at a stop, so the pose seen again is
+    /// checked too. A pose refused while the wheels are at rest that stands still for
+    /// [`SETTLE`] is taken (the robot carried to a new place by hand).
     pub fn plausible(&mut self, t_valid: f64, front: Point, rear: Point, reach: PoseReach) -> Result<(), Implausible> {
         let spacing = (front - rear).length();
         let mounted = self.geometry.front + self.geometry.rear;
@@ -403,21 +404,15 @@ impl Tracker {
         if off.is_nan() || off > reach.tolerance {
             return Err(Implausible::LedSpacing { measured: spacing, mounted });
         }
-        let Some((position, facing)) = self.geometry.locate(front, rear) else { return Ok(()) };
-        let (last, moving) = match (self.pose, self.reference) {
-            (Some(last), _) => (last, (t_valid - last.0).abs()),
-            (None, Some(last)) => {
-                let until = self.still_since.map_or(t_valid, |still| still.min(t_valid));
-                (last, (until - last.0).max(0.0))
-            }
-            (None, None) => return Ok(()),
+        let (Some((position, facing)), Some(last)) = (self.geometry.locate(front, rear), self.reference) else {
+            return Ok(());
+        };
+        let moving = match self.still_since {
+            Some(still) => (still.min(t_valid) - last.0).max(0.0),
+            None => (t_valid - last.0).abs(),
         };
         let check = Self::within(last, position, facing, moving, reach, mounted);
-        if check.is_err()
-            && self.pose.is_none()
-            && self.still_since.is_some()
-            && self.settled(t_valid, position, facing, reach, mounted)
-        {
+        if check.is_err() && self.still_since.is_some() && self.settled(t_valid, position, facing, reach, mounted) {
             return Ok(());
         }
         check

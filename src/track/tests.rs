@@ -93,8 +93,9 @@ fn a_pose_turned_further_than_the_wheels_can_turn_it_is_refused() {
     let reach = PoseReach { speed: 0.25, turn_rate: 2.0 * 0.25 / 0.108, tolerance: 0.02 };
     let (centre, facing) = (Point::new(-0.2, -0.05), Point::from_polar(1.0, 0.18));
     let (front, rear) = geometry.leds(centre, facing);
+    tracker.commanded(0.9, 0.1, 0.1);
     assert!(tracker.observe_robot(1.0, front, rear));
-    // Twelve frames later (0.2 s): the front LED read 13.3 cm back along x.
+    // Driving, twelve frames later (0.2 s): the front LED read 13.3 cm back along x.
     let t = 1.2;
     let reflected = front - Point::new(0.133, 0.0);
     let moved = (geometry.locate(reflected, rear).unwrap().0 - centre).length();
@@ -120,10 +121,10 @@ fn settings() -> TrackingSettings {
     }
 }
 
-/// After a stop the pose is forgotten, and the one seen again is checked against the last
-/// plausible one as far as the wheels, at rest since, could have moved it: however long the
-/// stop, a reflection that outlasts it is refused and the true pose taken. A pose refused so
-/// that stands still for SETTLE is taken (the robot carried elsewhere by hand).
+/// While the wheels are at rest a pose is checked against the last plausible one as far as
+/// the wheels could have moved it before they stopped: however long the robot stands (its
+/// pose forgotten at a stop, or not), a reflection is refused and the true pose taken. A
+/// pose refused so that stands still for SETTLE is taken (the robot carried by hand).
 #[test]
 fn a_pose_seen_again_after_a_stop_is_where_the_wheels_left_it() {
     let geometry = LedGeometry { front: 0.035, rear: 0.035 };
@@ -134,11 +135,12 @@ fn a_pose_seen_again_after_a_stop_is_where_the_wheels_left_it() {
     tracker.commanded(0.9, 0.1, 0.1);
     assert!(tracker.observe_robot(1.0, front, rear));
     tracker.halted(1.0);
-    tracker.forget_pose();
     let reflected = front - Point::new(0.133, 0.0);
     for t in [1.5, 2.0, 2.9] {
         assert!(tracker.plausible(t, reflected, rear, reach).is_err(), "the reflection taken at {t} s");
     }
+    tracker.forget_pose();
+    assert!(tracker.plausible(2.95, reflected, rear, reach).is_err(), "the reflection taken with the pose forgotten");
     assert_eq!(tracker.plausible(3.0, front, rear, reach), Ok(()), "the true pose, where the wheels left it");
     // Carried 30 cm by hand and set down: refused until it has stood still for SETTLE.
     let carried = geometry.leds(centre + Point::new(0.3, 0.0), facing);
