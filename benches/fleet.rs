@@ -35,7 +35,7 @@ fn main() {
         s.sim = base.sim.swap_episode(1, i);
         s.sim.obstacles = crossing
             .iter()
-            .map(|&(start, velocity)| ObstacleSpec { radius: 0.05, start, motion: Motion::Constant { velocity } })
+            .map(|&(start, velocity)| ObstacleSpec::scripted(0.05, start, Motion::Constant { velocity }))
             .collect();
         let mut fleet = Fleet::new(&s.sim);
         let mut control = FleetControl::new(&s, FleetOptions::default());

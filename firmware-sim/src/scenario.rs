@@ -5,7 +5,12 @@
 //! `scenarios/README.md`. Unknown keys are refused, and [`SimScenario::validate`] names the
 //! key of any bad value.
 
+mod crowd;
+pub mod people;
 pub mod vehicles;
+
+pub use crowd::CrowdSpec;
+pub use people::{Behaviour, OnArrival, Walk};
 
 use flowgate_protocol::plane::Point;
 use serde::Deserialize;
@@ -64,34 +69,6 @@ pub struct SimScenario {
     #[serde(skip)]
     pub notes: Vec<String>,
 }
-
-/// The robot and `obstacles` non-reactive obstacles on a circle of `circle_radius` about
-/// the origin, each crossing to the opposite side: the robot from (0, -r) to (0, r), each
-/// obstacle from a random point of the circle to its antipode (both jittered), at
-/// `speed_ratio` of the robot's speed limit, then standing there (or, with `walk_on`,
-/// walking on).
-#[derive(Debug, Clone, Copy, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct CrowdSpec {
-    pub obstacles: usize,
-    pub circle_radius: f64,
-    pub obstacle_radius: f64,
-    pub speed_ratio: f64,
-    /// The largest offset of each start and each goal from the circle, m, either axis.
-    #[serde(default = "default_jitter")]
-    pub jitter: f64,
-    /// The obstacles walk on past their antipodes, another diameter, instead of standing
-    /// there (people crossing a room do not stop on the far side of the robot's way).
-    #[serde(default)]
-    pub walk_on: bool,
-}
-
-fn default_jitter() -> f64 {
-    0.05
-}
-
-/// How many placements a crowd tries before it gives up on one obstacle's place.
-const CROWD_TRIES: usize = 10_000;
 
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -167,6 +144,34 @@ pub struct ObstacleSpec {
     pub start: [f64; 2],
     #[serde(default)]
     pub motion: Motion,
+    /// Along its `motion` (`straight`), or as a person walking to `goal` (or each of
+    /// `goals` in turn) at `preferred_speed`, avoiding the others (`orca`, `social_force`).
+    #[serde(default)]
+    pub behaviour: Behaviour,
+    #[serde(default)]
+    pub goal: Option<[f64; 2]>,
+    #[serde(default)]
+    pub goals: Vec<[f64; 2]>,
+    #[serde(default)]
+    pub preferred_speed: Option<f64>,
+    #[serde(default)]
+    pub on_arrival: OnArrival,
+}
+
+impl ObstacleSpec {
+    /// An obstacle that follows `motion`.
+    pub fn scripted(radius: f64, start: [f64; 2], motion: Motion) -> Self {
+        Self {
+            radius,
+            start,
+            motion,
+            behaviour: Behaviour::Straight,
+            goal: None,
+            goals: Vec::new(),
+            preferred_speed: None,
+            on_arrival: OnArrival::Stop,
+        }
+    }
 }
 
 /// The finest microstepping of a stepper driver, and the most full steps a motor has per
@@ -298,90 +303,6 @@ impl SimScenario {
         Ok(s)
     }
 
-    fn validate_crowd(&self) -> Result<(), (String, String)> {
-        let Some(c) = self.crowd else { return Ok(()) };
-        let bad = |key: &str, why: String| Err((format!("crowd.{key}"), why));
-        if !(1..=MAX_OBSTACLES).contains(&c.obstacles) {
-            return bad("obstacles", format!("must be 1-{MAX_OBSTACLES}, is {}", c.obstacles));
-        }
-        for (key, v) in
-            [("circle_radius", c.circle_radius), ("obstacle_radius", c.obstacle_radius), ("speed_ratio", c.speed_ratio)]
-        {
-            if !(v.is_finite() && v > 0.0) {
-                return bad(key, format!("must be a positive number, is {v}"));
-            }
-        }
-        if !(c.jitter.is_finite() && c.jitter >= 0.0 && c.jitter < c.circle_radius) {
-            return bad("jitter", format!("must be 0 or more, under circle_radius, is {}", c.jitter));
-        }
-        if !self.obstacles.is_empty() {
-            return Err(("obstacles".into(), "a crowd places its own obstacles: leave [[obstacles]] out".into()));
-        }
-        Ok(())
-    }
-
-    /// This scenario with its crowd placed for episode `i` of seed `seed` (reproducibly from
-    /// the two), or as it is without a crowd. A crowd that cannot be placed without overlap
-    /// in `CROWD_TRIES` tries an obstacle is refused, naming the key.
-    pub fn crowd_episode(&self, seed: u64, i: u64) -> Result<SimScenario, (String, String)> {
-        use rand::{Rng, SeedableRng};
-        let Some(c) = self.crowd else { return Ok(self.clone()) };
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ i.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xC20D);
-        let mut s = self.clone();
-        s.obstacles.clear();
-        let r = c.circle_radius;
-        s.robot.start = [0.0, -r];
-        s.robot.heading_deg = 90.0;
-        s.goal.position = [0.0, r];
-        let (start, goal) = (point(s.robot.start), point(s.goal.position));
-        let body = c.obstacle_radius + s.robot.radius + 0.05;
-        let apart = 2.0 * c.obstacle_radius + 0.02;
-        let speed = c.speed_ratio * s.robot.max_speed;
-        let mut placed: Vec<(Point, Point)> = Vec::with_capacity(c.obstacles);
-        for k in 0..c.obstacles {
-            let mut found = None;
-            for _ in 0..CROWD_TRIES {
-                let theta = rng.random_range(0.0..std::f64::consts::TAU);
-                let mut jitter =
-                    || Point::new(rng.random_range(-c.jitter..=c.jitter), rng.random_range(-c.jitter..=c.jitter));
-                let from = Point::from_polar(r, theta) + jitter();
-                let to = -Point::from_polar(r, theta) + jitter();
-                let clear = (from - start).norm() >= body
-                    && (from - goal).norm() >= body
-                    && (to - goal).norm() >= body
-                    && (to - start).norm() >= body
-                    && placed.iter().all(|&(f, t)| (from - f).norm() >= apart && (to - t).norm() >= apart);
-                if clear {
-                    found = Some((from, to));
-                    break;
-                }
-            }
-            let Some((from, to)) = found else {
-                return Err((
-                    "crowd.obstacles".into(),
-                    format!("obstacle {k} finds no place on a circle of {r} m clear of the others"),
-                ));
-            };
-            placed.push((from, to));
-            s.obstacles.push(ObstacleSpec {
-                radius: c.obstacle_radius,
-                start: [from.re, from.im],
-                motion: Motion::Waypoints {
-                    points: if c.walk_on {
-                        let beyond = to + (to - from);
-                        vec![[to.re, to.im], [beyond.re, beyond.im]]
-                    } else {
-                        vec![[to.re, to.im]]
-                    },
-                    speed,
-                    repeat: false,
-                },
-            });
-        }
-        s.sensing.seed = rng.random();
-        Ok(s)
-    }
-
     /// Check every value; on error, the key and why.
     pub fn validate(&self) -> Result<(), (String, String)> {
         self.validate_counts()?;
@@ -425,6 +346,24 @@ impl SimScenario {
             within(&format!("obstacles[{i}].radius"), o.radius, MAX_BODY_M, "m")?;
             finite(&format!("obstacles[{i}].start"), o.start)?;
             validate_motion(&format!("obstacles[{i}].motion"), &o.motion)?;
+            o.validate_walk(&format!("obstacles[{i}]"))?;
+            self.validate_goals_clear(i, o)?;
+        }
+        Ok(())
+    }
+
+    /// A person's goals lie outside the furniture.
+    fn validate_goals_clear(&self, i: usize, o: &ObstacleSpec) -> Refused {
+        let goals = o.goal.iter().map(|g| (format!("obstacles[{i}].goal"), g));
+        let goals = goals.chain(o.goals.iter().enumerate().map(|(k, g)| (format!("obstacles[{i}].goals[{k}]"), g)));
+        for (key, g) in goals {
+            let inside = self.static_obstacles.iter().position(|f| {
+                let outline: Vec<Point> = f.points.iter().map(|&p| point(p)).collect();
+                flowgate_protocol::plane::inside_polygon(point(*g), &outline)
+            });
+            if let Some(k) = inside {
+                return Err((key, format!("{g:?} lies inside static_obstacles[{k}]: a person cannot stand there")));
+            }
         }
         Ok(())
     }
@@ -685,7 +624,7 @@ pub fn point(p: [f64; 2]) -> Point {
 }
 
 /// A check's failure: the key and why.
-type Refused = Result<(), (String, String)>;
+pub(crate) type Refused = Result<(), (String, String)>;
 
 fn positive(key: &str, v: f64) -> Refused {
     if v.is_finite() && v > 0.0 {
@@ -782,6 +721,43 @@ mod tests {
         assert_eq!(s.faults.serial_drop, 0.01);
         assert_eq!(s.faults.board_fault_at, Some(2.5));
         assert_eq!(SimScenario::from_toml(MINIMAL, "t").unwrap().faults, crate::faults::FaultPlan::default());
+    }
+
+    /// A person who walks, and what is refused of one, naming the key.
+    #[test]
+    fn a_person_walks_and_is_refused_naming_the_key() {
+        let obstacle = r#"motion = { kind = "constant", velocity = [-0.05, 0] }"#;
+        let person = |keys: &str| MINIMAL.replace(obstacle, keys);
+        let walker = "behaviour = \"orca\"\n        goal = [-0.5, 0]\n        preferred_speed = 0.05";
+        let s = SimScenario::from_toml(&person(walker), "t").unwrap();
+        let walk = s.obstacles[0].walk().unwrap();
+        assert_eq!(
+            (walk.behaviour, walk.goals, walk.preferred_speed),
+            (Behaviour::Orca, vec![Point::new(-0.5, 0.0)], 0.05)
+        );
+        assert!((s.obstacles[0].top_speed() - 0.05 * people::SPEED_CAP).abs() < 1e-12);
+        let table = "[[static_obstacles]]\npoints = [[-0.6, -0.1], [-0.4, -0.1], [-0.4, 0.1], [-0.6, 0.1]]\n";
+        for (keys, key, why) in [
+            ("goal = [-0.5, 0]", "obstacles[0].goal", "is for a person who walks"),
+            ("behaviour = \"orca\"\n preferred_speed = 0.05", "obstacles[0].goal", "walks to a goal"),
+            ("behaviour = \"orca\"\n goal = [-0.5, 0]", "obstacles[0].preferred_speed", "preferred speed"),
+            ("behaviour = \"orca\"\n goal = [-0.5, 0]\n preferred_speed = -1", "obstacles[0].preferred_speed", "positive"),
+            (
+                "behaviour = \"social_force\"\n goal = [-0.5, 0]\n goals = [[0, 0]]\n preferred_speed = 0.05",
+                "obstacles[0].goals",
+                "not both",
+            ),
+            (
+                "behaviour = \"orca\"\n goal = [-0.5, 0]\n preferred_speed = 0.05\n motion = { kind = \"constant\", velocity = [1, 0] }",
+                "obstacles[0].motion",
+                "leave motion out",
+            ),
+        ] {
+            let err = SimScenario::from_toml(&person(keys), "t").unwrap_err().to_string();
+            assert!(err.contains(&format!("`{key}`")) && err.contains(why), "{keys}: {err}");
+        }
+        let err = SimScenario::from_toml(&format!("{}{table}", person(walker)), "t").unwrap_err().to_string();
+        assert!(err.contains("`obstacles[0].goal`") && err.contains("inside static_obstacles[0]"), "{err}");
     }
 
     #[test]

@@ -11,7 +11,7 @@
 use flowgate_sim::scenario::vehicles::Role;
 use flowgate_sim::scenario::SimScenario;
 use flowgate_sim::world::fleet::Fleet;
-use flowgate_sim::world::{Contact, ObstaclePath, Touched};
+use flowgate_sim::world::{people, Contact, ObstaclePath, Touched};
 use serde::Serialize;
 
 use super::{Outcome, Scenario};
@@ -157,7 +157,7 @@ impl FleetControl {
     pub fn new(s: &Scenario, options: FleetOptions) -> Self {
         let drivers: Vec<Driver> = (0..=s.vehicles.len()).map(|k| driver(s, k)).collect();
         let obstacles: Vec<(ObstaclePath, f64)> =
-            s.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect();
+            people::ways(s).into_iter().zip(&s.obstacles).map(|(p, o)| (p, o.radius)).collect();
         let idle = VehicleView {
             position: Point::default(),
             velocity: Point::default(),

@@ -18,13 +18,10 @@ const COMMAND: &str = "#ff7f0e";
 /// The field at the start of a scenario, as the planner would see it with perfect sensing.
 pub fn start_field(s: &Scenario) -> Option<Field> {
     let config = s.rig().control;
-    let obstacles: Vec<ObstacleEstimate> = s
-        .obstacles
+    let obstacles: Vec<ObstacleEstimate> = flowgate_sim::world::people::ways(s)
         .iter()
-        .map(|o| {
-            let path = flowgate_sim::world::ObstaclePath::new(o);
-            ObstacleEstimate::exact(path.position(0.0), path.velocity(0.0), o.radius)
-        })
+        .zip(&s.obstacles)
+        .map(|(path, o)| ObstacleEstimate::exact(path.position(0.0), path.velocity(0.0), o.radius))
         .collect();
     let input = PlanInput {
         position: s.robot_start(),

@@ -219,14 +219,7 @@ impl Scenario {
 
     /// The fastest any of the scenario's obstacles moves, m/s (0 when none moves).
     fn fastest_obstacle(&self) -> f64 {
-        self.obstacles
-            .iter()
-            .map(|o| match &o.motion {
-                flowgate_sim::scenario::Motion::Stationary => 0.0,
-                flowgate_sim::scenario::Motion::Constant { velocity } => velocity[0].hypot(velocity[1]),
-                flowgate_sim::scenario::Motion::Waypoints { speed, .. } => *speed,
-            })
-            .fold(0.0, f64::max)
+        self.obstacles.iter().map(|o| o.top_speed()).fold(0.0, f64::max)
     }
 
     /// The control period as whole microseconds (the PSD schedule's unit).

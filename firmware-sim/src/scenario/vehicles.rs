@@ -100,7 +100,7 @@ impl VehicleSpec {
 
     /// The script as an obstacle's path (a navigating vehicle's: standing at its start).
     pub fn script(&self, radius: f64) -> ObstacleSpec {
-        ObstacleSpec { radius, start: self.start, motion: self.motion.clone().unwrap_or_default() }
+        ObstacleSpec::scripted(radius, self.start, self.motion.clone().unwrap_or_default())
     }
 
     /// The direction a script first moves in, degrees (`None`: it never moves).

@@ -12,6 +12,7 @@ mod axis;
 pub mod fleet;
 mod judge;
 mod obstacle;
+pub mod people;
 mod robot;
 mod room;
 
@@ -136,7 +137,11 @@ impl World {
             now: Cell::new(None),
             drive,
             robot_radius: r.radius,
-            obstacles: scenario.obstacles.iter().map(|o| (ObstaclePath::new(o), o.radius)).collect(),
+            obstacles: people::ways(scenario)
+                .into_iter()
+                .zip(&scenario.obstacles)
+                .map(|(p, o)| (p, o.radius))
+                .collect(),
             lane_half_width: scenario.lane.map(|l| l.half_width),
             room: Room::new(scenario),
             judge: Judge::new(scenario.obstacles.len()),

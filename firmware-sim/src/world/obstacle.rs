@@ -45,6 +45,12 @@ impl ObstaclePath {
         }
     }
 
+    /// A walked way: from `start`, legs of constant velocity `(start time, start point,
+    /// velocity)` in time order, standing where the last leaves it from `end` on.
+    pub fn walked(start: Point, legs: Vec<(f64, Point, Point)>, end: f64) -> Self {
+        Self { start, legs, end, repeat: false, uniform: None }
+    }
+
     /// When the path ends (infinite for one velocity forever; one lap of a repeating one).
     pub fn end_time(&self) -> f64 {
         self.end
@@ -76,7 +82,10 @@ impl ObstaclePath {
         if t >= self.end {
             return None;
         }
-        self.legs.iter().rev().find(|l| l.0 <= t).map(|&(t0, p0, v)| (t - t0, p0, v))
+        // Legs are in time order: a walked way has thousands.
+        let i = self.legs.partition_point(|l| l.0 <= t).checked_sub(1)?;
+        let (t0, p0, v) = self.legs[i];
+        Some((t - t0, p0, v))
     }
 
     /// Whether the obstacle keeps one velocity from `t0` to `t1` (no turn at a waypoint,
@@ -102,7 +111,7 @@ impl ObstaclePath {
         }
         let from = a.max(0.0);
         let lap = if self.repeat { (from / self.end).floor() * self.end } else { 0.0 };
-        let next = self.legs.iter().map(|l| l.0).find(|&start| lap + start > a).unwrap_or(self.end);
+        let next = self.legs.get(self.legs.partition_point(|l| lap + l.0 <= a)).map_or(self.end, |l| l.0);
         let at = lap + next;
         (at > a && at < b).then_some(at)
     }
@@ -118,7 +127,7 @@ impl ObstaclePath {
         if t >= self.end {
             return self.legs.len();
         }
-        self.legs.iter().rposition(|l| l.0 <= t).unwrap_or(0)
+        self.legs.partition_point(|l| l.0 <= t).saturating_sub(1)
     }
 
     /// `t` within the repeating schedule's lap. Out of line: inlined, the compiler
@@ -158,7 +167,7 @@ mod tests {
     use super::*;
 
     fn spec(motion: Motion) -> ObstacleSpec {
-        ObstacleSpec { radius: 0.1, start: [0.0, 0.0], motion }
+        ObstacleSpec::scripted(0.1, [0.0, 0.0], motion)
     }
 
     #[test]

@@ -36,6 +36,11 @@ impl Room {
         }
     }
 
+    /// Walls (polylines) and static obstacles (polygons) as given.
+    pub fn from_parts(walls: Vec<Vec<Point>>, polygons: Vec<Vec<Point>>) -> Self {
+        Self { walls, polygons }
+    }
+
     pub fn is_empty(&self) -> bool {
         self.walls.is_empty() && self.polygons.is_empty()
     }

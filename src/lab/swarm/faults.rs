@@ -352,11 +352,11 @@ pub fn schedule(base: &Scenario, seed: u64, episode: u64) -> FaultSchedule {
                 let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
                 let speed = rng.random_range(0.03..0.1);
                 let drift = rng.random_range(-0.02..0.02);
-                scenario.sim.obstacles.push(ObstacleSpec {
-                    radius: 0.07,
-                    start: [rng.random_range(-0.3..0.5), 0.95 * side],
-                    motion: Motion::Constant { velocity: [drift, -speed * side] },
-                });
+                scenario.sim.obstacles.push(ObstacleSpec::scripted(
+                    0.07,
+                    [rng.random_range(-0.3..0.5), 0.95 * side],
+                    Motion::Constant { velocity: [drift, -speed * side] },
+                ));
                 (a, Some(3 + obstacles))
             }
 

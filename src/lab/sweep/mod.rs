@@ -140,6 +140,9 @@ pub fn perturb(base: &Scenario, seed: u64, i: u64) -> Scenario {
             }
             Motion::Waypoints { speed, .. } => *speed *= scale,
         }
+        if let Some(speed) = &mut o.preferred_speed {
+            *speed *= scale;
+        }
     }
     s.robot.start[0] += rng.random_range(-0.03..0.03);
     s.robot.start[1] += rng.random_range(-0.03..0.03);
@@ -153,14 +156,7 @@ pub fn perturb(base: &Scenario, seed: u64, i: u64) -> Scenario {
 }
 
 fn fastest_obstacle(s: &Scenario) -> f64 {
-    s.obstacles
-        .iter()
-        .map(|o| match &o.motion {
-            Motion::Stationary => 0.0,
-            Motion::Constant { velocity } => velocity[0].hypot(velocity[1]),
-            Motion::Waypoints { speed, .. } => *speed,
-        })
-        .fold(0.0, f64::max)
+    s.obstacles.iter().map(|o| o.top_speed()).fold(0.0, f64::max)
 }
 
 /// Run `n` episodes around `base` on `threads` threads.

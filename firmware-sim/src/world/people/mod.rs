@@ -1,0 +1,399 @@
+//! People who walk: obstacles whose way is not scripted but walked, each to its goals,
+//! avoiding the others, the walls and the furniture, by optimal reciprocal collision
+//! avoidance ([`orca`]) or by social forces ([`social_force`]).
+//!
+//! The robot is invisible to them (CrowdNav's setting), so what they do does not depend on
+//! it: their ways are walked once, when the world is made, in steps of [`STEP`], into the
+//! timed legs of constant velocity a scripted obstacle has ([`ObstaclePath::walked`]). The
+//! camera, the judge and the truth downstream are those of any obstacle, exact between the
+//! steps. Deterministic: the same scenario (and seed, for new goals) walks the same ways.
+
+pub mod orca;
+mod social_force;
+
+use rand::{Rng, SeedableRng};
+use std::f64::consts::TAU;
+
+use super::{ObstaclePath, Room};
+use crate::scenario::people::SPEED_CAP;
+use crate::scenario::{Behaviour, ObstacleSpec, OnArrival, SimScenario, Walk};
+use crate::Point;
+use flowgate_protocol::plane::nearest_on_segment;
+use flowgate_protocol::plane::polygon_edges;
+
+/// The people's time step, s: a twentieth of a second, five times finer than CrowdNav's
+/// 0.25 s at its speeds (a step is a fifth of a body at the rig's fastest people).
+pub const STEP: f64 = 0.05;
+/// How far ahead ORCA keeps people apart, in the time a person takes to walk this many of
+/// their own radii: CrowdNav's 5 s at 1 m/s and 0.3 m radius.
+pub const HORIZON_RADII: f64 = 5.0 / 0.3;
+/// How long beyond the scenario's time limit people's ways are walked, s (a fault swarm's
+/// episode runs on past it while the operator restarts the robot).
+const WALK_BEYOND: f64 = 30.0;
+/// How many rounds people's velocities are corrected to keep them apart before a pair
+/// still closing stands.
+const KEEP_APART_ROUNDS: usize = 8;
+/// How far aside a person held back by someone coming steps, rad (to the right).
+const KEEP_RIGHT: f64 = 0.5;
+/// Held back: its velocity this far from the one it prefers, as a share of its speed.
+const BLOCKED: f64 = 0.05;
+/// Walking, not standing: faster than this share of its preferred speed.
+const WALKING: f64 = 0.25;
+/// How far a person's preferred velocity sways from step to step, as a share of its speed.
+const PERTURBATION: f64 = 3e-2;
+/// The nearest neighbours each person avoids.
+const MAX_NEIGHBOURS: usize = 10;
+
+/// One person walking.
+#[derive(Debug, Clone)]
+struct Walker {
+    obstacle: usize,
+    walk: Walk,
+    radius: f64,
+    position: Point,
+    velocity: Point,
+    /// Which of `walk.goals` it walks to now.
+    next: usize,
+    legs: Vec<(f64, Point, Point)>,
+    /// Draws new goals (`on_arrival = "new_goal"`).
+    rng: rand_chacha::ChaCha8Rng,
+}
+
+impl Walker {
+    fn goal(&self) -> Point {
+        self.walk.goals[self.next.min(self.walk.goals.len() - 1)]
+    }
+
+    /// The velocity it would walk at alone: to its goal at its preferred speed, slowing so as
+    /// to stop on it. Arrived (within its radius, as CrowdNav counts it), on to the next
+    /// goal, a new one, or standing.
+    fn preferred(&mut self, area: &Area, room: &Room) -> Point {
+        if (self.goal() - self.position).norm() < self.radius {
+            if self.next + 1 < self.walk.goals.len() {
+                self.next += 1;
+            } else if self.walk.on_arrival == OnArrival::NewGoal {
+                let goal = area.draw(&mut self.rng, self.radius, room);
+                self.walk.goals.push(goal);
+                self.next = self.walk.goals.len() - 1;
+            }
+        }
+        let to = self.goal() - self.position;
+        let d = to.norm();
+        if d < 1e-9 {
+            return Point::default();
+        }
+        // A little sway, as people have: perfect symmetry (a ring of people all bound for
+        // its centre) would otherwise hold every one where it stands.
+        let sway = Point::from_polar(PERTURBATION * self.walk.preferred_speed, self.rng.random_range(0.0..TAU));
+        to / d * self.walk.preferred_speed.min(d / STEP) + sway
+    }
+
+    fn top_speed(&self) -> f64 {
+        self.walk.preferred_speed * SPEED_CAP
+    }
+}
+
+/// Where new goals are drawn: the box every person's start and goals span.
+#[derive(Debug, Clone, Copy)]
+struct Area {
+    min: Point,
+    max: Point,
+}
+
+impl Area {
+    /// A point of the area clear of the furniture and the walls by `radius` (the area's
+    /// centre when a thousand draws find none).
+    fn draw(&self, rng: &mut rand_chacha::ChaCha8Rng, radius: f64, room: &Room) -> Point {
+        for _ in 0..1000 {
+            let p =
+                Point::new(rng.random_range(self.min.re..=self.max.re), rng.random_range(self.min.im..=self.max.im));
+            if room.gap(p, radius).is_none_or(|g| g.gap > 0.0) {
+                return p;
+            }
+        }
+        (self.min + self.max) * 0.5
+    }
+}
+
+/// Each obstacle's way in `scenario`: walked for people, as scripted for the others.
+pub fn ways(scenario: &SimScenario) -> Vec<ObstaclePath> {
+    let room = Room::new(scenario);
+    let mut crowd = Crowd::new(&scenario.obstacles, room, scenario.sensing.seed);
+    if crowd.walkers.is_empty() {
+        return crowd.paths;
+    }
+    while crowd.time() < scenario.time_limit + WALK_BEYOND {
+        crowd.step();
+    }
+    crowd.into_ways()
+}
+
+/// People walking among scripted obstacles, in a room, one [`STEP`] at a time.
+#[derive(Debug, Clone)]
+pub struct Crowd {
+    /// Every obstacle's way: the scripted ones' as they are, the people's filled in by
+    /// [`Crowd::into_ways`].
+    paths: Vec<ObstaclePath>,
+    walkers: Vec<Walker>,
+    /// The scripted obstacles (index, radius).
+    scripted: Vec<(usize, f64)>,
+    room: Room,
+    area: Area,
+    steps: u64,
+    others: Vec<Other>,
+    velocities: Vec<Point>,
+    scratch: Scratch,
+}
+
+impl Crowd {
+    /// `obstacles` at time 0 in `room`; `seed` draws new goals.
+    pub fn new(obstacles: &[ObstacleSpec], room: Room, seed: u64) -> Self {
+        let paths = obstacles.iter().map(ObstaclePath::new).collect();
+        let walkers: Vec<Walker> = obstacles
+            .iter()
+            .enumerate()
+            .filter_map(|(k, o)| {
+                let walk = o.walk()?;
+                let seed = seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x9E09;
+                Some(Walker {
+                    obstacle: k,
+                    walk,
+                    radius: o.radius,
+                    position: crate::scenario::point(o.start),
+                    velocity: Point::default(),
+                    next: 0,
+                    legs: Vec::new(),
+                    rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+                })
+            })
+            .collect();
+        let scripted =
+            obstacles.iter().enumerate().filter(|(_, o)| !o.behaviour.walks()).map(|(k, o)| (k, o.radius)).collect();
+        let area = area(&walkers);
+        Self {
+            paths,
+            walkers,
+            scripted,
+            room,
+            area,
+            steps: 0,
+            others: Vec::new(),
+            velocities: Vec::new(),
+            scratch: Scratch::default(),
+        }
+    }
+
+    /// How far the people have walked, s.
+    pub fn time(&self) -> f64 {
+        self.steps as f64 * STEP
+    }
+
+    /// Each person's position now, in the order of the obstacles.
+    pub fn positions(&self) -> impl Iterator<Item = Point> + '_ {
+        self.walkers.iter().map(|w| w.position)
+    }
+
+    /// Every person walks one step, on what each saw of the others at its start.
+    pub fn step(&mut self) {
+        let t = self.time();
+        self.others.clear();
+        for &(k, radius) in &self.scripted {
+            let path = &self.paths[k];
+            self.others.push(Other { position: path.position(t), velocity: path.velocity(t), radius });
+        }
+        self.velocities.clear();
+        for i in 0..self.walkers.len() {
+            let v = velocity(&mut self.walkers, i, &self.others, &self.room, &self.area, &mut self.scratch);
+            self.velocities.push(v);
+        }
+        self.keep_apart();
+        for (w, &v) in self.walkers.iter_mut().zip(&self.velocities) {
+            w.velocity = v;
+            if w.legs.last().is_none_or(|&(_, _, last)| last != v) {
+                w.legs.push((t, w.position, v));
+            }
+            w.position += v * STEP;
+        }
+        self.steps += 1;
+    }
+
+    /// No two people come closer than their bodies within the step: ORCA keeps them apart
+    /// only where its program is feasible (in a dense jam it only violates the least), and
+    /// social forces never promise to. A pair closing faster than its gap allows has the
+    /// excess taken off their velocities along the line between them, half each (they may
+    /// still slide past each other), each kept within its speed cap; a pair still closing
+    /// after a few rounds stands for the step.
+    fn keep_apart(&mut self) {
+        let (walkers, v) = (&self.walkers, &mut self.velocities);
+        // Holding one pair may leave another closing on it: round until none is (each
+        // round past the last correcting one stops at least one person, so this ends).
+        for round in 0.. {
+            let mut closing = false;
+            for i in 0..walkers.len() {
+                for j in i + 1..walkers.len() {
+                    let (a, b) = (&walkers[i], &walkers[j]);
+                    let Some(excess) = excess_closing(a.position, b.position, v[i] - v[j], a.radius + b.radius) else {
+                        continue;
+                    };
+                    closing = true;
+                    let n = (b.position - a.position) / (b.position - a.position).norm();
+                    if round >= KEEP_APART_ROUNDS {
+                        (v[i], v[j]) = (Point::default(), Point::default());
+                    } else {
+                        v[i] -= n * (excess / 2.0);
+                        v[j] += n * (excess / 2.0);
+                        v[i] = capped(v[i], a.top_speed());
+                        v[j] = capped(v[j], b.top_speed());
+                    }
+                }
+            }
+            if !closing {
+                return;
+            }
+        }
+    }
+
+    /// Every obstacle's way: the people's as walked so far, standing where they got to.
+    pub fn into_ways(mut self) -> Vec<ObstaclePath> {
+        let end = self.time();
+        for w in self.walkers {
+            let start = w.legs.first().map_or(w.position, |l| l.1);
+            self.paths[w.obstacle] = ObstaclePath::walked(start, w.legs, end);
+        }
+        self.paths
+    }
+}
+
+/// How much faster than their gap allows two bodies `reach` apart (centre to centre) at
+/// the least close along the line between them within a step, at relative velocity `dv`
+/// (the first's less the second's); `None` when they do not. Closing no faster than the gap
+/// over the step keeps them apart all through it: the gap along that line bounds the
+/// distance from below, and it is linear in time.
+fn excess_closing(a: Point, b: Point, dv: Point, reach: f64) -> Option<f64> {
+    let dp = b - a;
+    let d = dp.norm();
+    if d > reach + dv.norm() * STEP || d == 0.0 {
+        return None;
+    }
+    let closing = (dv.re * dp.re + dv.im * dp.im) / d;
+    let allowed = ((d - reach) / STEP).max(0.0);
+    (closing > allowed + 1e-12).then_some(closing - allowed)
+}
+
+fn dot(a: Point, b: Point) -> f64 {
+    a.re * b.re + a.im * b.im
+}
+
+fn capped(v: Point, cap: f64) -> Point {
+    let s = v.norm();
+    if s > cap {
+        v * (cap / s)
+    } else {
+        v
+    }
+}
+
+fn area(walkers: &[Walker]) -> Area {
+    let points = walkers.iter().flat_map(|w| std::iter::once(w.position).chain(w.walk.goals.iter().copied()));
+    let (mut min, mut max) =
+        (Point::new(f64::INFINITY, f64::INFINITY), Point::new(f64::NEG_INFINITY, f64::NEG_INFINITY));
+    for p in points {
+        min = Point::new(min.re.min(p.re), min.im.min(p.im));
+        max = Point::new(max.re.max(p.re), max.im.max(p.im));
+    }
+    Area { min, max }
+}
+
+/// A scripted obstacle as people see it this step.
+#[derive(Debug, Clone, Copy)]
+struct Other {
+    position: Point,
+    velocity: Point,
+    radius: f64,
+}
+
+/// What one person's step reuses.
+#[derive(Debug, Clone, Default)]
+struct Scratch {
+    lines: Vec<orca::OrcaLine>,
+    projected: Vec<orca::OrcaLine>,
+    near: Vec<(f64, usize)>,
+}
+
+/// Walker `i`'s velocity for the next step, from the others as they are now.
+fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, area: &Area, s: &mut Scratch) -> Point {
+    let preferred = walkers[i].preferred(area, room);
+    let me = &walkers[i];
+    let body = orca::Body { position: me.position, velocity: me.velocity, radius: me.radius };
+    let horizon = HORIZON_RADII * me.radius / me.walk.preferred_speed;
+    // The nearest neighbours within what the horizon can bring together.
+    let reach = |radius: f64, speed: f64| me.radius + radius + (me.top_speed() + speed) * horizon;
+    s.near.clear();
+    for (j, w) in walkers.iter().enumerate() {
+        let d = (w.position - me.position).norm();
+        if j != i && d < reach(w.radius, w.top_speed()) {
+            s.near.push((d, j));
+        }
+    }
+    for (j, o) in others.iter().enumerate() {
+        let d = (o.position - me.position).norm();
+        if d < reach(o.radius, o.velocity.norm()) {
+            s.near.push((d, walkers.len() + j));
+        }
+    }
+    s.near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    s.near.truncate(MAX_NEIGHBOURS);
+    let neighbour = |j: usize| -> (orca::Body, bool) {
+        match walkers.get(j) {
+            Some(w) => (orca::Body { position: w.position, velocity: w.velocity, radius: w.radius }, true),
+            None => {
+                let o = others[j - walkers.len()];
+                (orca::Body { position: o.position, velocity: o.velocity, radius: o.radius }, false)
+            }
+        }
+    };
+    let walls = wall_points(room, me.position, me.radius + me.top_speed() * horizon);
+    match me.walk.behaviour {
+        Behaviour::Orca | Behaviour::Straight => {
+            s.lines.clear();
+            for nearest in walls {
+                s.lines.extend(orca::line_off_wall(me.position, me.radius, nearest, horizon, STEP));
+            }
+            let hard = s.lines.len();
+            for &(_, j) in &s.near {
+                let (other, avoids) = neighbour(j);
+                let share = if avoids { 0.5 } else { 1.0 };
+                s.lines.push(orca::line_to(body, other, share, horizon, STEP));
+            }
+            let v = orca::solve(&s.lines, hard, me.top_speed(), preferred, &mut s.projected);
+            // Held back by someone walking towards it, a person steps to the right, as
+            // everyone does, so that two meeting pass and a crowd bound for one place turns
+            // about it rather than jams. (Not by people standing: along a row of them, a step
+            // to the right may be into the row.)
+            let oncoming = s.near.iter().any(|&(_, j)| {
+                let (other, _) = neighbour(j);
+                other.velocity.norm() > WALKING * me.walk.preferred_speed
+                    && dot(other.position - me.position, other.velocity - me.velocity) < 0.0
+            });
+            if !oncoming || (v - preferred).norm() <= BLOCKED * me.walk.preferred_speed {
+                return v;
+            }
+            let right = preferred * Point::from_polar(1.0, -KEEP_RIGHT);
+            orca::solve(&s.lines, hard, me.top_speed(), right, &mut s.projected)
+        }
+        Behaviour::SocialForce => {
+            let near = s.near.iter().map(|&(_, j)| neighbour(j).0);
+            social_force::velocity(body, preferred, me.walk.preferred_speed, me.top_speed(), near, walls, STEP)
+        }
+    }
+}
+
+/// The nearest point of each wall segment and furniture edge within `range` of `centre`.
+fn wall_points(room: &Room, centre: Point, range: f64) -> impl Iterator<Item = Point> + '_ {
+    let walls = room.walls().iter().flat_map(|w| w.windows(2).map(|s| (s[0], s[1])));
+    let edges = room.polygons().iter().flat_map(|p| polygon_edges(p));
+    walls.chain(edges).map(move |(a, b)| nearest_on_segment(centre, a, b)).filter(move |p| (p - centre).norm() < range)
+}
+
+#[cfg(test)]
+mod tests;

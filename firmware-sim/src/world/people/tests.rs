@@ -1,0 +1,136 @@
+use super::*;
+use crate::scenario::Motion;
+
+fn person(behaviour: Behaviour, start: Point, goal: Point, radius: f64, speed: f64) -> ObstacleSpec {
+    ObstacleSpec {
+        behaviour,
+        goal: Some([goal.re, goal.im]),
+        preferred_speed: Some(speed),
+        ..ObstacleSpec::scripted(radius, [start.re, start.im], Motion::Stationary)
+    }
+}
+
+/// The smallest gap between two people walking their ways from `t0` to `t1`: each leg is
+/// one velocity, so the gap's least is found in closed form between the legs' changes.
+fn least_gap(a: &ObstaclePath, b: &ObstaclePath, ra: f64, rb: f64, end: f64) -> f64 {
+    let mut least = f64::INFINITY;
+    let mut t = 0.0;
+    while t < end {
+        let next = [a.change_between(t, end), b.change_between(t, end)].into_iter().flatten().fold(end, f64::min);
+        let (dp, dv) = (b.position(t) - a.position(t), b.velocity(t) - a.velocity(t));
+        let s = if dv.norm_sqr() > 0.0 {
+            (-(dp.re * dv.re + dp.im * dv.im) / dv.norm_sqr()).clamp(0.0, next - t)
+        } else {
+            0.0
+        };
+        least = least.min((dp + dv * s).norm() - ra - rb);
+        t = next;
+    }
+    least
+}
+
+/// ORCA's own circle test: 100 people on a circle of 50 body radii, each to its antipode.
+/// All arrive within twice the straight-line time, and no two ever overlap (three seeds of
+/// the people's sway; `--nocapture` prints each).
+#[test]
+fn orca_people_pass_the_circle_test() {
+    for seed in 1..=3 {
+        let (last, straight, least) = circle_test(seed);
+        println!(
+            "circle test, seed {seed}: all 100 arrived by {last:.1} s ({:.2} times the straight line), \
+             least gap {:.1} mm",
+            last / straight,
+            least * 1e3
+        );
+        assert!(last < 2.0 * straight, "seed {seed}: {last} s against {straight} s straight");
+        assert!(least >= -1e-9, "seed {seed}: two people overlapped by {} mm", -least * 1e3);
+    }
+}
+
+/// The circle test at `seed`: when the last person arrived, the straight-line time, and
+/// the least gap between any two people all through.
+fn circle_test(seed: u64) -> (f64, f64, f64) {
+    let (n, r, speed) = (100, 0.07, 0.06);
+    let radius = 50.0 * r;
+    let people: Vec<ObstacleSpec> = (0..n)
+        .map(|k| {
+            let at = Point::from_polar(radius, std::f64::consts::TAU * f64::from(k) / f64::from(n));
+            person(Behaviour::Orca, at, -at, r, speed)
+        })
+        .collect();
+    let straight = 2.0 * radius / speed;
+    let mut crowd = Crowd::new(&people, Room::default(), seed);
+    let mut arrived = vec![None; people.len()];
+    while crowd.time() < 2.0 * straight && arrived.iter().any(Option::is_none) {
+        crowd.step();
+        let t = crowd.time();
+        for ((p, spec), seen) in crowd.positions().zip(&people).zip(&mut arrived) {
+            if seen.is_none() && (p - crate::scenario::point(spec.goal.unwrap())).norm() < r {
+                *seen = Some(t);
+            }
+        }
+    }
+    let last = arrived.iter().map(|a| a.unwrap_or(f64::INFINITY)).fold(0.0, f64::max);
+    let end = crowd.time();
+    let ways = crowd.into_ways();
+    let mut least = f64::INFINITY;
+    for i in 0..ways.len() {
+        for j in i + 1..ways.len() {
+            least = least.min(least_gap(&ways[i], &ways[j], r, r, end));
+        }
+    }
+    (last, straight, least)
+}
+
+/// Two people head on in a hallway, both ways: neither walks through the other or the
+/// walls, and both arrive; by social forces likewise.
+#[test]
+fn people_pass_each_other_in_a_hallway() {
+    for behaviour in [Behaviour::Orca, Behaviour::SocialForce] {
+        let (r, speed) = (0.07, 0.06);
+        let a = person(behaviour, Point::new(-0.6, 0.01), Point::new(0.6, 0.01), r, speed);
+        let b = person(behaviour, Point::new(0.6, -0.01), Point::new(-0.6, -0.01), r, speed);
+        let walls = |y: f64| vec![Point::new(-1.0, y), Point::new(1.0, y)];
+        let room = Room::from_parts(vec![walls(0.25), walls(-0.25)], Vec::new());
+        let mut crowd = Crowd::new(&[a.clone(), b.clone()], room.clone(), 1);
+        while crowd.time() < 60.0 {
+            crowd.step();
+        }
+        let ends: Vec<Point> = crowd.positions().collect();
+        let end = crowd.time();
+        let ways = crowd.into_ways();
+        assert!(least_gap(&ways[0], &ways[1], r, r, end) > -1e-9, "{behaviour:?}: they overlapped");
+        assert!((ends[0] - Point::new(0.6, 0.01)).norm() < r, "{behaviour:?}: {}", ends[0]);
+        assert!((ends[1] - Point::new(-0.6, -0.01)).norm() < r, "{behaviour:?}: {}", ends[1]);
+        for w in &ways {
+            for k in 0..1200 {
+                let p = w.position(f64::from(k) * 0.05);
+                assert!(room.gap(p, r).is_some_and(|g| g.gap > -1e-3), "{behaviour:?}: into a wall at {p}");
+            }
+        }
+    }
+}
+
+/// Straight walkers are avoided, not avoiding: a person crossing a scripted obstacle's way
+/// takes the whole change, and the way is the same on every run.
+#[test]
+fn a_person_avoids_a_scripted_obstacle_and_walks_the_same_way_each_time() {
+    let (r, speed) = (0.07, 0.06);
+    let crossing = ObstacleSpec::scripted(r, [0.0, -0.6], Motion::Constant { velocity: [0.0, 0.06] });
+    let walker = person(Behaviour::Orca, Point::new(-0.6, 0.0), Point::new(0.6, 0.0), r, speed);
+    let walk = || {
+        let mut crowd = Crowd::new(&[crossing.clone(), walker.clone()], Room::default(), 7);
+        while crowd.time() < 40.0 {
+            crowd.step();
+        }
+        let end = crowd.time();
+        (crowd.into_ways(), end)
+    };
+    let (ways, end) = walk();
+    assert!(least_gap(&ways[0], &ways[1], r, r, end) > -1e-9);
+    let (again, _) = walk();
+    for k in 0..800 {
+        let t = f64::from(k) * 0.05;
+        assert_eq!(ways[1].position(t), again[1].position(t));
+    }
+}
