@@ -2,9 +2,10 @@
 
 use crate::scenario::{point, Motion, ObstacleSpec};
 use crate::Point;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// An obstacle's path: a start and legs of constant velocity.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct ObstaclePath {
     start: Point,
     /// Legs as (start time, start point, velocity); after the last leg the obstacle rests
@@ -15,19 +16,58 @@ pub struct ObstaclePath {
     /// `Some((start, velocity))` for one velocity forever: the position in closed form,
     /// as the world asks it every step.
     uniform: Option<(Point, Point)>,
+    /// The fastest of the legs, m/s (the world asks it every step; a walked way has
+    /// thousands of legs).
+    top: f64,
+    /// Where the last lookup found its leg: the world asks about moments close together,
+    /// so the next is most often the same leg or the one after.
+    hint: AtomicUsize,
+}
+
+impl Clone for ObstaclePath {
+    fn clone(&self) -> Self {
+        Self {
+            start: self.start,
+            legs: self.legs.clone(),
+            end: self.end,
+            repeat: self.repeat,
+            uniform: self.uniform,
+            top: self.top,
+            hint: AtomicUsize::new(self.hint.load(Ordering::Relaxed)),
+        }
+    }
 }
 
 impl ObstaclePath {
     pub fn new(spec: &ObstacleSpec) -> Self {
+        Self::scripted(spec).with_top_speed()
+    }
+
+    fn with_top_speed(mut self) -> Self {
+        self.top = self.legs.iter().map(|l| l.2.norm()).fold(0.0, f64::max);
+        self
+    }
+
+    fn scripted(spec: &ObstacleSpec) -> Self {
         let start = point(spec.start);
         match &spec.motion {
-            Motion::Stationary => Self { start, legs: Vec::new(), end: 0.0, repeat: false, uniform: None },
+            Motion::Stationary => Self {
+                start,
+                legs: Vec::new(),
+                end: 0.0,
+                repeat: false,
+                uniform: None,
+                top: 0.0,
+                hint: AtomicUsize::new(0),
+            },
             Motion::Constant { velocity } => Self {
                 start,
                 legs: vec![(0.0, start, point(*velocity))],
                 end: f64::INFINITY,
                 repeat: false,
                 uniform: Some((start, point(*velocity))),
+                top: 0.0,
+                hint: AtomicUsize::new(0),
             },
             Motion::Waypoints { points, speed, repeat } => {
                 let mut legs = Vec::new();
@@ -40,7 +80,15 @@ impl ObstaclePath {
                     }
                     from = p;
                 }
-                Self { start, legs, end: t, repeat: *repeat && t > 0.0, uniform: None }
+                Self {
+                    start,
+                    legs,
+                    end: t,
+                    repeat: *repeat && t > 0.0,
+                    uniform: None,
+                    top: 0.0,
+                    hint: AtomicUsize::new(0),
+                }
             }
         }
     }
@@ -48,7 +96,7 @@ impl ObstaclePath {
     /// A walked way: from `start`, legs of constant velocity `(start time, start point,
     /// velocity)` in time order, standing where the last leaves it from `end` on.
     pub fn walked(start: Point, legs: Vec<(f64, Point, Point)>, end: f64) -> Self {
-        Self { start, legs, end, repeat: false, uniform: None }
+        Self { start, legs, end, repeat: false, uniform: None, top: 0.0, hint: AtomicUsize::new(0) }.with_top_speed()
     }
 
     /// When the path ends (infinite for one velocity forever; one lap of a repeating one).
@@ -82,8 +130,7 @@ impl ObstaclePath {
         if t >= self.end {
             return None;
         }
-        // Legs are in time order: a walked way has thousands.
-        let i = self.legs.partition_point(|l| l.0 <= t).checked_sub(1)?;
+        let i = self.legs_begun(t).checked_sub(1)?;
         let (t0, p0, v) = self.legs[i];
         Some((t - t0, p0, v))
     }
@@ -118,7 +165,7 @@ impl ObstaclePath {
 
     /// The fastest the obstacle ever moves, m/s.
     pub fn top_speed(&self) -> f64 {
-        self.legs.iter().map(|l| l.2.norm()).fold(0.0, f64::max)
+        self.top
     }
 
     fn leg_index(&self, t: f64) -> usize {
@@ -127,7 +174,24 @@ impl ObstaclePath {
         if t >= self.end {
             return self.legs.len();
         }
-        self.legs.partition_point(|l| l.0 <= t).saturating_sub(1)
+        self.legs_begun(t).saturating_sub(1)
+    }
+
+    /// How many legs have begun by `t` (within a lap). Legs are in time order, and a walked
+    /// way has thousands: the last answer's leg and the next are tried before a search.
+    fn legs_begun(&self, t: f64) -> usize {
+        let begun = |n: usize| n == 0 || self.legs[n - 1].0 <= t;
+        let not_yet = |n: usize| n == self.legs.len() || self.legs[n].0 > t;
+        let hint = self.hint.load(Ordering::Relaxed);
+        let n = if hint <= self.legs.len() && begun(hint) && not_yet(hint) {
+            hint
+        } else if hint < self.legs.len() && begun(hint + 1) && not_yet(hint + 1) {
+            hint + 1
+        } else {
+            self.legs.partition_point(|l| l.0 <= t)
+        };
+        self.hint.store(n, Ordering::Relaxed);
+        n
     }
 
     /// `t` within the repeating schedule's lap. Out of line: inlined, the compiler

@@ -68,7 +68,7 @@ impl Walker {
     /// to stop on it. Arrived (within its radius, as CrowdNav counts it), on to the next
     /// goal, a new one, or standing.
     fn preferred(&mut self, area: &Area, room: &Room) -> Point {
-        if (self.goal() - self.position).norm() < self.radius {
+        if (self.goal() - self.position).norm_sqr() < self.radius * self.radius {
             if self.next + 1 < self.walk.goals.len() {
                 self.next += 1;
             } else if self.walk.on_arrival == OnArrival::NewGoal {
@@ -78,7 +78,7 @@ impl Walker {
             }
         }
         let to = self.goal() - self.position;
-        let d = to.norm();
+        let d = length(to);
         if d < 1e-9 {
             return Point::default();
         }
@@ -224,27 +224,35 @@ impl Crowd {
     /// still slide past each other), each kept within its speed cap; a pair still closing
     /// after a few rounds stands for the step.
     fn keep_apart(&mut self) {
-        let (walkers, v) = (&self.walkers, &mut self.velocities);
+        let (walkers, v, pairs) = (&self.walkers, &mut self.velocities, &mut self.scratch.pairs);
+        // The pairs that could meet within the step at their top speeds.
+        pairs.clear();
+        for (i, a) in walkers.iter().enumerate() {
+            for (j, b) in walkers.iter().enumerate().skip(i + 1) {
+                let reach = a.radius + b.radius + (a.top_speed() + b.top_speed()) * STEP;
+                if (b.position - a.position).norm_sqr() < reach * reach {
+                    pairs.push((i, j));
+                }
+            }
+        }
         // Holding one pair may leave another closing on it: round until none is (each
         // round past the last correcting one stops at least one person, so this ends).
         for round in 0.. {
             let mut closing = false;
-            for i in 0..walkers.len() {
-                for j in i + 1..walkers.len() {
-                    let (a, b) = (&walkers[i], &walkers[j]);
-                    let Some(excess) = excess_closing(a.position, b.position, v[i] - v[j], a.radius + b.radius) else {
-                        continue;
-                    };
-                    closing = true;
-                    let n = (b.position - a.position) / (b.position - a.position).norm();
-                    if round >= KEEP_APART_ROUNDS {
-                        (v[i], v[j]) = (Point::default(), Point::default());
-                    } else {
-                        v[i] -= n * (excess / 2.0);
-                        v[j] += n * (excess / 2.0);
-                        v[i] = capped(v[i], a.top_speed());
-                        v[j] = capped(v[j], b.top_speed());
-                    }
+            for &(i, j) in pairs.iter() {
+                let (a, b) = (&walkers[i], &walkers[j]);
+                let Some(excess) = excess_closing(a.position, b.position, v[i] - v[j], a.radius + b.radius) else {
+                    continue;
+                };
+                closing = true;
+                let n = (b.position - a.position) / length(b.position - a.position);
+                if round >= KEEP_APART_ROUNDS {
+                    (v[i], v[j]) = (Point::default(), Point::default());
+                } else {
+                    v[i] -= n * (excess / 2.0);
+                    v[j] += n * (excess / 2.0);
+                    v[i] = capped(v[i], a.top_speed());
+                    v[j] = capped(v[j], b.top_speed());
                 }
             }
             if !closing {
@@ -271,8 +279,8 @@ impl Crowd {
 /// distance from below, and it is linear in time.
 fn excess_closing(a: Point, b: Point, dv: Point, reach: f64) -> Option<f64> {
     let dp = b - a;
-    let d = dp.norm();
-    if d > reach + dv.norm() * STEP || d == 0.0 {
+    let d = length(dp);
+    if d == 0.0 {
         return None;
     }
     let closing = (dv.re * dp.re + dv.im * dp.im) / d;
@@ -280,12 +288,18 @@ fn excess_closing(a: Point, b: Point, dv: Point, reach: f64) -> Option<f64> {
     (closing > allowed + 1e-12).then_some(closing - allowed)
 }
 
+/// A vector's length: the square root of the squares (`norm` calls `hypot`, which guards
+/// against overflows no floor distance comes near, at several times the cost).
+pub(super) fn length(p: Point) -> f64 {
+    p.norm_sqr().sqrt()
+}
+
 fn dot(a: Point, b: Point) -> f64 {
     a.re * b.re + a.im * b.im
 }
 
 fn capped(v: Point, cap: f64) -> Point {
-    let s = v.norm();
+    let s = length(v);
     if s > cap {
         v * (cap / s)
     } else {
@@ -317,7 +331,10 @@ struct Other {
 struct Scratch {
     lines: Vec<orca::OrcaLine>,
     projected: Vec<orca::OrcaLine>,
-    near: Vec<(f64, usize)>,
+    /// The nearest neighbours, nearest first, as keys: the squared distance's bits above
+    /// the index.
+    near: Vec<u128>,
+    pairs: Vec<(usize, usize)>,
 }
 
 /// Walker `i`'s velocity for the next step, from the others as they are now.
@@ -328,21 +345,29 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
     let horizon = HORIZON_RADII * me.radius / me.walk.preferred_speed;
     // The nearest neighbours within what the horizon can bring together.
     let reach = |radius: f64, speed: f64| me.radius + radius + (me.top_speed() + speed) * horizon;
-    s.near.clear();
+    // The nearest, in order: keyed by the square of the distance (which orders alike; a
+    // non-negative float's bits order as the float does), the earlier person first among
+    // equals.
+    let near = &mut s.near;
+    near.clear();
+    let key = |d2: f64, j: usize| (u128::from(d2.to_bits()) << 64) | j as u128;
     for (j, w) in walkers.iter().enumerate() {
-        let d = (w.position - me.position).norm();
-        if j != i && d < reach(w.radius, w.top_speed()) {
-            s.near.push((d, j));
+        let (d2, r) = ((w.position - me.position).norm_sqr(), reach(w.radius, w.top_speed()));
+        if j != i && d2 < r * r {
+            near.push(key(d2, j));
         }
     }
     for (j, o) in others.iter().enumerate() {
-        let d = (o.position - me.position).norm();
-        if d < reach(o.radius, o.velocity.norm()) {
-            s.near.push((d, walkers.len() + j));
+        let (d2, r) = ((o.position - me.position).norm_sqr(), reach(o.radius, length(o.velocity)));
+        if d2 < r * r {
+            near.push(key(d2, walkers.len() + j));
         }
     }
-    s.near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    s.near.truncate(MAX_NEIGHBOURS);
+    if near.len() > MAX_NEIGHBOURS {
+        near.select_nth_unstable(MAX_NEIGHBOURS);
+        near.truncate(MAX_NEIGHBOURS);
+    }
+    near.sort_unstable();
     let neighbour = |j: usize| -> (orca::Body, bool) {
         match walkers.get(j) {
             Some(w) => (orca::Body { position: w.position, velocity: w.velocity, radius: w.radius }, true),
@@ -360,8 +385,8 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
                 s.lines.extend(orca::line_off_wall(me.position, me.radius, nearest, horizon, STEP));
             }
             let hard = s.lines.len();
-            for &(_, j) in &s.near {
-                let (other, avoids) = neighbour(j);
+            for &k in &s.near {
+                let (other, avoids) = neighbour(k as u64 as usize);
                 let share = if avoids { 0.5 } else { 1.0 };
                 s.lines.push(orca::line_to(body, other, share, horizon, STEP));
             }
@@ -370,19 +395,19 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
             // everyone does, so that two meeting pass and a crowd bound for one place turns
             // about it rather than jams. (Not by people standing: along a row of them, a step
             // to the right may be into the row.)
-            let oncoming = s.near.iter().any(|&(_, j)| {
-                let (other, _) = neighbour(j);
-                other.velocity.norm() > WALKING * me.walk.preferred_speed
+            let oncoming = s.near.iter().any(|&k| {
+                let (other, _) = neighbour(k as u64 as usize);
+                length(other.velocity) > WALKING * me.walk.preferred_speed
                     && dot(other.position - me.position, other.velocity - me.velocity) < 0.0
             });
-            if !oncoming || (v - preferred).norm() <= BLOCKED * me.walk.preferred_speed {
+            if !oncoming || length(v - preferred) <= BLOCKED * me.walk.preferred_speed {
                 return v;
             }
             let right = preferred * Point::from_polar(1.0, -KEEP_RIGHT);
             orca::solve(&s.lines, hard, me.top_speed(), right, &mut s.projected)
         }
         Behaviour::SocialForce => {
-            let near = s.near.iter().map(|&(_, j)| neighbour(j).0);
+            let near = s.near.iter().map(|&k| neighbour(k as u64 as usize).0);
             social_force::velocity(body, preferred, me.walk.preferred_speed, me.top_speed(), near, walls, STEP)
         }
     }
@@ -392,7 +417,10 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
 fn wall_points(room: &Room, centre: Point, range: f64) -> impl Iterator<Item = Point> + '_ {
     let walls = room.walls().iter().flat_map(|w| w.windows(2).map(|s| (s[0], s[1])));
     let edges = room.polygons().iter().flat_map(|p| polygon_edges(p));
-    walls.chain(edges).map(move |(a, b)| nearest_on_segment(centre, a, b)).filter(move |p| (p - centre).norm() < range)
+    walls
+        .chain(edges)
+        .map(move |(a, b)| nearest_on_segment(centre, a, b))
+        .filter(move |p| (p - centre).norm_sqr() < range * range)
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 //! half-planes and the speed disc; when they have no common point, of a 3-D one that
 //! minimises the largest violation of the neighbours' half-planes.
 
+use super::length;
 use crate::Point;
 
 /// Below this, two directions are parallel.
@@ -69,7 +70,7 @@ pub fn line_to(me: Body, other: Body, share: f64, horizon: f64, step: f64) -> Or
     } else {
         // Overlapping: part within one step.
         let w = rel_vel - rel_pos / step;
-        let w_len = w.norm();
+        let w_len = length(w);
         let unit_w = if w_len > 0.0 { w / w_len } else { Point::new(1.0, 0.0) };
         (Point::new(unit_w.im, -unit_w.re), unit_w * (r / step - w_len))
     };
@@ -80,7 +81,7 @@ pub fn line_to(me: Body, other: Body, share: f64, horizon: f64, step: f64) -> Or
 /// point `nearest` for `horizon` seconds (or parts them within `step` when they overlap).
 pub fn line_off_wall(position: Point, radius: f64, nearest: Point, horizon: f64, step: f64) -> Option<OrcaLine> {
     let away = position - nearest;
-    let d = away.norm();
+    let d = length(away);
     if d <= 0.0 {
         return None;
     }
@@ -92,11 +93,14 @@ pub fn line_off_wall(position: Point, radius: f64, nearest: Point, horizon: f64,
 }
 
 /// The velocity nearest `preferred` within `max_speed` that satisfies every line, the
-/// first `hard` of them (walls) never relaxed.
+/// first `hard` of them (walls) relaxed only when they cannot all be met.
 pub fn solve(lines: &[OrcaLine], hard: usize, max_speed: f64, preferred: Point, scratch: &mut Vec<OrcaLine>) -> Point {
     let mut result = Point::default();
     let failed = program_2d(lines, max_speed, preferred, false, &mut result);
     if failed < lines.len() {
+        // The walls themselves cannot all be met within the speed (a person pressed into
+        // a corner): then they too are only violated least.
+        let hard = if failed < hard { 0 } else { hard };
         program_3d(lines, hard, failed, max_speed, &mut result, scratch);
     }
     result
@@ -149,7 +153,7 @@ fn program_2d(lines: &[OrcaLine], radius: f64, opt: Point, direction_opt: bool, 
     *result = if direction_opt {
         opt * radius
     } else if opt.norm_sqr() > radius * radius {
-        opt / opt.norm() * radius
+        opt / length(opt) * radius
     } else {
         opt
     };
@@ -193,7 +197,7 @@ fn program_3d(
                 li.point + li.direction * (det(lj.direction, li.point - lj.point) / determinant)
             };
             let d = lj.direction - li.direction;
-            projected.push(OrcaLine { point, direction: d / d.norm() });
+            projected.push(OrcaLine { point, direction: d / length(d) });
         }
         let before = *result;
         let opt = Point::new(-li.direction.im, li.direction.re);
@@ -238,6 +242,16 @@ mod tests {
 
     /// Lines with no common point within the disc: the 3-D program gives the velocity that
     /// violates them least, equally.
+    /// Walls that cannot all be met (one each side, closer than a step's worth of speed
+    /// allows) are violated least too, not a panic.
+    #[test]
+    fn infeasible_walls_are_violated_least() {
+        let up = OrcaLine { point: Point::new(0.0, 0.5), direction: Point::new(1.0, 0.0) };
+        let down = OrcaLine { point: Point::new(0.0, -0.5), direction: Point::new(-1.0, 0.0) };
+        let v = solve(&[up, down], 2, 1.0, Point::new(0.3, 0.0), &mut Vec::new());
+        assert!(v.im.abs() < 1e-9, "{v}");
+    }
+
     #[test]
     fn infeasible_lines_are_violated_least() {
         let up = OrcaLine { point: Point::new(0.0, 0.5), direction: Point::new(1.0, 0.0) }; // v.y >= 0.5

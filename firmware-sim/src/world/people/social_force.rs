@@ -8,6 +8,7 @@
 //! at 1 m/s), scaled by each person's radius and preferred speed so that the rig's small,
 //! slow people behave as people do at their own scale.
 
+use super::length;
 use super::orca::Body;
 use crate::Point;
 
@@ -35,11 +36,11 @@ pub fn velocity(
 ) -> Point {
     let r = me.radius;
     let scale = speed * speed / r;
-    let heading = if preferred.norm() > 0.0 { preferred / preferred.norm() } else { Point::default() };
+    let heading = if length(preferred) > 0.0 { preferred / length(preferred) } else { Point::default() };
     let mut accel = (preferred - me.velocity) / (RELAXATION_RADII * r / speed);
     for o in others {
         let away = me.position - o.position;
-        let d = away.norm().max(1e-9);
+        let d = length(away).max(1e-9);
         let n = away / d;
         // Stronger from ahead (the other in the way) than from behind.
         let cos = -(n.re * heading.re + n.im * heading.im);
@@ -48,11 +49,11 @@ pub fn velocity(
     }
     for p in walls {
         let away = me.position - p;
-        let d = away.norm().max(1e-9);
+        let d = length(away).max(1e-9);
         accel += away / d * (WALL_PUSH * scale * ((r - d) / (WALL_RANGE * r)).exp());
     }
     let v = me.velocity + accel * step;
-    let s = v.norm();
+    let s = length(v);
     if s > cap {
         v * (cap / s)
     } else {
