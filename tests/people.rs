@@ -1,0 +1,79 @@
+//! People who walk (docs/people.md): each scenario of `scenarios/people/` swept with the
+//! field and with the baseline that drives straight at the goal behind the same supervisor,
+//! on the same episodes. `--nocapture` prints the table docs/people.md shows.
+
+use std::path::Path;
+
+use flowgate::lab::planner_only::Mode;
+use flowgate::lab::sweep::{self, SweepReport};
+use flowgate::lab::Scenario;
+
+const EPISODES: usize = 200;
+
+fn sweep(file: &str, change: Option<&str>) -> SweepReport {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/people").join(file);
+    let s = match change {
+        Some(c) => Scenario::load_with(&path, c).unwrap(),
+        None => Scenario::load(&path).unwrap(),
+    };
+    sweep::sweep(&s, EPISODES, 1, 2, Mode::PlannerOnly).unwrap()
+}
+
+fn row(name: &str, r: &SweepReport) -> String {
+    format!(
+        "| {name} | {:.1}% | {:.1}% | {:.1}% | {:.1}% | {:.1}% |",
+        100.0 * r.goal_rate,
+        100.0 * r.active_contact_rate,
+        100.0 * r.passive_contact_rate,
+        100.0 * r.timeout_rate,
+        100.0 * r.stall_rate
+    )
+}
+
+/// Every scenario, the field and the straight baseline, 200 planner-only episodes each:
+/// neither ever drives into a person (people who do not see the robot walk into it where it
+/// is: passive contacts), and the rates are as docs/people.md states them.
+#[test]
+fn people_scenarios_sweep_without_an_active_contact() {
+    let expected = [
+        ("circle-crossing-5.toml", (0.96, 0.68)),
+        ("hallway.toml", (0.975, 0.14)),
+        ("concourse.toml", (0.845, 0.225)),
+        ("furnished-room.toml", (0.245, 0.0)),
+    ];
+    let mut table = vec!["| scenario, planner | goal | active | passive | timeout | stall |".to_string()];
+    table.push("| --- | --- | --- | --- | --- | --- |".into());
+    let mut got = Vec::new();
+    for (file, _) in expected {
+        let field = sweep(file, None);
+        let straight = sweep(file, Some("planner.method=\"straight\""));
+        table.push(row(&format!("{file}, field"), &field));
+        table.push(row(&format!("{file}, straight"), &straight));
+        for r in [&field, &straight] {
+            assert_eq!(r.active_contact_rate, 0.0, "{file}: {r:?}");
+        }
+        got.push((file, (field.goal_rate, straight.goal_rate)));
+    }
+    // Today's walkers, straight through each other, on the same circle: the stress row.
+    let walkers = sweep("circle-crossing-5.toml", Some("crowd.behaviour=\"straight\""));
+    table.push(row("circle-crossing-5.toml, straight walkers, field", &walkers));
+    assert_eq!((walkers.active_contact_rate, walkers.goal_rate), (0.0, 0.995), "{walkers:?}");
+    println!("{}", table.join("\n"));
+    for ((file, want), (_, have)) in expected.iter().zip(&got) {
+        assert!((want.0 - have.0).abs() < 1e-9 && (want.1 - have.1).abs() < 1e-9, "{file}: {have:?}, stated {want:?}");
+    }
+}
+
+/// Through the whole stack (the gateway's core, the firmware, the wire protocols, the
+/// camera seeing each person's LED), 100 episodes of the hallway and of the circle crossing:
+/// no active contact, and the rates docs/people.md states. A person who walks into the
+/// standing robot faults it, named ("obstacle LED n reached the standing robot").
+#[test]
+fn people_scenarios_through_the_whole_stack() {
+    for (file, goal, fault) in [("hallway.toml", 0.98, 0.0), ("circle-crossing-5.toml", 0.96, 0.03)] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/people").join(file);
+        let r = sweep::sweep(&Scenario::load(&path).unwrap(), 100, 1, 2, Mode::FullStack).unwrap();
+        println!("{}", row(&format!("{file}, field, whole stack"), &r));
+        assert_eq!((r.active_contact_rate, r.goal_rate, r.fault_rate), (0.0, goal, fault), "{file}: {r:?}");
+    }
+}
