@@ -91,6 +91,22 @@ fn one_robot(scenario: &Scenario) -> Result<()> {
     Ok(())
 }
 
+/// What the demo's gateway writes and serves, as the flags ask.
+fn outputs(args: &DemoArgs, out: &std::path::Path) -> demo::Outputs {
+    demo::Outputs {
+        dir: Some(out.to_path_buf()),
+        record: args.record.clone(),
+        view: args.view,
+        foxglove: args.foxglove,
+        socket: args.socket.clone(),
+        ros2: args.ros2.then_some(flowgate::config::Ros2Section {
+            enabled: true,
+            cmd_vel_stamped: args.cmd_vel_stamped,
+            ..Default::default()
+        }),
+    }
+}
+
 pub fn run(args: DemoArgs) -> Result<()> {
     let scenario = match &args.scenario {
         Some(path) => Scenario::load(path)?,
@@ -101,24 +117,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let out = std::fs::canonicalize(&args.out)?;
     announce(&args, &scenario);
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
-    let run = runtime.block_on(demo::run(
-        &scenario,
-        &args.can,
-        args.drive,
-        demo::Outputs {
-            dir: Some(out.clone()),
-            record: args.record.clone(),
-            view: args.view,
-            foxglove: args.foxglove,
-            socket: args.socket.clone(),
-            ros2: args.ros2.then_some(flowgate::config::Ros2Section {
-                enabled: true,
-                cmd_vel_stamped: args.cmd_vel_stamped,
-                ..Default::default()
-            }),
-        },
-        say_progress,
-    ))?;
+    let run = runtime.block_on(demo::run(&scenario, &args.can, args.drive, outputs(&args, &out), say_progress))?;
     let t = &run.truth.summary;
     say!();
     say!(
