@@ -7,6 +7,9 @@
 
 use core::f64::consts::{PI, TAU};
 
+#[cfg(feature = "std")]
+pub mod orca;
+
 /// A point or vector on the floor, `x + iy`, m (or m/s).
 pub type Point = num_complex::Complex64;
 

@@ -112,6 +112,9 @@ pub enum PlannerMethod {
     /// A baseline: straight at the goal at the cruise speed, turning toward it, the safety
     /// supervisor alone keeping the robot off what is in the way.
     Straight,
+    /// A baseline: the robot as an ORCA agent among the obstacles as tracked and the room's
+    /// walls (`control::orca`), the safety supervisor behind it.
+    Orca,
 }
 
 impl PlannerMethod {

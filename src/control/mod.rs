@@ -4,6 +4,7 @@
 
 pub mod drive;
 pub mod fleet;
+pub mod orca;
 pub mod outside;
 mod step;
 pub mod supervisor;

@@ -13,6 +13,8 @@ pub enum CommandSource {
     /// A baseline: straight at the goal, turning toward it, the supervisor alone in the
     /// way of what is there.
     Straight,
+    /// A baseline: the robot as an ORCA agent (`control::orca`), the supervisor behind it.
+    Orca,
     /// A planner outside flowgate; a command older than `max_age` s stops the robot.
     Outside { max_age: f64 },
 }

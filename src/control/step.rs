@@ -1,10 +1,12 @@
 //! One control cycle: the estimate in, the planner's velocity, the supervisor's verdict and
 //! evasion, and the pulse rates out; with the stall and goal-occupied checks around them.
 
+use super::orca::{self, OrcaRobot};
 use super::outside::{CommandSource, OutsideCommand, OutsideCommands};
 use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
 use crate::control::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::geometry::Length;
+use flowgate_protocol::plane::orca::Body;
 use std::sync::Arc;
 
 use crate::planner::room::Room;
@@ -162,6 +164,8 @@ pub struct ControlStep {
     outside: OutsideCommands,
     /// Where the field heads instead of the goal ([`ControlStep::aim_at`]).
     aim: Option<Point>,
+    /// The ORCA baseline's room and buffers (empty unless it drives).
+    orca: OrcaRobot,
 }
 
 impl ControlStep {
@@ -171,7 +175,6 @@ impl ControlStep {
         // The room's buffers are made here, not in the first cycle.
         field.set_room(config.room.as_ref());
         Self {
-            config,
             planner,
             field,
             progress_anchor: None,
@@ -179,6 +182,11 @@ impl ControlStep {
             envelope: Envelope::default(),
             outside: OutsideCommands::default(),
             aim: None,
+            orca: match config.source {
+                CommandSource::Orca => OrcaRobot::new(config.room.as_deref(), config.planner.space),
+                _ => OrcaRobot::default(),
+            },
+            config,
         }
     }
 
@@ -256,6 +264,7 @@ impl ControlStep {
         match self.config.source {
             CommandSource::Outside { max_age } => return self.drive_outside(t, estimate, outrun, max_age),
             CommandSource::Straight => return self.drive_straight(t, estimate, outrun),
+            CommandSource::Orca => return self.drive_orca(t, estimate, outrun),
             CommandSource::Field => {}
         }
         let input = PlanInput {
@@ -309,6 +318,26 @@ impl ControlStep {
         let w = STRAIGHT_TURN_GAIN * off;
         // Scaled to the limits as an outside command is (not counted as one).
         let (asked, _) = OutsideCommand::Twist { v, w }.wheels(&self.config.drive, self.config.planner.max_speed);
+        self.driving(estimate, asked, outrun, None, false)
+    }
+
+    /// The ORCA baseline: the velocity ORCA picks towards the goal at the cruise speed,
+    /// steered to as the straight baseline steers (forward only within a quarter turn of
+    /// it), supervised as the field's commands are.
+    fn drive_orca(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool) -> StepOutput {
+        if self.stalled(t, estimate.position) {
+            return StepOutput::stop(StepStatus::Stalled, None);
+        }
+        let (p, step) = (&self.config.planner, self.config.drive.sample_time);
+        let moving = estimate.facing * ((estimate.wheels[0] + estimate.wheels[1]) / 2.0);
+        let me = Body { position: estimate.position, velocity: moving, radius: self.config.robot_radius };
+        let preferred = orca::preferred(estimate.position, self.config.goal, p.cruise_speed, step);
+        let horizon = orca::HORIZON_RADII * self.config.robot_radius / p.cruise_speed;
+        let want = self.orca.velocity(me, preferred, p.max_speed, estimate.obstacles, horizon, step);
+        let off = (want * estimate.facing.conj()).arg();
+        let v = want.length() * off.cos().max(0.0);
+        let (asked, _) =
+            OutsideCommand::Twist { v, w: STRAIGHT_TURN_GAIN * off }.wheels(&self.config.drive, p.max_speed);
         self.driving(estimate, asked, outrun, None, false)
     }
 

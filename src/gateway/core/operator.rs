@@ -136,10 +136,8 @@ pub enum Refusal {
     BadGoal { index: usize, x: f64, y: f64, why: String },
     #[error("planner.method is \"field\": the field drives (set planner.method = \"socket\" to drive from outside)")]
     FieldDrives,
-    #[error(
-        "planner.method is \"straight\": the baseline drives (set planner.method = \"socket\" to drive from outside)"
-    )]
-    StraightDrives,
+    #[error("planner.method is \"{0}\": the baseline drives (set planner.method = \"socket\" to drive from outside)")]
+    BaselineDrives(&'static str),
     #[error("command not finite (NaN or infinite): the robot stops")]
     CommandNotFinite,
 }

@@ -40,7 +40,8 @@ impl<K: StageClock> Core<K> {
         let Some(command) = request.command() else { return Ok(()) };
         match self.rig.control.source {
             crate::control::CommandSource::Field => return Err(Refusal::FieldDrives),
-            crate::control::CommandSource::Straight => return Err(Refusal::StraightDrives),
+            crate::control::CommandSource::Straight => return Err(Refusal::BaselineDrives("straight")),
+            crate::control::CommandSource::Orca => return Err(Refusal::BaselineDrives("orca")),
             crate::control::CommandSource::Outside { .. } => {}
         }
         if !command.is_finite() {

@@ -8,7 +8,6 @@
 //! camera, the judge and the truth downstream are those of any obstacle, exact between the
 //! steps. Deterministic: the same scenario (and seed, for new goals) walks the same ways.
 
-pub mod orca;
 mod social_force;
 
 use rand::{Rng, SeedableRng};
@@ -19,6 +18,7 @@ use crate::scenario::people::SPEED_CAP;
 use crate::scenario::{Behaviour, ObstacleSpec, OnArrival, SimScenario, Walk};
 use crate::Point;
 use flowgate_protocol::plane::nearest_on_segment;
+use flowgate_protocol::plane::orca::{self, length};
 use flowgate_protocol::plane::polygon_edges;
 
 /// The people's time step, s: a twentieth of a second, five times finer than CrowdNav's
@@ -286,12 +286,6 @@ fn excess_closing(a: Point, b: Point, dv: Point, reach: f64) -> Option<f64> {
     let closing = (dv.re * dp.re + dv.im * dp.im) / d;
     let allowed = ((d - reach) / STEP).max(0.0);
     (closing > allowed + 1e-12).then_some(closing - allowed)
-}
-
-/// A vector's length: the square root of the squares (`norm` calls `hypot`, which guards
-/// against overflows no floor distance comes near, at several times the cost).
-pub(super) fn length(p: Point) -> f64 {
-    p.norm_sqr().sqrt()
 }
 
 fn dot(a: Point, b: Point) -> f64 {

@@ -8,9 +8,8 @@
 //! at 1 m/s), scaled by each person's radius and preferred speed so that the rig's small,
 //! slow people behave as people do at their own scale.
 
-use super::length;
-use super::orca::Body;
 use crate::Point;
+use flowgate_protocol::plane::orca::{length, Body};
 
 /// The relaxation time, in the time a person takes to walk its own radius.
 const RELAXATION_RADII: f64 = 0.5 / 0.3;

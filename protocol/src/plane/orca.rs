@@ -8,9 +8,10 @@
 //! are never relaxed. The velocity is the solution of a 2-D linear program over the
 //! half-planes and the speed disc; when they have no common point, of a 3-D one that
 //! minimises the largest violation of the neighbours' half-planes.
+//!
+//! Shared by the simulator's people and the gateway's ORCA baseline, so both avoid alike.
 
-use super::length;
-use crate::Point;
+use super::Point;
 
 /// Below this, two directions are parallel.
 const EPSILON: f64 = 1e-9;
@@ -20,6 +21,12 @@ const EPSILON: f64 = 1e-9;
 pub struct OrcaLine {
     pub point: Point,
     pub direction: Point,
+}
+
+/// A vector's length (`norm` calls `hypot`, several times the cost, guarding against
+/// overflows no floor distance comes near).
+pub fn length(p: Point) -> f64 {
+    p.norm_sqr().sqrt()
 }
 
 fn det(a: Point, b: Point) -> f64 {
