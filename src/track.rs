@@ -474,6 +474,11 @@ impl Tracker {
         taken
     }
 
+    /// Where obstacle `k` was last measured (None: never, or its track was dropped).
+    pub fn last_measured(&self, k: usize) -> Option<Point> {
+        self.filters.get(k)?.as_ref().map(|_| self.measured[k])
+    }
+
     /// When obstacle `k` was last measured, s (None: never, or its track was dropped).
     pub fn obstacle_time(&self, k: usize) -> Option<f64> {
         self.filters.get(k).copied().flatten().map(|kf| kf.time())

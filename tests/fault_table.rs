@@ -261,7 +261,7 @@ fn table() -> Vec<Row> {
             "loss",
             "the obstacle's LED occluded from 2 s to 3.5 s",
             &["occlusions=[[3, 2.0, 3.5]]"],
-            fault(R::ObstacleOccluded { led: 3 }, 987.6, 987.7, Watchdog("occlusion", OCCLUSION_MS)),
+            fault(R::ObstacleOccluded { led: 3, at_edge: false }, 987.6, 987.7, Watchdog("occlusion", OCCLUSION_MS)),
         )
         .until(3.5),
         row(

@@ -209,7 +209,7 @@ fn an_occluded_obstacle_faults_by_its_led_and_the_operator_drives_on_after_reset
     s.faults = s.faults.with_settings(&["occlusions=[[3, 2.0, 4.0]]".to_string()]).unwrap();
     let mut rig = VirtualRig::new(&s, Options { truth_samples: true, ..Options::default() });
     rig.run_until(3.5);
-    let fault = StopReason::ObstacleOccluded { led: 3 };
+    let fault = StopReason::ObstacleOccluded { led: 3, at_edge: false };
     assert_eq!(rig.core().state(), State::Fault(fault));
     assert_eq!(fault.to_string(), "obstacle LED 3 unseen inside the view beyond safety.occlusion_timeout_ms");
     assert!(rig.status().obstacles.is_empty() || rig.status().obstacles.iter().all(|o| o.occluded));

@@ -115,9 +115,11 @@ pub enum StopReason {
         node: u8,
     },
     /// A tracked obstacle stayed unseen inside the view for longer than
-    /// `safety.occlusion_timeout_ms` while running.
+    /// `safety.occlusion_timeout_ms` while running; `at_edge`: last seen at the view's edge,
+    /// where it may have gone out (which the camera cannot tell from hidden there).
     ObstacleOccluded {
         led: u8,
+        at_edge: bool,
     },
     /// A moving obstacle's planning circle took in the robot: the obstacle came to it (the
     /// supervisor keeps the robot from driving into one), and the field is not defined
@@ -223,7 +225,7 @@ impl StopReason {
         Self::HeartbeatLost { node: 0 },
         Self::BoardReboot { node: 0 },
         Self::SecondMaster { node: 0 },
-        Self::ObstacleOccluded { led: 0 },
+        Self::ObstacleOccluded { led: 0, at_edge: false },
         Self::ObstacleReachedRobot { led: 0, robot: RobotMotion::Standing },
         Self::BusOff,
         Self::BoardBusOff { node: 0 },
@@ -368,9 +370,14 @@ impl std::fmt::Display for StopReason {
             }
             Self::BoardReboot { node } => write!(f, "motor board {node} rebooted"),
             Self::SecondMaster { node } => write!(f, "another device commands motor board {node}"),
-            Self::ObstacleOccluded { led } => {
+            Self::ObstacleOccluded { led, at_edge: false } => {
                 write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
             }
+            Self::ObstacleOccluded { led, at_edge: true } => write!(
+                f,
+                "obstacle LED {led} lost at the view's edge (gone out, or hidden there) and unseen beyond \
+                 safety.occlusion_timeout_ms"
+            ),
             Self::ObstacleReachedRobot { led, robot } => write!(f, "obstacle LED {led} reached the {robot}"),
             Self::BoardBusOff { node } => write!(f, "motor board {node} CAN bus-off"),
             Self::BoardFault { node } => write!(f, "motor board {node} fault"),

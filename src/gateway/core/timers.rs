@@ -11,6 +11,11 @@
 use super::safety::Garbled;
 use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, STOP_GRACE};
 use crate::time::HostTime;
+use crate::Point;
+use std::f64::consts::FRAC_PI_4;
+
+/// How far a measured position may be off, m, for judging it at the view's edge.
+const EDGE_NOISE_M: f64 = 0.01;
 
 /// A streaming controller silent this long is configured again.
 pub const RESTREAM_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
@@ -148,7 +153,8 @@ impl<K: StageClock> Core<K> {
             Timer::Pose => self.stop(now, self.pose_lost_cause(now)),
             Timer::Occlusion => {
                 if let Some((_, k)) = self.occlusion_deadline() {
-                    self.stop(now, StopReason::ObstacleOccluded { led: self.rig.obstacles[k].led });
+                    let (led, at_edge) = (self.rig.obstacles[k].led, self.lost_at_edge(k));
+                    self.stop(now, StopReason::ObstacleOccluded { led, at_edge });
                 }
             }
             Timer::MotorHeartbeat => {
@@ -248,6 +254,16 @@ impl<K: StageClock> Core<K> {
             .filter_map(|k| Some((HostTime::from_secs_f64(self.tracker.obstacle_time(k)?).max(self.run.armed_at()), k)))
             .min_by_key(|&(seen, _)| seen)
             .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
+    }
+
+    /// Whether obstacle `k` was last seen so near the view's edge that it may have gone out
+    /// of it by the next frame: within two periods at the top obstacle speed, and the
+    /// measurement's noise, of a point the camera does not see.
+    fn lost_at_edge(&self, k: usize) -> bool {
+        let Some(p) = self.tracker.last_measured(k) else { return false };
+        let period = self.rig.sample_period.as_secs_f64();
+        let band = 2.0 * period * self.rig.tracking.max_obstacle_speed + EDGE_NOISE_M;
+        (0..8).any(|i| !self.rig.calibration.in_view(p + Point::from_polar(band, f64::from(i) * FRAC_PI_4)))
     }
 
     /// When an enabled but idle board (Armed, Stopping) needs a zero command to keep its

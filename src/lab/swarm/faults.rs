@@ -197,7 +197,9 @@ impl Kind {
             (Kind::ControllerFault, R::ControllerFault) => true,
             (Kind::SerialVanish, R::SerialLost) => true,
             (Kind::RobotOccluded, R::PoseLost) => true,
-            (Kind::ObstacleOccluded, R::ObstacleOccluded { led: l }) => Some(l) == led,
+            (Kind::ObstacleOccluded, R::ObstacleOccluded { led: l, .. }) => Some(l) == led,
+            // Gone out of the view at its edge slowly, at a grazing angle: to the camera, hidden there.
+            (Kind::PasserBy, R::ObstacleOccluded { led: l, at_edge: true }) => Some(l) == led,
             (Kind::Reflection, R::PoseImplausible) => true,
             (Kind::UnscheduledLed, R::UnscheduledLed { led: l }) => Some(l) == led,
             // Commands lost until the board's own timeout latches its fault; the enable lost.
@@ -255,6 +257,8 @@ impl Kind {
             Kind::BoardBusOff | Kind::BoardEStop => 1.5,
             // Its discards stay in the sequence budget's one-second window.
             Kind::SerialRepeats => 1.0,
+            // It walks on after it comes, and leaves the view whenever its way takes it out.
+            Kind::PasserBy => f64::INFINITY,
             _ => 0.5,
         }
     }

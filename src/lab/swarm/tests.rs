@@ -105,7 +105,7 @@ fn the_judge_finds_each_broken_invariant() {
 fn a_watchdog_of_a_running_robot_fires_as_it_starts() {
     let s = settings();
     let hidden = with(vec![Injected { kind: Kind::ObstacleOccluded, from: 5.3, to: 7.6, led: Some(3) }]);
-    let reason = StopReason::ObstacleOccluded { led: 3 };
+    let reason = StopReason::ObstacleOccluded { led: 3, at_edge: false };
     let seen = |at: f64| EpisodeLog { faults: vec![Seen { at, reason, rest: Some(at) }], ..EpisodeLog::default() };
     let armed = vec![(0.0, State::Idle), (4.36, State::Armed)];
     let ran_at = |t: f64| {
