@@ -88,13 +88,7 @@ fn low_pass_lags_a_ramp_by_its_time_constant() {
 /// turns the heading about: that is refused, and a true turn at the wheels' limit is not.
 #[test]
 fn a_pose_turned_further_than_the_wheels_can_turn_it_is_refused() {
-    let geometry = LedGeometry { front: 0.035, rear: 0.035 };
-    let mut tracker = Tracker::new(settings(), geometry, &[]);
-    let reach = PoseReach { speed: 0.25, turn_rate: 2.0 * 0.25 / 0.108, tolerance: 0.02 };
-    let (centre, facing) = (Point::new(-0.2, -0.05), Point::from_polar(1.0, 0.18));
-    let (front, rear) = geometry.leds(centre, facing);
-    tracker.commanded(0.9, 0.1, 0.1);
-    assert!(tracker.observe_robot(1.0, front, rear));
+    let Driving { geometry, mut tracker, reach, centre, front, rear, .. } = driving();
     // Driving, twelve frames later (0.2 s): the front LED read 13.3 cm back along x.
     let t = 1.2;
     let reflected = front - Point::new(0.133, 0.0);
@@ -108,6 +102,29 @@ fn a_pose_turned_further_than_the_wheels_can_turn_it_is_refused() {
     let turned = Point::from_polar(1.0, 0.18 + reach.turn_rate * 0.2);
     let (front, rear) = geometry.leds(centre, turned);
     assert_eq!(tracker.plausible(t, front, rear, reach), Ok(()));
+}
+
+/// A robot driving at 0.1 m/s, its pose seen at 1 s: the LEDs mounted 7 cm apart, the
+/// rig's wheels (0.25 m/s, 10.8 cm apart), a pose tolerance of 2 cm.
+struct Driving {
+    geometry: LedGeometry,
+    tracker: Tracker,
+    reach: PoseReach,
+    centre: Point,
+    facing: Point,
+    front: Point,
+    rear: Point,
+}
+
+fn driving() -> Driving {
+    let geometry = LedGeometry { front: 0.035, rear: 0.035 };
+    let mut tracker = Tracker::new(settings(), geometry, &[]);
+    let reach = PoseReach { speed: 0.25, turn_rate: 2.0 * 0.25 / 0.108, tolerance: 0.02 };
+    let (centre, facing) = (Point::new(-0.2, -0.05), Point::from_polar(1.0, 0.18));
+    let (front, rear) = geometry.leds(centre, facing);
+    tracker.commanded(0.9, 0.1, 0.1);
+    assert!(tracker.observe_robot(1.0, front, rear));
+    Driving { geometry, tracker, reach, centre, facing, front, rear }
 }
 
 fn settings() -> TrackingSettings {
@@ -127,13 +144,7 @@ fn settings() -> TrackingSettings {
 /// pose refused so that stands still for SETTLE is taken (the robot carried by hand).
 #[test]
 fn a_pose_seen_again_after_a_stop_is_where_the_wheels_left_it() {
-    let geometry = LedGeometry { front: 0.035, rear: 0.035 };
-    let mut tracker = Tracker::new(settings(), geometry, &[]);
-    let reach = PoseReach { speed: 0.25, turn_rate: 2.0 * 0.25 / 0.108, tolerance: 0.02 };
-    let (centre, facing) = (Point::new(-0.2, -0.05), Point::from_polar(1.0, 0.18));
-    let (front, rear) = geometry.leds(centre, facing);
-    tracker.commanded(0.9, 0.1, 0.1);
-    assert!(tracker.observe_robot(1.0, front, rear));
+    let Driving { geometry, mut tracker, reach, centre, facing, front, rear } = driving();
     tracker.halted(1.0);
     let reflected = front - Point::new(0.133, 0.0);
     for t in [1.5, 2.0, 2.9] {
@@ -147,11 +158,11 @@ fn a_pose_seen_again_after_a_stop_is_where_the_wheels_left_it() {
     assert!(matches!(tracker.plausible(3.1, carried.0, carried.1, reach), Err(Implausible::Jump { .. })));
     assert!(tracker.plausible(3.1 + SETTLE - 0.1, carried.0, carried.1, reach).is_err());
     assert_eq!(tracker.plausible(3.1 + SETTLE + 0.02, carried.0, carried.1, reach), Ok(()));
-    // While the wheels drive, the reach grows with the time since the last pose, as before.
-    let mut driving = Tracker::new(settings(), geometry, &[]);
-    assert!(driving.observe_robot(1.0, front, rear));
-    driving.commanded(1.0, 0.25, 0.25);
-    driving.forget_pose();
+    // While the wheels drive, the reach grows with the time since the last pose.
+    let mut moving = Tracker::new(settings(), geometry, &[]);
+    assert!(moving.observe_robot(1.0, front, rear));
+    moving.commanded(1.0, 0.25, 0.25);
+    moving.forget_pose();
     let ahead = geometry.leds(centre + facing * 0.2, facing);
-    assert_eq!(driving.plausible(2.0, ahead.0, ahead.1, reach), Ok(()));
+    assert_eq!(moving.plausible(2.0, ahead.0, ahead.1, reach), Ok(()));
 }
