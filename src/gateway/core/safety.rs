@@ -344,6 +344,9 @@ pub enum Garbled {
     NoPose,
 }
 
+/// How an obstacle last seen at the view's edge is said to be unseen.
+const EDGE: &str = "lost at the view's edge (gone out, or hidden there) and unseen";
+
 impl std::fmt::Display for StopReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         if let Some(text) = self.fixed_text() {
@@ -370,14 +373,10 @@ impl std::fmt::Display for StopReason {
             }
             Self::BoardReboot { node } => write!(f, "motor board {node} rebooted"),
             Self::SecondMaster { node } => write!(f, "another device commands motor board {node}"),
-            Self::ObstacleOccluded { led, at_edge: false } => {
-                write!(f, "obstacle LED {led} unseen inside the view beyond safety.occlusion_timeout_ms")
+            Self::ObstacleOccluded { led, at_edge } => {
+                let unseen = if *at_edge { EDGE } else { "unseen inside the view" };
+                write!(f, "obstacle LED {led} {unseen} beyond safety.occlusion_timeout_ms")
             }
-            Self::ObstacleOccluded { led, at_edge: true } => write!(
-                f,
-                "obstacle LED {led} lost at the view's edge (gone out, or hidden there) and unseen beyond \
-                 safety.occlusion_timeout_ms"
-            ),
             Self::ObstacleReachedRobot { led, robot } => write!(f, "obstacle LED {led} reached the {robot}"),
             Self::BoardBusOff { node } => write!(f, "motor board {node} CAN bus-off"),
             Self::BoardFault { node } => write!(f, "motor board {node} fault"),
