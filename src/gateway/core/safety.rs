@@ -344,8 +344,8 @@ pub enum Garbled {
     NoPose,
 }
 
-/// How an obstacle last seen at the view's edge is said to be unseen.
-const EDGE: &str = "lost at the view's edge (gone out, or hidden there) and unseen";
+/// How an obstacle is said to be unseen: inside the view, or last seen at its edge.
+const UNSEEN: [&str; 2] = ["unseen inside the view", "lost at the view's edge (gone out, or hidden there) and unseen"];
 
 impl std::fmt::Display for StopReason {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -374,8 +374,7 @@ impl std::fmt::Display for StopReason {
             Self::BoardReboot { node } => write!(f, "motor board {node} rebooted"),
             Self::SecondMaster { node } => write!(f, "another device commands motor board {node}"),
             Self::ObstacleOccluded { led, at_edge } => {
-                let unseen = if *at_edge { EDGE } else { "unseen inside the view" };
-                write!(f, "obstacle LED {led} {unseen} beyond safety.occlusion_timeout_ms")
+                write!(f, "obstacle LED {led} {} beyond safety.occlusion_timeout_ms", UNSEEN[usize::from(*at_edge)])
             }
             Self::ObstacleReachedRobot { led, robot } => write!(f, "obstacle LED {led} reached the {robot}"),
             Self::BoardBusOff { node } => write!(f, "motor board {node} CAN bus-off"),
