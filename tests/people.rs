@@ -52,7 +52,7 @@ fn people_scenarios_sweep_without_an_active_contact() {
             assert!((r.goal_rate - want).abs() < 1e-9, "{file}, {method}: goal {}, stated {want}", r.goal_rate);
         }
     }
-    // Today's walkers, straight through each other, on the same circle: the stress row.
+    // Walkers straight through each other on the same circle: the stress row.
     let walkers = sweep("circle-crossing-5.toml", Some("crowd.behaviour=\"straight\""));
     table.push(row("circle-crossing-5.toml, straight walkers, field", &walkers));
     assert_eq!((walkers.active_contact_rate, walkers.goal_rate), (0.0, 0.995), "{walkers:?}");
