@@ -68,7 +68,7 @@ impl ObstacleSpec {
         }
     }
 
-    /// The person's walk, for an obstacle that walks (after [`ObstacleSpec::validate_walk`]).
+    /// The person's walk, for an obstacle that walks (once the scenario has been validated at load).
     pub fn walk(&self) -> Option<Walk> {
         self.behaviour.walks().then(|| Walk {
             behaviour: self.behaviour,

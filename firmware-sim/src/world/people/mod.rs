@@ -1,6 +1,6 @@
 //! People who walk: obstacles whose way is not scripted but walked, each to its goals,
 //! avoiding the others, the walls and the furniture, by optimal reciprocal collision
-//! avoidance ([`orca`]) or by social forces ([`social_force`]).
+//! avoidance ([`orca`]) or by social forces (after Helbing and Molnár 1995).
 //!
 //! The robot is invisible to them (CrowdNav's setting), so what they do does not depend on
 //! it: their ways are walked once, when the world is made, in steps of [`STEP`], into the
