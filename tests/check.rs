@@ -121,6 +121,62 @@ async fn a_healthy_rig_passes_every_line() {
     assert!(out.stdout.contains("all 16 checks passed"), "{}", out.stdout);
 }
 
+/// A rig with other vehicles: the config's lines show each vehicle, every slot of the one
+/// schedule and the delay margin T gives; the controller takes the schedule. The gateway
+/// itself refuses to drive a fleet, by name, before it opens anything.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fleet_rig_is_checked_and_the_gateway_refuses_to_drive_it() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.vehicles = vec![
+        flowgate::config::VehicleSection {
+            name: "oncoming".into(),
+            front_led: 5,
+            rear_led: 6,
+            node: Some(2),
+            ..Default::default()
+        },
+        flowgate::config::VehicleSection {
+            name: "b".into(),
+            front_led: 7,
+            rear_led: 8,
+            node: Some(3),
+            max_speed: Some(0.2),
+            ..Default::default()
+        },
+    ];
+    let out = check("fleet", &cfg);
+    handle.stop().await;
+    assert_eq!(out.verdict("config"), "PASS", "{}", out.stdout);
+    // E1's rig: a frame of 17 ms, split over the robot's, the obstacle's and the vehicles' LEDs
+    // (docs/fleet.md shows these lines).
+    assert!(
+        out.line("LED schedule").ends_with(
+            "7 LEDs, frame T = 17.000 ms (58.8 Hz); slots 1: 2429 µs, 2: 2429 µs, 3: 2429 µs, 5: 2429 µs, 6: 2428 µs, \
+             7: 2428 µs, 8: 2428 µs; delay margin U·T at T: 3.4 mm for a vehicle at 0.2 m/s, 8.5 mm for an obstacle \
+             at safety.max_obstacle_speed = 0.5 m/s"
+        ),
+        "{}",
+        out.stdout
+    );
+    assert!(
+        out.line("vehicle").ends_with("LEDs 5 and 6, board node 2, radius 0.07 m, up to 0.15 m/s"),
+        "{}",
+        out.stdout
+    );
+    assert!(out.stdout.contains("vehicles: b"), "{}", out.stdout);
+    assert_eq!(out.verdict("schedule accepted"), "PASS", "{}", out.stdout);
+    // The simulated world has no vehicles: their LEDs are weak, a warning, not a failure.
+    assert_eq!(out.verdict("LEDs in view"), "WARN", "{}", out.stdout);
+    assert!(out.ok, "{}", out.stdout);
+
+    let path = dir("fleet-run").join("rig.toml");
+    std::fs::write(&path, cfg.to_toml()).unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_flowgate")).args(["run", "--config"]).arg(&path).output().unwrap();
+    let stderr = String::from_utf8(run.stderr).unwrap();
+    assert!(!run.status.success());
+    assert!(stderr.contains("[[vehicles]] names oncoming, b: this gateway drives the robot alone"), "{stderr}");
+}
+
 #[test]
 fn a_bad_key_is_named_and_nothing_is_opened() {
     let s = e1();

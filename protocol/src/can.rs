@@ -34,6 +34,15 @@ macro_rules! node_id {
 }
 pub(crate) use node_id;
 
+/// A standard identifier a device on the bus sends or listens on, and what it carries there:
+/// the rows of a protocol's identifier table, for checking that the devices sharing one bus
+/// keep apart (two devices on one identifier would each take the other's frames as their own).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct IdUse {
+    pub id: u16,
+    pub what: &'static str,
+}
+
 /// A CAN identifier: 11-bit standard or 29-bit extended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum CanId {

@@ -38,7 +38,7 @@
 //! [`CanOpenMessage::parse`] accepts any [`CanFrame`] and returns a [`CanOpenError`] for a
 //! frame it does not know or cannot read.
 
-use crate::can::{node_id, CanFrame, CanId};
+use crate::can::{node_id, CanFrame, CanId, IdUse};
 use crate::psd::byte_enum;
 use crate::wire::{Reader, Writer};
 
@@ -61,6 +61,30 @@ pub mod cob {
     pub const SDO_RESPONSE: u16 = 0x580;
     pub const SDO_REQUEST: u16 = 0x600;
     pub const HEARTBEAT: u16 = 0x700;
+}
+
+/// The identifiers a drive at `node` sends or listens on, as the gateway maps it (one RPDO,
+/// two TPDOs, SDO, EMCY and its heartbeat; no SYNC).
+pub fn drive_ids(node: NodeId) -> [IdUse; 7] {
+    let n = u16::from(node.0);
+    let at = |function: u16, what| IdUse { id: function + n, what };
+    [
+        at(cob::EMCY, "the drive's EMCY"),
+        at(cob::TPDO1, "the drive's TPDO1 (statusword, velocity)"),
+        at(cob::RPDO1, "RPDO1 to the drive (controlword, target velocity)"),
+        at(cob::TPDO2, "the drive's TPDO2 (position)"),
+        at(cob::SDO_RESPONSE, "the drive's SDO responses"),
+        at(cob::SDO_REQUEST, "SDO requests to the drive"),
+        at(cob::HEARTBEAT, "the drive's heartbeat"),
+    ]
+}
+
+/// The identifiers the gateway, as CANopen node `gateway`, sends to every drive.
+pub fn gateway_ids(gateway: NodeId) -> [IdUse; 2] {
+    [
+        IdUse { id: cob::NMT, what: "NMT to every drive" },
+        IdUse { id: cob::HEARTBEAT + u16::from(gateway.0), what: "the gateway's heartbeat to the drives" },
+    ]
 }
 
 /// The objects of the dictionary a gateway uses on a CiA 402 drive (index, and the

@@ -49,7 +49,7 @@
 //! [`MotorMessage::parse`] accepts any [`CanFrame`] and returns a [`MotorError`] for a
 //! frame it does not know.
 
-use crate::can::{node_id, CanFrame, CanId};
+use crate::can::{node_id, CanFrame, CanId, IdUse};
 use crate::psd::byte_enum;
 use crate::wire::{Reader, Writer};
 
@@ -70,6 +70,30 @@ pub mod function {
     pub const POSITION: u16 = 0x30;
     pub const HEARTBEAT: u16 = 0x70;
 }
+
+/// The identifiers a board at `node` sends or listens on (the table above).
+pub fn board_ids(node: NodeId) -> [IdUse; 9] {
+    let n = node.0 as u16;
+    let at = |function: u16, what| IdUse { id: (function << 4) | n, what };
+    [
+        at(function::ESTOP, "e-stop to the board"),
+        at(function::NMT, "NMT to the board"),
+        at(function::EMERGENCY, "the board's emergency"),
+        at(function::VELOCITY, "velocity to the board"),
+        at(function::CONFIG, "config to the board"),
+        at(function::STATUS, "the board's status"),
+        at(function::AXIS_RATES, "the board's axis rates"),
+        at(function::POSITION, "the board's position"),
+        at(function::HEARTBEAT, "the board's heartbeat"),
+    ]
+}
+
+/// The identifiers the gateway broadcasts to every board.
+pub const GATEWAY_IDS: [IdUse; 3] = [
+    IdUse { id: function::ESTOP << 4, what: "e-stop to every board" },
+    IdUse { id: function::NMT << 4, what: "NMT to every board" },
+    IdUse { id: function::HEARTBEAT << 4, what: "the gateway's heartbeat to the boards" },
+];
 
 node_id! {
     /// A motor board's node id, 1 to 15.

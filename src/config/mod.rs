@@ -23,6 +23,7 @@ mod motors;
 mod planning;
 mod safety;
 mod service;
+mod vehicles;
 pub use camera::{CalibrationSection, LedSection, ObstacleLed, RefPoint, ScheduleSection, SerialSection};
 use checks::{invalid, ms, positive, Most};
 pub use checks::{read_text, shown, Invalid, MAX_FILE_BYTES, MAX_GOAL_TOLERANCE};
@@ -33,6 +34,7 @@ pub use motors::{
 pub use planning::{default_tolerance, Goal, LaneSection, PlannerMethod, PlannerSection, RobotSection};
 pub use safety::{SafetySection, SafetySettings};
 pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
+pub use vehicles::{Vehicle, VehicleMotors, VehicleSection};
 mod can_url;
 mod room;
 mod ros2;
@@ -88,6 +90,9 @@ pub struct RigFile {
     /// flowgate as a ROS 2 node (`[ros2]`, off without it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ros2: Option<Ros2Section>,
+    /// The rig's other vehicles, under the same camera and on the same bus.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub vehicles: Vec<VehicleSection>,
 }
 
 /// A configuration that cannot be used, naming the file and the key.
@@ -165,7 +170,7 @@ impl RigFile {
     pub fn validate(&self) -> Result<Rig, Invalid> {
         self.serial.validate()?;
         let leds = self.leds.validate()?;
-        let schedule = self.schedule.build(&leds)?;
+        let (vehicles, schedule) = self.validate_vehicles(leds)?;
         let sample_period = Duration::from_micros(u64::from(schedule.frame_period_us()));
         let calibration = self.calibration()?;
         let (can, node) = self.can.validate()?;
@@ -226,6 +231,7 @@ impl RigFile {
             warm_up: self.realtime.warm_up,
             realtime: self.realtime.settings(),
             ros2: self.ros2.clone().filter(|r| r.enabled),
+            vehicles,
             config: self.clone(),
         })
     }
@@ -378,7 +384,8 @@ pub struct Rig {
     pub node: NodeId,
     /// What the motors speak.
     pub motors: Motors,
-    /// The LED schedule: robot front, robot rear, then each obstacle's LED.
+    /// The LED schedule: robot front, robot rear, each obstacle's LED, then each vehicle's
+    /// front and rear.
     pub schedule: Schedule,
     /// One time-division frame: the control period T, exact to the microsecond.
     pub sample_period: Duration,
@@ -405,6 +412,8 @@ pub struct Rig {
     pub realtime: RealtimeSettings,
     /// `[ros2]` when enabled.
     pub ros2: Option<Ros2Section>,
+    /// The other vehicles (`[[vehicles]]`), whose LEDs follow the obstacles' in the schedule.
+    pub vehicles: Vec<Vehicle>,
     /// The configuration this rig was built from (a recording keeps it as TOML, so a
     /// replay rebuilds the same rig). Kept as it is, not as text: the offline runner builds
     /// a rig every episode, and writing TOML was a twentieth of a sweep.

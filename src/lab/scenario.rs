@@ -344,6 +344,7 @@ impl Scenario {
             operator: OperatorSection::default(),
             realtime: Default::default(),
             ros2: None,
+            vehicles: Vec::new(),
         }
     }
 }

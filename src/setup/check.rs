@@ -16,7 +16,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::psd_client::{PsdClient, PsdClientError};
-use crate::config::{ConfigError, Rig, RigFile};
+use crate::config::{ConfigError, Rig, RigFile, VehicleMotors};
 use crate::gateway::core::psd_session::MAX_RTT;
 use crate::gateway::core::SetupError;
 use crate::Point;
@@ -106,6 +106,7 @@ impl fmt::Display for CheckReport {
 const CONFIG: &str = "config";
 const WATCHDOGS: &str = "watchdogs vs board timeout";
 const SCHEDULE: &str = "LED schedule";
+const VEHICLE: &str = "vehicle";
 const REALTIME: &str = "real-time settings";
 const SERIAL: &str = "serial port";
 const ANSWERS: &str = "controller answers";
@@ -190,16 +191,48 @@ fn config_cross_checks(rig: &Rig, report: &mut CheckReport) {
             s.heartbeat_timeout.as_millis()
         ),
     );
-    report.pass(
-        SCHEDULE,
-        "schedule",
-        format!(
-            "{} LEDs, frame T = {:.3} ms ({:.1} Hz)",
-            rig.schedule.slots().len(),
-            t_us as f64 / 1000.0,
-            1e6 / t_us as f64
-        ),
+    report.pass(SCHEDULE, "schedule", schedule_detail(rig));
+    for v in &rig.vehicles {
+        let motors = match v.motors {
+            VehicleMotors::Board(n) => format!("board node {}", n.get()),
+            VehicleMotors::Drives { left, right } => format!("drives {} and {}", left.get(), right.get()),
+        };
+        report.pass(
+            VEHICLE,
+            format!("vehicles: {}", v.name),
+            format!(
+                "LEDs {} and {}, {motors}, radius {} m, up to {} m/s",
+                v.front_led, v.rear_led, v.robot.radius, v.robot.max_speed
+            ),
+        );
+    }
+}
+
+/// The frame T, each slot's time, and the delay margin (eq. 29) T alone gives: the sample
+/// of the frame's first LED is a frame old when the frame ends, so an obstacle or a vehicle
+/// moving at its top speed for T is that far from where it was seen.
+fn schedule_detail(rig: &Rig) -> String {
+    let t_us = rig.sample_period.as_micros();
+    let t = rig.sample_period.as_secs_f64();
+    let slots = rig.schedule.slots();
+    let mut detail =
+        format!("{} LEDs, frame T = {:.3} ms ({:.1} Hz)", slots.len(), t_us as f64 / 1000.0, 1e6 / t_us as f64);
+    if rig.vehicles.is_empty() {
+        return detail;
+    }
+    let each: Vec<String> = slots.iter().map(|s| format!("{}: {} µs", s.led, s.slot_us)).collect();
+    let dark = rig.schedule.dark_slot_us;
+    let fastest = rig.vehicles.iter().map(|v| v.robot.max_speed).fold(rig.control.planner.max_speed, f64::max);
+    detail += &format!(
+        "; slots {}{}; delay margin U·T at T: {:.1} mm for a vehicle at {fastest} m/s, {:.1} mm for an obstacle at \
+         safety.max_obstacle_speed = {} m/s",
+        each.join(", "),
+        if dark > 0 { format!(", dark {dark} µs") } else { String::new() },
+        fastest * t * 1e3,
+        rig.tracking.max_obstacle_speed * t * 1e3,
+        rig.tracking.max_obstacle_speed,
     );
+    detail
 }
 
 async fn check_psd(rig: &Rig, report: &mut CheckReport) {

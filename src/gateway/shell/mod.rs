@@ -105,6 +105,10 @@ pub async fn run(
     mut controls: Controls,
     progress: Option<watch::Sender<Progress>>,
 ) -> Result<Report, GatewayError> {
+    if !rig.vehicles.is_empty() {
+        let names: Vec<&str> = rig.vehicles.iter().map(|v| v.name.as_str()).collect();
+        return Err(GatewayError::Fleet(names.join(", ")));
+    }
     let origin = Instant::now();
     let notifier = Notifier::from_env()?;
     let can = match timeout(CAN_OPEN_DEADLINE, open_can(&rig.can)).await {
@@ -732,6 +736,11 @@ pub enum GatewayError {
     #[cfg(not(feature = "ros2"))]
     #[error("[ros2] is enabled, but this flowgate was built without ROS 2 (the `ros2` feature)")]
     Ros2Missing,
+    #[error(
+        "[[vehicles]] names {0}: this gateway drives the robot alone. The vehicles' LEDs, CAN ids and schedule are \
+         checked (`flowgate check`); fleets run in the simulator (`flowgate plan`, docs/fleet.md)"
+    )]
+    Fleet(String),
 }
 
 /// An outside planner's command that came another way than `planner.method` names (the

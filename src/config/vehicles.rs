@@ -1,0 +1,312 @@
+//! `[[vehicles]]`: the rig's other vehicles, under the same camera and on the same CAN bus
+//! as the robot (the first vehicle, `[leds]`, `[can]`, `[drive]` and `[robot]`).
+//!
+//! Each vehicle has its LED pair, its motors (a board, or a CiA 402 drive a wheel) and its
+//! body and limits, by default the robot's. What is checked here is what the hardware
+//! allows: every LED on the PSD controller's bus once, one schedule for all of them, and no
+//! CAN identifier used by two devices (node numbers apart is not enough: the boards' and the
+//! drives' tables overlap, and the gateway's broadcasts to one kind are frames the other
+//! kind acts on).
+
+use std::time::Duration;
+
+use flowgate_protocol::can::IdUse;
+use flowgate_protocol::psd::{Schedule, MAX_SCHEDULE_LEDS};
+use flowgate_protocol::{canopen, motor};
+use serde::{Deserialize, Serialize};
+
+use super::checks::{invalid, non_negative, positive, Invalid, BODY};
+use super::motors::{DriveSection, MotorProtocolName};
+use super::planning::RobotSection;
+use super::RigFile;
+use crate::track::LedGeometry;
+
+/// One `[[vehicles]]` entry as written. Every key after the motors' defaults to the robot's
+/// (`[leds]`, `[robot]`, `[drive]`).
+#[derive(Debug, Clone, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct VehicleSection {
+    /// Lower-case letters, digits and `_`: a ROS name and a file name; `robot` is the first
+    /// vehicle's.
+    pub name: String,
+    /// The LED ids on the controller's driver bus.
+    pub front_led: u8,
+    pub rear_led: u8,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front_offset: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rear_offset: Option<f64>,
+    /// What its motors speak (default: `can.protocol`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub protocol: Option<MotorProtocolName>,
+    /// Its board's node id, 1-15 (a board).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub node: Option<u8>,
+    /// Its wheels' drives' node ids, 1-127 (CiA 402 drives, set up as `[cia402]` says).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub left_node: Option<u8>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub right_node: Option<u8>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_speed: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_radius: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps_per_rev: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub microsteps: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_base: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_wheel_speed: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_accel: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_timeout_ms: Option<u16>,
+}
+
+/// A vehicle's motors on the rig's bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VehicleMotors {
+    Board(motor::NodeId),
+    Drives { left: canopen::NodeId, right: canopen::NodeId },
+}
+
+/// A vehicle as the rig has it: checked and typed.
+#[derive(Debug, Clone)]
+pub struct Vehicle {
+    pub name: String,
+    pub front_led: u8,
+    pub rear_led: u8,
+    pub led_geometry: LedGeometry,
+    pub motors: VehicleMotors,
+    pub robot: RobotSection,
+    pub drive: DriveSection,
+}
+
+/// A key of `vehicles[i]`.
+fn key(i: usize, leaf: &str) -> String {
+    format!("vehicles[{i}].{leaf}")
+}
+
+/// Whether `name` is a ROS name's token: a lower-case letter, then letters, digits and `_`.
+fn ros_token(name: &str) -> bool {
+    let mut chars = name.chars();
+    chars.next().is_some_and(|c| c.is_ascii_lowercase())
+        && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+        && name.len() <= 63
+}
+
+impl VehicleSection {
+    fn check_name(&self, i: usize) -> Result<(), Invalid> {
+        if !ros_token(&self.name) {
+            return invalid(
+                &key(i, "name"),
+                format!("{:?} is not a name: 1-63 lower-case letters, digits and `_`, a letter first", self.name),
+            );
+        }
+        if self.name == "robot" {
+            return invalid(&key(i, "name"), "\"robot\" is the first vehicle's ([leds], [can], [robot])");
+        }
+        Ok(())
+    }
+
+    /// The vehicle's body, limits and motors; its name and LEDs are checked already.
+    fn validate(&self, i: usize, rig: &RigFile, sample_period: Duration) -> Result<Vehicle, Invalid> {
+        let led_geometry = LedGeometry {
+            front: self.front_offset.unwrap_or(rig.leds.front_offset),
+            rear: self.rear_offset.unwrap_or(rig.leds.rear_offset),
+        };
+        non_negative(&key(i, "front_offset"), led_geometry.front, BODY)?;
+        non_negative(&key(i, "rear_offset"), led_geometry.rear, BODY)?;
+        positive(&key(i, "front_offset"), led_geometry.front + led_geometry.rear, BODY)?;
+        let d = &rig.drive;
+        let drive = DriveSection {
+            wheel_radius: self.wheel_radius.unwrap_or(d.wheel_radius),
+            steps_per_rev: self.steps_per_rev.unwrap_or(d.steps_per_rev),
+            microsteps: self.microsteps.unwrap_or(d.microsteps),
+            wheel_base: self.wheel_base.unwrap_or(d.wheel_base),
+            max_wheel_speed: self.max_wheel_speed.unwrap_or(d.max_wheel_speed),
+            wheel_accel: self.wheel_accel.unwrap_or(d.wheel_accel),
+            command_timeout_ms: self.command_timeout_ms.unwrap_or(d.command_timeout_ms),
+        };
+        let robot = RobotSection {
+            radius: self.radius.unwrap_or(rig.robot.radius),
+            max_speed: self.max_speed.unwrap_or(rig.robot.max_speed),
+        };
+        // The robot's rules, named as this vehicle's keys.
+        let renamed = |e: Invalid| {
+            let leaf = e.key.rsplit('.').next().unwrap_or(&e.key).to_string();
+            Invalid { key: key(i, &leaf), why: e.why }
+        };
+        drive.validate(sample_period).map_err(renamed)?;
+        robot.validate(&drive).map_err(renamed)?;
+        // The gateway's watchdogs must fire before this vehicle's board stops by itself.
+        rig.safety.validate(sample_period, drive.command_timeout_ms).map_err(|e| Invalid {
+            key: key(i, "command_timeout_ms"),
+            why: format!("is {} ms: `{}` {}", drive.command_timeout_ms, e.key, e.why),
+        })?;
+        let pulses_per_metre =
+            f64::from(drive.steps_per_rev) * f64::from(drive.microsteps) / (std::f64::consts::TAU * drive.wheel_radius);
+        drive.board_settings(pulses_per_metre).map_err(renamed)?;
+        Ok(Vehicle {
+            name: self.name.clone(),
+            front_led: self.front_led,
+            rear_led: self.rear_led,
+            led_geometry,
+            motors: self.motors(i, rig)?,
+            robot,
+            drive,
+        })
+    }
+
+    fn motors(&self, i: usize, rig: &RigFile) -> Result<VehicleMotors, Invalid> {
+        match (self.protocol.unwrap_or(rig.can.protocol), self.node, self.left_node, self.right_node) {
+            (MotorProtocolName::Pcl80k, Some(n), None, None) => motor::NodeId::new(n)
+                .map(VehicleMotors::Board)
+                .map_or_else(|| invalid(&key(i, "node"), format!("must be 1-15, is {n}")), Ok),
+            (MotorProtocolName::Pcl80k, _, _, _) => {
+                invalid(&key(i, "node"), "a board's vehicle takes `node` (1-15), not `left_node`/`right_node`")
+            }
+            (MotorProtocolName::Cia402, None, Some(l), Some(r)) => {
+                if rig.cia402.is_none() {
+                    return invalid(
+                        &key(i, "protocol"),
+                        "is \"cia402\": its drives are set up as [cia402] says, and the section is missing",
+                    );
+                }
+                let node = |leaf: &str, v: u8| {
+                    canopen::NodeId::new(v).map_or_else(|| invalid(&key(i, leaf), format!("must be 1-127, is {v}")), Ok)
+                };
+                let (left, right) = (node("left_node", l)?, node("right_node", r)?);
+                if left == right {
+                    return invalid(&key(i, "right_node"), format!("is {r}, the left wheel's drive's too"));
+                }
+                Ok(VehicleMotors::Drives { left, right })
+            }
+            (MotorProtocolName::Cia402, _, _, _) => {
+                invalid(&key(i, "left_node"), "CiA 402 drives take `left_node` and `right_node` (1-127), not `node`")
+            }
+        }
+    }
+}
+
+impl RigFile {
+    /// `[[vehicles]]`, checked against each other and against the robot, and the schedule of
+    /// every LED: the robot's and the obstacles' (`leds`, as [`LedSection`](super::LedSection)
+    /// gave them), then each vehicle's pair. Each LED once, the CAN identifiers apart.
+    pub(super) fn validate_vehicles(&self, mut leds: Vec<u8>) -> Result<(Vec<Vehicle>, Schedule), Invalid> {
+        for (i, v) in self.vehicles.iter().enumerate() {
+            v.check_name(i)?;
+            if let Some(other) = self.vehicles[..i].iter().position(|o| o.name == v.name) {
+                return invalid(&key(i, "name"), format!("{:?} is vehicles[{other}]'s name too", v.name));
+            }
+            if v.front_led == v.rear_led {
+                return invalid(&key(i, "rear_led"), format!("is {}, the vehicle's front LED too", v.rear_led));
+            }
+            for (leaf, led) in [("front_led", v.front_led), ("rear_led", v.rear_led)] {
+                if let Some(owner) = self.led_owner(led, i) {
+                    return invalid(&key(i, leaf), format!("LED {led} is {owner}"));
+                }
+            }
+        }
+        let n = leds.len() + 2 * self.vehicles.len();
+        if !self.vehicles.is_empty() && n > MAX_SCHEDULE_LEDS {
+            return invalid(
+                "vehicles",
+                format!(
+                    "{n} LEDs (the robot's 2, {} obstacles', 2 for each of {} vehicles): the schedule holds at most {MAX_SCHEDULE_LEDS}",
+                    leds.len() - 2,
+                    self.vehicles.len()
+                ),
+            );
+        }
+        leds.extend(self.vehicles.iter().flat_map(|v| [v.front_led, v.rear_led]));
+        let schedule = self.schedule.build(&leds)?;
+        let sample_period = Duration::from_micros(u64::from(schedule.frame_period_us()));
+        let vehicles = self
+            .vehicles
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v.validate(i, self, sample_period))
+            .collect::<Result<Vec<_>, _>>()?;
+        self.check_can_ids(&vehicles)?;
+        Ok((vehicles, schedule))
+    }
+
+    /// Who uses `led` besides vehicle `i`: the robot, an obstacle or a vehicle before it.
+    fn led_owner(&self, led: u8, i: usize) -> Option<String> {
+        let l = &self.leds;
+        if led == l.robot_front || led == l.robot_rear {
+            let leaf = if led == l.robot_front { "robot_front" } else { "robot_rear" };
+            return Some(format!("the robot's (leds.{leaf})"));
+        }
+        if let Some(k) = l.obstacles.iter().position(|o| o.led == led) {
+            return Some(format!("an obstacle's (leds.obstacles[{k}].led)"));
+        }
+        self.vehicles[..i]
+            .iter()
+            .enumerate()
+            .find(|(_, v)| v.front_led == led || v.rear_led == led)
+            .map(|(k, v)| format!("vehicles[{k}] ({})'s", v.name))
+    }
+
+    /// Every CAN identifier on the bus, each with the key of the device (or the gateway's
+    /// broadcasts) that uses it: none may be used twice.
+    fn check_can_ids(&self, vehicles: &[Vehicle]) -> Result<(), Invalid> {
+        let mut devices = vec![("the robot".to_string(), self.robot_motors()?)];
+        devices.extend(vehicles.iter().enumerate().map(|(i, v)| (format!("vehicles[{i}] ({})", v.name), v.motors)));
+        let mut uses: Vec<(String, IdUse)> = Vec::new();
+        for (owner, motors) in &devices {
+            match *motors {
+                VehicleMotors::Board(n) => uses.extend(motor::board_ids(n).map(|u| (owner.clone(), u))),
+                VehicleMotors::Drives { left, right } => {
+                    uses.extend(canopen::drive_ids(left).map(|u| (format!("{owner}, left"), u)));
+                    uses.extend(canopen::drive_ids(right).map(|u| (format!("{owner}, right"), u)));
+                }
+            }
+        }
+        if devices.iter().any(|(_, m)| matches!(m, VehicleMotors::Board(_))) {
+            uses.extend(motor::GATEWAY_IDS.map(|u| ("the gateway, to the boards".to_string(), u)));
+        }
+        if devices.iter().any(|(_, m)| matches!(m, VehicleMotors::Drives { .. })) {
+            let gateway = self.cia402.map_or(super::motors::default_gateway_node(), |c| c.gateway_node);
+            if let Some(node) = canopen::NodeId::new(gateway) {
+                uses.extend(canopen::gateway_ids(node).map(|u| ("the gateway, to the drives".to_string(), u)));
+            }
+        }
+        for (k, (owner, u)) in uses.iter().enumerate() {
+            if let Some((first, f)) = uses[..k].iter().find(|(o, f)| f.id == u.id && o != owner) {
+                return invalid(
+                    "vehicles",
+                    format!(
+                        "CAN id 0x{:03X} is {} ({first}) and {} ({owner}): on one bus each would take the other's frames",
+                        u.id, f.what, u.what
+                    ),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// The robot's motors, as `[can]` and `[cia402]` give them (checked by their sections).
+    fn robot_motors(&self) -> Result<VehicleMotors, Invalid> {
+        let node = |key: &str, v: u8| {
+            canopen::NodeId::new(v).map_or_else(|| invalid(key, format!("must be 1-127, is {v}")), Ok)
+        };
+        match (self.can.protocol, &self.cia402) {
+            (MotorProtocolName::Cia402, Some(c)) => Ok(VehicleMotors::Drives {
+                left: node("cia402.left_node", c.left_node)?,
+                right: node("cia402.right_node", c.right_node)?,
+            }),
+            _ => motor::NodeId::new(self.can.node)
+                .map(VehicleMotors::Board)
+                .map_or_else(|| invalid("can.node", format!("must be 1-15, is {}", self.can.node)), Ok),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,174 @@
+use super::super::{ConfigError, Rig, RigFile};
+use super::VehicleMotors;
+
+const EXAMPLE: &str = include_str!("../../../rig.example.toml");
+
+/// The example rig (robot LEDs 1 and 2, obstacles 3 and 4, the board at node 1) with
+/// `extra` appended: `[[vehicles]]` entries, or a section.
+fn rig(extra: &str) -> Result<Rig, ConfigError> {
+    RigFile::from_toml(&format!("{EXAMPLE}\n{extra}"), "rig.toml")?.rig("rig.toml")
+}
+
+/// The example driving CiA 402 drives at nodes 1 and 2 (gateway node 127).
+fn drives_rig(extra: &str) -> Result<Rig, ConfigError> {
+    let text = EXAMPLE.replace("protocol = \"pcl80k\"", "protocol = \"cia402\"");
+    RigFile::from_toml(&format!("{text}\n[cia402]\nleft_node = 1\nright_node = 2\n{extra}"), "rig.toml")?
+        .rig("rig.toml")
+}
+
+fn refused(result: Result<Rig, ConfigError>) -> (String, String) {
+    match result {
+        Err(ConfigError::Invalid { invalid, .. }) => (invalid.key, invalid.why),
+        Err(other) => panic!("refused, but not as invalid: {other}"),
+        Ok(_) => panic!("accepted"),
+    }
+}
+
+const TWO: &str = "
+[[vehicles]]
+name = \"oncoming\"
+front_led = 5
+rear_led = 6
+node = 2
+
+[[vehicles]]
+name = \"b\"
+front_led = 7
+rear_led = 8
+node = 3
+radius = 0.05
+max_speed = 0.12
+";
+
+#[test]
+fn vehicles_join_the_schedule_with_the_robots_body_by_default() {
+    let r = rig(TWO).unwrap();
+    let leds: Vec<u8> = r.schedule.slots().iter().map(|s| s.led).collect();
+    assert_eq!(leds, [1, 2, 3, 4, 5, 6, 7, 8], "the robot's, the obstacles', then each vehicle's pair");
+    assert_eq!(r.sample_period.as_micros(), 8 * 4000 + 1000);
+    let [a, b] = &r.vehicles[..] else { panic!("two vehicles") };
+    assert_eq!((a.name.as_str(), a.front_led, a.rear_led), ("oncoming", 5, 6));
+    assert_eq!(a.motors, VehicleMotors::Board(flowgate_protocol::motor::NodeId::new(2).unwrap()));
+    assert_eq!((a.robot.radius, a.robot.max_speed, a.drive.wheel_base), (0.07, 0.15, 0.108), "the robot's");
+    assert_eq!((a.led_geometry.front, a.led_geometry.rear), (0.035, 0.035), "[leds]' offsets");
+    assert_eq!((b.robot.radius, b.robot.max_speed), (0.05, 0.12), "its own");
+    // A single-robot config is as it was.
+    let one = rig("").unwrap();
+    assert!(one.vehicles.is_empty());
+    assert_eq!(one.schedule.slots().len(), 4);
+}
+
+#[test]
+fn drives_of_several_vehicles_share_the_bus_when_their_identifiers_keep_apart() {
+    let r =
+        drives_rig("[[vehicles]]\nname = \"b\"\nfront_led = 5\nrear_led = 6\nleft_node = 3\nright_node = 4\n").unwrap();
+    assert!(matches!(r.vehicles[0].motors, VehicleMotors::Drives { .. }));
+}
+
+#[test]
+fn a_vehicle_on_anothers_led_or_name_is_refused_naming_both() {
+    let one = |body: &str| rig(&format!("[[vehicles]]\n{body}"));
+    let cases = [
+        (
+            "name = \"a\"\nfront_led = 1\nrear_led = 6\nnode = 2",
+            "vehicles[0].front_led",
+            "LED 1 is the robot's (leds.robot_front)",
+        ),
+        (
+            "name = \"a\"\nfront_led = 5\nrear_led = 4\nnode = 2",
+            "vehicles[0].rear_led",
+            "LED 4 is an obstacle's (leds.obstacles[1].led)",
+        ),
+        (
+            "name = \"a\"\nfront_led = 5\nrear_led = 5\nnode = 2",
+            "vehicles[0].rear_led",
+            "is 5, the vehicle's front LED too",
+        ),
+        (
+            "name = \"robot\"\nfront_led = 5\nrear_led = 6\nnode = 2",
+            "vehicles[0].name",
+            "\"robot\" is the first vehicle's",
+        ),
+        ("name = \"Car-1\"\nfront_led = 5\nrear_led = 6\nnode = 2", "vehicles[0].name", "is not a name"),
+    ];
+    for (body, key, why) in cases {
+        let (k, w) = refused(one(body));
+        assert_eq!(k, key, "{body}");
+        assert!(w.contains(why), "{body}: {w}");
+    }
+    let twice = "[[vehicles]]\nname = \"a\"\nfront_led = 5\nrear_led = 6\nnode = 2\n\
+                 [[vehicles]]\nname = \"a\"\nfront_led = 7\nrear_led = 6\nnode = 3\n";
+    assert_eq!(refused(rig(twice)), ("vehicles[1].name".into(), "\"a\" is vehicles[0]'s name too".into()));
+    let (k, w) = refused(rig(&twice.replacen("name = \"a\"\nfront_led = 7", "name = \"b\"\nfront_led = 7", 1)));
+    assert_eq!((k.as_str(), w.as_str()), ("vehicles[1].rear_led", "LED 6 is vehicles[0] (a)'s"));
+}
+
+#[test]
+fn can_identifiers_used_twice_on_the_bus_are_refused_naming_both_devices() {
+    let vehicle = |can: &str| format!("[[vehicles]]\nname = \"b\"\nfront_led = 5\nrear_led = 6\n{can}\n");
+    // Two boards at one node: the e-stop to one stops both.
+    let (k, w) = refused(rig(&vehicle("node = 1")));
+    assert_eq!(k, "vehicles");
+    assert_eq!(
+        w,
+        "CAN id 0x001 is e-stop to the board (the robot) and e-stop to the board (vehicles[0] (b)): \
+         on one bus each would take the other's frames"
+    );
+    // Drives on other node numbers than the boards', and still on the boards' identifiers:
+    // the robot's left drive's TPDO1 is the board at node 1's config.
+    let (_, w) = refused(rig(&vehicle("protocol = \"cia402\"\nleft_node = 1\nright_node = 4")));
+    assert!(w.contains("the section is missing"), "a board's rig has no [cia402]: {w}");
+    let (k, w) = refused(drives_rig(&vehicle("protocol = \"pcl80k\"\nnode = 3")));
+    assert_eq!(k, "vehicles");
+    assert_eq!(
+        w,
+        "CAN id 0x000 is e-stop to every board (the gateway, to the boards) and NMT to every drive (the gateway, to \
+         the drives): on one bus each would take the other's frames"
+    );
+    let (_, w) = refused(drives_rig(&vehicle("protocol = \"pcl80k\"\nnode = 1")));
+    assert!(w.starts_with("CAN id 0x081 is the drive's EMCY (the robot, left) and the board's emergency"), "{w}");
+    // Drives: a node taken twice; the gateway's own heartbeat on a drive's.
+    let (_, w) = refused(drives_rig(&vehicle("left_node = 2\nright_node = 3")));
+    assert!(
+        w.starts_with(
+            "CAN id 0x082 is the drive's EMCY (the robot, right) and the drive's EMCY (vehicles[0] (b), left)"
+        ),
+        "{w}"
+    );
+    let (_, w) = refused(drives_rig(&vehicle("left_node = 126\nright_node = 127")));
+    assert!(w.contains("0x77F is the drive's heartbeat (vehicles[0] (b), right) and the gateway's heartbeat"), "{w}");
+}
+
+#[test]
+fn more_leds_than_the_schedule_holds_and_bad_limits_are_refused() {
+    let seven: String = (0..7)
+        .map(|k| {
+            format!(
+                "[[vehicles]]\nname = \"v{k}\"\nfront_led = {}\nrear_led = {}\nnode = {}\n",
+                10 + 2 * k,
+                11 + 2 * k,
+                k + 2
+            )
+        })
+        .collect();
+    let (k, w) = refused(rig(&seven));
+    assert_eq!(k, "vehicles");
+    assert_eq!(w, "18 LEDs (the robot's 2, 2 obstacles', 2 for each of 7 vehicles): the schedule holds at most 16");
+    let one = |extra: &str| rig(&format!("[[vehicles]]\nname = \"b\"\nfront_led = 5\nrear_led = 6\nnode = 2\n{extra}"));
+    let cases = [
+        ("max_speed = 0.3", "vehicles[0].max_speed"),
+        ("radius = 0", "vehicles[0].radius"),
+        ("command_timeout_ms = 10", "vehicles[0].command_timeout_ms"),
+        ("command_timeout_ms = 100", "vehicles[0].command_timeout_ms"),
+        ("left_node = 3", "vehicles[0].node"),
+        ("front_offset = -0.01", "vehicles[0].front_offset"),
+    ];
+    for (extra, key) in cases {
+        let (k, w) = refused(one(extra));
+        assert_eq!(k, key, "{extra}: {w}");
+    }
+    let (_, w) = refused(one("command_timeout_ms = 100"));
+    assert!(w.starts_with("is 100 ms: `safety."), "the watchdog it would outlast: {w}");
+    let (k, w) = refused(rig("[[vehicles]]\nname = \"b\"\nfront_led = 5\nrear_led = 6\nnode = 16\n"));
+    assert_eq!((k.as_str(), w.as_str()), ("vehicles[0].node", "must be 1-15, is 16"));
+}
