@@ -177,6 +177,29 @@ async fn a_fleet_rig_is_checked_and_the_gateway_refuses_to_drive_it() {
     assert!(stderr.contains("[[vehicles]] names oncoming, b: this gateway drives the robot alone"), "{stderr}");
 }
 
+/// More LEDs than the controller says it drives (the simulated one: 16): the handshake
+/// refuses the schedule, with both numbers.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fleet_beyond_the_controllers_leds_fails_its_identity() {
+    let (handle, mut cfg) = sim(&[]).await;
+    cfg.vehicles = (0..10u8)
+        .map(|k| flowgate::config::VehicleSection {
+            name: format!("v{k}"),
+            front_led: 20 + 2 * k,
+            rear_led: 21 + 2 * k,
+            node: Some(2 + k),
+            ..Default::default()
+        })
+        .collect();
+    let out = check("fleet-leds", &cfg);
+    handle.stop().await;
+    assert_eq!(out.verdict("config"), "PASS", "{}", out.stdout);
+    out.fails_only(
+        "controller identity",
+        &["PSD controller drives 16 LEDs (its Info.max_leds); the schedule has 23 ([leds] and [[vehicles]])"],
+    );
+}
+
 #[test]
 fn a_bad_key_is_named_and_nothing_is_opened() {
     let s = e1();

@@ -380,7 +380,7 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
             (port, path.clone())
         }
     };
-    let (psd_rx, psd_tx, psd_task) = spawn_serial(psd_port, PsdCodec::new(), psd_item);
+    let (psd_rx, psd_tx, psd_task) = spawn_serial(psd_port, PsdCodec::controller(), psd_item);
     let psd = PsdIo { rx: psd_rx, tx: psd_tx, task: psd_task, keep: psd_keep };
 
     let mut can_path = None;
@@ -427,7 +427,7 @@ impl PsdIo {
     fn reopen(link: &Path) -> Result<Self, RigError> {
         let (master, keep, path) = pty()?;
         make_link(link, &path)?;
-        let (rx, tx, task) = spawn_serial(master, PsdCodec::new(), psd_item);
+        let (rx, tx, task) = spawn_serial(master, PsdCodec::controller(), psd_item);
         Ok(Self { rx, tx, task, keep: Some(keep) })
     }
 }

@@ -112,13 +112,21 @@ pub struct PsdCodec {
 
 impl Default for PsdCodec {
     fn default() -> Self {
-        Self { splitter: Splitter::new(psd::MAX_WIRE_LEN - 1), rejected: None }
+        Self { splitter: Splitter::new(psd::MAX_REPLY_WIRE_LEN - 1), rejected: None }
     }
 }
 
 impl PsdCodec {
+    /// A gateway's end: it reads a controller's replies, at most
+    /// [`psd::MAX_REPLY_WIRE_LEN`] bytes a frame.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A controller's end: it reads a gateway's requests, up to a schedule of
+    /// [`psd::MAX_SCHEDULE_LEDS`] LEDs.
+    pub fn controller() -> Self {
+        Self { splitter: Splitter::new(psd::MAX_WIRE_LEN - 1), rejected: None }
     }
 
     /// The header of the last frame that did not decode, if it could be read: a controller

@@ -42,8 +42,9 @@ pub const HEADER_LEN: usize = 4;
 pub const CRC_LEN: usize = 2;
 /// The shortest LED slot, µs: an LED's rise and one PSD conversion.
 pub const MIN_SLOT_US: u16 = 100;
-/// The most LEDs one schedule may hold.
-pub const MAX_SCHEDULE_LEDS: usize = 16;
+/// The most LEDs one schedule may hold. A controller says how many it drives
+/// ([`Info::max_leds`]); a gateway sends no longer schedule than that.
+pub const MAX_SCHEDULE_LEDS: usize = 64;
 /// The latest controller stamp (`t_ctrl_us`) a frame may carry: 2^53 µs, some 285 years of
 /// uptime, and exact in an `f64`. A later one is refused at decode as absurd (a corrupted
 /// stamp that passed the CRC), never mapped to host time.
@@ -54,6 +55,12 @@ pub const MAX_PAYLOAD_LEN: usize = 5 + 3 * MAX_SCHEDULE_LEDS;
 pub const MAX_FRAME_LEN: usize = HEADER_LEN + MAX_PAYLOAD_LEN + CRC_LEN;
 /// The largest frame on the wire: COBS overhead plus the `0x00` delimiter.
 pub const MAX_WIRE_LEN: usize = cobs::max_encoded_len(MAX_FRAME_LEN) + 1;
+/// The longest frame a gateway reads, on the wire: a controller's replies are shorter (the
+/// longest, a sample, is [`SAMPLE_WIRE_LEN`]), and a longer run of bytes without a delimiter
+/// is garbage, cut and counted at this length. It is the bound of the frames of a 16-LED
+/// schedule, kept when the schedules grew to 64 LEDs so that garbage is cut, counted and
+/// judged as it was: a recording replays its decisions as they were made.
+pub const MAX_REPLY_WIRE_LEN: usize = cobs::max_encoded_len(HEADER_LEN + 5 + 3 * 16 + CRC_LEN) + 1;
 /// The wire length of a [`Message::Sample`] frame, for wire-time figures.
 pub const SAMPLE_WIRE_LEN: usize = cobs::max_encoded_len(HEADER_LEN + SAMPLE_PAYLOAD_LEN + CRC_LEN) + 1;
 const SAMPLE_PAYLOAD_LEN: usize = 25;
@@ -315,6 +322,9 @@ pub struct Sample {
 }
 
 /// A message of either direction. Payload layouts (offsets into the payload, LE):
+// A schedule travels inline: the crate needs no allocator, and a schedule is sent once a
+// session, so the rest of the messages carry its size unused rather than a heap pointer.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Message {
     /// `0x01`, empty. Answered by [`Message::Info`].

@@ -71,6 +71,22 @@ fn psd_overlong_run_is_dropped_and_reported_once() {
     assert_eq!(codec.stats().bad_frames, 1);
 }
 
+/// A controller's end reads a schedule of 64 LEDs; a gateway's end, which only ever reads
+/// replies, cuts the same bytes as an overlong run.
+#[test]
+fn a_64_led_schedule_is_read_by_a_controller_and_is_overlong_to_a_gateway() {
+    let slots: Vec<psd::LedSlot> = (1..=64).map(|led| psd::LedSlot { led, slot_us: 250 }).collect();
+    let schedule = psd::Schedule::new(&slots, 1000, 1).unwrap();
+    assert_eq!(schedule.frame_period_us(), 64 * 250 + 1000);
+    let bytes = wire(Packet::new(5, Message::SetSchedule(schedule)));
+    assert!(bytes.len() > psd::MAX_REPLY_WIRE_LEN && bytes.len() <= psd::MAX_WIRE_LEN, "{} bytes", bytes.len());
+    let items = decode_all(&mut PsdCodec::controller(), &bytes, 16);
+    assert!(matches!(&items[..], [Ok(Packet { seq: 5, message: Message::SetSchedule(s) })] if s.slots().len() == 64));
+    let items = decode_all(&mut PsdCodec::new(), &bytes, 16);
+    assert!(matches!(&items[..], [Err(StreamError::Overlong { .. })]), "{items:?}");
+    assert!(psd::Schedule::new(&[slots.clone(), vec![psd::LedSlot { led: 65, slot_us: 250 }]].concat(), 0, 1).is_err());
+}
+
 #[test]
 fn psd_idle_delimiters_are_not_errors() {
     let mut stream = vec![0, 0, 0];

@@ -170,7 +170,7 @@ impl RigFile {
     pub fn validate(&self) -> Result<Rig, Invalid> {
         self.serial.validate()?;
         let leds = self.leds.validate()?;
-        let (vehicles, schedule) = self.validate_vehicles(leds)?;
+        let schedule = self.schedule_with_vehicles(leds)?;
         let sample_period = Duration::from_micros(u64::from(schedule.frame_period_us()));
         let calibration = self.calibration()?;
         let (can, node) = self.can.validate()?;
@@ -191,6 +191,7 @@ impl RigFile {
         if let Some(r) = &self.ros2 {
             r.validate()?;
         }
+        let vehicles = self.validate_vehicles(sample_period)?;
         let control = this.control_config(sample_period, &calibration, room);
         let board = self.drive.board_settings(control.drive.pulses_per_metre())?;
         let motors = match (self.can.protocol, &self.cia402) {

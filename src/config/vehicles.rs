@@ -19,6 +19,7 @@ use super::checks::{invalid, non_negative, positive, Invalid, BODY};
 use super::motors::{DriveSection, MotorProtocolName};
 use super::planning::RobotSection;
 use super::RigFile;
+use crate::planner::MAX_OBSTACLES;
 use crate::track::LedGeometry;
 
 /// One `[[vehicles]]` entry as written. Every key after the motors' defaults to the robot's
@@ -194,10 +195,10 @@ impl VehicleSection {
 }
 
 impl RigFile {
-    /// `[[vehicles]]`, checked against each other and against the robot, and the schedule of
-    /// every LED: the robot's and the obstacles' (`leds`, as [`LedSection`](super::LedSection)
-    /// gave them), then each vehicle's pair. Each LED once, the CAN identifiers apart.
-    pub(super) fn validate_vehicles(&self, mut leds: Vec<u8>) -> Result<(Vec<Vehicle>, Schedule), Invalid> {
+    /// The schedule of every LED: the robot's and the obstacles' (`leds`, as
+    /// [`LedSection`](super::LedSection) gave them), then each vehicle's pair, each LED once;
+    /// the vehicles' names.
+    pub(super) fn schedule_with_vehicles(&self, mut leds: Vec<u8>) -> Result<Schedule, Invalid> {
         for (i, v) in self.vehicles.iter().enumerate() {
             v.check_name(i)?;
             if let Some(other) = self.vehicles[..i].iter().position(|o| o.name == v.name) {
@@ -223,9 +224,25 @@ impl RigFile {
                 ),
             );
         }
+        // Each vehicle's field takes every other vehicle and every obstacle as a circle.
+        let others = self.vehicles.len() + self.leds.obstacles.len();
+        if others > MAX_OBSTACLES {
+            return invalid(
+                "vehicles",
+                format!(
+                    "{} vehicles and {} obstacles: each vehicle's field would take {others} circles, at most {MAX_OBSTACLES}",
+                    self.vehicles.len() + 1,
+                    self.leds.obstacles.len()
+                ),
+            );
+        }
         leds.extend(self.vehicles.iter().flat_map(|v| [v.front_led, v.rear_led]));
-        let schedule = self.schedule.build(&leds)?;
-        let sample_period = Duration::from_micros(u64::from(schedule.frame_period_us()));
+        self.schedule.build(&leds)
+    }
+
+    /// Each vehicle's body, limits and motors, once the robot's have passed (`sample_period`:
+    /// the schedule's, every vehicle's LEDs in it), and every CAN identifier apart.
+    pub(super) fn validate_vehicles(&self, sample_period: Duration) -> Result<Vec<Vehicle>, Invalid> {
         let vehicles = self
             .vehicles
             .iter()
@@ -233,7 +250,7 @@ impl RigFile {
             .map(|(i, v)| v.validate(i, self, sample_period))
             .collect::<Result<Vec<_>, _>>()?;
         self.check_can_ids(&vehicles)?;
-        Ok((vehicles, schedule))
+        Ok(vehicles)
     }
 
     /// Who uses `led` besides vehicle `i`: the robot, an obstacle or a vehicle before it.

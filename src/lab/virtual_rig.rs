@@ -442,7 +442,7 @@ impl<K: StageClock> VirtualRig<K> {
             to_host: Wire::new(SERIAL_BAUD),
             to_controller: Wire::new(SERIAL_BAUD),
             controller_rx: BytesMut::with_capacity(1024),
-            controller_codec: PsdCodec::new(),
+            controller_codec: PsdCodec::controller(),
             can_up: Wire::new(SERIAL_BAUD),
             can_down: Wire::new(SERIAL_BAUD),
             host_rx: BytesMut::with_capacity(1024),

@@ -301,7 +301,7 @@ async fn check_psd(rig: &Rig, report: &mut CheckReport) {
 fn handshake_failed(e: &PsdClientError, port: &str, report: &mut CheckReport) {
     let (failed, passed): (&str, &[&'static str]) = match e {
         PsdClientError::Setup(SetupError::Silent { request: "GetInfo" }) => (ANSWERS, &[]),
-        PsdClientError::Setup(SetupError::Identity(_)) => (IDENTITY, &[ANSWERS]),
+        PsdClientError::Setup(SetupError::Identity(_) | SetupError::FewerLeds { .. }) => (IDENTITY, &[ANSWERS]),
         PsdClientError::Setup(SetupError::Refused { request: "SetSchedule", .. })
         | PsdClientError::Setup(SetupError::Silent { request: "SetSchedule" }) => (ACCEPTED, &[ANSWERS, IDENTITY]),
         PsdClientError::Setup(SetupError::Silent { request: "TimeSync" }) => {

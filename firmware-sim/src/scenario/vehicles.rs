@@ -20,9 +20,9 @@ pub const SCRIPT_PRECISION: f64 = 0.01;
 /// Beyond this distance from its script (unless set per vehicle) a scripted vehicle is
 /// stopped and the stop named, m.
 pub const DEFAULT_SCRIPT_TOLERANCE: f64 = 0.05;
-/// The most vehicles a scenario holds, the robot among them: each takes two of the PSD
-/// schedule's LEDs.
-pub const MAX_VEHICLES: usize = flowgate_protocol::psd::MAX_SCHEDULE_LEDS / 2;
+/// The most vehicles a scenario holds, the robot among them: each takes two of the
+/// simulated controller's LEDs.
+pub const MAX_VEHICLES: usize = crate::psd_controller::MAX_LEDS as usize / 2;
 /// A vehicle's name is a ROS name and a file name: lower-case letters, digits and `_`.
 pub const MAX_NAME_LEN: usize = 32;
 /// The name the scenario's `[robot]` goes by among the vehicles.
@@ -265,13 +265,13 @@ impl SimScenario {
             ));
         }
         let leds = 2 * n + self.obstacles.len();
-        if leds > flowgate_protocol::psd::MAX_SCHEDULE_LEDS {
+        if leds > MAX_VEHICLES * 2 {
             return Err((
                 "vehicles".into(),
                 format!(
-                    "{n} vehicles (two LEDs each) and {} obstacles take {leds} LEDs: the PSD schedule drives at most {}",
+                    "{n} vehicles (two LEDs each) and {} obstacles take {leds} LEDs: the simulated PSD controller drives at most {}",
                     self.obstacles.len(),
-                    flowgate_protocol::psd::MAX_SCHEDULE_LEDS
+                    MAX_VEHICLES * 2
                 ),
             ));
         }

@@ -141,19 +141,47 @@ fn can_identifiers_used_twice_on_the_bus_are_refused_naming_both_devices() {
 
 #[test]
 fn more_leds_than_the_schedule_holds_and_bad_limits_are_refused() {
-    let seven: String = (0..7)
+    // Fourteen boards' vehicles and the example's two obstacles: 32 LEDs, as many circles
+    // in each field as the planner takes (16).
+    let boards = |n: usize| -> String {
+        (0..n)
+            .map(|k| {
+                format!(
+                    "[[vehicles]]\nname = \"v{k}\"\nfront_led = {}\nrear_led = {}\nnode = {}\n",
+                    10 + 2 * k,
+                    11 + 2 * k,
+                    k + 2
+                )
+            })
+            .collect()
+    };
+    let (k, _) = refused(rig(&boards(14)));
+    assert_eq!(k, "safety.sample_timeout_ms", "at 4 ms a slot T = 129 ms: the robot's board would stop first");
+    let short = |text: &str| text.replace("slot_us = 4000 ", "slot_us = 500 ");
+    let r =
+        RigFile::from_toml(&short(&format!("{EXAMPLE}\n{}", boards(14))), "rig.toml").unwrap().rig("rig.toml").unwrap();
+    assert_eq!(r.schedule.slots().len(), 32);
+    let three = short(EXAMPLE).replace("obstacles = [", "obstacles = [ { led = 60, radius = 0.05 },");
+    let (k, w) =
+        refused(RigFile::from_toml(&format!("{three}\n{}", boards(14)), "rig.toml").and_then(|f| f.rig("rig.toml")));
+    assert_eq!(k, "vehicles");
+    assert_eq!(w, "15 vehicles and 3 obstacles: each vehicle's field would take 17 circles, at most 16");
+    // Drives: 31 vehicles, 66 LEDs, more than a schedule holds (the field's limit is a
+    // planner's, the schedule's the protocol's: the LEDs are counted first).
+    let drives: String = (0..31)
         .map(|k| {
             format!(
-                "[[vehicles]]\nname = \"v{k}\"\nfront_led = {}\nrear_led = {}\nnode = {}\n",
-                10 + 2 * k,
-                11 + 2 * k,
-                k + 2
+                "[[vehicles]]\nname = \"v{k}\"\nfront_led = {}\nrear_led = {}\nleft_node = {}\nright_node = {}\n",
+                100 + 2 * k,
+                101 + 2 * k,
+                3 + 2 * k,
+                4 + 2 * k
             )
         })
         .collect();
-    let (k, w) = refused(rig(&seven));
+    let (k, w) = refused(drives_rig(&drives));
     assert_eq!(k, "vehicles");
-    assert_eq!(w, "18 LEDs (the robot's 2, 2 obstacles', 2 for each of 7 vehicles): the schedule holds at most 16");
+    assert_eq!(w, "66 LEDs (the robot's 2, 2 obstacles', 2 for each of 31 vehicles): the schedule holds at most 64");
     let one = |extra: &str| rig(&format!("[[vehicles]]\nname = \"b\"\nfront_led = 5\nrear_led = 6\nnode = 2\n{extra}"));
     let cases = [
         ("max_speed = 0.3", "vehicles[0].max_speed"),

@@ -50,6 +50,10 @@ pub enum SetupError {
     Refused { request: &'static str, reason: NackReason },
     #[error("PSD controller is not the one configured: {0}")]
     Identity(&'static str),
+    #[error(
+        "PSD controller drives {drives} LEDs (its Info.max_leds); the schedule has {schedule} ([leds] and [[vehicles]])"
+    )]
+    FewerLeds { drives: u8, schedule: usize },
 }
 
 /// The handshake's steps, in order.
@@ -405,10 +409,9 @@ impl PsdSession {
         let next = match (step, packet.message) {
             (Step::Info, Message::Info { request_seq, info }) if request_seq == seq => {
                 self.info = Some(info);
-                let problem = self.identity_problem(&info);
-                if let Some(why) = problem {
+                if let Some(problem) = self.identity_problem(&info) {
                     self.phase = Phase::Down;
-                    return SessionEvent::Failed(SetupError::Identity(why));
+                    return SessionEvent::Failed(problem);
                 }
                 Step::Schedule
             }
@@ -416,9 +419,9 @@ impl PsdSession {
             // went on from the schedule): the controller's identity is still checked.
             (_, Message::Info { info, .. }) if self.info.is_none() => {
                 self.info = Some(info);
-                if let Some(why) = self.identity_problem(&info) {
+                if let Some(problem) = self.identity_problem(&info) {
                     self.phase = Phase::Down;
-                    return SessionEvent::Failed(SetupError::Identity(why));
+                    return SessionEvent::Failed(problem);
                 }
                 return SessionEvent::Consumed;
             }
@@ -536,13 +539,14 @@ impl PsdSession {
 
     /// Identity: a controller that cannot run this schedule, or reads another PSD, or stamps
     /// in other units, is not the configured one.
-    fn identity_problem(&self, info: &Info) -> Option<&'static str> {
-        if usize::from(info.max_leds) < self.schedule.slots().len() {
-            Some("it drives fewer LEDs than the schedule has")
+    fn identity_problem(&self, info: &Info) -> Option<SetupError> {
+        let schedule = self.schedule.slots().len();
+        if usize::from(info.max_leds) < schedule {
+            Some(SetupError::FewerLeds { drives: info.max_leds, schedule })
         } else if info.psd_counts != [self.counts; 2] {
-            Some("its PSD's counts differ from calibration.counts")
+            Some(SetupError::Identity("its PSD's counts differ from calibration.counts"))
         } else if info.clock_hz != 1_000_000 {
-            Some("its timestamps are not in microseconds")
+            Some(SetupError::Identity("its timestamps are not in microseconds"))
         } else {
             None
         }

@@ -423,7 +423,10 @@ fn a_boot_announced_before_the_identity_does_not_skip_its_check() {
         _ => None,
     });
     let e = failed.expect("refused");
-    assert_eq!(e.to_string(), "PSD controller is not the one configured: it drives fewer LEDs than the schedule has");
+    assert_eq!(
+        e.to_string(),
+        "PSD controller drives 2 LEDs (its Info.max_leds); the schedule has 4 ([leds] and [[vehicles]])"
+    );
 }
 
 #[test]
@@ -441,7 +444,10 @@ fn a_controller_of_another_kind_is_refused_at_the_handshake() {
         }
     }
     let e = failed.expect("refused");
-    assert_eq!(e.to_string(), "PSD controller is not the one configured: it drives fewer LEDs than the schedule has");
+    assert_eq!(
+        e.to_string(),
+        "PSD controller drives 2 LEDs (its Info.max_leds); the schedule has 4 ([leds] and [[vehicles]])"
+    );
 }
 
 /// Answer the handshake as [`answer`] does, its first time-sync reply `off_us` off (one

@@ -136,7 +136,7 @@ impl PsdLine {
     /// Answer requests until `stop`: info, time sync, acks for the rest.
     fn respond(&self, stop: &AtomicBool) {
         let mut rx = BytesMut::new();
-        let mut codec = PsdCodec::new();
+        let mut codec = PsdCodec::controller();
         let mut chunk = [0u8; 4096];
         let tick = Timespec { tv_sec: 0, tv_nsec: RESPONDER_POLL.as_nanos() as _ };
         while !stop.load(Ordering::Relaxed) {
