@@ -24,7 +24,7 @@ pub const HEARTBEAT_PERIOD: f64 = 0.1;
 /// The simulated firmware's identity.
 pub const FIRMWARE: [u8; 3] = [1, 0, 0];
 /// The LEDs the simulated controller drives (`Info::max_leds`), ids 1 to this.
-pub const MAX_LEDS: u8 = 16;
+pub const MAX_LEDS: u8 = crate::scenario::CONTROLLER_LEDS;
 /// Nominal spot intensity and ambient level, counts.
 const INTENSITY: f64 = 3000.0;
 const AMBIENT: f64 = 180.0;

@@ -186,8 +186,11 @@ pub const MAX_STATIC_OBSTACLES: usize = 64;
 /// walls and static obstacles together.
 pub const MAX_POINTS: usize = 256;
 pub const MAX_ROOM_POINTS: usize = 1024;
+/// The LEDs the simulated PSD controller drives (its `Info::max_leds`, ids 1 to this): a
+/// scenario's robot, vehicles and obstacles take at most these.
+pub const CONTROLLER_LEDS: u8 = 16;
 /// Most moving obstacles: the simulated controller's LEDs less the robot's two.
-pub const MAX_OBSTACLES: usize = crate::psd_controller::MAX_LEDS as usize - 2;
+pub const MAX_OBSTACLES: usize = CONTROLLER_LEDS as usize - 2;
 /// Plausibility bounds for a rig a PSD camera watches, far beyond any real one: a body or
 /// a noise (m), a floor's extent (m), a speed, an acceleration and a filter's corner. (The
 /// sample time is bounded by the PSD schedule's range, which the gateway checks.)

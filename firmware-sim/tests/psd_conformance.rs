@@ -116,17 +116,20 @@ async fn every_request_gets_its_answer() {
             "LEDs {led_a}, {led_b}, slot {slot_us} µs"
         );
     }
-    // A schedule of 17 LEDs does not fit a frame: dropped unread, BadLength (never
-    // TooManyLeds, which is for a controller with fewer than 16 drivers).
-    let mut body = vec![2, 0x02, 24, 0, 0, 1, 0, 0, 17];
-    for led in 1..=17u8 {
-        body.extend([led, 0xF4, 0x01]);
+    // A schedule of 17 LEDs fits a frame but not this controller's 16 drivers: TooManyLeds.
+    // One of 65 does not fit a frame: dropped unread, BadLength.
+    for (n, reason, seq, msg_type) in [(17u8, NackReason::TooManyLeds, 24, 0x02), (65, NackReason::BadLength, 0, 0)] {
+        let mut body = vec![2, 0x02, 24, 0, 0, 1, 0, 0, n];
+        for led in 1..=n {
+            body.extend([led, 0xF4, 0x01]);
+        }
+        host.send_raw(&frame_with_crc(&body)).await;
+        assert_eq!(
+            host.until(|m| matches!(m, Message::Nack { .. })).await.message,
+            Message::Nack { seq, msg_type, reason },
+            "{n} LEDs"
+        );
     }
-    host.send_raw(&frame_with_crc(&body)).await;
-    assert_eq!(
-        host.until(|m| matches!(m, Message::Nack { .. })).await.message,
-        Message::Nack { seq: 0, msg_type: 0, reason: NackReason::BadLength }
-    );
     // Only when the header cannot be read (here, fewer than 4 bytes): seq 0, type 0.
     host.send_raw(&frame_with_crc(&[2])).await;
     assert_eq!(

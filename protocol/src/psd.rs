@@ -42,8 +42,7 @@ pub const HEADER_LEN: usize = 4;
 pub const CRC_LEN: usize = 2;
 /// The shortest LED slot, µs: an LED's rise and one PSD conversion.
 pub const MIN_SLOT_US: u16 = 100;
-/// The most LEDs one schedule may hold. A controller says how many it drives
-/// ([`Info::max_leds`]); a gateway sends no longer schedule than that.
+/// The most LEDs one schedule may hold; a controller drives [`Info::max_leds`] of them.
 pub const MAX_SCHEDULE_LEDS: usize = 64;
 /// The latest controller stamp (`t_ctrl_us`) a frame may carry: 2^53 µs, some 285 years of
 /// uptime, and exact in an `f64`. A later one is refused at decode as absurd (a corrupted
@@ -55,11 +54,9 @@ pub const MAX_PAYLOAD_LEN: usize = 5 + 3 * MAX_SCHEDULE_LEDS;
 pub const MAX_FRAME_LEN: usize = HEADER_LEN + MAX_PAYLOAD_LEN + CRC_LEN;
 /// The largest frame on the wire: COBS overhead plus the `0x00` delimiter.
 pub const MAX_WIRE_LEN: usize = cobs::max_encoded_len(MAX_FRAME_LEN) + 1;
-/// The longest frame a gateway reads, on the wire: a controller's replies are shorter (the
-/// longest, a sample, is [`SAMPLE_WIRE_LEN`]), and a longer run of bytes without a delimiter
-/// is garbage, cut and counted at this length. It is the bound of the frames of a 16-LED
-/// schedule, kept when the schedules grew to 64 LEDs so that garbage is cut, counted and
-/// judged as it was: a recording replays its decisions as they were made.
+/// The longest frame a gateway reads, on the wire (replies are shorter: a sample is
+/// [`SAMPLE_WIRE_LEN`]); a longer run is garbage, cut here. A 16-LED schedule's bound, kept
+/// at 64 LEDs so that garbage is judged as before and recordings replay as they were made.
 pub const MAX_REPLY_WIRE_LEN: usize = cobs::max_encoded_len(HEADER_LEN + 5 + 3 * 16 + CRC_LEN) + 1;
 /// The wire length of a [`Message::Sample`] frame, for wire-time figures.
 pub const SAMPLE_WIRE_LEN: usize = cobs::max_encoded_len(HEADER_LEN + SAMPLE_PAYLOAD_LEN + CRC_LEN) + 1;
@@ -322,8 +319,7 @@ pub struct Sample {
 }
 
 /// A message of either direction. Payload layouts (offsets into the payload, LE):
-// A schedule travels inline: the crate needs no allocator, and a schedule is sent once a
-// session, so the rest of the messages carry its size unused rather than a heap pointer.
+// A schedule travels inline: the crate needs no allocator, and one is sent once a session.
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Message {
@@ -785,9 +781,9 @@ mod tests {
         assert_eq!(Schedule::new(&[s(0, 500)], 0, 1), Err(ScheduleError::ZeroLed));
         assert_eq!(Schedule::new(&[s(1, 500), s(1, 500)], 0, 1), Err(ScheduleError::DuplicateLed(1)));
         assert_eq!(Schedule::new(&[s(1, 500)], 0, 0), Err(ScheduleError::ZeroAveraging));
-        let many: [LedSlot; 17] = core::array::from_fn(|i| s(i as u8 + 1, 500));
-        assert_eq!(Schedule::new(&many, 0, 1), Err(ScheduleError::TooManyLeds(17)));
-        assert!(Schedule::new(&many[..16], 0, 1).is_ok());
+        let many: [LedSlot; 65] = core::array::from_fn(|i| s(i as u8 + 1, 500));
+        assert_eq!(Schedule::new(&many, 0, 1), Err(ScheduleError::TooManyLeds(65)));
+        assert!(Schedule::new(&many[..64], 0, 1).is_ok());
     }
 
     #[test]

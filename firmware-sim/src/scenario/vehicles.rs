@@ -22,7 +22,7 @@ pub const SCRIPT_PRECISION: f64 = 0.01;
 pub const DEFAULT_SCRIPT_TOLERANCE: f64 = 0.05;
 /// The most vehicles a scenario holds, the robot among them: each takes two of the
 /// simulated controller's LEDs.
-pub const MAX_VEHICLES: usize = crate::psd_controller::MAX_LEDS as usize / 2;
+pub const MAX_VEHICLES: usize = super::CONTROLLER_LEDS as usize / 2;
 /// A vehicle's name is a ROS name and a file name: lower-case letters, digits and `_`.
 pub const MAX_NAME_LEN: usize = 32;
 /// The name the scenario's `[robot]` goes by among the vehicles.
