@@ -9,6 +9,8 @@ use core::f64::consts::{PI, TAU};
 
 #[cfg(feature = "std")]
 pub mod orca;
+#[cfg(feature = "std")]
+pub mod social_force;
 
 /// A point or vector on the floor, `x + iy`, m (or m/s).
 pub type Point = num_complex::Complex64;

@@ -369,6 +369,7 @@ impl RigFile {
                 PlannerMethod::Field => CommandSource::Field,
                 PlannerMethod::Straight => CommandSource::Straight,
                 PlannerMethod::Orca => CommandSource::Orca,
+                PlannerMethod::SocialForce => CommandSource::SocialForce,
                 PlannerMethod::Socket | PlannerMethod::Ros2 => {
                     CommandSource::Outside { max_age: f64::from(p.command_max_age_ms) * 1e-3 }
                 }

@@ -115,6 +115,9 @@ pub enum PlannerMethod {
     /// A baseline: the robot as an ORCA agent among the obstacles as tracked and the room's
     /// walls (`control::orca`), the safety supervisor behind it.
     Orca,
+    /// A baseline: the robot as a social-force pedestrian among the obstacles as tracked and
+    /// the room's walls (`control::social_force`), the safety supervisor behind it.
+    SocialForce,
 }
 
 impl PlannerMethod {

@@ -2,10 +2,12 @@
 //! between the planner and the wheels, and the wheels' kinematics ([`drive`]). Pure in time: `t` is an argument, so the same step
 //! runs live, offline, in replay and in benchmarks.
 
+pub mod baseline;
 pub mod drive;
 pub mod fleet;
 pub mod orca;
 pub mod outside;
+pub mod social_force;
 mod step;
 pub mod supervisor;
 

@@ -8,9 +8,9 @@
 //! is steered to as the straight baseline steers to the goal, and supervised as the field's
 //! commands are.
 
-use flowgate_protocol::plane::orca::{self, length, Body, OrcaLine};
-use flowgate_protocol::plane::{nearest_on_segment, polygon_edges};
+use flowgate_protocol::plane::orca::{self, Body, OrcaLine};
 
+use super::baseline::RoomSegments;
 use crate::planner::room::Room;
 use crate::planner::{ObstacleEstimate, Space};
 use crate::Point;
@@ -20,15 +20,11 @@ use crate::Point;
 pub const HORIZON_RADII: f64 = 5.0 / 0.3;
 /// The nearest obstacles it avoids (CrowdNav's `max_neighbors`).
 const MAX_NEIGHBOURS: usize = 10;
-/// A lane's lines as segments this long either side of the origin, m: beyond any view.
-const LANE_REACH: f64 = 1e3;
 
 /// The robot's ORCA: the room's segments, made once, and the buffers each cycle reuses.
 #[derive(Debug, Clone, Default)]
 pub struct OrcaRobot {
-    /// Walls and edges the robot's footprint keeps off (radius counted), and lines its
-    /// centre keeps behind (a lane's: radius not counted).
-    segments: Vec<(Point, Point, bool)>,
+    segments: RoomSegments,
     lines: Vec<OrcaLine>,
     projected: Vec<OrcaLine>,
     near: Vec<(f64, usize)>,
@@ -37,21 +33,7 @@ pub struct OrcaRobot {
 impl OrcaRobot {
     /// For a robot in `room` (its walls, furniture and the view's edge) or `space` (a lane).
     pub fn new(room: Option<&Room>, space: Space) -> Self {
-        let mut segments = Vec::new();
-        if let Some(room) = room {
-            let shape = room.shape();
-            for wall in &shape.walls {
-                segments.extend(wall.windows(2).map(|s| (s[0], s[1], true)));
-            }
-            for polygon in shape.obstacles.iter().chain(&shape.view) {
-                segments.extend(polygon_edges(polygon).map(|(a, b)| (a, b, true)));
-            }
-        }
-        if let Space::Lane { half_width } = space {
-            for y in [half_width, -half_width] {
-                segments.push((Point::new(-LANE_REACH, y), Point::new(LANE_REACH, y), false));
-            }
-        }
+        let segments = RoomSegments::new(room, space);
         let most = segments.len() + MAX_NEIGHBOURS;
         Self {
             segments,
@@ -74,12 +56,9 @@ impl OrcaRobot {
     ) -> Point {
         self.lines.clear();
         let range = me.radius + max_speed * horizon;
-        for &(a, b, footprint) in &self.segments {
-            let nearest = nearest_on_segment(me.position, a, b);
-            if (nearest - me.position).norm_sqr() < range * range {
-                let radius = if footprint { me.radius } else { 0.0 };
-                self.lines.extend(orca::line_off_wall(me.position, radius, nearest, horizon, step));
-            }
+        for (nearest, footprint) in self.segments.near(me.position, range) {
+            let radius = if footprint { me.radius } else { 0.0 };
+            self.lines.extend(orca::line_off_wall(me.position, radius, nearest, horizon, step));
         }
         let hard = self.lines.len();
         // The nearest obstacles, nearest first (the earlier first among equals).
@@ -99,17 +78,6 @@ impl OrcaRobot {
         }
         orca::solve(&self.lines, hard, max_speed, preferred, &mut self.projected)
     }
-}
-
-/// The velocity towards `goal` from `position` at `speed`, slowing to stop on it within a
-/// `step`.
-pub fn preferred(position: Point, goal: Point, speed: f64, step: f64) -> Point {
-    let to = goal - position;
-    let d = length(to);
-    if d <= 0.0 {
-        return Point::default();
-    }
-    to / d * speed.min(d / step)
 }
 
 #[cfg(test)]

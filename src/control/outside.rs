@@ -15,6 +15,9 @@ pub enum CommandSource {
     Straight,
     /// A baseline: the robot as an ORCA agent (`control::orca`), the supervisor behind it.
     Orca,
+    /// A baseline: the robot as a social-force pedestrian (`control::social_force`), the
+    /// supervisor behind it.
+    SocialForce,
     /// A planner outside flowgate; a command older than `max_age` s stops the robot.
     Outside { max_age: f64 },
 }

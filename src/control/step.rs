@@ -1,8 +1,10 @@
 //! One control cycle: the estimate in, the planner's velocity, the supervisor's verdict and
 //! evasion, and the pulse rates out; with the stall and goal-occupied checks around them.
 
+use super::baseline;
 use super::orca::{self, OrcaRobot};
 use super::outside::{CommandSource, OutsideCommand, OutsideCommands};
+use super::social_force::SocialForceRobot;
 use super::supervisor::{evade, supervise, Supervision, SupervisorConfig};
 use crate::control::drive::{pulse_rates, wheel_speeds, DriveConfig, WheelSpeeds};
 use crate::geometry::Length;
@@ -166,6 +168,8 @@ pub struct ControlStep {
     aim: Option<Point>,
     /// The ORCA baseline's room and buffers (empty unless it drives).
     orca: OrcaRobot,
+    /// The social-force baseline's room (empty unless it drives).
+    social_force: SocialForceRobot,
 }
 
 impl ControlStep {
@@ -185,6 +189,10 @@ impl ControlStep {
             orca: match config.source {
                 CommandSource::Orca => OrcaRobot::new(config.room.as_deref(), config.planner.space),
                 _ => OrcaRobot::default(),
+            },
+            social_force: match config.source {
+                CommandSource::SocialForce => SocialForceRobot::new(config.room.as_deref(), config.planner.space),
+                _ => SocialForceRobot::default(),
             },
             config,
         }
@@ -264,7 +272,7 @@ impl ControlStep {
         match self.config.source {
             CommandSource::Outside { max_age } => return self.drive_outside(t, estimate, outrun, max_age),
             CommandSource::Straight => return self.drive_straight(t, estimate, outrun),
-            CommandSource::Orca => return self.drive_orca(t, estimate, outrun),
+            CommandSource::Orca | CommandSource::SocialForce => return self.drive_reactive(t, estimate, outrun),
             CommandSource::Field => {}
         }
         let input = PlanInput {
@@ -321,19 +329,23 @@ impl ControlStep {
         self.driving(estimate, asked, outrun, None, false)
     }
 
-    /// The ORCA baseline: the velocity ORCA picks towards the goal at the cruise speed,
-    /// steered to as the straight baseline steers (forward only within a quarter turn of
-    /// it), supervised as the field's commands are.
-    fn drive_orca(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool) -> StepOutput {
+    /// A reactive baseline (ORCA, or social force): the velocity it picks towards the goal
+    /// at the cruise speed, steered to as the straight baseline steers (forward only within
+    /// a quarter turn of it), supervised as the field's commands are.
+    fn drive_reactive(&mut self, t: f64, estimate: &Estimate<'_>, outrun: bool) -> StepOutput {
         if self.stalled(t, estimate.position) {
             return StepOutput::stop(StepStatus::Stalled, None);
         }
         let (p, step) = (&self.config.planner, self.config.drive.sample_time);
         let moving = estimate.facing * ((estimate.wheels[0] + estimate.wheels[1]) / 2.0);
         let me = Body { position: estimate.position, velocity: moving, radius: self.config.robot_radius };
-        let preferred = orca::preferred(estimate.position, self.config.goal, p.cruise_speed, step);
-        let horizon = orca::HORIZON_RADII * self.config.robot_radius / p.cruise_speed;
-        let want = self.orca.velocity(me, preferred, p.max_speed, estimate.obstacles, horizon, step);
+        let preferred = baseline::preferred(estimate.position, self.config.goal, p.cruise_speed, step);
+        let want = if self.config.source == CommandSource::SocialForce {
+            self.social_force.velocity(me, preferred, p.cruise_speed, p.max_speed, estimate.obstacles, step)
+        } else {
+            let horizon = orca::HORIZON_RADII * self.config.robot_radius / p.cruise_speed;
+            self.orca.velocity(me, preferred, p.max_speed, estimate.obstacles, horizon, step)
+        };
         let off = (want * estimate.facing.conj()).arg();
         let v = want.length() * off.cos().max(0.0);
         let (asked, _) =

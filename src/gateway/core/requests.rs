@@ -42,6 +42,7 @@ impl<K: StageClock> Core<K> {
             crate::control::CommandSource::Field => return Err(Refusal::FieldDrives),
             crate::control::CommandSource::Straight => return Err(Refusal::BaselineDrives("straight")),
             crate::control::CommandSource::Orca => return Err(Refusal::BaselineDrives("orca")),
+            crate::control::CommandSource::SocialForce => return Err(Refusal::BaselineDrives("social_force")),
             crate::control::CommandSource::Outside { .. } => {}
         }
         if !command.is_finite() {

@@ -1,14 +1,12 @@
 //! People who walk: obstacles whose way is not scripted but walked, each to its goals,
 //! avoiding the others, the walls and the furniture, by optimal reciprocal collision
-//! avoidance ([`orca`]) or by social forces (after Helbing and Molnár 1995).
+//! avoidance ([`orca`]) or by social forces (`flowgate_protocol::plane::social_force`).
 //!
 //! The robot is invisible to them (CrowdNav's setting), so what they do does not depend on
 //! it: their ways are walked once, when the world is made, in steps of [`STEP`], into the
 //! timed legs of constant velocity a scripted obstacle has ([`ObstaclePath::walked`]). The
 //! camera, the judge and the truth downstream are those of any obstacle, exact between the
 //! steps. Deterministic: the same scenario (and seed, for new goals) walks the same ways.
-
-mod social_force;
 
 use rand::{Rng, SeedableRng};
 use std::f64::consts::TAU;
@@ -20,6 +18,7 @@ use crate::Point;
 use flowgate_protocol::plane::nearest_on_segment;
 use flowgate_protocol::plane::orca::{self, length};
 use flowgate_protocol::plane::polygon_edges;
+use flowgate_protocol::plane::social_force;
 
 /// The people's time step, s: a twentieth of a second, five times finer than CrowdNav's
 /// 0.25 s at its speeds (a step is a fifth of a body at the rig's fastest people).

@@ -6,10 +6,11 @@
 //! The constants are those commonly used at human scale (a relaxation time of 0.5 s, a
 //! person's push of 2.1 m/s² over 0.3 m, a wall's of 10 m/s² over 0.2 m, for people of 0.3 m
 //! at 1 m/s), scaled by each person's radius and preferred speed so that the rig's small,
-//! slow people behave as people do at their own scale.
+//! slow people behave as people do at their own scale. The simulator's people walk by it,
+//! and so does the gateway's social-force baseline.
 
-use crate::Point;
-use flowgate_protocol::plane::orca::{length, Body};
+use super::orca::{length, Body};
+use super::Point;
 
 /// The relaxation time, in the time a person takes to walk its own radius.
 const RELAXATION_RADII: f64 = 0.5 / 0.3;
