@@ -156,6 +156,10 @@ pub struct ObstacleSpec {
     pub preferred_speed: Option<f64>,
     #[serde(default)]
     pub on_arrival: OnArrival,
+    /// A person who sees the robot and avoids it as it avoids a scripted obstacle (taking
+    /// all the avoiding on itself); `false`, CrowdNav's invisible setting, by default.
+    #[serde(default)]
+    pub sees_robot: bool,
 }
 
 impl ObstacleSpec {
@@ -170,6 +174,7 @@ impl ObstacleSpec {
             goals: Vec::new(),
             preferred_speed: None,
             on_arrival: OnArrival::Stop,
+            sees_robot: false,
         }
     }
 }
@@ -742,6 +747,7 @@ mod tests {
         let table = "[[static_obstacles]]\npoints = [[-0.6, -0.1], [-0.4, -0.1], [-0.4, 0.1], [-0.6, 0.1]]\n";
         for (keys, key, why) in [
             ("goal = [-0.5, 0]", "obstacles[0].goal", "is for a person who walks"),
+            ("sees_robot = true", "obstacles[0].sees_robot", "is for a person who walks"),
             ("behaviour = \"orca\"\n preferred_speed = 0.05", "obstacles[0].goal", "walks to a goal"),
             ("behaviour = \"orca\"\n goal = [-0.5, 0]", "obstacles[0].preferred_speed", "preferred speed"),
             ("behaviour = \"orca\"\n goal = [-0.5, 0]\n preferred_speed = -1", "obstacles[0].preferred_speed", "positive"),
@@ -761,6 +767,11 @@ mod tests {
         }
         let err = SimScenario::from_toml(&format!("{}{table}", person(walker)), "t").unwrap_err().to_string();
         assert!(err.contains("`obstacles[0].goal`") && err.contains("inside static_obstacles[0]"), "{err}");
+        let seeing = person(&format!("{walker}\n sees_robot = true"));
+        assert!(SimScenario::from_toml(&seeing, "t").unwrap().obstacles[0].walk().unwrap().sees_robot);
+        let swap = "[swap]\nvehicles = 2\ncircle_radius = 0.3\n";
+        let err = SimScenario::from_toml(&format!("{seeing}{swap}"), "t").unwrap_err().to_string();
+        assert!(err.contains("`obstacles[0].sees_robot`") && err.contains("a fleet's people"), "{err}");
     }
 
     #[test]

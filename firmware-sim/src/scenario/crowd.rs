@@ -28,6 +28,9 @@ pub struct CrowdSpec {
     /// robot's top speed as their preferred speed.
     #[serde(default)]
     pub behaviour: Behaviour,
+    /// People who see the robot and avoid it (with `behaviour` a person's).
+    #[serde(default)]
+    pub sees_robot: bool,
 }
 
 fn default_jitter() -> f64 {
@@ -56,6 +59,9 @@ impl SimScenario {
         }
         if !self.obstacles.is_empty() {
             return Err(("obstacles".into(), "a crowd places its own obstacles: leave [[obstacles]] out".into()));
+        }
+        if c.sees_robot && !c.behaviour.walks() {
+            return bad("sees_robot", "is for people who walk: set behaviour = \"orca\" or \"social_force\"".into());
         }
         Ok(())
     }
@@ -111,6 +117,7 @@ impl SimScenario {
                     behaviour: c.behaviour,
                     goals,
                     preferred_speed: Some(speed),
+                    sees_robot: c.sees_robot,
                     ..ObstacleSpec::scripted(c.obstacle_radius, start, Motion::Stationary)
                 }
             } else {

@@ -1,7 +1,8 @@
 //! People: obstacles that walk to goals of their own and avoid each other, the walls and the
 //! furniture (`behaviour = "orca"` or `"social_force"` on `[[obstacles]]` and `[crowd]`),
 //! where a scripted obstacle (`behaviour = "straight"`, the default) follows its `motion`
-//! whatever is in its way. The robot is invisible to them, as in CrowdNav's setting.
+//! whatever is in its way. The robot is invisible to them, as in CrowdNav's setting, unless
+//! they see it (`sees_robot`).
 //!
 //! What the keys mean, and what is refused at load, naming the key.
 
@@ -53,6 +54,7 @@ pub struct Walk {
     pub goals: Vec<Point>,
     pub preferred_speed: f64,
     pub on_arrival: OnArrival,
+    pub sees_robot: bool,
 }
 
 impl ObstacleSpec {
@@ -75,6 +77,7 @@ impl ObstacleSpec {
             goals: self.goal.iter().chain(&self.goals).map(|&g| super::point(g)).collect(),
             preferred_speed: self.preferred_speed.unwrap_or(0.0),
             on_arrival: self.on_arrival,
+            sees_robot: self.sees_robot,
         })
     }
 
@@ -89,6 +92,7 @@ impl ObstacleSpec {
                 _ if !self.goals.is_empty() => refuse("goals", person),
                 _ if self.preferred_speed.is_some() => refuse("preferred_speed", person),
                 _ if self.on_arrival != OnArrival::Stop => refuse("on_arrival", person),
+                _ if self.sees_robot => refuse("sees_robot", person),
                 _ => Ok(()),
             };
         }

@@ -50,6 +50,9 @@ pub struct World {
     drive: DiffDrive,
     robot_radius: f64,
     obstacles: Vec<(ObstaclePath, f64)>,
+    /// People who see the robot, walking as the world runs (`None`: none do, and every way
+    /// was walked when the world was made).
+    people: Option<people::Crowd>,
     lane_half_width: Option<f64>,
     room: Room,
     /// What happened up to the settled state.
@@ -125,6 +128,7 @@ impl World {
             max_rate: r.max_wheel_speed * drive.pulses_per_metre,
         };
         let heading = r.heading_deg.to_radians();
+        let (ways, people) = people::start(scenario);
         let mut world = Self {
             time: 0.0,
             since_settled: 0.0,
@@ -137,11 +141,8 @@ impl World {
             now: Cell::new(None),
             drive,
             robot_radius: r.radius,
-            obstacles: people::ways(scenario)
-                .into_iter()
-                .zip(&scenario.obstacles)
-                .map(|(p, o)| (p, o.radius))
-                .collect(),
+            obstacles: ways.into_iter().zip(&scenario.obstacles).map(|(p, o)| (p, o.radius)).collect(),
+            people,
             lane_half_width: scenario.lane.map(|l| l.half_width),
             room: Room::new(scenario),
             judge: Judge::new(scenario.obstacles.len()),
@@ -359,9 +360,26 @@ impl World {
         if dt.is_nan() || dt <= 0.0 {
             return;
         }
+        self.walk_people(self.time + dt);
         self.time += dt;
         self.since_settled += dt;
         self.now.set(None);
+    }
+
+    /// People who see the robot walk each step that begins by `until`, seeing the robot
+    /// where it is at the step's start (the axes hold from the settled state to `until`: a
+    /// command settles the world first), so that their ways are known up to `until`.
+    fn walk_people(&mut self, until: f64) {
+        let Some(crowd) = &mut self.people else { return };
+        while crowd.time() <= until {
+            let t = crowd.time();
+            let span = t - self.settled.time;
+            let robot = Way::to(self.settled, self.drive, span).after(span, t);
+            crowd.step_beside(Some((robot.pose.position, robot.velocity, self.robot_radius)));
+            for (k, t0, from, v) in crowd.last_legs() {
+                self.obstacles[k].0.walk_on(t0, from, v, t + people::STEP);
+            }
+        }
     }
 
     /// Bring the settled state up to now, judging the way there, before a command changes

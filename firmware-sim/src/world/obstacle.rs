@@ -99,6 +99,21 @@ impl ObstaclePath {
         Self { start, legs, end, repeat: false, uniform: None, top: 0.0, hint: AtomicUsize::new(0) }.with_top_speed()
     }
 
+    /// A way still to be walked, from `start`, at most `top` m/s: standing there until
+    /// [`ObstaclePath::walk_on`] adds its legs.
+    pub fn walking(start: Point, top: f64) -> Self {
+        Self { start, legs: Vec::new(), end: 0.0, repeat: false, uniform: None, top, hint: AtomicUsize::new(0) }
+    }
+
+    /// A walking way goes on at `t` from `from` at velocity `v` until `until`, and stands
+    /// where that leaves it after, until walked on again.
+    pub fn walk_on(&mut self, t: f64, from: Point, v: Point, until: f64) {
+        if self.legs.last().is_none_or(|&(_, _, last)| last != v) {
+            self.legs.push((t, from, v));
+        }
+        self.end = until;
+    }
+
     /// When the path ends (infinite for one velocity forever; one lap of a repeating one).
     pub fn end_time(&self) -> f64 {
         self.end

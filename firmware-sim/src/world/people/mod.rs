@@ -2,9 +2,11 @@
 //! avoiding the others, the walls and the furniture, by optimal reciprocal collision
 //! avoidance ([`orca`]) or by social forces (`flowgate_protocol::plane::social_force`).
 //!
-//! The robot is invisible to them (CrowdNav's setting), so what they do does not depend on
-//! it: their ways are walked once, when the world is made, in steps of [`STEP`], into the
-//! timed legs of constant velocity a scripted obstacle has ([`ObstaclePath::walked`]). The
+//! The robot is invisible to them by default (CrowdNav's setting), so what they do does not
+//! depend on it: their ways are walked once, when the world is made, in steps of [`STEP`],
+//! into the timed legs of constant velocity a scripted obstacle has
+//! ([`ObstaclePath::walked`]). People who see the robot (`sees_robot`) walk as the world
+//! runs instead, a step at a time, seeing the robot where it is at each step's start. The
 //! camera, the judge and the truth downstream are those of any obstacle, exact between the
 //! steps. Deterministic: the same scenario (and seed, for new goals) walks the same ways.
 
@@ -42,6 +44,9 @@ const WALKING: f64 = 0.25;
 const PERTURBATION: f64 = 3e-2;
 /// The nearest neighbours each person avoids.
 const MAX_NEIGHBOURS: usize = 10;
+/// The berth a person who sees the robot leaves it, beyond their bodies, in the robot's
+/// radii.
+const ROBOT_BERTH: f64 = 0.1;
 
 /// One person walking.
 #[derive(Debug, Clone)]
@@ -127,6 +132,22 @@ pub fn ways(scenario: &SimScenario) -> Vec<ObstaclePath> {
     crowd.into_ways()
 }
 
+/// Each obstacle's way in `scenario` at time 0, and the crowd still to walk when some of its
+/// people see the robot: what they do then depends on where the robot goes, so they walk as
+/// the world runs ([`Crowd::step_beside`]), each way growing by a leg a step. Otherwise
+/// [`ways`], walked once, and no crowd.
+pub fn start(scenario: &SimScenario) -> (Vec<ObstaclePath>, Option<Crowd>) {
+    if !scenario.obstacles.iter().any(|o| o.behaviour.walks() && o.sees_robot) {
+        return (ways(scenario), None);
+    }
+    let crowd = Crowd::new(&scenario.obstacles, Room::new(scenario), scenario.sensing.seed);
+    let mut paths = crowd.paths.clone();
+    for w in &crowd.walkers {
+        paths[w.obstacle] = ObstaclePath::walking(w.position, w.top_speed());
+    }
+    (paths, Some(crowd))
+}
+
 /// People walking among scripted obstacles, in a room, one [`STEP`] at a time.
 #[derive(Debug, Clone)]
 pub struct Crowd {
@@ -194,15 +215,29 @@ impl Crowd {
 
     /// Every person walks one step, on what each saw of the others at its start.
     pub fn step(&mut self) {
+        self.step_beside(None);
+    }
+
+    /// Every person walks one step beside the robot, `robot` as it is at the step's start
+    /// (position, velocity, radius): those who see it avoid it as they avoid a scripted
+    /// obstacle, taking all the avoiding on themselves.
+    pub fn step_beside(&mut self, robot: Option<(Point, Point, f64)>) {
         let t = self.time();
         self.others.clear();
         for &(k, radius) in &self.scripted {
             let path = &self.paths[k];
             self.others.push(Other { position: path.position(t), velocity: path.velocity(t), radius });
         }
+        let unseen = self.others.len();
+        if let Some((position, velocity, radius)) = robot {
+            // A person leaves the robot a berth: ORCA's solution may graze what it avoids,
+            // and grazing the robot is touching it.
+            self.others.push(Other { position, velocity, radius: radius * (1.0 + ROBOT_BERTH) });
+        }
         self.velocities.clear();
         for i in 0..self.walkers.len() {
-            let v = velocity(&mut self.walkers, i, &self.others, &self.room, &self.area, &mut self.scratch);
+            let seen = if self.walkers[i].walk.sees_robot { &self.others[..] } else { &self.others[..unseen] };
+            let v = velocity(&mut self.walkers, i, seen, &self.room, &self.area, &mut self.scratch);
             self.velocities.push(v);
         }
         self.keep_apart();
@@ -258,6 +293,12 @@ impl Crowd {
                 return;
             }
         }
+    }
+
+    /// Each person's last leg: its obstacle's index, when and where the leg began, and its
+    /// velocity.
+    pub fn last_legs(&self) -> impl Iterator<Item = (usize, f64, Point, Point)> + '_ {
+        self.walkers.iter().filter_map(|w| w.legs.last().map(|&(t, p, v)| (w.obstacle, t, p, v)))
     }
 
     /// Every obstacle's way: the people's as walked so far, standing where they got to.

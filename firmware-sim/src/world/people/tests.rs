@@ -134,3 +134,32 @@ fn a_person_avoids_a_scripted_obstacle_and_walks_the_same_way_each_time() {
         assert_eq!(ways[1].position(t), again[1].position(t));
     }
 }
+
+/// A person walking head on at the standing robot: one who does not see it walks into it
+/// (a passive contact); one who sees it walks round it, as round a scripted obstacle, and
+/// the world that walks it step by step as it runs is the same on every run.
+#[test]
+fn a_person_who_sees_the_robot_walks_round_it() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/people/hallway.toml");
+    let mut s = SimScenario::load(&path).unwrap();
+    s.robot.start = [0.0, 0.0];
+    let run = |sees_robot: bool| {
+        let walker = ObstacleSpec {
+            sees_robot,
+            ..person(Behaviour::Orca, Point::new(0.5, 0.005), Point::new(-0.7, 0.005), 0.07, 0.06)
+        };
+        let s = SimScenario { obstacles: vec![walker], ..s.clone() };
+        let mut world = crate::world::World::new(&s);
+        for _ in 0..1000 {
+            world.step(0.02);
+        }
+        (world.truth(), world.obstacle_position(0, 20.0))
+    };
+    let (blind, _) = run(false);
+    assert!(blind.contact.is_some_and(|c| !c.active), "walks into the robot: {blind:?}");
+    let (seeing, at) = run(true);
+    assert_eq!(seeing.contact, None, "{seeing:?}");
+    assert!(seeing.min_obstacle_clearance > 0.0, "{seeing:?}");
+    assert!(at.re < -0.5, "and walks on past it to its goal: {at}");
+    assert_eq!(run(true).1, at);
+}
