@@ -2,7 +2,11 @@
 //! field and with the baseline that drives straight at the goal behind the same supervisor,
 //! on the same episodes. `--nocapture` prints the table docs/people.md shows.
 
+#[path = "support/python.rs"]
+mod python;
+
 use std::path::Path;
+use std::process::Command;
 
 use flowgate::lab::planner_only::Mode;
 use flowgate::lab::sweep::{self, SweepReport};
@@ -118,4 +122,40 @@ fn people_scenarios_through_the_whole_stack() {
         println!("{}", row(&format!("{file}, field, whole stack"), &r));
         assert_eq!((r.active_contact_rate, r.goal_rate, r.fault_rate), (0.0, goal, fault), "{file}: {r:?}");
     }
+}
+
+/// The benchmark's command, on 20 episodes a cell (docs/people.md prints the 500 it runs by
+/// default): every row and method in the table, with its intervals; no method drives into a
+/// person; the field reaches the goal on every episode of the circle with people who see the
+/// robot and of the hallway; the table, its plot and the episodes written, and pyarrow reads
+/// the episodes as one dataset that agrees with the table cell by cell.
+#[test]
+fn the_benchmark_command_writes_its_table_plot_and_episodes() {
+    let out = std::env::temp_dir().join(format!("flowgate-people-benchmark-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let run = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["plan", "--planner-only", "--sweep", "20", "--threads", "2", "--benchmark"])
+        .arg(root.join("scenarios/people"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&run.stdout).into_owned() + &String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{said}");
+    println!("{said}");
+    let rows: Vec<&str> =
+        said.lines().filter(|l| l.starts_with("| ") && !l.starts_with("| row") && !l.starts_with("| ---")).collect();
+    assert_eq!(rows.len(), 16, "four rows, four methods:\n{said}");
+    for row in &rows {
+        assert!(row.split(" | ").nth(3).is_some_and(|active| active.starts_with("0.0 [0.0, 16.1]")), "{row}");
+    }
+    for field in ["| circle, seen | field | 100.0 [83.9, 100.0] |", "| hallway | field | 100.0 [83.9, 100.0] |"] {
+        assert!(said.contains(field), "{field}:\n{said}");
+    }
+    let svg = std::fs::read_to_string(out.join("benchmark.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("furnished room") && svg.contains("social_force"));
+    let peer = Command::new(python::python()).arg(python::peer("people")).arg(&out).output().unwrap();
+    let said = String::from_utf8_lossy(&peer.stdout).into_owned() + &String::from_utf8_lossy(&peer.stderr);
+    assert!(peer.status.success() && said.contains("pyarrow read 320 episodes in 16 cells"), "{said}");
 }

@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use flowgate::lab::planner_only::Mode;
 use flowgate::lab::{outputs, plots, Scenario};
-use flowgate::lab::{policy, swarm, sweep};
+use flowgate::lab::{people_benchmark, policy, swarm, sweep};
 
 #[derive(Args, Debug)]
 pub struct PlanArgs {
@@ -20,6 +20,11 @@ pub struct PlanArgs {
     /// Run every `*.toml` in this folder and print a table.
     #[arg(long, value_name = "DIR")]
     all: Option<PathBuf>,
+    /// Run the people benchmark on the scenarios of this folder (scenarios/people): every
+    /// method on every row, --sweep episodes each (default 500); writes benchmark.json,
+    /// benchmark.svg and the episodes as Parquet into --out (default out/benchmark).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["all", "scenario", "file", "swarm", "policy", "merge", "compare", "shard", "unsupervised"])]
+    benchmark: Option<PathBuf>,
     /// Run a Monte-Carlo sweep of this many episodes around the scenario.
     #[arg(long, value_name = "N", conflicts_with = "all")]
     sweep: Option<usize>,
@@ -102,6 +107,17 @@ pub fn run(args: PlanArgs) -> Result<()> {
     }
     if let Some(dir) = &args.all {
         return run_all(dir, args.out.as_deref(), mode, !args.unsupervised);
+    }
+    if let Some(dir) = &args.benchmark {
+        let out = args.out.clone().unwrap_or_else(|| PathBuf::from("out/benchmark"));
+        let n = args.sweep.unwrap_or(500);
+        let b = people_benchmark::run(dir, &out, n, args.seed, args.threads(), mode)?;
+        say!("{b}");
+        say!(
+            "wrote {}/{{benchmark.json,benchmark.svg}} and episodes/ (Parquet, Hive-partitioned by row and method)",
+            out.display()
+        );
+        return Ok(());
     }
     let Some(file) = args.scenario.as_ref().or(args.file.as_ref()) else {
         bail!("name a scenario: --scenario FILE, or --all DIR");

@@ -20,6 +20,7 @@ pub mod bus_load;
 pub mod demo;
 pub mod fleet;
 pub mod outputs;
+pub mod people_benchmark;
 pub mod planner_only;
 pub mod plots;
 pub mod policy;

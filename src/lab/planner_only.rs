@@ -53,7 +53,13 @@ pub struct EpisodeResult {
     /// When it ended, s.
     pub duration: f64,
     pub path_length: f64,
+    /// The share of the run a person was within [`DISCOMFORT_RADII`] of the robot.
+    pub discomfort: f64,
 }
+
+/// Nearer the robot's footprint than this many of its radii, a person is uncomfortable:
+/// CrowdNav's 0.2 m for its 0.3 m robot, scaled.
+pub const DISCOMFORT_RADII: f64 = 0.2 / 0.3;
 
 impl Mode {
     /// One episode, in this mode.
@@ -68,19 +74,20 @@ impl Mode {
                     contact: r.contact,
                     duration: r.end_time,
                     path_length: r.path_length,
+                    discomfort: r.discomfort,
                 }
             }
             Mode::FullStack => {
                 let options = super::virtual_rig::Options { stop_at_contact: true, ..Default::default() };
-                EpisodeResult::of(&super::virtual_rig::run(s, options))
+                EpisodeResult::of(s, &super::virtual_rig::run(s, options))
             }
         }
     }
 }
 
 impl EpisodeResult {
-    /// A whole-stack run's result.
-    pub fn of(e: &super::virtual_rig::VirtualRun) -> Self {
+    /// A whole-stack run's result, of scenario `s`.
+    pub fn of(s: &Scenario, e: &super::virtual_rig::VirtualRun) -> Self {
         let t = &e.truth.summary;
         Self {
             outcome: e.outcome,
@@ -89,8 +96,17 @@ impl EpisodeResult {
             contact: t.contact,
             duration: t.duration,
             path_length: t.path_length,
+            discomfort: discomfort(s, &e.truth.samples),
         }
     }
+}
+
+/// The share of the world's `samples` in which a person was within [`DISCOMFORT_RADII`] of
+/// the robot of `s`.
+fn discomfort(s: &Scenario, samples: &[flowgate_sim::truth::TruthSample]) -> f64 {
+    let gap = DISCOMFORT_RADII * s.robot.radius;
+    let near = samples.iter().filter(|x| x.min_clearance.is_some_and(|c| c < gap)).count();
+    near as f64 / samples.len().max(1) as f64
 }
 
 impl Run {
@@ -127,6 +143,7 @@ impl Run {
             contact: t.contact,
             path_length: t.path_length,
             path_length_ratio: if straight > 0.0 { t.path_length / straight } else { 0.0 },
+            discomfort: discomfort(s, &e.truth.samples),
             peak_wheel_speed: t.peak_wheel_speed,
             planner_compute: ComputeTime { p50_us: 0.0, p99_us: 0.0, max_us: 0.0 },
             cycles: e.report.counters.cycles,
@@ -176,6 +193,10 @@ pub struct Summary {
     pub path_length: f64,
     /// Path length over the straight start-goal distance.
     pub path_length_ratio: f64,
+    /// The share of the run a person was within [`DISCOMFORT_RADII`] of the robot's radius
+    /// of its footprint (of the control cycles; of the world's samples through the whole
+    /// stack).
+    pub discomfort: f64,
     /// Largest wheel rim speeds, m/s: left, right.
     pub peak_wheel_speed: [f64; 2],
     pub planner_compute: ComputeTime,
@@ -342,6 +363,8 @@ struct Tally {
     evaded: u64,
     goal_occupied: u64,
     faster: bool,
+    /// Cycles in which a person was within [`DISCOMFORT_RADII`] of the robot.
+    near: u64,
 }
 
 impl Tally {
@@ -387,6 +410,7 @@ impl Tally {
             contact: truth.contact,
             path_length: truth.path_length,
             path_length_ratio: if straight > 0.0 { truth.path_length / straight } else { 0.0 },
+            discomfort: self.near as f64 / self.cycles.max(1) as f64,
             peak_wheel_speed: truth.peak_wheel_speed,
             planner_compute: ComputeTime { p50_us: us(0.5), p99_us: us(0.99), max_us: compute.max() as f64 / 1e3 },
             cycles: self.cycles,
@@ -429,6 +453,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
     };
     let mut trace = Vec::new();
     let mut tally = Tally::default();
+    let discomfort_gap = DISCOMFORT_RADII * s.robot.radius;
     let outcome = loop {
         let t = world.time();
         let sensing = clock();
@@ -450,6 +475,7 @@ fn run_with(s: &Scenario, keep: Keep) -> Run {
         if let Some(outcome) = tally.count(&out) {
             break outcome;
         }
+        tally.near += u64::from(world.clearances().any(|c| c < discomfort_gap));
         // The world settles at the command: the way since the last one integrated and judged.
         let settling = clock();
         world.command_pulse_rates(out.pulses);

@@ -25,6 +25,7 @@ COLUMNS = {
     "speed_ratio": pa.float64(),
     "delay": pa.float64(),
     "active_contact": pa.bool_(),
+    "discomfort": pa.float64(),
 }
 
 

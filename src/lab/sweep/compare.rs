@@ -228,6 +228,7 @@ mod tests {
             min_wall_clearance: None,
             duration: 10.0,
             path_length: 1.0,
+            discomfort: 0.0,
         }
     }
 

@@ -14,6 +14,7 @@
 //! | `speed_ratio` | double | fastest obstacle over the robot's speed limit |
 //! | `delay` | double | the episode's sensing delay, s |
 //! | `active_contact` | boolean | a collision the robot drove into |
+//! | `discomfort` | double | the share of the episode a person was uncomfortably near |
 
 use std::fs::File;
 use std::path::Path;
@@ -46,6 +47,7 @@ pub const SCHEMA: &str = "message flowgate_sweep_episode {
     REQUIRED DOUBLE speed_ratio;
     REQUIRED DOUBLE delay;
     REQUIRED BOOLEAN active_contact;
+    REQUIRED DOUBLE discomfort;
 }";
 
 /// Rows per row group: a reader holds one group at a time.
@@ -127,6 +129,7 @@ fn write_column(
         (9, ColumnWriter::BoolColumnWriter(w)) => {
             w.write_batch(&group.iter().map(|e| e.active_contact).collect::<Vec<_>>(), None, None)
         }
+        (10, ColumnWriter::DoubleColumnWriter(w)) => w.write_batch(&f64s(|e| e.discomfort), None, None),
         (n, _) => unreachable!("column {n} of the schema has no writer"),
     }?;
     Ok(())
@@ -145,6 +148,7 @@ struct Columns {
     min_wall_clearance: (Vec<f64>, Vec<i16>),
     doubles: [Vec<f64>; 4],
     active_contact: Vec<bool>,
+    discomfort: Vec<f64>,
 }
 
 /// Read an episodes file: its manifest and its episodes, checked against [`SCHEMA`].
@@ -198,6 +202,7 @@ fn read_column(reader: ColumnReader, c: usize, rows: usize, into: &mut Columns) 
         }
         (5..=8, DoubleColumnReader(mut r)) => drain(&mut r, rows, None, &mut into.doubles[c - 5]),
         (9, BoolColumnReader(mut r)) => drain(&mut r, rows, None, &mut into.active_contact),
+        (10, DoubleColumnReader(mut r)) => drain(&mut r, rows, None, &mut into.discomfort),
         // The schema was checked against ours: no other column reaches here.
         (n, _) => Err(parquet::errors::ParquetError::General(format!("column {n} is not of the schema"))),
     }
@@ -242,6 +247,7 @@ fn episodes(c: Columns, path: &Path) -> Result<Vec<Episode>, EpisodesFileError> 
         speed_ratio.len(),
         delay.len(),
         c.active_contact.len(),
+        c.discomfort.len(),
     ];
     if let Some(short) = lengths.iter().position(|&l| l != n) {
         return Err(bad(
@@ -265,6 +271,7 @@ fn episodes(c: Columns, path: &Path) -> Result<Vec<Episode>, EpisodesFileError> 
                 min_wall_clearance: min_wall_clearance[i],
                 duration: duration[i],
                 path_length: path_length[i],
+                discomfort: c.discomfort[i],
             })
         })
         .collect()

@@ -58,6 +58,10 @@ pub struct Episode {
     /// The robot's path length, m.
     #[serde(default)]
     pub path_length: f64,
+    /// The share of the episode a person was uncomfortably near the robot
+    /// ([`DISCOMFORT_RADII`](super::planner_only::DISCOMFORT_RADII) of its radius).
+    #[serde(default)]
+    pub discomfort: f64,
 }
 
 impl Episode {
@@ -203,7 +207,7 @@ pub fn run_policy_shard(
         if let Some(e) = failure {
             tracing::warn!("episode {i}: {e}");
         }
-        Episode::of(i, &s, &super::planner_only::EpisodeResult::of(&run))
+        Episode::of(i, &s, &super::planner_only::EpisodeResult::of(&s, &run))
     })?;
     episodes.sort_by_key(|e| e.index);
     Ok(episodes)
@@ -222,6 +226,7 @@ impl Episode {
             min_wall_clearance: r.min_wall_clearance,
             duration: r.duration,
             path_length: r.path_length,
+            discomfort: r.discomfort,
         }
     }
 }
