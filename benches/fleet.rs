@@ -4,7 +4,7 @@
 //! that every vehicle plans on 7 vehicles and 5 obstacles among the table and two shelves.
 //! Timed: [`FleetControl::cycle`], every vehicle's obstacles, field, supervisor and wheel
 //! speeds, in priority order, on one thread; the world's step is not. Five obstacles and
-//! eight vehicles take 21 LEDs, more than the PSD schedule's 16: the scenario is built here,
+//! eight vehicles take 21 LEDs, more than the simulated controller drives (16): the scenario is built here,
 //! past the load-time check, to time the control a larger controller would feed.
 
 use std::path::Path;

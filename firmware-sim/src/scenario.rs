@@ -160,6 +160,9 @@ pub struct ObstacleSpec {
     /// all the avoiding on itself); `false`, CrowdNav's invisible setting, by default.
     #[serde(default)]
     pub sees_robot: bool,
+    /// People of one group (the same name) walk together, each to its own goals.
+    #[serde(default)]
+    pub group: Option<String>,
 }
 
 impl ObstacleSpec {
@@ -175,6 +178,7 @@ impl ObstacleSpec {
             preferred_speed: None,
             on_arrival: OnArrival::Stop,
             sees_robot: false,
+            group: None,
         }
     }
 }
@@ -357,7 +361,7 @@ impl SimScenario {
             o.validate_walk(&format!("obstacles[{i}]"))?;
             self.validate_goals_clear(i, o)?;
         }
-        Ok(())
+        self.validate_groups()
     }
 
     /// A person's goals lie outside the furniture.
@@ -769,6 +773,11 @@ mod tests {
         assert!(err.contains("`obstacles[0].goal`") && err.contains("inside static_obstacles[0]"), "{err}");
         let seeing = person(&format!("{walker}\n sees_robot = true"));
         assert!(SimScenario::from_toml(&seeing, "t").unwrap().obstacles[0].walk().unwrap().sees_robot);
+        let err =
+            SimScenario::from_toml(&person(&format!("{walker}\n group = \"pair\"")), "t").unwrap_err().to_string();
+        assert!(err.contains("`obstacles[0].group`") && err.contains("no other member"), "{err}");
+        let err = SimScenario::from_toml(&person("group = \"pair\""), "t").unwrap_err().to_string();
+        assert!(err.contains("`obstacles[0].group`") && err.contains("is for a person who walks"), "{err}");
         let swap = "[swap]\nvehicles = 2\ncircle_radius = 0.3\n";
         let err = SimScenario::from_toml(&format!("{seeing}{swap}"), "t").unwrap_err().to_string();
         assert!(err.contains("`obstacles[0].sees_robot`") && err.contains("a fleet's people"), "{err}");

@@ -46,6 +46,8 @@ pub enum OnArrival {
 /// The most a person walks, as a multiple of its preferred speed, when avoiding others:
 /// Helbing and Molnár's cap.
 pub const SPEED_CAP: f64 = 1.3;
+/// The longest group name.
+const MAX_GROUP_NAME: usize = 32;
 
 /// A person's walk, as checked at load.
 #[derive(Debug, Clone, PartialEq)]
@@ -93,6 +95,7 @@ impl ObstacleSpec {
                 _ if self.preferred_speed.is_some() => refuse("preferred_speed", person),
                 _ if self.on_arrival != OnArrival::Stop => refuse("on_arrival", person),
                 _ if self.sees_robot => refuse("sees_robot", person),
+                _ if self.group.is_some() => refuse("group", person),
                 _ => Ok(()),
             };
         }
@@ -113,9 +116,26 @@ impl ObstacleSpec {
         for (i, &g) in self.goals.iter().enumerate() {
             validate_point(&format!("{key}.goals[{i}]"), g)?;
         }
+        if self.group.as_ref().is_some_and(|g| g.is_empty() || g.len() > MAX_GROUP_NAME) {
+            return refuse("group", "a group's name is 1-32 characters");
+        }
         match self.preferred_speed {
             None => refuse("preferred_speed", "a person walks at a preferred speed: set it, m/s"),
             Some(v) => validate_length(&format!("{key}.preferred_speed"), v, MAX_SPEED_M_S),
         }
+    }
+}
+
+impl super::SimScenario {
+    /// A group walks together: at least two people.
+    pub(super) fn validate_groups(&self) -> Refused {
+        for (i, o) in self.obstacles.iter().enumerate() {
+            let Some(name) = &o.group else { continue };
+            if self.obstacles.iter().filter(|p| p.group.as_ref() == Some(name)).count() < 2 {
+                let why = format!("{name:?} has no other member: a group walks together");
+                return Err((format!("obstacles[{i}].group"), why));
+            }
+        }
+        Ok(())
     }
 }

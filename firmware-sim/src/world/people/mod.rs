@@ -61,6 +61,11 @@ struct Walker {
     legs: Vec<(f64, Point, Point)>,
     /// Draws new goals (`on_arrival = "new_goal"`).
     rng: rand_chacha::ChaCha8Rng,
+    /// Its group (the index of the group's first member), if it walks in one.
+    group: Option<usize>,
+    /// The speed it walks at when nothing is in its way: its preferred speed, or in a group
+    /// the slowest member's (a group walks at its slowest member's pace).
+    pace: f64,
 }
 
 impl Walker {
@@ -88,8 +93,8 @@ impl Walker {
         }
         // A little sway, as people have: perfect symmetry (a ring of people all bound for
         // its centre) would otherwise hold every one where it stands.
-        let sway = Point::from_polar(PERTURBATION * self.walk.preferred_speed, self.rng.random_range(0.0..TAU));
-        to / d * self.walk.preferred_speed.min(d / STEP) + sway
+        let sway = Point::from_polar(PERTURBATION * self.pace, self.rng.random_range(0.0..TAU));
+        to / d * self.pace.min(d / STEP) + sway
     }
 
     fn top_speed(&self) -> f64 {
@@ -177,16 +182,29 @@ impl Crowd {
                 let seed = seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x9E09;
                 Some(Walker {
                     obstacle: k,
-                    walk,
                     radius: o.radius,
                     position: crate::scenario::point(o.start),
                     velocity: Point::default(),
                     next: 0,
                     legs: Vec::new(),
                     rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+                    group: o.group.as_ref().and_then(|g| obstacles.iter().position(|p| p.group.as_ref() == Some(g))),
+                    pace: walk.preferred_speed,
+                    walk,
                 })
             })
             .collect();
+        let mut walkers = walkers;
+        let paces: Vec<f64> = walkers
+            .iter()
+            .map(|w| {
+                let members = walkers.iter().filter(|m| w.group.is_some() && m.group == w.group);
+                members.map(|m| m.walk.preferred_speed).fold(w.walk.preferred_speed, f64::min)
+            })
+            .collect();
+        for (w, pace) in walkers.iter_mut().zip(paces) {
+            w.pace = pace;
+        }
         let scripted =
             obstacles.iter().enumerate().filter(|(_, o)| !o.behaviour.walks()).map(|(k, o)| (k, o.radius)).collect();
         let area = area(&walkers);
@@ -373,7 +391,10 @@ struct Scratch {
 
 /// Walker `i`'s velocity for the next step, from the others as they are now.
 fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, area: &Area, s: &mut Scratch) -> Point {
-    let preferred = walkers[i].preferred(area, room);
+    let mut preferred = walkers[i].preferred(area, room);
+    if walkers[i].group.is_some() {
+        preferred += cohesion(walkers, i);
+    }
     let me = &walkers[i];
     let body = orca::Body { position: me.position, velocity: me.velocity, radius: me.radius };
     let horizon = HORIZON_RADII * me.radius / me.walk.preferred_speed;
@@ -445,6 +466,28 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
             social_force::velocity(body, preferred, me.walk.preferred_speed, me.top_speed(), near, walls, STEP)
         }
     }
+}
+
+/// Walker `i`'s pull towards the rest of its group, added to the velocity it prefers: none
+/// while it is within a body's width of them side by side (its radius times two and one for
+/// each other member, from their centre), growing to its preferred speed at twice that. One
+/// ahead is pulled back and waits; one behind catches up.
+fn cohesion(walkers: &[Walker], i: usize) -> Point {
+    let me = &walkers[i];
+    let Some(group) = me.group else { return Point::default() };
+    let (mut sum, mut n) = (Point::default(), 0usize);
+    for (j, w) in walkers.iter().enumerate() {
+        if j != i && w.group == Some(group) {
+            sum += w.position;
+            n += 1;
+        }
+    }
+    let to = sum / n.max(1) as f64 - me.position;
+    let (d, reach) = (length(to), me.radius * (2.0 + n as f64));
+    if n == 0 || d <= reach {
+        return Point::default();
+    }
+    to / d * (me.walk.preferred_speed * ((d - reach) / reach).min(1.0))
 }
 
 /// The nearest point of each wall segment and furniture edge within `range` of `centre`.

@@ -163,3 +163,39 @@ fn a_person_who_sees_the_robot_walks_round_it() {
     assert!(at.re < -0.5, "and walks on past it to its goal: {at}");
     assert_eq!(run(true).1, at);
 }
+
+/// Three people side by side bound across a room at three speeds: walking alone they string
+/// out along the way (one ends more than 0.5 m from the others' centre); as a group, at its
+/// slowest member's pace, they keep together (each within four radii of the others' centre
+/// all the way; the outer two start 3.2 radii from it) and every one arrives.
+#[test]
+fn a_group_walks_together() {
+    let (r, end) = (0.07, 60.0);
+    let people = |group: Option<&str>| -> Vec<ObstacleSpec> {
+        [(-0.15, 0.04), (0.0, 0.06), (0.15, 0.08)]
+            .into_iter()
+            .map(|(y, speed)| ObstacleSpec {
+                group: group.map(str::to_string),
+                ..person(Behaviour::Orca, Point::new(-0.8, y), Point::new(0.8, y), r, speed)
+            })
+            .collect()
+    };
+    let spread = |group: Option<&str>| {
+        let mut crowd = Crowd::new(&people(group), Room::default(), 3);
+        let mut widest: f64 = 0.0;
+        while crowd.time() < end {
+            crowd.step();
+            let at: Vec<Point> = crowd.positions().collect();
+            for (i, p) in at.iter().enumerate() {
+                let others = at.iter().enumerate().filter(|&(j, _)| j != i).map(|(_, q)| *q).sum::<Point>() / 2.0;
+                widest = widest.max((others - p).norm());
+            }
+        }
+        let arrived = crowd.positions().zip([-0.15, 0.0, 0.15]).all(|(p, y)| (p - Point::new(0.8, y)).norm() < r);
+        (widest, arrived)
+    };
+    let (alone, arrived) = spread(None);
+    assert!(alone > 0.5 && arrived, "alone they string out: {alone} m");
+    let (together, arrived) = spread(Some("friends"));
+    assert!(together < 4.0 * r && arrived, "a group keeps together: {together} m, arrived {arrived}");
+}
