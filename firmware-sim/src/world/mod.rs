@@ -370,7 +370,8 @@ impl World {
     /// where it is at the step's start (the axes hold from the settled state to `until`: a
     /// command settles the world first), so that their ways are known up to `until`.
     fn walk_people(&mut self, until: f64) {
-        let Some(crowd) = &mut self.people else { return };
+        // A step to no finite time walks nobody (they would walk for ever).
+        let Some(crowd) = self.people.as_mut().filter(|_| until.is_finite()) else { return };
         while crowd.time() <= until {
             let t = crowd.time();
             let span = t - self.settled.time;
