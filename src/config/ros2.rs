@@ -125,7 +125,7 @@ pub struct Ros2Settings {
 }
 
 /// A ROS 2 name part: letters, digits and underscores, not starting with a digit.
-fn name_token(token: &str) -> bool {
+pub(super) fn name_token(token: &str) -> bool {
     let mut chars = token.chars();
     chars.next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
         && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')

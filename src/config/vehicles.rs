@@ -92,20 +92,24 @@ fn key(i: usize, leaf: &str) -> String {
     format!("vehicles[{i}].{leaf}")
 }
 
-/// Whether `name` is a ROS name's token: a lower-case letter, then letters, digits and `_`.
-fn ros_token(name: &str) -> bool {
-    let mut chars = name.chars();
-    chars.next().is_some_and(|c| c.is_ascii_lowercase())
-        && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
-        && name.len() <= 63
+/// The longest vehicle name (a scenario's vehicles have the same rule).
+const MAX_NAME_LEN: usize = 32;
+
+/// Whether `name` names a vehicle: a ROS name's token (`[ros2]`'s rule), in lower case and
+/// starting with a letter, so that it is a file name too.
+fn vehicle_name(name: &str) -> bool {
+    name.len() <= MAX_NAME_LEN
+        && super::ros2::name_token(name)
+        && name.starts_with(|c: char| c.is_ascii_lowercase())
+        && !name.chars().any(|c| c.is_ascii_uppercase())
 }
 
 impl VehicleSection {
     fn check_name(&self, i: usize) -> Result<(), Invalid> {
-        if !ros_token(&self.name) {
+        if !vehicle_name(&self.name) {
             return invalid(
                 &key(i, "name"),
-                format!("{:?} is not a name: 1-63 lower-case letters, digits and `_`, a letter first", self.name),
+                format!("{:?} is not a name: 1-32 lower-case letters, digits and `_`, a letter first", self.name),
             );
         }
         if self.name == "robot" {

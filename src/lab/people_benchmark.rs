@@ -12,7 +12,7 @@
 //! [`DISCOMFORT_RADII`](super::planner_only::DISCOMFORT_RADII)), each a mean with its normal
 //! interval.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::Serialize;
 
@@ -179,7 +179,7 @@ fn io(path: &Path, source: std::io::Error) -> BenchmarkError {
     BenchmarkError::Io { path: path.display().to_string(), source }
 }
 
-fn write(path: &PathBuf, text: &str) -> Result<(), BenchmarkError> {
+fn write(path: &Path, text: &str) -> Result<(), BenchmarkError> {
     std::fs::write(path, text).map_err(|source| io(path, source))
 }
 
