@@ -282,12 +282,12 @@ pub struct Evasion {
 fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wheel_speed: f64) -> Option<Evasion> {
     // Only where the robot, holding its command or standing, would be run into.
     let standing = WheelSpeeds { left: 0.0, right: 0.0 };
-    if ctx.least_margin_ahead(chosen, Ahead::Moving, EVASION_TRIGGER) >= 0.0
-        || ctx.least_margin_ahead(standing, Ahead::Moving, EVASION_TRIGGER) >= 0.0
+    if ctx.least_margin_ahead(chosen, Ahead::Moving, EVASION_TRIGGER, 0.0) >= 0.0
+        || ctx.least_margin_ahead(standing, Ahead::Moving, EVASION_TRIGGER, 0.0) >= 0.0
     {
         return None;
     }
-    let kept = ctx.least_margin_ahead(chosen, Ahead::All, EVASION_HORIZON);
+    let kept = ctx.least_margin_ahead(chosen, Ahead::All, EVASION_HORIZON, f64::NEG_INFINITY);
     // The nearest clear command to the proposal, else the largest margin.
     let (mut nearest, mut widest): (Option<(f64, WheelSpeeds)>, (f64, WheelSpeeds)) = (None, (kept, chosen));
     for left in EVASION_WHEEL_FRACTIONS {
@@ -296,7 +296,10 @@ fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wh
             if ctx.first_driven_into(command, EVASION_SPARE).is_some() || ctx.approaches_a_near_obstacle(command) {
                 continue;
             }
-            let margin = ctx.least_margin_ahead(command, Ahead::All, EVASION_HORIZON);
+            // A command that is not clear matters only while nothing is, and then only if it
+            // keeps more than the widest so far.
+            let matters = if nearest.is_some() { 0.0 } else { (widest.0 + 1e-9).min(0.0) };
+            let margin = ctx.least_margin_ahead(command, Ahead::All, EVASION_HORIZON, matters);
             if margin >= 0.0 {
                 // Least cost: away from the proposal, and giving up forward progress.
                 let off = (command.left - proposed.left).hypot(command.right - proposed.right);
@@ -493,18 +496,30 @@ impl Context<'_> {
     /// the step's chord at the mean of its speeds at the step's ends (exact on a ramp), the
     /// obstacle along its course, and the gap is their closest approach within the step
     /// (the keep-out as grown by the step's end).
-    fn least_margin_ahead(&self, command: WheelSpeeds, which: Ahead, horizon: f64) -> f64 {
+    ///
+    /// Once the margin falls below `matters`, the rest of the way is not judged: what is
+    /// returned is then below `matters`, not the least.
+    fn least_margin_ahead(&self, command: WheelSpeeds, which: Ahead, horizon: f64, matters: f64) -> f64 {
         let a = self.cfg.wheel_accel * EVASION_STEP;
         let (mut wheels, mut position, mut facing) = (self.wheels, self.position, self.facing);
         let mut least = f64::INFINITY;
         let steps = (horizon / EVASION_STEP).round() as usize;
+        // The turn a step is the same once both wheels are at the command: its half is
+        // worked out again only when it changes.
+        let mut halves: Option<(u64, Point)> = None;
         for k in 0..steps {
+            if least < matters {
+                break;
+            }
             let (t, end) = (k as f64 * EVASION_STEP, (k + 1) as f64 * EVASION_STEP);
             let next = [ramp(wheels[0], command.left, a), ramp(wheels[1], command.right, a)];
             let speed = 0.25 * (wheels[0] + wheels[1] + next[0] + next[1]);
             let turn = 0.5 * ((wheels[1] - wheels[0]) + (next[1] - next[0])) / self.cfg.wheel_base * EVASION_STEP;
             // Along the chord: the heading half way through the step's turn.
-            let half_turn = Point::from_polar(1.0, 0.5 * turn);
+            let half_turn = match halves {
+                Some((bits, half)) if bits == turn.to_bits() => half,
+                _ => halves.insert((turn.to_bits(), Point::from_polar(1.0, 0.5 * turn))).1,
+            };
             let moved = facing * half_turn * (speed * EVASION_STEP);
             let arrived = position + moved;
             for h in self.hazards {

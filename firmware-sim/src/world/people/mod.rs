@@ -21,6 +21,7 @@ use flowgate_protocol::plane::nearest_on_segment;
 use flowgate_protocol::plane::orca::{self, length};
 use flowgate_protocol::plane::polygon_edges;
 use flowgate_protocol::plane::social_force;
+use grid::Grid;
 
 /// The people's time step, s: a twentieth of a second, five times finer than CrowdNav's
 /// 0.25 s at its speeds (a step is a fifth of a body at the rig's fastest people).
@@ -167,6 +168,10 @@ pub struct Crowd {
     steps: u64,
     others: Vec<Other>,
     velocities: Vec<Point>,
+    /// Where the people stand at this step's start, bucketed.
+    grid: Grid,
+    /// The farthest apart two people can be and touch within a step: the grid's least cell.
+    touch_reach: f64,
     scratch: Scratch,
 }
 
@@ -208,6 +213,7 @@ impl Crowd {
         let scripted =
             obstacles.iter().enumerate().filter(|(_, o)| !o.behaviour.walks()).map(|(k, o)| (k, o.radius)).collect();
         let area = area(&walkers);
+        let touch_reach = walkers.iter().map(|w| 2.0 * (w.radius + w.top_speed() * STEP)).fold(0.0, f64::max);
         Self {
             paths,
             walkers,
@@ -217,6 +223,8 @@ impl Crowd {
             steps: 0,
             others: Vec::new(),
             velocities: Vec::new(),
+            grid: Grid::default(),
+            touch_reach,
             scratch: Scratch::default(),
         }
     }
@@ -253,9 +261,10 @@ impl Crowd {
             self.others.push(Other { position, velocity, radius: radius * (1.0 + ROBOT_BERTH) });
         }
         self.velocities.clear();
+        self.grid.build(self.walkers.iter().map(|w| (w.position, w.radius, w.top_speed())), self.touch_reach);
         for i in 0..self.walkers.len() {
             let seen = if self.walkers[i].walk.sees_robot { &self.others[..] } else { &self.others[..unseen] };
-            let v = velocity(&mut self.walkers, i, seen, &self.room, &self.area, &mut self.scratch);
+            let v = velocity(&mut self.walkers, i, seen, &self.room, &self.area, &self.grid, &mut self.scratch);
             self.velocities.push(v);
         }
         self.keep_apart();
@@ -277,16 +286,20 @@ impl Crowd {
     /// after a few rounds stands for the step.
     fn keep_apart(&mut self) {
         let (walkers, v, pairs) = (&self.walkers, &mut self.velocities, &mut self.scratch.pairs);
-        // The pairs that could meet within the step at their top speeds.
+        // The pairs that could meet within the step at their top speeds: at most a cell
+        // apart, so in cells side by side. Taken in the order of their indices.
         pairs.clear();
         for (i, a) in walkers.iter().enumerate() {
-            for (j, b) in walkers.iter().enumerate().skip(i + 1) {
-                let reach = a.radius + b.radius + (a.top_speed() + b.top_speed()) * STEP;
-                if (b.position - a.position).norm_sqr() < reach * reach {
-                    pairs.push((i, j));
-                }
+            for k in 0..=1 {
+                self.grid.ring(i, k, |b| {
+                    let reach = a.radius + b.radius + (a.top_speed() + b.top_speed) * STEP;
+                    if b.index > i && (b.position - a.position).norm_sqr() < reach * reach {
+                        pairs.push((i, b.index));
+                    }
+                });
             }
         }
+        pairs.sort_unstable();
         // Holding one pair may leave another closing on it: round until none is (each
         // round past the last correcting one stops at least one person, so this ends).
         for round in 0.. {
@@ -384,13 +397,21 @@ struct Scratch {
     lines: Vec<orca::OrcaLine>,
     projected: Vec<orca::OrcaLine>,
     /// The nearest neighbours, nearest first, as keys: the squared distance's bits above
-    /// the index.
+    /// the index (at most [`MAX_NEIGHBOURS`]).
     near: Vec<u128>,
     pairs: Vec<(usize, usize)>,
 }
 
 /// Walker `i`'s velocity for the next step, from the others as they are now.
-fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, area: &Area, s: &mut Scratch) -> Point {
+fn velocity(
+    walkers: &mut [Walker],
+    i: usize,
+    others: &[Other],
+    room: &Room,
+    area: &Area,
+    grid: &Grid,
+    s: &mut Scratch,
+) -> Point {
     let mut preferred = walkers[i].preferred(area, room);
     if walkers[i].group.is_some() {
         preferred += cohesion(walkers, i);
@@ -406,23 +427,29 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
     let near = &mut s.near;
     near.clear();
     let key = |d2: f64, j: usize| (u128::from(d2.to_bits()) << 64) | j as u128;
-    for (j, w) in walkers.iter().enumerate() {
-        let (d2, r) = ((w.position - me.position).norm_sqr(), reach(w.radius, w.top_speed()));
-        if j != i && d2 < r * r {
-            near.push(key(d2, j));
-        }
-    }
     for (j, o) in others.iter().enumerate() {
         let (d2, r) = ((o.position - me.position).norm_sqr(), reach(o.radius, length(o.velocity)));
         if d2 < r * r {
-            near.push(key(d2, walkers.len() + j));
+            keep_nearest(near, key(d2, walkers.len() + j));
         }
     }
-    if near.len() > MAX_NEIGHBOURS {
-        near.select_nth_unstable(MAX_NEIGHBOURS);
-        near.truncate(MAX_NEIGHBOURS);
+    // The people ring by ring of cells about it, until nobody further could be within reach
+    // or nearer than the farthest kept.
+    let (largest, fastest) = grid.largest();
+    let farthest_reach = reach(largest, fastest);
+    for k in 0.. {
+        grid.ring(i, k, |w| {
+            let (d2, r) = ((w.position - me.position).norm_sqr(), reach(w.radius, w.top_speed));
+            if w.index != i && d2 < r * r {
+                keep_nearest(near, key(d2, w.index));
+            }
+        });
+        let kept = near.get(MAX_NEIGHBOURS - 1).map(|&k| f64::from_bits((k >> 64) as u64));
+        match grid.beyond(i, k) {
+            Some(d) if d < farthest_reach && kept.is_none_or(|d2| d * d <= d2) => {}
+            _ => break,
+        }
     }
-    near.sort_unstable();
     let neighbour = |j: usize| -> (orca::Body, bool) {
         match walkers.get(j) {
             Some(w) => (orca::Body { position: w.position, velocity: w.velocity, radius: w.radius }, true),
@@ -468,6 +495,24 @@ fn velocity(walkers: &mut [Walker], i: usize, others: &[Other], room: &Room, are
     }
 }
 
+/// Keeps `key` among the [`MAX_NEIGHBOURS`] least of `near` (ascending) if it is one of them.
+fn keep_nearest(near: &mut Vec<u128>, key: u128) {
+    if near.len() == MAX_NEIGHBOURS {
+        if near[MAX_NEIGHBOURS - 1] <= key {
+            return;
+        }
+        near.pop();
+    }
+    // Insertion from the end: the list is short.
+    let mut at = near.len();
+    near.push(key);
+    while at > 0 && near[at - 1] > key {
+        near[at] = near[at - 1];
+        at -= 1;
+    }
+    near[at] = key;
+}
+
 /// Walker `i`'s pull towards the rest of its group, added to the velocity it prefers: none
 /// while it is within a body's width of them side by side (its radius times two and one for
 /// each other member, from their centre), growing to its preferred speed at twice that. One
@@ -500,5 +545,6 @@ fn wall_points(room: &Room, centre: Point, range: f64) -> impl Iterator<Item = P
         .filter(move |p| (p - centre).norm_sqr() < range * range)
 }
 
+mod grid;
 #[cfg(test)]
 mod tests;
