@@ -159,3 +159,35 @@ fn the_benchmark_command_writes_its_table_plot_and_episodes() {
     let said = String::from_utf8_lossy(&peer.stdout).into_owned() + &String::from_utf8_lossy(&peer.stderr);
     assert!(peer.status.success() && said.contains("pyarrow read 320 episodes in 16 cells"), "{said}");
 }
+
+/// The fleet's 4-vehicle swap while two people cross its middle (scenarios/people/swap-4.toml),
+/// 100 episodes, people who do not see the vehicles and people who do: no vehicle touches
+/// another or drives into anything. Unseen, every failure is a person walking into a
+/// vehicle; seen, nobody touches anybody, and every failure is a vehicle that gave up a goal
+/// a person stood on for longer than `planner.goal_wait` (10 s). `flowgate plan --sweep 100
+/// scenarios/people/swap-4.toml` prints the first.
+#[test]
+fn a_fleet_swaps_among_people() {
+    use flowgate::lab::fleet::sweep::sweep as fleet_sweep;
+    use flowgate::lab::fleet::FleetOptions;
+    use flowgate::lab::Outcome;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/people/swap-4.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    for (sees, home, failed) in [(false, 70, Outcome::Collision), (true, 75, Outcome::Stopped)] {
+        let text = if sees {
+            text.replace("\nbehaviour = \"orca\"", "\nbehaviour = \"orca\"\nsees_robot = true")
+        } else {
+            text.clone()
+        };
+        let s = Scenario::from_toml(&text, "swap-4.toml").unwrap();
+        assert_eq!(s.obstacles.iter().filter(|o| o.sees_robot).count(), if sees { 2 } else { 0 });
+        let (report, episodes) = fleet_sweep(&s, 100, 1, 2, FleetOptions::default()).unwrap();
+        println!("people see the vehicles: {sees}\n{report}");
+        assert_eq!((report.vehicle_contact_episodes, report.active_contact_episodes), (0, 0), "{report}");
+        assert_eq!(report.all_home.count, home, "{report}");
+        for e in episodes.iter().filter(|e| e.outcome != Outcome::Goal) {
+            assert_eq!(e.outcome, failed, "{e:?}");
+            assert!(if sees { e.contacts == 0 } else { e.contacts > 0 }, "{e:?}");
+        }
+    }
+}

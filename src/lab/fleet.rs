@@ -11,7 +11,7 @@
 use flowgate_sim::scenario::vehicles::Role;
 use flowgate_sim::scenario::SimScenario;
 use flowgate_sim::world::fleet::Fleet;
-use flowgate_sim::world::{people, Contact, ObstaclePath, Touched};
+use flowgate_sim::world::{Contact, ObstaclePath, Touched};
 use serde::Serialize;
 
 use super::{Outcome, Scenario};
@@ -146,7 +146,6 @@ impl Default for FleetOptions {
 #[derive(Debug)]
 pub struct FleetControl {
     drivers: Vec<Driver>,
-    obstacles: Vec<(ObstaclePath, f64)>,
     options: FleetOptions,
     /// Scratch: one vehicle's obstacles, and every vehicle as the others see it.
     seen: Vec<ObstacleEstimate>,
@@ -156,8 +155,6 @@ pub struct FleetControl {
 impl FleetControl {
     pub fn new(s: &Scenario, options: FleetOptions) -> Self {
         let drivers: Vec<Driver> = (0..=s.vehicles.len()).map(|k| driver(s, k)).collect();
-        let obstacles: Vec<(ObstaclePath, f64)> =
-            people::ways(s).into_iter().zip(&s.obstacles).map(|(p, o)| (p, o.radius)).collect();
         let idle = VehicleView {
             position: Point::default(),
             velocity: Point::default(),
@@ -166,10 +163,9 @@ impl FleetControl {
             reach: 0.0,
         };
         Self {
-            seen: Vec::with_capacity(obstacles.len() + drivers.len()),
+            seen: Vec::with_capacity(s.obstacles.len() + drivers.len()),
             views: vec![idle; drivers.len()],
             drivers,
-            obstacles,
             options,
         }
     }
@@ -190,9 +186,16 @@ impl FleetControl {
                 self.drivers[k].out_of_control(fleet.world_mut(k), t);
                 continue;
             }
+            // The obstacles as they truly are (every world holds the same ways).
             self.seen.clear();
-            let obstacles = self.obstacles.iter();
-            self.seen.extend(obstacles.map(|(p, r)| ObstacleEstimate::exact(p.position(t), p.velocity(t), *r)));
+            let truth = fleet.world(0);
+            self.seen.extend((0..truth.obstacle_count()).map(|o| {
+                ObstacleEstimate::exact(
+                    truth.obstacle_position(o, t),
+                    truth.obstacle_velocity(o, t),
+                    truth.obstacle_radius(o),
+                )
+            }));
             self.options.rule.others_as_obstacles(k, &self.views, &mut self.seen);
             let d = &mut self.drivers[k];
             if d.role == Role::Navigate {
@@ -240,7 +243,7 @@ fn drive(s: &Scenario, options: FleetOptions, mut trace: Option<&mut FleetTrace>
     loop {
         let t = fleet.time();
         if let Some(trace) = trace.as_deref_mut() {
-            trace.record(&fleet, &control, t);
+            trace.record(&fleet, t);
         }
         control.cycle(&mut fleet);
         fleet.step(s.sensing.sample_time);
@@ -252,15 +255,16 @@ fn drive(s: &Scenario, options: FleetOptions, mut trace: Option<&mut FleetTrace>
 }
 
 impl FleetTrace {
-    fn record(&mut self, fleet: &Fleet, control: &FleetControl, t: f64) {
+    fn record(&mut self, fleet: &Fleet, t: f64) {
         self.t.push(t);
         self.vehicles.resize(fleet.len(), Vec::new());
         for (k, path) in self.vehicles.iter_mut().enumerate() {
             path.push(fleet.world(k).pose().position);
         }
-        self.obstacles.resize(control.obstacles.len(), Vec::new());
-        for (path, (o, _)) in self.obstacles.iter_mut().zip(&control.obstacles) {
-            path.push(o.position(t));
+        let truth = fleet.world(0);
+        self.obstacles.resize(truth.obstacle_count(), Vec::new());
+        for (o, path) in self.obstacles.iter_mut().enumerate() {
+            path.push(truth.obstacle_position(o, t));
         }
     }
 }

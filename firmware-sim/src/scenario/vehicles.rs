@@ -257,13 +257,6 @@ impl SimScenario {
 
     /// `[[vehicles]]`: each one's keys, then the fleet together.
     pub(crate) fn validate_vehicles(&self) -> Refused {
-        let seeing = self.obstacles.iter().position(|o| o.sees_robot);
-        if let (Some(k), true) = (seeing, self.is_fleet() || self.swap.is_some()) {
-            return Err((
-                format!("obstacles[{k}].sees_robot"),
-                "people who see the robot walk beside one robot: a fleet's people do not see its vehicles".into(),
-            ));
-        }
         let n = 1 + self.vehicles.len();
         if n > MAX_VEHICLES {
             return Err((

@@ -1,6 +1,7 @@
 //! Several vehicles in one world: each a [`World`] of its own (its wheels and ramps, the
 //! scenario's obstacles, walls and room, judged exactly as the robot's), and every pair of
-//! vehicles judged against each other.
+//! vehicles judged against each other. People who see the vehicles (`sees_robot`) walk
+//! once for the fleet, beside every vehicle, and each world is handed their ways.
 //!
 //! Between vehicles the judge samples: while a pair could meet within the step, the step is
 //! cut so that neither vehicle moves more than [`PAIR_RESOLUTION`] between samples, and a
@@ -8,6 +9,7 @@
 //! judged per vehicle, as for the robot: a vehicle moving toward the other faster than
 //! [`ACTIVE_CONTACT_SPEED`] drove into it.
 
+use super::people::{self, Crowd};
 use super::{ObstaclePath, World, ACTIVE_CONTACT_SPEED};
 use crate::scenario::vehicles::Role;
 use crate::scenario::{Motion, SimScenario};
@@ -38,15 +40,31 @@ pub struct Fleet {
     contact: Vec<Option<VehicleContact>>,
     /// Each vehicle's smallest gap to any other's footprint, m.
     min_gap: Vec<f64>,
+    /// People who see the vehicles, walking as the fleet runs (`None`: none do).
+    people: Option<Crowd>,
+    /// Scratch: every vehicle as people see it.
+    bodies: Vec<(Point, Point, f64)>,
 }
 
 impl Fleet {
     /// The fleet of a scenario at time 0, the robot first.
     pub fn new(s: &SimScenario) -> Self {
         let n = 1 + s.vehicles.len();
-        let worlds: Vec<World> = (0..n).map(|k| World::new(&s.vehicle_alone(k))).collect();
+        let mut worlds: Vec<World> = (0..n).map(|k| World::new(&s.vehicle_alone(k))).collect();
+        // Each world would walk its own people beside its own vehicle: one crowd walks for all.
+        let people = worlds[0].take_people();
+        for w in &mut worlds[1..] {
+            w.take_people();
+        }
         let top_speed = s.fleet().map(|(_, body, _)| body.max_wheel_speed).collect();
-        let mut fleet = Self { worlds, top_speed, contact: vec![None; n], min_gap: vec![f64::INFINITY; n] };
+        let mut fleet = Self {
+            worlds,
+            top_speed,
+            contact: vec![None; n],
+            min_gap: vec![f64::INFINITY; n],
+            people,
+            bodies: Vec::with_capacity(n),
+        };
         fleet.judge_pairs();
         fleet
     }
@@ -84,8 +102,24 @@ impl Fleet {
         let pieces = self.pieces(dt);
         let h = dt / pieces as f64;
         for _ in 0..pieces {
+            self.walk_people(self.time() + h);
             self.worlds.iter_mut().for_each(|w| w.step(h));
             self.judge_pairs();
+        }
+    }
+
+    /// People who see the vehicles walk each step that begins by `until`, seeing every
+    /// vehicle where it is at the step's start, and every world learns their ways.
+    fn walk_people(&mut self, until: f64) {
+        let Some(crowd) = self.people.as_mut().filter(|_| until.is_finite()) else { return };
+        while crowd.time() <= until {
+            let t = crowd.time();
+            self.bodies.clear();
+            self.bodies.extend(self.worlds.iter().map(|w| w.body_seen_at(t)));
+            crowd.step_beside(&self.bodies);
+            for (k, t0, from, v) in crowd.last_legs() {
+                self.worlds.iter_mut().for_each(|w| w.walk_on(k, t0, from, v, t + people::STEP));
+            }
         }
     }
 
@@ -250,5 +284,33 @@ mod tests {
             "{}",
             apart.min_vehicle_gap(0)
         );
+    }
+
+    /// A person walking through where the second vehicle stands: one who sees the vehicles
+    /// walks round it to their goal, untouched; one who does not walks into it. Every
+    /// vehicle's world holds the same way for the person.
+    #[test]
+    fn people_who_see_the_vehicles_walk_round_every_one() {
+        for sees in [true, false] {
+            let person = format!(
+                "[[obstacles]]\nradius = 0.07\nstart = [0.2, 0.5]\nbehaviour = \"orca\"\n\
+                 goal = [0.2, -0.5]\npreferred_speed = 0.05\nsees_robot = {sees}\n"
+            );
+            let s = SimScenario::from_toml(&format!("{TWO}\n{person}"), "two").unwrap();
+            let mut fleet = Fleet::new(&s);
+            while fleet.time() < 30.0 {
+                fleet.step(0.02);
+            }
+            let t = fleet.time();
+            let (there, robots) = (fleet.world(1).obstacle_position(0, t), fleet.world(0).obstacle_position(0, t));
+            assert_eq!(there, robots, "every world holds the same way");
+            let touched = fleet.world(1).truth().contact;
+            if sees {
+                assert!(touched.is_none(), "{touched:?}");
+                assert!((there - Point::new(0.2, -0.5)).norm() < 0.07, "{there}");
+            } else {
+                assert!(touched.is_some_and(|c| !c.active), "{touched:?}");
+            }
+        }
     }
 }

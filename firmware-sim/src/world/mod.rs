@@ -374,13 +374,38 @@ impl World {
         let Some(crowd) = self.people.as_mut().filter(|_| until.is_finite()) else { return };
         while crowd.time() <= until {
             let t = crowd.time();
-            let span = t - self.settled.time;
-            let robot = Way::to(self.settled, self.drive, span).after(span, t);
-            crowd.step_beside(Some((robot.pose.position, robot.velocity, self.robot_radius)));
+            let (position, velocity) = Self::body_at(self.settled, self.drive, t);
+            crowd.step_beside(&[(position, velocity, self.robot_radius)]);
             for (k, t0, from, v) in crowd.last_legs() {
                 self.obstacles[k].0.walk_on(t0, from, v, t + people::STEP);
             }
         }
+    }
+
+    /// Where the robot is at `t` and how fast it goes, from the `settled` state on its axes
+    /// as they are (no command comes between).
+    fn body_at(settled: Settled, drive: DiffDrive, t: f64) -> (Point, Point) {
+        let span = t - settled.time;
+        let robot = Way::to(settled, drive, span).after(span, t);
+        (robot.pose.position, robot.velocity)
+    }
+
+    /// The robot at `t`, at or after the world's time (position, velocity, radius): what a
+    /// person who sees it sees.
+    pub fn body_seen_at(&self, t: f64) -> (Point, Point, f64) {
+        let (position, velocity) = Self::body_at(self.settled, self.drive, t);
+        (position, velocity, self.robot_radius)
+    }
+
+    /// The people who walk as this world runs, taken out: a fleet walks them once, beside
+    /// every vehicle, and hands each world their legs ([`World::walk_on`]).
+    pub fn take_people(&mut self) -> Option<people::Crowd> {
+        self.people.take()
+    }
+
+    /// Obstacle `k`, a person walking, goes on at `t` from `from` at `v` until `until`.
+    pub fn walk_on(&mut self, k: usize, t: f64, from: Point, v: Point, until: f64) {
+        self.obstacles[k].0.walk_on(t, from, v, until);
     }
 
     /// Bring the settled state up to now, judging the way there, before a command changes

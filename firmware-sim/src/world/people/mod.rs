@@ -241,13 +241,13 @@ impl Crowd {
 
     /// Every person walks one step, on what each saw of the others at its start.
     pub fn step(&mut self) {
-        self.step_beside(None);
+        self.step_beside(&[]);
     }
 
-    /// Every person walks one step beside the robot, `robot` as it is at the step's start
-    /// (position, velocity, radius): those who see it avoid it as they avoid a scripted
-    /// obstacle, taking all the avoiding on themselves.
-    pub fn step_beside(&mut self, robot: Option<(Point, Point, f64)>) {
+    /// Every person walks one step beside the robot, or a fleet's vehicles, each as it is
+    /// at the step's start (position, velocity, radius): those who see them avoid them as
+    /// they avoid a scripted obstacle, taking all the avoiding on themselves.
+    pub fn step_beside(&mut self, vehicles: &[(Point, Point, f64)]) {
         let t = self.time();
         self.others.clear();
         for &(k, radius) in &self.scripted {
@@ -255,9 +255,9 @@ impl Crowd {
             self.others.push(Other { position: path.position(t), velocity: path.velocity(t), radius });
         }
         let unseen = self.others.len();
-        if let Some((position, velocity, radius)) = robot {
-            // A person leaves the robot a berth: ORCA's solution may graze what it avoids,
-            // and grazing the robot is touching it.
+        for &(position, velocity, radius) in vehicles {
+            // A person leaves a vehicle a berth: ORCA's solution may graze what it avoids,
+            // and grazing a vehicle is touching it.
             self.others.push(Other { position, velocity, radius: radius * (1.0 + ROBOT_BERTH) });
         }
         self.velocities.clear();
