@@ -195,3 +195,71 @@ fn the_swarm_episodes_a_reflection_once_drove_into_the_obstacle_keep_every_invar
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A policy drives one vehicle of a fleet (`--vehicle NAME`, at the planner level): the
+/// package's helper steering `v2` of the 4-vehicle swap brings every vehicle home, the same
+/// bytes over two runs; an adversary driving `v2` at the nearest body makes no active
+/// contact in 20 episodes, its commands held by `v2`'s supervisor; a policy that dies stops
+/// its vehicle, named, and the others go home but the robot, whose goal it stands on; a vehicle that is not there, or on a
+/// scenario without vehicles, is refused by name.
+#[test]
+fn a_policy_drives_a_vehicle_of_a_fleet() {
+    let dir = temp("fleet");
+    let swap = root().join("scenarios/fleet/swap-4.toml");
+    let swap = swap.to_str().unwrap();
+    let peer = |mode: &str| {
+        format!("{} {} {mode}", python::python().display(), root().join("tests/peers/policies.py").display())
+    };
+    let summary = |out: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+    };
+    let runs: Vec<PathBuf> = (0..2).map(|k| dir.join(format!("helper{k}"))).collect();
+    for out in &runs {
+        let o = plan(&["--policy", &peer("helper"), "--vehicle", "v2", swap], out);
+        assert!(o.status.success(), "{}", text(&o));
+    }
+    let s = summary(&runs[0]);
+    assert_eq!((s["outcome"].as_str(), s["vehicles"][2]["name"].as_str()), (Some("goal"), Some("v2")), "{s}");
+    assert_eq!(
+        std::fs::read(runs[0].join("summary.json")).unwrap(),
+        std::fs::read(runs[1].join("summary.json")).unwrap()
+    );
+
+    let out = dir.join("push");
+    let o = plan(&["--policy", &peer("push"), "--vehicle", "v2", "--sweep", "20", "--threads", "2", swap], &out);
+    assert!(o.status.success(), "{}", text(&o));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fleet_sweep.json")).unwrap()).unwrap();
+    assert_eq!(
+        (report["episodes"].as_u64(), report["active_contact_episodes"].as_u64()),
+        (Some(20), Some(0)),
+        "{report}"
+    );
+
+    let out = dir.join("dies");
+    let o = plan(&["--policy", "head -c 1 >/dev/null; exit 3", "--vehicle", "v2", swap], &out);
+    assert!(o.status.success(), "{}", text(&o));
+    let s = summary(&out);
+    let v2 = &s["vehicles"][2];
+    assert_eq!(v2["outcome"], "stopped", "{s}");
+    assert!(v2["stop_reason"].as_str().unwrap().starts_with("policy: exited (exit status: 3)"), "{s}");
+    // It stopped where it started, on the robot's goal: the robot waits, then gives it up.
+    assert_eq!(s["vehicles"][0]["stop_reason"], "goal blocked by vehicle v2", "{s}");
+    for k in [1, 3] {
+        assert_eq!(s["vehicles"][k]["outcome"], "goal", "{s}");
+    }
+
+    let o = plan(&["--policy", &peer("helper"), "--vehicle", "v9", swap], &dir.join("v9"));
+    assert!(
+        !o.status.success() && text(&o).contains("--vehicle v9: Swap 4 has vehicles robot, v1, v2, v3"),
+        "{}",
+        text(&o)
+    );
+    let o = plan(&["--policy", &peer("helper"), "--vehicle", "v2", e1().to_str().unwrap()], &dir.join("e1"));
+    assert!(
+        !o.status.success() && text(&o).contains("--vehicle v2:") && text(&o).contains("has no vehicles"),
+        "{}",
+        text(&o)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

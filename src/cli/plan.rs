@@ -80,6 +80,10 @@ pub struct PlanArgs {
     #[arg(long, value_name = "MS", default_value_t = 1000, requires = "policy",
           value_parser = clap::value_parser!(u64).range(1..=60_000))]
     policy_budget_ms: u64,
+    /// With --policy on a fleet's scenario: the navigating vehicle the policy drives (its
+    /// name; default the robot), the others as the scenario says, at the planner level.
+    #[arg(long, value_name = "NAME", requires = "policy")]
+    vehicle: Option<String>,
     /// With --sweep of a fleet: run every episode twice, the scripted vehicles as vehicles
     /// and as obstacles on the same scripts, and compare the robot's outcomes.
     #[arg(long, requires = "sweep")]
@@ -130,6 +134,9 @@ pub fn run(args: PlanArgs) -> Result<()> {
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
     if scenario.is_fleet() || scenario.swap.is_some() {
         return fleet_command(&args, &scenario, &out);
+    }
+    if let Some(name) = &args.vehicle {
+        bail!("--vehicle {name}: {} has no vehicles beside the robot ([[vehicles]] or [swap])", file.display());
     }
     if args.shard.is_some() && args.sweep.is_none() && args.swarm.is_none() {
         bail!("--shard splits a --sweep or a --swarm");
@@ -425,23 +432,11 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
 /// drive one robot.
 fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()> {
     use flowgate::lab::fleet::{self, sweep as fleet_sweep, FleetOptions};
-    for (given, flag) in [
-        (args.policy.is_some(), "--policy"),
-        (args.swarm.is_some(), "--swarm"),
-        (args.compare.is_some(), "--compare"),
-        (args.shard.is_some(), "--shard"),
-    ] {
-        if given {
-            bail!(
-                "{flag} drives one robot: {} is a fleet of {} vehicles, run with --sweep N or alone",
-                scenario.name,
-                1 + scenario.vehicles.len()
-            );
-        }
-    }
+    let driven = fleet_driven(args, scenario)?;
     let options = FleetOptions::default();
+    let run_traced = |s: &Scenario| fleet_run_traced(args, s, options, driven);
     let Some(n) = args.sweep else {
-        let (summary, trace) = fleet::run_traced(scenario, options);
+        let (summary, trace) = run_traced(scenario);
         fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
         outputs::write_fleet_run(out, scenario, &summary, &trace)?;
         say!("  wrote {}/{{summary.json,trajectory.svg}}  (fleet, planner level)", out.display());
@@ -455,7 +450,7 @@ fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()>
             bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1);
         }
         let s = fleet_sweep::place(scenario, args.seed, k);
-        let (summary, trace) = fleet::run_traced(&s, options);
+        let (summary, trace) = run_traced(&s);
         say!("episode {k} of the sweep of {n} around {} (seed {}):", scenario.name, args.seed);
         fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
         outputs::write_fleet_run(out, &s, &summary, &trace)?;
@@ -470,10 +465,68 @@ fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()>
         say!("  wrote {}/scripts_compared.json", out.display());
         return Ok(());
     }
-    let (report, episodes) = fleet_sweep::sweep(scenario, n as u64, args.seed, args.threads(), options)?;
+    let (report, episodes) = match driven {
+        Some((k, command)) => {
+            let (seed, threads, budget) = (args.seed, args.threads(), args.policy_budget());
+            fleet_sweep::sweep_policy(scenario, n as u64, seed, threads, options, k, command, budget)?
+        }
+        None => fleet_sweep::sweep(scenario, n as u64, args.seed, args.threads(), options)?,
+    };
     say!("{report}");
     say!("  ({} episodes in {:.1} s, fleet, planner level)", episodes.len(), started.elapsed().as_secs_f64());
     outputs::write_fleet_sweep(out, &report, &episodes)?;
     say!("  wrote {}/{{fleet_sweep.json,fleet_episodes.jsonl}}", out.display());
     Ok(())
+}
+
+/// What a fleet's run refuses; and the vehicle `--policy` drives, and its command.
+fn fleet_driven<'a>(args: &'a PlanArgs, scenario: &Scenario) -> Result<Option<(usize, &'a str)>> {
+    for (given, flag) in
+        [(args.swarm.is_some(), "--swarm"), (args.compare.is_some(), "--compare"), (args.shard.is_some(), "--shard")]
+    {
+        if given {
+            bail!(
+                "{flag} drives one robot: {} is a fleet of {} vehicles, run with --sweep N or alone",
+                scenario.name,
+                1 + scenario.vehicles.len()
+            );
+        }
+    }
+    if args.policy.is_some() && args.compare_obstacles {
+        bail!("--compare-obstacles compares the field's runs: leave --policy out");
+    }
+    match &args.policy {
+        Some(command) => Ok(Some((driven_vehicle(scenario, args.vehicle.as_deref())?, command.as_str()))),
+        None => Ok(None),
+    }
+}
+
+/// One fleet run and its trace, vehicle `driven.0` driven by the policy `driven.1`.
+fn fleet_run_traced(
+    args: &PlanArgs,
+    s: &Scenario,
+    options: flowgate::lab::fleet::FleetOptions,
+    driven: Option<(usize, &str)>,
+) -> (flowgate::lab::fleet::FleetSummary, flowgate::lab::fleet::FleetTrace) {
+    use flowgate::lab::fleet;
+    let Some((k, command)) = driven else { return fleet::run_traced(s, options) };
+    let mut worker = flowgate::lab::policy::Worker::new(command, args.policy_budget());
+    let mut trace = fleet::FleetTrace::default();
+    let (summary, _) = fleet::policy::run(s, options, k, &mut worker, Some(&mut trace));
+    worker.close();
+    (summary, trace)
+}
+
+/// The fleet's vehicle `--vehicle` names (default the robot), if it navigates.
+fn driven_vehicle(scenario: &Scenario, name: Option<&str>) -> Result<usize> {
+    use flowgate_sim::scenario::vehicles::Role;
+    let name = name.unwrap_or("robot");
+    let names: Vec<&str> = scenario.fleet().map(|(n, _, _)| n).collect();
+    let Some(k) = names.iter().position(|n| *n == name) else {
+        bail!("--vehicle {name}: {} has vehicles {}", scenario.name, names.join(", "));
+    };
+    match scenario.fleet().nth(k) {
+        Some((_, _, Role::Navigate)) => Ok(k),
+        _ => bail!("--vehicle {name}: a scripted vehicle follows its script; a policy drives a navigating one"),
+    }
 }

@@ -21,6 +21,7 @@ use crate::planner::ObstacleEstimate;
 use crate::track::Estimate;
 use crate::Point;
 
+pub mod policy;
 pub mod sweep;
 
 /// What one vehicle touched first.
@@ -86,6 +87,8 @@ struct Driver {
     /// Commanded velocity, m/s.
     commanded: Point,
     done: Option<(Outcome, f64, Option<String>)>,
+    /// What covered its goal too long (an index among what it avoids), to be named.
+    blocked_by: Option<usize>,
     error: f64,
     error_held: f64,
     supervised: u64,
@@ -146,7 +149,11 @@ impl Default for FleetOptions {
 #[derive(Debug)]
 pub struct FleetControl {
     drivers: Vec<Driver>,
+    /// Every vehicle's name, the robot first.
+    names: Vec<String>,
     options: FleetOptions,
+    /// The vehicle driven from outside, if any.
+    outside: Option<usize>,
     /// Scratch: one vehicle's obstacles, and every vehicle as the others see it.
     seen: Vec<ObstacleEstimate>,
     views: Vec<VehicleView>,
@@ -154,7 +161,13 @@ pub struct FleetControl {
 
 impl FleetControl {
     pub fn new(s: &Scenario, options: FleetOptions) -> Self {
-        let drivers: Vec<Driver> = (0..=s.vehicles.len()).map(|k| driver(s, k)).collect();
+        Self::driven(s, options, None)
+    }
+
+    /// The fleet's control with vehicle `outside` (if any) driven from outside: its commands
+    /// come through [`FleetControl::command`], and go through its supervisor.
+    pub fn driven(s: &Scenario, options: FleetOptions, outside: Option<usize>) -> Self {
+        let drivers: Vec<Driver> = (0..=s.vehicles.len()).map(|k| driver(s, k, outside == Some(k))).collect();
         let idle = VehicleView {
             position: Point::default(),
             velocity: Point::default(),
@@ -166,7 +179,9 @@ impl FleetControl {
             seen: Vec::with_capacity(s.obstacles.len() + drivers.len()),
             views: vec![idle; drivers.len()],
             drivers,
+            names: s.fleet().map(|(name, _, _)| name.to_string()).collect(),
             options,
+            outside,
         }
     }
 
@@ -186,17 +201,7 @@ impl FleetControl {
                 self.drivers[k].out_of_control(fleet.world_mut(k), t);
                 continue;
             }
-            // The obstacles as they truly are (every world holds the same ways).
-            self.seen.clear();
-            let truth = fleet.world(0);
-            self.seen.extend((0..truth.obstacle_count()).map(|o| {
-                ObstacleEstimate::exact(
-                    truth.obstacle_position(o, t),
-                    truth.obstacle_velocity(o, t),
-                    truth.obstacle_radius(o),
-                )
-            }));
-            self.options.rule.others_as_obstacles(k, &self.views, &mut self.seen);
+            let vehicles_from = self.see(fleet, k, t);
             let d = &mut self.drivers[k];
             if d.role == Role::Navigate {
                 let goal = d.step.config().goal;
@@ -204,9 +209,62 @@ impl FleetControl {
                 d.step.aim_at(aim);
             }
             let pulses = drive_one(d, fleet, k, t, &self.seen, &self.options.gains);
+            if let Some(index) = d.blocked_by.take() {
+                // What covers its goal, by name: an obstacle, or another vehicle.
+                let by = match index.checked_sub(vehicles_from) {
+                    None => format!("obstacles[{index}]"),
+                    Some(j) => format!("vehicle {}", self.names[if j >= k { j + 1 } else { j }]),
+                };
+                d.done = Some((Outcome::Stopped, t, Some(format!("goal blocked by {by}"))));
+            }
             self.views[k].velocity = d.commanded;
             fleet.world_mut(k).command_pulse_rates(pulses);
         }
+    }
+
+    /// What vehicle `k` avoids at `t`: the obstacles as they truly are (every world holds the
+    /// same ways), then every other vehicle; returns where the vehicles begin.
+    fn see(&mut self, fleet: &Fleet, k: usize, t: f64) -> usize {
+        self.seen.clear();
+        let truth = fleet.world(0);
+        self.seen.extend((0..truth.obstacle_count()).map(|o| {
+            ObstacleEstimate::exact(
+                truth.obstacle_position(o, t),
+                truth.obstacle_velocity(o, t),
+                truth.obstacle_radius(o),
+            )
+        }));
+        let vehicles_from = self.seen.len();
+        self.options.rule.others_as_obstacles(k, &self.views, &mut self.seen);
+        if self.outside == Some(k) {
+            // A vehicle driven from outside keeps no fleet rule, and the others' next
+            // commands answer its moves: to its supervisor each is a region growing at its
+            // speed (stopping, turning or going on), not a body bound to go on.
+            for v in &mut self.seen[vehicles_from..] {
+                v.spread = v.spread.max(v.velocity.norm().max(f64::MIN_POSITIVE));
+            }
+        }
+        vehicles_from
+    }
+
+    /// Vehicle `k`'s command from outside at `t`, for its next cycle.
+    pub fn command(&mut self, k: usize, t: f64, command: OutsideCommand) {
+        self.drivers[k].step.take_command(t, command);
+    }
+
+    /// Stop vehicle `k` at `t`, its outcome `stopped` and `why` its stop reason.
+    pub fn stop(&mut self, k: usize, t: f64, why: String) {
+        self.drivers[k].done.get_or_insert((Outcome::Stopped, t, Some(why)));
+    }
+
+    /// Whether vehicle `k` is done (at its goal, stopped or faulted).
+    pub fn is_done(&self, k: usize) -> bool {
+        self.drivers[k].done.is_some()
+    }
+
+    /// Vehicle `k`'s goal.
+    pub fn goal(&self, k: usize) -> Point {
+        self.drivers[k].step.config().goal
     }
 
     /// Whether any vehicle still has somewhere to go at `t`.
@@ -237,14 +295,26 @@ pub fn run_traced(s: &Scenario, options: FleetOptions) -> (FleetSummary, FleetTr
     (summary, trace)
 }
 
-fn drive(s: &Scenario, options: FleetOptions, mut trace: Option<&mut FleetTrace>) -> FleetSummary {
+fn drive(s: &Scenario, options: FleetOptions, trace: Option<&mut FleetTrace>) -> FleetSummary {
+    drive_with(s, FleetControl::new(s, options), trace, |_, _| {})
+}
+
+/// Run `control` over `s`'s fleet to its end, `before` each cycle given the fleet and the
+/// control (an outside vehicle's command goes in there).
+fn drive_with(
+    s: &Scenario,
+    mut control: FleetControl,
+    mut trace: Option<&mut FleetTrace>,
+    mut before: impl FnMut(&Fleet, &mut FleetControl),
+) -> FleetSummary {
+    let options = control.options;
     let mut fleet = Fleet::new(&s.sim);
-    let mut control = FleetControl::new(s, options);
     loop {
         let t = fleet.time();
         if let Some(trace) = trace.as_deref_mut() {
             trace.record(&fleet, t);
         }
+        before(&fleet, &mut control);
         control.cycle(&mut fleet);
         fleet.step(s.sensing.sample_time);
         let touched = (0..fleet.len()).any(|k| contact_of(&fleet, s, k).is_some());
@@ -276,10 +346,14 @@ impl Driver {
     }
 }
 
-/// Vehicle `k`'s control step, from its rig as the robot's is.
-fn driver(s: &Scenario, k: usize) -> Driver {
+/// Vehicle `k`'s control step, from its rig as the robot's is; `outside`, its commands from
+/// outside (a policy), each good for two cycles.
+fn driver(s: &Scenario, k: usize, outside: bool) -> Driver {
     let alone = s.vehicle(k);
     let mut config = alone.rig().control;
+    if outside {
+        config.source = CommandSource::Outside { max_age: 2.0 * s.sensing.sample_time };
+    }
     let role = if k == 0 { Role::Navigate } else { s.vehicles[k - 1].role };
     let (mut script, mut tolerance) = (None, 0.0);
     if role == Role::Script {
@@ -304,6 +378,7 @@ fn driver(s: &Scenario, k: usize) -> Driver {
         radius: alone.robot.radius,
         commanded: Point::default(),
         done: None,
+        blocked_by: None,
         error: 0.0,
         error_held: 0.0,
         supervised: 0,
@@ -362,7 +437,8 @@ fn carry_out(d: &mut Driver, facing: Point, out: &StepOutput, t: f64) -> [i32; 2
         StepStatus::AtGoal => Some((Outcome::Goal, None)),
         StepStatus::Stalled => Some((Outcome::Stall, Some("stalled".to_string()))),
         StepStatus::GoalBlocked { index } => {
-            Some((Outcome::Stopped, Some(format!("goal blocked by obstacle {index}"))))
+            d.blocked_by = Some(index); // named by the fleet, which knows what `index` is
+            Some((Outcome::Stopped, None))
         }
         StepStatus::CommandStale => Some((Outcome::Stopped, Some("script command stale".to_string()))),
     };

@@ -268,9 +268,8 @@ fn shorten(line: &str) -> String {
     s
 }
 
-/// The hello for `scenario` run on `rig`.
-fn hello(scenario: &Scenario, rig: &VirtualRig) -> Hello {
-    let gateway = rig.core().rig();
+/// The hello for `scenario`, its vehicle driven as `gateway` says.
+pub fn hello(scenario: &Scenario, gateway: &crate::config::Rig) -> Hello {
     let control = &gateway.control;
     let mut room = RoomOutlines::default();
     if let Some(r) = &control.room {
@@ -360,21 +359,31 @@ impl Worker {
 
     /// An episode begins on `rig`: the process started if it is not, and the hello.
     pub fn begin(&mut self, scenario: &Scenario, rig: &VirtualRig) -> Result<(), PolicyError> {
+        self.open(&hello(scenario, rig.core().rig()))
+    }
+
+    /// An episode begins: the process started if it is not, and `hello` sent.
+    pub fn open(&mut self, hello: &Hello) -> Result<(), PolicyError> {
         let mut process = match self.process.take() {
             Some(p) => p,
             None => PolicyProcess::start(&self.command, self.budget)?,
         };
-        process.hello(&hello(scenario, rig))?;
+        process.hello(hello)?;
         self.process = Some(process);
         Ok(())
     }
 
+    /// One observation, and the policy's command.
+    pub fn ask(&mut self, observation: &Observation) -> Result<OutsideCommand, PolicyError> {
+        match self.process.as_mut() {
+            Some(process) => process.ask(observation),
+            None => Err(PolicyError::Exited { status: "not running".into() }),
+        }
+    }
+
     /// The policy's turn: it observes `rig` and its command goes in as a request.
     pub fn turn(&mut self, rig: &mut VirtualRig, goal: [f64; 2]) -> Result<(), PolicyError> {
-        let Some(process) = self.process.as_mut() else {
-            return Err(PolicyError::Exited { status: "not running".into() });
-        };
-        let command = process.ask(&observe(rig, goal))?;
+        let command = self.ask(&observe(rig, goal))?;
         let request = match command {
             OutsideCommand::Twist { v, w } => Request::Drive { v, w },
             OutsideCommand::Wheels { left, right } => Request::Wheels { left, right },
@@ -388,9 +397,15 @@ impl Worker {
     pub fn end(&mut self, run: &VirtualRun, failure: Option<&PolicyError>) {
         let stop = failure.map(|e| e.to_string()).or_else(|| run.report.stop_reason.map(|r| r.to_string()));
         let ending = Ending { outcome: run.outcome.to_string(), contact: run.truth.summary.contact.is_some(), stop };
+        self.finish(&ending, failure.is_some());
+    }
+
+    /// The episode's last line, `ending`; a process that `failed` it ends, and starts afresh
+    /// for the next.
+    pub fn finish(&mut self, ending: &Ending, failed: bool) {
         if let Some(mut p) = self.process.take() {
-            p.end_episode(&ending);
-            if failure.is_none() {
+            p.end_episode(ending);
+            if !failed {
                 self.process = Some(p);
             } else {
                 p.close();

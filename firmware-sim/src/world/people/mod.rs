@@ -419,37 +419,7 @@ fn velocity(
     let me = &walkers[i];
     let body = orca::Body { position: me.position, velocity: me.velocity, radius: me.radius };
     let horizon = HORIZON_RADII * me.radius / me.walk.preferred_speed;
-    // The nearest neighbours within what the horizon can bring together.
-    let reach = |radius: f64, speed: f64| me.radius + radius + (me.top_speed() + speed) * horizon;
-    // The nearest, in order: keyed by the square of the distance (which orders alike; a
-    // non-negative float's bits order as the float does), the earlier person first among
-    // equals.
-    let near = &mut s.near;
-    near.clear();
-    let key = |d2: f64, j: usize| (u128::from(d2.to_bits()) << 64) | j as u128;
-    for (j, o) in others.iter().enumerate() {
-        let (d2, r) = ((o.position - me.position).norm_sqr(), reach(o.radius, length(o.velocity)));
-        if d2 < r * r {
-            keep_nearest(near, key(d2, walkers.len() + j));
-        }
-    }
-    // The people ring by ring of cells about it, until nobody further could be within reach
-    // or nearer than the farthest kept.
-    let (largest, fastest) = grid.largest();
-    let farthest_reach = reach(largest, fastest);
-    for k in 0.. {
-        grid.ring(i, k, |w| {
-            let (d2, r) = ((w.position - me.position).norm_sqr(), reach(w.radius, w.top_speed));
-            if w.index != i && d2 < r * r {
-                keep_nearest(near, key(d2, w.index));
-            }
-        });
-        let kept = near.get(MAX_NEIGHBOURS - 1).map(|&k| f64::from_bits((k >> 64) as u64));
-        match grid.beyond(i, k) {
-            Some(d) if d < farthest_reach && kept.is_none_or(|d2| d * d <= d2) => {}
-            _ => break,
-        }
-    }
+    nearest(walkers, i, others, grid, horizon, &mut s.near);
     let neighbour = |j: usize| -> (orca::Body, bool) {
         match walkers.get(j) {
             Some(w) => (orca::Body { position: w.position, velocity: w.velocity, radius: w.radius }, true),
@@ -491,6 +461,42 @@ fn velocity(
         Behaviour::SocialForce => {
             let near = s.near.iter().map(|&k| neighbour(k as u64 as usize).0);
             social_force::velocity(body, preferred, me.walk.preferred_speed, me.top_speed(), near, walls, STEP)
+        }
+    }
+}
+
+/// Walker `i`'s nearest neighbours, at most [`MAX_NEIGHBOURS`], nearest first, into
+/// `near`: the people (from the grid) and `others` within what `horizon` can bring together.
+fn nearest(walkers: &[Walker], i: usize, others: &[Other], grid: &Grid, horizon: f64, near: &mut Vec<u128>) {
+    let me = &walkers[i];
+    // The nearest neighbours within what the horizon can bring together.
+    let reach = |radius: f64, speed: f64| me.radius + radius + (me.top_speed() + speed) * horizon;
+    // The nearest, in order: keyed by the square of the distance (which orders alike; a
+    // non-negative float's bits order as the float does), the earlier person first among
+    // equals.
+    near.clear();
+    let key = |d2: f64, j: usize| (u128::from(d2.to_bits()) << 64) | j as u128;
+    for (j, o) in others.iter().enumerate() {
+        let (d2, r) = ((o.position - me.position).norm_sqr(), reach(o.radius, length(o.velocity)));
+        if d2 < r * r {
+            keep_nearest(near, key(d2, walkers.len() + j));
+        }
+    }
+    // The people ring by ring of cells about it, until nobody further could be within reach
+    // or nearer than the farthest kept.
+    let (largest, fastest) = grid.largest();
+    let farthest_reach = reach(largest, fastest);
+    for k in 0.. {
+        grid.ring(i, k, |w| {
+            let (d2, r) = ((w.position - me.position).norm_sqr(), reach(w.radius, w.top_speed));
+            if w.index != i && d2 < r * r {
+                keep_nearest(near, key(d2, w.index));
+            }
+        });
+        let kept = near.get(MAX_NEIGHBOURS - 1).map(|&k| f64::from_bits((k >> 64) as u64));
+        match grid.beyond(i, k) {
+            Some(d) if d < farthest_reach && kept.is_none_or(|d2| d * d <= d2) => {}
+            _ => break,
         }
     }
 }
