@@ -287,33 +287,61 @@ fn evasion(ctx: &Context<'_>, proposed: WheelSpeeds, chosen: WheelSpeeds, max_wh
     {
         return None;
     }
+    if let Some(command) = nearest_clear(ctx, proposed, max_wheel_speed) {
+        return (command != chosen).then_some(Evasion { wheels: command, clear: true });
+    }
     let kept = ctx.least_margin_ahead(chosen, Ahead::All, EVASION_HORIZON, f64::NEG_INFINITY);
     // The nearest clear command to the proposal, else the largest margin.
     let (mut nearest, mut widest): (Option<(f64, WheelSpeeds)>, (f64, WheelSpeeds)) = (None, (kept, chosen));
-    for left in EVASION_WHEEL_FRACTIONS {
-        for right in EVASION_WHEEL_FRACTIONS {
-            let command = WheelSpeeds { left: left * max_wheel_speed, right: right * max_wheel_speed };
-            if ctx.first_driven_into(command, EVASION_SPARE).is_some() || ctx.approaches_a_near_obstacle(command) {
-                continue;
+    for command in evasion_candidates(max_wheel_speed) {
+        if ctx.first_driven_into(command, EVASION_SPARE).is_some() || ctx.approaches_a_near_obstacle(command) {
+            continue;
+        }
+        // A command that is not clear matters only while nothing is, and then only if it
+        // keeps more than the widest so far.
+        let matters = if nearest.is_some() { 0.0 } else { (widest.0 + 1e-9).min(0.0) };
+        let margin = ctx.least_margin_ahead(command, Ahead::All, EVASION_HORIZON, matters);
+        if margin >= 0.0 {
+            // Least cost: away from the proposal, and giving up forward progress.
+            let off = (command.left - proposed.left).hypot(command.right - proposed.right);
+            let cost = off - (command.left + command.right);
+            if nearest.is_none_or(|(d, _)| cost < d) {
+                nearest = Some((cost, command));
             }
-            // A command that is not clear matters only while nothing is, and then only if it
-            // keeps more than the widest so far.
-            let matters = if nearest.is_some() { 0.0 } else { (widest.0 + 1e-9).min(0.0) };
-            let margin = ctx.least_margin_ahead(command, Ahead::All, EVASION_HORIZON, matters);
-            if margin >= 0.0 {
-                // Least cost: away from the proposal, and giving up forward progress.
-                let off = (command.left - proposed.left).hypot(command.right - proposed.right);
-                let cost = off - (command.left + command.right);
-                if nearest.is_none_or(|(d, _)| cost < d) {
-                    nearest = Some((cost, command));
-                }
-            } else if margin > widest.0 + 1e-9 {
-                widest = (margin, command);
-            }
+        } else if margin > widest.0 + 1e-9 {
+            widest = (margin, command);
         }
     }
     let (command, clear) = nearest.map_or((widest.1, false), |(_, c)| (c, true));
     (command != chosen).then_some(Evasion { wheels: command, clear })
+}
+
+/// Evasion's candidate commands, in the order they are judged.
+fn evasion_candidates(max_wheel_speed: f64) -> impl Iterator<Item = WheelSpeeds> {
+    let pairs = EVASION_WHEEL_FRACTIONS.into_iter().flat_map(|l| EVASION_WHEEL_FRACTIONS.map(|r| (l, r)));
+    pairs.map(move |(left, right)| WheelSpeeds { left: left * max_wheel_speed, right: right * max_wheel_speed })
+}
+
+/// The clear command [`evasion`] chooses, if any, found by judging the candidates from the
+/// least cost up and stopping at the first clear one (the same as judging them all: equal
+/// costs in the candidates' own order). `None` when none is clear, or the proposal is not
+/// finite (its costs would not order).
+fn nearest_clear(ctx: &Context<'_>, proposed: WheelSpeeds, max_wheel_speed: f64) -> Option<WheelSpeeds> {
+    if !(proposed.left.is_finite() && proposed.right.is_finite()) {
+        return None;
+    }
+    let mut by_cost = [(0.0, 0, WheelSpeeds { left: 0.0, right: 0.0 }); EVASION_WHEEL_FRACTIONS.len().pow(2)];
+    for (k, command) in evasion_candidates(max_wheel_speed).enumerate() {
+        let off = (command.left - proposed.left).hypot(command.right - proposed.right);
+        by_cost[k] = (off - (command.left + command.right), k, command);
+    }
+    // Equal costs (-0 and +0 too) in the candidates' order, as judging them all keeps the first.
+    by_cost.sort_unstable_by(|a, b| a.0.partial_cmp(&b.0).unwrap_or(std::cmp::Ordering::Equal).then(a.1.cmp(&b.1)));
+    by_cost.into_iter().map(|(_, _, command)| command).find(|&command| {
+        ctx.first_driven_into(command, EVASION_SPARE).is_none()
+            && !ctx.approaches_a_near_obstacle(command)
+            && ctx.least_margin_ahead(command, Ahead::All, EVASION_HORIZON, 0.0) >= 0.0
+    })
 }
 
 /// The least length of `from + s · step` for `s` in `[0, 1]`: how close two points moving

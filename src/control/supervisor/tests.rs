@@ -150,4 +150,42 @@ proptest! {
             prop_assert_eq!(verdicts[0], verdicts[1]);
         }
     }
+
+    /// Evasion's search from the least cost up, stopping at the first clear candidate,
+    /// chooses what judging every candidate over the whole look-ahead chooses; and a margin
+    /// cut short where it stops mattering is the whole margin wherever it still matters.
+    #[test]
+    fn evasions_shortcuts_choose_as_judging_every_candidate_whole(
+        scene in scene(),
+        proposed in prop::array::uniform2(-0.05f64..0.25),
+        matters in -0.05f64..0.0,
+    ) {
+        let proposed = WheelSpeeds { left: proposed[0], right: proposed[1] };
+        let top = 0.25;
+        let (searched, whole, margins) = scene.judge(|ctx| {
+            let whole_margin = |c| ctx.least_margin_ahead(c, Ahead::All, EVASION_HORIZON, f64::NEG_INFINITY);
+            let mut nearest: Option<(f64, WheelSpeeds)> = None;
+            for c in evasion_candidates(top) {
+                if ctx.first_driven_into(c, EVASION_SPARE).is_some() || ctx.approaches_a_near_obstacle(c) {
+                    continue;
+                }
+                let cost = (c.left - proposed.left).hypot(c.right - proposed.right) - (c.left + c.right);
+                if whole_margin(c) >= 0.0 && nearest.is_none_or(|(d, _)| cost < d) {
+                    nearest = Some((cost, c));
+                }
+            }
+            let margins: Vec<(f64, f64)> = evasion_candidates(top)
+                .map(|c| (whole_margin(c), ctx.least_margin_ahead(c, Ahead::All, EVASION_HORIZON, matters)))
+                .collect();
+            (nearest_clear(ctx, proposed, top), nearest.map(|(_, c)| c), margins)
+        });
+        prop_assert_eq!(searched, whole);
+        for (whole, cut) in margins {
+            if whole >= matters {
+                prop_assert_eq!(whole.to_bits(), cut.to_bits());
+            } else {
+                prop_assert!(cut < matters, "{} {}", whole, cut);
+            }
+        }
+    }
 }
