@@ -1,3 +1,4 @@
+use super::evasion::{evasion_candidates, nearest_clear, EVASION_SPARE};
 use super::*;
 use proptest::prelude::*;
 
@@ -177,7 +178,7 @@ proptest! {
             let margins: Vec<(f64, f64)> = evasion_candidates(top)
                 .map(|c| (whole_margin(c), ctx.least_margin_ahead(c, Ahead::All, EVASION_HORIZON, matters)))
                 .collect();
-            (nearest_clear(ctx, proposed, top), nearest.map(|(_, c)| c), margins)
+            (nearest_clear(ctx, proposed, top).ok(), nearest.map(|(_, c)| c), margins)
         });
         prop_assert_eq!(searched, whole);
         for (whole, cut) in margins {
