@@ -300,3 +300,34 @@ fn a_placement_the_checks_refuse_runs_as_loaded() {
     }
     assert!(refused > 0 && refused < 40, "{refused} of 40 episodes fell back to the loaded placement");
 }
+
+/// The fleet's fault swarm: lost links, the operator's stops of one vehicle and the fleet's
+/// e-stop drawn on the 4-vehicle swap (and on the crossing whose vehicle loses its link on
+/// its own), judged by the fleet's invariants: none broken, every kind drawn and stopping
+/// vehicles (docs/fleet.md, "The fleet's fault swarm", prints 10,000). The command says
+/// so, keeps one episode's files, and refuses a policy.
+#[test]
+fn the_fleet_swarm_breaks_no_invariant() {
+    use flowgate::lab::fleet::swarm;
+    for (file, n) in [("swap-4.toml", 100), ("crossing-link-lost.toml", 40)] {
+        let report = swarm::run(&scenario(file), n, 1, 2).unwrap();
+        assert_eq!(report.broken_episodes, 0, "{file}: {report}\n{:?}", report.broken);
+        assert!(report.faults.iter().chain(&report.stopped).all(|&k| k > 0), "{file}: {report}");
+        assert!(report.unfaulted_home > 0 && report.unfaulted_home <= report.unfaulted, "{file}: {report}");
+    }
+    let out = temp("swarm");
+    let file = root().join("scenarios/fleet/swap-4.toml");
+    let said = plan(&["--swarm", "20", file.to_str().unwrap()], &out);
+    assert!(said.contains("episodes that broke an invariant: 0 of 20"), "{said}");
+    assert!(out.join("fleet_swarm.json").exists());
+    let said = plan(&["--swarm", "20", "--episode", "3", file.to_str().unwrap()], &out);
+    assert!(said.contains("episode 3 of the fleet swarm around Swap 4 (seed 1):"), "{said}");
+    assert!(out.join("summary.json").exists() && out.join("trajectory.svg").exists());
+    let refused = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["plan", "--swarm", "5", "--policy", "true"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && said.contains("leave --policy and --compare-obstacles out"), "{said}");
+}

@@ -47,6 +47,8 @@ pub struct PlanArgs {
     /// Run a fault swarm of this many episodes around the scenario: random overlapping
     /// faults on both links and in the world, through the whole stack, an operator
     /// resetting, arming and starting after each stop, every episode judged by invariants.
+    /// Of a fleet: a vehicle's lost link, the operator's stop of one vehicle and the fleet's
+    /// e-stop, at the planner level, judged by the fleet's invariants.
     #[arg(long, value_name = "N", conflicts_with_all = ["all", "sweep", "planner_only"])]
     swarm: Option<u64>,
     /// Run one episode of the swarm or the sweep alone, keeping its outputs in --out: for the
@@ -133,7 +135,7 @@ pub fn run(args: PlanArgs) -> Result<()> {
     }
     let out = args.out.clone().unwrap_or_else(|| Path::new("out/plan").join(stem(file)));
     if scenario.is_fleet() || scenario.swap.is_some() {
-        return fleet_command(&args, &scenario, &out);
+        return fleet_command(&args, file, &scenario, &out);
     }
     if let Some(name) = &args.vehicle {
         bail!("--vehicle {name}: {} has no vehicles beside the robot ([[vehicles]] or [swap])", file.display());
@@ -430,9 +432,12 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
 /// A scenario of several vehicles: one run, `--sweep N`, or `--sweep N --episode K`. The
 /// fleet runs at the planner level (`flowgate::lab::fleet`); the rest of `plan`'s modes
 /// drive one robot.
-fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()> {
+fn fleet_command(args: &PlanArgs, file: &Path, scenario: &Scenario, out: &Path) -> Result<()> {
     use flowgate::lab::fleet::{self, sweep as fleet_sweep, FleetOptions};
     let driven = fleet_driven(args, scenario)?;
+    if let Some(n) = args.swarm {
+        return fleet_swarm_command(args, file, scenario, n, out);
+    }
     let options = FleetOptions::default();
     let run_traced = |s: &Scenario| fleet_run_traced(args, s, options, driven);
     let Some(n) = args.sweep else {
@@ -479,11 +484,51 @@ fn fleet_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()>
     Ok(())
 }
 
+/// `--swarm N` of a fleet: faults on every vehicle and on the fleet, judged by invariants
+/// (`flowgate::lab::fleet::swarm`); or one episode of it (`--episode K`), its files kept.
+fn fleet_swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64, out: &Path) -> Result<()> {
+    use flowgate::lab::fleet::{self, swarm as fleet_swarm, FleetTrace};
+    if n == 0 || n > sweep::MAX_EPISODES {
+        bail!("--swarm {n}: 1 to {} episodes", sweep::MAX_EPISODES);
+    }
+    outputs::folder(out)?;
+    if let Some(k) = args.episode {
+        if k >= n {
+            bail!("--episode {k}: the swarm has episodes 0 to {}", n - 1);
+        }
+        let mut trace = FleetTrace::default();
+        let (episode, summary) = fleet_swarm::episode(scenario, args.seed, k, Some(&mut trace));
+        say!("episode {k} of the fleet swarm around {} (seed {}):", scenario.name, args.seed);
+        let names: Vec<&str> = scenario.fleet().map(|(name, _, _)| name).collect();
+        for (v, fault, at) in &episode.stopped {
+            say!("  {:>7.2} s  {} stopped by {}", at, names[*v], fault.name());
+        }
+        fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
+        episode.broken.iter().for_each(|b| say!("  broken: {b}"));
+        let s = fleet::sweep::place(scenario, args.seed, k);
+        outputs::write_fleet_run(out, &s, &summary, &trace)?;
+        return Ok(());
+    }
+    let started = std::time::Instant::now();
+    let report = fleet_swarm::run(scenario, n, args.seed, args.threads())?;
+    say!("{report}");
+    say!("  ({} episodes in {:.1} s)", report.episodes, started.elapsed().as_secs_f64());
+    outputs::write_json(&out.join("fleet_swarm.json"), &report)?;
+    say!("  wrote {}/fleet_swarm.json", out.display());
+    for (k, broken) in &report.broken {
+        say!("episode {k} broke:");
+        broken.iter().for_each(|b| say!("  {b}"));
+        say!("  replay: flowgate plan --swarm {n} --seed {} --episode {k} {}", args.seed, file.display());
+    }
+    if report.broken_episodes > 0 {
+        bail!("{} of {} episodes broke an invariant", report.broken_episodes, report.episodes);
+    }
+    Ok(())
+}
+
 /// What a fleet's run refuses; and the vehicle `--policy` drives, and its command.
 fn fleet_driven<'a>(args: &'a PlanArgs, scenario: &Scenario) -> Result<Option<(usize, &'a str)>> {
-    for (given, flag) in
-        [(args.swarm.is_some(), "--swarm"), (args.compare.is_some(), "--compare"), (args.shard.is_some(), "--shard")]
-    {
+    for (given, flag) in [(args.compare.is_some(), "--compare"), (args.shard.is_some(), "--shard")] {
         if given {
             bail!(
                 "{flag} drives one robot: {} is a fleet of {} vehicles, run with --sweep N or alone",
@@ -491,6 +536,9 @@ fn fleet_driven<'a>(args: &'a PlanArgs, scenario: &Scenario) -> Result<Option<(u
                 1 + scenario.vehicles.len()
             );
         }
+    }
+    if args.swarm.is_some() && (args.policy.is_some() || args.compare_obstacles) {
+        bail!("--swarm of a fleet draws faults on the field's vehicles: leave --policy and --compare-obstacles out");
     }
     if args.policy.is_some() && args.compare_obstacles {
         bail!("--compare-obstacles compares the field's runs: leave --policy out");

@@ -22,6 +22,7 @@ use crate::track::Estimate;
 use crate::Point;
 
 pub mod policy;
+pub mod swarm;
 pub mod sweep;
 
 /// What one vehicle touched first.
@@ -137,11 +138,14 @@ pub struct FleetOptions {
     pub gains: FollowerGains,
     /// End the run at the first contact (sweeps); else run on to see what follows.
     pub stop_at_contact: bool,
+    /// How long the run goes on once no vehicle has anywhere to go, s (a swarm watches the
+    /// stopped vehicles come to rest and stay there).
+    pub run_on: f64,
 }
 
 impl Default for FleetOptions {
     fn default() -> Self {
-        Self { rule: FleetRule::default(), gains: FollowerGains::default(), stop_at_contact: true }
+        Self { rule: FleetRule::default(), gains: FollowerGains::default(), stop_at_contact: true, run_on: 0.0 }
     }
 }
 
@@ -257,6 +261,23 @@ impl FleetControl {
         self.drivers[k].done.get_or_insert((Outcome::Stopped, t, Some(why)));
     }
 
+    /// Vehicle `k`'s own link fails at `at` (as `link_lost_at` would have it, unless it
+    /// failed earlier): no command reaches it from then on.
+    pub fn lose_link(&mut self, k: usize, at: f64) {
+        let d = &mut self.drivers[k];
+        d.link_lost_at = Some(d.link_lost_at.map_or(at, |was| was.min(at)));
+    }
+
+    /// When vehicle `k`'s own link fails (or failed): from then on nothing sent reaches it.
+    pub fn link_lost_at(&self, k: usize) -> Option<f64> {
+        self.drivers[k].link_lost_at
+    }
+
+    /// How many vehicles the fleet has, the robot included.
+    pub fn vehicles(&self) -> usize {
+        self.drivers.len()
+    }
+
     /// Whether vehicle `k` is done (at its goal, stopped or faulted).
     pub fn is_done(&self, k: usize) -> bool {
         self.drivers[k].done.is_some()
@@ -309,6 +330,7 @@ fn drive_with(
 ) -> FleetSummary {
     let options = control.options;
     let mut fleet = Fleet::new(&s.sim);
+    let mut idle_since = None;
     loop {
         let t = fleet.time();
         if let Some(trace) = trace.as_deref_mut() {
@@ -318,7 +340,11 @@ fn drive_with(
         control.cycle(&mut fleet);
         fleet.step(s.sensing.sample_time);
         let touched = (0..fleet.len()).any(|k| contact_of(&fleet, s, k).is_some());
-        if (touched && options.stop_at_contact) || !control.running(t) || fleet.time() >= s.time_limit {
+        if !control.running(t) {
+            idle_since.get_or_insert(t);
+        }
+        let settled = idle_since.is_some_and(|since| t - since >= options.run_on);
+        if (touched && options.stop_at_contact) || settled || fleet.time() >= s.time_limit {
             return summary(s, &fleet, &control.drivers);
         }
     }
@@ -366,9 +392,7 @@ fn driver(s: &Scenario, k: usize, outside: bool) -> Driver {
     }
     let mut step = ControlStep::new(config);
     step.start(0.0);
-    let hold =
-        f64::from(alone.rig_file(std::path::Path::new("/dev/null"), "slcan:/dev/null", None).drive.command_timeout_ms)
-            / 1e3;
+    let hold = motors_hold(s, k);
     let link_lost_at = k.checked_sub(1).and_then(|i| s.vehicles[i].link_lost_at);
     Driver {
         step,
@@ -385,6 +409,13 @@ fn driver(s: &Scenario, k: usize, outside: bool) -> Driver {
         link_lost_at,
         hold,
     }
+}
+
+/// How long vehicle `k`'s motors hold their last command once no command reaches them
+/// (its rig's command timeout), s.
+pub fn motors_hold(s: &Scenario, k: usize) -> f64 {
+    let rig = s.vehicle(k).rig_file(std::path::Path::new("/dev/null"), "slcan:/dev/null", None);
+    f64::from(rig.drive.command_timeout_ms) / 1e3
 }
 
 /// One vehicle's cycle: its pulse rates.

@@ -1,0 +1,95 @@
+use super::*;
+
+fn swap_4() -> Scenario {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/fleet/swap-4.toml");
+    Scenario::load(&path).unwrap()
+}
+
+/// Judge a run of `s` with `faults`, after `tamper` has changed what the judge reads.
+fn judged(
+    s: &Scenario,
+    faults: &[FleetFault],
+    tamper: impl FnOnce(&mut FleetSummary, &mut WheelLog),
+) -> (SwarmEpisode, FleetSummary) {
+    let (mut summary, stopped, mut log) = play(s, faults, None);
+    tamper(&mut summary, &mut log);
+    let mut e = SwarmEpisode {
+        index: 0,
+        faults: faults.to_vec(),
+        outcome: summary.outcome,
+        stopped,
+        unfaulted: 0,
+        unfaulted_home: 0,
+        coasting_contacts: 0,
+        broken: Vec::new(),
+    };
+    judge(s, &summary, &log, &mut e);
+    (e, summary)
+}
+
+/// Each episode's faults come from the seed and its index alone, in time order within the
+/// window, one to three of them, every kind drawn.
+#[test]
+fn faults_are_drawn_from_the_seed_and_the_index_alone() {
+    let s = swap_4();
+    let mut kinds = [0; 3];
+    for i in 0..300 {
+        let f = faults(&s, 1, i);
+        assert_eq!(f, faults(&s, 1, i));
+        assert!((1..=3).contains(&f.len()), "{f:?}");
+        assert!(f.windows(2).all(|w| w[0].at() <= w[1].at()), "{f:?}");
+        assert!(f.iter().all(|x| (0.0..FAULT_WINDOW_S).contains(&x.at())), "{f:?}");
+        f.iter().for_each(|&x| kinds[kind(x)] += 1);
+    }
+    assert!(kinds.iter().all(|&k| k > 30), "{kinds:?}");
+    assert_ne!(faults(&s, 1, 0), faults(&s, 2, 0));
+}
+
+/// The fleet's e-stop three seconds in stops every vehicle, each named, at rest within its
+/// wheels' ramp, and none turns a wheel again; a vehicle that did would be named.
+#[test]
+fn an_e_stop_stops_every_vehicle_for_good() {
+    let s = swap_4();
+    let estop = [FleetFault::EStop { at: 3.0 }];
+    let (e, summary) = judged(&s, &estop, |_, _| {});
+    assert!(e.broken.is_empty(), "{:?}", e.broken);
+    assert_eq!(e.stopped.len(), 4);
+    assert!(e.stopped.iter().all(|&(_, _, at)| (3.0..3.0 + s.sensing.sample_time).contains(&at)), "{:?}", e.stopped);
+    for v in &summary.vehicles {
+        assert_eq!((v.outcome, v.stop_reason.as_deref()), (Outcome::Stopped, Some(E_STOP)), "{v:?}");
+    }
+    let (e, _) = judged(&s, &estop, |_, log| {
+        let last = log.wheels.len() - 4 + 2;
+        log.wheels[last] = [0.01, 0.01];
+    });
+    assert_eq!(e.broken.len(), 1, "{:?}", e.broken);
+    assert!(e.broken[0].starts_with("v2, stopped by e_stop at 3.00 s, still turns its wheels at "), "{:?}", e.broken);
+}
+
+/// A vehicle whose link fails is named by it and stands once its motors' timeout runs out;
+/// the operator's stop of another is named too; the others drive on. A stop reason that
+/// does not name its fault, and a contact driven into by a vehicle in control, are named.
+#[test]
+fn a_lost_link_and_an_operators_stop_are_each_named() {
+    let s = swap_4();
+    let two = [FleetFault::LinkLost { vehicle: 1, at: 2.0 }, FleetFault::Stop { vehicle: 3, at: 2.5 }];
+    let (e, summary) = judged(&s, &two, |_, _| {});
+    assert!(e.broken.is_empty(), "{:?}", e.broken);
+    let reasons: Vec<Option<&str>> = summary.vehicles.iter().map(|v| v.stop_reason.as_deref()).collect();
+    assert!(reasons[1].is_some_and(|r| r.starts_with("its link failed at 2.00 s")), "{reasons:?}");
+    assert_eq!(reasons[3], Some(STOPPED_BY_THE_OPERATOR));
+    assert_eq!((e.unfaulted, summary.vehicles[1].outcome), (2, Outcome::Fault));
+    let (e, _) = judged(&s, &two, |summary, _| {
+        summary.vehicles[3].stop_reason = Some("stalled".into());
+        summary.vehicles[0].contact = Some(crate::lab::fleet::VehicleContactReport {
+            at: 4.0,
+            with: "vehicle v2".into(),
+            approach_speed: 0.05,
+            active: true,
+        });
+    });
+    assert_eq!(
+        e.broken,
+        ["robot drove into vehicle v2 at 4.00 s", "v3, stopped by stop, names its stop Some(\"stalled\")"],
+    );
+}
