@@ -145,11 +145,11 @@ fn plan_names_every_vehicle() {
     let lines = std::fs::read_to_string(out.join("fleet_episodes.jsonl")).unwrap();
     assert_eq!(lines.lines().count(), 6);
     let refused = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["plan", swap.to_str().unwrap(), "--swarm", "3"])
+        .args(["plan", swap.to_str().unwrap(), "--sweep", "6", "--shard", "0/2"])
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&refused.stderr);
-    assert!(!refused.status.success() && text.contains("--swarm drives one robot"), "{text}");
+    assert!(!refused.status.success() && text.contains("--shard drives one robot"), "{text}");
 }
 
 /// What no fleet could run from is refused at load, naming the key and the numbers.
