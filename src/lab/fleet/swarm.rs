@@ -137,8 +137,21 @@ pub fn episode(base: &Scenario, seed: u64, i: u64, trace: Option<&mut FleetTrace
     faults.extend(own.map(|(vehicle, at)| FleetFault::LinkLost { vehicle, at }));
     faults.sort_by(|a, b| a.at().total_cmp(&b.at()));
     let (summary, stopped, log) = play(&s, &faults, trace);
+    let episode = judged(&s, i, faults, &summary, stopped, &log);
+    (episode, summary)
+}
+
+/// Episode `index` judged: its faults, the run's summary, whom they stopped, its wheels.
+fn judged(
+    s: &Scenario,
+    index: u64,
+    faults: Vec<FleetFault>,
+    summary: &FleetSummary,
+    stopped: Stopped,
+    log: &WheelLog,
+) -> SwarmEpisode {
     let mut episode = SwarmEpisode {
-        index: i,
+        index,
         faults,
         outcome: summary.outcome,
         stopped,
@@ -147,8 +160,8 @@ pub fn episode(base: &Scenario, seed: u64, i: u64, trace: Option<&mut FleetTrace
         coasting_contacts: 0,
         broken: Vec::new(),
     };
-    judge(&s, &summary, &log, &mut episode);
-    (episode, summary)
+    judge(s, summary, log, &mut episode);
+    episode
 }
 
 /// Each vehicle a fault stopped: its index, the fault, and the cycle time it was applied.

@@ -6,25 +6,14 @@ fn swap_4() -> Scenario {
 }
 
 /// Judge a run of `s` with `faults`, after `tamper` has changed what the judge reads.
-fn judged(
+fn tampered(
     s: &Scenario,
     faults: &[FleetFault],
     tamper: impl FnOnce(&mut FleetSummary, &mut WheelLog),
 ) -> (SwarmEpisode, FleetSummary) {
     let (mut summary, stopped, mut log) = play(s, faults, None);
     tamper(&mut summary, &mut log);
-    let mut e = SwarmEpisode {
-        index: 0,
-        faults: faults.to_vec(),
-        outcome: summary.outcome,
-        stopped,
-        unfaulted: 0,
-        unfaulted_home: 0,
-        coasting_contacts: 0,
-        broken: Vec::new(),
-    };
-    judge(s, &summary, &log, &mut e);
-    (e, summary)
+    (judged(s, 0, faults.to_vec(), &summary, stopped, &log), summary)
 }
 
 /// Each episode's faults come from the seed and its index alone, in time order within the
@@ -51,14 +40,14 @@ fn faults_are_drawn_from_the_seed_and_the_index_alone() {
 fn an_e_stop_stops_every_vehicle_for_good() {
     let s = swap_4();
     let estop = [FleetFault::EStop { at: 3.0 }];
-    let (e, summary) = judged(&s, &estop, |_, _| {});
+    let (e, summary) = tampered(&s, &estop, |_, _| {});
     assert!(e.broken.is_empty(), "{:?}", e.broken);
     assert_eq!(e.stopped.len(), 4);
     assert!(e.stopped.iter().all(|&(_, _, at)| (3.0..3.0 + s.sensing.sample_time).contains(&at)), "{:?}", e.stopped);
     for v in &summary.vehicles {
         assert_eq!((v.outcome, v.stop_reason.as_deref()), (Outcome::Stopped, Some(E_STOP)), "{v:?}");
     }
-    let (e, _) = judged(&s, &estop, |_, log| {
+    let (e, _) = tampered(&s, &estop, |_, log| {
         let last = log.wheels.len() - 4 + 2;
         log.wheels[last] = [0.01, 0.01];
     });
@@ -73,13 +62,13 @@ fn an_e_stop_stops_every_vehicle_for_good() {
 fn a_lost_link_and_an_operators_stop_are_each_named() {
     let s = swap_4();
     let two = [FleetFault::LinkLost { vehicle: 1, at: 2.0 }, FleetFault::Stop { vehicle: 3, at: 2.5 }];
-    let (e, summary) = judged(&s, &two, |_, _| {});
+    let (e, summary) = tampered(&s, &two, |_, _| {});
     assert!(e.broken.is_empty(), "{:?}", e.broken);
     let reasons: Vec<Option<&str>> = summary.vehicles.iter().map(|v| v.stop_reason.as_deref()).collect();
     assert!(reasons[1].is_some_and(|r| r.starts_with("its link failed at 2.00 s")), "{reasons:?}");
     assert_eq!(reasons[3], Some(STOPPED_BY_THE_OPERATOR));
     assert_eq!((e.unfaulted, summary.vehicles[1].outcome), (2, Outcome::Fault));
-    let (e, _) = judged(&s, &two, |summary, _| {
+    let (e, _) = tampered(&s, &two, |summary, _| {
         summary.vehicles[3].stop_reason = Some("stalled".into());
         summary.vehicles[0].contact = Some(crate::lab::fleet::VehicleContactReport {
             at: 4.0,
