@@ -66,6 +66,21 @@ pub fn pulse_rates(w: WheelSpeeds, cfg: &DriveConfig) -> [i32; 2] {
     [w.left, w.right].map(|v| (v * ppm).round().clamp(-max, max) as i32)
 }
 
+/// The pulse rates that stop a robot as the supervisor's brake does, from its wheels' rim
+/// speeds now: both wheels lowered together until the centre stands (the boards' ramps take
+/// both at one rate to targets equally far, so the turn holds and the centre keeps its arc),
+/// then both to zero, turning on the spot. Zero at once would ramp each wheel down alone, the
+/// slower first, and pivot the robot off the arc the supervisor certified, further by
+/// `(v_r - v_l)² / 8a` along its path. Called each cycle of a stop; within a pulse a second
+/// of standing it asks for zero.
+pub fn braking_pulse_rates(wheels: [f64; 2], cfg: &DriveConfig) -> [i32; 2] {
+    let centre = 0.5 * (wheels[0] + wheels[1]);
+    if !centre.is_finite() || (centre * cfg.pulses_per_metre()).abs() <= 1.0 {
+        return [0, 0];
+    }
+    pulse_rates(WheelSpeeds { left: wheels[0] - centre, right: wheels[1] - centre }, cfg)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -102,6 +117,21 @@ mod tests {
         // 200 steps x 8 microsteps per rev of a 2 cm wheel: 12732.4 pulses/m.
         let p = pulse_rates(WheelSpeeds { left: 0.1, right: -0.05 }, &cfg());
         assert_eq!(p, [1273, -637]);
+    }
+
+    #[test]
+    fn braking_holds_the_turn_until_the_centre_stands() {
+        let c = cfg();
+        let ppm = c.pulses_per_metre();
+        // Turning left at 0.1 m/s: both wheels go 0.1 m/s lower, the right one still forward.
+        let [l, r] = braking_pulse_rates([0.08, 0.12], &c);
+        assert_eq!([l, r], pulse_rates(WheelSpeeds { left: -0.02, right: 0.02 }, &c));
+        assert!((f64::from(l + r)).abs() <= 1.0, "the centre's target is standing: {l} {r}");
+        // Standing (within a pulse a second), turning on the spot: both to zero.
+        assert_eq!(braking_pulse_rates([-0.02, 0.02 + 0.5 / ppm], &c), [0, 0]);
+        // Backing up, straight: zero.
+        assert_eq!(braking_pulse_rates([-0.1, -0.1], &c), [0, 0]);
+        assert_eq!(braking_pulse_rates([f64::NAN, 0.1], &c), [0, 0]);
     }
 
     proptest! {

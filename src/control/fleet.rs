@@ -17,7 +17,11 @@
 //!   would freeze a vehicle.
 //! - **The supervisor certifies every pair**: each vehicle's own supervisor checks its
 //!   command against every other vehicle, whatever its planner (the field, a script, an
-//!   outside planner) asked.
+//!   outside planner) asked. It sees each other vehicle going on at the velocity its wheels
+//!   ramp toward (its command; standing, once it is stopped), its footprint grown by how far
+//!   behind that way the ramps may still leave it: a vehicle setting off, or braking, is not
+//!   yet, or no longer, where its command would put it, and one following it must not run
+//!   into it there.
 
 use crate::planner::ObstacleEstimate;
 use crate::Point;
@@ -26,8 +30,14 @@ use crate::Point;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VehicleView {
     pub position: Point,
-    /// What it was commanded (or, stopped, how it moves), m/s.
+    /// What it was commanded (or, stopped, how it moves), m/s: what the fields plan on.
     pub velocity: Point,
+    /// What its wheels ramp toward, m/s: its command, or standing once it is stopped.
+    pub toward: Point,
+    /// How far behind the way `toward` would take it its wheels' ramps may leave it, m:
+    /// the gap between how it moves now and `toward`, times the time its slower ramp takes
+    /// to close it (the centre's speed moves monotonically between the two meanwhile).
+    pub lag: f64,
     pub radius: f64,
     /// It navigates on: where it stands now it will leave.
     pub moving_on: bool,
@@ -59,12 +69,27 @@ impl FleetRule {
     /// priority order) appended to `out` after what is already there.
     pub fn others_as_obstacles(&self, me: usize, vehicles: &[VehicleView], out: &mut Vec<ObstacleEstimate>) {
         for (_, v) in vehicles.iter().enumerate().filter(|&(k, _)| k != me) {
-            let exact = ObstacleEstimate::exact(v.position, v.velocity, v.radius + v.reach);
-            // Out of control, it is a region (the planner leaves this vehicle and its goal
-            // outside it; the supervisor keeps clear of all of it), as an unseen obstacle is.
-            let spread = if v.reach > 0.0 { v.velocity.norm().max(f64::MIN_POSITIVE) } else { 0.0 };
-            out.push(ObstacleEstimate { keep: self.spacing, spread, ..exact });
+            out.push(self.out_of_control_or(v, v.velocity, 0.0));
         }
+    }
+
+    /// The same for vehicle `me`'s supervisor: each vehicle under control going on at the
+    /// velocity its wheels ramp toward, its footprint grown by its ramps' lag behind that way.
+    pub fn others_as_supervised(&self, me: usize, vehicles: &[VehicleView], out: &mut Vec<ObstacleEstimate>) {
+        for (_, v) in vehicles.iter().enumerate().filter(|&(k, _)| k != me) {
+            out.push(self.out_of_control_or(v, v.toward, v.lag));
+        }
+    }
+
+    /// Vehicle `v` as an obstacle: out of control, a region (the planner leaves this
+    /// vehicle and its goal outside it; the supervisor keeps clear of all of it), as an
+    /// unseen obstacle is; else going on at `velocity`, its footprint grown by `grown`.
+    fn out_of_control_or(&self, v: &VehicleView, velocity: Point, grown: f64) -> ObstacleEstimate {
+        if v.reach > 0.0 {
+            let exact = ObstacleEstimate::exact(v.position, v.velocity, v.radius + v.reach);
+            return ObstacleEstimate { keep: self.spacing, spread: v.velocity.norm().max(f64::MIN_POSITIVE), ..exact };
+        }
+        ObstacleEstimate { keep: self.spacing, ..ObstacleEstimate::exact(v.position, velocity, v.radius + grown) }
     }
 }
 
@@ -180,6 +205,8 @@ mod tests {
         let views = [0.0, 1.0, 2.0].map(|x| VehicleView {
             position: Point::new(x, 0.0),
             velocity: Point::new(0.0, x),
+            toward: Point::new(0.0, x),
+            lag: 0.0,
             radius: 0.07,
             moving_on: true,
             reach: 0.0,
@@ -196,6 +223,34 @@ mod tests {
         assert!((seen[1].radius - 0.12).abs() < 1e-12 && seen[1].spread > 0.0, "a region: {:?}", seen[1]);
     }
 
+    /// To a supervisor, a vehicle moving as commanded is the fields' obstacle; one setting
+    /// off, or braking, goes on where its wheels are headed, grown by their lag.
+    #[test]
+    fn a_supervisor_sees_a_vehicle_where_its_wheels_are_headed() {
+        let rule = FleetRule { spacing: 0.04 };
+        let mut views = [0.0, 1.0].map(|x| VehicleView {
+            position: Point::new(x, 0.0),
+            velocity: Point::new(0.1, 0.0),
+            toward: Point::new(0.1, 0.0),
+            lag: 0.0,
+            radius: 0.07,
+            moving_on: true,
+            reach: 0.0,
+        });
+        let (mut fields, mut supervised) = (Vec::new(), Vec::new());
+        rule.others_as_obstacles(0, &views, &mut fields);
+        rule.others_as_supervised(0, &views, &mut supervised);
+        assert_eq!(fields, supervised, "steady: the same obstacle");
+        // Stopped at 0.1 m/s, braking on 1 m/s² ramps: standing, grown by 0.1 m/s x 0.1 s.
+        views[1].velocity = Point::new(0.1, 0.0);
+        (views[1].toward, views[1].lag) = (Point::default(), 0.01);
+        supervised.clear();
+        rule.others_as_supervised(0, &views, &mut supervised);
+        let o = supervised[0];
+        assert_eq!((o.velocity, o.spread), (Point::default(), 0.0), "{o:?}");
+        assert!((o.radius - 0.08).abs() < 1e-12, "{o:?}");
+    }
+
     /// A vehicle standing on another's goal sends the other to the point beside it on the
     /// other's right; one that stays there for good (at its own goal) does not.
     #[test]
@@ -204,6 +259,8 @@ mod tests {
         let mut views = [(0.0, -0.5), (0.0, 0.5)].map(|(x, y)| VehicleView {
             position: Point::new(x, y),
             velocity: Point::default(),
+            toward: Point::default(),
+            lag: 0.0,
             radius: 0.07,
             moving_on: true,
             reach: 0.0,

@@ -15,6 +15,7 @@ use flowgate_sim::world::{Contact, ObstaclePath, Touched};
 use serde::Serialize;
 
 use super::{Outcome, Scenario};
+use crate::control::drive::braking_pulse_rates;
 use crate::control::fleet::{follow, FleetRule, FollowerGains, VehicleView};
 use crate::control::{CommandSource, ControlStep, OutsideCommand, StepOutput, StepStatus, Supervision};
 use crate::planner::ObstacleEstimate;
@@ -158,8 +159,10 @@ pub struct FleetControl {
     options: FleetOptions,
     /// The vehicle driven from outside, if any.
     outside: Option<usize>,
-    /// Scratch: one vehicle's obstacles, and every vehicle as the others see it.
+    /// Scratch: one vehicle's obstacles, as its field and as its supervisor see them, and
+    /// every vehicle as the others see it.
     seen: Vec<ObstacleEstimate>,
+    supervised: Vec<ObstacleEstimate>,
     views: Vec<VehicleView>,
 }
 
@@ -175,12 +178,15 @@ impl FleetControl {
         let idle = VehicleView {
             position: Point::default(),
             velocity: Point::default(),
+            toward: Point::default(),
+            lag: 0.0,
             radius: 0.0,
             moving_on: false,
             reach: 0.0,
         };
         Self {
             seen: Vec::with_capacity(s.obstacles.len() + drivers.len()),
+            supervised: Vec::with_capacity(s.obstacles.len() + drivers.len()),
             views: vec![idle; drivers.len()],
             drivers,
             names: s.fleet().map(|(name, _, _)| name.to_string()).collect(),
@@ -198,7 +204,9 @@ impl FleetControl {
             let moving_on = d.done.is_none() && d.role == Role::Navigate;
             let position = fleet.world(k).pose().position;
             let reach = d.reach(t, fleet.velocity(k).norm());
-            self.views[k] = VehicleView { position, velocity: moving, radius: d.radius, moving_on, reach };
+            let toward = if d.done.is_some() { Point::default() } else { d.commanded };
+            let lag = ramp_lag(fleet, k, toward);
+            self.views[k] = VehicleView { position, velocity: moving, toward, lag, radius: d.radius, moving_on, reach };
         }
         for k in 0..self.drivers.len() {
             if self.drivers[k].link_lost(t) {
@@ -212,7 +220,7 @@ impl FleetControl {
                 let aim = self.options.rule.aim(k, self.views[k].position, goal, &self.views, d.step.aim());
                 d.step.aim_at(aim);
             }
-            let pulses = drive_one(d, fleet, k, t, &self.seen, &self.options.gains);
+            let pulses = drive_one(d, fleet, k, t, [&self.seen, &self.supervised], &self.options.gains);
             if let Some(index) = d.blocked_by.take() {
                 // What covers its goal, by name: an obstacle, or another vehicle.
                 let by = match index.checked_sub(vehicles_from) {
@@ -223,11 +231,14 @@ impl FleetControl {
             }
             self.views[k].velocity = d.commanded;
             fleet.world_mut(k).command_pulse_rates(pulses);
+            self.views[k].toward = d.commanded;
+            self.views[k].lag = ramp_lag(fleet, k, d.commanded);
         }
     }
 
-    /// What vehicle `k` avoids at `t`: the obstacles as they truly are (every world holds the
-    /// same ways), then every other vehicle; returns where the vehicles begin.
+    /// What vehicle `k` avoids at `t`, for its field and for its supervisor: the obstacles
+    /// as they truly are (every world holds the same ways), then every other vehicle; returns
+    /// where the vehicles begin.
     fn see(&mut self, fleet: &Fleet, k: usize, t: f64) -> usize {
         self.seen.clear();
         let truth = fleet.world(0);
@@ -240,6 +251,8 @@ impl FleetControl {
         }));
         let vehicles_from = self.seen.len();
         self.options.rule.others_as_obstacles(k, &self.views, &mut self.seen);
+        self.supervised.clear();
+        self.supervised.extend_from_slice(&self.seen[..vehicles_from]);
         if self.outside == Some(k) {
             // A vehicle driven from outside keeps no fleet rule, and the others' next
             // commands answer its moves: to its supervisor each is a region growing at its
@@ -247,6 +260,9 @@ impl FleetControl {
             for v in &mut self.seen[vehicles_from..] {
                 v.spread = v.spread.max(v.velocity.norm().max(f64::MIN_POSITIVE));
             }
+            self.supervised.extend_from_slice(&self.seen[vehicles_from..]);
+        } else {
+            self.options.rule.others_as_supervised(k, &self.views, &mut self.supervised);
         }
         vehicles_from
     }
@@ -293,6 +309,22 @@ impl FleetControl {
         self.drivers.iter().any(|d| d.done.is_none() && (d.role == Role::Navigate || d.script_runs(t)))
     }
 }
+
+/// How far behind the way `toward` would take vehicle `k` its wheels' ramps may leave it,
+/// m: its centre's speed moves monotonically from now to `toward` while the slower ramp
+/// runs, so it falls behind by at most the gap times that time.
+fn ramp_lag(fleet: &Fleet, k: usize, toward: Point) -> f64 {
+    let gap = (toward - fleet.velocity(k)).norm();
+    if gap == 0.0 {
+        return 0.0;
+    }
+    let ramp = fleet.world(k).axes().iter().map(|a| a.ramp_left()).fold(0.0, f64::max);
+    gap * ramp.min(MAX_RAMP_S)
+}
+
+/// The longest a wheel's ramp is taken to run, s: an axis without a ramp never reaches its
+/// target, and the lag of a vehicle whose wheels never would is bounded by the run's grain.
+const MAX_RAMP_S: f64 = 1.0;
 
 /// Run a fleet scenario to its end.
 pub fn run(s: &Scenario, options: FleetOptions) -> FleetSummary {
@@ -424,17 +456,17 @@ fn drive_one(
     fleet: &Fleet,
     k: usize,
     t: f64,
-    seen: &[ObstacleEstimate],
+    [seen, supervised]: [&[ObstacleEstimate]; 2],
     gains: &FollowerGains,
 ) -> [i32; 2] {
+    let world = fleet.world(k);
     if d.done.is_some() {
         d.commanded = Point::default();
-        return [0; 2];
+        return braking_pulse_rates(world.wheel_speeds(), &d.step.config().drive);
     }
-    let world = fleet.world(k);
     let (position, facing) = (world.pose().position, world.facing());
     let estimate =
-        Estimate { position, facing, wheels: world.wheel_speeds(), obstacles: seen, predicted: seen, delay: 0.0 };
+        Estimate { position, facing, wheels: world.wheel_speeds(), obstacles: seen, predicted: supervised, delay: 0.0 };
     if let Some(path) = &d.script {
         let (reference, velocity) = (path.position(t), path.velocity(t));
         let error = (reference - position).norm();
@@ -445,7 +477,7 @@ fn drive_one(
                 t,
                 Some(format!("{:.1} mm off its script (tolerance {:.1} mm)", error * 1e3, d.tolerance * 1e3)),
             ));
-            return [0; 2];
+            return braking_pulse_rates(world.wheel_speeds(), &d.step.config().drive);
         }
         let (v, w) = follow(gains, position, facing, reference, velocity);
         d.step.take_command(t, OutsideCommand::Twist { v, w });

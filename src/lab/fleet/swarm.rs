@@ -7,8 +7,8 @@
 //! - no vehicle in control drives into anything (a vehicle whose link failed coasts on its
 //!   last command until its motors' timeout: its contacts are counted apart);
 //! - every vehicle a fault stopped is at rest within its budget (its wheels' ramp down from
-//!   the fastest they turn, or its motors' timeout after its link failed) and never turns a
-//!   wheel again: nothing re-arms by itself;
+//!   the fastest they turn, or its motors' timeout after its link failed, also when the link
+//!   fails while it brakes) and never turns a wheel again: nothing re-arms by itself;
 //! - none reaches its goal after a fault stopped it;
 //! - every vehicle not at its goal, nor out of time, names why, and one a fault stopped
 //!   names that fault.
@@ -243,7 +243,19 @@ fn judge(s: &Scenario, summary: &FleetSummary, log: &WheelLog, e: &mut SwarmEpis
             FleetFault::LinkLost { .. } => motors_hold(s, k),
             _ => body.max_wheel_speed / body.wheel_accel,
         };
-        let rest_by = at + budget + 2.0 * dt;
+        // A link that fails while the vehicle brakes leaves its motors on the brake's last
+        // command (turning it on the spot) until their timeout stops them.
+        let braked_by = at + budget + 2.0 * dt;
+        let rest_by = e
+            .faults
+            .iter()
+            .filter_map(|f| match *f {
+                FleetFault::LinkLost { vehicle, at: lost } if vehicle == k && lost >= at && lost < braked_by => {
+                    Some(lost + motors_hold(s, k) + 2.0 * dt)
+                }
+                _ => None,
+            })
+            .fold(braked_by, f64::max);
         if log.t.last().is_none_or(|&end| end <= rest_by) {
             e.broken.push(format!("{}: the run ended before it could be seen at rest ({rest_by:.2} s)", v.name));
         }
@@ -276,6 +288,8 @@ pub struct FleetSwarmReport {
     /// Vehicles a fault stopped, by the same kinds.
     pub stopped: [usize; 3],
     pub coasting_contacts: usize,
+    /// The first episodes with such a contact, for `--episode K`.
+    pub coasting_episodes: Vec<u64>,
     pub unfaulted: usize,
     pub unfaulted_home: usize,
     /// Episodes that broke an invariant, and the first of them with what broke.
@@ -313,6 +327,7 @@ fn report(base: &Scenario, seed: u64, episodes: &[SwarmEpisode]) -> FleetSwarmRe
         faults,
         stopped,
         coasting_contacts: episodes.iter().map(|e| e.coasting_contacts).sum(),
+        coasting_episodes: episodes.iter().filter(|e| e.coasting_contacts > 0).take(LISTED).map(|e| e.index).collect(),
         unfaulted: episodes.iter().map(|e| e.unfaulted).sum(),
         unfaulted_home: episodes.iter().map(|e| e.unfaulted_home).sum(),
         broken_episodes: broken.len(),
@@ -337,7 +352,13 @@ impl fmt::Display for FleetSwarmReport {
             "  navigating vehicles no fault stopped: {} of {} at their goal ({home:.1}%)",
             self.unfaulted_home, self.unfaulted
         )?;
-        writeln!(f, "  active contacts while coasting after a lost link: {}", self.coasting_contacts)?;
+        write!(f, "  active contacts while coasting after a lost link: {}", self.coasting_contacts)?;
+        if let Some((first, rest)) = self.coasting_episodes.split_first() {
+            write!(f, " (episode {first}")?;
+            rest.iter().try_for_each(|i| write!(f, ", {i}"))?;
+            write!(f, ")")?;
+        }
+        writeln!(f)?;
         write!(f, "  episodes that broke an invariant: {} of {}", self.broken_episodes, self.episodes)
     }
 }

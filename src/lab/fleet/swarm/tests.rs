@@ -82,3 +82,44 @@ fn a_lost_link_and_an_operators_stop_are_each_named() {
         ["robot drove into vehicle v2 at 4.00 s", "v3, stopped by stop, names its stop Some(\"stalled\")"],
     );
 }
+
+/// A stopped vehicle brakes as its supervisor certified: both wheels come down together
+/// until its centre stands (its turn held, so it keeps its arc), then both to zero on the
+/// spot. A link that fails while it brakes leaves its motors on the brake's last command
+/// until their timeout; the judge waits for that, and no longer.
+#[test]
+fn a_stop_keeps_the_arc_and_a_link_lost_while_braking_is_waited_for() {
+    let s = swap_4();
+    let estop = [FleetFault::EStop { at: 3.0 }];
+    let (_, _, log) = play(&s, &estop, None);
+    let from = log.t.iter().position(|&t| t >= 3.0).unwrap();
+    let ppm = s.vehicle(0).rig().control.drive.pulses_per_metre();
+    let mut turning = 0;
+    for k in 0..4 {
+        let wheels: Vec<[f64; 2]> = log.wheels.chunks_exact(4).skip(from).map(|w| w[k]).collect();
+        turning += usize::from((wheels[0][1] - wheels[0][0]).abs() > 0.01);
+        for pair in wheels.windows(2) {
+            let (was, now) = (pair[0], pair[1]);
+            let centre = 0.5 * (was[0] + was[1]);
+            if (centre * ppm).abs() > 1.0 {
+                let (dl, dr) = (now[0] - was[0], now[1] - was[1]);
+                assert!((dl - dr).abs() <= 1.5 / ppm, "vehicle {k}: the wheels came down apart: {was:?} -> {now:?}");
+            }
+        }
+        assert_eq!(wheels.last(), Some(&[0.0; 2]));
+    }
+    assert!(turning > 0, "a vehicle was turning at the stop");
+    // The link of a braking vehicle fails a cycle into its stop.
+    let dt = s.sensing.sample_time;
+    let faults = [FleetFault::Stop { vehicle: 2, at: 3.0 }, FleetFault::LinkLost { vehicle: 2, at: 3.0 + dt }];
+    let (e, _) = tampered(&s, &faults, |_, _| {});
+    assert!(e.broken.is_empty(), "{:?}", e.broken);
+    let body = s.vehicle(2).sim.robot;
+    let rest_by = (3.0 + body.max_wheel_speed / body.wheel_accel).max(3.0 + dt + motors_hold(&s, 2)) + 2.0 * dt;
+    let (e, _) = tampered(&s, &faults, |_, log| {
+        let at = log.t.iter().position(|&t| t > rest_by).unwrap();
+        log.wheels[at * 4 + 2] = [-0.01, 0.01];
+    });
+    assert_eq!(e.broken.len(), 1, "{:?}", e.broken);
+    assert!(e.broken[0].starts_with("v2, stopped by stop at 3.00 s, still turns its wheels at "), "{:?}", e.broken);
+}
