@@ -331,3 +331,25 @@ fn the_fleet_swarm_breaks_no_invariant() {
     let said = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && said.contains("leave --policy and --compare-obstacles out"), "{said}");
 }
+
+/// The 8-vehicle swap's swarm episodes that each of the fleet's rules holds (docs/fleet.md):
+/// a stop while turning beside a standing vehicle (3140, 7661: a stop keeps the arc) and a
+/// follower behind a vehicle its wheels have not yet taken where its command says (5540:
+/// the ramps' lag). Each keeps every invariant, and in each the fault of its story comes.
+#[test]
+fn the_swarm_episodes_behind_the_fleets_rules_keep_every_invariant() {
+    use flowgate::lab::fleet::swarm;
+    let swap = scenario("swap-8.toml");
+    for (index, stopped) in
+        [(3140, "e-stop (every vehicle)"), (5540, "stopped by the operator"), (7661, "stopped by the operator")]
+    {
+        let (episode, summary) = swarm::episode(&swap, 1, index, None);
+        assert!(episode.broken.is_empty(), "episode {index}: {:?}", episode.broken);
+        assert!(
+            summary.vehicles.iter().any(|v| v.stop_reason.as_deref() == Some(stopped)),
+            "episode {index}: {summary:?}"
+        );
+        let active = summary.vehicles.iter().filter_map(|v| v.contact.as_ref()).filter(|c| c.active).count();
+        assert_eq!(active, 0, "episode {index}: {summary:?}");
+    }
+}
