@@ -35,8 +35,8 @@ pub struct VehicleView {
     /// What its wheels ramp toward, m/s: its command, or standing once it is stopped.
     pub toward: Point,
     /// How far behind the way `toward` would take it its wheels' ramps may leave it, m:
-    /// the gap between how it moves now and `toward`, times the time its slower ramp takes
-    /// to close it (the centre's speed moves monotonically between the two meanwhile).
+    /// the gap between how it moves now and `toward`, times the longer of its wheels' ramps
+    /// (the centre's speed moves monotonically between the two meanwhile).
     pub lag: f64,
     pub radius: f64,
     /// It navigates on: where it stands now it will leave.
@@ -242,7 +242,6 @@ mod tests {
         rule.others_as_supervised(0, &views, &mut supervised);
         assert_eq!(fields, supervised, "steady: the same obstacle");
         // Stopped at 0.1 m/s, braking on 1 m/s² ramps: standing, grown by 0.1 m/s x 0.1 s.
-        views[1].velocity = Point::new(0.1, 0.0);
         (views[1].toward, views[1].lag) = (Point::default(), 0.01);
         supervised.clear();
         rule.others_as_supervised(0, &views, &mut supervised);

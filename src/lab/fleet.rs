@@ -311,20 +311,17 @@ impl FleetControl {
 }
 
 /// How far behind the way `toward` would take vehicle `k` its wheels' ramps may leave it,
-/// m: its centre's speed moves monotonically from now to `toward` while the slower ramp
-/// runs, so it falls behind by at most the gap times that time.
+/// m. Each wheel ramps at one rate to its target and holds it, so the centre's speed holds
+/// while the two ramp apart and then moves toward `toward`'s alone: it falls behind by at
+/// most the gap times the longer ramp. (A scenario's `wheel_accel` is positive, so every
+/// ramp ends.)
 fn ramp_lag(fleet: &Fleet, k: usize, toward: Point) -> f64 {
     let gap = (toward - fleet.velocity(k)).norm();
     if gap == 0.0 {
         return 0.0;
     }
-    let ramp = fleet.world(k).axes().iter().map(|a| a.ramp_left()).fold(0.0, f64::max);
-    gap * ramp.min(MAX_RAMP_S)
+    gap * fleet.world(k).axes().iter().map(|a| a.ramp_left()).fold(0.0, f64::max)
 }
-
-/// The longest a wheel's ramp is taken to run, s: an axis without a ramp never reaches its
-/// target, and the lag of a vehicle whose wheels never would is bounded by the run's grain.
-const MAX_RAMP_S: f64 = 1.0;
 
 /// Run a fleet scenario to its end.
 pub fn run(s: &Scenario, options: FleetOptions) -> FleetSummary {
