@@ -336,6 +336,7 @@ fn the_fleet_swarm_breaks_no_invariant() {
 /// a stop while turning beside a standing vehicle (3140, 7661: a stop keeps the arc) and a
 /// follower behind a vehicle its wheels have not yet taken where its command says (5540:
 /// the ramps' lag). Each keeps every invariant, and in each the fault of its story comes.
+/// And a stop after every vehicle has reached the end of its way is watched to rest.
 #[test]
 fn the_swarm_episodes_behind_the_fleets_rules_keep_every_invariant() {
     use flowgate::lab::fleet::swarm;
@@ -352,4 +353,10 @@ fn the_swarm_episodes_behind_the_fleets_rules_keep_every_invariant() {
         let active = summary.vehicles.iter().filter_map(|v| v.contact.as_ref()).filter(|c| c.active).count();
         assert_eq!(active, 0, "episode {index}: {summary:?}");
     }
+    // E5's crossing vehicle, its script run out, stopped by the operator at 11.96 s: the run
+    // goes on a second beyond the stop, long enough to see it at rest.
+    let (episode, summary) = swarm::episode(&scenario("e5-scripted.toml"), 1, 102, None);
+    assert!(episode.broken.is_empty(), "{:?}", episode.broken);
+    let &(_, _, at) = episode.stopped.iter().find(|s| s.0 == 1).expect("the crossing vehicle stopped");
+    assert!(at > 11.0 && summary.end_time >= at + 1.0, "stopped at {at} s, ended at {} s", summary.end_time);
 }

@@ -139,8 +139,9 @@ pub struct FleetOptions {
     pub gains: FollowerGains,
     /// End the run at the first contact (sweeps); else run on to see what follows.
     pub stop_at_contact: bool,
-    /// How long the run goes on once no vehicle has anywhere to go, s (a swarm watches the
-    /// stopped vehicles come to rest and stay there).
+    /// How long the run goes on once no vehicle has anywhere to go and the last one stopped
+    /// has been stopped, s (a swarm watches the stopped vehicles come to rest and stay
+    /// there).
     pub run_on: f64,
 }
 
@@ -159,6 +160,9 @@ pub struct FleetControl {
     options: FleetOptions,
     /// The vehicle driven from outside, if any.
     outside: Option<usize>,
+    /// When a vehicle was last stopped (by [`FleetControl::stop`], or by its motors' own
+    /// timeout after its link failed), s: a run goes on `run_on` beyond it.
+    last_stop: f64,
     /// Scratch: one vehicle's obstacles, as its field and as its supervisor see them, and
     /// every vehicle as the others see it.
     seen: Vec<ObstacleEstimate>,
@@ -192,6 +196,7 @@ impl FleetControl {
             names: s.fleet().map(|(name, _, _)| name.to_string()).collect(),
             options,
             outside,
+            last_stop: f64::NEG_INFINITY,
         }
     }
 
@@ -275,6 +280,7 @@ impl FleetControl {
     /// Stop vehicle `k` at `t`, its outcome `stopped` and `why` its stop reason.
     pub fn stop(&mut self, k: usize, t: f64, why: String) {
         self.drivers[k].done.get_or_insert((Outcome::Stopped, t, Some(why)));
+        self.last_stop = self.last_stop.max(t);
     }
 
     /// Vehicle `k`'s own link fails at `at` (as `link_lost_at` would have it, unless it
@@ -282,6 +288,7 @@ impl FleetControl {
     pub fn lose_link(&mut self, k: usize, at: f64) {
         let d = &mut self.drivers[k];
         d.link_lost_at = Some(d.link_lost_at.map_or(at, |was| was.min(at)));
+        self.last_stop = self.last_stop.max(at + d.hold);
     }
 
     /// When vehicle `k`'s own link fails (or failed): from then on nothing sent reaches it.
@@ -372,7 +379,7 @@ fn drive_with(
         if !control.running(t) {
             idle_since.get_or_insert(t);
         }
-        let settled = idle_since.is_some_and(|since| t - since >= options.run_on);
+        let settled = idle_since.is_some_and(|since: f64| t - since.max(control.last_stop) >= options.run_on);
         if (touched && options.stop_at_contact) || settled || fleet.time() >= s.time_limit {
             return summary(s, &fleet, &control.drivers);
         }

@@ -36,8 +36,9 @@ const LINK_FAILED: &str = "its link failed";
 /// Faults fall within this many seconds of the start (or the time limit, if shorter): the
 /// vehicles are under way then.
 const FAULT_WINDOW_S: f64 = 12.0;
-/// How long an episode goes on once no vehicle has anywhere to go, s: longer than any
-/// vehicle's budget to come to rest, so that the judge sees every one at rest.
+/// How long an episode goes on once no vehicle has anywhere to go and the last stop (or a
+/// lost link's motors' timeout) has come, s: longer than any vehicle's budget to come to
+/// rest, so that the judge sees every one at rest.
 const RUN_ON_S: f64 = 1.0;
 /// The most faults an episode draws.
 const MAX_FAULTS: u32 = 3;
