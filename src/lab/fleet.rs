@@ -139,9 +139,9 @@ pub struct FleetOptions {
     pub gains: FollowerGains,
     /// End the run at the first contact (sweeps); else run on to see what follows.
     pub stop_at_contact: bool,
-    /// How long the run goes on once no vehicle has anywhere to go and the last one stopped
-    /// has been stopped, s (a swarm watches the stopped vehicles come to rest and stay
-    /// there).
+    /// How long the run goes on once no vehicle has anywhere to go, counted from the later
+    /// of that and the last stop (or a lost link's motors' timeout), s: a swarm watches the
+    /// stopped vehicles come to rest and stay there.
     pub run_on: f64,
 }
 
