@@ -3,7 +3,8 @@
 //! its antipode), by ORCA and by social forces, beside 100 straight walkers, whose step is
 //! where each is now. Timed: one [`Crowd::step`] on one thread, every step until the last
 //! person arrives (or twice the straight-line time); the straight walkers' row times the
-//! same number of steps of 100 positions from their scripted ways.
+//! same number of steps of 100 positions from their scripted ways. The crowd has room for
+//! its legs reserved, as `people::ways` reserves it for a scenario's walk.
 
 use std::time::Instant;
 
@@ -53,6 +54,7 @@ fn main() {
             .collect();
         let goals: Vec<Point> = circle().into_iter().map(|(_, g)| g).collect();
         let mut crowd = Crowd::new(&people, Room::default(), 1);
+        crowd.reserve((2.0 * straight_time / flowgate_sim::world::people::STEP).ceil() as usize + 1);
         let mut histogram = Histogram::<u64>::new(3).expect("histogram");
         while crowd.time() < 2.0 * straight_time
             && crowd.positions().zip(&goals).any(|(p, &g)| (p - g).norm() >= RADIUS)

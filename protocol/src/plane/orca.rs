@@ -25,6 +25,7 @@ pub struct OrcaLine {
 
 /// A vector's length (`norm` calls `hypot`, several times the cost, guarding against
 /// overflows no floor distance comes near).
+#[inline]
 pub fn length(p: Point) -> f64 {
     p.norm_sqr().sqrt()
 }
@@ -49,6 +50,7 @@ pub struct Body {
 /// The half-plane of velocities of `me` that keeps clear of `other` for `horizon` seconds,
 /// `me` taking `share` of the change (1/2 reciprocal, 1 alone); `step` is the time step,
 /// over which two bodies already overlapping are to part.
+#[inline]
 pub fn line_to(me: Body, other: Body, share: f64, horizon: f64, step: f64) -> OrcaLine {
     let rel_pos = other.position - me.position;
     let rel_vel = me.velocity - other.velocity;
@@ -86,6 +88,7 @@ pub fn line_to(me: Body, other: Body, share: f64, horizon: f64, step: f64) -> Or
 
 /// The half-plane of velocities that keeps a body at `position` of `radius` off the wall
 /// point `nearest` for `horizon` seconds (or parts them within `step` when they overlap).
+#[inline]
 pub fn line_off_wall(position: Point, radius: f64, nearest: Point, horizon: f64, step: f64) -> Option<OrcaLine> {
     let away = position - nearest;
     let d = length(away);
@@ -101,6 +104,7 @@ pub fn line_off_wall(position: Point, radius: f64, nearest: Point, horizon: f64,
 
 /// The velocity nearest `preferred` within `max_speed` that satisfies every line, the
 /// first `hard` of them (walls) relaxed only when they cannot all be met.
+#[inline]
 pub fn solve(lines: &[OrcaLine], hard: usize, max_speed: f64, preferred: Point, scratch: &mut Vec<OrcaLine>) -> Point {
     let mut result = Point::default();
     let failed = program_2d(lines, max_speed, preferred, false, &mut result);

@@ -59,7 +59,9 @@ struct Walker {
     velocity: Point,
     /// Which of `walk.goals` it walks to now.
     next: usize,
-    legs: Vec<(f64, Point, Point)>,
+    /// Its last leg (when it began, where, and its velocity); every leg is in
+    /// [`Crowd::legs`].
+    last_leg: Option<(f64, Point, Point)>,
     /// Draws new goals (`on_arrival = "new_goal"`).
     rng: rand_chacha::ChaCha8Rng,
     /// Its group (the index of the group's first member), if it walks in one.
@@ -132,6 +134,7 @@ pub fn ways(scenario: &SimScenario) -> Vec<ObstaclePath> {
     if crowd.walkers.is_empty() {
         return crowd.paths;
     }
+    crowd.reserve(((scenario.time_limit + WALK_BEYOND) / STEP).ceil() as usize + 1);
     while crowd.time() < scenario.time_limit + WALK_BEYOND {
         crowd.step();
     }
@@ -161,12 +164,19 @@ pub struct Crowd {
     /// [`Crowd::into_ways`].
     paths: Vec<ObstaclePath>,
     walkers: Vec<Walker>,
+    /// Every person's legs as walked, in the order walked: (the person's index in
+    /// `walkers`, when the leg began, where, its velocity). One record for all, so that a
+    /// step writes on into one buffer rather than a hundred (each touching a new page of
+    /// memory at the same step).
+    legs: Vec<(usize, f64, Point, Point)>,
     /// The scripted obstacles (index, radius).
     scripted: Vec<(usize, f64)>,
     room: Room,
     area: Area,
     steps: u64,
-    others: Vec<Other>,
+    /// Everyone as the people see them at this step's start: the people (in their order),
+    /// the scripted obstacles, then the vehicles.
+    bodies: Vec<orca::Body>,
     velocities: Vec<Point>,
     /// Where the people stand at this step's start, bucketed.
     grid: Grid,
@@ -191,7 +201,7 @@ impl Crowd {
                     position: crate::scenario::point(o.start),
                     velocity: Point::default(),
                     next: 0,
-                    legs: Vec::new(),
+                    last_leg: None,
                     rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
                     group: o.group.as_ref().and_then(|g| obstacles.iter().position(|p| p.group.as_ref() == Some(g))),
                     pace: walk.preferred_speed,
@@ -217,11 +227,12 @@ impl Crowd {
         Self {
             paths,
             walkers,
+            legs: Vec::new(),
             scripted,
             room,
             area,
             steps: 0,
-            others: Vec::new(),
+            bodies: Vec::new(),
             velocities: Vec::new(),
             grid: Grid::default(),
             touch_reach,
@@ -239,6 +250,12 @@ impl Crowd {
         self.walkers.iter().map(|w| w.position)
     }
 
+    /// Room for `steps` more steps' legs of every person, so that walking them does not
+    /// grow the record of legs (copying all of it, within one step).
+    pub fn reserve(&mut self, steps: usize) {
+        self.legs.reserve(steps.saturating_mul(self.walkers.len()));
+    }
+
     /// Every person walks one step, on what each saw of the others at its start.
     pub fn step(&mut self) {
         self.step_beside(&[]);
@@ -249,29 +266,33 @@ impl Crowd {
     /// they avoid a scripted obstacle, taking all the avoiding on themselves.
     pub fn step_beside(&mut self, vehicles: &[(Point, Point, f64)]) {
         let t = self.time();
-        self.others.clear();
+        self.bodies.clear();
+        let walking =
+            self.walkers.iter().map(|w| orca::Body { position: w.position, velocity: w.velocity, radius: w.radius });
+        self.bodies.extend(walking);
         for &(k, radius) in &self.scripted {
             let path = &self.paths[k];
-            self.others.push(Other { position: path.position(t), velocity: path.velocity(t), radius });
+            self.bodies.push(orca::Body { position: path.position(t), velocity: path.velocity(t), radius });
         }
-        let unseen = self.others.len();
+        let unseen = self.bodies.len();
         for &(position, velocity, radius) in vehicles {
             // A person leaves a vehicle a berth: ORCA's solution may graze what it avoids,
             // and grazing a vehicle is touching it.
-            self.others.push(Other { position, velocity, radius: radius * (1.0 + ROBOT_BERTH) });
+            self.bodies.push(orca::Body { position, velocity, radius: radius * (1.0 + ROBOT_BERTH) });
         }
         self.velocities.clear();
         self.grid.build(self.walkers.iter().map(|w| (w.position, w.radius, w.top_speed())), self.touch_reach);
         for i in 0..self.walkers.len() {
-            let seen = if self.walkers[i].walk.sees_robot { &self.others[..] } else { &self.others[..unseen] };
+            let seen = if self.walkers[i].walk.sees_robot { &self.bodies[..] } else { &self.bodies[..unseen] };
             let v = velocity(&mut self.walkers, i, seen, &self.room, &self.area, &self.grid, &mut self.scratch);
             self.velocities.push(v);
         }
         self.keep_apart();
-        for (w, &v) in self.walkers.iter_mut().zip(&self.velocities) {
+        for (k, (w, &v)) in self.walkers.iter_mut().zip(&self.velocities).enumerate() {
             w.velocity = v;
-            if w.legs.last().is_none_or(|&(_, _, last)| last != v) {
-                w.legs.push((t, w.position, v));
+            if w.last_leg.is_none_or(|(_, _, last)| last != v) {
+                w.last_leg = Some((t, w.position, v));
+                self.legs.push((k, t, w.position, v));
             }
             w.position += v * STEP;
         }
@@ -329,15 +350,19 @@ impl Crowd {
     /// Each person's last leg: its obstacle's index, when and where the leg began, and its
     /// velocity.
     pub fn last_legs(&self) -> impl Iterator<Item = (usize, f64, Point, Point)> + '_ {
-        self.walkers.iter().filter_map(|w| w.legs.last().map(|&(t, p, v)| (w.obstacle, t, p, v)))
+        self.walkers.iter().filter_map(|w| w.last_leg.map(|(t, p, v)| (w.obstacle, t, p, v)))
     }
 
     /// Every obstacle's way: the people's as walked so far, standing where they got to.
     pub fn into_ways(mut self) -> Vec<ObstaclePath> {
         let end = self.time();
-        for w in self.walkers {
-            let start = w.legs.first().map_or(w.position, |l| l.1);
-            self.paths[w.obstacle] = ObstaclePath::walked(start, w.legs, end);
+        let mut legs: Vec<Vec<(f64, Point, Point)>> = vec![Vec::new(); self.walkers.len()];
+        for &(k, t, p, v) in &self.legs {
+            legs[k].push((t, p, v));
+        }
+        for (w, legs) in self.walkers.iter().zip(legs) {
+            let start = legs.first().map_or(w.position, |l| l.1);
+            self.paths[w.obstacle] = ObstaclePath::walked(start, legs, end);
         }
         self.paths
     }
@@ -383,14 +408,6 @@ fn area(walkers: &[Walker]) -> Area {
     Area { min, max }
 }
 
-/// A scripted obstacle as people see it this step.
-#[derive(Debug, Clone, Copy)]
-struct Other {
-    position: Point,
-    velocity: Point,
-    radius: f64,
-}
-
 /// What one person's step reuses.
 #[derive(Debug, Clone, Default)]
 struct Scratch {
@@ -402,11 +419,12 @@ struct Scratch {
     pairs: Vec<(usize, usize)>,
 }
 
-/// Walker `i`'s velocity for the next step, from the others as they are now.
+/// Walker `i`'s velocity for the next step, from everyone as they are now (`seen`: the
+/// people in their order, then the obstacles and vehicles it sees).
 fn velocity(
     walkers: &mut [Walker],
     i: usize,
-    others: &[Other],
+    seen: &[orca::Body],
     room: &Room,
     area: &Area,
     grid: &Grid,
@@ -417,18 +435,11 @@ fn velocity(
         preferred += cohesion(walkers, i);
     }
     let me = &walkers[i];
-    let body = orca::Body { position: me.position, velocity: me.velocity, radius: me.radius };
+    let body = seen[i];
     let horizon = HORIZON_RADII * me.radius / me.walk.preferred_speed;
-    nearest(walkers, i, others, grid, horizon, &mut s.near);
-    let neighbour = |j: usize| -> (orca::Body, bool) {
-        match walkers.get(j) {
-            Some(w) => (orca::Body { position: w.position, velocity: w.velocity, radius: w.radius }, true),
-            None => {
-                let o = others[j - walkers.len()];
-                (orca::Body { position: o.position, velocity: o.velocity, radius: o.radius }, false)
-            }
-        }
-    };
+    nearest(walkers, i, &seen[walkers.len()..], grid, horizon, &mut s.near);
+    // Another person avoids in turn; an obstacle or a vehicle does not.
+    let neighbour = |j: usize| (seen[j], j < walkers.len());
     let walls = wall_points(room, me.position, me.radius + me.top_speed() * horizon);
     match me.walk.behaviour {
         Behaviour::Orca | Behaviour::Straight => {
@@ -467,7 +478,7 @@ fn velocity(
 
 /// Walker `i`'s nearest neighbours, at most [`MAX_NEIGHBOURS`], nearest first, into
 /// `near`: the people (from the grid) and `others` within what `horizon` can bring together.
-fn nearest(walkers: &[Walker], i: usize, others: &[Other], grid: &Grid, horizon: f64, near: &mut Vec<u128>) {
+fn nearest(walkers: &[Walker], i: usize, others: &[orca::Body], grid: &Grid, horizon: f64, near: &mut Vec<u128>) {
     let me = &walkers[i];
     // The nearest neighbours within what the horizon can bring together.
     let reach = |radius: f64, speed: f64| me.radius + radius + (me.top_speed() + speed) * horizon;
