@@ -4,10 +4,14 @@
 //! where each is now. Timed: one [`Crowd::step`] on one thread, every step until the last
 //! person arrives (or twice the straight-line time); the straight walkers' row times the
 //! same number of steps of 100 positions from their scripted ways. The crowd has room for
-//! its legs reserved, as `people::ways` reserves it for a scenario's walk.
+//! its legs reserved, as `people::ways` reserves it for a scenario's walk. Then a sweep of
+//! five ORCA people against the same sweep of straight walkers ([`sweeps`]).
 
 use std::time::Instant;
 
+use flowgate::lab::planner_only::Mode;
+use flowgate::lab::scenario::Scenario;
+use flowgate::lab::sweep::sweep;
 use flowgate_sim::scenario::{Behaviour, Motion, ObstacleSpec};
 use flowgate_sim::world::people::Crowd;
 use flowgate_sim::world::{ObstaclePath, Room};
@@ -89,4 +93,45 @@ fn main() {
     }
     std::hint::black_box(sum);
     row(&format!("{PEOPLE} straight walkers, a step"), &histogram);
+    sweeps();
+}
+
+/// A sweep among people against the same sweep among straight walkers: 200 episodes of
+/// `scenarios/people/circle-crossing-5.toml`, the planner alone, on one thread, the median
+/// of three runs each. The ORCA people walked ahead (the default) and as needed
+/// (`people_walk = "as_needed"`), each as a share of the straight walkers' pace.
+fn sweeps() {
+    const EPISODES: usize = 200;
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/people/circle-crossing-5.toml");
+    let text = std::fs::read_to_string(path).expect("scenarios/people/circle-crossing-5.toml");
+    let with = |from: &str, to: &str| {
+        assert!(text.contains(from), "circle-crossing-5.toml has no `{from}`");
+        text.replacen(from, to, 1)
+    };
+    let variants = [
+        ("ORCA people, walked ahead", text.clone()),
+        ("ORCA people, walked as needed", with("time_limit = 40", "time_limit = 40\npeople_walk = \"as_needed\"")),
+        ("straight walkers", with("behaviour = \"orca\"", "behaviour = \"straight\"")),
+    ];
+    let mut medians = Vec::new();
+    for (name, text) in &variants {
+        let scenario = Scenario::from_toml(text, name).expect("the variant loads");
+        let mut times: Vec<f64> = (0..3)
+            .map(|_| {
+                let start = Instant::now();
+                let report = sweep(&scenario, EPISODES, 1, 1, Mode::PlannerOnly).expect("the sweep runs");
+                std::hint::black_box(report);
+                start.elapsed().as_secs_f64()
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        medians.push(times[1]);
+    }
+    let straight = medians[2];
+    for ((name, _), time) in variants.iter().zip(&medians) {
+        println!(
+            "{EPISODES} episodes among {name:<30} {time:>6.2} s  {:>4.0}% of the straight walkers' pace",
+            100.0 * straight / time
+        );
+    }
 }

@@ -10,7 +10,7 @@ pub mod people;
 pub mod vehicles;
 
 pub use crowd::CrowdSpec;
-pub use people::{Behaviour, OnArrival, Walk};
+pub use people::{Behaviour, OnArrival, PeopleWalk, Walk};
 
 use flowgate_protocol::plane::Point;
 use serde::Deserialize;
@@ -64,6 +64,9 @@ pub struct SimScenario {
     /// The antipodal swap: a fleet placed on a circle for each episode.
     #[serde(default)]
     pub swap: Option<vehicles::SwapSpec>,
+    /// When the people who do not see the robot walk (docs/people.md, "Speed").
+    #[serde(default)]
+    pub people_walk: people::PeopleWalk,
     /// What loading changed and the user should hear (a script cut where it leaves the
     /// room).
     #[serde(skip)]
@@ -781,6 +784,16 @@ mod tests {
         let swap = "[swap]\nvehicles = 2\ncircle_radius = 0.3\n";
         // In a fleet, people who see the robot see every vehicle.
         assert!(SimScenario::from_toml(&format!("{seeing}{swap}"), "t").unwrap().obstacles[0].sees_robot);
+    }
+
+    /// When people walk: ahead by default, as needed when asked, and nothing else.
+    #[test]
+    fn people_walk_ahead_or_as_needed() {
+        assert_eq!(SimScenario::from_toml(MINIMAL, "t").unwrap().people_walk, PeopleWalk::Ahead);
+        let with = |value: &str| MINIMAL.replacen("time_limit = ", &format!("people_walk = {value}\ntime_limit = "), 1);
+        assert_eq!(SimScenario::from_toml(&with("\"as_needed\""), "t").unwrap().people_walk, PeopleWalk::AsNeeded);
+        let err = SimScenario::from_toml(&with("\"later\""), "t").unwrap_err().to_string();
+        assert!(err.contains("people_walk = \"later\"") && err.contains("expected `ahead` or `as_needed`"), "{err}");
     }
 
     #[test]

@@ -43,6 +43,22 @@ pub enum OnArrival {
     NewGoal,
 }
 
+/// When the simulator walks the people who do not see the robot (`people_walk`; those who
+/// see it always walk as the world runs, since where they go depends on it).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PeopleWalk {
+    /// Before the run, for its whole time limit and 30 s beyond: the world knows each
+    /// person's fastest leg, and its judge bounds the person's speed by it.
+    #[default]
+    Ahead,
+    /// A step at a time as the world runs, only as far as the run goes: the same ways, but
+    /// the judge bounds each person's speed by their cap (the fastest legs are not yet
+    /// walked), so it samples a little more finely and the runs are alike in distribution,
+    /// not in their bits. Faster where runs end well before their time limit.
+    AsNeeded,
+}
+
 /// The most a person walks, as a multiple of its preferred speed, when avoiding others:
 /// Helbing and Molnár's cap.
 pub const SPEED_CAP: f64 = 1.3;

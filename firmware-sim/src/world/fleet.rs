@@ -1,7 +1,8 @@
 //! Several vehicles in one world: each a [`World`] of its own (its wheels and ramps, the
 //! scenario's obstacles, walls and room, judged exactly as the robot's), and every pair of
-//! vehicles judged against each other. People who see the vehicles (`sees_robot`) walk
-//! once for the fleet, beside every vehicle, and each world is handed their ways.
+//! vehicles judged against each other. People who walk as the world runs (those who see
+//! the vehicles, `sees_robot`, or everyone under `people_walk = "as_needed"`) walk once for
+//! the fleet, beside every vehicle, and each world is handed their ways.
 //!
 //! Between vehicles the judge samples: while a pair could meet within the step, the step is
 //! cut so that neither vehicle moves more than [`PAIR_RESOLUTION`] between samples, and a
@@ -9,7 +10,7 @@
 //! judged per vehicle, as for the robot: a vehicle moving toward the other faster than
 //! [`ACTIVE_CONTACT_SPEED`] drove into it.
 
-use super::people::{self, Crowd};
+use super::people::Crowd;
 use super::{ObstaclePath, World, ACTIVE_CONTACT_SPEED};
 use crate::scenario::vehicles::Role;
 use crate::scenario::{Motion, SimScenario};
@@ -108,8 +109,9 @@ impl Fleet {
         }
     }
 
-    /// People who see the vehicles walk each step that begins by `until`, seeing every
-    /// vehicle where it is at the step's start, and every world learns their ways.
+    /// People who walk as the fleet runs walk each step that begins by `until`, those who
+    /// see the vehicles seeing each where it is at the step's start, and every world learns
+    /// their ways.
     fn walk_people(&mut self, until: f64) {
         let Some(crowd) = self.people.as_mut().filter(|_| until.is_finite()) else { return };
         while crowd.time() <= until {
@@ -117,8 +119,11 @@ impl Fleet {
             self.bodies.clear();
             self.bodies.extend(self.worlds.iter().map(|w| w.body_seen_at(t)));
             crowd.step_beside(&self.bodies);
+            // Known up to the crowd's time now: past `until`, whatever the rounding of
+            // `t + STEP` (at `until` itself a way would otherwise read as standing).
+            let walked = crowd.time();
             for (k, t0, from, v) in crowd.last_legs() {
-                self.worlds.iter_mut().for_each(|w| w.walk_on(k, t0, from, v, t + people::STEP));
+                self.worlds.iter_mut().for_each(|w| w.walk_on(k, t0, from, v, walked));
             }
         }
     }

@@ -366,18 +366,27 @@ impl World {
         self.now.set(None);
     }
 
-    /// People who see the robot walk each step that begins by `until`, seeing the robot
-    /// where it is at the step's start (the axes hold from the settled state to `until`: a
-    /// command settles the world first), so that their ways are known up to `until`.
+    /// People who walk as the world runs walk each step that begins by `until`, those who
+    /// see the robot seeing it where it is at the step's start (the axes hold from the
+    /// settled state to `until`: a command settles the world first), so that their ways
+    /// are known up to `until`.
     fn walk_people(&mut self, until: f64) {
         // A step to no finite time walks nobody (they would walk for ever).
         let Some(crowd) = self.people.as_mut().filter(|_| until.is_finite()) else { return };
+        let sees = crowd.sees_vehicles();
         while crowd.time() <= until {
             let t = crowd.time();
-            let (position, velocity) = Self::body_at(self.settled, self.drive, t);
-            crowd.step_beside(&[(position, velocity, self.robot_radius)]);
+            if sees {
+                let (position, velocity) = Self::body_at(self.settled, self.drive, t);
+                crowd.step_beside(&[(position, velocity, self.robot_radius)]);
+            } else {
+                crowd.step();
+            }
+            // Known up to the crowd's time now: past `until`, whatever the rounding of
+            // `t + STEP` (at `until` itself a way would otherwise read as standing).
+            let walked = crowd.time();
             for (k, t0, from, v) in crowd.last_legs() {
-                self.obstacles[k].0.walk_on(t0, from, v, t + people::STEP);
+                self.obstacles[k].0.walk_on(t0, from, v, walked);
             }
         }
     }

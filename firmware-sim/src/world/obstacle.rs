@@ -172,9 +172,13 @@ impl ObstaclePath {
             return None;
         }
         let from = a.max(0.0);
-        let lap = if self.repeat { (from / self.end).floor() * self.end } else { 0.0 };
-        let next = self.legs.get(self.legs.partition_point(|l| lap + l.0 <= a)).map_or(self.end, |l| l.0);
-        let at = lap + next;
+        let (lap, begun) = if self.repeat {
+            let lap = (from / self.end).floor() * self.end;
+            (lap, self.legs.partition_point(|l| lap + l.0 <= a))
+        } else {
+            (0.0, self.legs_begun(a))
+        };
+        let at = lap + self.legs.get(begun).map_or(self.end, |l| l.0);
         (at > a && at < b).then_some(at)
     }
 
@@ -193,7 +197,8 @@ impl ObstaclePath {
     }
 
     /// How many legs have begun by `t` (within a lap). Legs are in time order, and a walked
-    /// way has thousands: the last answer's leg and the next are tried before a search.
+    /// way has thousands: the last answer's leg and those either side are tried before a
+    /// search (the judge asks about the two ends of an interval in turn).
     fn legs_begun(&self, t: f64) -> usize {
         let begun = |n: usize| n == 0 || self.legs[n - 1].0 <= t;
         let not_yet = |n: usize| n == self.legs.len() || self.legs[n].0 > t;
@@ -202,6 +207,8 @@ impl ObstaclePath {
             hint
         } else if hint < self.legs.len() && begun(hint + 1) && not_yet(hint + 1) {
             hint + 1
+        } else if (1..=self.legs.len()).contains(&hint) && begun(hint - 1) && not_yet(hint - 1) {
+            hint - 1
         } else {
             self.legs.partition_point(|l| l.0 <= t)
         };

@@ -7,6 +7,8 @@
 
 use crate::Point;
 
+/// This few people or fewer go in one cell: measuring everyone costs less than bucketing.
+const ONE_CELL_PEOPLE: usize = 16;
 /// At most this many cells a side: people spread far apart get larger cells.
 const MAX_CELLS_A_SIDE: f64 = 128.0;
 /// A cell's side is stretched by this share, and a ring's distance shrunk by it, so that
@@ -59,8 +61,10 @@ impl Grid {
         let spread = (width * height / n.max(1) as f64).sqrt();
         let cell =
             (min_cell * (1.0 + ROUNDING)).max(spread).max(width / MAX_CELLS_A_SIDE).max(height / MAX_CELLS_A_SIDE);
-        // Too far apart to bucket (a position beyond any floor): one cell, everyone measured.
-        let one_cell = !(cell.is_finite() && cell > 0.0 && min.re.is_finite() && min.im.is_finite());
+        // Few people, or too far apart to bucket (a position beyond any floor): one cell,
+        // everyone measured.
+        let one_cell =
+            n <= ONE_CELL_PEOPLE || !(cell.is_finite() && cell > 0.0 && min.re.is_finite() && min.im.is_finite());
         self.origin = if one_cell { Point::default() } else { min };
         self.cell = if one_cell { f64::INFINITY } else { cell };
         (self.cols, self.rows) =

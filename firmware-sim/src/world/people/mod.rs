@@ -15,7 +15,7 @@ use std::f64::consts::TAU;
 
 use super::{ObstaclePath, Room};
 use crate::scenario::people::SPEED_CAP;
-use crate::scenario::{Behaviour, ObstacleSpec, OnArrival, SimScenario, Walk};
+use crate::scenario::{Behaviour, ObstacleSpec, OnArrival, PeopleWalk, SimScenario, Walk};
 use crate::Point;
 use flowgate_protocol::plane::nearest_on_segment;
 use flowgate_protocol::plane::orca::{self, length};
@@ -141,12 +141,15 @@ pub fn ways(scenario: &SimScenario) -> Vec<ObstaclePath> {
     crowd.into_ways()
 }
 
-/// Each obstacle's way in `scenario` at time 0, and the crowd still to walk when some of its
-/// people see the robot: what they do then depends on where the robot goes, so they walk as
-/// the world runs ([`Crowd::step_beside`]), each way growing by a leg a step. Otherwise
-/// [`ways`], walked once, and no crowd.
+/// Each obstacle's way in `scenario` at time 0, and the crowd still to walk when its people
+/// walk as the world runs ([`Crowd::step_beside`]), each way growing by a leg a step: when
+/// some of them see the robot (what they do then depends on where it goes), or when the
+/// scenario says `people_walk = "as_needed"`. Otherwise [`ways`], walked once, and no crowd.
 pub fn start(scenario: &SimScenario) -> (Vec<ObstaclePath>, Option<Crowd>) {
-    if !scenario.obstacles.iter().any(|o| o.behaviour.walks() && o.sees_robot) {
+    let walkers = scenario.obstacles.iter().filter(|o| o.behaviour.walks());
+    let mut walkers = walkers.peekable();
+    let as_needed = scenario.people_walk == PeopleWalk::AsNeeded && walkers.peek().is_some();
+    if !as_needed && !walkers.any(|o| o.sees_robot) {
         return (ways(scenario), None);
     }
     let crowd = Crowd::new(&scenario.obstacles, Room::new(scenario), scenario.sensing.seed);
@@ -238,6 +241,12 @@ impl Crowd {
             touch_reach,
             scratch: Scratch::default(),
         }
+    }
+
+    /// Whether anyone in the crowd sees the robot (or a fleet's vehicles): when nobody
+    /// does, [`Crowd::step_beside`] needs no vehicles.
+    pub fn sees_vehicles(&self) -> bool {
+        self.walkers.iter().any(|w| w.walk.sees_robot)
     }
 
     /// How far the people have walked, s.

@@ -199,3 +199,29 @@ fn a_group_walks_together() {
     let (together, arrived) = spread(Some("friends"));
     assert!(together < 4.0 * r && arrived, "a group keeps together: {together} m, arrived {arrived}");
 }
+
+/// Walked as needed (`people_walk = "as_needed"`), the people of a scenario walk the ways
+/// they walk ahead, to the bit, while the world runs; only the judge's bound on a person's
+/// speed differs (their cap, not their fastest leg, which is not yet walked).
+#[test]
+fn people_walked_as_needed_walk_the_ways_walked_ahead() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/people/concourse.toml");
+    let ahead = SimScenario::load(&path).unwrap();
+    assert_eq!(ahead.people_walk, PeopleWalk::Ahead);
+    assert!(ahead.obstacles.iter().filter(|o| o.behaviour.walks()).count() >= 3);
+    let as_needed = SimScenario { people_walk: PeopleWalk::AsNeeded, ..ahead.clone() };
+    let (mut a, mut b) = (crate::world::World::new(&ahead), crate::world::World::new(&as_needed));
+    for _ in 0..1500 {
+        a.step(0.02);
+        b.step(0.02);
+        let t = a.time();
+        for k in 0..ahead.obstacles.len() {
+            assert_eq!(a.obstacle_position(k, t), b.obstacle_position(k, t), "person {k} at {t} s");
+            assert_eq!(a.obstacle_velocity(k, t), b.obstacle_velocity(k, t), "person {k} at {t} s");
+        }
+    }
+    // Walked as needed, a person is known up to the world's time and one step beyond.
+    let (_, crowd) = start(&as_needed);
+    assert!(crowd.is_some_and(|c| c.time() == 0.0));
+    assert!(start(&ahead).1.is_none());
+}
