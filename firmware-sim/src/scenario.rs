@@ -786,16 +786,6 @@ mod tests {
         assert!(SimScenario::from_toml(&format!("{seeing}{swap}"), "t").unwrap().obstacles[0].sees_robot);
     }
 
-    /// When people walk: ahead by default, as needed when asked, and nothing else.
-    #[test]
-    fn people_walk_ahead_or_as_needed() {
-        assert_eq!(SimScenario::from_toml(MINIMAL, "t").unwrap().people_walk, PeopleWalk::Ahead);
-        let with = |value: &str| MINIMAL.replacen("time_limit = ", &format!("people_walk = {value}\ntime_limit = "), 1);
-        assert_eq!(SimScenario::from_toml(&with("\"as_needed\""), "t").unwrap().people_walk, PeopleWalk::AsNeeded);
-        let err = SimScenario::from_toml(&with("\"later\""), "t").unwrap_err().to_string();
-        assert!(err.contains("people_walk = \"later\"") && err.contains("expected `ahead` or `as_needed`"), "{err}");
-    }
-
     #[test]
     fn refuses_unknown_keys() {
         let bad = MINIMAL.replace("[sensing]", "[sensing]\nbogus = 3");

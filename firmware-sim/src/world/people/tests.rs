@@ -220,8 +220,21 @@ fn people_walked_as_needed_walk_the_ways_walked_ahead() {
             assert_eq!(a.obstacle_velocity(k, t), b.obstacle_velocity(k, t), "person {k} at {t} s");
         }
     }
-    // Walked as needed, a person is known up to the world's time and one step beyond.
+    // Walked as needed, nobody has walked yet when the world is made.
     let (_, crowd) = start(&as_needed);
     assert!(crowd.is_some_and(|c| c.time() == 0.0));
     assert!(start(&ahead).1.is_none());
+}
+
+/// When people walk is read from the scenario: ahead by default, as needed when asked, and
+/// nothing else, refused naming the key.
+#[test]
+fn people_walk_ahead_or_as_needed() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/people/hallway.toml");
+    let text = std::fs::read_to_string(path).unwrap();
+    let with = |value: &str| text.replacen("time_limit = ", &format!("people_walk = {value}\ntime_limit = "), 1);
+    assert_eq!(SimScenario::from_toml(&text, "t").unwrap().people_walk, PeopleWalk::Ahead);
+    assert_eq!(SimScenario::from_toml(&with("\"as_needed\""), "t").unwrap().people_walk, PeopleWalk::AsNeeded);
+    let err = SimScenario::from_toml(&with("\"later\""), "t").unwrap_err().to_string();
+    assert!(err.contains("people_walk = \"later\"") && err.contains("expected `ahead` or `as_needed`"), "{err}");
 }
