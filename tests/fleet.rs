@@ -360,3 +360,23 @@ fn the_swarm_episodes_behind_the_fleets_rules_keep_every_invariant() {
     let &(_, _, at) = episode.stopped.iter().find(|s| s.0 == 1).expect("the crossing vehicle stopped");
     assert!(at > 11.0 && summary.end_time >= at + 1.0, "stopped at {at} s, ended at {} s", summary.end_time);
 }
+
+/// A vehicle that waits neither creeps nor pivots into another. Episode 561 of the 4-vehicle
+/// swap among people (`scenarios/people/swap-4.toml`, seed 1): `v3`, held by its supervisor
+/// for some 390 cycles beside `v2` at its goal, its field pushing on, crept into it at the
+/// robot's 2 mm/s tolerance; a vehicle now closes on nothing within its reach but as it
+/// slows. Episode 92 of the 8-vehicle swap's swarm: `v2`, turning, finds its goal covered by
+/// `v3` (whose link has failed) and waits; zero on each wheel pivoted it into `v5`, standing
+/// beside it, at 3 cm/s, where the brake its supervisor certified keeps the arc.
+#[test]
+fn a_vehicle_that_waits_neither_creeps_nor_pivots_into_another() {
+    use flowgate::lab::fleet::{swarm, sweep::episode};
+    let people = Scenario::load(&root().join("scenarios/people/swap-4.toml")).unwrap();
+    let e = episode(&people, 1, 561, FleetOptions::default());
+    assert_eq!((e.vehicle_contacts, e.active_contacts), (0, 0), "{e:?}");
+    let (episode, summary) = swarm::episode(&scenario("swap-8.toml"), 1, 92, None);
+    assert!(episode.broken.is_empty(), "{:?}", episode.broken);
+    let v2 = summary.vehicles.iter().find(|v| v.name == "v2").expect("v2");
+    assert_eq!(v2.stop_reason.as_deref(), Some("goal blocked by vehicle v3"), "{summary:?}");
+    assert!(summary.vehicles.iter().all(|v| v.contact.is_none()), "{summary:?}");
+}

@@ -173,7 +173,7 @@ fn a_fleet_swaps_among_people() {
     use flowgate::lab::Outcome;
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/people/swap-4.toml");
     let text = std::fs::read_to_string(&path).unwrap();
-    for (sees, home, failed) in [(false, 71, Outcome::Collision), (true, 76, Outcome::Stopped)] {
+    for (sees, home, failed) in [(false, 70, Outcome::Collision), (true, 78, Outcome::Stopped)] {
         let text = if sees {
             text.replace("\nbehaviour = \"orca\"", "\nbehaviour = \"orca\"\nsees_robot = true")
         } else {

@@ -231,8 +231,12 @@ fn a_policy_drives_a_vehicle_of_a_fleet() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("fleet_sweep.json")).unwrap()).unwrap();
     assert_eq!(
-        (report["episodes"].as_u64(), report["active_contact_episodes"].as_u64()),
-        (Some(20), Some(0)),
+        (
+            report["episodes"].as_u64(),
+            report["vehicle_contact_episodes"].as_u64(),
+            report["active_contact_episodes"].as_u64()
+        ),
+        (Some(20), Some(0), Some(0)),
         "{report}"
     );
 

@@ -82,6 +82,12 @@ pub struct SupervisorConfig {
     /// behind a planner outside flowgate, which may push for as long as it likes, and at
     /// any speed above 0 would creep into what it pushes at.
     pub approach_tolerance: f64,
+    /// How fast it may close on an obstacle within its reach while its speed is not coming
+    /// down (holding a command, or speeding up), m/s: `approach_tolerance` for the robot;
+    /// 0 for a vehicle of a fleet, which would otherwise creep into a vehicle it is held
+    /// beside while its field pushes on. A stop's last sliver of speed is judged by
+    /// `approach_tolerance`.
+    pub steady_approach_tolerance: f64,
 }
 
 impl SupervisorConfig {
@@ -100,6 +106,7 @@ impl SupervisorConfig {
             clearance: 0.002,
             arena: None,
             approach_tolerance: APPROACH_TOLERANCE,
+            steady_approach_tolerance: APPROACH_TOLERANCE,
         }
     }
 }
@@ -609,7 +616,10 @@ impl Context<'_> {
         let velocity = facing * v;
         // Backing up drives into what lies behind as driving on does into what lies ahead.
         if v != 0.0 {
-            let tolerance = self.cfg.approach_tolerance;
+            // The tolerance is for a stop's last sliver of speed: a steady or growing approach
+            // keeps the stricter one.
+            let slowing = (next[0] + next[1]).abs() < (wheels[0] + wheels[1]).abs();
+            let tolerance = if slowing { self.cfg.approach_tolerance } else { self.cfg.steady_approach_tolerance };
             let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, slack, tolerance));
             if hit.is_some() {
                 return hit.copied();

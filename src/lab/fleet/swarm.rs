@@ -293,6 +293,8 @@ pub struct FleetSwarmReport {
     pub coasting_episodes: Vec<u64>,
     pub unfaulted: usize,
     pub unfaulted_home: usize,
+    /// The first episodes in which a navigating vehicle no fault stopped missed its goal.
+    pub unfaulted_short_episodes: Vec<u64>,
     /// Episodes that broke an invariant, and the first of them with what broke.
     pub broken_episodes: usize,
     pub broken: Vec<(u64, Vec<String>)>,
@@ -313,6 +315,11 @@ fn kind(f: FleetFault) -> usize {
     }
 }
 
+/// The first episodes that `matches`, for `--episode K`.
+fn listed(episodes: &[SwarmEpisode], matches: impl Fn(&SwarmEpisode) -> bool) -> Vec<u64> {
+    episodes.iter().filter(|e| matches(e)).take(LISTED).map(|e| e.index).collect()
+}
+
 fn report(base: &Scenario, seed: u64, episodes: &[SwarmEpisode]) -> FleetSwarmReport {
     let (mut faults, mut stopped) = ([0; 3], [0; 3]);
     for e in episodes {
@@ -328,9 +335,10 @@ fn report(base: &Scenario, seed: u64, episodes: &[SwarmEpisode]) -> FleetSwarmRe
         faults,
         stopped,
         coasting_contacts: episodes.iter().map(|e| e.coasting_contacts).sum(),
-        coasting_episodes: episodes.iter().filter(|e| e.coasting_contacts > 0).take(LISTED).map(|e| e.index).collect(),
+        coasting_episodes: listed(episodes, |e| e.coasting_contacts > 0),
         unfaulted: episodes.iter().map(|e| e.unfaulted).sum(),
         unfaulted_home: episodes.iter().map(|e| e.unfaulted_home).sum(),
+        unfaulted_short_episodes: listed(episodes, |e| e.unfaulted_home < e.unfaulted),
         broken_episodes: broken.len(),
         broken: broken.iter().take(LISTED).map(|e| (e.index, e.broken.clone())).collect(),
     }
@@ -348,20 +356,26 @@ impl fmt::Display for FleetSwarmReport {
         writeln!(f, "  faults: {links} links lost, {stops} operator's stops of one vehicle, {estops} e-stops")?;
         writeln!(f, "  vehicles stopped: {l} by their link, {s} by the operator, {e} by an e-stop")?;
         let home = 100.0 * self.unfaulted_home as f64 / self.unfaulted.max(1) as f64;
-        writeln!(
+        write!(
             f,
             "  navigating vehicles no fault stopped: {} of {} at their goal ({home:.1}%)",
             self.unfaulted_home, self.unfaulted
         )?;
+        write_listed(f, &self.unfaulted_short_episodes)?;
         write!(f, "  active contacts while coasting after a lost link: {}", self.coasting_contacts)?;
-        if let Some((first, rest)) = self.coasting_episodes.split_first() {
-            write!(f, " (episode {first}")?;
-            rest.iter().try_for_each(|i| write!(f, ", {i}"))?;
-            write!(f, ")")?;
-        }
-        writeln!(f)?;
+        write_listed(f, &self.coasting_episodes)?;
         write!(f, "  episodes that broke an invariant: {} of {}", self.broken_episodes, self.episodes)
     }
+}
+
+/// ` (episode a, b, ...)` and the line's end; the end alone when none is listed.
+fn write_listed(f: &mut fmt::Formatter<'_>, episodes: &[u64]) -> fmt::Result {
+    if let Some((first, rest)) = episodes.split_first() {
+        write!(f, " (episode {first}")?;
+        rest.iter().try_for_each(|i| write!(f, ", {i}"))?;
+        write!(f, ")")?;
+    }
+    writeln!(f)
 }
 
 #[cfg(test)]

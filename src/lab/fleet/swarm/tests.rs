@@ -123,3 +123,29 @@ fn a_stop_keeps_the_arc_and_a_link_lost_while_braking_is_waited_for() {
     assert_eq!(e.broken.len(), 1, "{:?}", e.broken);
     assert!(e.broken[0].starts_with("v2, stopped by stop at 3.00 s, still turns its wheels at "), "{:?}", e.broken);
 }
+
+/// The report lists the first episodes in which a vehicle no fault stopped missed its goal,
+/// and those with a contact while coasting, for `--episode K`.
+#[test]
+fn the_report_lists_the_episodes_to_look_at() {
+    let s = swap_4();
+    let episode = |index, unfaulted_home, coasting_contacts| SwarmEpisode {
+        index,
+        faults: Vec::new(),
+        outcome: Outcome::Goal,
+        stopped: Vec::new(),
+        unfaulted: 4,
+        unfaulted_home,
+        coasting_contacts,
+        broken: Vec::new(),
+    };
+    let episodes = [episode(0, 4, 0), episode(1, 3, 0), episode(2, 4, 1), episode(3, 2, 0)];
+    let report = report(&s, 1, &episodes);
+    assert_eq!(
+        (report.unfaulted_short_episodes.as_slice(), report.coasting_episodes.as_slice()),
+        (&[1, 3][..], &[2][..])
+    );
+    let said = report.to_string();
+    assert!(said.contains("13 of 16 at their goal (81.2%) (episode 1, 3)\n"), "{said}");
+    assert!(said.contains("after a lost link: 1 (episode 2)\n"), "{said}");
+}
