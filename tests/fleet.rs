@@ -138,6 +138,15 @@ fn plan_names_every_vehicle() {
     let plot = std::fs::read_to_string(out.join("trajectory.svg")).unwrap();
     assert!(plot.contains(">oncoming<") && plot.contains(">robot<") && plot.contains("outcome: goal"), "{plot}");
 
+    // E5's plot draws its standing obstacle's footprint (a path of one point) in the
+    // obstacles' red, and the robot's goal as a ring in the robot's blue.
+    let out = temp("e5");
+    plan(&[root().join("scenarios/fleet/e5-scripted.toml").to_str().unwrap()], &out);
+    let plot = std::fs::read_to_string(out.join("trajectory.svg")).unwrap();
+    let circles: Vec<&str> = plot.lines().filter(|l| l.starts_with("<circle")).collect();
+    assert!(circles.iter().any(|c| c.contains(r##"fill="#d62728" fill-opacity="0.08""##)), "{plot}");
+    assert!(circles.iter().any(|c| c.contains(r##"fill="#1f77b4" fill-opacity="0""##)), "{plot}");
+
     let out = temp("swap");
     let swap = root().join("scenarios/fleet/swap-4.toml");
     let text = plan(&[swap.to_str().unwrap(), "--sweep", "6"], &out);

@@ -325,7 +325,7 @@ impl RigFile {
             // promise must hold when the commands stop reaching the wheels (the bus off,
             // the adapter gone): the motors then hold the last one until their own timeout.
             supervisor.approach_tolerance = 0.0;
-            supervisor.steady_approach_tolerance = 0.0;
+            supervisor.vehicle_approach_tolerance = 0.0;
             let motors_hold_s = match self.can.protocol {
                 MotorProtocolName::Cia402 => f64::from(CIA402_CONSUMER_TIME_MS) * 1e-3,
                 _ => f64::from(d.command_timeout_ms) * 1e-3,

@@ -82,12 +82,13 @@ pub struct SupervisorConfig {
     /// behind a planner outside flowgate, which may push for as long as it likes, and at
     /// any speed above 0 would creep into what it pushes at.
     pub approach_tolerance: f64,
-    /// How fast it may close on an obstacle within its reach while its speed is not coming
-    /// down (holding a command, or speeding up), m/s: `approach_tolerance` for the robot;
-    /// 0 for a vehicle of a fleet, which would otherwise creep into a vehicle it is held
-    /// beside while its field pushes on. A stop's last sliver of speed is judged by
-    /// `approach_tolerance`.
-    pub steady_approach_tolerance: f64,
+    /// How fast it may close on another vehicle of a fleet within its reach (an obstacle
+    /// that keeps room, `ObstacleEstimate::keep > 0`) while its speed is not coming down
+    /// (holding a command, or speeding up), m/s: `approach_tolerance` for the robot alone;
+    /// 0 for a fleet's vehicles, which touch each other not even passively, and which at
+    /// any speed above 0 would creep into a vehicle they are held beside while their field
+    /// pushes on. A stop's last sliver of speed is judged by `approach_tolerance`.
+    pub vehicle_approach_tolerance: f64,
 }
 
 impl SupervisorConfig {
@@ -106,7 +107,7 @@ impl SupervisorConfig {
             clearance: 0.002,
             arena: None,
             approach_tolerance: APPROACH_TOLERANCE,
-            steady_approach_tolerance: APPROACH_TOLERANCE,
+            vehicle_approach_tolerance: APPROACH_TOLERANCE,
         }
     }
 }
@@ -145,15 +146,19 @@ impl Supervision {
 #[derive(Debug, Clone, Copy)]
 enum Hazard {
     /// An obstacle: where it is predicted now, its velocity, the distance to keep from its
-    /// centre now, and how fast that distance grows with the time ahead (its velocity's
-    /// uncertainty).
-    Obstacle { index: usize, center: Point, velocity: Point, speed: f64, keep: f64, growth: f64 },
+    /// centre now, how fast that distance grows with the time ahead (its velocity's
+    /// uncertainty), and whether it is another vehicle of a fleet.
+    Obstacle { index: usize, center: Point, velocity: Point, speed: f64, keep: f64, growth: f64, vehicle: bool },
     /// A line the centre keeps `keep` from, on the side where `normal · z < offset`
     /// (`normal` a unit vector pointing across it, away from the robot).
     Line { normal: Point, offset: f64, keep: f64 },
 }
 
 impl Hazard {
+    fn is_vehicle(&self) -> bool {
+        matches!(self, Hazard::Obstacle { vehicle: true, .. })
+    }
+
     fn index(&self) -> Option<usize> {
         match self {
             Hazard::Obstacle { index, .. } => Some(*index),
@@ -307,6 +312,7 @@ fn fill_hazards(
             speed: o.velocity.length(),
             keep: o.radius + cfg.robot_radius + cfg.sigmas * o.position_sd + cfg.clearance,
             growth: cfg.sigmas * o.velocity_sd + o.spread,
+            vehicle: o.keep > 0.0,
         });
     }
     if let Some(h) = cfg.lane_half_width {
@@ -617,10 +623,13 @@ impl Context<'_> {
         // Backing up drives into what lies behind as driving on does into what lies ahead.
         if v != 0.0 {
             // The tolerance is for a stop's last sliver of speed: a steady or growing approach
-            // keeps the stricter one.
+            // on another vehicle keeps the stricter one.
             let slowing = (next[0] + next[1]).abs() < (wheels[0] + wheels[1]).abs();
-            let tolerance = if slowing { self.cfg.approach_tolerance } else { self.cfg.steady_approach_tolerance };
-            let hit = self.hazards.iter().find(|hz| hz.driven_into(s, h, position, velocity, slack, tolerance));
+            let (any, vehicle) = (self.cfg.approach_tolerance, self.cfg.vehicle_approach_tolerance);
+            let hit = self.hazards.iter().find(|hz| {
+                let tolerance = if !slowing && hz.is_vehicle() { vehicle } else { any };
+                hz.driven_into(s, h, position, velocity, slack, tolerance)
+            });
             if hit.is_some() {
                 return hit.copied();
             }

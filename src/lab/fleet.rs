@@ -427,10 +427,10 @@ fn driver(s: &Scenario, k: usize, outside: bool) -> Driver {
         config.goal_tolerance = 0.0;
     }
     if let Some(supervisor) = config.supervisor.as_mut() {
-        // A vehicle closes on nothing within its reach but as it slows (a stop's last sliver
-        // of speed): held by its supervisor beside a vehicle that stands, its field pushing
-        // on, it crept into it at the robot's tolerance (`tests/fleet.rs`).
-        supervisor.steady_approach_tolerance = 0.0;
+        // A vehicle closes on another within its reach only as it slows (a stop's last
+        // sliver of speed): held by its supervisor beside a vehicle that stands, its field
+        // pushing on, it crept into it at the robot's tolerance (`tests/fleet.rs`).
+        supervisor.vehicle_approach_tolerance = 0.0;
     }
     let mut step = ControlStep::new(config);
     step.start(0.0);

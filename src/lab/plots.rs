@@ -9,6 +9,7 @@ use crate::lab::Outcome;
 use crate::lab::Scenario;
 use crate::planner::{streamlines, Field, ObstacleEstimate, PlanInput, Planner};
 use crate::svg::{Axes, Svg};
+use flowgate_sim::scenario::vehicles::Role;
 
 const ROBOT: &str = "#1f77b4";
 const OBSTACLE: &str = "#d62728";
@@ -212,6 +213,9 @@ pub fn one_line(run: &Run) -> String {
     line
 }
 
+/// The ring a fleet's plot marks each navigating vehicle's goal with, m.
+const GOAL_RING: f64 = 0.012;
+
 /// A colour a vehicle, the robot's first.
 const VEHICLES: [&str; 8] = [ROBOT, "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"];
 
@@ -241,11 +245,19 @@ pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &sup
     for outline in &room {
         ax.polyline(&mut svg, outline, "#444", 3.0, None);
     }
-    for path in &trace.obstacles {
+    // An obstacle's footprint where it ended: a standing one has no path to draw.
+    for (path, o) in trace.obstacles.iter().zip(&s.obstacles) {
         ax.polyline(&mut svg, path, OBSTACLE, 1.5, Some("4 3"));
+        if let Some(&last) = path.last() {
+            ax.circle(&mut svg, last, o.radius, OBSTACLE, 0.8, 0.08);
+        }
     }
-    for (k, (path, ((name, body, _), v))) in trace.vehicles.iter().zip(s.fleet().zip(&summary.vehicles)).enumerate() {
+    for (k, (path, ((name, body, role), v))) in trace.vehicles.iter().zip(s.fleet().zip(&summary.vehicles)).enumerate()
+    {
         let color = VEHICLES[k % VEHICLES.len()];
+        if role == Role::Navigate {
+            ax.circle(&mut svg, s.vehicle_alone(k).goal(), GOAL_RING, color, 1.5, 0.0);
+        }
         ax.polyline(&mut svg, path, color, 2.0, None);
         if let (Some(&first), Some(&last)) = (path.first(), path.last()) {
             ax.marker(&mut svg, first, color, name);
@@ -261,5 +273,7 @@ pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &sup
             );
         }
     }
+    let legend = "name and dot: a vehicle's start; ring: its goal; dashed: obstacles, their footprint where they ended";
+    svg.text(70.0, svg.height - 30.0, legend, "start", 11.0, "#333");
     svg.finish()
 }

@@ -190,3 +190,38 @@ proptest! {
         }
     }
 }
+
+/// Passing beside a body with a millimetre a second of closing speed, held steady: a robot
+/// may (a stop's sliver of speed is judged so); a fleet's vehicle may not close on another
+/// vehicle so, which would creep into it, but may on anything else.
+#[test]
+fn a_vehicle_closes_on_another_only_as_it_slows() {
+    let mut cfg = SupervisorConfig::new(0.25, 0.108, 0.07, 0.02, None);
+    // Abeam, 1 mm clear, 3 mm ahead: driving on at 5 cm/s closes on it at about 1 mm/s.
+    let beside =
+        |keep| ObstacleEstimate { keep, ..ObstacleEstimate::exact(Point::new(0.003, 0.141), Point::default(), 0.07) };
+    let steady = WheelSpeeds { left: 0.05, right: 0.05 };
+    let verdict = |cfg: &SupervisorConfig, keep| {
+        let scene = Scene {
+            cfg: cfg.clone(),
+            position: Point::default(),
+            facing: Point::new(1.0, 0.0),
+            wheels: [0.05; 2],
+            predicted: vec![beside(keep)],
+        };
+        scene.judge(|ctx| ctx.first_driven_into(steady, 0.0)).map(|h| h.is_vehicle())
+    };
+    assert_eq!((verdict(&cfg, 0.0), verdict(&cfg, 0.04)), (None, None), "the robot's tolerance");
+    cfg.vehicle_approach_tolerance = 0.0;
+    assert_eq!(verdict(&cfg, 0.0), None, "an obstacle that is not a vehicle");
+    assert_eq!(verdict(&cfg, 0.04), Some(true), "another vehicle");
+    // Slowing to a stop, the last sliver of speed is judged by the robot's tolerance.
+    let scene = Scene {
+        cfg,
+        position: Point::default(),
+        facing: Point::new(1.0, 0.0),
+        wheels: [0.0015; 2],
+        predicted: vec![beside(0.04)],
+    };
+    assert_eq!(scene.judge(|ctx| ctx.first_driven_into(WheelSpeeds::default(), 0.0)).map(|h| h.is_vehicle()), None);
+}
