@@ -122,8 +122,10 @@ async fn a_healthy_rig_passes_every_line() {
 }
 
 /// A rig with other vehicles: the config's lines show each vehicle, every slot of the one
-/// schedule and the delay margin T gives; the controller takes the schedule. The gateway
-/// itself refuses to drive a fleet, by name, before it opens anything.
+/// schedule and the delay margin T gives; the controller takes the schedule. A vehicle
+/// the rig does not have (the simulated world has the robot alone) fails by its LEDs and its
+/// board's node. The gateway itself refuses to drive a fleet, by name, before it opens
+/// anything.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_fleet_rig_is_checked_and_the_gateway_refuses_to_drive_it() {
     let (handle, mut cfg) = sim(&[]).await;
@@ -165,9 +167,23 @@ async fn a_fleet_rig_is_checked_and_the_gateway_refuses_to_drive_it() {
     );
     assert!(out.stdout.contains("vehicles: b"), "{}", out.stdout);
     assert_eq!(out.verdict("schedule accepted"), "PASS", "{}", out.stdout);
-    // The simulated world has no vehicles: their LEDs are weak, a warning, not a failure.
-    assert_eq!(out.verdict("LEDs in view"), "WARN", "{}", out.stdout);
-    assert!(out.ok, "{}", out.stdout);
+    // The simulated world has no vehicles: their LEDs are dark and their boards silent.
+    assert!(!out.ok, "{}", out.stdout);
+    assert_eq!(out.verdict("LEDs in view"), "FAIL", "{}", out.stdout);
+    for led in ["LED 5 (vehicle oncoming)", "LED 6 (vehicle oncoming)", "LED 7 (vehicle b)", "LED 8 (vehicle b)"] {
+        assert!(out.line("LEDs in view").contains(led), "{led}:\n{}", out.stdout);
+    }
+    for (vehicle, node) in [("oncoming", 2), ("b", 3)] {
+        let line = out
+            .stdout
+            .lines()
+            .find(|l| l.contains(&format!("vehicles: {vehicle}, ")) && l.contains("vehicle motors"))
+            .unwrap_or_else(|| panic!("no motors line for {vehicle}:\n{}", out.stdout));
+        assert!(line.starts_with("FAIL"), "{line}");
+        assert!(line.contains(&format!("node {node}")) && line.contains("no heartbeat in 1000 ms"), "{line}");
+    }
+    let fails = out.stdout.lines().filter(|l| l.starts_with("FAIL")).count();
+    assert_eq!(fails, 3, "the LEDs and the two vehicles' boards, nothing else:\n{}", out.stdout);
 
     let path = dir("fleet-run").join("rig.toml");
     std::fs::write(&path, cfg.to_toml()).unwrap();
@@ -175,6 +191,49 @@ async fn a_fleet_rig_is_checked_and_the_gateway_refuses_to_drive_it() {
     let stderr = String::from_utf8(run.stderr).unwrap();
     assert!(!run.status.success());
     assert!(stderr.contains("[[vehicles]] names oncoming, b: this gateway drives the robot alone"), "{stderr}");
+}
+
+/// A fleet's scenario served by the simulator (every vehicle's LEDs under the camera, its
+/// board or drives on the bus, wired as `flowgate-sim` prints): every line passes, each
+/// vehicle's LEDs seen and its motors answering at their own nodes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fleet_the_simulator_serves_passes_every_line() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/fleet/swap-4.toml");
+    let s = Scenario::load(&path).unwrap();
+    for cia402 in [false, true] {
+        let mut rig = RigConfig::new(s.sim.clone());
+        if cia402 {
+            let node = |n| flowgate_protocol::canopen::NodeId::new(n).unwrap();
+            rig.cia402 = Some([node(1), node(2)]);
+        }
+        let wired = rig.vehicles().unwrap();
+        let handle = flowgate_sim::rig::start(rig.clone()).await.unwrap();
+        assert_eq!(handle.vehicles, wired);
+        let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+        let mut cfg = s.rig_file(&handle.psd_path, &can, None);
+        if cia402 {
+            cfg.use_cia402(flowgate::config::Cia402Section::with_nodes(1, 2));
+            cfg.vehicles = s.sim_vehicles(&rig).unwrap();
+        }
+        let out = check(if cia402 { "fleet-served-cia402" } else { "fleet-served" }, &cfg);
+        handle.stop().await;
+        assert!(out.ok, "{}", out.stdout);
+        assert!(!out.stdout.contains("FAIL") && !out.stdout.contains("WARN"), "{}", out.stdout);
+        assert!(out.line("LEDs in view").contains("all 8 LEDs seen"), "{}", out.stdout);
+        let motors: Vec<&str> = out.stdout.lines().filter(|l| l.contains("vehicle motors")).collect();
+        let expected: &[&str] = if cia402 {
+            &[
+                "v1, ", "drive 3", "v1, ", "drive 4", "v2, ", "drive 5", "v2, ", "drive 6", "v3, ", "drive 7", "v3, ",
+                "drive 8",
+            ]
+        } else {
+            &["v1, ", "node 2", "v2, ", "node 3", "v3, ", "node 4"]
+        };
+        assert_eq!(motors.len(), expected.len() / 2, "{}", out.stdout);
+        for (line, pair) in motors.iter().zip(expected.chunks(2)) {
+            assert!(line.contains(pair[0]) && line.contains(pair[1]), "{line} is not {pair:?}");
+        }
+    }
 }
 
 /// More LEDs than the controller says it drives (the simulated one: 16): the handshake
@@ -194,10 +253,14 @@ async fn a_fleet_beyond_the_controllers_leds_fails_its_identity() {
     let out = check("fleet-leds", &cfg);
     handle.stop().await;
     assert_eq!(out.verdict("config"), "PASS", "{}", out.stdout);
-    out.fails_only(
-        "controller identity",
-        &["PSD controller drives 16 LEDs (its Info.max_leds); the schedule has 23 ([leds] and [[vehicles]])"],
-    );
+    assert!(!out.ok, "{}", out.stdout);
+    assert_eq!(out.verdict("controller identity"), "FAIL", "{}", out.stdout);
+    let says = "PSD controller drives 16 LEDs (its Info.max_leds); the schedule has 23 ([leds] and [[vehicles]])";
+    assert!(out.line("controller identity").contains(says), "{}", out.stdout);
+    // Beside it only the ten vehicles' boards, which the simulated bus does not have.
+    let fails: Vec<&str> = out.stdout.lines().filter(|l| l.starts_with("FAIL")).collect();
+    assert_eq!(fails.len(), 11, "{}", out.stdout);
+    assert_eq!(fails.iter().filter(|l| l.contains("vehicle motors")).count(), 10, "{}", out.stdout);
 }
 
 #[test]

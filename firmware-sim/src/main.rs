@@ -15,10 +15,11 @@ use flowgate_sim::scenario::SimScenario;
 #[command(
     name = "flowgate-sim",
     version,
-    about = "The simulated flowgate rig: PSD controller on a serial line, motor board on CAN"
+    about = "The simulated flowgate rig: PSD controller on a serial line, motor boards or drives on CAN"
 )]
 struct Args {
-    /// The world: a scenario file (robot, obstacles, lane).
+    /// The world: a scenario file (robot, obstacles, lane; a fleet's `[[vehicles]]` each get
+    /// their LEDs after the obstacles' and their motors after the robot's, printed at start).
     #[arg(long, value_name = "FILE")]
     scenario: PathBuf,
     /// Make a stable symlink to the PSD controller's pty.
@@ -88,24 +89,9 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-/// The scenario at `path`. The simulated rig holds one robot's controller and motors: a
-/// fleet is refused by name.
-fn one_robot(path: &std::path::Path) -> Result<SimScenario> {
-    let scenario = SimScenario::load(path)?;
-    if scenario.is_fleet() {
-        anyhow::bail!(
-            "{}: a fleet of {} vehicles; the simulated rig holds one robot's controller and motors (run a fleet with \
-             `flowgate plan`)",
-            path.display(),
-            1 + scenario.vehicles.len()
-        );
-    }
-    Ok(scenario)
-}
-
 fn run() -> Result<()> {
     let args = Args::parse();
-    let mut config = RigConfig::new(one_robot(&args.scenario)?);
+    let mut config = RigConfig::new(SimScenario::load(&args.scenario)?);
     config.psd = match args.psd_device {
         Some(path) => SerialEndpoint::Device { path, baud: args.baud },
         None => SerialEndpoint::Pty { link: args.psd_link },
@@ -145,6 +131,11 @@ fn run() -> Result<()> {
         println!("psd: {}", handle.psd_path.display());
         if let Some(can) = &handle.can_path {
             println!("can: slcan {}", can.display());
+        }
+        if handle.vehicles.len() > 1 {
+            for v in &handle.vehicles {
+                println!("vehicle {}: LEDs {} and {}, {}", v.name, v.front_led, v.rear_led, v.motors.describe());
+            }
         }
         let (wand_tx, mut wand_rx) = tokio::sync::mpsc::channel::<Option<flowgate_sim::Point>>(4);
         if let Some(led) = args.wand {

@@ -15,7 +15,6 @@ use rand_distr::{Distribution, Normal};
 
 use crate::camera::CameraModel;
 use crate::faults::FaultPlan;
-use crate::world::World;
 use crate::Point;
 use flowgate_protocol::codec::{PsdCodec, StreamError};
 
@@ -31,6 +30,10 @@ const AMBIENT: f64 = 180.0;
 const WEAK_INTENSITY: u16 = 40;
 
 /// Where each LED id is in the world.
+///
+/// The robot carries `robot_front` and `robot_rear`, obstacle k `first_obstacle + k`, and
+/// the fleet's other vehicles follow the obstacles, two LEDs each, front then rear
+/// ([`LedMap::vehicle_leds`]): the order in which a scenario's rig lists them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LedMap {
     pub robot_front: u8,
@@ -41,28 +44,86 @@ pub struct LedMap {
     pub robot_led_offset: f64,
 }
 
+/// What the camera looks at: the vehicles (0: the robot), the obstacles, and a calibration
+/// wand someone holds up. The robot's world alone is one; a fleet is another.
+pub trait Scene {
+    /// The wand's LED and where it is (`None`: out of sight), if one is held.
+    fn wand(&self) -> Option<(u8, Option<Point>)>;
+    /// Vehicle `k`'s pose and radius, if there is such a vehicle.
+    fn vehicle(&self, k: usize) -> Option<(crate::world::Pose, f64)>;
+    fn obstacle_count(&self) -> usize;
+    fn obstacle_position(&self, k: usize, t: f64) -> Point;
+}
+
+impl Scene for crate::world::World {
+    fn wand(&self) -> Option<(u8, Option<Point>)> {
+        self.wand()
+    }
+    fn vehicle(&self, k: usize) -> Option<(crate::world::Pose, f64)> {
+        (k == 0).then(|| (self.pose(), self.robot_radius()))
+    }
+    fn obstacle_count(&self) -> usize {
+        self.obstacle_count()
+    }
+    fn obstacle_position(&self, k: usize, t: f64) -> Point {
+        self.obstacle_position(k, t)
+    }
+}
+
+/// A fleet's obstacles and wand are the robot's world's (every world has the same obstacles).
+impl Scene for crate::world::fleet::Fleet {
+    fn wand(&self) -> Option<(u8, Option<Point>)> {
+        self.world(0).wand()
+    }
+    fn vehicle(&self, k: usize) -> Option<(crate::world::Pose, f64)> {
+        (k < self.len()).then(|| (self.world(k).pose(), self.world(k).robot_radius()))
+    }
+    fn obstacle_count(&self) -> usize {
+        self.world(0).obstacle_count()
+    }
+    fn obstacle_position(&self, k: usize, t: f64) -> Point {
+        self.world(0).obstacle_position(k, t)
+    }
+}
+
 impl LedMap {
     /// The default rig: robot front LED 1, rear LED 2, obstacles from LED 3.
     pub fn standard(robot_radius: f64) -> Self {
         Self { robot_front: 1, robot_rear: 2, first_obstacle: 3, robot_led_offset: 0.5 * robot_radius }
     }
 
+    /// Vehicle `k`'s LEDs (front, rear; `k` from 1) among `obstacles` obstacles, and the
+    /// distance of each from its centre for a vehicle of `radius`, as the robot's are placed.
+    /// `None` past the 255 LED ids.
+    pub fn vehicle_leds(&self, obstacles: usize, k: usize, radius: f64) -> Option<(u8, u8, f64)> {
+        let front = usize::from(self.first_obstacle) + obstacles + 2 * k.checked_sub(1)?;
+        let front = u8::try_from(front).ok()?;
+        Some((front, front.checked_add(1)?, 0.5 * radius))
+    }
+
     /// Where LED `led` is at time `t`, if it exists. A calibration wand takes precedence:
     /// the person holding it has taken that LED in hand.
-    pub fn position(&self, led: u8, world: &World, t: f64) -> Option<Point> {
-        if let Some((_, at)) = world.wand().filter(|(wand, _)| *wand == led) {
+    pub fn position(&self, led: u8, scene: &(impl Scene + ?Sized), t: f64) -> Option<Point> {
+        if let Some((_, at)) = scene.wand().filter(|(wand, _)| *wand == led) {
             return at;
         }
-        let pose = world.pose();
-        let u = Point::from_polar(1.0, pose.heading);
+        let lit = |(pose, _): (crate::world::Pose, f64), offset: f64| {
+            pose.position + Point::from_polar(1.0, pose.heading) * offset
+        };
         if led == self.robot_front {
-            Some(pose.position + u * self.robot_led_offset)
-        } else if led == self.robot_rear {
-            Some(pose.position - u * self.robot_led_offset)
-        } else {
-            let k = usize::from(led.checked_sub(self.first_obstacle)?);
-            (k < world.obstacle_count()).then(|| world.obstacle_position(k, t))
+            return scene.vehicle(0).map(|v| lit(v, self.robot_led_offset));
         }
+        if led == self.robot_rear {
+            return scene.vehicle(0).map(|v| lit(v, -self.robot_led_offset));
+        }
+        let k = usize::from(led.checked_sub(self.first_obstacle)?);
+        let obstacles = scene.obstacle_count();
+        if k < obstacles {
+            return Some(scene.obstacle_position(k, t));
+        }
+        let vehicle = scene.vehicle(1 + (k - obstacles) / 2)?;
+        let offset = 0.5 * vehicle.1;
+        Some(lit(vehicle, if (k - obstacles).is_multiple_of(2) { offset } else { -offset }))
     }
 }
 
@@ -313,7 +374,7 @@ impl PsdController {
     }
 
     /// Everything due by time `t`: samples of finished slots, frame ends, heartbeats, faults.
-    pub fn poll(&mut self, t: f64, world: &World, out: &mut Vec<Outgoing>) {
+    pub fn poll(&mut self, t: f64, scene: &(impl Scene + ?Sized), out: &mut Vec<Outgoing>) {
         if let (Some([at, code, detail]), false) = (self.faults.controller_fault, self.fault_done) {
             if t >= at {
                 self.fault_done = true;
@@ -350,14 +411,14 @@ impl PsdController {
             if self.slot < n {
                 let slot = schedule.slots()[self.slot];
                 let mid = self.slot_start + 0.5 * f64::from(slot.slot_us) * 1e-6;
-                let sample = self.sample(self.slot as u8, slot.led, mid, world, schedule.dark_slot_us > 0);
+                let sample = self.sample(self.slot as u8, slot.led, mid, scene, schedule.dark_slot_us > 0);
                 let delay = self.injected_delay(end);
                 let p = self.packet(Message::Sample(sample));
                 out.push(Outgoing { at: end + delay, packet: p });
                 self.samples_in_frame += 1;
                 // An extra sample naming an LED the schedule does not have in this slot.
                 if let Some(led) = self.faults.unscheduled_led(mid).filter(|_| self.slot == 0) {
-                    let stray = self.sample(self.slot as u8, led, mid, world, schedule.dark_slot_us > 0);
+                    let stray = self.sample(self.slot as u8, led, mid, scene, schedule.dark_slot_us > 0);
                     let p = self.packet(Message::Sample(stray));
                     out.push(Outgoing { at: end + delay, packet: p });
                 }
@@ -406,10 +467,10 @@ impl PsdController {
         ((f.sample_delay_ms + jitter) * 1e-3).max(0.0) + ramp
     }
 
-    fn sample(&mut self, slot: u8, led: u8, t: f64, world: &World, dark: bool) -> Sample {
+    fn sample(&mut self, slot: u8, led: u8, t: f64, scene: &(impl Scene + ?Sized), dark: bool) -> Sample {
         let half = f64::from(self.camera.counts) / 2.0;
         let reflected = self.faults.reflected(led, t);
-        let raw = self.leds.position(led, world, t).and_then(|p| self.camera.project(p + reflected));
+        let raw = self.leds.position(led, scene, t).and_then(|p| self.camera.project(p + reflected));
         let mut flags = if dark { SampleFlags::AMBIENT_SUBTRACTED } else { 0 };
         let (mut x, mut y, intensity) = match raw {
             Some(r) if self.camera.in_view(r) && !self.faults.occluded(led, t) => {
@@ -448,4 +509,44 @@ impl PsdController {
 /// Helpers for tests and tools: the message type of a packet.
 pub fn kind(p: &Packet) -> MessageType {
     p.message.msg_type()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::SimScenario;
+    use crate::world::fleet::Fleet;
+    use crate::world::World;
+
+    fn scenario(name: &str) -> SimScenario {
+        SimScenario::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(name)).unwrap()
+    }
+
+    /// A fleet's vehicles carry two LEDs each after the obstacles', front then rear, half
+    /// their radius from their centres, as the robot's are.
+    #[test]
+    fn every_vehicle_of_a_fleet_is_lit_where_it_stands() {
+        let s = scenario("fleet/e5-scripted.toml");
+        let (obstacles, map) = (s.obstacles.len(), LedMap::standard(s.robot.radius));
+        let fleet = Fleet::for_rig(&s);
+        assert_eq!(fleet.len(), 2);
+        let radius = s.vehicles[0].body(&s.robot).radius;
+        let (front, rear, offset) = map.vehicle_leds(obstacles, 1, radius).unwrap();
+        assert_eq!((front, rear, offset), (3 + obstacles as u8, 4 + obstacles as u8, 0.5 * radius));
+        let pose = fleet.world(1).pose();
+        let ahead = Point::from_polar(offset, pose.heading);
+        let at = |led| map.position(led, &fleet, 0.0).unwrap();
+        assert!((at(front) - (pose.position + ahead)).norm() < 1e-12);
+        assert!((at(rear) - (pose.position - ahead)).norm() < 1e-12);
+        let robot = fleet.world(0).pose().position;
+        assert!((at(1) - at(2)).norm() > 0.0 && ((at(1) + at(2)) * 0.5 - robot).norm() < 1e-12);
+        assert_eq!(map.position(rear + 1, &fleet, 0.0), None, "no third vehicle");
+        // The robot's world alone lights the same LEDs as a fleet of one, and no vehicle's.
+        let alone = World::new(&s.vehicle_alone(0));
+        let one = Fleet::for_rig(&s.vehicle_alone(0));
+        for led in 1..=rear {
+            assert_eq!(map.position(led, &alone, 0.0), map.position(led, &one, 0.0), "LED {led}");
+        }
+        assert_eq!(map.position(front, &alone, 0.0), None);
+    }
 }

@@ -1,5 +1,7 @@
 //! The simulated rig in real time: the world, the PSD controller on a serial endpoint and
-//! the motor board on a CAN endpoint, in one process.
+//! the motor board on a CAN endpoint, in one process. A fleet's scenario puts every
+//! vehicle's LEDs under the one camera and its motors on the one bus
+//! ([`RigConfig::vehicles`]).
 //!
 //! One task owns the world and both firmware state machines and advances them by the
 //! wall clock; small I/O tasks move bytes between them and the endpoints:
@@ -36,12 +38,12 @@ use tokio_util::codec::{Encoder, FramedRead};
 
 use crate::camera::CameraModel;
 use crate::faults::{CanFaults, FaultPlan, SerialFaults};
-use crate::motors::{MotorKind, Motors};
+use crate::motors::{FleetMotors, MotorKind, Motors};
 use crate::psd_controller::{BadRequest, LedMap, Outgoing, PsdController, SerialQueue};
 use crate::scenario::SimScenario;
 use crate::slcan_adapter::SlcanAdapter;
 use crate::truth::{TruthRecord, SAMPLE_PERIOD};
-use crate::world::World;
+use crate::world::fleet::Fleet;
 
 /// Where the PSD controller's serial line is.
 #[derive(Debug, Clone, PartialEq)]
@@ -135,6 +137,45 @@ impl RigConfig {
             None => MotorKind::Board(self.node),
         }
     }
+
+    /// Every vehicle as the rig wires it, the robot first: its name, its LEDs (front, rear)
+    /// and its motors. The other vehicles' LEDs follow the obstacles' ([`LedMap::vehicle_leds`])
+    /// and their motors the robot's ([`MotorKind::for_vehicle`]); refused, naming the vehicle,
+    /// past the LED ids the controller drives or the protocol's node ids.
+    pub fn vehicles(&self) -> Result<Vec<WiredVehicle>, RigError> {
+        let s = &self.scenario;
+        let mut wired = Vec::with_capacity(1 + s.vehicles.len());
+        for (k, (name, body, _)) in s.fleet().enumerate() {
+            let leds = match k {
+                0 => Some((self.leds.robot_front, self.leds.robot_rear, self.leds.robot_led_offset)),
+                _ => self.leds.vehicle_leds(s.obstacles.len(), k, body.radius),
+            };
+            let leds = leds.filter(|&(_, rear, _)| rear <= crate::psd_controller::MAX_LEDS).ok_or_else(|| {
+                RigError::Unplayed(format!(
+                    "vehicle {name}: its LEDs would follow LED {}, past the {} the simulated controller drives",
+                    crate::psd_controller::MAX_LEDS,
+                    crate::psd_controller::MAX_LEDS
+                ))
+            })?;
+            let motors = self.motor_kind().for_vehicle(k).ok_or_else(|| {
+                RigError::Unplayed(format!(
+                    "vehicle {name}: its motors would follow {} past the protocol's node ids",
+                    self.motor_kind().describe()
+                ))
+            })?;
+            wired.push(WiredVehicle { name: name.to_string(), front_led: leds.0, rear_led: leds.1, motors });
+        }
+        Ok(wired)
+    }
+}
+
+/// A vehicle as the simulated rig wires it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WiredVehicle {
+    pub name: String,
+    pub front_led: u8,
+    pub rear_led: u8,
+    pub motors: MotorKind,
 }
 
 /// A rig running on a thread of its own, with its own runtime: its firmware keeps the pace
@@ -218,6 +259,8 @@ pub struct RigHandle {
     /// The SLCAN adapter's path (with `slcan-pty`).
     pub can_path: Option<PathBuf>,
     pub stats: Arc<RigStats>,
+    /// Every vehicle as wired: its LEDs and motors (one, the robot, without a fleet).
+    pub vehicles: Vec<WiredVehicle>,
     wand: tokio::sync::watch::Sender<Option<(u8, Option<crate::Point>)>>,
     stop: Option<oneshot::Sender<()>>,
     task: JoinHandle<TruthRecord>,
@@ -361,6 +404,8 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
     if let Some(key) = Motors::unplayed(config.motor_kind(), &config.faults) {
         return Err(RigError::Unplayed(format!("{key}: played by the PCL-80K-like board only, not by CiA 402 drives")));
     }
+    let wired = config.vehicles()?;
+    let vehicles = wired.clone();
     let mut links = Vec::new();
     let mut keep_alive: Vec<std::fs::File> = Vec::new();
     let mut psd_keep = None;
@@ -404,13 +449,13 @@ pub async fn start(config: RigConfig) -> Result<RigHandle, RigError> {
     let (wand, wand_rx) = tokio::sync::watch::channel(None);
     let loop_stats = stats.clone();
     let task = tokio::spawn(async move {
-        let (truth, psd) = run(config, psd, bus, stop_rx, wand_rx, loop_stats).await;
+        let (truth, psd) = run(config, wired, psd, bus, stop_rx, wand_rx, loop_stats).await;
         psd.task.abort();
         can_task.abort();
         drop(keep_alive);
         truth
     });
-    Ok(RigHandle { psd_path, can_path, stats, wand, stop: Some(stop_tx), task, links })
+    Ok(RigHandle { psd_path, can_path, stats, vehicles, wand, stop: Some(stop_tx), task, links })
 }
 
 /// The PSD controller's serial endpoint as the loop holds it (replaceable: it can vanish).
@@ -468,9 +513,11 @@ struct Realtime {
     psd: PsdIo,
     bus: Bus,
     stats: Arc<RigStats>,
-    world: World,
+    fleet: Fleet,
+    /// The vehicles' names, the robot first (the truth names them).
+    names: Vec<String>,
     controller: PsdController,
-    board: Motors,
+    motors: FleetMotors,
     serial_faults: SerialFaults,
     can_faults: CanFaults,
     bursts: VecDeque<f64>,
@@ -491,11 +538,15 @@ struct Realtime {
 }
 
 impl Realtime {
-    fn new(config: RigConfig, psd: PsdIo, bus: Bus, stats: Arc<RigStats>) -> Self {
-        let mut world = World::new(&config.scenario);
+    fn new(config: RigConfig, wired: &[WiredVehicle], psd: PsdIo, bus: Bus, stats: Arc<RigStats>) -> Self {
+        let mut fleet = Fleet::for_rig(&config.scenario);
         let mut controller =
             PsdController::new(config.camera, config.leds, config.noise_counts, config.seed, config.faults.clone());
-        let mut board = Motors::new(config.motor_kind(), &config.faults);
+        let kinds: Vec<MotorKind> = wired.iter().map(|v| v.motors).collect();
+        let link_lost_at = std::iter::once(f64::INFINITY)
+            .chain(config.scenario.vehicles.iter().map(|v| v.link_lost_at.unwrap_or(f64::INFINITY)))
+            .collect();
+        let mut motors = FleetMotors::new(&kinds, &config.faults, link_lost_at);
         let psd_link = match &config.psd {
             SerialEndpoint::Pty { link } => link.clone(),
             SerialEndpoint::Device { .. } => None,
@@ -503,7 +554,7 @@ impl Realtime {
         let f = &config.faults;
         let (mut psd_out, mut can_out) = (Vec::new(), Vec::new());
         controller.boot(0.0, &mut psd_out);
-        board.boot(0.0, &mut world, &mut can_out);
+        motors.boot(0.0, &mut fleet, &mut can_out);
         Self {
             serial_faults: SerialFaults::new(f),
             can_faults: CanFaults::new(f),
@@ -522,9 +573,10 @@ impl Realtime {
             psd,
             bus,
             stats,
-            world,
+            fleet,
+            names: wired.iter().map(|v| v.name.clone()).collect(),
             controller,
-            board,
+            motors,
             psd_link,
             psd_out,
             can_out,
@@ -537,14 +589,14 @@ impl Realtime {
 
     /// The world, the controller and the motors brought to `t`, the injected events due.
     fn advance(&mut self, t: f64, wand: Option<(u8, Option<crate::Point>)>) {
-        if t > self.world.time() {
-            self.world.step(t - self.world.time());
+        if t > self.fleet.time() {
+            self.fleet.step(t - self.fleet.time());
         }
         if let Some((led, at)) = wand {
-            self.world.place_wand(led, at);
+            self.fleet.world_mut(0).place_wand(led, at);
         }
-        self.controller.poll(t, &self.world, &mut self.psd_out);
-        self.board.poll(t, &mut self.world, &mut self.can_out);
+        self.controller.poll(t, &self.fleet, &mut self.psd_out);
+        self.motors.poll(t, &mut self.fleet, &mut self.can_out);
         self.vanish(t);
         if t >= self.next_foreign {
             self.next_foreign = t + 0.1;
@@ -553,7 +605,7 @@ impl Realtime {
         if t >= self.next_master {
             self.next_master = t + SECOND_MASTER_PERIOD;
             let frame = second_master_command(self.config.node);
-            self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+            self.motors.robot().handle(t, &frame, self.fleet.world_mut(0), &mut self.can_out);
             self.can_out.push(frame);
         }
     }
@@ -640,14 +692,14 @@ impl Realtime {
     /// The world's truth, sampled every [`SAMPLE_PERIOD`] up to `t`.
     fn record_truth(&mut self, t: f64) {
         while self.next_truth <= t {
-            self.truth.record(&self.world);
+            self.truth.record_fleet(&self.fleet, &self.names);
             self.next_truth += SAMPLE_PERIOD;
         }
     }
 
     /// When the loop next has something to do, s.
     fn next_wake(&self, t: f64) -> f64 {
-        let mut next = self.controller.next_event().min(self.board.next_event()).min(self.next_truth).min(t + 0.005);
+        let mut next = self.controller.next_event().min(self.motors.next_event()).min(self.next_truth).min(t + 0.005);
         next = next.min(self.pending.next_at());
         if let Some(&b) = self.bursts.front() {
             next = next.min(b);
@@ -664,7 +716,7 @@ impl Realtime {
         for f in self.to_bus.drain(..) {
             self.stats.can_frames_in.fetch_add(1, Ordering::Relaxed);
             if !self.config.faults.bus_off(t) && !self.can_faults.lose(t) {
-                self.board.handle(t, &f, &mut self.world, &mut self.can_out);
+                self.motors.handle(t, &f, &mut self.fleet, &mut self.can_out);
             }
         }
     }
@@ -672,13 +724,14 @@ impl Realtime {
 
 async fn run(
     config: RigConfig,
+    wired: Vec<WiredVehicle>,
     psd: PsdIo,
     bus: Bus,
     mut stop: oneshot::Receiver<()>,
     wand: tokio::sync::watch::Receiver<Option<(u8, Option<crate::Point>)>>,
     stats: Arc<RigStats>,
 ) -> (TruthRecord, PsdIo) {
-    let mut rig = Realtime::new(config, psd, bus, stats);
+    let mut rig = Realtime::new(config, &wired, psd, bus, stats);
     loop {
         let t = rig.now();
         rig.advance(t, *wand.borrow());
@@ -717,7 +770,7 @@ async fn run(
         }
         rig.frames_in();
     }
-    rig.truth.record(&rig.world);
+    rig.truth.record_fleet(&rig.fleet, &rig.names);
     (rig.truth, rig.psd)
 }
 

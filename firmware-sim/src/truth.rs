@@ -3,13 +3,15 @@
 //! Written at exit with `--truth FILE`: JSON (`.json`) with a summary and the samples, or
 //! CSV (any other extension) with one row per sample:
 //! `t,x,y,heading,v_left,v_right,min_clearance,wall_clearance,contact,o0x,o0y,o1x,...`
-//! (metres, radians, m/s; `contact` 0/1). Samples are taken every 20 ms of real time.
+//! (metres, radians, m/s; `contact` 0/1), then for a fleet each other vehicle's
+//! `NAME_x,NAME_y,NAME_heading`. Samples are taken every 20 ms of real time.
 
 use serde::Serialize;
 use std::io::Write as _;
 use std::path::Path;
 
-use crate::world::World;
+use crate::world::fleet::{Fleet, VehicleContact};
+use crate::world::{Contact, World};
 
 pub const SAMPLE_PERIOD: f64 = 0.02;
 
@@ -25,6 +27,33 @@ pub struct TruthSample {
     pub wall_clearance: Option<f64>,
     pub contact: bool,
     pub obstacles: Vec<[f64; 2]>,
+    /// A fleet's other vehicles (the robot is the sample's own pose).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub vehicles: Vec<VehicleSample>,
+}
+
+/// One of a fleet's other vehicles at a sample.
+#[derive(Debug, Clone, Serialize)]
+pub struct VehicleSample {
+    pub name: String,
+    pub x: f64,
+    pub y: f64,
+    pub heading: f64,
+    pub wheel_speeds: [f64; 2],
+}
+
+/// Each vehicle of a fleet over the run, the robot first.
+#[derive(Debug, Clone, Serialize)]
+pub struct VehicleTruth {
+    pub name: String,
+    pub final_position: [f64; 2],
+    pub path_length: f64,
+    /// Its first contact with an obstacle, a person or a wall.
+    pub contact: Option<Contact>,
+    /// Its first contact with another vehicle (`with`: the other's index, 0 the robot).
+    pub vehicle_contact: Option<VehicleContact>,
+    /// Its smallest gap to another vehicle's footprint, m.
+    pub min_vehicle_gap: f64,
 }
 
 #[derive(Debug, Clone, Default, Serialize)]
@@ -38,6 +67,9 @@ pub struct TruthSummary {
     pub path_length: f64,
     pub final_position: [f64; 2],
     pub peak_wheel_speed: [f64; 2],
+    /// A fleet's vehicles, the robot first (empty for the robot alone).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub vehicles: Vec<VehicleTruth>,
 }
 
 #[derive(Debug, Clone, Default, Serialize)]
@@ -67,6 +99,7 @@ impl TruthRecord {
                     [p.re, p.im]
                 })
                 .collect(),
+            vehicles: Vec::new(),
         });
         let t = world.truth();
         self.summary = TruthSummary {
@@ -78,7 +111,42 @@ impl TruthRecord {
             path_length: t.path_length,
             final_position: [pose.position.re, pose.position.im],
             peak_wheel_speed: t.peak_wheel_speed,
+            vehicles: Vec::new(),
         };
+    }
+
+    /// Take a sample of a fleet now: the robot's as [`Self::record`], and for more than one
+    /// vehicle every other's pose and each one's contacts. `names`: the vehicles', the robot
+    /// first.
+    pub fn record_fleet(&mut self, fleet: &Fleet, names: &[String]) {
+        self.record(fleet.world(0));
+        if fleet.len() < 2 {
+            return;
+        }
+        let sample = self.samples.last_mut().expect("just recorded");
+        for (k, name) in names.iter().enumerate().take(fleet.len()).skip(1) {
+            let w = fleet.world(k);
+            let pose = w.pose();
+            let (x, y, heading) = (pose.position.re, pose.position.im, pose.heading);
+            sample.vehicles.push(VehicleSample { name: name.clone(), x, y, heading, wheel_speeds: w.wheel_speeds() });
+        }
+        self.summary.vehicles = names
+            .iter()
+            .enumerate()
+            .take(fleet.len())
+            .map(|(k, name)| {
+                let (w, truth) = (fleet.world(k), fleet.world(k).truth());
+                let at = w.pose().position;
+                VehicleTruth {
+                    name: name.clone(),
+                    final_position: [at.re, at.im],
+                    path_length: truth.path_length,
+                    contact: truth.contact,
+                    vehicle_contact: fleet.vehicle_contact(k),
+                    min_vehicle_gap: fleet.min_vehicle_gap(k),
+                }
+            })
+            .collect();
     }
 
     /// Write as JSON (`.json`) or CSV.
@@ -91,6 +159,9 @@ impl TruthRecord {
             write!(f, "t,x,y,heading,v_left,v_right,min_clearance,wall_clearance,contact")?;
             for k in 0..n {
                 write!(f, ",o{k}x,o{k}y")?;
+            }
+            for v in self.samples.first().map_or(&[][..], |s| &s.vehicles[..]) {
+                write!(f, ",{0}_x,{0}_y,{0}_heading", v.name)?;
             }
             writeln!(f)?;
             let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
@@ -110,6 +181,9 @@ impl TruthRecord {
                 )?;
                 for o in &s.obstacles {
                     write!(f, ",{:.6},{:.6}", o[0], o[1])?;
+                }
+                for v in &s.vehicles {
+                    write!(f, ",{:.6},{:.6},{:.6}", v.x, v.y, v.heading)?;
                 }
                 writeln!(f)?;
             }

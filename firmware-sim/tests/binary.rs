@@ -5,11 +5,14 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-fn run_until_signal(signal: i32, truth: &str) {
-    let dir = std::env::temp_dir().join(format!("flowgate-sim-bin-{}-{signal}", std::process::id()));
+/// Run `flowgate-sim` on `scenario` until `signal`; the lines it printed after its
+/// endpoints, and the truth it wrote.
+fn run_until_signal(signal: i32, scenario: &str, truth: &str) -> (Vec<String>, String) {
+    let tag = format!("{signal}-{}-{truth}", scenario.replace('/', "-"));
+    let dir = std::env::temp_dir().join(format!("flowgate-sim-bin-{}-{tag}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (psd_link, can_link, truth_path) = (dir.join("psd"), dir.join("can"), dir.join(truth));
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios/e1-standing-obstacle.toml");
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenarios").join(scenario);
     let mut child = Command::new(env!("CARGO_BIN_EXE_flowgate-sim"))
         .arg("--scenario")
         .arg(&scenario)
@@ -36,6 +39,8 @@ fn run_until_signal(signal: i32, truth: &str) {
     assert_eq!(rc, 0);
     let status = child.wait().unwrap();
     assert!(status.success(), "exit status {status:?}");
+    // A fleet's vehicles, a line each, were printed after the endpoints.
+    let vehicles: Vec<String> = lines.map_while(Result::ok).collect();
     assert!(!psd_link.exists() && !can_link.exists(), "links removed");
     let text = std::fs::read_to_string(&truth_path).expect("truth written");
     if truth.ends_with(".json") {
@@ -47,16 +52,34 @@ fn run_until_signal(signal: i32, truth: &str) {
         assert!(text.lines().count() >= 2);
     }
     let _ = std::fs::remove_dir_all(&dir);
+    (vehicles, text)
 }
 
 #[test]
 fn sigint_exits_cleanly_with_truth_json() {
-    run_until_signal(libc::SIGINT, "truth.json");
+    let (vehicles, _) = run_until_signal(libc::SIGINT, "e1-standing-obstacle.toml", "truth.json");
+    assert!(vehicles.is_empty(), "the robot alone: {vehicles:?}");
 }
 
 #[test]
 fn sigterm_exits_cleanly_with_truth_csv() {
-    run_until_signal(libc::SIGTERM, "truth.csv");
+    run_until_signal(libc::SIGTERM, "e1-standing-obstacle.toml", "truth.csv");
+}
+
+/// A fleet's scenario: each vehicle's LEDs and board are printed, and the truth names
+/// every vehicle (JSON: each one's summary and pose at every sample; CSV: its columns).
+#[test]
+fn a_fleet_is_served_and_its_vehicles_named() {
+    let (vehicles, text) = run_until_signal(libc::SIGINT, "fleet/e5-scripted.toml", "truth.json");
+    assert_eq!(vehicles, ["vehicle robot: LEDs 1 and 2, board node 1", "vehicle crossing: LEDs 4 and 5, board node 2"]);
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let names: Vec<&str> =
+        v["summary"]["vehicles"].as_array().unwrap().iter().map(|v| v["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["robot", "crossing"]);
+    assert_eq!(v["samples"][0]["vehicles"][0]["name"], "crossing");
+    let (_, csv) = run_until_signal(libc::SIGTERM, "fleet/e5-scripted.toml", "truth.csv");
+    let header = csv.lines().next().unwrap();
+    assert!(header.ends_with(",o0x,o0y,crossing_x,crossing_y,crossing_heading"), "{header}");
 }
 
 #[test]

@@ -241,10 +241,56 @@ impl Scenario {
     }
 
     /// The rig config of this scenario's simulated rig, with the PSD controller at `psd`
-    /// and the CAN bus at `can`.
+    /// and the CAN bus at `can`; a fleet's other vehicles as `flowgate-sim` wires them.
     pub fn rig_file(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>) -> RigFile {
         let frame_us = self.frame_us().expect("checked when loaded");
-        self.config_with(psd, can, out_dir, frame_us)
+        let vehicles = self
+            .sim_vehicles(&flowgate_sim::rig::RigConfig::new(self.sim.clone()))
+            .expect("loading refused a fleet past the simulated controller's LEDs");
+        RigFile { vehicles, ..self.config_with(psd, can, out_dir, frame_us) }
+    }
+
+    /// The fleet's other vehicles as the simulated rig `wiring` wires them (by default their
+    /// LEDs after the obstacles', their boards at the nodes after the robot's node 1), their
+    /// bodies the scenario's. Empty without a fleet.
+    pub fn sim_vehicles(
+        &self,
+        wiring: &flowgate_sim::rig::RigConfig,
+    ) -> Result<Vec<VehicleSection>, flowgate_sim::rig::RigError> {
+        let wired = wiring.vehicles()?;
+        let bodies = self.sim.fleet().map(|(_, body, _)| body);
+        let vehicles = (wired.into_iter().zip(bodies).skip(1))
+            .map(|(v, body)| {
+                use flowgate_sim::motors::MotorKind;
+                let (node, left_node, right_node, protocol) = match v.motors {
+                    MotorKind::Board(node) => (Some(node.get()), None, None, None),
+                    MotorKind::Cia402 { left, right } => {
+                        (None, Some(left.get()), Some(right.get()), Some(MotorProtocolName::Cia402))
+                    }
+                };
+                VehicleSection {
+                    name: v.name,
+                    front_led: v.front_led,
+                    rear_led: v.rear_led,
+                    front_offset: Some(0.5 * body.radius),
+                    rear_offset: Some(0.5 * body.radius),
+                    node,
+                    left_node,
+                    right_node,
+                    protocol,
+                    radius: Some(body.radius),
+                    max_speed: Some(body.max_speed),
+                    wheel_radius: Some(body.wheel_radius),
+                    steps_per_rev: Some(body.steps_per_rev),
+                    microsteps: Some(body.microsteps),
+                    wheel_base: Some(body.wheel_base),
+                    max_wheel_speed: Some(body.max_wheel_speed),
+                    wheel_accel: Some(body.wheel_accel),
+                    ..VehicleSection::default()
+                }
+            })
+            .collect();
+        Ok(vehicles)
     }
 
     /// The typed rig of this scenario (endpoints unused: for the virtual-time tools).

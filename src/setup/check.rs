@@ -122,6 +122,7 @@ const OTHERS: &str = "no other master";
 const BOARD_CONFIG: &str = "board config";
 const LEFT_DRIVE: &str = "left drive";
 const RIGHT_DRIVE: &str = "right drive";
+const VEHICLE_MOTORS: &str = "vehicle motors";
 
 const PSD_ITEMS: [&str; 7] = [ANSWERS, IDENTITY, ACCEPTED, TIME_SYNC, STREAM, LEDS, GOAL];
 const BOARD_ITEMS: [&str; 3] = [HEARTBEAT, OTHERS, BOARD_CONFIG];
@@ -381,10 +382,12 @@ fn judge_leds(rig: &Rig, leds: &[u8], seen: &[u64], weak: &[u64], saturated: &[u
     for (k, &led) in leds.iter().enumerate() {
         let robot = led == rig.robot_front || led == rig.robot_rear;
         let obstacle = rig.obstacles.iter().position(|o| o.led == led);
-        let required = robot || obstacle.is_some_and(|i| rig.obstacles[i].required);
-        let role = match obstacle {
+        let vehicle = rig.vehicles.iter().find(|v| led == v.front_led || led == v.rear_led);
+        let required = robot || vehicle.is_some() || obstacle.is_some_and(|i| rig.obstacles[i].required);
+        let role = match (obstacle, vehicle) {
             _ if robot => " (robot)".to_string(),
-            Some(i) if required => format!(" (leds.obstacles[{i}].required)"),
+            (_, Some(v)) => format!(" (vehicle {})", v.name),
+            (Some(i), None) if required => format!(" (leds.obstacles[{i}].required)"),
             _ => String::new(),
         };
         let consequence = match obstacle {

@@ -70,6 +70,29 @@ impl Fleet {
         fleet
     }
 
+    /// The robot's world as a fleet of one: it walks its own people, exactly as it would
+    /// alone (a scenario without vehicles, served by the simulated rig).
+    pub fn of_one(world: World) -> Self {
+        Self {
+            worlds: vec![world],
+            // Alone, no pair cuts a step: its speed is never asked.
+            top_speed: vec![0.0],
+            contact: vec![None],
+            min_gap: vec![f64::INFINITY],
+            people: None,
+            bodies: Vec::new(),
+        }
+    }
+
+    /// The simulated rig's fleet for `s`: every vehicle, or the robot's world alone.
+    pub fn for_rig(s: &SimScenario) -> Self {
+        if s.is_fleet() {
+            Self::new(s)
+        } else {
+            Self::of_one(World::new(s))
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.worlds.len()
     }

@@ -1,6 +1,6 @@
-"""Drive the simulated motor board (node 1) with python-can's slcan interface.
+"""Drive a simulated motor board (node 1, or NODE) with python-can's slcan interface.
 
-Usage: slcan_python.py SLCAN_PTY MOTOR_DBC
+Usage: slcan_python.py SLCAN_PTY MOTOR_DBC [NODE]
 Prints "ok <step>" per step; exits non-zero on the first failure.
 """
 import sys
@@ -10,6 +10,7 @@ import can
 import cantools
 
 path, dbc_path = sys.argv[1], sys.argv[2]
+node = int(sys.argv[3]) if len(sys.argv) > 3 else 1
 db = cantools.database.load_file(dbc_path)
 bus = can.Bus(interface="slcan", channel=path, bitrate=1_000_000, sleep_after_open=0)
 
@@ -38,32 +39,32 @@ def send(name, **signals):
     bus.send(can.Message(arbitration_id=m.frame_id, data=m.encode(signals), is_extended_id=False))
 
 
-wait_for("HEARTBEAT_N1")
+wait_for(f"HEARTBEAT_N{node}")
 print("ok heartbeat")
 
-send("CONFIG_N1", accel=20000, max_rate=8000, timeout_ms=200)
-send("NMT_N1", command=0x01)
-wait_for("STATUS_N1", lambda s: s["state"] == 2)
+send(f"CONFIG_N{node}", accel=20000, max_rate=8000, timeout_ms=200)
+send(f"NMT_N{node}", command=0x01)
+wait_for(f"STATUS_N{node}", lambda s: s["state"] == 2)
 print("ok enabled")
 
 seq = 0
 end = time.monotonic() + 0.6
 while time.monotonic() < end:
-    send("VELOCITY_N1", left=1000, right=1000, seq=seq)
+    send(f"VELOCITY_N{node}", left=1000, right=1000, seq=seq)
     seq = (seq + 1) % 256
     time.sleep(0.02)
     bus.recv(0)  # keep the receive buffer moving
-rates = wait_for("AXIS_RATES_N1", lambda s: s["left"] == 1000 and s["right"] == 1000)
-status = wait_for("STATUS_N1")
+rates = wait_for(f"AXIS_RATES_N{node}", lambda s: s["left"] == 1000 and s["right"] == 1000)
+status = wait_for(f"STATUS_N{node}")
 if status["seq_errors"] != 0:
     fail(f"seq errors {status['seq_errors']}")
 print("ok moving", rates)
 
 # Stop commanding: the board must stop both axes by itself after its 200 ms timeout.
 stopped_at = time.monotonic()
-status = wait_for("STATUS_N1", lambda s: s["state"] == 3 and s["fault_cmd_timeout"] == 1, timeout=1.0)
+status = wait_for(f"STATUS_N{node}", lambda s: s["state"] == 3 and s["fault_cmd_timeout"] == 1, timeout=1.0)
 elapsed = time.monotonic() - stopped_at
-wait_for("AXIS_RATES_N1", lambda s: s["left"] == 0 and s["right"] == 0, timeout=0.5)
+wait_for(f"AXIS_RATES_N{node}", lambda s: s["left"] == 0 and s["right"] == 0, timeout=0.5)
 if elapsed < 0.15:
     fail(f"timed out after {elapsed:.3f}s, before the 200 ms timeout")
 print(f"ok timeout-stop after {elapsed:.3f}s")

@@ -3,10 +3,10 @@
 
 use super::{
     CheckReport, BOARD_CONFIG, BOARD_ITEMS, CAN_IF, CAN_OPEN, HEARTBEAT, LEFT_DRIVE, LISTEN, OTHERS, RIGHT_DRIVE,
-    STATUS_WAIT,
+    STATUS_WAIT, VEHICLE_MOTORS,
 };
 use crate::config::CanUrl;
-use crate::config::{Cia402Settings, Motors, Rig};
+use crate::config::{Cia402Settings, Motors, Rig, VehicleMotors};
 use crate::gateway::core::input::CanEvent;
 use crate::gateway::shell::link::{open_can, CanError, CanLink, SerialError};
 use flowgate_protocol::motor::{BoardState, FaultBits, MotorMessage, NodeId};
@@ -25,16 +25,19 @@ pub(super) async fn check_can(rig: &Rig, report: &mut CheckReport) {
         Err(why) => {
             report.fail(CAN_IF, &endpoint, why);
             report.skip(&BOARD_ITEMS, &endpoint, "the CAN interface failed");
+            if !rig.vehicles.is_empty() {
+                report.skip(&[VEHICLE_MOTORS], &endpoint, "the CAN interface failed");
+            }
             return;
         }
     };
     let (mut link, heard) = opened;
     judge_interface(rig, &heard, &endpoint, report);
-    if let Motors::Cia402(settings) = rig.motors {
-        check_drives(&mut link, &settings, &endpoint, report).await;
-        return;
+    match rig.motors {
+        Motors::Cia402(settings) => check_drives(&mut link, &settings, &endpoint, report).await,
+        Motors::Pcl80k => check_board(rig, &mut link, &heard, &endpoint, report).await,
     }
-    check_board(rig, &mut link, &heard, &endpoint, report).await;
+    check_vehicle_motors(rig, &mut link, &heard, &endpoint, report).await;
 }
 
 /// The CAN link opened (SocketCAN's interface up first), and a while of the bus heard.
@@ -154,31 +157,10 @@ pub(super) async fn check_drives(
     endpoint: &str,
     report: &mut CheckReport,
 ) {
-    use flowgate_protocol::canopen::{object, DriveState};
     let mut others = 0;
     for (item, node) in [(LEFT_DRIVE, settings.left), (RIGHT_DRIVE, settings.right)] {
         let subject = format!("{endpoint}, node {}", node.get());
-        let mut verdict = async || -> Result<String, String> {
-            let device = sdo_upload(link, settings, node, 0x1000, &mut others).await?;
-            if device & 0xFFFF != 402 {
-                return Err(format!("device type 0x{device:08X}: not a CiA 402 drive"));
-            }
-            let modes = sdo_upload(link, settings, node, 0x6502, &mut others).await?;
-            if modes & 0x4 == 0 {
-                return Err(format!("supported drive modes 0x{modes:08X}: no profile velocity (bit 2)"));
-            }
-            let sw = sdo_upload(link, settings, node, object::STATUSWORD, &mut others).await? as u16;
-            match DriveState::from_statusword(sw) {
-                DriveState::Fault | DriveState::FaultReactionActive => Err(format!(
-                    "statusword 0x{sw:04X}: in fault (error code at 0x603F); clear the cause, the arm resets it"
-                )),
-                DriveState::OperationEnabled => {
-                    Err(format!("statusword 0x{sw:04X}: already operation enabled: is another master driving it?"))
-                }
-                state => Ok(format!("CiA 402, profile velocity supported, statusword 0x{sw:04X} ({})", state.name())),
-            }
-        };
-        match verdict().await {
+        match drive_verdict(link, settings, node, &mut others).await {
             Ok(detail) => report.pass(item, &subject, detail),
             Err(why) => report.fail(item, &subject, why),
         }
@@ -191,6 +173,86 @@ pub(super) async fn check_drives(
         );
     } else {
         report.pass(OTHERS, endpoint, "no other master heard while the drives were read");
+    }
+}
+
+/// One drive read by SDO: a CiA 402 device with profile velocity, neither in fault nor
+/// already enabled.
+async fn drive_verdict(
+    link: &mut CanLink,
+    settings: &Cia402Settings,
+    node: flowgate_protocol::canopen::NodeId,
+    others: &mut u32,
+) -> Result<String, String> {
+    use flowgate_protocol::canopen::{object, DriveState};
+    let device = sdo_upload(link, settings, node, 0x1000, others).await?;
+    if device & 0xFFFF != 402 {
+        return Err(format!("device type 0x{device:08X}: not a CiA 402 drive"));
+    }
+    let modes = sdo_upload(link, settings, node, 0x6502, others).await?;
+    if modes & 0x4 == 0 {
+        return Err(format!("supported drive modes 0x{modes:08X}: no profile velocity (bit 2)"));
+    }
+    let sw = sdo_upload(link, settings, node, object::STATUSWORD, others).await? as u16;
+    match DriveState::from_statusword(sw) {
+        DriveState::Fault | DriveState::FaultReactionActive => {
+            Err(format!("statusword 0x{sw:04X}: in fault (error code at 0x603F); clear the cause, the arm resets it"))
+        }
+        DriveState::OperationEnabled => {
+            Err(format!("statusword 0x{sw:04X}: already operation enabled: is another master driving it?"))
+        }
+        state => Ok(format!("CiA 402, profile velocity supported, statusword 0x{sw:04X} ({})", state.name())),
+    }
+}
+
+/// Each other vehicle's motors: its board's heartbeat heard in a state the gateway could
+/// enable, or each of its drives read as the robot's are.
+pub(super) async fn check_vehicle_motors(
+    rig: &Rig,
+    link: &mut CanLink,
+    heard: &Heard,
+    endpoint: &str,
+    report: &mut CheckReport,
+) {
+    let mut others = 0;
+    for v in &rig.vehicles {
+        match v.motors {
+            VehicleMotors::Board(node) => {
+                let subject = format!("vehicles: {}, {endpoint} node {}", v.name, node.get());
+                match heard.boards[usize::from(node.get())] {
+                    (0, _) => report.fail(
+                        VEHICLE_MOTORS,
+                        subject,
+                        format!("no heartbeat in {} ms (powered? vehicles.node? bitrate?)", LISTEN.as_millis()),
+                    ),
+                    (_, Some(state @ (BoardState::Fault | BoardState::EStop | BoardState::Enabled))) => report.fail(
+                        VEHICLE_MOTORS,
+                        subject,
+                        format!("its board is {state:?}: clear it (or the gateway driving it) before arming"),
+                    ),
+                    (n, state) => report.pass(
+                        VEHICLE_MOTORS,
+                        subject,
+                        format!(
+                            "{n} heartbeats in {} ms, {:?}",
+                            LISTEN.as_millis(),
+                            state.unwrap_or(BoardState::Disabled)
+                        ),
+                    ),
+                }
+            }
+            VehicleMotors::Drives { left, right } => {
+                let Motors::Cia402(robot) = rig.motors else { continue };
+                let settings = Cia402Settings { left, right, ..robot };
+                for node in [left, right] {
+                    let subject = format!("vehicles: {}, {endpoint} drive {}", v.name, node.get());
+                    match drive_verdict(link, &settings, node, &mut others).await {
+                        Ok(detail) => report.pass(VEHICLE_MOTORS, subject, detail),
+                        Err(why) => report.fail(VEHICLE_MOTORS, subject, why),
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -292,6 +354,8 @@ pub(super) struct Heard {
     bus_off: bool,
     /// An SLCAN adapter's flags: (bus-off, error-passive).
     adapter: Option<(bool, bool)>,
+    /// Every other board's heartbeats and last state, by node id (the fleet's vehicles').
+    boards: [(u32, Option<BoardState>); 16],
 }
 
 pub(super) async fn listen(link: &mut CanLink, node: NodeId, poll_status: bool) -> Result<Heard, CanError> {
@@ -312,6 +376,14 @@ pub(super) async fn listen(link: &mut CanLink, node: NodeId, poll_status: bool) 
                 Ok(MotorMessage::Status { node: n, state, faults, .. }) if n == node => {
                     heard.state = Some(state);
                     heard.faults = faults;
+                }
+                Ok(MotorMessage::Heartbeat { node: n, state }) => {
+                    let board = &mut heard.boards[usize::from(n.get())];
+                    board.0 += 1;
+                    board.1 = Some(state);
+                    if !heard.other_nodes.contains(&n.get()) {
+                        heard.other_nodes.push(n.get());
+                    }
                 }
                 Ok(MotorMessage::Velocity { .. }) => heard.foreign_commands += 1,
                 Ok(MotorMessage::GatewayHeartbeat { .. }) => heard.gateway_heartbeats += 1,
