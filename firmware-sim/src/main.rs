@@ -128,15 +128,7 @@ fn run() -> Result<()> {
         let mut interrupt = signal(SignalKind::interrupt())?;
         let mut term = signal(SignalKind::terminate())?;
         let handle = rig::start(config).await?;
-        println!("psd: {}", handle.psd_path.display());
-        if let Some(can) = &handle.can_path {
-            println!("can: slcan {}", can.display());
-        }
-        if handle.vehicles.len() > 1 {
-            for v in &handle.vehicles {
-                println!("vehicle {}: LEDs {} and {}, {}", v.name, v.front_led, v.rear_led, v.motors.describe());
-            }
-        }
+        announce(&handle);
         let (wand_tx, mut wand_rx) = tokio::sync::mpsc::channel::<Option<flowgate_sim::Point>>(4);
         if let Some(led) = args.wand {
             handle.place_wand(led, None);
@@ -172,6 +164,19 @@ fn run() -> Result<()> {
         }
         Ok(())
     })
+}
+
+/// The endpoints, and a fleet's wiring: what a host opens and addresses.
+fn announce(handle: &rig::RigHandle) {
+    println!("psd: {}", handle.psd_path.display());
+    if let Some(can) = &handle.can_path {
+        println!("can: slcan {}", can.display());
+    }
+    if handle.vehicles.len() > 1 {
+        for v in &handle.vehicles {
+            println!("vehicle {}: LEDs {} and {}, {}", v.name, v.front_led, v.rear_led, v.motors.describe());
+        }
+    }
 }
 
 /// A wand line: `X Y` in metres, or `off`.

@@ -11,15 +11,14 @@ use common::*;
 use flowgate_sim::rig::RigConfig;
 use std::process::Command;
 
-#[tokio::test]
-async fn python_can_slcan_drives_the_board() {
-    let rig = rig(RigConfig::new(scenario("e1-standing-obstacle.toml"))).await;
+/// The peer on the rig's SLCAN pty drives the board at `node` through its steps: heard,
+/// enabled, moving, stopped by its command timeout.
+async fn drive_board(rig: &flowgate_sim::rig::RigHandle, node: u8) {
     let can_path = rig.can_path.clone().expect("slcan pty");
-    let python = python::python();
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let script = python::peer("slcan_python");
-    let dbc = dir.join("../protocol/motor.dbc");
-    let out = tokio::task::spawn_blocking(move || Command::new(python).arg(script).arg(can_path).arg(dbc).output())
+    let (python, script) = (python::python(), python::peer("slcan_python"));
+    let dbc = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../protocol/motor.dbc");
+    let run = move || Command::new(python).arg(script).arg(can_path).arg(dbc).arg(node.to_string()).output();
+    let out = tokio::task::spawn_blocking(run)
         .await
         .unwrap()
         .expect("run python (scripts/test sets FLOWGATE_PYTHON to a venv with python-can and cantools)");
@@ -29,6 +28,12 @@ async fn python_can_slcan_drives_the_board() {
     for step in ["heartbeat", "enabled", "moving", "timeout-stop"] {
         assert!(stdout.contains(&format!("ok {step}")), "missing step {step}:\n{stdout}\n{stderr}");
     }
+}
+
+#[tokio::test]
+async fn python_can_slcan_drives_the_board() {
+    let rig = rig(RigConfig::new(scenario("e1-standing-obstacle.toml"))).await;
+    drive_board(&rig, 1).await;
     // The world moved: the wheels turned while commanded.
     let truth = rig.stop().await;
     assert!(truth.summary.path_length > 0.005, "{:?}", truth.summary);
@@ -49,21 +54,7 @@ async fn python_can_drives_one_vehicle_of_a_fleet() {
     assert_eq!((0..4).map(node_of).collect::<Vec<_>>(), [1, 2, 3, 4]);
     assert_eq!((wired[2].front_led, wired[2].rear_led), (5, 6));
     let rig = rig(config).await;
-    let can_path = rig.can_path.clone().expect("slcan pty");
-    let python = python::python();
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let (script, dbc) = (python::peer("slcan_python"), dir.join("../protocol/motor.dbc"));
-    let out =
-        tokio::task::spawn_blocking(move || Command::new(python).arg(script).arg(can_path).arg(dbc).arg("3").output())
-            .await
-            .unwrap()
-            .expect("run python (scripts/test sets FLOWGATE_PYTHON to a venv with python-can and cantools)");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "python-can client failed:\n{stdout}\n{stderr}");
-    for step in ["heartbeat", "enabled", "moving", "timeout-stop"] {
-        assert!(stdout.contains(&format!("ok {step}")), "missing step {step}:\n{stdout}\n{stderr}");
-    }
+    drive_board(&rig, 3).await;
     let truth = rig.stop().await;
     let vehicles = &truth.summary.vehicles;
     assert_eq!(vehicles.iter().map(|v| v.name.as_str()).collect::<Vec<_>>(), names);
