@@ -152,14 +152,14 @@ impl RigConfig {
             };
             let leds = leds.filter(|&(_, rear, _)| rear <= crate::psd_controller::MAX_LEDS).ok_or_else(|| {
                 RigError::Unplayed(format!(
-                    "vehicle {name}: its LEDs would follow LED {}, past the {} the simulated controller drives",
-                    crate::psd_controller::MAX_LEDS,
+                    "vehicle {name}: its LEDs would be past LED {}, the last the simulated controller drives",
                     crate::psd_controller::MAX_LEDS
                 ))
             })?;
             let motors = self.motor_kind().for_vehicle(k).ok_or_else(|| {
                 RigError::Unplayed(format!(
-                    "vehicle {name}: its motors would follow {} past the protocol's node ids",
+                    "vehicle {name}: counting on from the robot's {}, its motors would be past the protocol's \
+                     node ids (boards 1-15, drives 1-127)",
                     self.motor_kind().describe()
                 ))
             })?;
