@@ -6,7 +6,7 @@ use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN}
 
 use super::safety::RobotMotion;
 use super::timing::CycleRecord;
-use super::LastEstimate;
+use super::vehicle::LastEstimate;
 use super::{Core, Notice, Output, StageClock, State, StopReason};
 use crate::control::{StepOutput, StepStatus, Supervision};
 use crate::planner::PlannerError;
@@ -44,7 +44,7 @@ impl<K: StageClock> Core<K> {
         if d.started {
             self.state_changed(now);
         }
-        self.last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
+        self.robot.last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
         self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
         let asked = d.step.map_or([0.0; 2], |out| [out.asked.left, out.asked.right]);
         let (pulses, wheels) = match d.step {
@@ -77,18 +77,18 @@ impl<K: StageClock> Core<K> {
         let period = self.rig.sample_period.as_secs_f64();
         let wheel_base = self.rig.control.drive.wheel_base;
         let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
-        let motors_ready = self.motors.ready();
-        let ready = self.mission.ready_to_start() && motors_ready;
+        let motors_ready = self.robot.motors.ready();
+        let ready = self.robot.mission.ready_to_start() && motors_ready;
         // The tracker's estimate borrows it: decide inside, act on the decision after.
         let tracked = self.tracker.estimate(t, period, wheel_base).filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
         let track_ns = self.clock.now_ns().saturating_sub(track_start);
-        let started = ready && self.safety.state() == State::Armed;
+        let started = ready && self.robot.safety.state() == State::Armed;
         if started {
-            self.safety.ready(t);
-            self.control.start(t);
+            self.robot.safety.ready(t);
+            self.robot.control.start(t);
         }
         let plan_start = self.clock.now_ns();
-        let step = self.safety.state().may_move().then(|| self.control.step(t, &tracked.estimate));
+        let step = self.robot.safety.state().may_move().then(|| self.robot.control.step(t, &tracked.estimate));
         let (pose, delay, wheels) = (tracked.estimate.pose(), tracked.estimate.delay, tracked.estimate.wheels);
         Some(Decision { pose, delay, wheels, clearance: tracked.clearance, step, started, track_ns, plan_start })
     }
@@ -135,7 +135,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
             StepStatus::GoalBlocked { index } => {
-                let wait = self.control.config().goal_wait;
+                let wait = self.robot.control.config().goal_wait;
                 let led = self.obstacle_led(index);
                 self.notice(now, Notice::GoalBlocked { led, wait_s: wait });
                 self.stop(now, StopReason::GoalBlocked);
@@ -164,7 +164,7 @@ impl<K: StageClock> Core<K> {
     /// cycle's estimate: standing (under [`RobotMotion::STANDING_SPEED`]), driving towards it
     /// faster than that, or otherwise driving (turning, or away from it).
     fn robot_motion_towards(&self, now: HostTime, index: usize) -> RobotMotion {
-        let Some(e) = self.last_estimate else { return RobotMotion::Standing };
+        let Some(e) = self.robot.last_estimate else { return RobotMotion::Standing };
         let speed = (e.wheels[0] + e.wheels[1]) / 2.0;
         if speed.abs() < RobotMotion::STANDING_SPEED {
             return RobotMotion::Standing;
@@ -202,26 +202,26 @@ impl<K: StageClock> Core<K> {
             frame,
             t_ctrl_us: end.0,
             rx_ns: now.as_nanos(),
-            period_ns: self.run.last_command().map_or(0, |lc| now.since(lc).as_nanos() as u64),
+            period_ns: self.robot.run.last_command().map_or(0, |lc| now.since(lc).as_nanos() as u64),
             delay_s: delay,
             state: self.state(),
             pulses,
             x: at.re,
             y: at.im,
-            goal_distance: (self.control.config().goal - at).norm(),
+            goal_distance: (self.robot.control.config().goal - at).norm(),
             ..CycleRecord::default()
         }
     }
 
     /// A goal is reached: on to the next in the queue, or stop.
     fn goal_reached(&mut self, now: HostTime) {
-        match self.mission.next_goal() {
+        match self.robot.mission.next_goal() {
             Some(next) => {
                 self.out.push(Output::Notice { at: now, notice: Notice::NextGoal { position: next.position } });
-                self.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
+                self.robot.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
             }
             None => {
-                self.mission.set_start_requested(false);
+                self.robot.mission.set_start_requested(false);
                 self.stop(now, StopReason::GoalReached);
             }
         }
@@ -245,7 +245,7 @@ impl<K: StageClock> Core<K> {
         let latest = now + self.rig.sample_period;
         let robot = [self.rig.robot_front, self.rig.robot_rear];
         if self.frame.discard_future(clock, latest, &self.rig.schedule, robot, &mut self.counters) {
-            self.pose_watch.stamped_in_future(now);
+            self.robot.pose_watch.stamped_in_future(now);
         }
         self.observe_robot(now, clock);
         self.observe_obstacles(now, clock);
@@ -259,7 +259,7 @@ impl<K: StageClock> Core<K> {
             // Seen but weak (occluded), as against not come at all (lost with its frame).
             let weak = |led| self.frame.received(led) && self.frame.usable(led).is_none();
             let weak = weak(front) || weak(rear);
-            self.pose_watch.seen_weak(weak);
+            self.robot.pose_watch.seen_weak(weak);
             return;
         };
         let cal = &self.rig.calibration;
@@ -271,12 +271,12 @@ impl<K: StageClock> Core<K> {
         let at = clock.to_host(f.at.midpoint(r.at)).secs();
         match self.tracker.plausible(at, fp, rp, self.rig.pose_reach()) {
             Ok(()) => {
-                self.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
+                self.robot.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
                 self.tracker.observe_robot(at, fp, rp);
             }
             Err(e) => {
                 self.counters.poses_implausible += 1;
-                if self.pose_watch.implausible(e) {
+                if self.robot.pose_watch.implausible(e) {
                     self.notice(now, Notice::PoseDiscarded { why: e });
                 }
             }
@@ -317,11 +317,11 @@ impl<K: StageClock> Core<K> {
 
     /// The cycle's command to the motors, with its record.
     fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
-        if !self.motors.takes_commands() {
+        if !self.robot.motors.takes_commands() {
             return;
         }
         let encode_start = self.clock.now_ns();
-        let frame = self.motors.command(pulses, &mut self.out.can());
+        let frame = self.robot.motors.command(pulses, &mut self.out.can());
         record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
         let Some(frame) = frame else {
             // Pulse rates come from the drive model clamped to the wheel limit, which the
@@ -329,11 +329,11 @@ impl<K: StageClock> Core<K> {
             self.stop(now, StopReason::PlannerInvalid);
             return;
         };
-        self.run.commanded(now);
+        self.robot.run.commanded(now);
         self.counters.cycles += 1;
         self.progress.t = now.secs();
         self.progress.cycles = self.counters.cycles;
-        self.progress.goal_distance = (self.control.config().goal - position).norm();
+        self.progress.goal_distance = (self.robot.control.config().goal - position).norm();
         self.out.push(Output::Command { frame, record });
     }
 
@@ -346,7 +346,7 @@ impl<K: StageClock> Core<K> {
     /// scratch, rebuilt every cycle), so a replay without rehearsals is the run's, byte for
     /// byte (`a_rehearsal_changes_nothing`). Only in Running, where cycles plan.
     pub fn rehearse(&mut self, now: HostTime) {
-        if !self.safety.state().may_move() {
+        if !self.robot.safety.state().may_move() {
             return;
         }
         let led = self.rig.robot_front;
@@ -359,8 +359,8 @@ impl<K: StageClock> Core<K> {
         std::hint::black_box(self.rig.calibration.to_floor(0.0, 0.0));
         let (period, wheel_base) = (self.rig.sample_period.as_secs_f64(), self.rig.control.drive.wheel_base);
         if let Some(tracked) = self.tracker.estimate(now.secs(), period, wheel_base) {
-            self.control.rehearse(&tracked.estimate);
+            self.robot.control.rehearse(&tracked.estimate);
         }
-        self.motors.rehearse();
+        self.robot.motors.rehearse();
     }
 }

@@ -63,9 +63,8 @@
 use std::time::Duration;
 
 use crate::config::Rig;
-use crate::control::ControlStep;
 use crate::time::HostTime;
-use crate::track::{Pose, Tracker};
+use crate::track::Tracker;
 
 mod budget;
 mod can_link;
@@ -86,6 +85,7 @@ pub mod safety;
 pub mod scene;
 pub mod timers;
 pub mod timing;
+mod vehicle;
 mod watch;
 
 pub use counters::{Counters, Progress};
@@ -97,13 +97,13 @@ pub use safety::{RobotMotion, State, StopReason};
 
 use can_link::CanLinkHealth;
 use frame::FrameAssembler;
-use mission::Mission;
-use motors::{MotorCounters, MotorMaster};
+use motors::MotorCounters;
 use output::Outbox;
 use psd_link::PsdLinkHealth;
 use psd_session::PsdSession;
 use safety::{Action, Safety};
-use watch::{PoseWatch, RunWatch, SampleWatch, StampWatch};
+use vehicle::DrivenVehicle;
+use watch::{SampleWatch, StampWatch};
 
 /// How often the gateway sends its heartbeat.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
@@ -174,34 +174,19 @@ pub struct Core<K: StageClock> {
     psd: PsdSession,
     frame: FrameAssembler,
     tracker: Tracker,
-    control: ControlStep,
-    safety: Safety,
-    motors: MotorMaster,
+    /// The robot: its safety state, control step, motors and goals.
+    robot: DrivenVehicle,
     motor_counters: MotorCounters,
     /// The two links' health.
     psd_link: PsdLinkHealth,
     can_link: CanLinkHealth,
     /// What the watchdogs and the core's own timers count from.
     samples: SampleWatch,
-    pose_watch: PoseWatch,
     stamps: StampWatch,
-    run: RunWatch,
-    mission: Mission,
     stages: StageTimes,
     counters: Counters,
     progress: Progress,
-    /// The last cycle's pose estimate and sensing delay (for [`Core::scene`]).
-    last_estimate: Option<LastEstimate>,
     shutdown: bool,
-}
-
-/// What the last cycle estimated of the robot, for [`Core::scene`].
-#[derive(Debug, Clone, Copy)]
-struct LastEstimate {
-    pose: Pose,
-    delay: f64,
-    /// The wheels' rim speeds, m/s: left, right.
-    wheels: [f64; 2],
 }
 
 impl<K: StageClock> Core<K> {
@@ -212,22 +197,16 @@ impl<K: StageClock> Core<K> {
             psd: PsdSession::new(rig.schedule, rig.psd_counts),
             frame: FrameAssembler::new(budget),
             tracker: Tracker::new(rig.tracking, rig.led_geometry, &radii),
-            control: ControlStep::new(rig.control.clone()),
-            safety: Safety::default(),
-            motors: MotorMaster::new(&rig),
+            robot: DrivenVehicle::robot(&rig),
             motor_counters: MotorCounters::default(),
             out: Outbox::new(),
             psd_link: PsdLinkHealth::new(budget),
             can_link: CanLinkHealth::new(),
             samples: SampleWatch::default(),
-            pose_watch: PoseWatch::default(),
             stamps: StampWatch::default(),
-            run: RunWatch::default(),
-            mission: Mission::new(),
             stages: StageTimes::default(),
             counters: Counters::default(),
             progress: Progress::default(),
-            last_estimate: None,
             shutdown: false,
             clock,
             rig,
@@ -238,10 +217,10 @@ impl<K: StageClock> Core<K> {
         &self.rig
     }
     pub fn state(&self) -> State {
-        self.safety.state()
+        self.robot.state()
     }
     pub fn safety(&self) -> &Safety {
-        &self.safety
+        &self.robot.safety
     }
     pub fn counters(&self) -> Counters {
         self.counters.with_motors(self.motor_counters)
@@ -265,7 +244,7 @@ impl<K: StageClock> Core<K> {
     /// What the core holds in its queues, in elements of capacity: the output queue, the
     /// budgets' windows, the goals. A soak asserts it stops growing once warm.
     pub fn footprint(&self) -> usize {
-        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.mission.capacity()
+        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.robot.mission.capacity()
     }
 
     /// The PSD receive buffer's capacity, bytes: it rises and falls as frames are taken
@@ -299,7 +278,7 @@ impl<K: StageClock> Core<K> {
             Input::CanFailed => self.can_failed(now),
             Input::CanReopened => self.can_reopened(),
             Input::Request(request) => return Some(self.answer(now, request)),
-            Input::ArmAtStart => self.mission.arm_at_start(),
+            Input::ArmAtStart => self.robot.mission.arm_at_start(),
             Input::Shutdown => self.shutdown(now),
             Input::Tick => self.tick(now),
         }
@@ -315,7 +294,7 @@ impl<K: StageClock> Core<K> {
     }
 
     fn stop(&mut self, now: HostTime, reason: StopReason) {
-        let action = self.safety.stop(now.secs(), reason);
+        let action = self.robot.safety.stop(now.secs(), reason);
         self.act(now, action);
     }
 
@@ -334,40 +313,18 @@ impl<K: StageClock> Core<K> {
 
     /// Carry out what a transition asks of the motor side.
     fn act(&mut self, now: HostTime, action: Action) {
-        match action {
-            Action::None => {}
-            Action::EnableBoard => {
-                self.motors.enable(now, &mut self.out.can());
-                if self.motors.time_out_without_commands() {
-                    self.run.commanded(now);
-                }
-            }
-            Action::OrderlyStop => self.run.stopping(Some(now)),
-            Action::EmergencyStop => {
-                let reason = if self.state() == State::Fault(StopReason::OperatorEStop) {
-                    flowgate_protocol::motor::EStopReason::Operator
-                } else {
-                    flowgate_protocol::motor::EStopReason::GatewayFault
-                };
-                self.motors.emergency_stop(reason, &mut self.out.can());
-                self.run.stopping(None);
-                self.tracker.forget_pose();
-                self.tracker.halted(now.secs()); // the boards stop at once: dead reckoning starts from rest
-                self.notice(now, Notice::EmergencyStop { state: self.state() });
-            }
+        if self.robot.act(now, action, &mut self.out.can()) {
+            self.tracker.forget_pose();
+            self.tracker.halted(now.secs()); // the boards stop at once: dead reckoning starts from rest
+            self.notice(now, Notice::EmergencyStop { state: self.state() });
         }
         self.state_changed(now);
     }
 
     /// An orderly stop ends once the motors are at rest, or its grace has passed.
     fn check_at_rest(&mut self, now: HostTime) {
-        if let (State::Stopping(_), Some(since)) = (self.state(), self.run.stopping_since()) {
-            if self.motors.at_rest() || now >= since + STOP_GRACE {
-                self.safety.at_rest(now.secs());
-                self.run.stopping(None);
-                self.motors.disable(self.shutdown, &mut self.out.can());
-                self.state_changed(now);
-            }
+        if self.robot.settle(now, self.shutdown, &mut self.out.can()) {
+            self.state_changed(now);
         }
     }
 

@@ -205,7 +205,7 @@ impl<K: StageClock> Core<K> {
     /// is no sample: the garbage since the last one still names a stop that follows.
     pub(super) fn samples_watched_from(&mut self, now: HostTime) {
         let quiet = self.samples.count_from(now, self.rig.sample_period);
-        self.pose_watch.line_quiet(quiet);
+        self.robot.pose_watch.line_quiet(quiet);
     }
 
     /// Frames are no longer judged against the last one (a new stream, a reset); it is
@@ -352,7 +352,7 @@ impl<K: StageClock> Core<K> {
         let firmware = self.psd.info().map(|info| info.firmware);
         self.notice(now, Notice::Streaming { firmware });
         self.out.push(Output::Streaming);
-        if self.mission.take_arm_at_start() {
+        if self.robot.mission.take_arm_at_start() {
             let result = match self.rig.goal {
                 Some(goal) => self.arm_and_start(now, goal),
                 None => Err(Refusal::NoGoal),

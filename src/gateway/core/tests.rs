@@ -500,7 +500,7 @@ fn a_pose_lost_in_garbage_is_named_garbled() {
         reason.to_string().starts_with("garbled serial data and no robot pose through it (11 bad frames"),
         "{reason}"
     );
-    c.pose_watch.seen_weak(true);
+    c.robot.pose_watch.seen_weak(true);
     assert_eq!(c.pose_lost_cause(ms(200)), StopReason::PoseLost);
 }
 
