@@ -5,10 +5,14 @@
 use crate::Point;
 
 use crate::geometry::Length;
-use crate::planner::{ObstacleEstimate, MAX_OBSTACLES};
+use crate::planner::ObstacleEstimate;
 
 mod dead_reckoning;
+mod obstacles;
+mod pose;
 pub use dead_reckoning::{ramp, DeadReckoning};
+pub use obstacles::{ObstacleTracks, Predicted};
+pub use pose::{PoseAt, PoseTrack};
 
 /// The robot's pose: centre and heading (rad from +x, counter-clockwise).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -290,35 +294,14 @@ impl ConstantVelocityKf {
     }
 }
 
-/// Everything tracking knows: the robot's last measured pose, a Kalman filter per obstacle,
-/// and the robot's recent commands for dead reckoning. Measurements go in with their time
-/// of validity; [`Tracker::estimate`] gives the state at the moment a command will act.
-/// Used by the gateway core and by the offline runner alike. Allocation-free after
-/// construction.
+/// Everything tracking knows of the robot and the obstacles: the robot's [`PoseTrack`] and
+/// the [`ObstacleTracks`]. Measurements go in with their time of validity;
+/// [`Tracker::estimate`] gives the state at the moment a command will act. Used by the
+/// gateway core and by the offline runner alike. Allocation-free after construction.
 #[derive(Debug, Clone)]
 pub struct Tracker {
-    settings: TrackingSettings,
-    geometry: LedGeometry,
-    radii: [f64; MAX_OBSTACLES],
-    count: usize,
-    filters: [Option<ConstantVelocityKf>; MAX_OBSTACLES],
-    /// Each obstacle's last measured position (planned on when prediction is off).
-    measured: [Point; MAX_OBSTACLES],
-    /// When the last measured pose was valid, its centre, and its heading as a unit vector.
-    pose: Option<(f64, Point, Point)>,
-    /// The last plausible pose, kept when the pose is forgotten at a stop (so that a stale
-    /// one is never driven on): every pose is checked against it.
-    reference: Option<(f64, Point, Point)>,
-    /// Since when the wheels have been at rest and commanded to stay so (None: they may be
-    /// moving).
-    still_since: Option<f64>,
-    /// A pose refused while the wheels are at rest, and where it stood since: taken once it
-    /// has stood still for [`SETTLE`] (the robot carried to a new place by hand).
-    settling: Option<(f64, Point, Point)>,
-    dead_reckoning: DeadReckoning,
-    estimates: [ObstacleEstimate; MAX_OBSTACLES],
-    /// The same obstacles, always predicted to the estimate's time.
-    predicted: [ObstacleEstimate; MAX_OBSTACLES],
+    pose: PoseTrack,
+    obstacles: ObstacleTracks,
 }
 
 /// The state a command will act on, with the time its pose was measured.
@@ -332,259 +315,134 @@ pub struct Tracked<'a> {
 }
 
 impl Tracker {
-    /// Each tracked obstacle as the planner sees it at `t` (predicted, when prediction is
-    /// on), with its position covariance; reads only, for recordings and displays.
-    pub fn obstacles_at(&self, t: f64) -> impl Iterator<Item = (ObstacleEstimate, [f64; 3])> + '_ {
-        let predict = self.settings.predict_obstacles;
-        self.filters[..self.count].iter().enumerate().filter_map(move |(k, kf)| {
-            let kf = kf.as_ref()?;
-            let at = if predict { t } else { kf.time() };
-            if let Some(region) = self.settings.occluded_region(kf, self.radii[k], t) {
-                return Some((region, kf.position_covariance(kf.time())));
-            }
-            let estimate = kf.estimate(self.radii[k], at);
-            let center = if predict { estimate.center } else { self.measured[k] };
-            Some((ObstacleEstimate { center, ..estimate }, kf.position_covariance(at)))
-        })
-    }
-
-    /// A tracker for obstacles of these radii (at most [`MAX_OBSTACLES`]; more are ignored,
-    /// which the config refuses at load).
+    /// A tracker for the robot's LEDs and obstacles of these radii (at most
+    /// [`MAX_OBSTACLES`](crate::planner::MAX_OBSTACLES); more are ignored, which the config
+    /// refuses at load).
     pub fn new(settings: TrackingSettings, geometry: LedGeometry, radii: &[f64]) -> Self {
-        let count = radii.len().min(MAX_OBSTACLES);
-        let mut r = [0.0; MAX_OBSTACLES];
-        r[..count].copy_from_slice(&radii[..count]);
-        Self {
-            settings,
-            geometry,
-            radii: r,
-            count,
-            filters: [None; MAX_OBSTACLES],
-            measured: [Point::default(); MAX_OBSTACLES],
-            pose: None,
-            reference: None,
-            still_since: Some(f64::NEG_INFINITY),
-            settling: None,
-            dead_reckoning: DeadReckoning::with_capacity(64, settings.wheel_accel),
-            estimates: [ObstacleEstimate::exact(Point::default(), Point::default(), 0.0); MAX_OBSTACLES],
-            predicted: [ObstacleEstimate::exact(Point::default(), Point::default(), 0.0); MAX_OBSTACLES],
-        }
+        Self { pose: PoseTrack::new(settings, geometry), obstacles: ObstacleTracks::new(settings, radii) }
     }
 
-    /// The robot's two LEDs, valid at `t_valid`. Returns whether they gave a pose (they do
-    /// unless they coincide).
+    /// The robot's pose track.
+    pub fn pose(&self) -> &PoseTrack {
+        &self.pose
+    }
+    pub fn pose_mut(&mut self) -> &mut PoseTrack {
+        &mut self.pose
+    }
+    /// The obstacles' tracks.
+    pub fn obstacles(&self) -> &ObstacleTracks {
+        &self.obstacles
+    }
+    pub fn obstacles_mut(&mut self) -> &mut ObstacleTracks {
+        &mut self.obstacles
+    }
+
+    /// Each tracked obstacle as the planner sees it at `t` ([`ObstacleTracks::at`]).
+    pub fn obstacles_at(&self, t: f64) -> impl Iterator<Item = (ObstacleEstimate, [f64; 3])> + '_ {
+        self.obstacles.at(t)
+    }
+
+    /// The robot's two LEDs, valid at `t_valid` ([`PoseTrack::observe`]).
     pub fn observe_robot(&mut self, t_valid: f64, front: Point, rear: Point) -> bool {
-        match self.geometry.locate(front, rear) {
-            Some((position, facing)) if self.pose.is_none_or(|(t, ..)| t_valid >= t) => {
-                self.pose = Some((t_valid, position, facing));
-                self.reference = self.pose;
-                self.settling = None;
-                true
-            }
-            _ => false,
-        }
+        self.pose.observe(t_valid, front, rear)
     }
 
-    /// Whether the robot's two LEDs at `t_valid` can be its pose: they sit their mounted
-    /// distance apart, and since the last plausible pose the centre moved no further than
-    /// the robot can drive and the heading turned no further than its wheels can turn it,
-    /// each within `reach.tolerance`. A CRC-valid but wrong sample (a reflection, a mixed-up
-    /// slot) fails one of the three.
-    ///
-    /// The wheels move the robot only while they are not at rest: a reflection that comes
-    /// while the robot stands (stopped, faulted, armed) is refused however long it lasts,
-    /// where against the time since the last pose alone it would soon be in reach. The last
-    /// plausible pose is kept when the pose is forgotten at a stop, so the pose seen again is
-    /// checked too. A pose refused while the wheels are at rest that stands still for
-    /// [`SETTLE`] is taken (the robot carried to a new place by hand).
+    /// Whether the robot's two LEDs at `t_valid` can be its pose ([`PoseTrack::plausible`]).
     pub fn plausible(&mut self, t_valid: f64, front: Point, rear: Point, reach: PoseReach) -> Result<(), Implausible> {
-        let spacing = (front - rear).length();
-        let mounted = self.geometry.front + self.geometry.rear;
-        let off = (spacing - mounted).abs();
-        if off.is_nan() || off > reach.tolerance {
-            return Err(Implausible::LedSpacing { measured: spacing, mounted });
-        }
-        let (Some((position, facing)), Some(last)) = (self.geometry.locate(front, rear), self.reference) else {
-            return Ok(());
-        };
-        let moving = match self.still_since {
-            Some(still) => (still.min(t_valid) - last.0).max(0.0),
-            None => (t_valid - last.0).abs(),
-        };
-        let check = Self::within(last, position, facing, moving, reach, mounted);
-        if check.is_err() && self.still_since.is_some() && self.settled(t_valid, position, facing, reach, mounted) {
-            return Ok(());
-        }
-        check
+        self.pose.plausible(t_valid, front, rear, reach)
     }
 
-    /// Whether a pose at `position`, `facing` is within what the wheels can do in `moving`
-    /// seconds from `last`.
-    fn within(
-        (_, last, last_facing): (f64, Point, Point),
-        position: Point,
-        facing: Point,
-        moving: f64,
-        reach: PoseReach,
-        mounted: f64,
-    ) -> Result<(), Implausible> {
-        let moved = (position - last).length();
-        let can_move = reach.speed * moving + reach.tolerance;
-        if moved.is_nan() || moved > can_move {
-            return Err(Implausible::Jump { moved, reach: can_move });
-        }
-        // Each LED off by the tolerance across the axis, opposite ways, turns it this far.
-        let can_turn = reach.turn_rate * moving + (2.0 * reach.tolerance).atan2(mounted);
-        let turned = (facing * last_facing.conj()).arg().abs();
-        if turned.is_nan() || turned > can_turn {
-            return Err(Implausible::Turn { turned, reach: can_turn });
-        }
-        Ok(())
-    }
-
-    /// A refused pose at `t`: whether it has stood within the tolerance of where it stands
-    /// now for [`SETTLE`].
-    fn settled(&mut self, t: f64, position: Point, facing: Point, reach: PoseReach, mounted: f64) -> bool {
-        match self.settling {
-            Some(since) if Self::within(since, position, facing, 0.0, reach, mounted).is_ok() => t - since.0 >= SETTLE,
-            _ => {
-                self.settling = Some((t, position, facing));
-                false
-            }
-        }
-    }
-
-    /// Obstacle `k` seen at `p`, valid at `t_valid`. Returns whether its filter took it
-    /// (an older measurement than the filter's last, or a non-finite one, is refused).
+    /// Obstacle `k` seen at `p`, valid at `t_valid` ([`ObstacleTracks::observe`]).
     pub fn observe_obstacle(&mut self, k: usize, t_valid: f64, p: Point) -> bool {
-        if k >= self.count {
-            return false;
-        }
-        let taken = match &mut self.filters[k] {
-            Some(kf) => kf.update(t_valid, p),
-            None if p.re.is_finite() && p.im.is_finite() => {
-                self.filters[k] = Some(ConstantVelocityKf::new(self.settings.kalman, t_valid, p));
-                true
-            }
-            None => false,
-        };
-        if taken {
-            self.measured[k] = p;
-        }
-        taken
+        self.obstacles.observe(k, t_valid, p)
     }
 
     /// Where obstacle `k` was last measured (None: never, or its track was dropped).
     pub fn last_measured(&self, k: usize) -> Option<Point> {
-        self.filters.get(k)?.as_ref().map(|_| self.measured[k])
+        self.obstacles.last_measured(k)
     }
 
     /// When obstacle `k` was last measured, s (None: never, or its track was dropped).
     pub fn obstacle_time(&self, k: usize) -> Option<f64> {
-        self.filters.get(k).copied().flatten().map(|kf| kf.time())
+        self.obstacles.time(k)
     }
 
-    /// The obstacles with a track, in the order [`Tracker::estimate`] lists them: the
-    /// `n`th estimate is obstacle `tracked().nth(n)`.
+    /// The obstacles with a track, in the order [`Tracker::estimate`] lists them.
     pub fn tracked(&self) -> impl Iterator<Item = usize> + '_ {
-        (0..self.count).filter(|&k| self.filters[k].is_some())
+        self.obstacles.tracked()
     }
 
     /// Where obstacle `k`'s filter puts it at `t` (None: no track).
     pub fn obstacle_prediction(&self, k: usize, t: f64) -> Option<Point> {
-        self.filters.get(k).copied().flatten().map(|kf| kf.predict(t).0)
+        self.obstacles.prediction(k, t)
     }
 
     /// Whether obstacle `k` is tracked but unseen long enough to be planned on as a region.
     pub fn obstacle_occluded(&self, k: usize, t: f64) -> bool {
-        self.obstacle_time(k).is_some_and(|seen| t - seen > self.settings.occluded_after)
+        self.obstacles.occluded(k, t)
     }
 
-    /// Drop obstacle `k`'s track: it left the view, or an operator's reset forgot it. It is
-    /// absent until seen again, when a new track starts from its first sample.
+    /// Drop obstacle `k`'s track ([`ObstacleTracks::drop_track`]).
     pub fn drop_obstacle(&mut self, k: usize) {
-        if let Some(f) = self.filters.get_mut(k) {
-            *f = None;
-        }
+        self.obstacles.drop_track(k);
     }
 
     /// How many obstacles it tracks (seen or not).
     pub fn obstacle_count(&self) -> usize {
-        self.count
+        self.obstacles.count()
     }
 
-    /// When the last pose was valid, s.
+    /// When the robot's last pose was valid, s.
     pub fn pose_time(&self) -> Option<f64> {
-        self.pose.map(|(t, ..)| t)
+        self.pose.time()
     }
 
-    /// Forget the pose (after a stop, so a stale one is never driven on).
+    /// Forget the robot's pose (after a stop, so a stale one is never driven on).
     pub fn forget_pose(&mut self) {
-        self.pose = None;
+        self.pose.forget();
     }
 
-    /// The wheels were stopped at once (an emergency stop): they are at rest, whatever
-    /// was commanded before.
+    /// The robot's wheels were stopped at once (an emergency stop).
     pub fn halted(&mut self, t: f64) {
-        self.dead_reckoning.halt();
-        self.still_since = Some(t);
+        self.pose.halted(t);
     }
 
     /// The robot was commanded these wheel speeds at `t` (for dead reckoning).
     pub fn commanded(&mut self, t: f64, left: f64, right: f64) {
-        self.dead_reckoning.command(t, left, right);
-        self.still_since = if left == 0.0 && right == 0.0 {
-            self.still_since.or(Some(self.dead_reckoning.at_rest_from()))
-        } else {
-            None
-        };
+        self.pose.commanded(t, left, right);
     }
 
     /// The state at `t`, when the command will act: the pose dead-reckoned from its time of
     /// validity, the obstacles predicted by their filters, and the sensing-to-actuation delay
     /// (age of the pose plus the period the command holds). `None` before any pose.
     pub fn estimate(&mut self, t: f64, sample_time: f64, wheel_base: f64) -> Option<Tracked<'_>> {
-        let (t_valid, measured, facing) = self.pose?;
-        self.dead_reckoning.forget_before(t_valid - sample_time);
-        let (position, facing) = if self.settings.predict_robot {
-            self.dead_reckoning.predict(measured, facing, t_valid, t, wheel_base)
-        } else {
-            (measured, facing)
-        };
-        let mut n = 0;
-        let mut clearance: Option<f64> = None;
-        let predict = self.settings.predict_obstacles;
-        for k in 0..self.count {
-            let Some(kf) = &self.filters[k] else { continue };
-            if let Some(region) = self.settings.occluded_region(kf, self.radii[k], t) {
-                self.predicted[n] = region;
-                self.estimates[n] = region;
-            } else {
-                let now = kf.estimate(self.radii[k], t);
-                self.predicted[n] = now;
-                // Without prediction the planner takes the last measurement as it stands (the
-                // paper's E3); the supervisor always judges the predicted one.
-                // Its uncertainty is the predicted one either way: where the obstacle is now
-                // is that uncertain, whatever centre the planner takes.
-                self.estimates[n] = if predict { now } else { ObstacleEstimate { center: self.measured[k], ..now } };
-            }
-            n += 1;
-            let gap = (self.estimates[n - 1].center - position).length() - self.estimates[n - 1].radius;
-            clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
-        }
-        Some(Tracked {
-            estimate: Estimate {
-                position,
-                facing,
-                wheels: self.dead_reckoning.wheels_at(t),
-                obstacles: &self.estimates[..n],
-                predicted: &self.predicted[..n],
-                delay: t - t_valid + sample_time,
-            },
-            pose_valid_at: t_valid,
-            clearance,
-        })
+        estimate(&mut self.pose, &mut self.obstacles, t, sample_time, wheel_base)
     }
+}
+
+/// The state at `t` of the vehicle `pose` tracks among `obstacles`, when its command will
+/// act ([`Tracker::estimate`]).
+pub fn estimate<'o>(
+    pose: &mut PoseTrack,
+    obstacles: &'o mut ObstacleTracks,
+    t: f64,
+    sample_time: f64,
+    wheel_base: f64,
+) -> Option<Tracked<'o>> {
+    let at = pose.at(t, sample_time, wheel_base)?;
+    let seen = obstacles.predict(t, at.position);
+    Some(Tracked {
+        estimate: Estimate {
+            position: at.position,
+            facing: at.facing,
+            wheels: at.wheels,
+            obstacles: seen.obstacles,
+            predicted: seen.predicted,
+            delay: t - at.valid_at + sample_time,
+        },
+        pose_valid_at: at.valid_at,
+        clearance: seen.clearance,
+    })
 }
 
 /// A first-order low-pass filter on a point (cut-off `hz`; 0 passes through).

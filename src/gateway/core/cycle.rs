@@ -57,7 +57,7 @@ impl<K: StageClock> Core<K> {
         if !matches!(self.state(), State::Running | State::Armed | State::Stopping(_)) {
             return;
         }
-        self.tracker.commanded(now.secs(), wheels.0, wheels.1);
+        self.robot.pose.commanded(now.secs(), wheels.0, wheels.1);
         let record = CycleRecord {
             decode_ns,
             checks_ns,
@@ -80,7 +80,8 @@ impl<K: StageClock> Core<K> {
         let motors_ready = self.robot.motors.ready();
         let ready = self.robot.mission.ready_to_start() && motors_ready;
         // The tracker's estimate borrows it: decide inside, act on the decision after.
-        let tracked = self.tracker.estimate(t, period, wheel_base).filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
+        let tracked = crate::track::estimate(&mut self.robot.pose, &mut self.obstacles, t, period, wheel_base)
+            .filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
         let track_ns = self.clock.now_ns().saturating_sub(track_start);
         let started = ready && self.robot.safety.state() == State::Armed;
         if started {
@@ -98,7 +99,7 @@ impl<K: StageClock> Core<K> {
         let t = now.secs();
         let c = &mut self.counters;
         c.obstacle_outran_robot += u64::from(out.outrun);
-        c.obstacle_occluded_cycles += u64::from(self.tracker.tracked().any(|k| self.tracker.obstacle_occluded(k, t)));
+        c.obstacle_occluded_cycles += u64::from(self.obstacles.tracked().any(|k| self.obstacles.occluded(k, t)));
         if let Some(plan) = out.plan {
             let f = plan.flags;
             c.planner_saturated += u64::from(f.saturated);
@@ -169,7 +170,7 @@ impl<K: StageClock> Core<K> {
         if speed.abs() < RobotMotion::STANDING_SPEED {
             return RobotMotion::Standing;
         }
-        let obstacle = self.tracker.tracked().nth(index).and_then(|k| self.tracker.obstacle_prediction(k, now.secs()));
+        let obstacle = self.obstacles.tracked().nth(index).and_then(|k| self.obstacles.prediction(k, now.secs()));
         let Some(ahead) = obstacle.map(|o| o - e.pose.position).filter(|a| a.norm() > 0.0) else {
             return RobotMotion::Away;
         };
@@ -184,7 +185,7 @@ impl<K: StageClock> Core<K> {
     /// The LED of the obstacle the planner and the supervisor call `index` (they number
     /// the tracked obstacles only).
     fn obstacle_led(&self, index: usize) -> u8 {
-        self.tracker.tracked().nth(index).map_or(u8::MAX, |k| self.rig.obstacles[k].led)
+        self.obstacles.tracked().nth(index).map_or(u8::MAX, |k| self.rig.obstacles[k].led)
     }
 
     /// A cycle's record, its stage timings left at zero.
@@ -269,10 +270,10 @@ impl<K: StageClock> Core<K> {
             return;
         };
         let at = clock.to_host(f.at.midpoint(r.at)).secs();
-        match self.tracker.plausible(at, fp, rp, self.rig.pose_reach()) {
+        match self.robot.pose.plausible(at, fp, rp, self.rig.pose_reach()) {
             Ok(()) => {
                 self.robot.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
-                self.tracker.observe_robot(at, fp, rp);
+                self.robot.pose.observe(at, fp, rp);
             }
             Err(e) => {
                 self.counters.poses_implausible += 1;
@@ -289,25 +290,25 @@ impl<K: StageClock> Core<K> {
         let t = now.secs();
         let cal = self.rig.calibration;
         for (k, o) in self.rig.obstacles.iter().enumerate() {
-            let tracked = self.tracker.obstacle_time(k).is_some();
+            let tracked = self.obstacles.time(k).is_some();
             let seen = self.frame.usable(o.led).and_then(|s| {
                 let p = cal.to_floor(f64::from(s.x), f64::from(s.y))?;
                 Some((p, clock.to_host(s.at).secs()))
             });
             if let Some((p, at)) = seen {
-                if self.tracker.observe_obstacle(k, at, p) && !tracked {
+                if self.obstacles.observe(k, at, p) && !tracked {
                     self.counters.obstacles_entered_view += 1;
                     let led = o.led;
                     self.out
                         .push(Output::Notice { at: now, notice: Notice::ObstacleEntered { led, at: [p.re, p.im] } });
                 }
-            } else if self.tracker.obstacle_occluded(k, t) {
+            } else if self.obstacles.occluded(k, t) {
                 // Unseen past the pose timeout: gone out of the view if its filter carries it
                 // beyond the edge by now (it was at the edge, heading out); otherwise occluded,
                 // and avoided as a region until it is seen again or the timeout faults.
-                let beyond = self.tracker.obstacle_prediction(k, t).is_some_and(|p| !cal.in_view(p));
+                let beyond = self.obstacles.prediction(k, t).is_some_and(|p| !cal.in_view(p));
                 if beyond {
-                    self.tracker.drop_obstacle(k);
+                    self.obstacles.drop_track(k);
                     self.counters.obstacles_left_view += 1;
                     self.out.push(Output::Notice { at: now, notice: Notice::ObstacleLeft { led: o.led } });
                 }
@@ -358,7 +359,9 @@ impl<K: StageClock> Core<K> {
         }
         std::hint::black_box(self.rig.calibration.to_floor(0.0, 0.0));
         let (period, wheel_base) = (self.rig.sample_period.as_secs_f64(), self.rig.control.drive.wheel_base);
-        if let Some(tracked) = self.tracker.estimate(now.secs(), period, wheel_base) {
+        if let Some(tracked) =
+            crate::track::estimate(&mut self.robot.pose, &mut self.obstacles, now.secs(), period, wheel_base)
+        {
             self.robot.control.rehearse(&tracked.estimate);
         }
         self.robot.motors.rehearse();

@@ -47,16 +47,18 @@
 //! ```
 //!
 //! Per cycle (one PSD time-division frame, closed by its `FrameEnd`):
-//! decode -> floor coordinates (calibration) -> [`Tracker`] -> control step -> one CAN
+//! decode -> floor coordinates (calibration) -> tracks (the robot's [`PoseTrack`], the
+//! [`ObstacleTracks`]) -> control step -> one CAN
 //! velocity frame. The same core runs on the rig, in deterministic virtual time against the
 //! simulator's firmware, in replay and in the benchmarks: that is what makes a
 //! virtual-time test evidence about the rig.
 //!
 //! The core is a dispatcher over its machines, each in its own module, in the order a
 //! sample travels: [`psd_session`] (the controller's handshake, sequence and clock) and
-//! [`frame`] (one time-division frame) on the PSD link ([`psd_link`]); the [`Tracker`] and
-//! the control step (`cycle`); the [`safety`] state machine; the motors behind one type
-//! ([`motors`]: a board or CiA 402 drives) on the CAN link (`can_link`); the operator's
+//! [`frame`] (one time-division frame) on the PSD link ([`psd_link`]); the obstacles' tracks
+//! and the control step (`cycle`); the robot as one vehicle the core drives (`vehicle`: its
+//! pose track, [`safety`] state machine, control step, motors and goals), its motors behind
+//! one type ([`motors`]: a board or CiA 402 drives) on the CAN link (`can_link`); the operator's
 //! requests (`requests`); and one timer table ([`timers`]) that both gives the next
 //! deadline and fires what is due.
 
@@ -64,7 +66,9 @@ use std::time::Duration;
 
 use crate::config::Rig;
 use crate::time::HostTime;
-use crate::track::Tracker;
+use crate::track::ObstacleTracks;
+#[cfg(doc)]
+use crate::track::PoseTrack;
 
 mod budget;
 mod can_link;
@@ -173,7 +177,8 @@ pub struct Core<K: StageClock> {
     out: Outbox,
     psd: PsdSession,
     frame: FrameAssembler,
-    tracker: Tracker,
+    /// Every obstacle LED's track.
+    obstacles: ObstacleTracks,
     /// The robot: its safety state, control step, motors and goals.
     robot: DrivenVehicle,
     motor_counters: MotorCounters,
@@ -196,7 +201,7 @@ impl<K: StageClock> Core<K> {
         Self {
             psd: PsdSession::new(rig.schedule, rig.psd_counts),
             frame: FrameAssembler::new(budget),
-            tracker: Tracker::new(rig.tracking, rig.led_geometry, &radii),
+            obstacles: ObstacleTracks::new(rig.tracking, &radii),
             robot: DrivenVehicle::robot(&rig),
             motor_counters: MotorCounters::default(),
             out: Outbox::new(),
@@ -314,8 +319,6 @@ impl<K: StageClock> Core<K> {
     /// Carry out what a transition asks of the motor side.
     fn act(&mut self, now: HostTime, action: Action) {
         if self.robot.act(now, action, &mut self.out.can()) {
-            self.tracker.forget_pose();
-            self.tracker.halted(now.secs()); // the boards stop at once: dead reckoning starts from rest
             self.notice(now, Notice::EmergencyStop { state: self.state() });
         }
         self.state_changed(now);

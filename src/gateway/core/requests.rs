@@ -64,7 +64,7 @@ impl<K: StageClock> Core<K> {
             _ => return Err(Refusal::Already(state)),
         }
         let unseen =
-            self.rig.obstacles.iter().enumerate().find(|&(k, o)| o.required && self.tracker.obstacle_time(k).is_none());
+            self.rig.obstacles.iter().enumerate().find(|&(k, o)| o.required && self.obstacles.time(k).is_none());
         if let Some((index, o)) = unseen {
             return Err(Refusal::RequiredObstacleUnseen { led: o.led, index });
         }
@@ -160,7 +160,7 @@ impl<K: StageClock> Core<K> {
             StopReason::ClockUnsynced => self.psd.clock_waiting(now),
             StopReason::SamplesStopped | StopReason::SerialGarbled { .. } => !sampling,
             StopReason::PoseLost => {
-                !sampling || self.tracker.pose_time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
+                !sampling || self.robot.pose.time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
             StopReason::HeartbeatLost { .. } => !heard,
             // A drive that rebooted unheard (its boot-up lost) stays silent, its heartbeat
@@ -195,28 +195,29 @@ impl<K: StageClock> Core<K> {
         let period = self.rig.sample_period.as_secs_f64();
         let (wheel_base, robot, margin) =
             (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
-        let tracked: Vec<usize> = self.tracker.tracked().collect();
-        let (pose, obstacles) = match self.tracker.estimate(now.secs(), period, wheel_base) {
-            Some(tr) => {
-                let p = tr.estimate.pose();
-                let delay = tr.estimate.delay;
-                let obstacles = tr
-                    .estimate
-                    .obstacles
-                    .iter()
-                    .zip(tracked)
-                    .map(|(o, k)| ObstacleStatus {
-                        led: self.rig.obstacles[k].led,
-                        occluded: o.spread > 0.0,
-                        position: [o.center.re, o.center.im],
-                        velocity: [o.velocity.re, o.velocity.im],
-                        planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
-                    })
-                    .collect();
-                (Some([p.position.re, p.position.im, p.heading]), obstacles)
-            }
-            None => (None, Vec::new()),
-        };
+        let tracked: Vec<usize> = self.obstacles.tracked().collect();
+        let (pose, obstacles) =
+            match crate::track::estimate(&mut self.robot.pose, &mut self.obstacles, now.secs(), period, wheel_base) {
+                Some(tr) => {
+                    let p = tr.estimate.pose();
+                    let delay = tr.estimate.delay;
+                    let obstacles = tr
+                        .estimate
+                        .obstacles
+                        .iter()
+                        .zip(tracked)
+                        .map(|(o, k)| ObstacleStatus {
+                            led: self.rig.obstacles[k].led,
+                            occluded: o.spread > 0.0,
+                            position: [o.center.re, o.center.im],
+                            velocity: [o.velocity.re, o.velocity.im],
+                            planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
+                        })
+                        .collect();
+                    (Some([p.position.re, p.position.im, p.heading]), obstacles)
+                }
+                None => (None, Vec::new()),
+            };
         Status {
             state: self.state().into(),
             last_stop: self.robot.safety.history.iter().rev().find_map(|(_, s)| s.reason()).map(|r| r.to_string()),
@@ -224,7 +225,7 @@ impl<K: StageClock> Core<K> {
             pose,
             obstacles,
             absent: (0..self.rig.obstacles.len())
-                .filter(|&k| self.tracker.obstacle_time(k).is_none())
+                .filter(|&k| self.obstacles.time(k).is_none())
                 .map(|k| self.rig.obstacles[k].led)
                 .collect(),
             cycles: self.counters.cycles,
@@ -245,7 +246,7 @@ impl<K: StageClock> Core<K> {
         scene.twist = [0.5 * (left + right), (right - left) / self.rig.control.drive.wheel_base];
         scene.goal = [goal.re, goal.im];
         let (robot, margin) = (self.rig.control.robot_radius, self.rig.control.planner.margin);
-        for (view, (o, cov)) in scene.obstacles.iter_mut().zip(self.tracker.obstacles_at(now.secs())) {
+        for (view, (o, cov)) in scene.obstacles.iter_mut().zip(self.obstacles.at(now.secs())) {
             *view = ObstacleView {
                 position: [o.center.re as f32, o.center.im as f32],
                 velocity: [o.velocity.re as f32, o.velocity.im as f32],

@@ -230,7 +230,9 @@ impl<K: StageClock> Core<K> {
             StopReason::PoseImplausible
         } else if now.since(self.robot.pose_watch.arrived()) < s.sample_timeout {
             StopReason::PoseDelayed
-        } else if !self.robot.pose_watch.weak() && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. }) {
+        } else if !self.robot.pose_watch.weak()
+            && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. })
+        {
             garbled
         } else if self.robot.pose_watch.quiet_since() && !self.robot.pose_watch.weak() {
             StopReason::SamplesStopped
@@ -240,7 +242,7 @@ impl<K: StageClock> Core<K> {
     }
 
     fn pose_deadline(&self) -> HostTime {
-        let seen = self.tracker.pose_time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
+        let seen = self.robot.pose.time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
         seen + self.rig.safety.pose_timeout
     }
 
@@ -249,9 +251,9 @@ impl<K: StageClock> Core<K> {
     /// keeps growing, and a robot must not drive around a guess for ever. An obstacle never
     /// seen, or seen leaving the view, has no track and no deadline.
     fn occlusion_deadline(&self) -> Option<(HostTime, usize)> {
-        self.tracker
+        self.obstacles
             .tracked()
-            .filter_map(|k| Some((HostTime::from_secs_f64(self.tracker.obstacle_time(k)?).max(self.robot.run.armed_at()), k)))
+            .filter_map(|k| Some((HostTime::from_secs_f64(self.obstacles.time(k)?).max(self.robot.run.armed_at()), k)))
             .min_by_key(|&(seen, _)| seen)
             .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
     }
@@ -260,7 +262,7 @@ impl<K: StageClock> Core<K> {
     /// of it by the next frame: within two periods at the top obstacle speed, and the
     /// measurement's noise, of a point the camera does not see.
     fn lost_at_edge(&self, k: usize) -> bool {
-        let Some(p) = self.tracker.last_measured(k) else { return false };
+        let Some(p) = self.obstacles.last_measured(k) else { return false };
         let period = self.rig.sample_period.as_secs_f64();
         let band = 2.0 * period * self.rig.tracking.max_obstacle_speed + EDGE_NOISE_M;
         (0..8).any(|i| !self.rig.calibration.in_view(p + Point::from_polar(band, f64::from(i) * FRAC_PI_4)))

@@ -13,7 +13,7 @@ use super::STOP_GRACE;
 use crate::config::Rig;
 use crate::control::ControlStep;
 use crate::time::HostTime;
-use crate::track::Pose;
+use crate::track::{Pose, PoseTrack};
 
 /// What the last cycle estimated of a vehicle.
 #[derive(Debug, Clone, Copy)]
@@ -26,6 +26,8 @@ pub(super) struct LastEstimate {
 
 #[derive(Debug)]
 pub(super) struct DrivenVehicle {
+    /// Its pose from its two LEDs.
+    pub(super) pose: PoseTrack,
     pub(super) safety: Safety,
     pub(super) control: ControlStep,
     pub(super) motors: MotorMaster,
@@ -42,6 +44,7 @@ impl DrivenVehicle {
     /// The robot: `[leds]`, `[can]`, `[drive]`, `[robot]` and `[planner]` of the rig.
     pub(super) fn robot(rig: &Rig) -> Self {
         Self {
+            pose: PoseTrack::new(rig.tracking, rig.led_geometry),
             safety: Safety::default(),
             control: ControlStep::new(rig.control.clone()),
             motors: MotorMaster::new(rig),
@@ -57,7 +60,7 @@ impl DrivenVehicle {
     }
 
     /// Carry out on its motors what a transition of its safety state asks. Whether they were
-    /// e-stopped: they stop at once, so the pose it had is no longer where it is going.
+    /// e-stopped (they stop at once: the pose it had is forgotten, its wheels at rest).
     pub(super) fn act(&mut self, now: HostTime, action: Action, send: &mut impl FnMut(CanFrame)) -> bool {
         match action {
             Action::None => {}
@@ -76,6 +79,8 @@ impl DrivenVehicle {
                 };
                 self.motors.emergency_stop(reason, send);
                 self.run.stopping(None);
+                self.pose.forget();
+                self.pose.halted(now.secs()); // the boards stop at once: dead reckoning starts from rest
                 return true;
             }
         }
