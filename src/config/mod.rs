@@ -34,7 +34,7 @@ pub use motors::{
 pub use planning::{default_tolerance, Goal, LaneSection, PlannerMethod, PlannerSection, RobotSection};
 pub use safety::{SafetySection, SafetySettings};
 pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
-pub use vehicles::{Vehicle, VehicleMotors, VehicleSection};
+pub use vehicles::{DrivenSettings, Vehicle, VehicleMotors, VehicleSection};
 mod can_url;
 mod room;
 mod ros2;
@@ -191,7 +191,10 @@ impl RigFile {
         if let Some(r) = &self.ros2 {
             r.validate()?;
         }
-        let vehicles = self.validate_vehicles(sample_period)?;
+        let vehicles = self.validate_vehicles(
+            sample_period,
+            &vehicles::Room { file: this, calibration: &calibration, room: room.clone() },
+        )?;
         let control = this.control_config(sample_period, &calibration, room);
         let board = self.drive.board_settings(control.drive.pulses_per_metre())?;
         let motors = match (self.can.protocol, &self.cia402) {

@@ -85,6 +85,29 @@ pub struct Vehicle {
     pub motors: VehicleMotors,
     pub robot: RobotSection,
     pub drive: DriveSection,
+    /// How the gateway drives it: what the robot's would be with this vehicle's body,
+    /// wheels, limits, LEDs and motors.
+    pub driven: DrivenSettings,
+}
+
+/// What the gateway drives a vehicle with, typed as the robot's are in [`Rig`](super::Rig).
+#[derive(Debug, Clone)]
+pub struct DrivenSettings {
+    pub control: crate::control::ControlConfig,
+    pub tracking: crate::track::TrackingSettings,
+    pub motors: super::Motors,
+    /// Its board's node (a board), as [`Rig::node`](super::Rig::node) is the robot's.
+    pub node: motor::NodeId,
+    pub board: super::BoardSettings,
+}
+
+/// The room every vehicle plans in, as the robot's control is built in it.
+pub(super) struct Room<'a> {
+    /// The rig's file as the robot's control is built from it (two walls that make a lane
+    /// read as the lane).
+    pub(super) file: &'a RigFile,
+    pub(super) calibration: &'a crate::calibration::Calibration,
+    pub(super) room: Option<std::sync::Arc<crate::planner::room::Room>>,
 }
 
 /// A key of `vehicles[i]`.
@@ -119,7 +142,7 @@ impl VehicleSection {
     }
 
     /// The vehicle's body, limits and motors; its name and LEDs are checked already.
-    fn validate(&self, i: usize, rig: &RigFile, sample_period: Duration) -> Result<Vehicle, Invalid> {
+    fn validate(&self, i: usize, rig: &RigFile, sample_period: Duration, room: &Room<'_>) -> Result<Vehicle, Invalid> {
         let led_geometry = LedGeometry {
             front: self.front_offset.unwrap_or(rig.leds.front_offset),
             rear: self.rear_offset.unwrap_or(rig.leds.rear_offset),
@@ -155,16 +178,59 @@ impl VehicleSection {
         })?;
         let pulses_per_metre =
             f64::from(drive.steps_per_rev) * f64::from(drive.microsteps) / (std::f64::consts::TAU * drive.wheel_radius);
-        drive.board_settings(pulses_per_metre).map_err(renamed)?;
+        let board = drive.board_settings(pulses_per_metre).map_err(renamed)?;
+        let motors = self.motors(i, rig)?;
+        let as_robot = self.as_robot(room.file, motors, robot, drive);
+        let typed_motors = match (motors, &as_robot.cia402) {
+            (VehicleMotors::Drives { .. }, Some(c)) => {
+                super::Motors::Cia402(c.settings(&rig.safety, &drive, pulses_per_metre).map_err(renamed)?)
+            }
+            _ => super::Motors::Pcl80k,
+        };
+        let node = match motors {
+            VehicleMotors::Board(n) => n,
+            VehicleMotors::Drives { .. } => motor::NodeId::new(1).expect("1 is a node id"),
+        };
+        let driven = DrivenSettings {
+            control: as_robot.control_config(sample_period, room.calibration, room.room.clone()),
+            tracking: as_robot.tracking_settings(),
+            motors: typed_motors,
+            node,
+            board,
+        };
         Ok(Vehicle {
             name: self.name.clone(),
             front_led: self.front_led,
             rear_led: self.rear_led,
             led_geometry,
-            motors: self.motors(i, rig)?,
+            motors,
             robot,
             drive,
+            driven,
         })
+    }
+
+    /// The rig's file with this vehicle in the robot's place: its LEDs, motors, body and
+    /// wheels, and no goal or other vehicles.
+    fn as_robot(&self, rig: &RigFile, motors: VehicleMotors, robot: RobotSection, drive: DriveSection) -> RigFile {
+        let mut file = RigFile { vehicles: Vec::new(), goal: None, robot, drive, ..rig.clone() };
+        file.leds.robot_front = self.front_led;
+        file.leds.robot_rear = self.rear_led;
+        file.leds.front_offset = self.front_offset.unwrap_or(rig.leds.front_offset);
+        file.leds.rear_offset = self.rear_offset.unwrap_or(rig.leds.rear_offset);
+        match motors {
+            VehicleMotors::Board(n) => {
+                file.can.protocol = MotorProtocolName::Pcl80k;
+                file.can.node = n.get();
+            }
+            VehicleMotors::Drives { left, right } => {
+                file.can.protocol = MotorProtocolName::Cia402;
+                if let Some(c) = file.cia402.as_mut() {
+                    (c.left_node, c.right_node) = (left.get(), right.get());
+                }
+            }
+        }
+        file
     }
 
     fn motors(&self, i: usize, rig: &RigFile) -> Result<VehicleMotors, Invalid> {
@@ -246,12 +312,12 @@ impl RigFile {
 
     /// Each vehicle's body, limits and motors, once the robot's have passed (`sample_period`:
     /// the schedule's, every vehicle's LEDs in it), and every CAN identifier apart.
-    pub(super) fn validate_vehicles(&self, sample_period: Duration) -> Result<Vec<Vehicle>, Invalid> {
+    pub(super) fn validate_vehicles(&self, sample_period: Duration, room: &Room<'_>) -> Result<Vec<Vehicle>, Invalid> {
         let vehicles = self
             .vehicles
             .iter()
             .enumerate()
-            .map(|(i, v)| v.validate(i, self, sample_period))
+            .map(|(i, v)| v.validate(i, self, sample_period, room))
             .collect::<Result<Vec<_>, _>>()?;
         self.check_can_ids(&vehicles)?;
         Ok(vehicles)

@@ -3,6 +3,7 @@
 
 use flowgate_protocol::CanFrame;
 
+use super::ROBOT;
 use super::budget::Budget;
 use super::{CanEvent, Core, Output, StageClock, StopReason, REOPEN_EVERY};
 use crate::time::HostTime;
@@ -185,7 +186,7 @@ impl<K: StageClock> Core<K> {
     fn can_frame(&mut self, now: HostTime, frame: &CanFrame) {
         self.counters.can_frames_in += 1;
         let state = self.state();
-        let effect = self.robot.motors.frame(now, frame, state, &mut self.motor_counters, &mut self.out.can());
+        let effect = self.vehicles[ROBOT].motors.frame(now, frame, state, &mut self.motor_counters, &mut self.out.can());
         self.can_link.heard(now, effect.second_master);
         if let Some(reason) = effect.stop {
             self.stop(now, reason);

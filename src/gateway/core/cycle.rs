@@ -4,6 +4,7 @@
 
 use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
+use super::ROBOT;
 use super::safety::RobotMotion;
 use super::timing::CycleRecord;
 use super::vehicle::LastEstimate;
@@ -44,7 +45,7 @@ impl<K: StageClock> Core<K> {
         if d.started {
             self.state_changed(now);
         }
-        self.robot.last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
+        self.vehicles[ROBOT].last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
         self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
         let asked = d.step.map_or([0.0; 2], |out| [out.asked.left, out.asked.right]);
         let (pulses, wheels) = match d.step {
@@ -57,7 +58,7 @@ impl<K: StageClock> Core<K> {
         if !matches!(self.state(), State::Running | State::Armed | State::Stopping(_)) {
             return;
         }
-        self.robot.pose.commanded(now.secs(), wheels.0, wheels.1);
+        self.vehicles[ROBOT].pose.commanded(now.secs(), wheels.0, wheels.1);
         let record = CycleRecord {
             decode_ns,
             checks_ns,
@@ -77,19 +78,19 @@ impl<K: StageClock> Core<K> {
         let period = self.rig.sample_period.as_secs_f64();
         let wheel_base = self.rig.control.drive.wheel_base;
         let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
-        let motors_ready = self.robot.motors.ready();
-        let ready = self.robot.mission.ready_to_start() && motors_ready;
+        let motors_ready = self.vehicles[ROBOT].motors.ready();
+        let ready = self.vehicles[ROBOT].mission.ready_to_start() && motors_ready;
         // The tracker's estimate borrows it: decide inside, act on the decision after.
-        let tracked = crate::track::estimate(&mut self.robot.pose, &mut self.obstacles, t, period, wheel_base)
+        let tracked = crate::track::estimate(&mut self.vehicles[ROBOT].pose, &mut self.obstacles, t, period, wheel_base)
             .filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
         let track_ns = self.clock.now_ns().saturating_sub(track_start);
-        let started = ready && self.robot.safety.state() == State::Armed;
+        let started = ready && self.vehicles[ROBOT].safety.state() == State::Armed;
         if started {
-            self.robot.safety.ready(t);
-            self.robot.control.start(t);
+            self.vehicles[ROBOT].safety.ready(t);
+            self.vehicles[ROBOT].control.start(t);
         }
         let plan_start = self.clock.now_ns();
-        let step = self.robot.safety.state().may_move().then(|| self.robot.control.step(t, &tracked.estimate));
+        let step = self.vehicles[ROBOT].safety.state().may_move().then(|| self.vehicles[ROBOT].control.step(t, &tracked.estimate));
         let (pose, delay, wheels) = (tracked.estimate.pose(), tracked.estimate.delay, tracked.estimate.wheels);
         Some(Decision { pose, delay, wheels, clearance: tracked.clearance, step, started, track_ns, plan_start })
     }
@@ -136,7 +137,7 @@ impl<K: StageClock> Core<K> {
                 }
             }
             StepStatus::GoalBlocked { index } => {
-                let wait = self.robot.control.config().goal_wait;
+                let wait = self.vehicles[ROBOT].control.config().goal_wait;
                 let led = self.obstacle_led(index);
                 self.notice(now, Notice::GoalBlocked { led, wait_s: wait });
                 self.stop(now, StopReason::GoalBlocked);
@@ -165,7 +166,7 @@ impl<K: StageClock> Core<K> {
     /// cycle's estimate: standing (under [`RobotMotion::STANDING_SPEED`]), driving towards it
     /// faster than that, or otherwise driving (turning, or away from it).
     fn robot_motion_towards(&self, now: HostTime, index: usize) -> RobotMotion {
-        let Some(e) = self.robot.last_estimate else { return RobotMotion::Standing };
+        let Some(e) = self.vehicles[ROBOT].last_estimate else { return RobotMotion::Standing };
         let speed = (e.wheels[0] + e.wheels[1]) / 2.0;
         if speed.abs() < RobotMotion::STANDING_SPEED {
             return RobotMotion::Standing;
@@ -203,26 +204,26 @@ impl<K: StageClock> Core<K> {
             frame,
             t_ctrl_us: end.0,
             rx_ns: now.as_nanos(),
-            period_ns: self.robot.run.last_command().map_or(0, |lc| now.since(lc).as_nanos() as u64),
+            period_ns: self.vehicles[ROBOT].run.last_command().map_or(0, |lc| now.since(lc).as_nanos() as u64),
             delay_s: delay,
             state: self.state(),
             pulses,
             x: at.re,
             y: at.im,
-            goal_distance: (self.robot.control.config().goal - at).norm(),
+            goal_distance: (self.vehicles[ROBOT].control.config().goal - at).norm(),
             ..CycleRecord::default()
         }
     }
 
     /// A goal is reached: on to the next in the queue, or stop.
     fn goal_reached(&mut self, now: HostTime) {
-        match self.robot.mission.next_goal() {
+        match self.vehicles[ROBOT].mission.next_goal() {
             Some(next) => {
                 self.out.push(Output::Notice { at: now, notice: Notice::NextGoal { position: next.position } });
-                self.robot.control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
+                self.vehicles[ROBOT].control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
             }
             None => {
-                self.robot.mission.set_start_requested(false);
+                self.vehicles[ROBOT].mission.set_start_requested(false);
                 self.stop(now, StopReason::GoalReached);
             }
         }
@@ -246,7 +247,7 @@ impl<K: StageClock> Core<K> {
         let latest = now + self.rig.sample_period;
         let robot = [self.rig.robot_front, self.rig.robot_rear];
         if self.frame.discard_future(clock, latest, &self.rig.schedule, robot, &mut self.counters) {
-            self.robot.pose_watch.stamped_in_future(now);
+            self.vehicles[ROBOT].pose_watch.stamped_in_future(now);
         }
         self.observe_robot(now, clock);
         self.observe_obstacles(now, clock);
@@ -260,7 +261,7 @@ impl<K: StageClock> Core<K> {
             // Seen but weak (occluded), as against not come at all (lost with its frame).
             let weak = |led| self.frame.received(led) && self.frame.usable(led).is_none();
             let weak = weak(front) || weak(rear);
-            self.robot.pose_watch.seen_weak(weak);
+            self.vehicles[ROBOT].pose_watch.seen_weak(weak);
             return;
         };
         let cal = &self.rig.calibration;
@@ -270,14 +271,14 @@ impl<K: StageClock> Core<K> {
             return;
         };
         let at = clock.to_host(f.at.midpoint(r.at)).secs();
-        match self.robot.pose.plausible(at, fp, rp, self.rig.pose_reach()) {
+        match self.vehicles[ROBOT].pose.plausible(at, fp, rp, self.rig.pose_reach()) {
             Ok(()) => {
-                self.robot.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
-                self.robot.pose.observe(at, fp, rp);
+                self.vehicles[ROBOT].pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
+                self.vehicles[ROBOT].pose.observe(at, fp, rp);
             }
             Err(e) => {
                 self.counters.poses_implausible += 1;
-                if self.robot.pose_watch.implausible(e) {
+                if self.vehicles[ROBOT].pose_watch.implausible(e) {
                     self.notice(now, Notice::PoseDiscarded { why: e });
                 }
             }
@@ -318,11 +319,11 @@ impl<K: StageClock> Core<K> {
 
     /// The cycle's command to the motors, with its record.
     fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
-        if !self.robot.motors.takes_commands() {
+        if !self.vehicles[ROBOT].motors.takes_commands() {
             return;
         }
         let encode_start = self.clock.now_ns();
-        let frame = self.robot.motors.command(pulses, &mut self.out.can());
+        let frame = self.vehicles[ROBOT].motors.command(pulses, &mut self.out.can());
         record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
         let Some(frame) = frame else {
             // Pulse rates come from the drive model clamped to the wheel limit, which the
@@ -330,11 +331,11 @@ impl<K: StageClock> Core<K> {
             self.stop(now, StopReason::PlannerInvalid);
             return;
         };
-        self.robot.run.commanded(now);
+        self.vehicles[ROBOT].run.commanded(now);
         self.counters.cycles += 1;
         self.progress.t = now.secs();
         self.progress.cycles = self.counters.cycles;
-        self.progress.goal_distance = (self.robot.control.config().goal - position).norm();
+        self.progress.goal_distance = (self.vehicles[ROBOT].control.config().goal - position).norm();
         self.out.push(Output::Command { frame, record });
     }
 
@@ -347,7 +348,7 @@ impl<K: StageClock> Core<K> {
     /// scratch, rebuilt every cycle), so a replay without rehearsals is the run's, byte for
     /// byte (`a_rehearsal_changes_nothing`). Only in Running, where cycles plan.
     pub fn rehearse(&mut self, now: HostTime) {
-        if !self.robot.safety.state().may_move() {
+        if !self.vehicles[ROBOT].safety.state().may_move() {
             return;
         }
         let led = self.rig.robot_front;
@@ -360,10 +361,10 @@ impl<K: StageClock> Core<K> {
         std::hint::black_box(self.rig.calibration.to_floor(0.0, 0.0));
         let (period, wheel_base) = (self.rig.sample_period.as_secs_f64(), self.rig.control.drive.wheel_base);
         if let Some(tracked) =
-            crate::track::estimate(&mut self.robot.pose, &mut self.obstacles, now.secs(), period, wheel_base)
+            crate::track::estimate(&mut self.vehicles[ROBOT].pose, &mut self.obstacles, now.secs(), period, wheel_base)
         {
-            self.robot.control.rehearse(&tracked.estimate);
+            self.vehicles[ROBOT].control.rehearse(&tracked.estimate);
         }
-        self.robot.motors.rehearse();
+        self.vehicles[ROBOT].motors.rehearse();
     }
 }

@@ -109,6 +109,9 @@ use safety::{Action, Safety};
 use vehicle::DrivenVehicle;
 use watch::{SampleWatch, StampWatch};
 
+/// The robot's index among the vehicles the core drives: the first.
+const ROBOT: usize = 0;
+
 /// How often the gateway sends its heartbeat.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(100);
 /// How long an orderly stop may take before the gateway calls the axes at rest.
@@ -179,8 +182,9 @@ pub struct Core<K: StageClock> {
     frame: FrameAssembler,
     /// Every obstacle LED's track.
     obstacles: ObstacleTracks,
-    /// The robot: its safety state, control step, motors and goals.
-    robot: DrivenVehicle,
+    /// Every vehicle the core drives, the robot first ([`ROBOT`]): each one's pose track,
+    /// safety state, control step, motors and goals.
+    vehicles: Vec<DrivenVehicle>,
     motor_counters: MotorCounters,
     /// The two links' health.
     psd_link: PsdLinkHealth,
@@ -202,7 +206,7 @@ impl<K: StageClock> Core<K> {
             psd: PsdSession::new(rig.schedule, rig.psd_counts),
             frame: FrameAssembler::new(budget),
             obstacles: ObstacleTracks::new(rig.tracking, &radii),
-            robot: DrivenVehicle::robot(&rig),
+            vehicles: vec![DrivenVehicle::robot(&rig)],
             motor_counters: MotorCounters::default(),
             out: Outbox::new(),
             psd_link: PsdLinkHealth::new(budget),
@@ -222,10 +226,10 @@ impl<K: StageClock> Core<K> {
         &self.rig
     }
     pub fn state(&self) -> State {
-        self.robot.state()
+        self.vehicles[ROBOT].state()
     }
     pub fn safety(&self) -> &Safety {
-        &self.robot.safety
+        &self.vehicles[ROBOT].safety
     }
     pub fn counters(&self) -> Counters {
         self.counters.with_motors(self.motor_counters)
@@ -249,7 +253,7 @@ impl<K: StageClock> Core<K> {
     /// What the core holds in its queues, in elements of capacity: the output queue, the
     /// budgets' windows, the goals. A soak asserts it stops growing once warm.
     pub fn footprint(&self) -> usize {
-        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.robot.mission.capacity()
+        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.vehicles[ROBOT].mission.capacity()
     }
 
     /// The PSD receive buffer's capacity, bytes: it rises and falls as frames are taken
@@ -283,7 +287,7 @@ impl<K: StageClock> Core<K> {
             Input::CanFailed => self.can_failed(now),
             Input::CanReopened => self.can_reopened(),
             Input::Request(request) => return Some(self.answer(now, request)),
-            Input::ArmAtStart => self.robot.mission.arm_at_start(),
+            Input::ArmAtStart => self.vehicles[ROBOT].mission.arm_at_start(),
             Input::Shutdown => self.shutdown(now),
             Input::Tick => self.tick(now),
         }
@@ -299,7 +303,7 @@ impl<K: StageClock> Core<K> {
     }
 
     fn stop(&mut self, now: HostTime, reason: StopReason) {
-        let action = self.robot.safety.stop(now.secs(), reason);
+        let action = self.vehicles[ROBOT].safety.stop(now.secs(), reason);
         self.act(now, action);
     }
 
@@ -318,7 +322,7 @@ impl<K: StageClock> Core<K> {
 
     /// Carry out what a transition asks of the motor side.
     fn act(&mut self, now: HostTime, action: Action) {
-        if self.robot.act(now, action, &mut self.out.can()) {
+        if self.vehicles[ROBOT].act(now, action, &mut self.out.can()) {
             self.notice(now, Notice::EmergencyStop { state: self.state() });
         }
         self.state_changed(now);
@@ -326,7 +330,7 @@ impl<K: StageClock> Core<K> {
 
     /// An orderly stop ends once the motors are at rest, or its grace has passed.
     fn check_at_rest(&mut self, now: HostTime) {
-        if self.robot.settle(now, self.shutdown, &mut self.out.can()) {
+        if self.vehicles[ROBOT].settle(now, self.shutdown, &mut self.out.can()) {
             self.state_changed(now);
         }
     }

@@ -7,6 +7,7 @@
 use flowgate_protocol::codec::StreamError;
 use flowgate_protocol::psd::{FaultCode, Message, Packet};
 
+use super::ROBOT;
 use super::budget::Budget;
 use super::counter_window::Verdict;
 use super::frame::{Ended, Taken};
@@ -205,7 +206,7 @@ impl<K: StageClock> Core<K> {
     /// is no sample: the garbage since the last one still names a stop that follows.
     pub(super) fn samples_watched_from(&mut self, now: HostTime) {
         let quiet = self.samples.count_from(now, self.rig.sample_period);
-        self.robot.pose_watch.line_quiet(quiet);
+        self.vehicles[ROBOT].pose_watch.line_quiet(quiet);
     }
 
     /// Frames are no longer judged against the last one (a new stream, a reset); it is
@@ -352,7 +353,7 @@ impl<K: StageClock> Core<K> {
         let firmware = self.psd.info().map(|info| info.firmware);
         self.notice(now, Notice::Streaming { firmware });
         self.out.push(Output::Streaming);
-        if self.robot.mission.take_arm_at_start() {
+        if self.vehicles[ROBOT].mission.take_arm_at_start() {
             let result = match self.rig.goal {
                 Some(goal) => self.arm_and_start(now, goal),
                 None => Err(Refusal::NoGoal),

@@ -1,6 +1,7 @@
 //! The operator's requests: arm, start, stop, e-stop, reset, goals, and the queries. A
 //! refusal says exactly why and changes nothing.
 
+use super::ROBOT;
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
 use super::scene::{ObstacleView, SceneRecord};
 use super::vehicle::LastEstimate;
@@ -52,7 +53,7 @@ impl<K: StageClock> Core<K> {
             return Err(Refusal::CommandNotFinite);
         }
         self.counters.outside_commands += 1;
-        self.robot.control.take_command(now.secs(), command);
+        self.vehicles[ROBOT].control.take_command(now.secs(), command);
         Ok(())
     }
 
@@ -68,11 +69,11 @@ impl<K: StageClock> Core<K> {
         if let Some((index, o)) = unseen {
             return Err(Refusal::RequiredObstacleUnseen { led: o.led, index });
         }
-        let action = self.robot.safety.arm(now.secs());
-        self.robot.run.armed(now);
+        let action = self.vehicles[ROBOT].safety.arm(now.secs());
+        self.vehicles[ROBOT].run.armed(now);
         self.samples_watched_from(now);
-        self.robot.motors.armed();
-        self.robot.mission.set_start_requested(false);
+        self.vehicles[ROBOT].motors.armed();
+        self.vehicles[ROBOT].mission.set_start_requested(false);
         self.act(now, action);
         Ok(())
     }
@@ -80,9 +81,9 @@ impl<K: StageClock> Core<K> {
     fn start(&mut self) -> Result<(), Refusal> {
         let state = self.state();
         match state {
-            State::Armed if !self.robot.mission.has_goals() => Err(Refusal::NoGoal),
+            State::Armed if !self.vehicles[ROBOT].mission.has_goals() => Err(Refusal::NoGoal),
             State::Armed => {
-                self.robot.mission.set_start_requested(true);
+                self.vehicles[ROBOT].mission.set_start_requested(true);
                 Ok(())
             }
             State::Running => Err(Refusal::Already(state)),
@@ -94,9 +95,9 @@ impl<K: StageClock> Core<K> {
     /// Stop in order (`cancel`: and forget the goals).
     fn stop_request(&mut self, now: HostTime, cancel: bool) -> Result<(), Refusal> {
         if cancel {
-            self.robot.mission.clear_goals();
+            self.vehicles[ROBOT].mission.clear_goals();
         }
-        self.robot.mission.set_start_requested(false);
+        self.vehicles[ROBOT].mission.set_start_requested(false);
         if matches!(self.state(), State::Running | State::Armed) {
             self.stop(now, StopReason::Operator);
         }
@@ -106,9 +107,9 @@ impl<K: StageClock> Core<K> {
     /// Accepted whatever the state. In a fault the motors were e-stopped already; they hear
     /// the operator's e-stop again all the same.
     fn estop(&mut self, now: HostTime) -> Result<(), Refusal> {
-        self.robot.mission.set_start_requested(false);
+        self.vehicles[ROBOT].mission.set_start_requested(false);
         if matches!(self.state(), State::Fault(_)) {
-            self.robot.motors.emergency_stop(flowgate_protocol::motor::EStopReason::Operator, &mut self.out.can());
+            self.vehicles[ROBOT].motors.emergency_stop(flowgate_protocol::motor::EStopReason::Operator, &mut self.out.can());
         } else {
             self.stop(now, StopReason::OperatorEStop);
         }
@@ -124,21 +125,21 @@ impl<K: StageClock> Core<K> {
         }
         // Armed again, the drives go pre-operational to be configured, and no longer hear
         // a quick stop: a wheel still turning (its stop lost on the bus) must stand first.
-        if let Some(node) = self.robot.motors.moving(now) {
+        if let Some(node) = self.vehicles[ROBOT].motors.moving(now) {
             return Err(Refusal::StillMoving { node });
         }
-        self.robot.motors.fault_reset(&mut self.out.can());
+        self.vehicles[ROBOT].motors.fault_reset(&mut self.out.can());
         // The PSD session starts afresh: sequence numbers, frame counter and clock taken
         // anew, so no baseline a fault left behind outlives the reset.
         if !self.psd.is_down() {
             self.psd.connect(now, &mut self.out.psd());
             self.frame.forget_counter();
-            self.robot.pose_watch.forget_future();
+            self.vehicles[ROBOT].pose_watch.forget_future();
             self.forget_frame_pace();
             self.stamps.forget_step();
             self.psd_link.reconfigure();
         }
-        self.robot.safety.reset(now.secs());
+        self.vehicles[ROBOT].safety.reset(now.secs());
         self.state_changed(now);
         Ok(())
     }
@@ -153,14 +154,14 @@ impl<K: StageClock> Core<K> {
     /// Whether a fault's cause persists now.
     fn cause_present(&self, now: HostTime, reason: StopReason) -> bool {
         let s = &self.rig.safety;
-        let heard = self.robot.motors.heard_within(now, s.heartbeat_timeout);
+        let heard = self.vehicles[ROBOT].motors.heard_within(now, s.heartbeat_timeout);
         let sampling = !self.psd.is_down() && now < self.samples.last() + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
             StopReason::ClockUnsynced => self.psd.clock_waiting(now),
             StopReason::SamplesStopped | StopReason::SerialGarbled { .. } => !sampling,
             StopReason::PoseLost => {
-                !sampling || self.robot.pose.time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
+                !sampling || self.vehicles[ROBOT].pose.time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
             StopReason::HeartbeatLost { .. } => !heard,
             // A drive that rebooted unheard (its boot-up lost) stays silent, its heartbeat
@@ -176,9 +177,9 @@ impl<K: StageClock> Core<K> {
             // a latch the reset itself clears (refusing the reset for it would never end).
             // Our controller back on the bus (its flags, or a frame heard since), and a board
             // heard again (drives may be silent: see above).
-            StopReason::BusOff => self.can_link.is_bus_off() || (!heard && self.robot.motors.always_heard()),
+            StopReason::BusOff => self.can_link.is_bus_off() || (!heard && self.vehicles[ROBOT].motors.always_heard()),
             StopReason::BoardBusOff { .. } => !heard,
-            StopReason::BoardEStop { .. } => !heard || self.robot.motors.latched(reason),
+            StopReason::BoardEStop { .. } => !heard || self.vehicles[ROBOT].motors.latched(reason),
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link.is_up(),
             // Two masters must never drive one board: refused while the other is heard.
             StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {
@@ -197,7 +198,7 @@ impl<K: StageClock> Core<K> {
             (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
         let tracked: Vec<usize> = self.obstacles.tracked().collect();
         let (pose, obstacles) =
-            match crate::track::estimate(&mut self.robot.pose, &mut self.obstacles, now.secs(), period, wheel_base) {
+            match crate::track::estimate(&mut self.vehicles[ROBOT].pose, &mut self.obstacles, now.secs(), period, wheel_base) {
                 Some(tr) => {
                     let p = tr.estimate.pose();
                     let delay = tr.estimate.delay;
@@ -220,8 +221,8 @@ impl<K: StageClock> Core<K> {
             };
         Status {
             state: self.state().into(),
-            last_stop: self.robot.safety.history.iter().rev().find_map(|(_, s)| s.reason()).map(|r| r.to_string()),
-            goals: self.robot.mission.goals().collect(),
+            last_stop: self.vehicles[ROBOT].safety.history.iter().rev().find_map(|(_, s)| s.reason()).map(|r| r.to_string()),
+            goals: self.vehicles[ROBOT].mission.goals().collect(),
             pose,
             obstacles,
             absent: (0..self.rig.obstacles.len())
@@ -240,8 +241,8 @@ impl<K: StageClock> Core<K> {
         // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
         let cycle = self.counters.cycles.saturating_sub(1);
         let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
-        let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.robot.last_estimate else { return scene };
-        let goal = self.robot.control.config().goal;
+        let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.vehicles[ROBOT].last_estimate else { return scene };
+        let goal = self.vehicles[ROBOT].control.config().goal;
         scene.pose = [pose.position.re, pose.position.im, pose.heading];
         scene.twist = [0.5 * (left + right), (right - left) / self.rig.control.drive.wheel_base];
         scene.goal = [goal.re, goal.im];
@@ -295,7 +296,7 @@ impl<K: StageClock> Core<K> {
                 if let Some(why) = room.blocked_at(at) {
                     return Err(bad(why));
                 }
-                let robot = self.robot.last_estimate.map(|e| e.pose.position);
+                let robot = self.vehicles[ROBOT].last_estimate.map(|e| e.pose.position);
                 if let Some(robot) = robot.filter(|&r| room.blocked_at(r).is_none() && !room.reachable(r, at)) {
                     return Err(bad(format!(
                         "out of the robot's reach from ({:.3}, {:.3}): the walls, static obstacles or the view's edge \
@@ -314,9 +315,9 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
-        self.robot.mission.set_goals(goals);
+        self.vehicles[ROBOT].mission.set_goals(goals);
         let first = goals[0];
-        self.robot.control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
+        self.vehicles[ROBOT].control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
         Ok(())
     }
 }

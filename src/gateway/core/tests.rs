@@ -204,7 +204,7 @@ fn the_handshake_syncs_the_clock_and_samples_before_it_are_discarded() {
     // Synced: a frame stamped 1 ms ago is a pose 1 ms old.
     frame(&mut c, ms(10), 1, 9_000 + CTRL_EPOCH_US);
     assert_eq!(c.counters().samples, 2);
-    let at = c.robot.pose.time().unwrap();
+    let at = c.vehicles[ROBOT].pose.time().unwrap();
     assert!((at - 0.009).abs() < 1e-6, "{at}");
 }
 
@@ -273,7 +273,7 @@ fn a_future_stamp_is_discarded_and_does_not_freeze_the_pose() {
     frame(&mut c, ms(40), 1, CTRL_EPOCH_US + 3_600_000_000);
     assert_eq!(c.counters().samples_from_future, 2);
     frame(&mut c, ms(60), 2, CTRL_EPOCH_US + 59_000);
-    let at = c.robot.pose.time().unwrap();
+    let at = c.vehicles[ROBOT].pose.time().unwrap();
     assert!((at - 0.059).abs() < 1e-6, "the true pose is taken: {at}");
 }
 
@@ -395,7 +395,7 @@ fn samples_are_checked_against_the_schedule_and_their_frame() {
     c.read(ms(3), &bytes(Message::FrameEnd { frame: 5, t_ctrl_us: CTRL_EPOCH_US + 2_000, samples: 2 })); // ... ended as 5
     assert_eq!(c.counters().frames_lost, 1);
     assert_eq!(c.counters().frames_incomplete, 1);
-    assert!(c.robot.pose.time().is_none(), "no pose from another frame's sample");
+    assert!(c.vehicles[ROBOT].pose.time().is_none(), "no pose from another frame's sample");
     frame(&mut c, ms(40), 9, CTRL_EPOCH_US + 39_000);
     assert_eq!(c.counters().frames_lost, 1 + 3, "frames 6, 7 and 8 never came");
 }
@@ -474,7 +474,7 @@ fn a_handshake_takes_no_odd_time_sync_reply_on_its_word() {
     // Frames stamped on the true clock are poses of their own time, not from the future.
     frame(&mut c, ms(520), 1, CTRL_EPOCH_US + 519_000);
     assert_eq!(c.counters().samples_from_future, 0);
-    assert!((c.robot.pose.time().unwrap() - 0.519).abs() < 1e-6);
+    assert!((c.vehicles[ROBOT].pose.time().unwrap() - 0.519).abs() < 1e-6);
 }
 
 /// A pose lost because the frames that carried it were garbled is named for the garbage,
@@ -500,7 +500,7 @@ fn a_pose_lost_in_garbage_is_named_garbled() {
         reason.to_string().starts_with("garbled serial data and no robot pose through it (11 bad frames"),
         "{reason}"
     );
-    c.robot.pose_watch.seen_weak(true);
+    c.vehicles[ROBOT].pose_watch.seen_weak(true);
     assert_eq!(c.pose_lost_cause(ms(200)), StopReason::PoseLost);
 }
 

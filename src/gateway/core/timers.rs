@@ -8,6 +8,7 @@
 //!
 //! [`Input::Tick`]: super::Input::Tick
 
+use super::ROBOT;
 use super::safety::Garbled;
 use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, STOP_GRACE};
 use crate::time::HostTime;
@@ -90,7 +91,7 @@ impl<K: StageClock> Core<K> {
         let (active, running) = (state.is_active(), state == State::Running);
         let s = &self.rig.safety;
         match timer {
-            Timer::Heartbeat => self.robot.run.next_heartbeat(),
+            Timer::Heartbeat => self.vehicles[ROBOT].run.next_heartbeat(),
             Timer::PsdSession => self.psd.deadline(),
             Timer::Restream if self.psd.is_streaming() => {
                 self.samples.last().max(self.psd_link.restreamed_at()) + RESTREAM_AFTER
@@ -101,12 +102,12 @@ impl<K: StageClock> Core<K> {
             Timer::Pose if running => self.pose_deadline(),
             Timer::Occlusion if running => self.occlusion_deadline().map_or(HostTime::NEVER, |(at, _)| at),
             Timer::MotorHeartbeat if active => {
-                self.robot.motors.heartbeat_deadline(self.robot.run.armed_at(), s.heartbeat_timeout).0
+                self.vehicles[ROBOT].motors.heartbeat_deadline(self.vehicles[ROBOT].run.armed_at(), s.heartbeat_timeout).0
             }
             Timer::ClockSync if active => self.psd.sync_deadline(),
-            Timer::Motors => self.robot.motors.deadline(),
-            Timer::StopGrace => self.robot.run.stopping_since().map_or(HostTime::NEVER, |since| since + STOP_GRACE),
-            Timer::KeepAlive => self.robot.keep_alive_due().unwrap_or(HostTime::NEVER),
+            Timer::Motors => self.vehicles[ROBOT].motors.deadline(),
+            Timer::StopGrace => self.vehicles[ROBOT].run.stopping_since().map_or(HostTime::NEVER, |since| since + STOP_GRACE),
+            Timer::KeepAlive => self.vehicles[ROBOT].keep_alive_due().unwrap_or(HostTime::NEVER),
             _ => HostTime::NEVER,
         }
     }
@@ -116,7 +117,7 @@ impl<K: StageClock> Core<K> {
         let mut stopped_by_watchdog = false;
         for timer in Timer::TABLE {
             let due = match timer {
-                Timer::StopGrace => self.robot.run.stopping_since().is_some(),
+                Timer::StopGrace => self.vehicles[ROBOT].run.stopping_since().is_some(),
                 _ => now >= self.deadline(timer),
             };
             if !due || (timer.is_watchdog() && stopped_by_watchdog) {
@@ -131,8 +132,8 @@ impl<K: StageClock> Core<K> {
         match timer {
             Timer::Heartbeat => {
                 let state = self.state();
-                self.robot.motors.heartbeat(state, &mut self.out.can());
-                self.robot.run.heartbeat_sent(now + HEARTBEAT_PERIOD);
+                self.vehicles[ROBOT].motors.heartbeat(state, &mut self.out.can());
+                self.vehicles[ROBOT].run.heartbeat_sent(now + HEARTBEAT_PERIOD);
                 // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
                 if self.rig.can.polls_status() {
                     self.can_link.status_asked(now);
@@ -159,20 +160,20 @@ impl<K: StageClock> Core<K> {
             }
             Timer::MotorHeartbeat => {
                 let (_, reason) =
-                    self.robot.motors.heartbeat_deadline(self.robot.run.armed_at(), self.rig.safety.heartbeat_timeout);
+                    self.vehicles[ROBOT].motors.heartbeat_deadline(self.vehicles[ROBOT].run.armed_at(), self.rig.safety.heartbeat_timeout);
                 // Unheard because our own controller is off the bus: named for that.
                 self.stop(now, if self.can_link.is_bus_off() { StopReason::BusOff } else { reason });
             }
             Timer::ClockSync => self.stop(now, StopReason::ClockUnsynced),
             Timer::Motors => {
-                if let Some(reason) = self.robot.motors.tick(now) {
+                if let Some(reason) = self.vehicles[ROBOT].motors.tick(now) {
                     self.stop(now, reason);
                 }
             }
             Timer::StopGrace => self.check_at_rest(now),
             Timer::KeepAlive => {
-                self.robot.run.commanded(now);
-                self.robot.motors.keep_alive(&mut self.out.can());
+                self.vehicles[ROBOT].run.commanded(now);
+                self.vehicles[ROBOT].motors.keep_alive(&mut self.out.can());
             }
         }
     }
@@ -219,22 +220,22 @@ impl<K: StageClock> Core<K> {
         let s = &self.rig.safety;
         let quiet = now.since(self.samples.last()) > 2 * self.rig.sample_period;
         let recent = |at: Option<HostTime>, within| at.is_some_and(|at| now.since(at) < within);
-        let garbled = self.garbled_when_quiet(now, self.robot.pose_watch.garbage_at_last(), Garbled::NoPose);
+        let garbled = self.garbled_when_quiet(now, self.vehicles[ROBOT].pose_watch.garbage_at_last(), Garbled::NoPose);
         if quiet {
             self.samples_stopped_cause(now)
-        } else if recent(self.robot.pose_watch.last_from_future(), s.sample_timeout)
+        } else if recent(self.vehicles[ROBOT].pose_watch.last_from_future(), s.sample_timeout)
             || recent(self.stamps.stepped(), s.sample_timeout + s.pose_timeout)
         {
             StopReason::ClockJumped
-        } else if self.robot.pose_watch.is_implausible() {
+        } else if self.vehicles[ROBOT].pose_watch.is_implausible() {
             StopReason::PoseImplausible
-        } else if now.since(self.robot.pose_watch.arrived()) < s.sample_timeout {
+        } else if now.since(self.vehicles[ROBOT].pose_watch.arrived()) < s.sample_timeout {
             StopReason::PoseDelayed
-        } else if !self.robot.pose_watch.weak()
+        } else if !self.vehicles[ROBOT].pose_watch.weak()
             && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. })
         {
             garbled
-        } else if self.robot.pose_watch.quiet_since() && !self.robot.pose_watch.weak() {
+        } else if self.vehicles[ROBOT].pose_watch.quiet_since() && !self.vehicles[ROBOT].pose_watch.weak() {
             StopReason::SamplesStopped
         } else {
             StopReason::PoseLost
@@ -242,7 +243,7 @@ impl<K: StageClock> Core<K> {
     }
 
     fn pose_deadline(&self) -> HostTime {
-        let seen = self.robot.pose.time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
+        let seen = self.vehicles[ROBOT].pose.time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
         seen + self.rig.safety.pose_timeout
     }
 
@@ -253,7 +254,7 @@ impl<K: StageClock> Core<K> {
     fn occlusion_deadline(&self) -> Option<(HostTime, usize)> {
         self.obstacles
             .tracked()
-            .filter_map(|k| Some((HostTime::from_secs_f64(self.obstacles.time(k)?).max(self.robot.run.armed_at()), k)))
+            .filter_map(|k| Some((HostTime::from_secs_f64(self.obstacles.time(k)?).max(self.vehicles[ROBOT].run.armed_at()), k)))
             .min_by_key(|&(seen, _)| seen)
             .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
     }
