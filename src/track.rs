@@ -416,21 +416,23 @@ impl Tracker {
     /// validity, the obstacles predicted by their filters, and the sensing-to-actuation delay
     /// (age of the pose plus the period the command holds). `None` before any pose.
     pub fn estimate(&mut self, t: f64, sample_time: f64, wheel_base: f64) -> Option<Tracked<'_>> {
-        estimate(&mut self.pose, &mut self.obstacles, t, sample_time, wheel_base)
+        estimate(&mut self.pose, &mut self.obstacles, [&[], &[]], t, sample_time, wheel_base)
     }
 }
 
-/// The state at `t` of the vehicle `pose` tracks among `obstacles`, when its command will
-/// act ([`Tracker::estimate`]).
+/// The state at `t` of the vehicle `pose` tracks among `obstacles` and `others` (other
+/// vehicles, [`ObstacleTracks::predict_with`]), when its command will act
+/// ([`Tracker::estimate`]).
 pub fn estimate<'o>(
     pose: &mut PoseTrack,
     obstacles: &'o mut ObstacleTracks,
+    others: [&[ObstacleEstimate]; 2],
     t: f64,
     sample_time: f64,
     wheel_base: f64,
 ) -> Option<Tracked<'o>> {
     let at = pose.at(t, sample_time, wheel_base)?;
-    let seen = obstacles.predict(t, at.position);
+    let seen = obstacles.predict_with(t, at.position, others);
     Some(Tracked {
         estimate: Estimate {
             position: at.position,

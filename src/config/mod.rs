@@ -429,7 +429,11 @@ pub struct Rig {
 impl Rig {
     /// What each robot pose is checked against: the wheels' limits and the pose tolerance.
     pub fn pose_reach(&self) -> PoseReach {
-        let d = &self.control.drive;
+        self.pose_reach_of(&self.control.drive)
+    }
+
+    /// The same for a vehicle driven by `d`.
+    pub fn pose_reach_of(&self, d: &crate::control::drive::DriveConfig) -> PoseReach {
         PoseReach {
             speed: d.max_wheel_speed,
             turn_rate: 2.0 * d.max_wheel_speed / d.wheel_base,

@@ -313,14 +313,11 @@ impl RigFile {
     /// Each vehicle's body, limits and motors, once the robot's have passed (`sample_period`:
     /// the schedule's, every vehicle's LEDs in it), and every CAN identifier apart.
     pub(super) fn validate_vehicles(&self, sample_period: Duration, room: &Room<'_>) -> Result<Vec<Vehicle>, Invalid> {
-        let vehicles = self
-            .vehicles
-            .iter()
-            .enumerate()
-            .map(|(i, v)| v.validate(i, self, sample_period, room))
-            .collect::<Result<Vec<_>, _>>()?;
-        self.check_can_ids(&vehicles)?;
-        Ok(vehicles)
+        // Every device on the bus first: a drive typed as the robot's would be refused on a
+        // node another device takes, named less well than the bus's own check names it.
+        let motors = self.vehicles.iter().enumerate().map(|(i, v)| v.motors(i, self)).collect::<Result<Vec<_>, _>>()?;
+        self.check_can_ids(&motors)?;
+        self.vehicles.iter().enumerate().map(|(i, v)| v.validate(i, self, sample_period, room)).collect()
     }
 
     /// Who uses `led` besides vehicle `i`: the robot, an obstacle or a vehicle before it.
@@ -342,9 +339,10 @@ impl RigFile {
 
     /// Every CAN identifier on the bus, each with the key of the device (or the gateway's
     /// broadcasts) that uses it: none may be used twice.
-    fn check_can_ids(&self, vehicles: &[Vehicle]) -> Result<(), Invalid> {
+    fn check_can_ids(&self, motors: &[VehicleMotors]) -> Result<(), Invalid> {
         let mut devices = vec![("the robot".to_string(), self.robot_motors()?)];
-        devices.extend(vehicles.iter().enumerate().map(|(i, v)| (format!("vehicles[{i}] ({})", v.name), v.motors)));
+        let names = self.vehicles.iter().enumerate().map(|(i, v)| format!("vehicles[{i}] ({})", v.name));
+        devices.extend(names.zip(motors.iter().copied()));
         let mut uses: Vec<(String, IdUse)> = Vec::new();
         for (owner, motors) in &devices {
             match *motors {

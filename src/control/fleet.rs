@@ -69,15 +69,25 @@ impl FleetRule {
     /// priority order) appended to `out` after what is already there.
     pub fn others_as_obstacles(&self, me: usize, vehicles: &[VehicleView], out: &mut Vec<ObstacleEstimate>) {
         for (_, v) in vehicles.iter().enumerate().filter(|&(k, _)| k != me) {
-            out.push(self.out_of_control_or(v, v.velocity, 0.0));
+            out.push(self.as_obstacle(v));
         }
+    }
+
+    /// Another vehicle as a field plans on it.
+    pub fn as_obstacle(&self, v: &VehicleView) -> ObstacleEstimate {
+        self.out_of_control_or(v, v.velocity, 0.0)
+    }
+
+    /// Another vehicle as a supervisor checks a command against it.
+    pub fn as_supervised(&self, v: &VehicleView) -> ObstacleEstimate {
+        self.out_of_control_or(v, v.toward, v.lag)
     }
 
     /// The same for vehicle `me`'s supervisor: each vehicle under control going on at the
     /// velocity its wheels ramp toward, its footprint grown by its ramps' lag behind that way.
     pub fn others_as_supervised(&self, me: usize, vehicles: &[VehicleView], out: &mut Vec<ObstacleEstimate>) {
         for (_, v) in vehicles.iter().enumerate().filter(|&(k, _)| k != me) {
-            out.push(self.out_of_control_or(v, v.toward, v.lag));
+            out.push(self.as_supervised(v));
         }
     }
 

@@ -131,6 +131,13 @@ impl ObstacleTracks {
     /// Every tracked obstacle at `t`, predicted by its filter (or, unseen too long, the
     /// region it may have reached), and the least gap from `position` to one.
     pub fn predict(&mut self, t: f64, position: Point) -> Predicted<'_> {
+        self.predict_with(t, position, [&[], &[]])
+    }
+
+    /// The same, followed by `others` (other vehicles: as the planner plans on them, as the
+    /// supervisor judges them; as many of each, and with the tracked obstacles at most
+    /// [`MAX_OBSTACLES`], as the rig's load checks).
+    pub fn predict_with(&mut self, t: f64, position: Point, others: [&[ObstacleEstimate]; 2]) -> Predicted<'_> {
         let mut n = 0;
         let mut clearance: Option<f64> = None;
         let predict = self.settings.predict_obstacles;
@@ -150,6 +157,13 @@ impl ObstacleTracks {
             }
             n += 1;
             let gap = (self.estimates[n - 1].center - position).length() - self.estimates[n - 1].radius;
+            clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
+        }
+        let [seen, supervised] = others;
+        for (o, s) in seen.iter().zip(supervised).take(MAX_OBSTACLES - n) {
+            (self.estimates[n], self.predicted[n]) = (*o, *s);
+            n += 1;
+            let gap = (o.center - position).length() - o.radius;
             clearance = Some(clearance.map_or(gap, |c| c.min(gap)));
         }
         Predicted { obstacles: &self.estimates[..n], predicted: &self.predicted[..n], clearance }

@@ -133,6 +133,12 @@ impl PoseTrack {
         }
     }
 
+    /// The last plausible pose (kept when the pose is forgotten at a stop): when it was
+    /// valid, s, and its centre.
+    pub fn last_seen(&self) -> Option<(f64, Point)> {
+        self.reference.map(|(t, p, _)| (t, p))
+    }
+
     /// When the last pose was valid, s.
     pub fn time(&self) -> Option<f64> {
         self.pose.map(|(t, ..)| t)

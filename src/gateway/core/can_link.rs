@@ -3,8 +3,8 @@
 
 use flowgate_protocol::CanFrame;
 
-use super::ROBOT;
 use super::budget::Budget;
+use super::ROBOT;
 use super::{CanEvent, Core, Output, StageClock, StopReason, REOPEN_EVERY};
 use crate::time::HostTime;
 
@@ -139,7 +139,7 @@ impl<K: StageClock> Core<K> {
             CanEvent::Garbled => self.counters.can_undecodable += 1,
             CanEvent::TransmitRefused => {
                 self.counters.can_tx_refused += 1;
-                match self.can_link.transmit_refused(now, self.state().is_active()) {
+                match self.can_link.transmit_refused(now, self.any_active()) {
                     Refused::BeyondBudget => self.stop(now, StopReason::CanTransmitRefused),
                     // Ask why at once: a bus-off adapter says so in its flags.
                     Refused::PollStatus => self.out.push(Output::PollCanStatus),
@@ -182,20 +182,22 @@ impl<K: StageClock> Core<K> {
         self.can_link.reopened();
     }
 
-    /// A frame from the bus: the motors' master says what it was and what it asks for.
+    /// A frame from the bus: the vehicle whose motors it addresses takes it (the robot any
+    /// that none does, to count it), and their master says what it was and asks for.
     fn can_frame(&mut self, now: HostTime, frame: &CanFrame) {
         self.counters.can_frames_in += 1;
-        let state = self.state();
-        let effect = self.vehicles[ROBOT].motors.frame(now, frame, state, &mut self.motor_counters, &mut self.out.can());
+        let k = (ROBOT + 1..self.vehicles.len()).find(|&k| self.vehicles[k].motors.addresses(frame)).unwrap_or(ROBOT);
+        let state = self.vehicles[k].state();
+        let effect = self.vehicles[k].motors.frame(now, frame, state, &mut self.motor_counters, &mut self.out.can());
         self.can_link.heard(now, effect.second_master);
         if let Some(reason) = effect.stop {
-            self.stop(now, reason);
+            self.stop_vehicle(k, now, reason);
         }
         if effect.enable_again {
-            self.act(now, super::safety::Action::EnableBoard);
+            self.act(k, now, super::safety::Action::EnableBoard);
         }
         if effect.settle {
-            self.check_at_rest(now);
+            self.check_at_rest(k, now);
         }
     }
 }

@@ -4,10 +4,10 @@
 
 use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
-use super::ROBOT;
 use super::safety::RobotMotion;
 use super::timing::CycleRecord;
 use super::vehicle::LastEstimate;
+use super::ROBOT;
 use super::{Core, Notice, Output, StageClock, State, StopReason};
 use crate::control::{StepOutput, StepStatus, Supervision};
 use crate::planner::PlannerError;
@@ -31,7 +31,8 @@ struct Decision {
 }
 
 impl<K: StageClock> Core<K> {
-    /// One time-division frame is complete: track, decide, command.
+    /// One time-division frame is complete: track, then decide and command each vehicle in
+    /// the fleet's order (the robot first).
     pub(super) fn cycle(&mut self, now: HostTime, frame_no: u32, end: CtrlTime) {
         let track_start = self.clock.now_ns();
         self.stages.checks_end(|| track_start);
@@ -39,27 +40,42 @@ impl<K: StageClock> Core<K> {
         let (decode_ns, checks_ns) = self.stages.take_for_cycle();
         self.check_stamps(now, frame_no, end);
         self.track_frame(now);
-        // No fresh pose: no command (the pose watchdog stops a running robot; the keep-alive
-        // feeds a board that waits for its first pose).
-        let Some(d) = self.decide(now, track_start) else { return };
-        if d.started {
-            self.state_changed(now);
+        self.see_fleet(now.secs());
+        for k in 0..self.vehicles.len() {
+            let stages = (k == ROBOT).then_some((frame_no, end, decode_ns, checks_ns, track_start));
+            self.drive(k, now, stages);
         }
-        self.vehicles[ROBOT].last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
-        self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
+    }
+
+    /// Vehicle `k`'s part of the cycle: its estimate, its step, its command. The robot's
+    /// command carries the cycle's timing record (`stages`: its frame, end stamp, decode and
+    /// check times, and when tracking began).
+    fn drive(&mut self, k: usize, now: HostTime, stages: Option<(u32, CtrlTime, u64, u64, u64)>) {
+        let track_start = stages.map_or_else(|| self.clock.now_ns(), |s| s.4);
+        // No fresh pose: no command (the pose watchdog stops a running vehicle; the keep-alive
+        // feeds a board that waits for its first pose).
+        let Some(d) = self.decide(k, now, track_start) else { return };
+        if d.started {
+            self.state_changed(k, now);
+        }
+        self.vehicles[k].last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
+        if k == ROBOT {
+            self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
+        }
         let asked = d.step.map_or([0.0; 2], |out| [out.asked.left, out.asked.right]);
         let (pulses, wheels) = match d.step {
-            Some(out) => self.carry_out(now, out),
+            Some(out) => self.carry_out(k, now, out),
             None => ([0; 2], (0.0, 0.0)),
         };
         let plan_ns = self.clock.now_ns().saturating_sub(d.plan_start);
         // Commands go out in Running (motion), Armed and Stopping (zero, keeping the
         // enabled board's command timeout fed).
-        if !matches!(self.state(), State::Running | State::Armed | State::Stopping(_)) {
+        if !matches!(self.vehicles[k].state(), State::Running | State::Armed | State::Stopping(_)) {
             return;
         }
-        self.vehicles[ROBOT].pose.commanded(now.secs(), wheels.0, wheels.1);
-        let record = CycleRecord {
+        self.vehicles[k].pose.commanded(now.secs(), wheels.0, wheels.1);
+        self.fleet_commanded(k, d.pose.heading, wheels);
+        let record = stages.map(|(frame_no, end, decode_ns, checks_ns, _)| CycleRecord {
             decode_ns,
             checks_ns,
             track_ns: d.track_ns,
@@ -67,36 +83,57 @@ impl<K: StageClock> Core<K> {
             asked,
             passed: [wheels.0, wheels.1],
             ..self.record(now, frame_no, end, pulses, d.delay, d.pose.position)
-        };
-        self.command(now, pulses, record, d.pose.position);
+        });
+        self.command(k, now, pulses, record, d.pose.position);
     }
 
-    /// The estimate at `now`, the start once everything is ready, and the control step in
-    /// Running. `None` without a fresh pose.
-    fn decide(&mut self, now: HostTime, track_start: u64) -> Option<Decision> {
+    /// Vehicle `k` was commanded these wheel speeds: the vehicles after it plan on the
+    /// velocity they ask.
+    fn fleet_commanded(&mut self, k: usize, heading: f64, (left, right): (f64, f64)) {
+        if !self.fleet.is_fleet() {
+            return;
+        }
+        let v = &mut self.vehicles[k];
+        let was = v.commanded;
+        v.commanded = Point::from_polar(0.5 * (left + right), heading);
+        let accel = v.control.config().supervisor.as_ref().map_or(0.0, |s| s.wheel_accel);
+        self.fleet.commanded(k, v.commanded, super::fleet::ramp_lag(was, v.commanded, accel));
+    }
+
+    /// Vehicle `k`'s estimate at `now`, its start once everything is ready, and its control
+    /// step in Running. `None` without a fresh pose.
+    fn decide(&mut self, k: usize, now: HostTime, track_start: u64) -> Option<Decision> {
         let t = now.secs();
         let period = self.rig.sample_period.as_secs_f64();
-        let wheel_base = self.rig.control.drive.wheel_base;
         let pose_timeout = self.rig.safety.pose_timeout.as_secs_f64();
-        let motors_ready = self.vehicles[ROBOT].motors.ready();
-        let ready = self.vehicles[ROBOT].mission.ready_to_start() && motors_ready;
-        // The tracker's estimate borrows it: decide inside, act on the decision after.
-        let tracked = crate::track::estimate(&mut self.vehicles[ROBOT].pose, &mut self.obstacles, t, period, wheel_base)
+        let fleet = self.fleet.is_fleet();
+        let v = &mut self.vehicles[k];
+        let wheel_base = v.control.config().drive.wheel_base;
+        let ready = v.mission.ready_to_start() && v.motors.ready();
+        let others = self.fleet.others_of(k);
+        // The estimate borrows the tracks: decide inside, act on the decision after.
+        let tracked = crate::track::estimate(&mut v.pose, &mut self.obstacles, others, t, period, wheel_base)
             .filter(|tr| t - tr.pose_valid_at < pose_timeout)?;
         let track_ns = self.clock.now_ns().saturating_sub(track_start);
-        let started = ready && self.vehicles[ROBOT].safety.state() == State::Armed;
+        let started = ready && v.safety.state() == State::Armed;
         if started {
-            self.vehicles[ROBOT].safety.ready(t);
-            self.vehicles[ROBOT].control.start(t);
+            v.safety.ready(t);
+            v.control.start(t);
+        }
+        if fleet {
+            let goal = v.control.config().goal;
+            let aim = self.fleet.aim(k, tracked.estimate.position, goal, v.control.aim());
+            v.control.aim_at(aim);
         }
         let plan_start = self.clock.now_ns();
-        let step = self.vehicles[ROBOT].safety.state().may_move().then(|| self.vehicles[ROBOT].control.step(t, &tracked.estimate));
+        let step = v.safety.state().may_move().then(|| v.control.step(t, &tracked.estimate));
         let (pose, delay, wheels) = (tracked.estimate.pose(), tracked.estimate.delay, tracked.estimate.wheels);
         Some(Decision { pose, delay, wheels, clearance: tracked.clearance, step, started, track_ns, plan_start })
     }
 
-    /// Count what the step saw and act on its status; the pulses and wheel speeds to command.
-    fn carry_out(&mut self, now: HostTime, out: StepOutput) -> ([i32; 2], (f64, f64)) {
+    /// Count what vehicle `k`'s step saw and act on its status; the pulses and wheel speeds
+    /// to command.
+    fn carry_out(&mut self, k: usize, now: HostTime, out: StepOutput) -> ([i32; 2], (f64, f64)) {
         let t = now.secs();
         let c = &mut self.counters;
         c.obstacle_outran_robot += u64::from(out.outrun);
@@ -109,7 +146,7 @@ impl<K: StageClock> Core<K> {
             c.planner_unclosed_at_a_wall += u64::from(f.unclosed_at_a_wall);
         }
         if out.status != StepStatus::Driving {
-            self.step_stopped(now, out.status);
+            self.step_stopped(k, now, out.status);
             return ([0; 2], (0.0, 0.0));
         }
         c.outside_commands_saturated += u64::from(out.saturated);
@@ -122,56 +159,60 @@ impl<K: StageClock> Core<K> {
         (out.pulses, (out.wheels.left, out.wheels.right))
     }
 
-    /// The step did not drive: the goal reached, a stall, an occupied goal, a refusal.
-    fn step_stopped(&mut self, now: HostTime, status: StepStatus) {
+    /// Vehicle `k`'s step did not drive: the goal reached, a stall, an occupied goal, a
+    /// refusal.
+    fn step_stopped(&mut self, k: usize, now: HostTime, status: StepStatus) {
         match status {
             StepStatus::Driving => {}
-            StepStatus::AtGoal => self.goal_reached(now),
-            StepStatus::Stalled => self.stop(now, StopReason::Stalled),
-            StepStatus::CommandStale => self.stop(now, StopReason::CommandStale),
+            StepStatus::AtGoal => self.goal_reached(k, now),
+            StepStatus::Stalled => self.stop_vehicle(k, now, StopReason::Stalled),
+            StepStatus::CommandStale => self.stop_vehicle(k, now, StopReason::CommandStale),
             StepStatus::GoalOccupied { index, since } => {
                 self.counters.goal_occupied += 1;
                 if since == now.secs() {
-                    let led = self.obstacle_led(index);
-                    self.notice(now, Notice::GoalOccupied { led });
+                    let led = self.obstacle_led(k, index);
+                    self.vehicle_notice(k, now, Notice::GoalOccupied { led });
                 }
             }
             StepStatus::GoalBlocked { index } => {
-                let wait = self.vehicles[ROBOT].control.config().goal_wait;
-                let led = self.obstacle_led(index);
-                self.notice(now, Notice::GoalBlocked { led, wait_s: wait });
-                self.stop(now, StopReason::GoalBlocked);
+                let wait = self.vehicles[k].control.config().goal_wait;
+                let led = self.obstacle_led(k, index);
+                self.vehicle_notice(k, now, Notice::GoalBlocked { led, wait_s: wait });
+                self.stop_vehicle(k, now, StopReason::GoalBlocked);
             }
             StepStatus::Invalid(PlannerError::InsideObstacle { index }) => {
-                // The robot inside an obstacle's planning circle: the obstacle came to it.
+                // The vehicle inside an obstacle's planning circle: the obstacle came to it.
                 self.counters.planner_invalid += 1;
-                let (led, robot) = (self.obstacle_led(index), self.robot_motion_towards(now, index));
-                self.stop(now, StopReason::ObstacleReachedRobot { led, robot });
+                let (led, robot) = (self.obstacle_led(k, index), self.motion_towards(k, now, index));
+                self.stop_vehicle(k, now, StopReason::ObstacleReachedRobot { led, robot });
             }
             StepStatus::Invalid(e) => {
                 self.counters.planner_invalid += 1;
                 let led = match e {
                     PlannerError::GoalInsideObstacle { index } | PlannerError::BadRadius { index } => {
-                        Some(self.obstacle_led(index))
+                        Some(self.obstacle_led(k, index))
                     }
                     _ => None,
                 };
-                self.notice(now, Notice::PlannerRefused { error: e, led });
-                self.stop(now, StopReason::PlannerInvalid);
+                self.vehicle_notice(k, now, Notice::PlannerRefused { error: e, led });
+                self.stop_vehicle(k, now, StopReason::PlannerInvalid);
             }
         }
     }
 
-    /// How the robot moved relative to the obstacle the planner calls `index`, by this
+    /// How vehicle `k` moved relative to the obstacle its planner calls `index`, by this
     /// cycle's estimate: standing (under [`RobotMotion::STANDING_SPEED`]), driving towards it
     /// faster than that, or otherwise driving (turning, or away from it).
-    fn robot_motion_towards(&self, now: HostTime, index: usize) -> RobotMotion {
-        let Some(e) = self.vehicles[ROBOT].last_estimate else { return RobotMotion::Standing };
+    fn motion_towards(&self, k: usize, now: HostTime, index: usize) -> RobotMotion {
+        let Some(e) = self.vehicles[k].last_estimate else { return RobotMotion::Standing };
         let speed = (e.wheels[0] + e.wheels[1]) / 2.0;
         if speed.abs() < RobotMotion::STANDING_SPEED {
             return RobotMotion::Standing;
         }
-        let obstacle = self.obstacles.tracked().nth(index).and_then(|k| self.obstacles.prediction(k, now.secs()));
+        let obstacle = match self.obstacles.tracked().nth(index) {
+            Some(o) => self.obstacles.prediction(o, now.secs()),
+            None => self.other_vehicle(k, index).and_then(|j| self.fleet.position(j)),
+        };
         let Some(ahead) = obstacle.map(|o| o - e.pose.position).filter(|a| a.norm() > 0.0) else {
             return RobotMotion::Away;
         };
@@ -183,10 +224,21 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// The LED of the obstacle the planner and the supervisor call `index` (they number
-    /// the tracked obstacles only).
-    fn obstacle_led(&self, index: usize) -> u8 {
-        self.obstacles.tracked().nth(index).map_or(u8::MAX, |k| self.rig.obstacles[k].led)
+    /// The LED of the obstacle vehicle `k`'s planner and supervisor call `index`: they
+    /// number the tracked obstacles, then the other vehicles they see (named by their front
+    /// LED).
+    fn obstacle_led(&self, k: usize, index: usize) -> u8 {
+        match self.obstacles.tracked().nth(index) {
+            Some(o) => self.rig.obstacles[o].led,
+            None => self.other_vehicle(k, index).map_or(u8::MAX, |j| self.vehicles[j].leds[0]),
+        }
+    }
+
+    /// Which vehicle vehicle `k`'s planner calls obstacle `index`, beyond the tracked
+    /// obstacles.
+    fn other_vehicle(&self, k: usize, index: usize) -> Option<usize> {
+        let beyond = index.checked_sub(self.obstacles.tracked().count())?;
+        self.fleet.seen_by(k).nth(beyond)
     }
 
     /// A cycle's record, its stage timings left at zero.
@@ -215,16 +267,16 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// A goal is reached: on to the next in the queue, or stop.
-    fn goal_reached(&mut self, now: HostTime) {
-        match self.vehicles[ROBOT].mission.next_goal() {
+    /// Vehicle `k`'s goal is reached: on to the next in its queue, or stop.
+    fn goal_reached(&mut self, k: usize, now: HostTime) {
+        match self.vehicles[k].mission.next_goal() {
             Some(next) => {
-                self.out.push(Output::Notice { at: now, notice: Notice::NextGoal { position: next.position } });
-                self.vehicles[ROBOT].control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
+                self.vehicle_notice(k, now, Notice::NextGoal { position: next.position });
+                self.vehicles[k].control.set_goal(Point::new(next.position[0], next.position[1]), next.tolerance);
             }
             None => {
-                self.vehicles[ROBOT].mission.set_start_requested(false);
-                self.stop(now, StopReason::GoalReached);
+                self.vehicles[k].mission.set_start_requested(false);
+                self.stop_vehicle(k, now, StopReason::GoalReached);
             }
         }
     }
@@ -245,23 +297,27 @@ impl<K: StageClock> Core<K> {
     fn track_frame(&mut self, now: HostTime) {
         let clock = self.psd.clock();
         let latest = now + self.rig.sample_period;
-        let robot = [self.rig.robot_front, self.rig.robot_rear];
-        if self.frame.discard_future(clock, latest, &self.rig.schedule, robot, &mut self.counters) {
-            self.vehicles[ROBOT].pose_watch.stamped_in_future(now);
+        let vehicles = &self.vehicles;
+        let vehicle_of = |led| vehicles.iter().position(|v| v.leds.contains(&led));
+        let future = self.frame.discard_future(clock, latest, &self.rig.schedule, vehicle_of, &mut self.counters);
+        for k in 0..self.vehicles.len() {
+            if future & (1 << k) != 0 {
+                self.vehicles[k].pose_watch.stamped_in_future(now);
+            }
+            self.observe_vehicle(k, now, clock);
         }
-        self.observe_robot(now, clock);
         self.observe_obstacles(now, clock);
         self.frame.clear(&self.rig.schedule);
     }
 
-    /// The robot's two LEDs into a pose, if plausible.
-    fn observe_robot(&mut self, now: HostTime, clock: ClockOffset) {
-        let (front, rear) = (self.rig.robot_front, self.rig.robot_rear);
+    /// Vehicle `k`'s two LEDs into its pose, if plausible.
+    fn observe_vehicle(&mut self, k: usize, now: HostTime, clock: ClockOffset) {
+        let [front, rear] = self.vehicles[k].leds;
         let (Some(f), Some(r)) = (self.frame.usable(front), self.frame.usable(rear)) else {
             // Seen but weak (occluded), as against not come at all (lost with its frame).
             let weak = |led| self.frame.received(led) && self.frame.usable(led).is_none();
             let weak = weak(front) || weak(rear);
-            self.vehicles[ROBOT].pose_watch.seen_weak(weak);
+            self.vehicles[k].pose_watch.seen_weak(weak);
             return;
         };
         let cal = &self.rig.calibration;
@@ -271,15 +327,17 @@ impl<K: StageClock> Core<K> {
             return;
         };
         let at = clock.to_host(f.at.midpoint(r.at)).secs();
-        match self.vehicles[ROBOT].pose.plausible(at, fp, rp, self.rig.pose_reach()) {
+        let reach = self.rig.pose_reach_of(&self.vehicles[k].control.config().drive);
+        let v = &mut self.vehicles[k];
+        match v.pose.plausible(at, fp, rp, reach) {
             Ok(()) => {
-                self.vehicles[ROBOT].pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
-                self.vehicles[ROBOT].pose.observe(at, fp, rp);
+                v.pose_watch.plausible(now, (self.counters.bad_serial_frames, self.psd.garbage_bytes()));
+                v.pose.observe(at, fp, rp);
             }
             Err(e) => {
                 self.counters.poses_implausible += 1;
-                if self.vehicles[ROBOT].pose_watch.implausible(e) {
-                    self.notice(now, Notice::PoseDiscarded { why: e });
+                if v.pose_watch.implausible(e) {
+                    self.vehicle_notice(k, now, Notice::PoseDiscarded { why: e });
                 }
             }
         }
@@ -317,21 +375,26 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// The cycle's command to the motors, with its record.
-    fn command(&mut self, now: HostTime, pulses: [i32; 2], mut record: CycleRecord, position: Point) {
-        if !self.vehicles[ROBOT].motors.takes_commands() {
+    /// The cycle's command to vehicle `k`'s motors; the robot's with the cycle's record.
+    fn command(&mut self, k: usize, now: HostTime, pulses: [i32; 2], record: Option<CycleRecord>, position: Point) {
+        if !self.vehicles[k].motors.takes_commands() {
             return;
         }
         let encode_start = self.clock.now_ns();
-        let frame = self.vehicles[ROBOT].motors.command(pulses, &mut self.out.can());
-        record.encode_ns = self.clock.now_ns().saturating_sub(encode_start);
+        let frame = self.vehicles[k].motors.command(pulses, &mut self.out.can());
+        let encode_ns = self.clock.now_ns().saturating_sub(encode_start);
         let Some(frame) = frame else {
             // Pulse rates come from the drive model clamped to the wheel limit, which the
             // config keeps in range; a frame that cannot be built is a planner fault.
-            self.stop(now, StopReason::PlannerInvalid);
+            self.stop_vehicle(k, now, StopReason::PlannerInvalid);
             return;
         };
-        self.vehicles[ROBOT].run.commanded(now);
+        self.vehicles[k].run.commanded(now);
+        let Some(record) = record else {
+            self.out.push(Output::Can(frame));
+            return;
+        };
+        let record = CycleRecord { encode_ns, ..record };
         self.counters.cycles += 1;
         self.progress.t = now.secs();
         self.progress.cycles = self.counters.cycles;
@@ -360,9 +423,14 @@ impl<K: StageClock> Core<K> {
         }
         std::hint::black_box(self.rig.calibration.to_floor(0.0, 0.0));
         let (period, wheel_base) = (self.rig.sample_period.as_secs_f64(), self.rig.control.drive.wheel_base);
-        if let Some(tracked) =
-            crate::track::estimate(&mut self.vehicles[ROBOT].pose, &mut self.obstacles, now.secs(), period, wheel_base)
-        {
+        if let Some(tracked) = crate::track::estimate(
+            &mut self.vehicles[ROBOT].pose,
+            &mut self.obstacles,
+            [&[], &[]],
+            now.secs(),
+            period,
+            wheel_base,
+        ) {
             self.vehicles[ROBOT].control.rehearse(&tracked.estimate);
         }
         self.vehicles[ROBOT].motors.rehearse();

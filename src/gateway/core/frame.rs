@@ -155,22 +155,23 @@ impl FrameAssembler {
 
     /// Discard the samples stamped after `latest` on the host clock (beyond a period of clock
     /// tolerance), counted: one future stamp would otherwise make every later, true one look
-    /// old. Whether one of `watched` (the robot's LEDs) was among them.
+    /// old. Which vehicles' LEDs were among them, a bit a vehicle (`vehicle_of` says whose
+    /// an LED is).
     pub fn discard_future(
         &mut self,
         clock: ClockOffset,
         latest: HostTime,
         schedule: &Schedule,
-        watched: [u8; 2],
+        vehicle_of: impl Fn(u8) -> Option<usize>,
         counters: &mut Counters,
-    ) -> bool {
-        let mut hit = false;
+    ) -> u64 {
+        let mut hit = 0;
         for slot in schedule.slots() {
             let entry = &mut self.samples[usize::from(slot.led)];
             if entry.is_some_and(|s| clock.to_host(s.at) > latest) {
                 *entry = None;
                 counters.samples_from_future += 1;
-                hit |= watched.contains(&slot.led);
+                hit |= vehicle_of(slot.led).map_or(0, |k| 1 << k);
             }
         }
         hit

@@ -55,6 +55,8 @@ pub enum Input<'a> {
     CanReopened,
     /// An operator's request (the core answers it).
     Request(&'a Request),
+    /// An operator's request for one vehicle: 0 the robot, then the `[[vehicles]]` in order.
+    VehicleRequest { vehicle: u8, request: &'a Request },
     /// Arm and start towards the rig's goal once the controller streams (`run --arm`).
     ArmAtStart,
     /// Stop in order and end the run.
@@ -74,6 +76,7 @@ impl Input<'_> {
             Input::CanFailed => "can_failed",
             Input::CanReopened => "can_reopened",
             Input::Request(_) => "request",
+            Input::VehicleRequest { .. } => "vehicle_request",
             Input::ArmAtStart => "arm_at_start",
             Input::Shutdown => "shutdown",
             Input::Tick => "tick",
@@ -102,6 +105,7 @@ pub enum RecordedInput {
     CanFailed,
     CanReopened,
     Request(Box<Request>),
+    VehicleRequest { vehicle: u8, request: Box<Request> },
     ArmAtStart,
     Shutdown,
     Tick,
@@ -124,6 +128,9 @@ impl RecordedInput {
             Input::CanFailed => Self::CanFailed,
             Input::CanReopened => Self::CanReopened,
             Input::Request(r) => Self::Request(Box::new(r.clone())),
+            Input::VehicleRequest { vehicle, request } => {
+                Self::VehicleRequest { vehicle, request: Box::new(request.clone()) }
+            }
             Input::ArmAtStart => Self::ArmAtStart,
             Input::Shutdown => Self::Shutdown,
             Input::Tick => Self::Tick,
@@ -140,6 +147,7 @@ impl RecordedInput {
             Self::CanFailed => Input::CanFailed,
             Self::CanReopened => Input::CanReopened,
             Self::Request(r) => Input::Request(r),
+            Self::VehicleRequest { vehicle, request } => Input::VehicleRequest { vehicle: *vehicle, request },
             Self::ArmAtStart => Input::ArmAtStart,
             Self::Shutdown => Input::Shutdown,
             Self::Tick => Input::Tick,

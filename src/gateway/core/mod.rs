@@ -75,6 +75,7 @@ mod can_link;
 pub mod counter_window;
 mod counters;
 mod cycle;
+mod fleet;
 pub mod frame;
 pub mod input;
 mod mission;
@@ -182,6 +183,8 @@ pub struct Core<K: StageClock> {
     frame: FrameAssembler,
     /// Every obstacle LED's track.
     obstacles: ObstacleTracks,
+    /// What each vehicle sees of the others.
+    fleet: fleet::FleetViews,
     /// Every vehicle the core drives, the robot first ([`ROBOT`]): each one's pose track,
     /// safety state, control step, motors and goals.
     vehicles: Vec<DrivenVehicle>,
@@ -206,7 +209,10 @@ impl<K: StageClock> Core<K> {
             psd: PsdSession::new(rig.schedule, rig.psd_counts),
             frame: FrameAssembler::new(budget),
             obstacles: ObstacleTracks::new(rig.tracking, &radii),
-            vehicles: vec![DrivenVehicle::robot(&rig)],
+            fleet: fleet::FleetViews::new(1 + rig.vehicles.len()),
+            vehicles: std::iter::once(DrivenVehicle::robot(&rig))
+                .chain(rig.vehicles.iter().map(DrivenVehicle::vehicle))
+                .collect(),
             motor_counters: MotorCounters::default(),
             out: Outbox::new(),
             psd_link: PsdLinkHealth::new(budget),
@@ -228,6 +234,18 @@ impl<K: StageClock> Core<K> {
     pub fn state(&self) -> State {
         self.vehicles[ROBOT].state()
     }
+    /// Vehicle `k`'s name (0: `robot`; then the `[[vehicles]]` in order).
+    pub fn vehicle_name(&self, k: usize) -> &str {
+        self.vehicles.get(k).map_or("?", |v| v.name.as_str())
+    }
+    /// Vehicle `k`'s safety state.
+    pub fn vehicle_state(&self, k: usize) -> Option<State> {
+        self.vehicles.get(k).map(|v| v.state())
+    }
+    /// How many vehicles it drives, the robot included.
+    pub fn vehicle_count(&self) -> usize {
+        self.vehicles.len()
+    }
     pub fn safety(&self) -> &Safety {
         &self.vehicles[ROBOT].safety
     }
@@ -248,12 +266,16 @@ impl<K: StageClock> Core<K> {
     }
     /// Shutdown was asked for and the robot is at rest: the caller may end the run.
     pub fn finished(&self) -> bool {
-        self.shutdown && matches!(self.state(), State::Idle | State::Stopped(_) | State::Fault(_))
+        self.shutdown
+            && self.vehicles.iter().all(|v| matches!(v.state(), State::Idle | State::Stopped(_) | State::Fault(_)))
     }
     /// What the core holds in its queues, in elements of capacity: the output queue, the
     /// budgets' windows, the goals. A soak asserts it stops growing once warm.
     pub fn footprint(&self) -> usize {
-        self.out.capacity() + self.psd_link.footprint() + self.can_link.footprint() + self.vehicles[ROBOT].mission.capacity()
+        self.out.capacity()
+            + self.psd_link.footprint()
+            + self.can_link.footprint()
+            + self.vehicles[ROBOT].mission.capacity()
     }
 
     /// The PSD receive buffer's capacity, bytes: it rises and falls as frames are taken
@@ -286,7 +308,10 @@ impl<K: StageClock> Core<K> {
             Input::Can(event) => self.can_event(now, event),
             Input::CanFailed => self.can_failed(now),
             Input::CanReopened => self.can_reopened(),
-            Input::Request(request) => return Some(self.answer(now, request)),
+            Input::Request(request) => return Some(self.answer(now, None, request)),
+            Input::VehicleRequest { vehicle, request } => {
+                return Some(self.answer(now, Some(usize::from(vehicle)), request));
+            }
             Input::ArmAtStart => self.vehicles[ROBOT].mission.arm_at_start(),
             Input::Shutdown => self.shutdown(now),
             Input::Tick => self.tick(now),
@@ -294,17 +319,28 @@ impl<K: StageClock> Core<K> {
         None
     }
 
-    /// Stop in order and end the run once at rest.
+    /// Stop every vehicle in order and end the run once they are at rest.
     fn shutdown(&mut self, now: HostTime) {
         self.shutdown = true;
-        if !matches!(self.state(), State::Stopping(_)) {
-            self.stop(now, StopReason::Shutdown);
+        for k in 0..self.vehicles.len() {
+            if !matches!(self.vehicles[k].state(), State::Stopping(_)) {
+                self.stop_vehicle(k, now, StopReason::Shutdown);
+            }
         }
     }
 
+    /// Stop every vehicle for `reason`: the rig's own (the camera, the bus, the operator's
+    /// e-stop, a shutdown).
     fn stop(&mut self, now: HostTime, reason: StopReason) {
-        let action = self.vehicles[ROBOT].safety.stop(now.secs(), reason);
-        self.act(now, action);
+        for k in 0..self.vehicles.len() {
+            self.stop_vehicle(k, now, reason);
+        }
+    }
+
+    /// Stop vehicle `k` for `reason`: its own (its pose, its motors, its goal, its planner).
+    fn stop_vehicle(&mut self, k: usize, now: HostTime, reason: StopReason) {
+        let action = self.vehicles[k].safety.stop(now.secs(), reason);
+        self.act(k, now, action);
     }
 
     /// Something for the operator's log, at `now` (the shell logs it and keeps it).
@@ -312,34 +348,55 @@ impl<K: StageClock> Core<K> {
         self.out.push(Output::Notice { at: now, notice });
     }
 
-    /// Stop for `reason` if the watchdogs are armed (a budget exceeded while idle is counted,
-    /// not a fault).
+    /// Something of vehicle `k`'s for the operator's log: named for it, unless it is the
+    /// robot's.
+    fn vehicle_notice(&mut self, k: usize, now: HostTime, notice: Notice) {
+        let notice = match k {
+            ROBOT => notice,
+            _ => Notice::OfVehicle { vehicle: self.vehicles[k].name.clone(), notice: Box::new(notice) },
+        };
+        self.notice(now, notice);
+    }
+
+    /// Stop every vehicle whose watchdogs are armed for `reason` (a budget exceeded while
+    /// idle is counted, not a fault).
     fn stop_if_active(&mut self, now: HostTime, reason: StopReason) {
-        if self.state().is_active() {
-            self.stop(now, reason);
+        for k in 0..self.vehicles.len() {
+            if self.vehicles[k].state().is_active() {
+                self.stop_vehicle(k, now, reason);
+            }
         }
     }
 
-    /// Carry out what a transition asks of the motor side.
-    fn act(&mut self, now: HostTime, action: Action) {
-        if self.vehicles[ROBOT].act(now, action, &mut self.out.can()) {
-            self.notice(now, Notice::EmergencyStop { state: self.state() });
-        }
-        self.state_changed(now);
+    /// Whether any vehicle is armed, running or stopping.
+    fn any_active(&self) -> bool {
+        self.vehicles.iter().any(|v| v.state().is_active())
     }
 
-    /// An orderly stop ends once the motors are at rest, or its grace has passed.
-    fn check_at_rest(&mut self, now: HostTime) {
-        if self.vehicles[ROBOT].settle(now, self.shutdown, &mut self.out.can()) {
-            self.state_changed(now);
+    /// Carry out on vehicle `k`'s motors what a transition asks.
+    fn act(&mut self, k: usize, now: HostTime, action: Action) {
+        if self.vehicles[k].act(now, action, &mut self.out.can()) {
+            let state = self.vehicles[k].state();
+            self.vehicle_notice(k, now, Notice::EmergencyStop { state });
+        }
+        self.state_changed(k, now);
+    }
+
+    /// Vehicle `k`'s orderly stop ends once its motors are at rest, or its grace has passed.
+    fn check_at_rest(&mut self, k: usize, now: HostTime) {
+        if self.vehicles[k].settle(now, self.shutdown, &mut self.out.can()) {
+            self.state_changed(k, now);
         }
     }
 
-    fn state_changed(&mut self, now: HostTime) {
-        let state = self.state();
-        if self.progress.state != state {
-            self.progress.state = state;
-            self.out.push(Output::State { at: now, state });
+    fn state_changed(&mut self, k: usize, now: HostTime) {
+        let state = self.vehicles[k].state();
+        if self.vehicles[k].announced != state {
+            self.vehicles[k].announced = state;
+            if k == ROBOT {
+                self.progress.state = state;
+            }
+            self.out.push(Output::State { at: now, vehicle: k, state });
         }
     }
 }

@@ -67,11 +67,14 @@ pub enum Notice {
     PlannerRefused { error: PlannerError, led: Option<u8> },
     /// An emergency stop: the boards told to stop at once.
     EmergencyStop { state: State },
+    /// One of a vehicle's other than the robot's (which are named by the notice alone).
+    OfVehicle { vehicle: String, notice: Box<Notice> },
 }
 
 impl Notice {
     pub fn level(&self) -> Level {
         match self {
+            Self::OfVehicle { notice, .. } => notice.level(),
             Self::Streaming { .. }
             | Self::ObstacleEntered { .. }
             | Self::ObstacleLeft { .. }
@@ -95,6 +98,7 @@ impl Notice {
     /// Its name in `events.jsonl` (`snake_case`).
     pub fn kind(&self) -> &'static str {
         match self {
+            Self::OfVehicle { notice, .. } => notice.kind(),
             Self::Streaming { .. } => "streaming",
             Self::ArmAtStartRefused(_) => "arm_at_start_refused",
             Self::SequenceRebased { .. } => "sequence_rebased",
@@ -133,6 +137,13 @@ impl Notice {
             Self::NextGoal { position } => json!({ "position": position }),
             Self::PlannerRefused { error, led } => json!({ "error": error.to_string(), "led": led }),
             Self::EmergencyStop { state } => json!({ "state": state.to_string() }),
+            Self::OfVehicle { vehicle, notice } => {
+                let mut fields = notice.fields();
+                if let Value::Object(map) = &mut fields {
+                    map.insert("vehicle".into(), json!(vehicle));
+                }
+                fields
+            }
         }
     }
 }
@@ -177,6 +188,7 @@ impl std::fmt::Display for Notice {
             Self::PlannerRefused { error, led: Some(led) } => write!(f, "planner: {error} (obstacle LED {led})"),
             Self::PlannerRefused { error, led: None } => write!(f, "planner: {error}"),
             Self::EmergencyStop { state } => write!(f, "emergency stop: {state}"),
+            Self::OfVehicle { vehicle, notice } => write!(f, "vehicle {vehicle}: {notice}"),
         }
     }
 }

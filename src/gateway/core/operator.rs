@@ -140,6 +140,8 @@ pub enum Refusal {
     BaselineDrives(&'static str),
     #[error("command not finite (NaN or infinite): the robot stops")]
     CommandNotFinite,
+    #[error("no vehicle {index}: the rig drives {count} (the robot and its [[vehicles]])")]
+    NoVehicle { index: usize, count: usize },
 }
 
 /// An obstacle as the gateway estimates it.
@@ -177,6 +179,20 @@ pub struct Status {
     /// Each stage's statistics over the same cycles (`stats` only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stages: Option<Vec<super::timing::StageSummary>>,
+    /// The rig's other vehicles (`[[vehicles]]`), in order; the fields above are the robot's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub vehicles: Vec<VehicleStatus>,
+}
+
+/// One of the rig's other vehicles, as the control socket reports it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VehicleStatus {
+    pub name: String,
+    pub state: StateReport,
+    pub last_stop: Option<String>,
+    pub goals: Vec<Goal>,
+    /// x, y (m), heading (rad), when the gateway has its pose.
+    pub pose: Option<[f64; 3]>,
 }
 
 /// One reply line of the control socket: `{"ok":true,"status":{...}}`, or

@@ -21,8 +21,9 @@ pub enum Output {
     /// A cycle's velocity command: write `frame`, then complete `record` with
     /// [`CycleRecord::written`] and record it.
     Command { frame: CanFrame, record: CycleRecord },
-    /// The safety state changed.
-    State { at: HostTime, state: State },
+    /// Vehicle `vehicle`'s safety state changed (0: the robot's; then `[[vehicles]]` in
+    /// order).
+    State { at: HostTime, vehicle: usize, state: State },
     /// Ask the CAN link for its controller's state (an SLCAN adapter's status flags).
     PollCanStatus,
     /// The PSD controller is configured and streaming.

@@ -7,13 +7,13 @@
 use flowgate_protocol::codec::StreamError;
 use flowgate_protocol::psd::{FaultCode, Message, Packet};
 
-use super::ROBOT;
 use super::budget::Budget;
 use super::counter_window::Verdict;
 use super::frame::{Ended, Taken};
 use super::operator::Refusal;
 use super::psd_session::SessionEvent;
 use super::safety::Garbled;
+use super::ROBOT;
 use super::{Core, Notice, Output, StageClock, StopReason, REOPEN_EVERY};
 use crate::time::{CtrlTime, HostTime};
 

@@ -1,10 +1,10 @@
 //! The operator's requests: arm, start, stop, e-stop, reset, goals, and the queries. A
 //! refusal says exactly why and changes nothing.
 
-use super::ROBOT;
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
 use super::scene::{ObstacleView, SceneRecord};
-use super::vehicle::LastEstimate;
+use super::vehicle::{DrivenVehicle, LastEstimate};
+use super::ROBOT;
 use super::{Answer, Core, StageClock, State, StopReason};
 use crate::config::MAX_GOAL_TOLERANCE;
 use crate::planner::Space;
@@ -12,32 +12,40 @@ use crate::time::HostTime;
 use crate::Point;
 
 impl<K: StageClock> Core<K> {
-    /// An operator's request and its answer: the status comes with a query or an accepted
-    /// request.
-    pub(super) fn answer(&mut self, now: HostTime, request: &Request) -> Answer {
-        let result = self.request(now, request);
+    /// An operator's request, for `vehicle` (`None`: as [`Core::request`] says), and its
+    /// answer: the status comes with a query or an accepted request.
+    pub(super) fn answer(&mut self, now: HostTime, vehicle: Option<usize>, request: &Request) -> Answer {
+        let result = self.request(now, vehicle, request);
         let status = (request.is_query() || (result.is_ok() && !request.is_command())).then(|| self.status(now));
         Answer { result, status }
     }
 
-    /// An operator's request at `now`. Refusals say exactly why and change nothing.
-    pub(super) fn request(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
+    /// An operator's request at `now` for `vehicle`. Without one, `estop`, `stop` and
+    /// `cancel` are every vehicle's, the rest the robot's. Refusals say exactly why and
+    /// change nothing.
+    pub(super) fn request(&mut self, now: HostTime, vehicle: Option<usize>, request: &Request) -> Result<(), Refusal> {
+        let count = self.vehicles.len();
+        let k = vehicle.unwrap_or(ROBOT);
+        if k >= count {
+            return Err(Refusal::NoVehicle { index: k, count });
+        }
+        let every = |k| if vehicle.is_some() { k..k + 1 } else { 0..count };
         match request {
             Request::Status | Request::Stats { .. } => Ok(()),
-            Request::Arm => self.arm(now),
-            Request::Start => self.start(),
-            Request::Stop => self.stop_request(now, false),
-            Request::Cancel => self.stop_request(now, true),
-            Request::EStop => self.estop(now),
-            Request::Reset => self.reset(now),
-            Request::Goal { goals } => self.set_goals(now, goals),
-            Request::Drive { .. } | Request::Wheels { .. } => self.outside_command(now, request),
+            Request::Arm => self.arm(k, now),
+            Request::Start => self.start(k),
+            Request::Stop => every(k).try_for_each(|k| self.stop_request(k, now, false)),
+            Request::Cancel => every(k).try_for_each(|k| self.stop_request(k, now, true)),
+            Request::EStop => every(k).try_for_each(|k| self.estop(k, now)),
+            Request::Reset => self.reset(k, now),
+            Request::Goal { goals } => self.set_goals(k, now, goals),
+            Request::Drive { .. } | Request::Wheels { .. } => self.outside_command(k, now, request),
         }
     }
 
     /// A command from a planner outside flowgate: held for the cycles to drive on; one not
     /// finite stops a moving robot, named.
-    fn outside_command(&mut self, now: HostTime, request: &Request) -> Result<(), Refusal> {
+    fn outside_command(&mut self, k: usize, now: HostTime, request: &Request) -> Result<(), Refusal> {
         let Some(command) = request.command() else { return Ok(()) };
         match self.rig.control.source {
             crate::control::CommandSource::Field => return Err(Refusal::FieldDrives),
@@ -47,18 +55,18 @@ impl<K: StageClock> Core<K> {
             crate::control::CommandSource::Outside { .. } => {}
         }
         if !command.is_finite() {
-            if self.state().is_active() {
-                self.stop(now, StopReason::CommandNotFinite);
+            if self.vehicles[k].state().is_active() {
+                self.stop_vehicle(k, now, StopReason::CommandNotFinite);
             }
             return Err(Refusal::CommandNotFinite);
         }
         self.counters.outside_commands += 1;
-        self.vehicles[ROBOT].control.take_command(now.secs(), command);
+        self.vehicles[k].control.take_command(now.secs(), command);
         Ok(())
     }
 
-    fn arm(&mut self, now: HostTime) -> Result<(), Refusal> {
-        let state = self.state();
+    fn arm(&mut self, k: usize, now: HostTime) -> Result<(), Refusal> {
+        let state = self.vehicles[k].state();
         match state {
             State::Idle | State::Stopped(_) => {}
             State::Fault(_) => return Err(Refusal::Faulted(state)),
@@ -69,21 +77,25 @@ impl<K: StageClock> Core<K> {
         if let Some((index, o)) = unseen {
             return Err(Refusal::RequiredObstacleUnseen { led: o.led, index });
         }
-        let action = self.vehicles[ROBOT].safety.arm(now.secs());
-        self.vehicles[ROBOT].run.armed(now);
-        self.samples_watched_from(now);
-        self.vehicles[ROBOT].motors.armed();
-        self.vehicles[ROBOT].mission.set_start_requested(false);
-        self.act(now, action);
+        if !self.any_active() {
+            self.samples_watched_from(now);
+        }
+        let v = &mut self.vehicles[k];
+        let action = v.safety.arm(now.secs());
+        v.run.armed(now);
+        v.motors.armed();
+        v.mission.set_start_requested(false);
+        self.act(k, now, action);
         Ok(())
     }
 
-    fn start(&mut self) -> Result<(), Refusal> {
-        let state = self.state();
+    fn start(&mut self, k: usize) -> Result<(), Refusal> {
+        let v = &mut self.vehicles[k];
+        let state = v.state();
         match state {
-            State::Armed if !self.vehicles[ROBOT].mission.has_goals() => Err(Refusal::NoGoal),
+            State::Armed if !v.mission.has_goals() => Err(Refusal::NoGoal),
             State::Armed => {
-                self.vehicles[ROBOT].mission.set_start_requested(true);
+                v.mission.set_start_requested(true);
                 Ok(())
             }
             State::Running => Err(Refusal::Already(state)),
@@ -92,76 +104,82 @@ impl<K: StageClock> Core<K> {
         }
     }
 
-    /// Stop in order (`cancel`: and forget the goals).
-    fn stop_request(&mut self, now: HostTime, cancel: bool) -> Result<(), Refusal> {
+    /// Stop vehicle `k` in order (`cancel`: and forget its goals).
+    fn stop_request(&mut self, k: usize, now: HostTime, cancel: bool) -> Result<(), Refusal> {
+        let v = &mut self.vehicles[k];
         if cancel {
-            self.vehicles[ROBOT].mission.clear_goals();
+            v.mission.clear_goals();
         }
-        self.vehicles[ROBOT].mission.set_start_requested(false);
-        if matches!(self.state(), State::Running | State::Armed) {
-            self.stop(now, StopReason::Operator);
+        v.mission.set_start_requested(false);
+        if matches!(v.state(), State::Running | State::Armed) {
+            self.stop_vehicle(k, now, StopReason::Operator);
         }
         Ok(())
     }
 
-    /// Accepted whatever the state. In a fault the motors were e-stopped already; they hear
-    /// the operator's e-stop again all the same.
-    fn estop(&mut self, now: HostTime) -> Result<(), Refusal> {
-        self.vehicles[ROBOT].mission.set_start_requested(false);
-        if matches!(self.state(), State::Fault(_)) {
-            self.vehicles[ROBOT].motors.emergency_stop(flowgate_protocol::motor::EStopReason::Operator, &mut self.out.can());
+    /// Accepted whatever vehicle `k`'s state. In a fault its motors were e-stopped already;
+    /// they hear the operator's e-stop again all the same.
+    fn estop(&mut self, k: usize, now: HostTime) -> Result<(), Refusal> {
+        let v = &mut self.vehicles[k];
+        v.mission.set_start_requested(false);
+        if matches!(v.state(), State::Fault(_)) {
+            v.motors.emergency_stop(flowgate_protocol::motor::EStopReason::Operator, &mut self.out.can());
         } else {
-            self.stop(now, StopReason::OperatorEStop);
+            self.stop_vehicle(k, now, StopReason::OperatorEStop);
         }
         Ok(())
     }
 
-    /// Leave a fault whose cause is gone.
-    fn reset(&mut self, now: HostTime) -> Result<(), Refusal> {
-        let state = self.state();
+    /// Leave vehicle `k`'s fault whose cause is gone.
+    fn reset(&mut self, k: usize, now: HostTime) -> Result<(), Refusal> {
+        let state = self.vehicles[k].state();
         let State::Fault(reason) = state else { return Err(Refusal::NotFaulted(state)) };
-        if self.cause_present(now, reason) {
+        if self.cause_present(k, now, reason) {
             return Err(Refusal::CauseStillPresent(reason));
         }
         // Armed again, the drives go pre-operational to be configured, and no longer hear
         // a quick stop: a wheel still turning (its stop lost on the bus) must stand first.
-        if let Some(node) = self.vehicles[ROBOT].motors.moving(now) {
+        if let Some(node) = self.vehicles[k].motors.moving(now) {
             return Err(Refusal::StillMoving { node });
         }
-        self.vehicles[ROBOT].motors.fault_reset(&mut self.out.can());
+        self.vehicles[k].motors.fault_reset(&mut self.out.can());
         // The PSD session starts afresh: sequence numbers, frame counter and clock taken
-        // anew, so no baseline a fault left behind outlives the reset.
-        if !self.psd.is_down() {
+        // anew, so no baseline a fault left behind outlives the reset (unless another vehicle
+        // is under way on the stream).
+        if !self.psd.is_down() && !self.any_active() {
             self.psd.connect(now, &mut self.out.psd());
             self.frame.forget_counter();
-            self.vehicles[ROBOT].pose_watch.forget_future();
+            for v in &mut self.vehicles {
+                v.pose_watch.forget_future();
+            }
             self.forget_frame_pace();
             self.stamps.forget_step();
             self.psd_link.reconfigure();
         }
-        self.vehicles[ROBOT].safety.reset(now.secs());
-        self.state_changed(now);
+        self.vehicles[k].safety.reset(now.secs());
+        self.state_changed(k, now);
         Ok(())
     }
 
     /// Arm, set `goal` and start (`--arm`).
     pub(super) fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
-        self.request(now, &Request::Arm)?;
-        self.request(now, &Request::Goal { goals: vec![goal] })?;
-        self.request(now, &Request::Start)
+        self.request(now, None, &Request::Arm)?;
+        self.request(now, None, &Request::Goal { goals: vec![goal] })?;
+        self.request(now, None, &Request::Start)
     }
 
-    /// Whether a fault's cause persists now.
-    fn cause_present(&self, now: HostTime, reason: StopReason) -> bool {
+    /// Whether vehicle `k`'s fault's cause persists now.
+    fn cause_present(&self, k: usize, now: HostTime, reason: StopReason) -> bool {
         let s = &self.rig.safety;
-        let heard = self.vehicles[ROBOT].motors.heard_within(now, s.heartbeat_timeout);
+        let v = &self.vehicles[k];
+        let heard = v.motors.heard_within(now, s.heartbeat_timeout);
         let sampling = !self.psd.is_down() && now < self.samples.last() + s.sample_timeout;
         match reason {
             StopReason::SerialLost => self.psd.is_down(),
             StopReason::ClockUnsynced => self.psd.clock_waiting(now),
             StopReason::SamplesStopped | StopReason::SerialGarbled { .. } => !sampling,
             StopReason::PoseLost => {
-                !sampling || self.vehicles[ROBOT].pose.time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
+                !sampling || v.pose.time().is_none_or(|t| now.secs() - t >= s.pose_timeout.as_secs_f64())
             }
             StopReason::HeartbeatLost { .. } => !heard,
             // A drive that rebooted unheard (its boot-up lost) stays silent, its heartbeat
@@ -177,9 +195,9 @@ impl<K: StageClock> Core<K> {
             // a latch the reset itself clears (refusing the reset for it would never end).
             // Our controller back on the bus (its flags, or a frame heard since), and a board
             // heard again (drives may be silent: see above).
-            StopReason::BusOff => self.can_link.is_bus_off() || (!heard && self.vehicles[ROBOT].motors.always_heard()),
+            StopReason::BusOff => self.can_link.is_bus_off() || (!heard && v.motors.always_heard()),
             StopReason::BoardBusOff { .. } => !heard,
-            StopReason::BoardEStop { .. } => !heard || self.vehicles[ROBOT].motors.latched(reason),
+            StopReason::BoardEStop { .. } => !heard || v.motors.latched(reason),
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link.is_up(),
             // Two masters must never drive one board: refused while the other is heard.
             StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {
@@ -197,31 +215,37 @@ impl<K: StageClock> Core<K> {
         let (wheel_base, robot, margin) =
             (self.rig.control.drive.wheel_base, self.rig.control.robot_radius, self.rig.control.planner.margin);
         let tracked: Vec<usize> = self.obstacles.tracked().collect();
-        let (pose, obstacles) =
-            match crate::track::estimate(&mut self.vehicles[ROBOT].pose, &mut self.obstacles, now.secs(), period, wheel_base) {
-                Some(tr) => {
-                    let p = tr.estimate.pose();
-                    let delay = tr.estimate.delay;
-                    let obstacles = tr
-                        .estimate
-                        .obstacles
-                        .iter()
-                        .zip(tracked)
-                        .map(|(o, k)| ObstacleStatus {
-                            led: self.rig.obstacles[k].led,
-                            occluded: o.spread > 0.0,
-                            position: [o.center.re, o.center.im],
-                            velocity: [o.velocity.re, o.velocity.im],
-                            planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
-                        })
-                        .collect();
-                    (Some([p.position.re, p.position.im, p.heading]), obstacles)
-                }
-                None => (None, Vec::new()),
-            };
+        let (pose, obstacles) = match crate::track::estimate(
+            &mut self.vehicles[ROBOT].pose,
+            &mut self.obstacles,
+            [&[], &[]],
+            now.secs(),
+            period,
+            wheel_base,
+        ) {
+            Some(tr) => {
+                let p = tr.estimate.pose();
+                let delay = tr.estimate.delay;
+                let obstacles = tr
+                    .estimate
+                    .obstacles
+                    .iter()
+                    .zip(tracked)
+                    .map(|(o, k)| ObstacleStatus {
+                        led: self.rig.obstacles[k].led,
+                        occluded: o.spread > 0.0,
+                        position: [o.center.re, o.center.im],
+                        velocity: [o.velocity.re, o.velocity.im],
+                        planning_radius: margin.radius(o.radius + robot, o.velocity.norm(), delay),
+                    })
+                    .collect();
+                (Some([p.position.re, p.position.im, p.heading]), obstacles)
+            }
+            None => (None, Vec::new()),
+        };
         Status {
             state: self.state().into(),
-            last_stop: self.vehicles[ROBOT].safety.history.iter().rev().find_map(|(_, s)| s.reason()).map(|r| r.to_string()),
+            last_stop: self.vehicles[ROBOT].last_stop(),
             goals: self.vehicles[ROBOT].mission.goals().collect(),
             pose,
             obstacles,
@@ -232,6 +256,7 @@ impl<K: StageClock> Core<K> {
             cycles: self.counters.cycles,
             latency_us: None,
             stages: None,
+            vehicles: self.vehicles[ROBOT + 1..].iter().map(DrivenVehicle::status).collect(),
         }
     }
 
@@ -241,7 +266,9 @@ impl<K: StageClock> Core<K> {
         // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
         let cycle = self.counters.cycles.saturating_sub(1);
         let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
-        let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.vehicles[ROBOT].last_estimate else { return scene };
+        let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.vehicles[ROBOT].last_estimate else {
+            return scene;
+        };
         let goal = self.vehicles[ROBOT].control.config().goal;
         scene.pose = [pose.position.re, pose.position.im, pose.heading];
         scene.twist = [0.5 * (left + right), (right - left) / self.rig.control.drive.wheel_base];
@@ -263,7 +290,7 @@ impl<K: StageClock> Core<K> {
     /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,
     /// clear of the room's walls and static obstacles and within the robot's reach there,
     /// outside every obstacle's planning circle now.
-    pub(super) fn set_goals(&mut self, now: HostTime, goals: &[Goal]) -> Result<(), Refusal> {
+    pub(super) fn set_goals(&mut self, k: usize, now: HostTime, goals: &[Goal]) -> Result<(), Refusal> {
         if goals.is_empty() {
             return Err(Refusal::EmptyQueue);
         }
@@ -296,7 +323,7 @@ impl<K: StageClock> Core<K> {
                 if let Some(why) = room.blocked_at(at) {
                     return Err(bad(why));
                 }
-                let robot = self.vehicles[ROBOT].last_estimate.map(|e| e.pose.position);
+                let robot = self.vehicles[k].last_estimate.map(|e| e.pose.position);
                 if let Some(robot) = robot.filter(|&r| room.blocked_at(r).is_none() && !room.reachable(r, at)) {
                     return Err(bad(format!(
                         "out of the robot's reach from ({:.3}, {:.3}): the walls, static obstacles or the view's edge \
@@ -315,9 +342,9 @@ impl<K: StageClock> Core<K> {
                 }
             }
         }
-        self.vehicles[ROBOT].mission.set_goals(goals);
+        self.vehicles[k].mission.set_goals(goals);
         let first = goals[0];
-        self.vehicles[ROBOT].control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
+        self.vehicles[k].control.set_goal(Point::new(first.position[0], first.position[1]), first.tolerance);
         Ok(())
     }
 }

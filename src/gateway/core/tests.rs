@@ -30,7 +30,7 @@ fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    assert_eq!(c.request(ms(1), &Request::Arm), Ok(()));
+    assert_eq!(c.request(ms(1), None, &Request::Arm), Ok(()));
     let text = include_str!("../../../rig.example.toml").replacen(
         "{ led = 4, radius = 0.07 }",
         "{ led = 4, radius = 0.07, required = true }",
@@ -39,7 +39,7 @@ fn a_required_obstacle_led_not_seen_refuses_the_arm_by_name() {
     let mut c = Core::new(RigFile::from_toml(&text, "rig").unwrap().rig("rig").unwrap(), NoClock);
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    let refusal = c.request(ms(1), &Request::Arm).unwrap_err();
+    let refusal = c.request(ms(1), None, &Request::Arm).unwrap_err();
     assert_eq!(refusal, Refusal::RequiredObstacleUnseen { led: 4, index: 1 });
     assert_eq!(refusal.to_string(), "obstacle LED 4 is required (leds.obstacles[1].required) and has not been seen");
     assert_eq!(c.state(), State::Idle);
@@ -74,13 +74,13 @@ fn an_interface_gone_down_is_named_and_held_until_the_link_reopens() {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    c.request(ms(1), &Request::Arm).unwrap();
+    c.request(ms(1), None, &Request::Arm).unwrap();
     c.can_event(ms(2), CanEvent::InterfaceDown);
     assert_eq!(c.state(), State::Fault(StopReason::CanInterfaceDown));
     assert_eq!(StopReason::CanInterfaceDown.to_string(), "CAN interface went down");
-    assert_eq!(c.request(ms(3), &Request::Reset), Err(Refusal::CauseStillPresent(StopReason::CanInterfaceDown)));
+    assert_eq!(c.request(ms(3), None, &Request::Reset), Err(Refusal::CauseStillPresent(StopReason::CanInterfaceDown)));
     c.can_reopened();
-    assert_eq!(c.request(ms(4), &Request::Reset), Ok(()));
+    assert_eq!(c.request(ms(4), None, &Request::Reset), Ok(()));
     assert_eq!(c.state(), State::Idle);
 }
 
@@ -302,7 +302,7 @@ fn watchdogs_fire_at_their_deadline() {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    c.request(ms(1), &Request::Arm).unwrap();
+    c.request(ms(1), None, &Request::Arm).unwrap();
     let expected = ms(1) + c.rig().safety.sample_timeout;
     assert!(c.next_deadline() <= expected);
     let mut now = ms(1);
@@ -322,7 +322,7 @@ fn garbage_in_place_of_samples_is_named_garbled_not_silent() {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    c.request(ms(1), &Request::Arm).unwrap();
+    c.request(ms(1), None, &Request::Arm).unwrap();
     // 3,000 bytes of noise without a frame's end, then one that ends a bad frame.
     c.read(ms(20), &[0x55; 3000]);
     c.read(ms(40), &[0]);
@@ -353,7 +353,7 @@ fn a_duplicated_frame_gives_one_command() {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    c.request(ms(1), &Request::Arm).unwrap();
+    c.request(ms(1), None, &Request::Arm).unwrap();
     commands(&mut c);
     let wire = frame_bytes(&c, 7, CTRL_EPOCH_US + 19_000, 0.0);
     c.read(ms(20), &wire);
@@ -494,14 +494,14 @@ fn a_pose_lost_in_garbage_is_named_garbled() {
         c.read(ms(20 + 20 * u64::from(k)), &garbled);
         c.sampled(ms(20 + 20 * u64::from(k)));
     }
-    let reason = c.pose_lost_cause(ms(200));
+    let reason = c.pose_lost_cause(ROBOT, ms(200));
     assert!(matches!(reason, StopReason::SerialGarbled { frames: 11, found: Garbled::NoPose, .. }), "{reason:?}");
     assert!(
         reason.to_string().starts_with("garbled serial data and no robot pose through it (11 bad frames"),
         "{reason}"
     );
     c.vehicles[ROBOT].pose_watch.seen_weak(true);
-    assert_eq!(c.pose_lost_cause(ms(200)), StopReason::PoseLost);
+    assert_eq!(c.pose_lost_cause(ROBOT, ms(200)), StopReason::PoseLost);
 }
 
 /// A packet numbered `seq`, whatever the controller's count.
@@ -516,7 +516,7 @@ fn armed_with_a_sample() -> Core<NoClock> {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    c.request(ms(2), &Request::Arm).unwrap();
+    c.request(ms(2), None, &Request::Arm).unwrap();
     frame(&mut c, ms(20), 0, CTRL_EPOCH_US + 19_000);
     c
 }
@@ -559,7 +559,7 @@ fn garbage_before_an_arm_names_the_stop_after_it() {
     let mut garbled = bytes(Message::FrameEnd { frame: 1, t_ctrl_us: CTRL_EPOCH_US + 39_000, samples: 2 });
     garbled[3] ^= 0x5A;
     c.read(ms(40), &garbled);
-    c.request(ms(50), &Request::Arm).unwrap();
+    c.request(ms(50), None, &Request::Arm).unwrap();
     let reason = run_to_fault(&mut c, ms(500));
     assert!(matches!(reason, StopReason::SerialGarbled { frames: 1, found: Garbled::NoSample, .. }), "{reason:?}");
 }
@@ -594,9 +594,9 @@ fn a_handshake_answer_discarded_for_its_number_names_the_sequence() {
     // Cleared without a restart: the operator's reset configures the controller again, and
     // the robot arms again.
     let t = c.next_deadline().max(ms(600));
-    c.request(t, &Request::Reset).unwrap();
+    c.request(t, None, &Request::Reset).unwrap();
     answer(&mut c, t);
-    c.request(t, &Request::Arm).unwrap();
+    c.request(t, None, &Request::Arm).unwrap();
     assert_eq!(c.state(), State::Armed);
 }
 
@@ -644,14 +644,14 @@ fn a_clock_stepped_back_after_the_handshake_is_named_the_clock() {
     let mut c = core();
     c.psd_connected(ms(0));
     answer(&mut c, ms(1));
-    c.request(ms(2), &Request::Arm).unwrap();
+    c.request(ms(2), None, &Request::Arm).unwrap();
     for k in 0..5u32 {
         let t = 20 + 20 * u64::from(k);
         frame(&mut c, ms(t), k, CTRL_EPOCH_US + (t - 1) * 1000);
     }
     // The operator's e-stop and reset: the controller configured again on the same line.
-    c.request(ms(105), &Request::EStop).unwrap();
-    c.request(ms(110), &Request::Reset).unwrap();
+    c.request(ms(105), None, &Request::EStop).unwrap();
+    c.request(ms(110), None, &Request::Reset).unwrap();
     answer(&mut c, ms(111));
     // The old stream's last frame, still in flight: no step.
     frame(&mut c, ms(112), 5, CTRL_EPOCH_US + 119_000 - 20_000);
@@ -659,5 +659,5 @@ fn a_clock_stepped_back_after_the_handshake_is_named_the_clock() {
     // The new stream's, its clock stepped back 461 ms.
     frame(&mut c, ms(131), 6, CTRL_EPOCH_US + 130_000 - 461_000);
     assert_eq!(c.stamps.stepped(), Some(ms(131)));
-    assert_eq!(c.pose_lost_cause(ms(140)), StopReason::ClockJumped);
+    assert_eq!(c.pose_lost_cause(ROBOT, ms(140)), StopReason::ClockJumped);
 }

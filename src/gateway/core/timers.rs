@@ -8,8 +8,8 @@
 //!
 //! [`Input::Tick`]: super::Input::Tick
 
-use super::ROBOT;
 use super::safety::Garbled;
+use super::ROBOT;
 use super::{Core, Output, StageClock, State, StopReason, HEARTBEAT_PERIOD, STOP_GRACE};
 use crate::time::HostTime;
 use crate::Point;
@@ -78,6 +78,22 @@ impl Timer {
     }
 }
 
+impl Timer {
+    /// Whether each vehicle keeps its own entry (its pose, its motors, its stop); the rest
+    /// are the rig's (the heartbeat, the PSD line, the CAN link, the samples, the clock).
+    pub fn is_per_vehicle(self) -> bool {
+        matches!(
+            self,
+            Timer::Pose
+                | Timer::Occlusion
+                | Timer::MotorHeartbeat
+                | Timer::Motors
+                | Timer::StopGrace
+                | Timer::KeepAlive
+        )
+    }
+}
+
 impl<K: StageClock> Core<K> {
     /// When the core next needs an [`Input::Tick`](super::Input::Tick), whatever else happens;
     /// asked once the outputs are drained ([`Core::poll`] decodes what is left of a read).
@@ -85,10 +101,13 @@ impl<K: StageClock> Core<K> {
         Timer::TABLE.iter().map(|&t| self.deadline(t)).min().unwrap_or(HostTime::NEVER)
     }
 
-    /// When `timer` fires ([`HostTime::NEVER`] while it is not armed).
+    /// When `timer` fires ([`HostTime::NEVER`] while it is not armed): a vehicle's entry for
+    /// the first vehicle it fires for.
     pub fn deadline(&self, timer: Timer) -> HostTime {
-        let state = self.state();
-        let (active, running) = (state.is_active(), state == State::Running);
+        if timer.is_per_vehicle() {
+            return (0..self.vehicles.len()).map(|k| self.vehicle_deadline(timer, k)).min().unwrap_or(HostTime::NEVER);
+        }
+        let active = self.any_active();
         let s = &self.rig.safety;
         match timer {
             Timer::Heartbeat => self.vehicles[ROBOT].run.next_heartbeat(),
@@ -99,40 +118,65 @@ impl<K: StageClock> Core<K> {
             Timer::ReopenPsd => self.psd_link.reopen_at(),
             Timer::ReopenCan => self.can_link.reopen_at(),
             Timer::Samples if active => self.samples.last() + s.sample_timeout,
-            Timer::Pose if running => self.pose_deadline(),
-            Timer::Occlusion if running => self.occlusion_deadline().map_or(HostTime::NEVER, |(at, _)| at),
-            Timer::MotorHeartbeat if active => {
-                self.vehicles[ROBOT].motors.heartbeat_deadline(self.vehicles[ROBOT].run.armed_at(), s.heartbeat_timeout).0
-            }
             Timer::ClockSync if active => self.psd.sync_deadline(),
-            Timer::Motors => self.vehicles[ROBOT].motors.deadline(),
-            Timer::StopGrace => self.vehicles[ROBOT].run.stopping_since().map_or(HostTime::NEVER, |since| since + STOP_GRACE),
-            Timer::KeepAlive => self.vehicles[ROBOT].keep_alive_due().unwrap_or(HostTime::NEVER),
             _ => HostTime::NEVER,
         }
     }
 
-    /// Time passed: fire every entry that is due, in the table's order (one watchdog at most).
-    pub(super) fn tick(&mut self, now: HostTime) {
-        let mut stopped_by_watchdog = false;
-        for timer in Timer::TABLE {
-            let due = match timer {
-                Timer::StopGrace => self.vehicles[ROBOT].run.stopping_since().is_some(),
-                _ => now >= self.deadline(timer),
-            };
-            if !due || (timer.is_watchdog() && stopped_by_watchdog) {
-                continue;
+    /// When vehicle `k`'s own `timer` fires.
+    fn vehicle_deadline(&self, timer: Timer, k: usize) -> HostTime {
+        let v = &self.vehicles[k];
+        let state = v.state();
+        let (active, running) = (state.is_active(), state == State::Running);
+        match timer {
+            Timer::Pose if running => self.pose_deadline(k),
+            Timer::Occlusion if running => self.occlusion_deadline(k).map_or(HostTime::NEVER, |(at, _)| at),
+            Timer::MotorHeartbeat if active => {
+                v.motors.heartbeat_deadline(v.run.armed_at(), self.rig.safety.heartbeat_timeout).0
             }
-            stopped_by_watchdog |= timer.is_watchdog();
-            self.fire(timer, now);
+            Timer::Motors => v.motors.deadline(),
+            Timer::StopGrace => v.run.stopping_since().map_or(HostTime::NEVER, |since| since + STOP_GRACE),
+            Timer::KeepAlive => v.keep_alive_due().unwrap_or(HostTime::NEVER),
+            _ => HostTime::NEVER,
         }
     }
 
+    /// Time passed: fire every entry that is due, in the table's order (one watchdog at
+    /// most a vehicle; a watchdog of the rig's counts for every vehicle).
+    pub(super) fn tick(&mut self, now: HostTime) {
+        let mut stopped_by_watchdog: u64 = 0;
+        for timer in Timer::TABLE {
+            if timer.is_per_vehicle() {
+                for k in 0..self.vehicles.len() {
+                    let due = match timer {
+                        Timer::StopGrace => self.vehicles[k].run.stopping_since().is_some(),
+                        _ => now >= self.vehicle_deadline(timer, k),
+                    };
+                    if !due || (timer.is_watchdog() && stopped_by_watchdog & (1 << k) != 0) {
+                        continue;
+                    }
+                    if timer.is_watchdog() {
+                        stopped_by_watchdog |= 1 << k;
+                    }
+                    self.fire_vehicle(timer, k, now);
+                }
+            } else {
+                if now < self.deadline(timer) || (timer.is_watchdog() && stopped_by_watchdog != 0) {
+                    continue;
+                }
+                if timer.is_watchdog() {
+                    stopped_by_watchdog = u64::MAX;
+                }
+                self.fire(timer, now);
+            }
+        }
+    }
+
+    /// One of the rig's entries.
     fn fire(&mut self, timer: Timer, now: HostTime) {
         match timer {
             Timer::Heartbeat => {
-                let state = self.state();
-                self.vehicles[ROBOT].motors.heartbeat(state, &mut self.out.can());
+                self.heartbeat();
                 self.vehicles[ROBOT].run.heartbeat_sent(now + HEARTBEAT_PERIOD);
                 // An SLCAN adapter reports bus-off only when asked: ask with each heartbeat.
                 if self.rig.can.polls_status() {
@@ -150,31 +194,60 @@ impl<K: StageClock> Core<K> {
                 self.can_link.reopen_asked(now);
                 self.out.push(Output::OpenCan);
             }
-            Timer::Samples => self.stop(now, self.samples_stopped_cause(now)),
-            Timer::Pose => self.stop(now, self.pose_lost_cause(now)),
+            Timer::Samples => self.stop_if_active(now, self.samples_stopped_cause(now)),
+            Timer::ClockSync => self.stop_if_active(now, StopReason::ClockUnsynced),
+            _ => {}
+        }
+    }
+
+    /// The gateway's heartbeat: one frame for the boards and one for the drives, however
+    /// many vehicles share the bus, each kind's sent by its first vehicle (in its state),
+    /// and the drives' withheld while any drive's quick stop is unconfirmed.
+    fn heartbeat(&mut self) {
+        let withheld = self.vehicles.iter().any(|v| v.motors.withholds_heartbeat());
+        let mut sent = [false; 2];
+        for v in &mut self.vehicles {
+            let board = usize::from(v.motors.always_heard());
+            let beat = !sent[board] && (board == 1 || !withheld);
+            sent[board] = true;
+            let state = v.state();
+            v.motors.heartbeat(state, beat, &mut self.out.can());
+        }
+    }
+
+    /// One of vehicle `k`'s entries.
+    fn fire_vehicle(&mut self, timer: Timer, k: usize, now: HostTime) {
+        match timer {
+            Timer::Pose => self.stop_vehicle(k, now, self.pose_lost_cause(k, now)),
             Timer::Occlusion => {
-                if let Some((_, k)) = self.occlusion_deadline() {
-                    let (led, at_edge) = (self.rig.obstacles[k].led, self.lost_at_edge(k));
-                    self.stop(now, StopReason::ObstacleOccluded { led, at_edge });
+                if let Some((_, o)) = self.occlusion_deadline(k) {
+                    let (led, at_edge) = (self.rig.obstacles[o].led, self.lost_at_edge(o));
+                    self.stop_vehicle(k, now, StopReason::ObstacleOccluded { led, at_edge });
                 }
             }
             Timer::MotorHeartbeat => {
-                let (_, reason) =
-                    self.vehicles[ROBOT].motors.heartbeat_deadline(self.vehicles[ROBOT].run.armed_at(), self.rig.safety.heartbeat_timeout);
-                // Unheard because our own controller is off the bus: named for that.
-                self.stop(now, if self.can_link.is_bus_off() { StopReason::BusOff } else { reason });
-            }
-            Timer::ClockSync => self.stop(now, StopReason::ClockUnsynced),
-            Timer::Motors => {
-                if let Some(reason) = self.vehicles[ROBOT].motors.tick(now) {
-                    self.stop(now, reason);
+                let v = &self.vehicles[k];
+                let (_, reason) = v.motors.heartbeat_deadline(v.run.armed_at(), self.rig.safety.heartbeat_timeout);
+                // Unheard because our own controller is off the bus: named for that, and
+                // then every vehicle's.
+                if self.can_link.is_bus_off() {
+                    self.stop(now, StopReason::BusOff);
+                } else {
+                    self.stop_vehicle(k, now, reason);
                 }
             }
-            Timer::StopGrace => self.check_at_rest(now),
-            Timer::KeepAlive => {
-                self.vehicles[ROBOT].run.commanded(now);
-                self.vehicles[ROBOT].motors.keep_alive(&mut self.out.can());
+            Timer::Motors => {
+                if let Some(reason) = self.vehicles[k].motors.tick(now) {
+                    self.stop_vehicle(k, now, reason);
+                }
             }
+            Timer::StopGrace => self.check_at_rest(k, now),
+            Timer::KeepAlive => {
+                let v = &mut self.vehicles[k];
+                v.run.commanded(now);
+                v.motors.keep_alive(&mut self.out.can());
+            }
+            _ => {}
         }
     }
 
@@ -216,45 +289,45 @@ impl<K: StageClock> Core<K> {
     /// stamped out of step with their count); seen where it cannot be; arriving, but too
     /// old (delay); lost with frames the line garbled (no weak sample of the robot since);
     /// lost while the line went quiet for a while; or not arriving.
-    pub(super) fn pose_lost_cause(&self, now: HostTime) -> StopReason {
+    pub(super) fn pose_lost_cause(&self, k: usize, now: HostTime) -> StopReason {
         let s = &self.rig.safety;
+        let watch = &self.vehicles[k].pose_watch;
         let quiet = now.since(self.samples.last()) > 2 * self.rig.sample_period;
         let recent = |at: Option<HostTime>, within| at.is_some_and(|at| now.since(at) < within);
-        let garbled = self.garbled_when_quiet(now, self.vehicles[ROBOT].pose_watch.garbage_at_last(), Garbled::NoPose);
+        let garbled = self.garbled_when_quiet(now, watch.garbage_at_last(), Garbled::NoPose);
         if quiet {
             self.samples_stopped_cause(now)
-        } else if recent(self.vehicles[ROBOT].pose_watch.last_from_future(), s.sample_timeout)
+        } else if recent(watch.last_from_future(), s.sample_timeout)
             || recent(self.stamps.stepped(), s.sample_timeout + s.pose_timeout)
         {
             StopReason::ClockJumped
-        } else if self.vehicles[ROBOT].pose_watch.is_implausible() {
+        } else if watch.is_implausible() {
             StopReason::PoseImplausible
-        } else if now.since(self.vehicles[ROBOT].pose_watch.arrived()) < s.sample_timeout {
+        } else if now.since(watch.arrived()) < s.sample_timeout {
             StopReason::PoseDelayed
-        } else if !self.vehicles[ROBOT].pose_watch.weak()
-            && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. })
-        {
+        } else if !watch.weak() && !matches!(garbled, StopReason::SerialGarbled { frames: 0, bytes: 0, .. }) {
             garbled
-        } else if self.vehicles[ROBOT].pose_watch.quiet_since() && !self.vehicles[ROBOT].pose_watch.weak() {
+        } else if watch.quiet_since() && !watch.weak() {
             StopReason::SamplesStopped
         } else {
             StopReason::PoseLost
         }
     }
 
-    fn pose_deadline(&self) -> HostTime {
-        let seen = self.vehicles[ROBOT].pose.time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
+    fn pose_deadline(&self, k: usize) -> HostTime {
+        let seen = self.vehicles[k].pose.time().map_or(HostTime::ZERO, HostTime::from_secs_f64);
         seen + self.rig.safety.pose_timeout
     }
 
-    /// When the longest-unseen tracked obstacle has been occluded too long (counted from
-    /// its last sighting, or the arm if later), and which: the region it may have reached
+    /// When the longest-unseen tracked obstacle has been occluded too long for vehicle `k`
+    /// (counted from its last sighting, or `k`'s arm if later), and which: the region it may have reached
     /// keeps growing, and a robot must not drive around a guess for ever. An obstacle never
     /// seen, or seen leaving the view, has no track and no deadline.
-    fn occlusion_deadline(&self) -> Option<(HostTime, usize)> {
+    fn occlusion_deadline(&self, k: usize) -> Option<(HostTime, usize)> {
+        let armed_at = self.vehicles[k].run.armed_at();
         self.obstacles
             .tracked()
-            .filter_map(|k| Some((HostTime::from_secs_f64(self.obstacles.time(k)?).max(self.vehicles[ROBOT].run.armed_at()), k)))
+            .filter_map(|o| Some((HostTime::from_secs_f64(self.obstacles.time(o)?).max(armed_at), o)))
             .min_by_key(|&(seen, _)| seen)
             .map(|(seen, k)| (seen + self.rig.safety.occlusion_timeout, k))
     }

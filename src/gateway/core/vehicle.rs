@@ -7,11 +7,12 @@ use flowgate_protocol::CanFrame;
 
 use super::mission::Mission;
 use super::motors::MotorMaster;
+use super::operator::VehicleStatus;
 use super::safety::{Action, Safety, State, StopReason};
 use super::watch::{PoseWatch, RunWatch};
 use super::STOP_GRACE;
-use crate::config::Rig;
-use crate::control::ControlStep;
+use crate::config::{Rig, Vehicle};
+use crate::control::{ControlConfig, ControlStep};
 use crate::time::HostTime;
 use crate::track::{Pose, PoseTrack};
 
@@ -24,8 +25,23 @@ pub(super) struct LastEstimate {
     pub(super) wheels: [f64; 2],
 }
 
+/// A vehicle's control among others (`fleet`): a vehicle closes on another within its
+/// reach only as it slows, a stop's last sliver of speed; held by its supervisor beside a
+/// vehicle that stands, its field pushing on, it would creep into it at the robot's
+/// tolerance toward obstacles.
+fn in_fleet(mut control: ControlConfig, fleet: bool) -> ControlConfig {
+    if let Some(supervisor) = control.supervisor.as_mut().filter(|_| fleet) {
+        supervisor.vehicle_approach_tolerance = 0.0;
+    }
+    control
+}
+
 #[derive(Debug)]
 pub(super) struct DrivenVehicle {
+    /// `robot`, or its `[[vehicles]]` name.
+    pub(super) name: String,
+    /// Its LEDs on the controller's driver bus: front, rear.
+    pub(super) leds: [u8; 2],
     /// Its pose from its two LEDs.
     pub(super) pose: PoseTrack,
     pub(super) safety: Safety,
@@ -38,20 +54,46 @@ pub(super) struct DrivenVehicle {
     pub(super) pose_watch: PoseWatch,
     /// The last cycle's pose estimate and sensing delay (for the scene and the goal checks).
     pub(super) last_estimate: Option<LastEstimate>,
+    /// The state last announced ([`Output::State`](super::Output::State)).
+    pub(super) announced: State,
+    /// The velocity its last command asks of it, m/s: what the other vehicles plan on.
+    pub(super) commanded: crate::Point,
 }
 
 impl DrivenVehicle {
     /// The robot: `[leds]`, `[can]`, `[drive]`, `[robot]` and `[planner]` of the rig.
     pub(super) fn robot(rig: &Rig) -> Self {
+        let pose = PoseTrack::new(rig.tracking, rig.led_geometry);
+        let leds = [rig.robot_front, rig.robot_rear];
+        let control = in_fleet(rig.control.clone(), !rig.vehicles.is_empty());
+        Self::new("robot", leds, pose, ControlStep::new(control), MotorMaster::new(rig))
+    }
+
+    /// A `[[vehicles]]` entry: driven as the robot would be with its body, wheels, LEDs and
+    /// motors, keeping clear of every other vehicle as the fleet's rule has it
+    /// ([`crate::control::fleet`]).
+    pub(super) fn vehicle(v: &Vehicle) -> Self {
+        let d = &v.driven;
+        let pose = PoseTrack::new(d.tracking, v.led_geometry);
+        let motors = MotorMaster::of(d.motors, d.node, d.board);
+        let control = ControlStep::new(in_fleet(d.control.clone(), true));
+        Self::new(&v.name, [v.front_led, v.rear_led], pose, control, motors)
+    }
+
+    fn new(name: &str, leds: [u8; 2], pose: PoseTrack, control: ControlStep, motors: MotorMaster) -> Self {
         Self {
-            pose: PoseTrack::new(rig.tracking, rig.led_geometry),
+            name: name.to_string(),
+            leds,
+            pose,
             safety: Safety::default(),
-            control: ControlStep::new(rig.control.clone()),
-            motors: MotorMaster::new(rig),
+            control,
+            motors,
             mission: Mission::new(),
             run: RunWatch::default(),
             pose_watch: PoseWatch::default(),
             last_estimate: None,
+            announced: State::Idle,
+            commanded: crate::Point::default(),
         }
     }
 
@@ -108,5 +150,21 @@ impl DrivenVehicle {
             return None;
         }
         self.motors.keep_alive_due(self.run.last_command())
+    }
+
+    /// Why it last stopped or faulted, in words.
+    pub(super) fn last_stop(&self) -> Option<String> {
+        self.safety.history.iter().rev().find_map(|(_, s)| s.reason()).map(|r| r.to_string())
+    }
+
+    /// What the control socket reports of it.
+    pub(super) fn status(&self) -> VehicleStatus {
+        VehicleStatus {
+            name: self.name.clone(),
+            state: self.state().into(),
+            last_stop: self.last_stop(),
+            goals: self.mission.goals().collect(),
+            pose: self.last_estimate.map(|e| [e.pose.position.re, e.pose.position.im, e.pose.heading]),
+        }
     }
 }

@@ -154,6 +154,7 @@ mod tests {
             cycles: 7,
             latency_us: None,
             stages: None,
+            vehicles: vec![],
         };
         let line = serde_json::to_string(&Reply { ok: true, error: None, status: Some(status.clone()) }).unwrap();
         assert!(line.contains(&format!("\"state\":\"{state}\"")), "the wire keeps the state's text: {line}");

@@ -361,7 +361,8 @@ impl Io {
                     }
                 }
                 Output::Command { frame, record } => self.command(core, frame, record).await,
-                Output::State { state, at } => self.state_changed(core, state, at),
+                Output::State { state, at, vehicle: 0 } => self.state_changed(core, state, at),
+                Output::State { state, at, vehicle } => self.vehicle_state_changed(core, vehicle, state, at),
                 Output::PollCanStatus => self.poll_can_status(core).await,
                 Output::Streaming => {
                     if let Some(n) = &mut self.notifier {
@@ -438,6 +439,16 @@ impl Io {
             let p = core.progress();
             tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
         }
+    }
+
+    /// A vehicle's other than the robot's: logged and recorded, named.
+    fn vehicle_state_changed<K: StageClock>(&mut self, core: &Core<K>, vehicle: usize, state: State, at: HostTime) {
+        let name = core.vehicle_name(vehicle);
+        tracing::info!("vehicle {name}: state: {state}");
+        let text = format!("vehicle {name}: state: {state}");
+        let fields = Some(serde_json::json!({ "vehicle": name }));
+        let event = telemetry::EventRecord { at_s: at.secs(), level: Level::Info, kind: "state", text, fields };
+        self.services.recorder.record(Record::Event(event));
     }
 
     async fn poll_can_status<K: StageClock>(&mut self, core: &mut Core<K>) {

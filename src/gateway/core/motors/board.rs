@@ -61,6 +61,11 @@ impl BoardMaster {
         }
     }
 
+    /// Whether `frame` is one of this board's (from it, or to it).
+    pub fn addresses(&self, frame: &CanFrame) -> bool {
+        MotorMessage::parse(frame).is_ok_and(|m| m.node() == Some(self.node))
+    }
+
     pub fn node(&self) -> NodeId {
         self.node
     }

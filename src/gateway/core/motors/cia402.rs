@@ -195,6 +195,14 @@ impl Cia402Master {
     }
 
     /// The drives' node ids, left then right.
+    /// Whether `frame` is one of these drives' (from them, or to them).
+    pub fn addresses(&self, frame: &CanFrame) -> bool {
+        CanOpenMessage::parse(frame)
+            .ok()
+            .and_then(|m| message_node(&m))
+            .is_some_and(|n| self.drives.iter().any(|d| d.node == n))
+    }
+
     pub fn nodes(&self) -> [NodeId; 2] {
         [self.drives[0].node, self.drives[1].node]
     }
@@ -307,11 +315,11 @@ impl Cia402Master {
     /// a drive has no command timeout, so a lost quick stop must not leave it running while
     /// the heartbeat it watches goes on. Until every drive is seen out of it, the heartbeat
     /// itself is withheld: on a lossy bus the repeats may all be lost, and the drives' own
-    /// heartbeat consumer (0x1016) then stops them within its time, whatever the loss.
-    pub fn heartbeat(&mut self, send: &mut impl FnMut(CanFrame)) {
-        let unconfirmed =
-            self.phase == Phase::QuickStop && self.drives.iter().any(|d| d.state().is_none_or(DriveState::is_enabled));
-        if !unconfirmed {
+    /// heartbeat consumer (0x1016) then stops them within its time, whatever the loss. On a
+    /// bus with several vehicles' drives the heartbeat is the gateway's one (`beat`: this
+    /// master sends it), withheld while any of them is unconfirmed.
+    pub fn heartbeat(&mut self, beat: bool, send: &mut impl FnMut(CanFrame)) {
+        if beat && !self.withholds_heartbeat() {
             emit(send, CanOpenMessage::Heartbeat { node: self.settings.gateway, state: NmtState::Operational });
         }
         if self.phase == Phase::QuickStop {
@@ -323,6 +331,12 @@ impl Cia402Master {
                 }
             }
         }
+    }
+
+    /// After an e-stop, a drive not yet seen out of operation enabled: the gateway's
+    /// heartbeat is withheld until none is ([`Cia402Master::heartbeat`]).
+    pub fn withholds_heartbeat(&self) -> bool {
+        self.phase == Phase::QuickStop && self.drives.iter().any(|d| d.state().is_none_or(DriveState::is_enabled))
     }
 
     /// When [`Cia402Master::tick`] next has something to do.
@@ -648,11 +662,11 @@ mod tests {
         assert_eq!(quick_stops(&out), [3, 4]);
         out.clear();
         m.drives[1].statusword = Some(DriveState::SwitchOnDisabled.statusword_bits());
-        m.heartbeat(&mut |f| out.push(f));
+        m.heartbeat(true, &mut |f| out.push(f));
         assert_eq!(quick_stops(&out), [3], "drive 4 has left operation enabled");
         out.clear();
         m.drives[0].statusword = Some(DriveState::QuickStopActive.statusword_bits());
-        m.heartbeat(&mut |f| out.push(f));
+        m.heartbeat(true, &mut |f| out.push(f));
         assert_eq!(quick_stops(&out), Vec::<u8>::new());
         assert_eq!(out.len(), 1, "the heartbeat alone");
     }

@@ -9,7 +9,7 @@ use flowgate_protocol::motor::EStopReason;
 use flowgate_protocol::CanFrame;
 
 use super::safety::{State, StopReason};
-use crate::config::{Motors, Rig};
+use crate::config::{BoardSettings, Motors, Rig};
 use crate::time::HostTime;
 use board::BoardMaster;
 use cia402::{Cia402Master, Heard};
@@ -48,10 +48,25 @@ pub struct FrameEffect {
 }
 
 impl MotorMaster {
+    /// The robot's motors, as `[can]`, `[drive]` and `[cia402]` give them.
     pub fn new(rig: &Rig) -> Self {
-        match rig.motors {
-            Motors::Pcl80k => Self::Board(BoardMaster::new(rig.node, rig.board)),
+        Self::of(rig.motors, rig.node, rig.board)
+    }
+
+    /// A board at `node` set up with `board`, or CiA 402 drives as `motors` says.
+    pub fn of(motors: Motors, node: flowgate_protocol::motor::NodeId, board: BoardSettings) -> Self {
+        match motors {
+            Motors::Pcl80k => Self::Board(BoardMaster::new(node, board)),
             Motors::Cia402(settings) => Self::Cia402(Cia402Master::new(settings)),
+        }
+    }
+
+    /// Whether `frame` comes from, or is addressed to, these motors (a board's node, or
+    /// one of the drives'): on a bus shared by several vehicles, the one it is for.
+    pub fn addresses(&self, frame: &CanFrame) -> bool {
+        match self {
+            Self::Board(b) => b.addresses(frame),
+            Self::Cia402(m) => m.addresses(frame),
         }
     }
 
@@ -138,11 +153,21 @@ impl MotorMaster {
         }
     }
 
-    pub fn heartbeat(&mut self, state: State, send: &mut impl FnMut(CanFrame)) {
+    /// The gateway's heartbeat to these motors, in `state`. `beat`: this master sends the
+    /// heartbeat frame itself (on a bus with several vehicles, one master of each kind does,
+    /// and none of the drives' while one of them withholds it); the drives' quick stops are
+    /// repeated whatever `beat` is.
+    pub fn heartbeat(&mut self, state: State, beat: bool, send: &mut impl FnMut(CanFrame)) {
         match self {
-            Self::Board(b) => b.heartbeat(state, send),
-            Self::Cia402(m) => m.heartbeat(send),
+            Self::Board(b) if beat => b.heartbeat(state, send),
+            Self::Board(_) => {}
+            Self::Cia402(m) => m.heartbeat(beat, send),
         }
+    }
+
+    /// The gateway's heartbeat is withheld from the drives ([`Cia402Master::heartbeat`]).
+    pub fn withholds_heartbeat(&self) -> bool {
+        matches!(self, Self::Cia402(m) if m.withholds_heartbeat())
     }
 
     /// One cycle's command. The CiA 402 drives get one RPDO each: the left one goes out

@@ -66,6 +66,7 @@ pub fn input_json(r: &InputRecord) -> Value {
             }
         },
         RecordedInput::Request(request) => json!({ "request": request }),
+        RecordedInput::VehicleRequest { vehicle, request } => json!({ "vehicle": vehicle, "request": request }),
         _ => return v,
     };
     if let (Some(v), Value::Object(extra)) = (v.as_object_mut(), extra) {
@@ -126,6 +127,15 @@ pub fn input_from_json(v: &Value, seq: u64, at: HostTime) -> Result<InputRecord,
         "request" => RecordedInput::Request(Box::new(
             serde_json::from_value(field("request")?.clone()).map_err(|e| format!("`request`: {e}"))?,
         )),
+        "vehicle_request" => RecordedInput::VehicleRequest {
+            vehicle: field("vehicle")?
+                .as_u64()
+                .and_then(|k| u8::try_from(k).ok())
+                .ok_or("`vehicle` is not a vehicle's index")?,
+            request: Box::new(
+                serde_json::from_value(field("request")?.clone()).map_err(|e| format!("`request`: {e}"))?,
+            ),
+        },
         "arm_at_start" => RecordedInput::ArmAtStart,
         "shutdown" => RecordedInput::Shutdown,
         "tick" => RecordedInput::Tick,

@@ -1,0 +1,143 @@
+//! What each vehicle the core drives sees of the others, cycle by cycle, as
+//! [`crate::control::fleet`] states it: every other vehicle an obstacle of its own footprint
+//! moving at the velocity it was commanded (known, not estimated), planned in a fixed order
+//! (the robot first, then `[[vehicles]]` in the file's order), so a vehicle sees this cycle's
+//! command of every vehicle ahead of it and the last cycle's of those behind.
+//!
+//! Where the camera no longer gives a vehicle's pose (its LEDs unseen, or its pose forgotten
+//! at an e-stop), the others avoid the region it may have reached since it was last seen,
+//! growing at its top speed, as an occluded obstacle's does. A vehicle never seen is not
+//! planned around: nothing is known of where it is, and it cannot be armed until it is seen.
+
+use super::{Core, StageClock, State};
+use crate::control::fleet::{FleetRule, VehicleView};
+use crate::planner::ObstacleEstimate;
+use crate::Point;
+
+/// Every vehicle's view this cycle, and one vehicle's obstacles built from them.
+#[derive(Debug)]
+pub(super) struct FleetViews {
+    rule: FleetRule,
+    /// Each vehicle as the others see it (`None`: never seen).
+    views: Vec<Option<VehicleView>>,
+    /// Scratch: one vehicle's others, as its field and as its supervisor see them.
+    seen: Vec<ObstacleEstimate>,
+    supervised: Vec<ObstacleEstimate>,
+}
+
+impl FleetViews {
+    pub(super) fn new(vehicles: usize) -> Self {
+        Self {
+            rule: FleetRule::default(),
+            views: vec![None; vehicles],
+            seen: Vec::with_capacity(vehicles),
+            supervised: Vec::with_capacity(vehicles),
+        }
+    }
+
+    /// Whether there are others to see (a fleet, not the robot alone).
+    pub(super) fn is_fleet(&self) -> bool {
+        self.views.len() > 1
+    }
+
+    /// Vehicle `me`'s others, as its field plans on them and as its supervisor judges them.
+    pub(super) fn others_of(&mut self, me: usize) -> [&[ObstacleEstimate]; 2] {
+        self.seen.clear();
+        self.supervised.clear();
+        for (_, v) in self.views.iter().enumerate().filter(|&(k, _)| k != me) {
+            if let Some(v) = v {
+                self.seen.push(self.rule.as_obstacle(v));
+                self.supervised.push(self.rule.as_supervised(v));
+            }
+        }
+        [&self.seen, &self.supervised]
+    }
+
+    /// Where vehicle `me` at `position` heads for `goal` while another still stands on it
+    /// ([`FleetRule::aim`]; `None`: the goal itself).
+    pub(super) fn aim(&self, me: usize, position: Point, goal: Point, held: Option<Point>) -> Option<Point> {
+        // The rule takes every vehicle by index: one never seen stands nowhere near a goal.
+        let far = VehicleView {
+            position: Point::new(f64::INFINITY, f64::INFINITY),
+            velocity: Point::default(),
+            toward: Point::default(),
+            lag: 0.0,
+            radius: 0.0,
+            moving_on: false,
+            reach: 0.0,
+        };
+        let mut views = [far; crate::planner::MAX_OBSTACLES + 1];
+        for (slot, v) in views.iter_mut().zip(&self.views) {
+            *slot = v.unwrap_or(far);
+        }
+        let n = self.views.len().min(views.len());
+        views[me].position = position;
+        self.rule.aim(me, position, goal, &views[..n], held)
+    }
+
+    /// The vehicles vehicle `me` sees, in the order its obstacles list them.
+    pub(super) fn seen_by(&self, me: usize) -> impl Iterator<Item = usize> + '_ {
+        self.views.iter().enumerate().filter(move |&(k, v)| k != me && v.is_some()).map(|(k, _)| k)
+    }
+
+    /// Where vehicle `k` stands this cycle, if it was ever seen.
+    pub(super) fn position(&self, k: usize) -> Option<Point> {
+        self.views.get(k).copied().flatten().map(|v| v.position)
+    }
+
+    /// Vehicle `k` was commanded `velocity` this cycle (m/s): the vehicles after it plan on it.
+    pub(super) fn commanded(&mut self, k: usize, velocity: Point, lag: f64) {
+        if let Some(v) = &mut self.views[k] {
+            (v.velocity, v.toward, v.lag) = (velocity, velocity, lag);
+        }
+    }
+}
+
+/// How far behind the way `toward` would take a vehicle moving at `velocity` its wheels'
+/// ramps may leave it, m: the gap, times the time the ramps take to close it.
+pub(super) fn ramp_lag(velocity: Point, toward: Point, wheel_accel: f64) -> f64 {
+    let gap = (toward - velocity).norm();
+    if gap == 0.0 || wheel_accel <= 0.0 {
+        return 0.0;
+    }
+    gap * gap / wheel_accel
+}
+
+impl<K: StageClock> Core<K> {
+    /// Every vehicle as the others see it at the start of this cycle: where the camera puts
+    /// it, moving as it was last commanded (or, stopped, as its wheels still turn).
+    pub(super) fn see_fleet(&mut self, t: f64) {
+        if !self.fleet.is_fleet() {
+            return;
+        }
+        let (period, pose_timeout) = (self.rig.sample_period.as_secs_f64(), self.rig.safety.pose_timeout.as_secs_f64());
+        for k in 0..self.vehicles.len() {
+            let v = &mut self.vehicles[k];
+            let config = v.control.config();
+            let (radius, top_speed, wheel_base) =
+                (config.robot_radius, config.planner.max_speed, config.drive.wheel_base);
+            let wheel_accel = config.supervisor.as_ref().map_or(0.0, |s| s.wheel_accel);
+            let under_control = matches!(v.state(), State::Running | State::Armed);
+            let view = match v.pose.at(t, period, wheel_base).filter(|at| t - at.valid_at < pose_timeout) {
+                Some(at) => {
+                    let moving = at.facing * (0.5 * (at.wheels[0] + at.wheels[1]));
+                    let (velocity, toward) =
+                        if under_control { (v.commanded, v.commanded) } else { (moving, Point::default()) };
+                    let lag = ramp_lag(moving, toward, wheel_accel);
+                    let moving_on = under_control && v.mission.has_goals();
+                    Some(VehicleView { position: at.position, velocity, toward, lag, radius, moving_on, reach: 0.0 })
+                }
+                None => v.pose.last_seen().map(|(seen, position)| VehicleView {
+                    position,
+                    velocity: Point::default(),
+                    toward: Point::default(),
+                    lag: 0.0,
+                    radius,
+                    moving_on: false,
+                    reach: top_speed * (t - seen).max(period),
+                }),
+            };
+            self.fleet.views[k] = view;
+        }
+    }
+}
