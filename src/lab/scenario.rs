@@ -243,10 +243,19 @@ impl Scenario {
     /// The rig config of this scenario's simulated rig, with the PSD controller at `psd`
     /// and the CAN bus at `can`; a fleet's other vehicles as `flowgate-sim` wires them.
     pub fn rig_file(&self, psd: &Path, can: &str, out_dir: Option<PathBuf>) -> RigFile {
+        self.rig_file_wired(psd, can, out_dir, &flowgate_sim::rig::RigConfig::new(self.sim.clone()))
+    }
+
+    /// The same, the fleet's vehicles as `wiring` wires them.
+    fn rig_file_wired(
+        &self,
+        psd: &Path,
+        can: &str,
+        out_dir: Option<PathBuf>,
+        wiring: &flowgate_sim::rig::RigConfig,
+    ) -> RigFile {
         let frame_us = self.frame_us().expect("checked when loaded");
-        let vehicles = self
-            .sim_vehicles(&flowgate_sim::rig::RigConfig::new(self.sim.clone()))
-            .expect("loading refused a fleet past the simulated controller's LEDs");
+        let vehicles = self.sim_vehicles(wiring).expect("loading refused a fleet past the simulated controller's LEDs");
         RigFile { vehicles, ..self.config_with(psd, can, out_dir, frame_us) }
     }
 
@@ -306,9 +315,20 @@ impl Scenario {
     /// The typed rig, its motors the simulator's CiA 402 drives (nodes 1 and 2) when
     /// `cia402`.
     pub fn rig_with(&self, can: &str, cia402: bool) -> Rig {
-        let mut config = self.rig_file(Path::new("/dev/null"), can, None);
+        let mut wiring = flowgate_sim::rig::RigConfig::new(self.sim.clone());
         if cia402 {
-            config.use_cia402(crate::config::Cia402Section::with_nodes(1, 2));
+            let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
+            wiring.cia402 = Some([node(1), node(2)]);
+        }
+        self.rig_wired(can, &wiring)
+    }
+
+    /// The gateway's rig for the simulated rig `wiring`: the robot's motors and every
+    /// vehicle's as it wires them.
+    pub fn rig_wired(&self, can: &str, wiring: &flowgate_sim::rig::RigConfig) -> Rig {
+        let mut config = self.rig_file_wired(Path::new("/dev/null"), can, None, wiring);
+        if let Some([left, right]) = wiring.cia402 {
+            config.use_cia402(crate::config::Cia402Section::with_nodes(left.get(), right.get()));
         }
         let mut rig = config.validate().expect("checked when loaded");
         if !self.supervised {

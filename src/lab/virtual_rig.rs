@@ -22,9 +22,11 @@ use flowgate_protocol::slcan::{Bitrate, Command};
 use flowgate_protocol::CanFrame;
 use flowgate_sim::camera::CameraModel;
 use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
-use flowgate_sim::motors::{MotorKind, Motors};
+use flowgate_sim::motors::{FleetMotors, MotorKind};
 use flowgate_sim::psd_controller::{LedMap, Outgoing, PsdController, SerialQueue};
+use flowgate_sim::rig::{RigConfig, WiredVehicle};
 use flowgate_sim::truth::TruthRecord;
+use flowgate_sim::world::fleet::Fleet;
 use flowgate_sim::world::World;
 
 use super::{Outcome, Scenario};
@@ -272,10 +274,18 @@ pub struct VirtualRun {
 #[derive(Debug)]
 pub struct VirtualRig<K: StageClock = NoClock> {
     t: u64,
-    world: World,
+    /// Every vehicle's world (the robot's alone, without `[[vehicles]]`), and their names.
+    fleet: Fleet,
+    names: Vec<String>,
     spec: ControllerSpec,
     controller: PsdController,
-    board: Motors,
+    /// Every vehicle's motors on the one bus, and the board node each vehicle's answers at.
+    motors: FleetMotors,
+    board_nodes: Vec<Option<u8>>,
+    /// Each other vehicle's goal, when it navigates: without [`Options::wait_for_operator`]
+    /// it is armed, given it and started when the controller first streams, as the robot is.
+    fleet_goals: Vec<Option<crate::config::Goal>>,
+    fleet_started: bool,
     adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
     core: Core<K>,
     /// The core's next deadline, asked for once after each input rather than at each of the
@@ -322,9 +332,9 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     telemetry: Option<Telemetry>,
     /// Latency and period histograms (with telemetry only: they are large to allocate).
     timing: Option<Timing>,
-    /// The state the core last announced, and the motion commands it gave outside Running
-    /// (there must be none: every test's invariant).
-    announced: State,
+    /// The state the core last announced for each vehicle, and the motion commands it gave
+    /// outside Running (there must be none: every test's invariant).
+    announced: Vec<State>,
     motion_outside_running: u64,
     lines: LineTruth,
 }
@@ -358,8 +368,10 @@ fn fnv(mut hash: u64, bytes: &[u8]) -> u64 {
     hash
 }
 
-/// The simulated controller (the scenario's camera, LEDs, noise and faults) and motors.
-fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (ControllerSpec, MotorKind) {
+/// The simulated controller (the scenario's camera, LEDs, noise and faults) and every
+/// vehicle as the simulated rig wires it (the robot's motors a board at node 1, or CiA 402
+/// drives at nodes 1 and 2; the other vehicles' after them).
+fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (ControllerSpec, Vec<WiredVehicle>) {
     let camera = scenario.camera;
     let spec = ControllerSpec {
         camera,
@@ -368,21 +380,27 @@ fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (C
         seed: scenario.sensing.seed,
         faults: plan.clone(),
     };
-    let kind = if options.cia402 {
+    let wired = wiring(scenario, options).vehicles().expect("loading refused a fleet the simulated rig cannot wire");
+    (spec, wired)
+}
+
+/// How the simulated rig wires the scenario's vehicles.
+fn wiring(scenario: &Scenario, options: &Options) -> RigConfig {
+    let mut wiring = RigConfig::new(scenario.sim.clone());
+    if options.cia402 {
         let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
-        MotorKind::Cia402 { left: node(1), right: node(2) }
-    } else {
-        MotorKind::Board(flowgate_protocol::motor::NodeId::new(1).expect("node 1"))
-    };
-    (spec, kind)
+        wiring.cia402 = Some([node(1), node(2)]);
+    }
+    wiring
 }
 
 /// The gateway's rig for the scenario, and the bitrate the shell opens its SLCAN adapter at
 /// (the simulated bus runs at 1 Mbit/s).
 fn gateway_rig(scenario: &Scenario, options: &Options) -> (crate::config::Rig, Bitrate) {
+    let wiring = wiring(scenario, options);
     let mut rig = match options.can {
-        CanTransport::Slcan => scenario.rig_with("slcan:/dev/null", options.cia402),
-        CanTransport::SocketCan => scenario.rig_with("socketcan:vcan0", options.cia402),
+        CanTransport::Slcan => scenario.rig_wired("slcan:/dev/null", &wiring),
+        CanTransport::SocketCan => scenario.rig_wired("socketcan:vcan0", &wiring),
     };
     if let Some(adjust) = options.adjust_rig {
         adjust(&mut rig);
@@ -410,13 +428,17 @@ impl<K: StageClock> VirtualRig<K> {
         if plan.sample_delay_ms == 0.0 {
             plan.sample_delay_ms = scenario.sensing.delay * 1e3;
         }
-        let (spec, kind) = firmware_spec(scenario, &options, &plan);
-        let mut world = World::new(scenario);
+        let (spec, wired) = firmware_spec(scenario, &options, &plan);
+        let mut fleet = Fleet::for_rig(&scenario.sim);
         let mut controller = spec.build(0.0);
-        let mut board = Motors::new(kind, &plan);
+        let kinds: Vec<MotorKind> = wired.iter().map(|v| v.motors).collect();
+        let link_lost_at = std::iter::once(f64::INFINITY)
+            .chain(scenario.sim.vehicles.iter().map(|v| v.link_lost_at.unwrap_or(f64::INFINITY)))
+            .collect();
+        let mut motors = FleetMotors::new(&kinds, &plan, link_lost_at);
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
-        board.boot(0.0, &mut world, &mut can_out);
+        motors.boot(0.0, &mut fleet, &mut can_out);
         let (gateway_rig, adapter_bitrate) = gateway_rig(scenario, &options);
         let mut rig = Self {
             t: 0,
@@ -432,10 +454,20 @@ impl<K: StageClock> VirtualRig<K> {
             next_foreign: if plan.foreign_frames { 0.0 } else { f64::INFINITY },
             next_master: plan.second_master_at.unwrap_or(f64::INFINITY),
             plan,
-            world,
+            fleet,
+            names: wired.iter().map(|v| v.name.clone()).collect(),
+            fleet_goals: (1..wired.len()).map(|k| fleet_goal(scenario, k)).collect(),
+            fleet_started: false,
             spec,
             controller,
-            board,
+            motors,
+            board_nodes: kinds
+                .iter()
+                .map(|k| match k {
+                    MotorKind::Board(n) => Some(n.get()),
+                    MotorKind::Cia402 { .. } => None,
+                })
+                .collect(),
             adapter: Default::default(),
             psd_out,
             pending: SerialQueue::default(),
@@ -466,7 +498,7 @@ impl<K: StageClock> VirtualRig<K> {
                 can_log: Vec::new(),
             }),
             timing: options.telemetry.then(Timing::default),
-            announced: State::Idle,
+            announced: vec![State::Idle; wired.len()],
             motion_outside_running: 0,
             lines: LineTruth::default(),
         };
@@ -488,8 +520,13 @@ impl<K: StageClock> VirtualRig<K> {
     pub fn core(&self) -> &Core<K> {
         &self.core
     }
+    /// The robot's world.
     pub fn world(&self) -> &World {
-        &self.world
+        self.fleet.world(0)
+    }
+    /// Every vehicle's world.
+    pub fn fleet(&self) -> &Fleet {
+        &self.fleet
     }
     /// The CAN frames the core asked for so far, with [`Options::record_inputs`].
     pub fn can_sent(&self) -> &[CanFrame] {
@@ -518,10 +555,10 @@ impl<K: StageClock> VirtualRig<K> {
         let mut end = time_limit;
         while self.time() < end && self.setup_error.is_none() {
             self.step();
-            if self.options.stop_at_contact && self.world.first_contact().is_some() {
+            if self.options.stop_at_contact && self.touched() {
                 break;
             }
-            if self.core.state().is_terminal() && end == time_limit {
+            if self.at_rest_all() && end == time_limit {
                 end = (self.time() + LINGER).min(time_limit);
             }
         }
@@ -554,10 +591,10 @@ impl<K: StageClock> VirtualRig<K> {
                 }
             }
             self.step();
-            if self.options.stop_at_contact && self.world.first_contact().is_some() {
+            if self.options.stop_at_contact && self.touched() {
                 break;
             }
-            if self.core.state().is_terminal() && end == time_limit {
+            if self.at_rest_all() && end == time_limit {
                 end = (self.time() + LINGER).min(time_limit);
             }
         }
@@ -589,6 +626,14 @@ impl<K: StageClock> VirtualRig<K> {
         self.ask(request).result
     }
 
+    /// An operator's request for vehicle `vehicle` now (0: the robot).
+    pub fn vehicle_request(&mut self, vehicle: u8, request: &Request) -> Result<(), Refusal> {
+        let answer = self.feed(Input::VehicleRequest { vehicle, request }).expect("the core answers every request");
+        self.drain_core();
+        self.firmware_out();
+        answer.result
+    }
+
     /// What the gateway believes now (its last cycle's pose and speeds, its obstacles).
     pub fn scene(&self) -> crate::gateway::core::scene::SceneRecord {
         self.core.scene(HostTime::from_nanos(self.t))
@@ -609,9 +654,9 @@ impl<K: StageClock> VirtualRig<K> {
     /// Advance to the next event and handle everything due then.
     pub fn step(&mut self) {
         let next = self.next_event().max(self.t + 1);
-        let dt = secs(next) - self.world.time();
+        let dt = secs(next) - self.fleet.time();
         if dt > 0.0 {
-            self.world.step(dt);
+            self.fleet.step(dt);
         }
         self.t = next;
         if self.options.rehearse {
@@ -634,7 +679,7 @@ impl<K: StageClock> VirtualRig<K> {
 
     /// End the run here: the episode as it stands.
     pub fn finish(mut self, goal: [f64; 2], tolerance: f64) -> VirtualRun {
-        self.truth.record(&self.world);
+        self.record_truth();
         let summary = &self.truth.summary;
         let end = summary.final_position;
         let reached_goal = (end[0] - goal[0]).hypot(end[1] - goal[1]) <= tolerance + 0.01;
@@ -667,6 +712,16 @@ impl<K: StageClock> VirtualRig<K> {
             can_sent: self.can_sent,
         }
     }
+}
+
+/// Vehicle `k`'s goal, when it navigates (a scripted vehicle's script is not driven through
+/// the whole stack).
+fn fleet_goal(scenario: &Scenario, k: usize) -> Option<crate::config::Goal> {
+    let spec = scenario.sim.vehicles.get(k - 1)?;
+    (spec.role == flowgate_sim::scenario::vehicles::Role::Navigate).then(|| {
+        let goal = scenario.vehicle(k).sim.goal;
+        crate::config::Goal { position: goal.position, tolerance: goal.tolerance }
+    })
 }
 
 /// Hand `core` one input at `now`, keeping a copy in `log` when there is one.

@@ -3,7 +3,8 @@
 
 use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::input::PSD_CHUNK;
-use crate::gateway::core::{Input, Output, StageClock, State};
+use crate::gateway::core::operator::Request;
+use crate::gateway::core::{Answer, Input, Output, StageClock, State};
 use crate::gateway::shell::link::slcan_event;
 use crate::gateway::shell::telemetry::CanRecord;
 use crate::time::HostTime;
@@ -32,7 +33,7 @@ impl<K: StageClock> VirtualRig<K> {
         if !self.psd_gone {
             at(self.controller.next_event());
         }
-        at(self.board.next_event());
+        at(self.motors.next_event());
         at(self.pending.next_at());
         at(self.next_truth);
         at(self.bursts.front().copied().unwrap_or(f64::INFINITY));
@@ -77,16 +78,16 @@ impl<K: StageClock> VirtualRig<K> {
         }
         if t >= self.next_foreign {
             self.next_foreign += 0.1;
-            if let Some(node) = self.board.board_node() {
+            if let Some(node) = self.motors.robot().board_node() {
                 self.can_out.extend(flowgate_sim::rig::foreign_frames(node));
             }
         }
         if t >= self.next_master {
             // Another device on the bus commands our board: both the board and the host see it.
             self.next_master += flowgate_sim::rig::SECOND_MASTER_PERIOD;
-            if let Some(node) = self.board.board_node() {
+            if let Some(node) = self.motors.robot().board_node() {
                 let frame = flowgate_sim::rig::second_master_command(node);
-                self.board.handle(t, &frame, &mut self.world, &mut self.can_out);
+                self.motors.robot().handle(t, &frame, self.fleet.world_mut(0), &mut self.can_out);
                 self.can_out.push(frame);
             }
         }
@@ -95,9 +96,9 @@ impl<K: StageClock> VirtualRig<K> {
     pub(super) fn firmware_poll(&mut self) {
         let t = self.time();
         if !self.psd_gone {
-            self.controller.poll(t, &self.world, &mut self.psd_out);
+            self.controller.poll(t, &self.fleet, &mut self.psd_out);
         }
-        self.board.poll(t, &mut self.world, &mut self.can_out);
+        self.motors.poll(t, &mut self.fleet, &mut self.can_out);
         self.firmware_out();
     }
 
@@ -187,7 +188,7 @@ impl<K: StageClock> VirtualRig<K> {
         let bus_off = self.plan.bus_off(t);
         for f in self.to_bus.drain(..) {
             if !bus_off && !self.can_faults.lose(t) {
-                self.board.handle(t, &f, &mut self.world, &mut self.can_out);
+                self.motors.handle(t, &f, &mut self.fleet, &mut self.can_out);
             }
         }
         let interface = self.options.can.interface();
@@ -253,8 +254,8 @@ impl<K: StageClock> VirtualRig<K> {
                         self.host_line(Command::StatusFlags);
                     }
                 }
-                Output::State { state, .. } => self.announced = state,
-                Output::Streaming => {}
+                Output::State { vehicle, state, .. } => self.announced[vehicle] = state,
+                Output::Streaming => self.start_fleet(),
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {
                     self.feed(Input::PsdLost);
@@ -275,13 +276,34 @@ impl<K: StageClock> VirtualRig<K> {
         self.core_deadline = self.core.next_deadline();
     }
 
+    /// At the controller's first stream, without [`Options::wait_for_operator`]: every
+    /// navigating vehicle armed, given its goal and started, as the robot is.
+    fn start_fleet(&mut self) {
+        if self.options.wait_for_operator || std::mem::replace(&mut self.fleet_started, true) {
+            return;
+        }
+        for k in 0..self.fleet_goals.len() {
+            let Some(goal) = self.fleet_goals[k] else { continue };
+            let vehicle = u8::try_from(k + 1).expect("at most 32 vehicles");
+            for request in [Request::Arm, Request::Goal { goals: vec![goal] }, Request::Start] {
+                if let Some(Answer { result: Err(e), .. }) =
+                    self.feed(Input::VehicleRequest { vehicle, request: &request })
+                {
+                    tracing::debug!("vehicle {}: {e}", self.names[k + 1]);
+                }
+            }
+        }
+    }
+
     /// A velocity command that is not zero, outside Running, is counted: motion only in
     /// Running.
     pub(super) fn check_motion(&mut self, frame: &CanFrame) {
         if let Ok(flowgate_protocol::motor::MotorMessage::Velocity { left, right, .. }) =
             flowgate_protocol::motor::MotorMessage::parse(frame)
         {
-            if (left, right) != (0, 0) && self.announced != State::Running {
+            let node = flowgate_protocol::motor::MotorMessage::parse(frame).ok().and_then(|m| m.node());
+            let k = node.and_then(|n| self.board_nodes.iter().position(|&b| b == Some(n.get()))).unwrap_or(0);
+            if (left, right) != (0, 0) && self.announced[k] != State::Running {
                 self.motion_outside_running += 1;
             }
         }
@@ -325,14 +347,38 @@ impl<K: StageClock> VirtualRig<K> {
     /// The world's truth: samples for plots, and since when the wheels stand still.
     pub(super) fn observe(&mut self) {
         let t = self.time();
-        if self.world.wheel_speeds().iter().all(|v| v.abs() < 1e-9) {
+        let fleet = &self.fleet;
+        if (0..fleet.len()).all(|k| fleet.world(k).wheel_speeds().iter().all(|v| v.abs() < 1e-9)) {
             self.at_rest_since.get_or_insert(t);
         } else {
             self.at_rest_since = None;
         }
         while self.next_truth <= t {
-            self.truth.record(&self.world);
+            self.record_truth();
             self.next_truth += SAMPLE_PERIOD;
         }
+    }
+
+    /// The truth now: the robot's world, or every vehicle's.
+    pub(super) fn record_truth(&mut self) {
+        if self.fleet.len() == 1 {
+            self.truth.record(self.fleet.world(0));
+        } else {
+            self.truth.record_fleet(&self.fleet, &self.names);
+        }
+    }
+
+    /// Whether any vehicle has touched anything (the robot's contacts, or any vehicle's
+    /// with another or with the world).
+    pub(super) fn touched(&self) -> bool {
+        let f = &self.fleet;
+        (0..f.len()).any(|k| f.world(k).first_contact().is_some() || f.vehicle_contact(k).is_some())
+    }
+
+    /// The robot has stopped or faulted, and every other vehicle too (or was never armed):
+    /// the run can end once the world has run on.
+    pub(super) fn at_rest_all(&self) -> bool {
+        let done = |k| self.core.vehicle_state(k).is_some_and(|s| s.is_terminal() || (k > 0 && s == State::Idle));
+        (0..self.core.vehicle_count()).all(done)
     }
 }
