@@ -6,7 +6,10 @@
 //!
 //! Where the camera no longer gives a vehicle's pose (its LEDs unseen, or its pose forgotten
 //! at an e-stop), the others avoid the region it may have reached since it was last seen,
-//! growing at its top speed, as an occluded obstacle's does. A vehicle never seen is not
+//! growing at its top speed, as an occluded obstacle's does. A vehicle stopped for a cause
+//! that may not have reached its motors (unheard, or the bus lost) may still move on its last
+//! command until their own timeout: the others keep clear of where it could still go, at its
+//! top speed, until then. A vehicle never seen is not
 //! planned around: nothing is known of where it is, and it cannot be armed until it is seen.
 
 use super::{Core, StageClock, State};
@@ -125,7 +128,8 @@ impl<K: StageClock> Core<K> {
                         if under_control { (v.commanded, v.commanded) } else { (moving, Point::default()) };
                     let lag = ramp_lag(moving, toward, wheel_accel);
                     let moving_on = under_control && v.mission.has_goals();
-                    Some(VehicleView { position: at.position, velocity, toward, lag, radius, moving_on, reach: 0.0 })
+                    let reach = v.unreached_until.map_or(0.0, |until| top_speed * (until - t).max(0.0));
+                    Some(VehicleView { position: at.position, velocity, toward, lag, radius, moving_on, reach })
                 }
                 None => v.pose.last_seen().map(|(seen, position)| VehicleView {
                     position,

@@ -261,6 +261,22 @@ impl StopReason {
         out
     }
 
+    /// Whether the stop may not have reached the motors: they went unheard, or the gateway's
+    /// own link to the bus failed. They then run on their last command until their own
+    /// timeout stops them.
+    pub fn motors_unreachable(self) -> bool {
+        matches!(
+            self,
+            Self::HeartbeatLost { .. }
+                | Self::DriveHeartbeatLost { .. }
+                | Self::BoardBusOff { .. }
+                | Self::BusOff
+                | Self::CanLinkLost
+                | Self::CanInterfaceDown
+                | Self::CanTransmitRefused
+        )
+    }
+
     pub fn is_fault(self) -> bool {
         !matches!(
             self,

@@ -58,6 +58,9 @@ pub(super) struct DrivenVehicle {
     pub(super) announced: State,
     /// The velocity its last command asks of it, m/s: what the other vehicles plan on.
     pub(super) commanded: crate::Point,
+    /// Until when its motors may run on after a stop that may not have reached them, s:
+    /// the others keep clear of where it could still go.
+    pub(super) unreached_until: Option<f64>,
 }
 
 impl DrivenVehicle {
@@ -94,6 +97,7 @@ impl DrivenVehicle {
             last_estimate: None,
             announced: State::Idle,
             commanded: crate::Point::default(),
+            unreached_until: None,
         }
     }
 
@@ -107,6 +111,7 @@ impl DrivenVehicle {
         match action {
             Action::None => {}
             Action::EnableBoard => {
+                self.unreached_until = None;
                 self.motors.enable(now, send);
                 if self.motors.time_out_without_commands() {
                     self.run.commanded(now);
@@ -119,6 +124,9 @@ impl DrivenVehicle {
                 } else {
                     EStopReason::GatewayFault
                 };
+                if self.state().reason().is_some_and(StopReason::motors_unreachable) {
+                    self.unreached_until = Some((now + self.motors.hold_when_unreached()).secs());
+                }
                 self.motors.emergency_stop(reason, send);
                 self.run.stopping(None);
                 self.pose.forget();

@@ -66,6 +66,10 @@ impl BoardMaster {
         MotorMessage::parse(frame).is_ok_and(|m| m.node() == Some(self.node))
     }
 
+    pub fn command_timeout_ms(&self) -> u16 {
+        self.settings.command_timeout_ms
+    }
+
     pub fn node(&self) -> NodeId {
         self.node
     }

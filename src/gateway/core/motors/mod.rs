@@ -114,6 +114,16 @@ impl MotorMaster {
         }
     }
 
+    /// How long the motors run on their last command once nothing reaches them: the
+    /// board's command timeout, or the drives' heartbeat consumer time.
+    pub fn hold_when_unreached(&self) -> std::time::Duration {
+        let ms = match self {
+            Self::Board(b) => u32::from(b.command_timeout_ms()),
+            Self::Cia402(_) => crate::config::CIA402_CONSUMER_TIME_MS,
+        };
+        std::time::Duration::from_millis(u64::from(ms))
+    }
+
     /// The operator armed: the board's retries and heartbeat are counted afresh.
     pub fn armed(&mut self) {
         if let Self::Board(b) = self {

@@ -1,0 +1,139 @@
+//! A fleet through the whole stack: one gateway core drives every vehicle of a scenario
+//! against the simulator's firmware (one PSD controller lighting every vehicle's LEDs, one
+//! CAN bus with every vehicle's board), in deterministic virtual time. Each vehicle is armed,
+//! given its goal and started as an operator would (`Input::VehicleRequest`), is seen by the
+//! camera, plans with the others as moving obstacles at their commanded velocities, and is
+//! stopped and e-stopped on its own or with the fleet.
+
+use std::path::Path;
+
+use flowgate::gateway::core::operator::{Goal, Refusal, Request};
+use flowgate::gateway::core::{State, StopReason};
+use flowgate::lab::fleet::sweep::place;
+use flowgate::lab::virtual_rig::{Options, VirtualRig};
+use flowgate::lab::Scenario;
+
+fn scenario(name: &str) -> Scenario {
+    Scenario::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/fleet").join(name)).unwrap()
+}
+
+/// Vehicle `k`'s goal and how far from it counts as there (its tolerance, and a centimetre
+/// for the stop's ramp).
+fn goal(s: &Scenario, k: usize) -> ([f64; 2], f64) {
+    let g = s.vehicle(k).sim.goal;
+    (g.position, g.tolerance + 0.01)
+}
+
+/// Every vehicle of the 2- and 4-vehicle swaps (the loaded placement and jittered ones)
+/// reaches its goal through the whole stack, stopped there by the gateway; nothing touches
+/// and no motion is commanded outside Running.
+#[test]
+fn every_vehicle_of_a_swap_reaches_its_goal_through_the_whole_stack() {
+    for (name, episodes) in [("swap-2.toml", 4), ("swap-4.toml", 6)] {
+        let loaded = scenario(name);
+        for i in 0..episodes {
+            let s = if i == 0 { loaded.clone() } else { place(&loaded, 7, i) };
+            let mut rig = VirtualRig::new(&s, Options::default());
+            rig.run_until(s.time_limit.min(30.0));
+            let core = rig.core();
+            let n = core.vehicle_count();
+            assert_eq!(n, 1 + s.vehicles.len());
+            for k in 0..n {
+                let state = core.vehicle_state(k).unwrap();
+                assert_eq!(state, State::Stopped(StopReason::GoalReached), "{name} episode {i}: vehicle {k}");
+                let (at, within) = goal(&s, k);
+                let p = rig.fleet().world(k).pose().position;
+                let off = (p.re - at[0]).hypot(p.im - at[1]);
+                assert!(off <= within, "{name} episode {i}: vehicle {k} ends {off:.3} m from its goal");
+                assert!(rig.fleet().world(k).first_contact().is_none(), "{name} episode {i}: vehicle {k}");
+                assert!(rig.fleet().vehicle_contact(k).is_none(), "{name} episode {i}: vehicle {k}");
+            }
+            assert_eq!(rig.motion_outside_running(), 0, "{name} episode {i}");
+        }
+    }
+}
+
+/// Arm, goal and start each vehicle; `estop` for one vehicle stops that one only; `estop`
+/// without a vehicle stops every vehicle; each is reset on its own and driven again to
+/// Running, without a restart.
+#[test]
+fn one_vehicles_estop_stops_it_and_the_fleets_stops_every_vehicle() {
+    let s = scenario("swap-4.toml");
+    let mut rig = VirtualRig::new(&s, Options { wait_for_operator: true, ..Default::default() });
+    rig.run_until(0.5);
+    let start = |rig: &mut VirtualRig, k: u8| {
+        let (at, _) = goal(&s, usize::from(k));
+        rig.vehicle_request(k, &Request::Arm).unwrap();
+        rig.vehicle_request(k, &Request::Goal { goals: vec![Goal { position: at, tolerance: 0.02 }] }).unwrap();
+        rig.vehicle_request(k, &Request::Start).unwrap();
+    };
+    for k in 0..4 {
+        start(&mut rig, k);
+    }
+    rig.run_until(1.5);
+    let states = |rig: &VirtualRig| (0..4).map(|k| rig.core().vehicle_state(k).unwrap()).collect::<Vec<_>>();
+    assert_eq!(states(&rig), [State::Running; 4]);
+    assert_eq!(
+        rig.vehicle_request(9, &Request::Arm),
+        Err(Refusal::NoVehicle { index: 9, count: 4 }),
+        "no vehicle 9"
+    );
+
+    rig.vehicle_request(2, &Request::EStop).unwrap();
+    rig.run_until(2.0);
+    let after_one = states(&rig);
+    assert_eq!(after_one[2], State::Fault(StopReason::OperatorEStop));
+    assert_eq!([after_one[0], after_one[1], after_one[3]], [State::Running; 3], "the others drive on");
+    assert_eq!(rig.fleet().world(2).wheel_speeds(), [0.0; 2], "vehicle 2 at rest");
+
+    rig.request(&Request::EStop).unwrap();
+    rig.run_until(2.5);
+    assert_eq!(states(&rig), [State::Fault(StopReason::OperatorEStop); 4]);
+    for k in 0..4 {
+        assert_eq!(rig.fleet().world(k).wheel_speeds(), [0.0; 2], "vehicle {k} at rest");
+    }
+    let path = |rig: &VirtualRig| (0..4).map(|k| rig.fleet().world(k).truth().path_length).collect::<Vec<_>>();
+    let stood = path(&rig);
+    rig.run_until(3.5);
+    assert_eq!(path(&rig), stood, "nothing moves after the fleet's e-stop");
+    assert_eq!(rig.motion_outside_running(), 0);
+
+    // The way back: each vehicle reset on its own, then armed and started again.
+    rig.vehicle_request(1, &Request::Reset).unwrap();
+    assert_eq!(rig.core().vehicle_state(1), Some(State::Idle));
+    assert_eq!(rig.core().vehicle_state(3), Some(State::Fault(StopReason::OperatorEStop)), "reset is per vehicle");
+    for k in [0, 2, 3] {
+        rig.vehicle_request(k, &Request::Reset).unwrap();
+    }
+    for k in 0..4 {
+        start(&mut rig, k);
+    }
+    rig.run_until(4.5);
+    assert_eq!(states(&rig), [State::Running; 4]);
+    assert!((0..4).all(|k| rig.fleet().world(k).truth().path_length > stood[k] + 0.02), "every vehicle drives again");
+}
+
+/// A vehicle whose own CAN link fails mid-crossing (its board no longer heard, nor hearing)
+/// is stopped by the gateway, named by its board's heartbeat; the others keep clear of where
+/// it could still go while its board holds its last command, and reach their goals untouched.
+#[test]
+fn a_vehicle_that_loses_its_link_is_stopped_named_and_the_others_go_round() {
+    let s = scenario("crossing-link-lost.toml");
+    for i in 0..4 {
+        let placed = if i == 0 { s.clone() } else { place(&s, 1, i) };
+        let mut rig = VirtualRig::new(&placed, Options::default());
+        rig.run_until(placed.time_limit.min(30.0));
+        let core = rig.core();
+        assert_eq!(core.vehicle_name(2), "b");
+        // b's board is node 3 (the robot's 1, a's 2).
+        assert_eq!(core.vehicle_state(2), Some(State::Fault(StopReason::HeartbeatLost { node: 3 })), "episode {i}");
+        for k in [0, 1, 3] {
+            assert_eq!(core.vehicle_state(k), Some(State::Stopped(StopReason::GoalReached)), "episode {i}: vehicle {k}");
+        }
+        for k in 0..4 {
+            assert!(rig.fleet().vehicle_contact(k).is_none(), "episode {i}: vehicle {k}");
+            assert!(rig.fleet().world(k).first_contact().is_none(), "episode {i}: vehicle {k}");
+        }
+        assert_eq!(rig.fleet().world(2).wheel_speeds(), [0.0; 2], "b's board stopped itself");
+    }
+}
