@@ -73,11 +73,7 @@ fn one_vehicles_estop_stops_it_and_the_fleets_stops_every_vehicle() {
     rig.run_until(1.5);
     let states = |rig: &VirtualRig| (0..4).map(|k| rig.core().vehicle_state(k).unwrap()).collect::<Vec<_>>();
     assert_eq!(states(&rig), [State::Running; 4]);
-    assert_eq!(
-        rig.vehicle_request(9, &Request::Arm),
-        Err(Refusal::NoVehicle { index: 9, count: 4 }),
-        "no vehicle 9"
-    );
+    assert_eq!(rig.vehicle_request(9, &Request::Arm), Err(Refusal::NoVehicle { index: 9, count: 4 }), "no vehicle 9");
 
     rig.vehicle_request(2, &Request::EStop).unwrap();
     rig.run_until(2.0);
@@ -128,7 +124,11 @@ fn a_vehicle_that_loses_its_link_is_stopped_named_and_the_others_go_round() {
         // b's board is node 3 (the robot's 1, a's 2).
         assert_eq!(core.vehicle_state(2), Some(State::Fault(StopReason::HeartbeatLost { node: 3 })), "episode {i}");
         for k in [0, 1, 3] {
-            assert_eq!(core.vehicle_state(k), Some(State::Stopped(StopReason::GoalReached)), "episode {i}: vehicle {k}");
+            assert_eq!(
+                core.vehicle_state(k),
+                Some(State::Stopped(StopReason::GoalReached)),
+                "episode {i}: vehicle {k}"
+            );
         }
         for k in 0..4 {
             assert!(rig.fleet().vehicle_contact(k).is_none(), "episode {i}: vehicle {k}");
@@ -136,4 +136,100 @@ fn a_vehicle_that_loses_its_link_is_stopped_named_and_the_others_go_round() {
         }
         assert_eq!(rig.fleet().world(2).wheel_speeds(), [0.0; 2], "b's board stopped itself");
     }
+}
+
+/// `flowgate run` on a fleet the simulator serves over ptys: `flowgate ctl --vehicle NAME`
+/// arms each vehicle, sets its goal and starts it; in the world's truth every vehicle reaches
+/// its goal and nothing touches. A vehicle the rig does not have is refused, naming the rig's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn flowgate_run_drives_a_fleet_from_ctl() {
+    use flowgate::gateway::core::operator::StateName;
+    use flowgate::gateway::shell::control_client::ControlClient;
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+
+    let s = scenario("swap-2.toml");
+    let handle = flowgate_sim::rig::start(flowgate_sim::rig::RigConfig::new(s.sim.clone())).await.unwrap();
+    let can = format!("slcan:{}?bitrate=1000000", handle.can_path.as_ref().unwrap().display());
+    let dir = std::env::temp_dir().join(format!("flowgate-fleet-run-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let socket = dir.join("control.sock");
+    let mut cfg = s.rig_file(&handle.psd_path, &can, None);
+    cfg.operator.socket = Some(socket.clone());
+    std::fs::write(dir.join("rig.toml"), cfg.to_toml()).unwrap();
+    /// The gateway process, killed however the test ends.
+    struct Gateway(std::process::Child);
+    impl Drop for Gateway {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let gateway = Gateway(
+        Command::new(env!("CARGO_BIN_EXE_flowgate"))
+            .args(["run", "--config"])
+            .arg(dir.join("rig.toml"))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(dir.join("gateway.log")).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    let ctl = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_flowgate"))
+            .arg("ctl")
+            .arg("--socket")
+            .arg(&socket)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    // Await the event: the gateway answers on its socket and sees every vehicle's pose.
+    let seen = Instant::now() + Duration::from_secs(10);
+    loop {
+        let status = ControlClient::connect(&socket).and_then(|mut c| c.status());
+        if status.is_ok_and(|st| st.pose.is_some() && st.vehicles.iter().all(|v| v.pose.is_some())) {
+            break;
+        }
+        assert!(Instant::now() < seen, "the gateway sees every vehicle within 10 s");
+        tokio::time::sleep(Duration::from_millis(50)).await; // polling the socket until it answers
+    }
+    for (name, k) in [("robot", 0), ("v1", 1)] {
+        let ([x, y], _) = goal(&s, k);
+        for args in [vec!["arm"], vec!["goal", &x.to_string(), &y.to_string()], vec!["start"]] {
+            let out = ctl(&[&["--vehicle", name][..], &args].concat());
+            assert!(out.status.success(), "{name} {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        }
+    }
+    let nobody = ctl(&["--vehicle", "nobody", "arm"]);
+    assert!(!nobody.status.success());
+    let text = String::from_utf8_lossy(&nobody.stderr);
+    assert!(text.contains("no vehicle \"nobody\": the rig's are robot, v1"), "{text}");
+    // Await the event: both vehicles stopped at their goals.
+    let home = Instant::now() + Duration::from_secs(30);
+    let arrived = |st: &flowgate::gateway::core::operator::Status| {
+        let at_goal =
+            |name: StateName, reason: Option<&str>| name == StateName::Stopped && reason == Some("goal reached");
+        at_goal(st.state.name, st.state.reason.as_deref())
+            && st.vehicles.iter().all(|v| at_goal(v.state.name, v.state.reason.as_deref()))
+    };
+    loop {
+        let status = ControlClient::connect(&socket).unwrap().status().unwrap();
+        if arrived(&status) {
+            break;
+        }
+        assert!(Instant::now() < home, "both vehicles home within 30 s: {status:?}");
+        tokio::time::sleep(Duration::from_millis(100)).await; // polling the socket for the states
+    }
+    let shown = String::from_utf8_lossy(&ctl(&["status"]).stdout).into_owned();
+    assert!(shown.contains("vehicle v1") && shown.contains("stopped: goal reached"), "{shown}");
+    drop(gateway);
+    let truth = handle.stop().await;
+    for (k, v) in truth.summary.vehicles.iter().enumerate() {
+        let (at, within) = goal(&s, k);
+        let off = (v.final_position[0] - at[0]).hypot(v.final_position[1] - at[1]);
+        assert!(off <= within, "{} ends {off:.3} m from its goal", v.name);
+        assert!(v.contact.is_none() && v.vehicle_contact.is_none(), "{v:?}");
+    }
+    assert_eq!(truth.summary.vehicles.len(), 2);
+    let _ = std::fs::remove_dir_all(&dir);
 }

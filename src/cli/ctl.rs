@@ -25,6 +25,10 @@ pub struct CtlArgs {
     /// Print the gateway's raw JSON reply.
     #[arg(long)]
     json: bool,
+    /// The vehicle the command is for (`robot`, or a `[[vehicles]]` name). Without it,
+    /// `estop`, `stop` and `cancel` are every vehicle's, the rest the robot's.
+    #[arg(long, value_name = "NAME")]
+    vehicle: Option<String>,
     #[command(subcommand)]
     command: CtlCommand,
 }
@@ -115,7 +119,7 @@ pub fn run(args: CtlArgs) -> Result<()> {
         ),
     };
     let req = request(&args.command)?;
-    let reply = ControlClient::connect(&socket)?.ask(&req)?;
+    let reply = ControlClient::connect(&socket)?.ask_for(args.vehicle.as_deref(), &req)?;
     if args.json {
         say!("{}", serde_json::to_string(&reply)?);
     } else {
@@ -157,6 +161,16 @@ fn print_reply(reply: &Reply) {
     let absent: Vec<String> = s.absent.iter().map(|l| format!("LED {l}")).collect();
     if !absent.is_empty() {
         say!("not in view {}", absent.join(", "));
+    }
+    for v in &s.vehicles {
+        let pose = v.pose.map_or("-".into(), |[x, y, h]| format!("({x:.3}, {y:.3}) m, heading {:.1}°", h.to_degrees()));
+        let goal = v.goals.first().map_or("-".into(), |g| format!("({}, {})", g.position[0], g.position[1]));
+        say!(
+            "vehicle {:<12} {}  last stop {}  goal {goal}  pose {pose}",
+            v.name,
+            v.state,
+            v.last_stop.as_deref().unwrap_or("-")
+        );
     }
     say!("cycles     {}", s.cycles);
     if let Some(l) = &s.latency_us {

@@ -238,6 +238,11 @@ impl<K: StageClock> Core<K> {
     pub fn vehicle_name(&self, k: usize) -> &str {
         self.vehicles.get(k).map_or("?", |v| v.name.as_str())
     }
+    /// The index of the vehicle named `name` (`robot`, or a `[[vehicles]]` name), as
+    /// [`Input::VehicleRequest`] takes it.
+    pub fn vehicle_index(&self, name: &str) -> Option<u8> {
+        self.vehicles.iter().position(|v| v.name == name).and_then(|k| u8::try_from(k).ok())
+    }
     /// Vehicle `k`'s safety state.
     pub fn vehicle_state(&self, k: usize) -> Option<State> {
         self.vehicles.get(k).map(|v| v.state())

@@ -72,7 +72,21 @@ impl ControlClient {
 
     /// Send `request`; its reply, refused or not.
     pub fn ask(&mut self, request: &Request) -> Result<Reply, ClientError> {
-        let mut line = serde_json::to_string(request).expect("a request serialises");
+        self.ask_for(None, request)
+    }
+
+    /// Send `request` for `vehicle` (by name; `None`: as [`ControlClient::ask`]).
+    pub fn ask_for(&mut self, vehicle: Option<&str>, request: &Request) -> Result<Reply, ClientError> {
+        let mut line = match vehicle {
+            None => serde_json::to_string(request).expect("a request serialises"),
+            Some(name) => {
+                let mut message = serde_json::to_value(request).expect("a request serialises");
+                if let serde_json::Value::Object(fields) = &mut message {
+                    fields.insert("vehicle".into(), name.into());
+                }
+                message.to_string()
+            }
+        };
         line.push('\n');
         let sent = self.stream.get_mut().write_all(line.as_bytes());
         sent.map_err(|source| ClientError::Send { path: self.path.clone(), source })?;

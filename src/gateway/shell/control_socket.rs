@@ -84,6 +84,8 @@ impl std::fmt::Display for Peer {
 #[derive(Debug)]
 pub struct Command {
     pub request: Request,
+    /// The vehicle it is for, by name (`None`: as the core takes a request without one).
+    pub vehicle: Option<String>,
     pub peer: Peer,
     pub deadline: Instant,
     pub reply: oneshot::Sender<Reply>,
@@ -135,10 +137,15 @@ impl RequestSender {
     /// not answered by then is reported failed and will not be carried out later (`stop`
     /// and `estop` excepted: they are obeyed whenever the loop takes them).
     pub async fn ask(&self, request: Request, peer: Peer) -> Reply {
+        self.ask_for(None, request, peer).await
+    }
+
+    /// The same for one vehicle, by name (`None`: as [`RequestSender::ask`]).
+    pub async fn ask_for(&self, vehicle: Option<String>, request: Request, peer: Peer) -> Reply {
         let deadline = Instant::now() + ANSWER_DEADLINE;
         let urgent = request.always_obeyed();
         let (reply, answer) = oneshot::channel();
-        let command = Command { request, peer, deadline, reply };
+        let command = Command { request, vehicle, peer, deadline, reply };
         let queue = if urgent { &self.urgent } else { &self.queue };
         let late = |what: &str| {
             let secs = ANSWER_DEADLINE.as_secs_f64();
@@ -168,19 +175,40 @@ impl RequestSender {
     }
 }
 
-/// A request line. A command (`drive`, `wheels`) may carry Python's `NaN`, `Infinity` or
-/// `-Infinity`, which JSON has no words for: read as not finite, so that it stops the robot
-/// by its name rather than going unread as malformed.
-fn parse_request(line: &[u8]) -> Result<Request, serde_json::Error> {
+/// A request line, and the vehicle it names (`"vehicle": "NAME"` beside `cmd`). A command
+/// (`drive`, `wheels`) may carry Python's `NaN`, `Infinity` or `-Infinity`, which JSON has
+/// no words for: read as not finite, so that it stops the robot by its name rather than going
+/// unread as malformed.
+fn parse_request(line: &[u8]) -> Result<(Option<String>, Request), serde_json::Error> {
+    let text = std::str::from_utf8(line).ok();
+    // First a request that names its vehicle: a request without fields would take the
+    // name as a field it ignores.
+    if let Some(addressed) = text.and_then(addressed) {
+        return addressed;
+    }
     let error = match serde_json::from_slice::<Request>(line) {
-        Ok(request) => return Ok(request),
+        Ok(request) => return Ok((None, request)),
         Err(e) => e,
     };
-    let Some(lenient) = std::str::from_utf8(line).ok().and_then(non_finite_as_null) else { return Err(error) };
-    match serde_json::from_str::<Request>(&lenient) {
-        Ok(request) if request.is_command() => Ok(request),
+    let Some(lenient) = text.and_then(non_finite_as_null) else { return Err(error) };
+    let parsed = addressed(&lenient).unwrap_or_else(|| serde_json::from_str::<Request>(&lenient).map(|r| (None, r)));
+    match parsed {
+        Ok((vehicle, request)) if request.is_command() => Ok((vehicle, request)),
         _ => Err(error),
     }
+}
+
+/// A request object that names its vehicle: the name, and the request without it (`None`:
+/// not an object naming one).
+fn addressed(text: &str) -> Option<Result<(Option<String>, Request), serde_json::Error>> {
+    let serde_json::Value::Object(mut fields) = serde_json::from_str::<serde_json::Value>(text).ok()? else {
+        return None;
+    };
+    let vehicle = match fields.remove("vehicle")? {
+        serde_json::Value::String(name) => name,
+        _ => return Some(Err(serde::de::Error::custom("`vehicle` must be a vehicle's name"))),
+    };
+    Some(serde_json::from_value(serde_json::Value::Object(fields)).map(|request| (Some(vehicle), request)))
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -439,9 +467,9 @@ async fn serve_lines(stream: UnixStream, tx: &RequestSender, seat: &Seat) -> End
         } else {
             match parse_request(&line) {
                 Err(e) => Reply::error(format!("malformed request: {e}")),
-                Ok(request) => {
+                Ok((vehicle, request)) => {
                     seat.set(true);
-                    let reply = tx.ask(request, peer).await;
+                    let reply = tx.ask_for(vehicle, request, peer).await;
                     seat.set(false);
                     reply
                 }

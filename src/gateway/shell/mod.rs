@@ -105,10 +105,6 @@ pub async fn run(
     mut controls: Controls,
     progress: Option<watch::Sender<Progress>>,
 ) -> Result<Report, GatewayError> {
-    if !rig.vehicles.is_empty() {
-        let names: Vec<&str> = rig.vehicles.iter().map(|v| v.name.as_str()).collect();
-        return Err(GatewayError::Fleet(names.join(", ")));
-    }
     let origin = Instant::now();
     let notifier = Notifier::from_env()?;
     let can = match timeout(CAN_OPEN_DEADLINE, open_can(&rig.can)).await {
@@ -505,7 +501,17 @@ impl Io {
             let _ = cmd.reply.send(Reply::error(refusal));
             return;
         }
-        let Some(Answer { result, status }) = self.feed(core, now, Input::Request(&cmd.request)) else { return };
+        let input = match cmd.vehicle.as_deref().map(|name| (name, core.vehicle_index(name))) {
+            None => Input::Request(&cmd.request),
+            Some((_, Some(vehicle))) => Input::VehicleRequest { vehicle, request: &cmd.request },
+            Some((name, None)) => {
+                let names: Vec<&str> = (0..core.vehicle_count()).map(|k| core.vehicle_name(k)).collect();
+                let _ =
+                    cmd.reply.send(Reply::error(format!("no vehicle {name:?}: the rig's are {}", names.join(", "))));
+                return;
+            }
+        };
+        let Some(Answer { result, status }) = self.feed(core, now, input) else { return };
         let status = status.map(|mut status| {
             // The write times are the shell's to measure: it adds them to the answer.
             let window = match cmd.request {
@@ -517,9 +523,10 @@ impl Io {
             status.stages = window.map(|w| w.stages());
             status
         });
+        let of = cmd.vehicle.as_deref().map(|v| format!(" for vehicle {v}")).unwrap_or_default();
         let text = match &result {
-            Ok(()) => format!("{}: {:?} accepted", cmd.peer, cmd.request),
-            Err(e) => format!("{}: {:?} refused: {e}", cmd.peer, cmd.request),
+            Ok(()) => format!("{}: {:?}{of} accepted", cmd.peer, cmd.request),
+            Err(e) => format!("{}: {:?}{of} refused: {e}", cmd.peer, cmd.request),
         };
         if !cmd.request.is_query() && !cmd.request.is_command() {
             match &result {
@@ -747,11 +754,6 @@ pub enum GatewayError {
     #[cfg(not(feature = "ros2"))]
     #[error("[ros2] is enabled, but this flowgate was built without ROS 2 (the `ros2` feature)")]
     Ros2Missing,
-    #[error(
-        "[[vehicles]] names {0}: this gateway drives the robot alone. The vehicles' LEDs, CAN ids and schedule are \
-         checked (`flowgate check`); fleets run in the simulator (`flowgate plan`, docs/fleet.md)"
-    )]
-    Fleet(String),
 }
 
 /// An outside planner's command that came another way than `planner.method` names (the
