@@ -145,3 +145,88 @@ impl<K: StageClock> Core<K> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use flowgate_protocol::motor::{BoardState, MotorMessage, NodeId};
+
+    use super::super::input::CanEvent;
+    use super::super::operator::Request;
+    use super::super::timers::Timer;
+    use super::super::{Core, Input, NoClock, Output, State, StopReason};
+    use crate::config::{RigFile, VehicleSection};
+    use crate::time::HostTime;
+
+    /// The example rig with two board vehicles at nodes 2 and 3.
+    fn fleet() -> Core<NoClock> {
+        let mut file = RigFile::from_toml(include_str!("../../../rig.example.toml"), "rig").unwrap();
+        file.vehicles = ["a", "b"]
+            .iter()
+            .zip(2u8..)
+            .map(|(name, node)| VehicleSection {
+                name: name.to_string(),
+                front_led: 2 * node + 1,
+                rear_led: 2 * node + 2,
+                node: Some(node),
+                ..Default::default()
+            })
+            .collect();
+        Core::new(file.rig("rig").unwrap(), NoClock)
+    }
+
+    fn heartbeat(node: u8, state: BoardState) -> CanEvent {
+        let node = NodeId::new(node).unwrap();
+        CanEvent::Frame(MotorMessage::Heartbeat { node, state }.to_frame().unwrap())
+    }
+
+    fn drain(c: &mut Core<NoClock>) -> Vec<Output> {
+        std::iter::from_fn(|| c.poll()).collect()
+    }
+
+    /// One gateway heartbeat for the three boards, however many vehicles share the bus.
+    #[test]
+    fn one_heartbeat_goes_out_for_every_board() {
+        let mut c = fleet();
+        let at = c.deadline(Timer::Heartbeat);
+        c.handle(at, Input::Tick);
+        let beats = drain(&mut c)
+            .into_iter()
+            .filter(|o| {
+                matches!(o, Output::Can(f) if matches!(MotorMessage::parse(f), Ok(MotorMessage::GatewayHeartbeat { .. })))
+            })
+            .count();
+        assert_eq!(beats, 1);
+    }
+
+    /// A board's frame goes to the vehicle whose board it is: heard there, not counted as
+    /// foreign. A board rebooting under an armed vehicle faults that vehicle alone, named by
+    /// its node; the rig's own watchdog (no samples) stops every armed vehicle and leaves an
+    /// idle one be.
+    #[test]
+    fn each_board_is_its_own_vehicles_and_the_rigs_faults_every_armed_one() {
+        let mut c = fleet();
+        let t = |ms: u64| HostTime::from_nanos(ms * 1_000_000);
+        for node in 1..=3 {
+            c.handle(t(1), Input::Can(heartbeat(node, BoardState::Disabled)));
+        }
+        assert_eq!(c.counters().can_foreign, 0);
+        c.handle(t(2), Input::Can(heartbeat(9, BoardState::Disabled)));
+        assert_eq!(c.counters().can_foreign, 1, "node 9 is no vehicle's");
+        for vehicle in [1, 2] {
+            c.handle(t(3), Input::VehicleRequest { vehicle, request: &Request::Arm });
+        }
+        drain(&mut c);
+        let states = |c: &Core<NoClock>| (0..3).map(|k| c.vehicle_state(k).unwrap()).collect::<Vec<_>>();
+        assert_eq!(states(&c), [State::Idle, State::Armed, State::Armed]);
+        c.handle(t(4), Input::Can(heartbeat(3, BoardState::BootUp)));
+        let rebooted = State::Fault(StopReason::BoardReboot { node: 3 });
+        assert_eq!(states(&c), [State::Idle, State::Armed, rebooted]);
+        let named = drain(&mut c)
+            .into_iter()
+            .any(|o| matches!(o, Output::State { vehicle: 2, state, .. } if state == rebooted));
+        assert!(named, "the state change names vehicle 2");
+        let due = c.deadline(Timer::Samples);
+        c.handle(due, Input::Tick);
+        assert_eq!(states(&c), [State::Idle, State::Fault(StopReason::SerialLost), rebooted]);
+    }
+}

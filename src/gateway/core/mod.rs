@@ -46,21 +46,21 @@
 //! assert!(to_controller >= 2);
 //! ```
 //!
-//! Per cycle (one PSD time-division frame, closed by its `FrameEnd`):
-//! decode -> floor coordinates (calibration) -> tracks (the robot's [`PoseTrack`], the
-//! [`ObstacleTracks`]) -> control step -> one CAN
-//! velocity frame. The same core runs on the rig, in deterministic virtual time against the
+//! Per cycle (one PSD time-division frame, closed by its `FrameEnd`): decode -> floor
+//! coordinates (calibration) -> tracks (each vehicle's [`PoseTrack`], the [`ObstacleTracks`])
+//! -> each vehicle's control step, in the fleet's order -> its CAN velocity frame. The same core runs on the rig, in deterministic virtual time against the
 //! simulator's firmware, in replay and in the benchmarks: that is what makes a
 //! virtual-time test evidence about the rig.
 //!
 //! The core is a dispatcher over its machines, each in its own module, in the order a
 //! sample travels: [`psd_session`] (the controller's handshake, sequence and clock) and
 //! [`frame`] (one time-division frame) on the PSD link ([`psd_link`]); the obstacles' tracks
-//! and the control step (`cycle`); the robot as one vehicle the core drives (`vehicle`: its
-//! pose track, [`safety`] state machine, control step, motors and goals), its motors behind
-//! one type ([`motors`]: a board or CiA 402 drives) on the CAN link (`can_link`); the operator's
-//! requests (`requests`); and one timer table ([`timers`]) that both gives the next
-//! deadline and fires what is due.
+//! and the control step (`cycle`); each vehicle the core drives, the robot first (`vehicle`:
+//! its pose track, [`safety`] state machine, control step, motors and goals) and what each
+//! sees of the others (`fleet`), their motors behind one type ([`motors`]: a board or CiA 402
+//! drives) on the CAN link (`can_link`); the operator's requests (`requests`), each for one
+//! vehicle or for the fleet; and one timer table ([`timers`]), the rig's entries and each
+//! vehicle's, that both gives the next deadline and fires what is due.
 
 use std::time::Duration;
 

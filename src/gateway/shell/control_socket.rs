@@ -538,6 +538,21 @@ mod tests {
         Ok(line)
     }
 
+    /// A request names its vehicle beside `cmd`, whatever else it carries (a request with
+    /// no fields of its own would otherwise read the name as a field it ignores); without
+    /// one it is as before; a name that is not text is refused.
+    #[test]
+    fn a_request_names_its_vehicle() {
+        let parse = |line: &str| parse_request(line.as_bytes());
+        assert_eq!(parse(r#"{"cmd":"arm","vehicle":"v2"}"#).unwrap(), (Some("v2".into()), Request::Arm));
+        assert_eq!(parse(r#"{"cmd":"arm"}"#).unwrap(), (None, Request::Arm));
+        let (vehicle, request) = parse(r#"{"vehicle":"a","cmd":"drive","v":NaN,"w":0}"#).unwrap();
+        assert_eq!(vehicle.as_deref(), Some("a"));
+        assert!(matches!(request, Request::Drive { v, .. } if v.is_nan()), "{request:?}");
+        assert!(parse(r#"{"cmd":"arm","vehicle":2}"#).unwrap_err().to_string().contains("a vehicle's name"));
+        assert!(parse(r#"{"cmd":"goal","vehicle":"a"}"#).is_err(), "a goal without goals");
+    }
+
     #[tokio::test]
     async fn a_new_connection_closes_the_one_idle_longest_beyond_the_cap() {
         let (path, counts) = served("evict").await;

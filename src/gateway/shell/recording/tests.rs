@@ -25,6 +25,7 @@ fn every_kind_of_input_survives_its_json() {
         Input::CanReopened,
         Input::Request(&Request::Goal { goals: vec![goal] }),
         Input::Request(&Request::Stats { reset: true }),
+        Input::VehicleRequest { vehicle: 3, request: &Request::EStop },
         Input::ArmAtStart,
         Input::Shutdown,
         Input::Tick,
@@ -56,6 +57,10 @@ fn a_damaged_input_is_refused_saying_what_is_wrong() {
     assert_eq!(bad(r#"{"bytes":"0g"}"#), "no `kind`");
     assert_eq!(bad(r#"{"kind":"psd_bytes","bytes":"0g"}"#), "`bytes` is not hex");
     assert_eq!(bad(r#"{"kind":"warp"}"#), "unknown input `warp`");
+    assert_eq!(
+        bad(r#"{"kind":"vehicle_request","vehicle":-1,"request":{"cmd":"arm"}}"#),
+        "`vehicle` is not a vehicle's index"
+    );
     let long = format!(r#"{{"kind":"psd_bytes","bytes":"{}"}}"#, "00".repeat(PSD_CHUNK + 1));
     assert_eq!(bad(&long), format!("{} bytes in one read: at most {PSD_CHUNK}", PSD_CHUNK + 1));
 }
