@@ -193,12 +193,19 @@ async fn flowgate_run_drives_a_fleet_from_ctl() {
         assert!(Instant::now() < seen, "the gateway sees every vehicle within 10 s");
         tokio::time::sleep(Duration::from_millis(50)).await; // polling the socket until it answers
     }
+    // Each armed and given its goal, then both started: neither waits on the other's goal
+    // for a vehicle that is not yet under way.
     for (name, k) in [("robot", 0), ("v1", 1)] {
         let ([x, y], _) = goal(&s, k);
-        for args in [vec!["arm"], vec!["goal", &x.to_string(), &y.to_string()], vec!["start"]] {
+        for args in [vec!["arm"], vec!["goal", &x.to_string(), &y.to_string()]] {
             let out = ctl(&[&["--vehicle", name][..], &args].concat());
             assert!(out.status.success(), "{name} {args:?}: {}", String::from_utf8_lossy(&out.stderr));
         }
+    }
+    let mut client = ControlClient::connect(&socket).unwrap();
+    for name in ["robot", "v1"] {
+        let reply = client.ask_for(Some(name), &Request::Start).unwrap();
+        assert!(reply.ok, "{name}: {reply:?}");
     }
     let nobody = ctl(&["--vehicle", "nobody", "arm"]);
     assert!(!nobody.status.success());

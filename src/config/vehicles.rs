@@ -66,6 +66,12 @@ pub struct VehicleSection {
     pub wheel_accel: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub command_timeout_ms: Option<u16>,
+    /// Where it drives when armed at start (`flowgate run --arm`), as `[goal]` is the
+    /// robot's, m; and how close counts as there (default 0.02 m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub goal: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub goal_tolerance: Option<f64>,
 }
 
 /// A vehicle's motors on the rig's bus.
@@ -88,6 +94,8 @@ pub struct Vehicle {
     /// How the gateway drives it: what the robot's would be with this vehicle's body,
     /// wheels, limits, LEDs and motors.
     pub driven: DrivenSettings,
+    /// Its goal when armed at start (`goal`, `goal_tolerance`).
+    pub goal: Option<super::Goal>,
 }
 
 /// What the gateway drives a vehicle with, typed as the robot's are in [`Rig`](super::Rig).
@@ -207,7 +215,40 @@ impl VehicleSection {
             robot,
             drive,
             driven,
+            goal: self.goal(i, room)?,
         })
+    }
+
+    /// Its goal: finite, where the camera sees it, inside the lane, clear of the walls and
+    /// the furniture.
+    fn goal(&self, i: usize, room: &Room<'_>) -> Result<Option<super::Goal>, Invalid> {
+        if self.goal_tolerance.is_some() && self.goal.is_none() {
+            return invalid(&key(i, "goal_tolerance"), "is set, but `goal` is not");
+        }
+        let Some(position) = self.goal else { return Ok(None) };
+        let tolerance = self.goal_tolerance.unwrap_or(super::planning::default_tolerance());
+        let at = crate::Point::new(position[0], position[1]);
+        if !(at.re.is_finite() && at.im.is_finite()) {
+            return invalid(&key(i, "goal"), "must be finite");
+        }
+        positive(&key(i, "goal_tolerance"), tolerance, super::checks::Most(super::MAX_GOAL_TOLERANCE, "m"))?;
+        let c = room.calibration;
+        if !c.in_view(at) {
+            return invalid(
+                &key(i, "goal"),
+                format!("{position:?} lies outside the calibrated arena: {}", c.view_extent()),
+            );
+        }
+        if let Some(lane) = room.file.lane.filter(|l| at.im.abs() >= l.half_width) {
+            return invalid(
+                &key(i, "goal"),
+                format!("{position:?} lies outside the lane (|y| >= {} m)", lane.half_width),
+            );
+        }
+        if let Some(why) = room.room.as_ref().and_then(|r| r.blocked_at(at)) {
+            return invalid(&key(i, "goal"), format!("{position:?}: {why}"));
+        }
+        Ok(Some(super::Goal { position, tolerance }))
     }
 
     /// The rig's file with this vehicle in the robot's place: its LEDs, motors, body and
@@ -317,7 +358,44 @@ impl RigFile {
         // node another device takes, named less well than the bus's own check names it.
         let motors = self.vehicles.iter().enumerate().map(|(i, v)| v.motors(i, self)).collect::<Result<Vec<_>, _>>()?;
         self.check_can_ids(&motors)?;
-        self.vehicles.iter().enumerate().map(|(i, v)| v.validate(i, self, sample_period, room)).collect()
+        let vehicles: Vec<Vehicle> = self
+            .vehicles
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v.validate(i, self, sample_period, room))
+            .collect::<Result<_, _>>()?;
+        self.check_goals_apart(&vehicles)?;
+        Ok(vehicles)
+    }
+
+    /// No two vehicles' goals (the robot's `[goal]` among them) closer than their radii:
+    /// both could never stand there.
+    fn check_goals_apart(&self, vehicles: &[Vehicle]) -> Result<(), Invalid> {
+        let robot = self.goal.map(|g| ("goal.position".to_string(), g.position, self.robot.radius));
+        let goals: Vec<(String, [f64; 2], f64)> = robot
+            .into_iter()
+            .chain(
+                vehicles
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, v)| Some((key(i, "goal"), v.goal?.position, v.robot.radius))),
+            )
+            .collect();
+        for (k, (name, at, radius)) in goals.iter().enumerate() {
+            for (other, there, r) in &goals[..k] {
+                let apart = (at[0] - there[0]).hypot(at[1] - there[1]);
+                if apart < radius + r {
+                    return invalid(
+                        name,
+                        format!(
+                            "{at:?} is {apart:.3} m from {other} {there:?}: two vehicles {:.3} m across could not both stand there",
+                            radius + r
+                        ),
+                    );
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Who uses `led` besides vehicle `i`: the robot, an obstacle or a vehicle before it.

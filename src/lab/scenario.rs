@@ -261,15 +261,15 @@ impl Scenario {
 
     /// The fleet's other vehicles as the simulated rig `wiring` wires them (by default their
     /// LEDs after the obstacles', their boards at the nodes after the robot's node 1), their
-    /// bodies the scenario's. Empty without a fleet.
+    /// bodies and a navigating vehicle's goal the scenario's. Empty without a fleet.
     pub fn sim_vehicles(
         &self,
         wiring: &flowgate_sim::rig::RigConfig,
     ) -> Result<Vec<VehicleSection>, flowgate_sim::rig::RigError> {
         let wired = wiring.vehicles()?;
         let bodies = self.sim.fleet().map(|(_, body, _)| body);
-        let vehicles = (wired.into_iter().zip(bodies).skip(1))
-            .map(|(v, body)| {
+        let vehicles = (wired.into_iter().zip(bodies).enumerate().skip(1))
+            .map(|(k, (v, body))| {
                 use flowgate_sim::motors::MotorKind;
                 let (node, left_node, right_node, protocol) = match v.motors {
                     MotorKind::Board(node) => (Some(node.get()), None, None, None),
@@ -277,6 +277,9 @@ impl Scenario {
                         (None, Some(left.get()), Some(right.get()), Some(MotorProtocolName::Cia402))
                     }
                 };
+                // A navigating vehicle's goal, for `flowgate run --arm` (a script is not one).
+                let navigates = self.sim.vehicles[k - 1].role == flowgate_sim::scenario::vehicles::Role::Navigate;
+                let goal = navigates.then(|| self.vehicle(k).sim.goal);
                 VehicleSection {
                     name: v.name,
                     front_led: v.front_led,
@@ -295,6 +298,8 @@ impl Scenario {
                     wheel_base: Some(body.wheel_base),
                     max_wheel_speed: Some(body.max_wheel_speed),
                     wheel_accel: Some(body.wheel_accel),
+                    goal: goal.map(|g| g.position),
+                    goal_tolerance: goal.map(|g| g.tolerance),
                     ..VehicleSection::default()
                 }
             })

@@ -282,10 +282,6 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     /// Every vehicle's motors on the one bus, and the board node each vehicle's answers at.
     motors: FleetMotors,
     board_nodes: Vec<Option<u8>>,
-    /// Each other vehicle's goal, when it navigates: without [`Options::wait_for_operator`]
-    /// it is armed, given it and started when the controller first streams, as the robot is.
-    fleet_goals: Vec<Option<crate::config::Goal>>,
-    fleet_started: bool,
     adapter: flowgate_sim::slcan_adapter::SlcanAdapter,
     core: Core<K>,
     /// The core's next deadline, asked for once after each input rather than at each of the
@@ -384,6 +380,32 @@ fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (C
     (spec, wired)
 }
 
+/// The scenario's faults, its sensing delay played as the controller's sample delay.
+fn fault_plan(scenario: &Scenario) -> FaultPlan {
+    let mut plan = scenario.faults.clone();
+    if plan.sample_delay_ms == 0.0 {
+        plan.sample_delay_ms = scenario.sensing.delay * 1e3;
+    }
+    plan
+}
+
+/// Every vehicle's motors on the simulated bus (the robot's playing the scenario's faults,
+/// each vehicle's own link failing at its `link_lost_at`), and each one's board node.
+fn fleet_motors(scenario: &Scenario, wired: &[WiredVehicle], plan: &FaultPlan) -> (FleetMotors, Vec<Option<u8>>) {
+    let kinds: Vec<MotorKind> = wired.iter().map(|v| v.motors).collect();
+    let link_lost_at = std::iter::once(f64::INFINITY)
+        .chain(scenario.sim.vehicles.iter().map(|v| v.link_lost_at.unwrap_or(f64::INFINITY)))
+        .collect();
+    let board_nodes = kinds
+        .iter()
+        .map(|k| match k {
+            MotorKind::Board(n) => Some(n.get()),
+            MotorKind::Cia402 { .. } => None,
+        })
+        .collect();
+    (FleetMotors::new(&kinds, plan, link_lost_at), board_nodes)
+}
+
 /// How the simulated rig wires the scenario's vehicles.
 fn wiring(scenario: &Scenario, options: &Options) -> RigConfig {
     let mut wiring = RigConfig::new(scenario.sim.clone());
@@ -424,18 +446,11 @@ impl<K: StageClock> VirtualRig<K> {
     /// is played by the firmware: its delay as the controller's sample delay, its position
     /// noise as PSD noise in counts (a low-pass filter is not part of the real chain).
     pub fn with_clock(scenario: &Scenario, clock: K, options: Options) -> Self {
-        let mut plan = scenario.faults.clone();
-        if plan.sample_delay_ms == 0.0 {
-            plan.sample_delay_ms = scenario.sensing.delay * 1e3;
-        }
+        let plan = fault_plan(scenario);
         let (spec, wired) = firmware_spec(scenario, &options, &plan);
         let mut fleet = Fleet::for_rig(&scenario.sim);
         let mut controller = spec.build(0.0);
-        let kinds: Vec<MotorKind> = wired.iter().map(|v| v.motors).collect();
-        let link_lost_at = std::iter::once(f64::INFINITY)
-            .chain(scenario.sim.vehicles.iter().map(|v| v.link_lost_at.unwrap_or(f64::INFINITY)))
-            .collect();
-        let mut motors = FleetMotors::new(&kinds, &plan, link_lost_at);
+        let (mut motors, board_nodes) = fleet_motors(scenario, &wired, &plan);
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
         motors.boot(0.0, &mut fleet, &mut can_out);
@@ -456,18 +471,10 @@ impl<K: StageClock> VirtualRig<K> {
             plan,
             fleet,
             names: wired.iter().map(|v| v.name.clone()).collect(),
-            fleet_goals: (1..wired.len()).map(|k| fleet_goal(scenario, k)).collect(),
-            fleet_started: false,
             spec,
             controller,
             motors,
-            board_nodes: kinds
-                .iter()
-                .map(|k| match k {
-                    MotorKind::Board(n) => Some(n.get()),
-                    MotorKind::Cia402 { .. } => None,
-                })
-                .collect(),
+            board_nodes,
             adapter: Default::default(),
             psd_out,
             pending: SerialQueue::default(),
@@ -712,16 +719,6 @@ impl<K: StageClock> VirtualRig<K> {
             can_sent: self.can_sent,
         }
     }
-}
-
-/// Vehicle `k`'s goal, when it navigates (a scripted vehicle's script is not driven through
-/// the whole stack).
-fn fleet_goal(scenario: &Scenario, k: usize) -> Option<crate::config::Goal> {
-    let spec = scenario.sim.vehicles.get(k - 1)?;
-    (spec.role == flowgate_sim::scenario::vehicles::Role::Navigate).then(|| {
-        let goal = scenario.vehicle(k).sim.goal;
-        crate::config::Goal { position: goal.position, tolerance: goal.tolerance }
-    })
 }
 
 /// Hand `core` one input at `now`, keeping a copy in `log` when there is one.

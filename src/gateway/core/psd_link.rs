@@ -355,11 +355,19 @@ impl<K: StageClock> Core<K> {
         self.out.push(Output::Streaming);
         if self.vehicles[ROBOT].mission.take_arm_at_start() {
             let result = match self.rig.goal {
-                Some(goal) => self.arm_and_start(now, goal),
+                Some(goal) => self.arm_and_start(now, None, goal),
                 None => Err(Refusal::NoGoal),
             };
             if let Err(e) = result {
                 self.notice(now, Notice::ArmAtStartRefused(e));
+            }
+            // Every other vehicle with a goal of its own (`[[vehicles]] goal`) goes too.
+            for k in ROBOT + 1..self.vehicles.len() {
+                if let Some(goal) = self.rig.vehicles[k - 1].goal {
+                    if let Err(e) = self.arm_and_start(now, Some(k), goal) {
+                        self.vehicle_notice(k, now, Notice::ArmAtStartRefused(e));
+                    }
+                }
             }
         }
     }

@@ -161,11 +161,11 @@ impl<K: StageClock> Core<K> {
         Ok(())
     }
 
-    /// Arm, set `goal` and start (`--arm`).
-    pub(super) fn arm_and_start(&mut self, now: HostTime, goal: Goal) -> Result<(), Refusal> {
-        self.request(now, None, &Request::Arm)?;
-        self.request(now, None, &Request::Goal { goals: vec![goal] })?;
-        self.request(now, None, &Request::Start)
+    /// Arm, set `goal` and start `vehicle` (the robot without one; `--arm`).
+    pub(super) fn arm_and_start(&mut self, now: HostTime, vehicle: Option<usize>, goal: Goal) -> Result<(), Refusal> {
+        self.request(now, vehicle, &Request::Arm)?;
+        self.request(now, vehicle, &Request::Goal { goals: vec![goal] })?;
+        self.request(now, vehicle, &Request::Start)
     }
 
     /// Whether vehicle `k`'s fault's cause persists now.

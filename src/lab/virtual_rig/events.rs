@@ -3,8 +3,7 @@
 
 use crate::gateway::core::input::CanEvent;
 use crate::gateway::core::input::PSD_CHUNK;
-use crate::gateway::core::operator::Request;
-use crate::gateway::core::{Answer, Input, Output, StageClock, State};
+use crate::gateway::core::{Input, Output, StageClock, State};
 use crate::gateway::shell::link::slcan_event;
 use crate::gateway::shell::telemetry::CanRecord;
 use crate::time::HostTime;
@@ -255,7 +254,7 @@ impl<K: StageClock> VirtualRig<K> {
                     }
                 }
                 Output::State { vehicle, state, .. } => self.announced[vehicle] = state,
-                Output::Streaming => self.start_fleet(),
+                Output::Streaming => {}
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {
                     self.feed(Input::PsdLost);
@@ -274,25 +273,6 @@ impl<K: StageClock> VirtualRig<K> {
             }
         }
         self.core_deadline = self.core.next_deadline();
-    }
-
-    /// At the controller's first stream, without [`Options::wait_for_operator`]: every
-    /// navigating vehicle armed, given its goal and started, as the robot is.
-    fn start_fleet(&mut self) {
-        if self.options.wait_for_operator || std::mem::replace(&mut self.fleet_started, true) {
-            return;
-        }
-        for k in 0..self.fleet_goals.len() {
-            let Some(goal) = self.fleet_goals[k] else { continue };
-            let vehicle = u8::try_from(k + 1).expect("at most 32 vehicles");
-            for request in [Request::Arm, Request::Goal { goals: vec![goal] }, Request::Start] {
-                if let Some(Answer { result: Err(e), .. }) =
-                    self.feed(Input::VehicleRequest { vehicle, request: &request })
-                {
-                    tracing::debug!("vehicle {}: {e}", self.names[k + 1]);
-                }
-            }
-        }
     }
 
     /// A velocity command that is not zero, outside Running, is counted: motion only in
