@@ -240,3 +240,42 @@ async fn flowgate_run_drives_a_fleet_from_ctl() {
     assert_eq!(truth.summary.vehicles.len(), 2);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `flowgate demo --scenario` of a fleet: the simulator and the gateway over ptys, every
+/// navigating vehicle armed and started at the first stream (its `[[vehicles]] goal`), all
+/// home with no contact in the world's truth; a scenario with a scripted vehicle is refused
+/// by the vehicle's name.
+#[test]
+fn the_demo_drives_a_fleet_and_refuses_a_script() {
+    use std::process::Command;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = std::env::temp_dir().join(format!("flowgate-demo-fleet-{}", std::process::id()));
+    let run = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--scenario"])
+        .arg(root.join("scenarios/fleet/swap-2.toml"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&run.stderr));
+    assert!(stdout.contains("outcome          goal reached, no contact"), "{stdout}");
+    assert!(stdout.contains("vehicle v1       at its goal, no contact"), "{stdout}");
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("truth.json")).unwrap()).unwrap();
+    let names: Vec<&str> =
+        truth["summary"]["vehicles"].as_array().unwrap().iter().map(|v| v["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["robot", "v1"]);
+    let _ = std::fs::remove_dir_all(&out);
+
+    let scripted = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--scenario"])
+        .arg(root.join("scenarios/fleet/e5-scripted.toml"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!scripted.status.success());
+    let text = String::from_utf8_lossy(&scripted.stderr);
+    assert!(text.contains("vehicle crossing follows a script; the gateway drives navigating vehicles"), "{text}");
+}

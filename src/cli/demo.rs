@@ -79,13 +79,15 @@ fn announce(args: &DemoArgs, scenario: &Scenario) {
     }
 }
 
-/// The demo's gateway drives one robot: a fleet is refused by name.
-fn one_robot(scenario: &Scenario) -> Result<()> {
-    if scenario.is_fleet() {
+/// The demo's gateway drives navigating vehicles: a scripted one is refused by name.
+fn navigating_only(scenario: &Scenario) -> Result<()> {
+    use flowgate_sim::scenario::vehicles::Role;
+    if let Some(v) = scenario.vehicles.iter().find(|v| v.role == Role::Script) {
         anyhow::bail!(
-            "{}: a fleet of {} vehicles; the demo's gateway drives one robot (run a fleet with `flowgate plan`)",
+            "{}: vehicle {} follows a script; the gateway drives navigating vehicles (run a scripted fleet with \
+             `flowgate plan`)",
             scenario.name,
-            1 + scenario.vehicles.len()
+            v.name
         );
     }
     Ok(())
@@ -112,7 +114,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         Some(path) => Scenario::load(path)?,
         None => Scenario::from_toml(demo::DEFAULT_SCENARIO, "E2 (built in)")?,
     };
-    one_robot(&scenario)?;
+    navigating_only(&scenario)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = std::fs::canonicalize(&args.out)?;
     announce(&args, &scenario);
@@ -134,6 +136,19 @@ pub fn run(args: DemoArgs) -> Result<()> {
         t.path_length,
         t.duration
     );
+    for (v, (name, home)) in t.vehicles.iter().skip(1).zip(&run.vehicles) {
+        let touched = v.contact.is_some() || v.vehicle_contact.is_some();
+        let how = match (home, touched) {
+            (_, true) => "TOUCHED",
+            (true, false) => "at its goal, no contact",
+            (false, false) => "not at its goal",
+        };
+        say!(
+            "vehicle {name:<8} {how}, path {:.3} m, nearest vehicle {:.1} cm",
+            v.path_length,
+            v.min_vehicle_gap * 100.0
+        );
+    }
     say!("{}", run.report);
     run.write_files(&scenario, &out)?;
     say!("\nwrote {}/{}", out.display(), demo::DEMO_FILES);

@@ -30,9 +30,13 @@ const LINGER: Duration = Duration::from_millis(800);
 pub struct DemoRun {
     pub report: Report,
     pub truth: TruthRecord,
-    /// Whether the robot ended within the goal tolerance (+1 cm for the stop ramp).
+    /// Whether the robot, and every other vehicle of a fleet, ended within its goal's
+    /// tolerance (+1 cm for the stop ramp).
     pub reached_goal: bool,
+    /// Whether any vehicle touched anything.
     pub contact: bool,
+    /// Each other vehicle of a fleet: its name and whether it ended at its goal.
+    pub vehicles: Vec<(String, bool)>,
 }
 
 /// The files a demo run writes beside the gateway's telemetry.
@@ -139,6 +143,7 @@ pub async fn run(
         }
         CanEndpoint::SlcanPty { .. } => String::new(),
     };
+    let wiring = rig_cfg.clone();
     // The simulator on a thread of its own: on a loaded machine it keeps its pace.
     let handle = rig::spawn(rig_cfg).await?;
     let can_url = if can_url.is_empty() {
@@ -146,7 +151,7 @@ pub async fn run(
     } else {
         can_url
     };
-    let mut config = scenario.rig_file(&handle.psd_path, &can_url, outputs.dir);
+    let mut config = scenario.rig_file_wired(&handle.psd_path, &can_url, outputs.dir, &wiring);
     if drive == DemoDrive::Cia402 {
         config.use_cia402(crate::config::Cia402Section::with_nodes(1, 2));
     }
@@ -167,8 +172,8 @@ pub async fn run(
         tokio::select! {
             _ = ticker.tick() => on_progress(&progress_rx.borrow()),
             changed = progress_rx.changed() => {
-                let state = progress_rx.borrow().state;
-                if changed.is_err() || state.is_terminal() {
+                let p = *progress_rx.borrow();
+                if changed.is_err() || (p.state.is_terminal() && p.others_active == 0) {
                     break;
                 }
             }
@@ -181,9 +186,20 @@ pub async fn run(
     let _ = stop_tx.send(true);
     let report = gw.await??;
     let truth = handle.stop().await;
-    let end = truth.summary.final_position;
-    let goal = scenario.goal.position;
-    let reached_goal = (end[0] - goal[0]).hypot(end[1] - goal[1]) <= scenario.goal.tolerance + 0.01;
-    let contact = truth.summary.first_contact.is_some();
-    Ok(DemoRun { report, truth, reached_goal, contact })
+    let at_goal = |k: usize, end: [f64; 2]| {
+        let goal = scenario.vehicle(k).sim.goal;
+        (end[0] - goal.position[0]).hypot(end[1] - goal.position[1]) <= goal.tolerance + 0.01
+    };
+    let vehicles: Vec<(String, bool)> = truth
+        .summary
+        .vehicles
+        .iter()
+        .enumerate()
+        .skip(1)
+        .map(|(k, v)| (v.name.clone(), at_goal(k, v.final_position)))
+        .collect();
+    let reached_goal = at_goal(0, truth.summary.final_position) && vehicles.iter().all(|(_, home)| *home);
+    let touched = truth.summary.vehicles.iter().any(|v| v.contact.is_some() || v.vehicle_contact.is_some());
+    let contact = truth.summary.first_contact.is_some() || touched;
+    Ok(DemoRun { report, truth, reached_goal, contact, vehicles })
 }

@@ -247,7 +247,7 @@ impl Scenario {
     }
 
     /// The same, the fleet's vehicles as `wiring` wires them.
-    fn rig_file_wired(
+    pub fn rig_file_wired(
         &self,
         psd: &Path,
         can: &str,

@@ -200,3 +200,32 @@ fn more_leds_than_the_schedule_holds_and_bad_limits_are_refused() {
     let (k, w) = refused(rig("[[vehicles]]\nname = \"b\"\nfront_led = 5\nrear_led = 6\nnode = 16\n"));
     assert_eq!((k.as_str(), w.as_str()), ("vehicles[0].node", "must be 1-15, is 16"));
 }
+
+/// A vehicle's goal for `flowgate run --arm`: taken as the robot's `[goal]` is, and refused
+/// at load where no vehicle could end (outside the view, inside the lane's walls or the
+/// furniture, on another vehicle's goal), naming the key and the numbers.
+#[test]
+fn a_vehicles_goal_is_checked_as_the_robots() {
+    let with_goal = |goal: &str| format!("{TWO}goal = {goal}\n");
+    let r = rig(&with_goal("[0.3, 0.1]")).unwrap();
+    let g = r.vehicles[1].goal.unwrap();
+    assert_eq!((g.position, g.tolerance), ([0.3, 0.1], 0.02), "the default tolerance");
+    assert!(r.vehicles[0].goal.is_none());
+
+    let (k, w) = refused(rig(&with_goal("[9.0, 0.0]")));
+    assert_eq!(k, "vehicles[1].goal");
+    assert!(w.starts_with("[9.0, 0.0] lies outside the calibrated arena"), "{w}");
+    // The robot's [goal] is (0.6, 0): vehicle b (radius 0.05) 0.1 m from it, the robot 0.07.
+    let (k, w) = refused(rig(&with_goal("[0.5, 0.0]")));
+    assert_eq!(k, "vehicles[1].goal");
+    assert_eq!(
+        w,
+        "[0.5, 0.0] is 0.100 m from goal.position [0.6, 0.0]: two vehicles 0.120 m across could not both stand there"
+    );
+    let (k, w) = refused(rig(&format!("{TWO}goal_tolerance = 0.05\n")));
+    assert_eq!((k.as_str(), w.as_str()), ("vehicles[1].goal_tolerance", "is set, but `goal` is not"));
+    let room = "[[static_obstacles]]\npoints = [[0.25, 0.05], [0.35, 0.05], [0.35, 0.15], [0.25, 0.15]]\n";
+    let (k, w) = refused(rig(&format!("{room}{}", with_goal("[0.3, 0.1]"))));
+    assert_eq!(k, "vehicles[1].goal");
+    assert!(w.starts_with("[0.3, 0.1]: "), "inside the furniture: {w}");
+}

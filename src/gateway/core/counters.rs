@@ -18,6 +18,8 @@ pub struct Progress {
     pub clearance: Option<f64>,
     pub e2e_us: f64,
     pub serial_reconnects: u64,
+    /// The rig's other vehicles armed, running or stopping (0 for a robot alone).
+    pub others_active: u32,
 }
 
 /// Counters of everything unusual the gateway saw.

@@ -400,6 +400,9 @@ impl<K: StageClock> Core<K> {
             self.vehicles[k].announced = state;
             if k == ROBOT {
                 self.progress.state = state;
+            } else {
+                let others = self.vehicles[ROBOT + 1..].iter().filter(|v| v.state().is_active()).count();
+                self.progress.others_active = others as u32;
             }
             self.out.push(Output::State { at: now, vehicle: k, state });
         }

@@ -445,6 +445,10 @@ impl Io {
         let fields = Some(serde_json::json!({ "vehicle": name }));
         let event = telemetry::EventRecord { at_s: at.secs(), level: Level::Info, kind: "state", text, fields };
         self.services.recorder.record(Record::Event(event));
+        if let Some(tx) = &self.progress {
+            let p = core.progress();
+            tx.send_modify(|shown| *shown = Progress { e2e_us: shown.e2e_us, ..p });
+        }
     }
 
     async fn poll_can_status<K: StageClock>(&mut self, core: &mut Core<K>) {
