@@ -279,3 +279,21 @@ fn the_demo_drives_a_fleet_and_refuses_a_script() {
     let text = String::from_utf8_lossy(&scripted.stderr);
     assert!(text.contains("vehicle crossing follows a script; the gateway drives navigating vehicles"), "{text}");
 }
+
+/// The antipodal swaps through the whole stack, as `flowgate plan --whole-stack --sweep N`
+/// runs them (docs/fleet.md's figures come from 10,000 episodes each): every vehicle home
+/// with no contact in every episode, and the makespan within 1.5 times the slowest
+/// vehicle's time alone (each alone through the whole stack too).
+#[test]
+fn swaps_through_the_whole_stack_bring_every_vehicle_home() {
+    use flowgate::lab::fleet::stack;
+    for (name, n) in [("swap-2.toml", 40), ("swap-4.toml", 40), ("swap-8.toml", 12)] {
+        let (report, episodes) = stack::sweep(&scenario(name), n, 1, 2).unwrap();
+        assert_eq!(episodes.len(), n as usize);
+        assert_eq!(report.all_home.rate, 1.0, "{name}: {report}");
+        assert_eq!((report.vehicle_contact_episodes, report.active_contact_episodes), (0, 0), "{name}: {report}");
+        assert!(report.makespan_ratio_max <= 1.5, "{name}: {report}");
+    }
+    let refused = stack::navigating_only(&scenario("e5-scripted.toml")).unwrap_err();
+    assert!(refused.contains("vehicle crossing follows a script"), "{refused}");
+}

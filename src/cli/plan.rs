@@ -69,6 +69,11 @@ pub struct PlanArgs {
     /// stack (the gateway core, the firmware and the wire protocols) in virtual time.
     #[arg(long)]
     planner_only: bool,
+    /// A fleet of navigating vehicles through the whole stack (the gateway core driving
+    /// every vehicle against the simulator's firmware, in virtual time) rather than at the
+    /// planner level: one run, or `--sweep N`.
+    #[arg(long, conflicts_with_all = ["planner_only", "policy", "swarm", "compare_obstacles", "compare", "shard"])]
+    whole_stack: bool,
     /// Let the planner drive without the safety supervisor (for before-and-after
     /// comparisons; the gateway always runs it).
     #[arg(long)]
@@ -139,6 +144,9 @@ pub fn run(args: PlanArgs) -> Result<()> {
     }
     if let Some(name) = &args.vehicle {
         bail!("--vehicle {name}: {} has no vehicles beside the robot ([[vehicles]] or [swap])", file.display());
+    }
+    if args.whole_stack {
+        bail!("--whole-stack runs a fleet: {} drives the robot alone, through the whole stack already", file.display());
     }
     if args.shard.is_some() && args.sweep.is_none() && args.swarm.is_none() {
         bail!("--shard splits a --sweep or a --swarm");
@@ -435,6 +443,9 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
 fn fleet_command(args: &PlanArgs, file: &Path, scenario: &Scenario, out: &Path) -> Result<()> {
     use flowgate::lab::fleet::{self, sweep as fleet_sweep, FleetOptions};
     let driven = fleet_driven(args, scenario)?;
+    if args.whole_stack {
+        return fleet_stack_command(args, scenario, out);
+    }
     if let Some(n) = args.swarm {
         return fleet_swarm_command(args, file, scenario, n, out);
     }
@@ -479,6 +490,39 @@ fn fleet_command(args: &PlanArgs, file: &Path, scenario: &Scenario, out: &Path) 
     };
     say!("{report}");
     say!("  ({} episodes in {:.1} s, fleet, planner level)", episodes.len(), started.elapsed().as_secs_f64());
+    outputs::write_fleet_sweep(out, &report, &episodes)?;
+    say!("  wrote {}/{{fleet_sweep.json,fleet_episodes.jsonl}}", out.display());
+    Ok(())
+}
+
+/// `--whole-stack`: a fleet of navigating vehicles through the whole stack, one run or
+/// `--sweep N` (`--episode K` of it).
+fn fleet_stack_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()> {
+    use flowgate::lab::fleet::{self, stack, sweep as fleet_sweep};
+    stack::navigating_only(scenario).map_err(anyhow::Error::msg)?;
+    let placed = match (args.sweep, args.episode) {
+        (Some(n), Some(k)) if k < n as u64 => Some(fleet_sweep::place(scenario, args.seed, k)),
+        (Some(n), Some(k)) => bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1),
+        (None, Some(_)) => bail!("--episode picks one episode of a --sweep"),
+        (None, None) => Some(scenario.clone()),
+        (Some(_), None) => None,
+    };
+    if let Some(s) = placed {
+        let summary = stack::run(&s);
+        fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
+        outputs::folder(out)?;
+        outputs::write_json(&out.join("summary.json"), &summary)?;
+        say!("  wrote {}/summary.json  (fleet, whole stack)", out.display());
+        return Ok(());
+    }
+    let n = args.sweep.unwrap_or(1);
+    if n == 0 || n as u64 > sweep::MAX_EPISODES {
+        bail!("--sweep {n}: 1 to {} episodes", sweep::MAX_EPISODES);
+    }
+    let started = std::time::Instant::now();
+    let (report, episodes) = stack::sweep(scenario, n as u64, args.seed, args.threads())?;
+    say!("{report}");
+    say!("  ({} episodes in {:.1} s, fleet, whole stack)", episodes.len(), started.elapsed().as_secs_f64());
     outputs::write_fleet_sweep(out, &report, &episodes)?;
     say!("  wrote {}/{{fleet_sweep.json,fleet_episodes.jsonl}}", out.display());
     Ok(())

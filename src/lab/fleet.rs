@@ -23,6 +23,7 @@ use crate::track::Estimate;
 use crate::Point;
 
 pub mod policy;
+pub mod stack;
 pub mod swarm;
 pub mod sweep;
 
@@ -531,7 +532,7 @@ fn carry_out(d: &mut Driver, world: &World, out: &StepOutput, t: f64) -> [i32; 2
 }
 
 /// Vehicle `k`'s first contact with anything: a vehicle, an obstacle or a wall.
-fn contact_of(fleet: &Fleet, s: &SimScenario, k: usize) -> Option<VehicleContactReport> {
+pub(crate) fn contact_of(fleet: &Fleet, s: &SimScenario, k: usize) -> Option<VehicleContactReport> {
     let world: Option<Contact> = fleet.world(k).first_contact().and_then(|_| fleet.world(k).truth().contact);
     let with_world = world.map(|c| VehicleContactReport {
         at: c.at,

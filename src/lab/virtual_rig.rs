@@ -72,7 +72,7 @@ pub struct Options {
     pub rehearse: bool,
     /// The motors are two CiA 402 drives (nodes 1 and 2, `[cia402]` at its defaults), not
     /// the PCL-80K-like board. They do not play the board's own faults
-    /// ([`Motors::unplayed`]).
+    /// ([`Motors::unplayed`](flowgate_sim::motors::Motors::unplayed)).
     pub cia402: bool,
 }
 
@@ -331,6 +331,8 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     /// The state the core last announced for each vehicle, and the motion commands it gave
     /// outside Running (there must be none: every test's invariant).
     announced: Vec<State>,
+    /// When each vehicle's gateway began its stop at the goal, s.
+    reached_at: Vec<Option<f64>>,
     motion_outside_running: u64,
     lines: LineTruth,
 }
@@ -506,6 +508,7 @@ impl<K: StageClock> VirtualRig<K> {
             }),
             timing: options.telemetry.then(Timing::default),
             announced: vec![State::Idle; wired.len()],
+            reached_at: vec![None; wired.len()],
             motion_outside_running: 0,
             lines: LineTruth::default(),
         };
@@ -534,6 +537,10 @@ impl<K: StageClock> VirtualRig<K> {
     /// Every vehicle's world.
     pub fn fleet(&self) -> &Fleet {
         &self.fleet
+    }
+    /// When vehicle `k`'s gateway began its stop at its goal, s.
+    pub fn reached_at(&self, k: usize) -> Option<f64> {
+        self.reached_at.get(k).copied().flatten()
     }
     /// The CAN frames the core asked for so far, with [`Options::record_inputs`].
     pub fn can_sent(&self) -> &[CanFrame] {

@@ -133,7 +133,7 @@ fn slowest_alone(s: &Scenario, fleet: &FleetSummary, options: FleetOptions) -> O
 }
 
 impl FleetEpisode {
-    fn of(index: u64, fleet: &FleetSummary, slowest_alone: Option<f64>) -> Self {
+    pub(super) fn of(index: u64, fleet: &FleetSummary, slowest_alone: Option<f64>) -> Self {
         let navigating = fleet.vehicles.iter().filter(|v| v.role == Role::Navigate);
         let contacts = fleet.vehicles.iter().filter_map(|v| v.contact.as_ref());
         let with_vehicles = || contacts.clone().filter(|c| c.with.starts_with("vehicle "));
@@ -216,7 +216,7 @@ pub fn sweep_policy(
     Ok((report(base, seed, &episodes), episodes))
 }
 
-fn report(base: &Scenario, seed: u64, episodes: &[FleetEpisode]) -> FleetSweepReport {
+pub(super) fn report(base: &Scenario, seed: u64, episodes: &[FleetEpisode]) -> FleetSweepReport {
     let n = episodes.len();
     let home = episodes.iter().filter(|e| e.outcome == Outcome::Goal).count();
     let mut ratios: Vec<f64> = episodes.iter().filter_map(FleetEpisode::makespan_ratio).collect();

@@ -253,7 +253,13 @@ impl<K: StageClock> VirtualRig<K> {
                         self.host_line(Command::StatusFlags);
                     }
                 }
-                Output::State { vehicle, state, .. } => self.announced[vehicle] = state,
+                Output::State { vehicle, state, .. } => {
+                    if state == State::Stopping(crate::gateway::core::StopReason::GoalReached) {
+                        let t = self.time();
+                        self.reached_at[vehicle].get_or_insert(t);
+                    }
+                    self.announced[vehicle] = state;
+                }
                 Output::Streaming => {}
                 Output::SetupFailed(e) if !self.core.has_streamed() => self.setup_error = Some(e),
                 Output::SetupFailed(_) => {

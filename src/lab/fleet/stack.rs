@@ -1,0 +1,123 @@
+//! A fleet of navigating vehicles through the whole stack: the gateway core driving every
+//! vehicle against the simulator's firmware in deterministic virtual time
+//! ([`crate::lab::virtual_rig`]), each armed and started towards its goal at the first stream,
+//! judged by the world's truth as [`super::run`] judges the planner-level fleet. Each vehicle
+//! plans through the camera (its LEDs' noise and delay, the frames' timing) and is commanded
+//! over the bus; a scripted vehicle is not driven this way (the gateway does not follow a
+//! script), and is refused by [`navigating_only`].
+
+use flowgate_sim::scenario::vehicles::Role;
+
+use super::sweep::{place, report, FleetEpisode, FleetSweepReport};
+use super::{contact_of, FleetSummary, VehicleSummary};
+use crate::gateway::core::{State, StopReason};
+use crate::lab::sweep::{Shard, TooLarge};
+use crate::lab::virtual_rig::{Options, VirtualRig};
+use crate::lab::{Outcome, Scenario};
+
+/// The scripted vehicle that keeps `s` from running through the whole stack, if any.
+pub fn navigating_only(s: &Scenario) -> Result<(), String> {
+    match s.vehicles.iter().find(|v| v.role == Role::Script) {
+        Some(v) => Err(format!(
+            "{}: vehicle {} follows a script; the whole stack drives navigating vehicles (a scripted fleet runs at \
+             the planner level)",
+            s.name, v.name
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Run `s` through the whole stack to its end: every vehicle stopped, faulted or at its goal
+/// and the world run on a moment, or the time limit.
+pub fn run(s: &Scenario) -> FleetSummary {
+    let mut rig = VirtualRig::new(s, Options::default());
+    let mut end = s.time_limit;
+    while rig.time() < end {
+        rig.step();
+        let core = rig.core();
+        let done = (0..core.vehicle_count()).all(|k| core.vehicle_state(k).is_some_and(State::is_terminal));
+        if done && end == s.time_limit {
+            end = (rig.time() + crate::lab::virtual_rig::LINGER).min(s.time_limit);
+        }
+    }
+    summary(s, &rig)
+}
+
+/// What the run came to, vehicle by vehicle, as the planner-level fleet reports it.
+fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
+    let (fleet, core) = (rig.fleet(), rig.core());
+    let vehicles: Vec<VehicleSummary> = s
+        .fleet()
+        .enumerate()
+        .map(|(k, (name, _, role))| {
+            let contact = contact_of(fleet, &s.sim, k);
+            let state = core.vehicle_state(k).unwrap_or_default();
+            let goal = s.vehicle(k).sim.goal;
+            let end = fleet.world(k).pose().position;
+            let home = (end.re - goal.position[0]).hypot(end.im - goal.position[1]) <= goal.tolerance + 0.01;
+            let outcome = match state {
+                _ if contact.is_some() => Outcome::Collision,
+                State::Stopped(StopReason::GoalReached) if home => Outcome::Goal,
+                State::Stopped(StopReason::Stalled) => Outcome::Stall,
+                State::Fault(_) => Outcome::Fault,
+                State::Stopped(_) | State::Stopping(_) => Outcome::Stopped,
+                _ => Outcome::Timeout,
+            };
+            let truth = fleet.world(k).truth();
+            VehicleSummary {
+                name: name.to_string(),
+                role,
+                outcome,
+                contact,
+                script_error: None,
+                script_error_held: None,
+                time_to_goal: rig.reached_at(k).filter(|_| outcome == Outcome::Goal),
+                path_length: truth.path_length,
+                min_vehicle_gap: fleet.min_vehicle_gap(k),
+                min_clearance: fleet.min_vehicle_gap(k).min(truth.min_obstacle_clearance),
+                supervised_cycles: 0,
+                stop_reason: (outcome != Outcome::Goal).then(|| state.to_string()),
+            }
+        })
+        .collect();
+    let all_home = vehicles.iter().all(|v| v.outcome == Outcome::Goal);
+    let outcome = if all_home {
+        Outcome::Goal
+    } else if vehicles.iter().any(|v| v.outcome == Outcome::Collision) {
+        Outcome::Collision
+    } else {
+        vehicles.iter().map(|v| v.outcome).find(|&o| o != Outcome::Goal).unwrap_or(Outcome::Goal)
+    };
+    let makespan = all_home.then(|| vehicles.iter().filter_map(|v| v.time_to_goal).fold(0.0, f64::max));
+    FleetSummary { scenario: s.name.clone(), outcome, end_time: rig.time(), makespan, vehicles }
+}
+
+/// Episode `i` of a sweep through the whole stack: the fleet placed as the planner-level
+/// sweep places it, and, when every vehicle got home, each navigating vehicle alone through
+/// the whole stack on the same start, goal and settings (its time to its goal, for the
+/// makespan's ratio).
+pub fn episode(base: &Scenario, seed: u64, i: u64) -> FleetEpisode {
+    let s = place(base, seed, i);
+    let fleet = run(&s);
+    let alone = (fleet.outcome == Outcome::Goal).then(|| slowest_alone(&s)).flatten();
+    FleetEpisode::of(i, &fleet, alone)
+}
+
+/// The slowest vehicle's time to its goal alone, through the whole stack.
+fn slowest_alone(s: &Scenario) -> Option<f64> {
+    (0..=s.vehicles.len())
+        .map(|k| run(&s.vehicle(k)).vehicles[0].time_to_goal)
+        .try_fold(0.0, |m, t| Some(f64::max(m, t?)))
+}
+
+/// `n` episodes through the whole stack on `threads` threads.
+pub fn sweep(
+    base: &Scenario,
+    n: u64,
+    seed: u64,
+    threads: usize,
+) -> Result<(FleetSweepReport, Vec<FleetEpisode>), TooLarge> {
+    let mut episodes = Shard::WHOLE.run(n, threads, |i| episode(base, seed, i))?;
+    episodes.sort_by_key(|e| e.index);
+    Ok((report(base, seed, &episodes), episodes))
+}
