@@ -297,3 +297,27 @@ fn swaps_through_the_whole_stack_bring_every_vehicle_home() {
     let refused = stack::navigating_only(&scenario("e5-scripted.toml")).unwrap_err();
     assert!(refused.contains("vehicle crossing follows a script"), "{refused}");
 }
+
+/// A fleet's inputs (every vehicle's requests among them, with their vehicle) replayed into
+/// a fresh core, as `flowgate replay` replays a recording, give every CAN frame of every
+/// vehicle again, byte for byte.
+#[test]
+fn a_fleets_inputs_replay_to_the_same_frames() {
+    let s = scenario("swap-4.toml");
+    let mut rig = VirtualRig::new(&s, Options { record_inputs: true, wait_for_operator: true, ..Options::default() });
+    let gateway_rig = rig.core().rig().clone();
+    rig.run_until(0.5);
+    for k in 0..4u8 {
+        let (at, _) = goal(&s, usize::from(k));
+        rig.vehicle_request(k, &Request::Arm).unwrap();
+        rig.vehicle_request(k, &Request::Goal { goals: vec![Goal { position: at, tolerance: 0.02 }] }).unwrap();
+        rig.vehicle_request(k, &Request::Start).unwrap();
+    }
+    rig.run_until(4.0);
+    rig.vehicle_request(3, &Request::EStop).unwrap();
+    let e = rig.run(s.time_limit, s.goal.position, s.goal.tolerance);
+    assert!(e.inputs.iter().filter(|r| r.input.as_input().kind() == "vehicle_request").count() == 13);
+    let replayed = flowgate::replay::run(gateway_rig, &e.inputs);
+    assert_eq!(replayed.can.len(), e.can_sent.len());
+    assert!(replayed.can == e.can_sent, "the replay's frames differ from the run's");
+}
