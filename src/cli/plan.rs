@@ -142,12 +142,7 @@ pub fn run(args: PlanArgs) -> Result<()> {
     if scenario.is_fleet() || scenario.swap.is_some() {
         return fleet_command(&args, file, &scenario, &out);
     }
-    if let Some(name) = &args.vehicle {
-        bail!("--vehicle {name}: {} has no vehicles beside the robot ([[vehicles]] or [swap])", file.display());
-    }
-    if args.whole_stack {
-        bail!("--whole-stack runs a fleet: {} drives the robot alone, through the whole stack already", file.display());
-    }
+    fleet_flags_refused(&args, file)?;
     if args.shard.is_some() && args.sweep.is_none() && args.swarm.is_none() {
         bail!("--shard splits a --sweep or a --swarm");
     }
@@ -433,6 +428,17 @@ fn run_all(dir: &Path, out: Option<&Path>, mode: Mode, supervised: bool) -> Resu
         if let Some(dir) = dir {
             outputs::write_run(&dir, &scenario, &run)?;
         }
+    }
+    Ok(())
+}
+
+/// The flags for a fleet, refused for a robot alone.
+fn fleet_flags_refused(args: &PlanArgs, file: &Path) -> Result<()> {
+    if let Some(name) = &args.vehicle {
+        bail!("--vehicle {name}: {} has no vehicles beside the robot ([[vehicles]] or [swap])", file.display());
+    }
+    if args.whole_stack {
+        bail!("--whole-stack runs a fleet: {} drives the robot alone, through the whole stack already", file.display());
     }
     Ok(())
 }
