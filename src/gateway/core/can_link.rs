@@ -183,15 +183,19 @@ impl<K: StageClock> Core<K> {
     }
 
     /// A frame from the bus: the vehicle whose motors it addresses takes it (the robot any
-    /// that none does, to count it), and their master says what it was and asks for.
+    /// that none does, to count it), and their master says what it was and asks for. A
+    /// board's e-stop input stops every vehicle.
     fn can_frame(&mut self, now: HostTime, frame: &CanFrame) {
         self.counters.can_frames_in += 1;
         let k = (ROBOT + 1..self.vehicles.len()).find(|&k| self.vehicles[k].motors.addresses(frame)).unwrap_or(ROBOT);
         let state = self.vehicles[k].state();
         let effect = self.vehicles[k].motors.frame(now, frame, state, &mut self.motor_counters, &mut self.out.can());
         self.can_link.heard(now, effect.second_master);
-        if let Some(reason) = effect.stop {
-            self.stop_vehicle(k, now, reason);
+        match effect.stop {
+            // A board's e-stop input is the rig's e-stop: every vehicle stops.
+            Some(reason @ StopReason::BoardEStop { .. }) => self.stop(now, reason),
+            Some(reason) => self.stop_vehicle(k, now, reason),
+            None => {}
         }
         if effect.enable_again {
             self.act(k, now, super::safety::Action::EnableBoard);

@@ -229,4 +229,39 @@ mod tests {
         c.handle(due, Input::Tick);
         assert_eq!(states(&c), [State::Idle, State::Fault(StopReason::SerialLost), rebooted]);
     }
+
+    /// A board's e-stop input stops every vehicle, and no vehicle leaves the fault while
+    /// that board still latches it.
+    #[test]
+    fn a_boards_estop_input_stops_every_vehicle_until_released() {
+        use flowgate_protocol::motor::FaultBits;
+        let mut c = fleet();
+        let t = |ms: u64| HostTime::from_nanos(ms * 1_000_000);
+        let status = |state, faults| {
+            let node = NodeId::new(3).unwrap();
+            let m = MotorMessage::Status { node, state, faults, last_seq: 0, seq_errors: 0 };
+            Input::Can(CanEvent::Frame(m.to_frame().unwrap()))
+        };
+        for node in 1..=3 {
+            c.handle(t(1), Input::Can(heartbeat(node, BoardState::Disabled)));
+        }
+        c.handle(t(2), Input::VehicleRequest { vehicle: 2, request: &Request::Arm });
+        c.handle(t(200), status(BoardState::EStop, FaultBits(FaultBits::ESTOP_INPUT)));
+        drain(&mut c);
+        let pressed = State::Fault(StopReason::BoardEStop { node: 3 });
+        assert_eq!((0..3).map(|k| c.vehicle_state(k).unwrap()).collect::<Vec<_>>(), [pressed; 3]);
+        for node in 1..=3 {
+            c.handle(t(300), Input::Can(heartbeat(node, BoardState::EStop)));
+        }
+        let reset =
+            |c: &mut Core<NoClock>, at| c.handle(at, Input::VehicleRequest { vehicle: 1, request: &Request::Reset });
+        let refused = reset(&mut c, t(301)).unwrap().result;
+        assert_eq!(
+            refused,
+            Err(super::super::operator::Refusal::CauseStillPresent(StopReason::BoardEStop { node: 3 }))
+        );
+        c.handle(t(400), status(BoardState::EStop, FaultBits::default()));
+        assert_eq!(reset(&mut c, t(401)).unwrap().result, Ok(()), "released: vehicle a leaves the fault");
+        assert_eq!(c.vehicle_state(1), Some(State::Idle));
+    }
 }

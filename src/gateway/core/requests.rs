@@ -197,7 +197,11 @@ impl<K: StageClock> Core<K> {
             // heard again (drives may be silent: see above).
             StopReason::BusOff => self.can_link.is_bus_off() || (!heard && v.motors.always_heard()),
             StopReason::BoardBusOff { .. } => !heard,
-            StopReason::BoardEStop { .. } => !heard || v.motors.latched(reason),
+            // The board whose input was pressed, whichever vehicle it drives.
+            StopReason::BoardEStop { node } => match self.vehicles.iter().find(|o| o.motors.is_board(node)) {
+                Some(o) => !o.motors.heard_within(now, s.heartbeat_timeout) || o.motors.latched(reason),
+                None => !heard,
+            },
             StopReason::CanLinkLost | StopReason::CanInterfaceDown => !self.can_link.is_up(),
             // Two masters must never drive one board: refused while the other is heard.
             StopReason::SecondMaster { .. } | StopReason::DriveSecondMaster { .. } => {

@@ -254,6 +254,11 @@ impl MotorMaster {
         }
     }
 
+    /// Whether these are the board at `node`.
+    pub fn is_board(&self, node: u8) -> bool {
+        matches!(self, Self::Board(b) if b.node().get() == node)
+    }
+
     /// Whether the board still latches the fault bit behind `reason` (the drives report no
     /// bus or e-stop bits).
     pub fn latched(&self, reason: StopReason) -> bool {
