@@ -120,6 +120,21 @@ impl FleetRule {
         vehicles: &[VehicleView],
         held: Option<Point>,
     ) -> Option<Point> {
+        self.aim_within(me, position, goal, vehicles, held, |_| true)
+    }
+
+    /// The same, the aim taken only where `allowed` (the room's free region: a point beside
+    /// the goal may lie in a wall, in the furniture or beyond the view, where no field can
+    /// lead).
+    pub fn aim_within(
+        &self,
+        me: usize,
+        position: Point,
+        goal: Point,
+        vehicles: &[VehicleView],
+        held: Option<Point>,
+        allowed: impl Fn(Point) -> bool,
+    ) -> Option<Point> {
         let my_radius = vehicles[me].radius;
         let way = goal - position;
         if way.norm() == 0.0 {
@@ -132,10 +147,11 @@ impl FleetRule {
         // The point on the right, or the nearest free one round the blocker toward this
         // vehicle: another vehicle may stand there.
         let free = |p: Point| {
-            vehicles
-                .iter()
-                .enumerate()
-                .all(|(k, v)| k == me || (p - v.position).norm() >= v.radius + my_radius + self.spacing)
+            allowed(p)
+                && vehicles
+                    .iter()
+                    .enumerate()
+                    .all(|(k, v)| k == me || (p - v.position).norm() >= v.radius + my_radius + self.spacing)
         };
         let fresh = (0..=6)
             .map(|step| blocker.1.position + right * Point::from_polar(clear, -f64::from(step) * AIM_TURN))

@@ -121,8 +121,9 @@ impl<K: StageClock> Core<K> {
             v.control.start(t);
         }
         if fleet {
-            let goal = v.control.config().goal;
-            let aim = self.fleet.aim(k, tracked.estimate.position, goal, v.control.aim());
+            let config = v.control.config();
+            let aim =
+                self.fleet.aim(k, (tracked.estimate.position, config.goal), v.control.aim(), config.room.as_deref());
             v.control.aim_at(aim);
         }
         let plan_start = self.clock.now_ns();

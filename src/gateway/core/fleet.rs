@@ -57,8 +57,14 @@ impl FleetViews {
     }
 
     /// Where vehicle `me` at `position` heads for `goal` while another still stands on it
-    /// ([`FleetRule::aim`]; `None`: the goal itself).
-    pub(super) fn aim(&self, me: usize, position: Point, goal: Point, held: Option<Point>) -> Option<Point> {
+    /// ([`FleetRule::aim_within`], inside `room`'s free region; `None`: the goal itself).
+    pub(super) fn aim(
+        &self,
+        me: usize,
+        (position, goal): (Point, Point),
+        held: Option<Point>,
+        room: Option<&crate::planner::room::Room>,
+    ) -> Option<Point> {
         // The rule takes every vehicle by index: one never seen stands nowhere near a goal.
         let far = VehicleView {
             position: Point::new(f64::INFINITY, f64::INFINITY),
@@ -75,7 +81,8 @@ impl FleetViews {
         }
         let n = self.views.len().min(views.len());
         views[me].position = position;
-        self.rule.aim(me, position, goal, &views[..n], held)
+        let free = |p: Point| room.is_none_or(|r| r.blocked_at(p).is_none());
+        self.rule.aim_within(me, position, goal, &views[..n], held, free)
     }
 
     /// The vehicles vehicle `me` sees, in the order its obstacles list them.
