@@ -46,6 +46,14 @@ pub struct VehicleView {
     pub reach: f64,
 }
 
+impl VehicleView {
+    /// A vehicle of `radius` standing at `position`, under control, going nowhere.
+    pub fn standing(position: Point, radius: f64) -> Self {
+        let still = Point::default();
+        Self { position, velocity: still, toward: still, lag: 0.0, radius, moving_on: false, reach: 0.0 }
+    }
+}
+
 /// The rule the vehicles share.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FleetRule {

@@ -180,15 +180,7 @@ impl FleetControl {
     /// come through [`FleetControl::command`], and go through its supervisor.
     pub fn driven(s: &Scenario, options: FleetOptions, outside: Option<usize>) -> Self {
         let drivers: Vec<Driver> = (0..=s.vehicles.len()).map(|k| driver(s, k, outside == Some(k))).collect();
-        let idle = VehicleView {
-            position: Point::default(),
-            velocity: Point::default(),
-            toward: Point::default(),
-            lag: 0.0,
-            radius: 0.0,
-            moving_on: false,
-            reach: 0.0,
-        };
+        let idle = VehicleView::standing(Point::default(), 0.0);
         Self {
             seen: Vec::with_capacity(s.obstacles.len() + drivers.len()),
             supervised: Vec::with_capacity(s.obstacles.len() + drivers.len()),
@@ -588,17 +580,25 @@ fn summary(s: &Scenario, fleet: &Fleet, drivers: &[Driver]) -> FleetSummary {
             }
         })
         .collect();
-    let navigating = || vehicles.iter().filter(|v| v.role == Role::Navigate);
-    let all_home = vehicles.iter().all(|v| v.outcome == Outcome::Goal);
-    let outcome = if all_home {
-        Outcome::Goal
-    } else if vehicles.iter().any(|v| v.outcome == Outcome::Collision) {
-        Outcome::Collision
-    } else {
-        vehicles.iter().map(|v| v.outcome).find(|&o| o != Outcome::Goal).unwrap_or(Outcome::Goal)
-    };
-    let makespan = all_home.then(|| navigating().filter_map(|v| v.time_to_goal).fold(0.0, f64::max));
-    FleetSummary { scenario: s.name.clone(), outcome, end_time: end, makespan, vehicles }
+    FleetSummary::of(s, end, vehicles)
+}
+
+impl FleetSummary {
+    /// The fleet's run from its vehicles': `goal` only when every vehicle's is, else a
+    /// collision first, else the first vehicle's other outcome; the makespan when all are home.
+    pub(crate) fn of(s: &Scenario, end_time: f64, vehicles: Vec<VehicleSummary>) -> Self {
+        let all_home = vehicles.iter().all(|v| v.outcome == Outcome::Goal);
+        let outcome = if all_home {
+            Outcome::Goal
+        } else if vehicles.iter().any(|v| v.outcome == Outcome::Collision) {
+            Outcome::Collision
+        } else {
+            vehicles.iter().map(|v| v.outcome).find(|&o| o != Outcome::Goal).unwrap_or(Outcome::Goal)
+        };
+        let navigating = vehicles.iter().filter(|v| v.role == Role::Navigate);
+        let makespan = all_home.then(|| navigating.filter_map(|v| v.time_to_goal).fold(0.0, f64::max));
+        Self { scenario: s.name.clone(), outcome, end_time, makespan, vehicles }
+    }
 }
 
 /// One line a vehicle, for the terminal.

@@ -66,15 +66,7 @@ impl FleetViews {
         room: Option<&crate::planner::room::Room>,
     ) -> Option<Point> {
         // The rule takes every vehicle by index: one never seen stands nowhere near a goal.
-        let far = VehicleView {
-            position: Point::new(f64::INFINITY, f64::INFINITY),
-            velocity: Point::default(),
-            toward: Point::default(),
-            lag: 0.0,
-            radius: 0.0,
-            moving_on: false,
-            reach: 0.0,
-        };
+        let far = VehicleView::standing(Point::new(f64::INFINITY, f64::INFINITY), 0.0);
         let mut views = [far; crate::planner::MAX_OBSTACLES + 1];
         for (slot, v) in views.iter_mut().zip(&self.views) {
             *slot = v.unwrap_or(far);
@@ -139,13 +131,8 @@ impl<K: StageClock> Core<K> {
                     Some(VehicleView { position: at.position, velocity, toward, lag, radius, moving_on, reach })
                 }
                 None => v.pose.last_seen().map(|(seen, position)| VehicleView {
-                    position,
-                    velocity: Point::default(),
-                    toward: Point::default(),
-                    lag: 0.0,
-                    radius,
-                    moving_on: false,
                     reach: top_speed * (t - seen).max(period),
+                    ..VehicleView::standing(position, radius)
                 }),
             };
             self.fleet.views[k] = view;

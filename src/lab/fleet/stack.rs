@@ -80,16 +80,7 @@ fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
             }
         })
         .collect();
-    let all_home = vehicles.iter().all(|v| v.outcome == Outcome::Goal);
-    let outcome = if all_home {
-        Outcome::Goal
-    } else if vehicles.iter().any(|v| v.outcome == Outcome::Collision) {
-        Outcome::Collision
-    } else {
-        vehicles.iter().map(|v| v.outcome).find(|&o| o != Outcome::Goal).unwrap_or(Outcome::Goal)
-    };
-    let makespan = all_home.then(|| vehicles.iter().filter_map(|v| v.time_to_goal).fold(0.0, f64::max));
-    FleetSummary { scenario: s.name.clone(), outcome, end_time: rig.time(), makespan, vehicles }
+    FleetSummary::of(s, rig.time(), vehicles)
 }
 
 /// Episode `i` of a sweep through the whole stack: the fleet placed as the planner-level
