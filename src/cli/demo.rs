@@ -79,20 +79,6 @@ fn announce(args: &DemoArgs, scenario: &Scenario) {
     }
 }
 
-/// The demo's gateway drives navigating vehicles: a scripted one is refused by name.
-fn navigating_only(scenario: &Scenario) -> Result<()> {
-    use flowgate_sim::scenario::vehicles::Role;
-    if let Some(v) = scenario.vehicles.iter().find(|v| v.role == Role::Script) {
-        anyhow::bail!(
-            "{}: vehicle {} follows a script; the gateway drives navigating vehicles (run a scripted fleet with \
-             `flowgate plan`)",
-            scenario.name,
-            v.name
-        );
-    }
-    Ok(())
-}
-
 /// What the demo's gateway writes and serves, as the flags ask.
 fn outputs(args: &DemoArgs, out: &std::path::Path) -> demo::Outputs {
     demo::Outputs {
@@ -114,7 +100,6 @@ pub fn run(args: DemoArgs) -> Result<()> {
         Some(path) => Scenario::load(path)?,
         None => Scenario::from_toml(demo::DEFAULT_SCENARIO, "E2 (built in)")?,
     };
-    navigating_only(&scenario)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = std::fs::canonicalize(&args.out)?;
     announce(&args, &scenario);
@@ -136,12 +121,15 @@ pub fn run(args: DemoArgs) -> Result<()> {
         t.path_length,
         t.duration
     );
-    for (v, (name, home)) in t.vehicles.iter().skip(1).zip(&run.vehicles) {
+    for ((v, (name, home)), spec) in t.vehicles.iter().skip(1).zip(&run.vehicles).zip(&scenario.vehicles) {
         let touched = v.contact.is_some() || v.vehicle_contact.is_some();
-        let how = match (home, touched) {
-            (_, true) => "TOUCHED",
-            (true, false) => "at its goal, no contact",
-            (false, false) => "not at its goal",
+        let scripted = spec.role == flowgate_sim::scenario::vehicles::Role::Script;
+        let how = match (home, touched, scripted) {
+            (_, true, _) => "TOUCHED",
+            (true, false, false) => "at its goal, no contact",
+            (true, false, true) => "at its script's end, no contact",
+            (false, false, false) => "not at its goal",
+            (false, false, true) => "not at its script's end",
         };
         say!(
             "vehicle {name:<8} {how}, path {:.3} m, nearest vehicle {:.1} cm",

@@ -69,10 +69,10 @@ pub struct PlanArgs {
     /// stack (the gateway core, the firmware and the wire protocols) in virtual time.
     #[arg(long)]
     planner_only: bool,
-    /// A fleet of navigating vehicles through the whole stack (the gateway core driving
-    /// every vehicle against the simulator's firmware, in virtual time) rather than at the
-    /// planner level: one run, or `--sweep N`.
-    #[arg(long, conflicts_with_all = ["planner_only", "policy", "swarm", "compare_obstacles", "compare", "shard"])]
+    /// A fleet through the whole stack (the gateway core driving every vehicle, navigating
+    /// or scripted, against the simulator's firmware, in virtual time) rather than at the
+    /// planner level: one run, `--sweep N`, or `--sweep N --compare-obstacles`.
+    #[arg(long, conflicts_with_all = ["planner_only", "policy", "swarm", "compare", "shard"])]
     whole_stack: bool,
     /// Let the planner drive without the safety supervisor (for before-and-after
     /// comparisons; the gateway always runs it).
@@ -505,7 +505,6 @@ fn fleet_command(args: &PlanArgs, file: &Path, scenario: &Scenario, out: &Path) 
 /// `--sweep N` (`--episode K` of it).
 fn fleet_stack_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()> {
     use flowgate::lab::fleet::{self, stack, sweep as fleet_sweep};
-    stack::navigating_only(scenario).map_err(anyhow::Error::msg)?;
     let placed = match (args.sweep, args.episode) {
         (Some(n), Some(k)) if k < n as u64 => Some(fleet_sweep::place(scenario, args.seed, k)),
         (Some(n), Some(k)) => bail!("--episode {k}: the sweep has episodes 0 to {}", n - 1),
@@ -526,6 +525,14 @@ fn fleet_stack_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Resu
         bail!("--sweep {n}: 1 to {} episodes", sweep::MAX_EPISODES);
     }
     let started = std::time::Instant::now();
+    if args.compare_obstacles {
+        let comparison = fleet_sweep::compare_scripts_with(scenario, n as u64, args.seed, args.threads(), stack::run)?;
+        say!("{comparison}");
+        say!("  ({} episodes twice in {:.1} s, fleet, whole stack)", n, started.elapsed().as_secs_f64());
+        outputs::write_json(&out.join("scripts_compared.json"), &comparison)?;
+        say!("  wrote {}/scripts_compared.json", out.display());
+        return Ok(());
+    }
     let (report, episodes) = stack::sweep(scenario, n as u64, args.seed, args.threads())?;
     say!("{report}");
     say!("  ({} episodes in {:.1} s, fleet, whole stack)", episodes.len(), started.elapsed().as_secs_f64());

@@ -45,6 +45,10 @@ pub fn run(args: RunArgs) -> Result<()> {
         config.operator.view = Some(addr);
     }
     let mut rig = config.rig(&args.config.display().to_string())?;
+    // A script cut where it would leave the arena is said before anything moves.
+    for note in rig.vehicles.iter().filter_map(|v| v.script.as_ref()?.cut.as_deref()) {
+        eprintln!("note: {note}");
+    }
     if args.arm && rig.goal.is_none() {
         anyhow::bail!("--arm needs a [goal] in {}", args.config.display());
     }

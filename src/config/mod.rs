@@ -34,7 +34,7 @@ pub use motors::{
 pub use planning::{default_tolerance, Goal, LaneSection, PlannerMethod, PlannerSection, RobotSection};
 pub use safety::{SafetySection, SafetySettings};
 pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
-pub use vehicles::{DrivenSettings, Vehicle, VehicleMotors, VehicleSection};
+pub use vehicles::{DrivenSettings, MotionSection, RoleName, Vehicle, VehicleMotors, VehicleScript, VehicleSection};
 mod can_url;
 mod room;
 mod ros2;

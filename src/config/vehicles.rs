@@ -22,6 +22,9 @@ use super::RigFile;
 use crate::planner::MAX_OBSTACLES;
 use crate::track::LedGeometry;
 
+mod script;
+pub use script::{MotionSection, RoleName, VehicleScript};
+
 /// One `[[vehicles]]` entry as written. Every key after the motors' defaults to the robot's
 /// (`[leds]`, `[robot]`, `[drive]`).
 #[derive(Debug, Clone, Default, PartialEq, Deserialize, Serialize)]
@@ -72,6 +75,17 @@ pub struct VehicleSection {
     pub goal: Option<[f64; 2]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub goal_tolerance: Option<f64>,
+    /// `"navigate"` (the default) or `"script"`: a scripted vehicle follows its `motion`
+    /// from its `start` once started, further than `script_tolerance` (default 0.05 m)
+    /// from it stopped, named.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub role: Option<RoleName>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub motion: Option<MotionSection>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub script_tolerance: Option<f64>,
 }
 
 /// A vehicle's motors on the rig's bus.
@@ -96,6 +110,8 @@ pub struct Vehicle {
     pub driven: DrivenSettings,
     /// Its goal when armed at start (`goal`, `goal_tolerance`).
     pub goal: Option<super::Goal>,
+    /// A scripted vehicle's script (`role = "script"`).
+    pub script: Option<VehicleScript>,
 }
 
 /// What the gateway drives a vehicle with, typed as the robot's are in [`Rig`](super::Rig).
@@ -116,6 +132,21 @@ pub(super) struct Room<'a> {
     pub(super) file: &'a RigFile,
     pub(super) calibration: &'a crate::calibration::Calibration,
     pub(super) room: Option<std::sync::Arc<crate::planner::room::Room>>,
+}
+
+impl Room<'_> {
+    /// Why a vehicle could not stand at `at`, to follow the point as written: outside the calibrated arena, outside the
+    /// lane, in a wall or the furniture.
+    pub(super) fn blocked(&self, at: crate::Point) -> Option<String> {
+        let c = self.calibration;
+        if !c.in_view(at) {
+            return Some(format!(" lies outside the calibrated arena: {}", c.view_extent()));
+        }
+        if let Some(lane) = self.file.lane.filter(|l| at.im.abs() >= l.half_width) {
+            return Some(format!(" lies outside the lane (|y| >= {} m)", lane.half_width));
+        }
+        self.room.as_ref().and_then(|r| r.blocked_at(at)).map(|why| format!(": {why}"))
+    }
 }
 
 /// A key of `vehicles[i]`.
@@ -199,13 +230,23 @@ impl VehicleSection {
             VehicleMotors::Board(n) => n,
             VehicleMotors::Drives { .. } => motor::NodeId::new(1).expect("1 is a node id"),
         };
-        let driven = DrivenSettings {
-            control: as_robot.control_config(sample_period, room.calibration, room.room.clone()),
-            tracking: as_robot.tracking_settings(),
-            motors: typed_motors,
-            node,
-            board,
+        let wheels = crate::control::script::Wheels {
+            max_speed: robot.max_speed,
+            max_wheel_speed: drive.max_wheel_speed,
+            wheel_accel: drive.wheel_accel,
+            wheel_base: drive.wheel_base,
         };
+        let script = self.script(i, &wheels, led_geometry, room)?;
+        let mut control = as_robot.control_config(sample_period, room.calibration, room.room.clone());
+        if let Some(s) = &script {
+            // The follower's command, a cycle old at most, is what its supervisor checks;
+            // the script, not a goal, says when it is done.
+            control.source = crate::control::CommandSource::Outside { max_age: 2.0 * sample_period.as_secs_f64() };
+            control.goal = s.script.last_point();
+            control.goal_tolerance = 0.0;
+        }
+        let driven =
+            DrivenSettings { control, tracking: as_robot.tracking_settings(), motors: typed_motors, node, board };
         Ok(Vehicle {
             name: self.name.clone(),
             front_led: self.front_led,
@@ -216,6 +257,7 @@ impl VehicleSection {
             drive,
             driven,
             goal: self.goal(i, room)?,
+            script,
         })
     }
 
@@ -232,21 +274,8 @@ impl VehicleSection {
             return invalid(&key(i, "goal"), "must be finite");
         }
         positive(&key(i, "goal_tolerance"), tolerance, super::checks::Most(super::MAX_GOAL_TOLERANCE, "m"))?;
-        let c = room.calibration;
-        if !c.in_view(at) {
-            return invalid(
-                &key(i, "goal"),
-                format!("{position:?} lies outside the calibrated arena: {}", c.view_extent()),
-            );
-        }
-        if let Some(lane) = room.file.lane.filter(|l| at.im.abs() >= l.half_width) {
-            return invalid(
-                &key(i, "goal"),
-                format!("{position:?} lies outside the lane (|y| >= {} m)", lane.half_width),
-            );
-        }
-        if let Some(why) = room.room.as_ref().and_then(|r| r.blocked_at(at)) {
-            return invalid(&key(i, "goal"), format!("{position:?}: {why}"));
+        if let Some(why) = room.blocked(at) {
+            return invalid(&key(i, "goal"), format!("{position:?}{why}"));
         }
         Ok(Some(super::Goal { position, tolerance }))
     }

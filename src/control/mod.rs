@@ -7,6 +7,7 @@ pub mod drive;
 pub mod fleet;
 pub mod orca;
 pub mod outside;
+pub mod script;
 pub mod social_force;
 mod step;
 pub mod supervisor;

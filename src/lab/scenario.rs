@@ -300,7 +300,7 @@ impl Scenario {
                     wheel_accel: Some(body.wheel_accel),
                     goal: goal.map(|g| g.position),
                     goal_tolerance: goal.map(|g| g.tolerance),
-                    ..VehicleSection::default()
+                    ..crate::lab::fleet::stack::script_keys(&self.sim.vehicles[k - 1])
                 }
             })
             .collect();

@@ -198,15 +198,35 @@ fn config_cross_checks(rig: &Rig, report: &mut CheckReport) {
             VehicleMotors::Board(n) => format!("board node {}", n.get()),
             VehicleMotors::Drives { left, right } => format!("drives {} and {}", left.get(), right.get()),
         };
-        report.pass(
-            VEHICLE,
-            format!("vehicles: {}", v.name),
-            format!(
-                "LEDs {} and {}, {motors}, radius {} m, up to {} m/s",
-                v.front_led, v.rear_led, v.robot.radius, v.robot.max_speed
-            ),
+        let mut detail = format!(
+            "LEDs {} and {}, {motors}, radius {} m, up to {} m/s",
+            v.front_led, v.rear_led, v.robot.radius, v.robot.max_speed
         );
+        if let Some(s) = &v.script {
+            detail += &script_detail(s);
+        }
+        report.pass(VEHICLE, format!("vehicles: {}", v.name), detail);
     }
+}
+
+/// A scripted vehicle's script: from where, how fast, to where, and where it was cut.
+fn script_detail(s: &crate::config::VehicleScript) -> String {
+    let (start, end) = (s.script.start(), s.script.last_point());
+    let to = match s.script.end_time() {
+        Some(t) => format!(" to ({:.3}, {:.3}) in {t:.1} s", end.re, end.im),
+        None => ", round and round".to_string(),
+    };
+    let mut detail = format!(
+        "; script from ({:.3}, {:.3}) at {} m/s{to}, within {} m",
+        start.re,
+        start.im,
+        s.script.speed(),
+        s.tolerance
+    );
+    if let Some(cut) = &s.cut {
+        detail += &format!(" ({cut})");
+    }
+    detail
 }
 
 /// The frame T, each slot's time, and the delay margin (eq. 29) T alone gives: the sample

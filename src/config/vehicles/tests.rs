@@ -229,3 +229,59 @@ fn a_vehicles_goal_is_checked_as_the_robots() {
     assert_eq!(k, "vehicles[1].goal");
     assert!(w.starts_with("[0.3, 0.1]: "), "inside the furniture: {w}");
 }
+
+/// A scripted vehicle in rig.toml: its `start` and `motion` as a scenario's; a constant
+/// motion laid out until it would leave the arena, cut there and said; followed through its
+/// supervisor as an outside planner's commands. The keys of the other role, a start out of
+/// view, a script its wheels cannot follow: refused, named.
+#[test]
+fn a_scripted_vehicle_follows_its_motion_cut_at_the_arenas_edge() {
+    let scripted = |keys: &str| format!("{TWO}role = \"script\"\n{keys}\n");
+    let r = rig(&scripted("start = [0.3, 0.1]\nmotion = { kind = \"constant\", velocity = [-0.05, 0.0] }")).unwrap();
+    let s = r.vehicles[1].script.as_ref().unwrap();
+    assert_eq!((s.tolerance, s.script.speed()), (0.05, 0.05));
+    let note = s.cut.as_deref().unwrap();
+    let at = "at (-0.773, 0.100) after 21.46 s: the vehicle stops there";
+    assert_eq!(note, format!("vehicles[1] (b): its script leaves the room's free region {at}"), "docs/fleet.md");
+    let end = s.script.last_point();
+    assert!(end.re < 0.0 && (end.im - 0.1).abs() < 1e-9, "westward along y = 0.1 to the arena's edge: {end}");
+    assert!(r.vehicles[1].goal.is_none() && r.vehicles[0].script.is_none());
+    let outside = matches!(r.vehicles[1].driven.control.source, crate::control::CommandSource::Outside { .. });
+    assert!(outside, "the follower's commands go through its supervisor");
+
+    let waypoints = "start = [0.3, 0.1]\nmotion = { kind = \"waypoints\", points = [[0.0, 0.1]], speed = 0.05 }";
+    let r = rig(&scripted(waypoints)).unwrap();
+    let s = r.vehicles[1].script.as_ref().unwrap();
+    assert!(s.cut.is_none(), "inside the arena: as written");
+    assert!((s.script.end_time().unwrap() - 6.0).abs() < 1e-9, "{:?}", s.script.end_time());
+
+    let cases = [
+        (format!("{TWO}start = [0.3, 0.1]\n"), "vehicles[1].start", "is a scripted vehicle's"),
+        (
+            scripted("start = [0.3, 0.1]\ngoal = [0.0, 0.0]\nmotion = { kind = \"stationary\" }"),
+            "vehicles[1].goal",
+            "is a navigating vehicle's",
+        ),
+        (scripted("start = [0.3, 0.1]"), "vehicles[1].motion", "is missing"),
+        (
+            scripted("start = [9.0, 0.1]\nmotion = { kind = \"stationary\" }"),
+            "vehicles[1].start",
+            "[9.0, 0.1] lies outside the calibrated arena",
+        ),
+        (
+            scripted("start = [0.3, 0.1]\nmotion = { kind = \"constant\", velocity = [-0.2, 0.0] }"),
+            "vehicles[1].motion",
+            "moves at 0.2 m/s: faster than the vehicle's max_speed, 0.12 m/s",
+        ),
+        (
+            scripted("start = [0.3, 0.1]\nscript_tolerance = 0.001\nmotion = { kind = \"stationary\" }"),
+            "vehicles[1].script_tolerance",
+            "must be 0.01 to 2 m",
+        ),
+    ];
+    for (text, key, why) in cases {
+        let (k, w) = refused(rig(&text));
+        assert_eq!(k, key, "{w}");
+        assert!(w.starts_with(why), "{key}: {w}");
+    }
+}

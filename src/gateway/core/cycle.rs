@@ -5,6 +5,7 @@
 use flowgate_protocol::psd::{Message, Packet, Sample, SampleFlags, MAX_WIRE_LEN};
 
 use super::safety::RobotMotion;
+use super::script_run::Followed;
 use super::timing::CycleRecord;
 use super::vehicle::LastEstimate;
 use super::ROBOT;
@@ -26,6 +27,8 @@ struct Decision {
     step: Option<StepOutput>,
     /// The gateway went from Armed to Running this cycle.
     started: bool,
+    /// A scripted vehicle's script ended, or it lost it: its stop.
+    script_stop: Option<StopReason>,
     track_ns: u64,
     plan_start: u64,
 }
@@ -57,6 +60,9 @@ impl<K: StageClock> Core<K> {
         let Some(d) = self.decide(k, now, track_start) else { return };
         if d.started {
             self.state_changed(k, now);
+        }
+        if let Some(reason) = d.script_stop {
+            self.stop_vehicle(k, now, reason);
         }
         self.vehicles[k].last_estimate = Some(LastEstimate { pose: d.pose, delay: d.delay, wheels: d.wheels });
         if k == ROBOT {
@@ -109,7 +115,7 @@ impl<K: StageClock> Core<K> {
         let fleet = self.fleet.is_fleet();
         let v = &mut self.vehicles[k];
         let wheel_base = v.control.config().drive.wheel_base;
-        let ready = v.mission.ready_to_start() && v.motors.ready();
+        let ready = v.ready_to_start() && v.motors.ready();
         let others = self.fleet.others_of(k);
         // The estimate borrows the tracks: decide inside, act on the decision after.
         let tracked = crate::track::estimate(&mut v.pose, &mut self.obstacles, others, t, period, wheel_base)
@@ -119,17 +125,40 @@ impl<K: StageClock> Core<K> {
         if started {
             v.safety.ready(t);
             v.control.start(t);
+            if let Some(script) = v.script.as_mut() {
+                script.start(t);
+            }
         }
-        if fleet {
+        if fleet && v.script.is_none() {
             let config = v.control.config();
             let aim =
                 self.fleet.aim(k, (tracked.estimate.position, config.goal), v.control.aim(), config.room.as_deref());
             v.control.aim_at(aim);
         }
         let plan_start = self.clock.now_ns();
-        let step = v.safety.state().may_move().then(|| v.control.step(t, &tracked.estimate));
+        let (mut step, mut script_stop) = (None, None);
+        if v.safety.state().may_move() {
+            let e = &tracked.estimate;
+            match v.script.as_mut().map(|s| s.follow(t, e.position, e.facing)) {
+                None => step = Some(v.control.step(t, e)),
+                Some(Followed::Command { command, error }) => {
+                    v.control.take_command(t, command);
+                    let out = v.control.step(t, e);
+                    if let (Some(s), Supervision::Passed) = (v.script.as_mut(), out.supervision) {
+                        s.passed(error);
+                    }
+                    step = Some(out);
+                }
+                Some(Followed::Lost { error, tolerance }) => {
+                    let mm = |m: f64| (m * 1e3).round().min(f64::from(u16::MAX)) as u16;
+                    script_stop = Some(StopReason::OffScript { error_mm: mm(error), tolerance_mm: mm(tolerance) });
+                }
+                Some(Followed::Ended) => script_stop = Some(StopReason::ScriptEnded),
+            }
+        }
         let (pose, delay, wheels) = (tracked.estimate.pose(), tracked.estimate.delay, tracked.estimate.wheels);
-        Some(Decision { pose, delay, wheels, clearance: tracked.clearance, step, started, track_ns, plan_start })
+        let clearance = tracked.clearance;
+        Some(Decision { pose, delay, wheels, clearance, step, started, script_stop, track_ns, plan_start })
     }
 
     /// Count what vehicle `k`'s step saw and act on its status; the pulses and wheel speeds

@@ -126,7 +126,7 @@ impl<K: StageClock> Core<K> {
                     let (velocity, toward) =
                         if under_control { (v.commanded, v.commanded) } else { (moving, Point::default()) };
                     let lag = ramp_lag(moving, toward, wheel_accel);
-                    let moving_on = under_control && v.mission.has_goals();
+                    let moving_on = v.moving_on();
                     let reach = v.unreached_until.map_or(0.0, |until| top_speed * (until - t).max(0.0));
                     Some(VehicleView { position: at.position, velocity, toward, lag, radius, moving_on, reach })
                 }

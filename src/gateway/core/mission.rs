@@ -50,9 +50,9 @@ impl Mission {
         self.start_requested = requested;
     }
 
-    /// Running may begin: a start was asked for, and there is a goal.
-    pub(super) fn ready_to_start(&self) -> bool {
-        self.start_requested && !self.goals.is_empty()
+    /// The operator asked to start, and has not called it off.
+    pub(super) fn start_requested(&self) -> bool {
+        self.start_requested
     }
 
     /// Arm and start at the controller's first stream.

@@ -88,6 +88,7 @@ pub mod psd_session;
 mod requests;
 pub mod safety;
 pub mod scene;
+mod script_run;
 pub mod timers;
 pub mod timing;
 mod vehicle;
@@ -99,6 +100,7 @@ pub use notice::{Level, Notice};
 pub use output::Output;
 pub use psd_session::{SerialBytes, SetupError};
 pub use safety::{RobotMotion, State, StopReason};
+pub use script_run::ScriptStatus;
 
 use can_link::CanLinkHealth;
 use frame::FrameAssembler;
@@ -246,6 +248,10 @@ impl<K: StageClock> Core<K> {
     /// Vehicle `k`'s safety state.
     pub fn vehicle_state(&self, k: usize) -> Option<State> {
         self.vehicles.get(k).map(|v| v.state())
+    }
+    /// Scripted vehicle `k`'s distance from its script (`None`: not scripted).
+    pub fn vehicle_script(&self, k: usize) -> Option<ScriptStatus> {
+        self.vehicles.get(k)?.script.as_ref().map(script_run::ScriptRun::status)
     }
     /// How many vehicles it drives, the robot included.
     pub fn vehicle_count(&self) -> usize {

@@ -140,6 +140,10 @@ pub enum Refusal {
     BaselineDrives(&'static str),
     #[error("command not finite (NaN or infinite): the robot stops")]
     CommandNotFinite,
+    #[error("{name} follows its script: it takes no goals or commands")]
+    Scripted { name: String },
+    #[error("{name} stands {distance:.3} m from its script's start ({x:.3}, {y:.3}), beyond its script_tolerance ({tolerance} m): bring it there first")]
+    AwayFromScript { name: String, distance: f64, x: f64, y: f64, tolerance: f64 },
     #[error("no vehicle {index}: the rig drives {count} (the robot and its [[vehicles]])")]
     NoVehicle { index: usize, count: usize },
 }
@@ -193,6 +197,9 @@ pub struct VehicleStatus {
     pub goals: Vec<Goal>,
     /// x, y (m), heading (rad), when the gateway has its pose.
     pub pose: Option<[f64; 3]>,
+    /// A scripted vehicle's distance from its script.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub script: Option<super::ScriptStatus>,
 }
 
 /// One reply line of the control socket: `{"ok":true,"status":{...}}`, or

@@ -355,15 +355,17 @@ impl<K: StageClock> Core<K> {
         self.out.push(Output::Streaming);
         if self.vehicles[ROBOT].mission.take_arm_at_start() {
             let result = match self.rig.goal {
-                Some(goal) => self.arm_and_start(now, None, goal),
+                Some(goal) => self.arm_and_start(now, None, Some(goal)),
                 None => Err(Refusal::NoGoal),
             };
             if let Err(e) = result {
                 self.notice(now, Notice::ArmAtStartRefused(e));
             }
-            // Every other vehicle with a goal of its own (`[[vehicles]] goal`) goes too.
+            // Every other vehicle with a goal of its own (`[[vehicles]] goal`) or a script
+            // goes too.
             for k in ROBOT + 1..self.vehicles.len() {
-                if let Some(goal) = self.rig.vehicles[k - 1].goal {
+                let goal = self.rig.vehicles[k - 1].goal;
+                if goal.is_some() || self.vehicles[k].script.is_some() {
                     if let Err(e) = self.arm_and_start(now, Some(k), goal) {
                         self.vehicle_notice(k, now, Notice::ArmAtStartRefused(e));
                     }

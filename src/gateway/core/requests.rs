@@ -38,6 +38,11 @@ impl<K: StageClock> Core<K> {
             Request::Cancel => every(k).try_for_each(|k| self.stop_request(k, now, true)),
             Request::EStop => every(k).try_for_each(|k| self.estop(k, now)),
             Request::Reset => self.reset(k, now),
+            Request::Goal { .. } | Request::Drive { .. } | Request::Wheels { .. }
+                if self.vehicles[k].script.is_some() =>
+            {
+                Err(Refusal::Scripted { name: self.vehicles[k].name.clone() })
+            }
             Request::Goal { goals } => self.set_goals(k, now, goals),
             Request::Drive { .. } | Request::Wheels { .. } => self.outside_command(k, now, request),
         }
@@ -47,7 +52,7 @@ impl<K: StageClock> Core<K> {
     /// finite stops a moving robot, named.
     fn outside_command(&mut self, k: usize, now: HostTime, request: &Request) -> Result<(), Refusal> {
         let Some(command) = request.command() else { return Ok(()) };
-        match self.rig.control.source {
+        match self.vehicles[k].control.config().source {
             crate::control::CommandSource::Field => return Err(Refusal::FieldDrives),
             crate::control::CommandSource::Straight => return Err(Refusal::BaselineDrives("straight")),
             crate::control::CommandSource::Orca => return Err(Refusal::BaselineDrives("orca")),
@@ -92,8 +97,16 @@ impl<K: StageClock> Core<K> {
     fn start(&mut self, k: usize) -> Result<(), Refusal> {
         let v = &mut self.vehicles[k];
         let state = v.state();
+        if let (Some(script), Some(e), State::Armed) = (&v.script, v.last_estimate, state) {
+            let distance = script.distance_from_start(e.pose.position);
+            if distance > script.tolerance() {
+                let [x, y] = script.start_point();
+                let (name, tolerance) = (v.name.clone(), script.tolerance());
+                return Err(Refusal::AwayFromScript { name, distance, x, y, tolerance });
+            }
+        }
         match state {
-            State::Armed if !v.mission.has_goals() => Err(Refusal::NoGoal),
+            State::Armed if !v.mission.has_goals() && v.script.is_none() => Err(Refusal::NoGoal),
             State::Armed => {
                 v.mission.set_start_requested(true);
                 Ok(())
@@ -161,10 +174,18 @@ impl<K: StageClock> Core<K> {
         Ok(())
     }
 
-    /// Arm, set `goal` and start `vehicle` (the robot without one; `--arm`).
-    pub(super) fn arm_and_start(&mut self, now: HostTime, vehicle: Option<usize>, goal: Goal) -> Result<(), Refusal> {
+    /// Arm, set `goal` (a scripted vehicle: none) and start `vehicle` (the robot without
+    /// one; `--arm`).
+    pub(super) fn arm_and_start(
+        &mut self,
+        now: HostTime,
+        vehicle: Option<usize>,
+        goal: Option<Goal>,
+    ) -> Result<(), Refusal> {
         self.request(now, vehicle, &Request::Arm)?;
-        self.request(now, vehicle, &Request::Goal { goals: vec![goal] })?;
+        if let Some(goal) = goal {
+            self.request(now, vehicle, &Request::Goal { goals: vec![goal] })?;
+        }
         self.request(now, vehicle, &Request::Start)
     }
 

@@ -153,6 +153,14 @@ pub enum StopReason {
     CommandStale,
     /// A planner outside flowgate sent a command that is not a number (NaN) or infinite.
     CommandNotFinite,
+    /// A scripted vehicle came to rest at its script's last point (orderly stop).
+    ScriptEnded,
+    /// A scripted vehicle was further from its script than its `script_tolerance`, mm:
+    /// held by its supervisor, or pushed (orderly stop).
+    OffScript {
+        error_mm: u16,
+        tolerance_mm: u16,
+    },
     /// A CiA 402 drive's heartbeat stopped for longer than `safety.heartbeat_timeout_ms`.
     DriveHeartbeatLost {
         node: u8,
@@ -198,7 +206,7 @@ pub enum StopReason {
 
 impl StopReason {
     /// One of each reason (the LED or node 0): every label `/metrics` carries from the start.
-    pub const ALL: [StopReason; 44] = [
+    pub const ALL: [StopReason; 46] = [
         Self::GoalReached,
         Self::Stalled,
         Self::Operator,
@@ -235,6 +243,8 @@ impl StopReason {
         Self::PlannerInvalid,
         Self::CommandStale,
         Self::CommandNotFinite,
+        Self::ScriptEnded,
+        Self::OffScript { error_mm: 0, tolerance_mm: 0 },
         Self::DriveHeartbeatLost { node: 0 },
         Self::DriveRebooted { node: 0 },
         Self::DriveSecondMaster { node: 0 },
@@ -286,6 +296,8 @@ impl StopReason {
                 | Self::Shutdown
                 | Self::GoalBlocked
                 | Self::CommandStale
+                | Self::ScriptEnded
+                | Self::OffScript { .. }
         )
     }
 }
@@ -322,6 +334,7 @@ impl StopReason {
             Self::Stalled => "stalled (no progress)",
             Self::CommandStale => "the outside planner's command older than planner.command_max_age_ms",
             Self::CommandNotFinite => "the outside planner's command not finite (NaN or infinite)",
+            Self::ScriptEnded => "script ended at its last point",
             Self::Operator => "operator stop",
             Self::Shutdown => "shutdown signal",
             Self::PoseLost => "robot pose lost",
@@ -360,6 +373,21 @@ pub enum Garbled {
     NoPose,
 }
 
+impl Garbled {
+    /// A garbled-serial stop in words, with its counts.
+    fn describe(self, f: &mut std::fmt::Formatter<'_>, frames: u32, bytes: u32) -> std::fmt::Result {
+        let s = |n: u32| if n == 1 { "" } else { "s" };
+        let (fs, bs) = (s(frames), s(bytes));
+        let since = if self == Garbled::NoPose { "pose" } else { "sample" };
+        let counts = format!("{frames} bad frame{fs}, {bytes} byte{bs} dropped since the last {since}");
+        match self {
+            Garbled::BeyondBudget => write!(f, "garbled serial frames beyond budget ({counts})"),
+            Garbled::NoSample => write!(f, "garbled serial data and no sample through it ({counts})"),
+            Garbled::NoPose => write!(f, "garbled serial data and no robot pose through it ({counts})"),
+        }
+    }
+}
+
 /// How an obstacle is said to be unseen: inside the view, or last seen at its edge.
 const UNSEEN: [&str; 2] = ["unseen inside the view", "lost at the view's edge (gone out, or hidden there) and unseen"];
 
@@ -369,17 +397,7 @@ impl std::fmt::Display for StopReason {
             return f.write_str(text);
         }
         match self {
-            Self::SerialGarbled { frames, bytes, found } => {
-                let s = |n: &u32| if *n == 1 { "" } else { "s" };
-                let (fs, bs) = (s(frames), s(bytes));
-                let since = if *found == Garbled::NoPose { "pose" } else { "sample" };
-                let counts = format!("{frames} bad frame{fs}, {bytes} byte{bs} dropped since the last {since}");
-                match found {
-                    Garbled::BeyondBudget => write!(f, "garbled serial frames beyond budget ({counts})"),
-                    Garbled::NoSample => write!(f, "garbled serial data and no sample through it ({counts})"),
-                    Garbled::NoPose => write!(f, "garbled serial data and no robot pose through it ({counts})"),
-                }
-            }
+            Self::SerialGarbled { frames, bytes, found } => found.describe(f, *frames, *bytes),
             Self::UnscheduledLed { led } => {
                 write!(f, "samples of LED {led}, not in the schedule's slot, beyond budget")
             }
@@ -393,6 +411,9 @@ impl std::fmt::Display for StopReason {
                 write!(f, "obstacle LED {led} {} beyond safety.occlusion_timeout_ms", UNSEEN[usize::from(*at_edge)])
             }
             Self::ObstacleReachedRobot { led, robot } => write!(f, "obstacle LED {led} reached the {robot}"),
+            Self::OffScript { error_mm, tolerance_mm } => {
+                write!(f, "{error_mm} mm off its script (script_tolerance {tolerance_mm} mm)")
+            }
             Self::BoardBusOff { node } => write!(f, "motor board {node} CAN bus-off"),
             Self::BoardFault { node } => write!(f, "motor board {node} fault"),
             Self::BoardEStop { node } => write!(f, "e-stop latched by motor board {node} (its e-stop input)"),
@@ -662,6 +683,8 @@ mod tests {
                 | StopReason::BoardEStop { .. }
                 | StopReason::BoardNotEnabled { .. }
                 | StopReason::PlannerInvalid
+                | StopReason::ScriptEnded
+                | StopReason::OffScript { .. }
                 | StopReason::CommandStale
                 | StopReason::CommandNotFinite
                 | StopReason::DriveHeartbeatLost { .. }

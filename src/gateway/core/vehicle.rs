@@ -9,6 +9,7 @@ use super::mission::Mission;
 use super::motors::MotorMaster;
 use super::operator::VehicleStatus;
 use super::safety::{Action, Safety, State, StopReason};
+use super::script_run::ScriptRun;
 use super::watch::{PoseWatch, RunWatch};
 use super::STOP_GRACE;
 use crate::config::{Rig, Vehicle};
@@ -61,6 +62,8 @@ pub(super) struct DrivenVehicle {
     /// Until when its motors may run on after a stop that may not have reached them, s:
     /// the others keep clear of where it could still go.
     pub(super) unreached_until: Option<f64>,
+    /// A scripted vehicle's run along its script.
+    pub(super) script: Option<ScriptRun>,
 }
 
 impl DrivenVehicle {
@@ -80,7 +83,8 @@ impl DrivenVehicle {
         let pose = PoseTrack::new(d.tracking, v.led_geometry);
         let motors = MotorMaster::of(d.motors, d.node, d.board);
         let control = ControlStep::new(in_fleet(d.control.clone(), true));
-        Self::new(&v.name, [v.front_led, v.rear_led], pose, control, motors)
+        let script = v.script.as_ref().map(ScriptRun::new);
+        Self { script, ..Self::new(&v.name, [v.front_led, v.rear_led], pose, control, motors) }
     }
 
     fn new(name: &str, leds: [u8; 2], pose: PoseTrack, control: ControlStep, motors: MotorMaster) -> Self {
@@ -98,11 +102,22 @@ impl DrivenVehicle {
             announced: State::Idle,
             commanded: crate::Point::default(),
             unreached_until: None,
+            script: None,
         }
     }
 
     pub(super) fn state(&self) -> State {
         self.safety.state()
+    }
+
+    /// Running may begin: a start was asked for, and it has a goal or a script.
+    pub(super) fn ready_to_start(&self) -> bool {
+        self.mission.start_requested() && (self.mission.has_goals() || self.script.is_some())
+    }
+
+    /// It will leave where it stands: under control with a goal to go to or a script.
+    pub(super) fn moving_on(&self) -> bool {
+        matches!(self.state(), State::Running | State::Armed) && (self.mission.has_goals() || self.script.is_some())
     }
 
     /// Carry out on its motors what a transition of its safety state asks. Whether they were
@@ -173,6 +188,7 @@ impl DrivenVehicle {
             last_stop: self.last_stop(),
             goals: self.mission.goals().collect(),
             pose: self.last_estimate.map(|e| [e.pose.position.re, e.pose.position.im, e.pose.heading]),
+            script: self.script.as_ref().map(ScriptRun::status),
         }
     }
 }

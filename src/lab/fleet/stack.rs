@@ -1,29 +1,39 @@
-//! A fleet of navigating vehicles through the whole stack: the gateway core driving every
-//! vehicle against the simulator's firmware in deterministic virtual time
-//! ([`crate::lab::virtual_rig`]), each armed and started towards its goal at the first stream,
-//! judged by the world's truth as [`super::run`] judges the planner-level fleet. Each vehicle
-//! plans through the camera (its LEDs' noise and delay, the frames' timing) and is commanded
-//! over the bus; a scripted vehicle is not driven this way (the gateway does not follow a
-//! script), and is refused by [`navigating_only`].
+//! A fleet through the whole stack: the gateway core driving every vehicle against the
+//! simulator's firmware in deterministic virtual time ([`crate::lab::virtual_rig`]), each
+//! navigating vehicle armed and started towards its goal at the first stream and each
+//! scripted one along its script, judged by the world's truth as [`super::run`] judges the
+//! planner-level fleet. Each vehicle is seen through the camera (its LEDs' noise and delay,
+//! the frames' timing) and commanded over the bus; a scripted vehicle's follower runs in the
+//! gateway core, its commands through its supervisor.
 
-use flowgate_sim::scenario::vehicles::Role;
+use flowgate_sim::scenario::vehicles::{Role, VehicleSpec};
+use flowgate_sim::scenario::Motion;
 
 use super::sweep::{place, report, FleetEpisode, FleetSweepReport};
 use super::{contact_of, FleetSummary, VehicleSummary};
+use crate::config::{MotionSection, RoleName, VehicleSection};
 use crate::gateway::core::{State, StopReason};
 use crate::lab::sweep::{Shard, TooLarge};
 use crate::lab::virtual_rig::{Options, VirtualRig};
 use crate::lab::{Outcome, Scenario};
 
-/// The scripted vehicle that keeps `s` from running through the whole stack, if any.
-pub fn navigating_only(s: &Scenario) -> Result<(), String> {
-    match s.vehicles.iter().find(|v| v.role == Role::Script) {
-        Some(v) => Err(format!(
-            "{}: vehicle {} follows a script; the whole stack drives navigating vehicles (a scripted fleet runs at \
-             the planner level)",
-            s.name, v.name
-        )),
-        None => Ok(()),
+/// A scenario's vehicle's script as rig.toml's `[[vehicles]]` keys (`role`, `start`,
+/// `motion`, `script_tolerance`); none for a navigating vehicle.
+pub fn script_keys(v: &VehicleSpec) -> VehicleSection {
+    let Some(motion) = v.motion.as_ref().filter(|_| v.role == Role::Script) else { return VehicleSection::default() };
+    let motion = match motion {
+        Motion::Stationary => MotionSection::Stationary,
+        Motion::Constant { velocity } => MotionSection::Constant { velocity: *velocity },
+        Motion::Waypoints { points, speed, repeat } => {
+            MotionSection::Waypoints { points: points.clone(), speed: *speed, repeat: *repeat }
+        }
+    };
+    VehicleSection {
+        role: Some(RoleName::Script),
+        start: Some(v.start),
+        motion: Some(motion),
+        script_tolerance: Some(v.script_tolerance()),
+        ..VehicleSection::default()
     }
 }
 
@@ -55,9 +65,16 @@ fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
             let goal = s.vehicle(k).sim.goal;
             let end = fleet.world(k).pose().position;
             let home = (end.re - goal.position[0]).hypot(end.im - goal.position[1]) <= goal.tolerance + 0.01;
+            let script = core.vehicle_script(k);
             let outcome = match state {
                 _ if contact.is_some() => Outcome::Collision,
                 State::Stopped(StopReason::GoalReached) if home => Outcome::Goal,
+                // A script kept to its end, or to the run's.
+                State::Stopped(StopReason::ScriptEnded) | State::Stopping(StopReason::ScriptEnded) | State::Running
+                    if script.is_some() =>
+                {
+                    Outcome::Goal
+                }
                 State::Stopped(StopReason::Stalled) => Outcome::Stall,
                 State::Fault(_) => Outcome::Fault,
                 State::Stopped(_) | State::Stopping(_) => Outcome::Stopped,
@@ -69,8 +86,8 @@ fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
                 role,
                 outcome,
                 contact,
-                script_error: None,
-                script_error_held: None,
+                script_error: script.map(|s| s.largest),
+                script_error_held: script.map(|s| s.largest_held),
                 time_to_goal: rig.reached_at(k).filter(|_| outcome == Outcome::Goal),
                 path_length: truth.path_length,
                 min_vehicle_gap: fleet.min_vehicle_gap(k),
@@ -94,9 +111,10 @@ pub fn episode(base: &Scenario, seed: u64, i: u64) -> FleetEpisode {
     FleetEpisode::of(i, &fleet, alone)
 }
 
-/// The slowest vehicle's time to its goal alone, through the whole stack.
+/// The slowest navigating vehicle's time to its goal alone, through the whole stack.
 fn slowest_alone(s: &Scenario) -> Option<f64> {
     (0..=s.vehicles.len())
+        .filter(|&k| k == 0 || s.vehicles[k - 1].role == Role::Navigate)
         .map(|k| run(&s.vehicle(k)).vehicles[0].time_to_goal)
         .try_fold(0.0, |m, t| Some(f64::max(m, t?)))
 }

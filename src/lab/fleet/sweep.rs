@@ -307,9 +307,20 @@ pub fn compare_scripts(
     threads: usize,
     options: FleetOptions,
 ) -> Result<ScriptedComparison, TooLarge> {
+    compare_scripts_with(base, n, seed, threads, |s| run(s, options))
+}
+
+/// The same, each run by `run` (the planner level, or the whole stack).
+pub fn compare_scripts_with(
+    base: &Scenario,
+    n: u64,
+    seed: u64,
+    threads: usize,
+    run: impl Fn(&Scenario) -> FleetSummary + Sync,
+) -> Result<ScriptedComparison, TooLarge> {
     let pairs = Shard::WHOLE.run(n, threads, |i| {
         let s = place(base, seed, i);
-        (run(&s, options), run(&scripts_as_obstacles(&s), options))
+        (run(&s), run(&scripts_as_obstacles(&s)))
     })?;
     let home = |f: &FleetSummary| f.vehicles[0].outcome == Outcome::Goal && f.vehicles[0].contact.is_none();
     let quantiles = |pick: &dyn Fn(&(FleetSummary, FleetSummary)) -> f64| {
