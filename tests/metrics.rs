@@ -104,7 +104,7 @@ async fn metrics_scraped_and_parsed_by_prometheus_client() {
     assert_eq!(faults("drive_emergency"), 0.0);
     assert_eq!(faults("obstacle_reached_robot"), 0.0);
     assert_eq!(families["flowgate_faults"]["samples"].as_array().unwrap().len(), 38, "{families}");
-    assert_eq!(families["flowgate_stops"]["samples"].as_array().unwrap().len(), 6, "{families}");
+    assert_eq!(families["flowgate_stops"]["samples"].as_array().unwrap().len(), 8, "{families}");
     assert_eq!(families["flowgate_build"]["type"], "info");
     assert_eq!(value(&families, "flowgate_build", "flowgate_build_info", Some(("version", "0.1.0"))), 1.0);
     // The process, as Prometheus's client libraries name it.

@@ -314,3 +314,42 @@ fn steer_to_goal(name: &str, mode: &str, domain: u32) {
     assert!(off < 0.03, "{off}");
     assert!(demo.contains("no contact"), "{demo}");
 }
+
+/// A fleet as a ROS 2 system sees it: `flowgate demo --ros2` of the 2-vehicle swap, and an
+/// rclpy node that drives vehicle `v1` over its own namespace (`/v1/arm`, `/v1/goal_pose`,
+/// `/v1/start`, `/v1/estop`, `/v1/reset`) while the robot stands idle, then the robot over
+/// the node's own services. Each answer names the vehicle's state, and `flowgate ctl status`
+/// shows each step on v1 alone.
+#[test]
+fn each_vehicle_of_a_fleet_is_driven_over_its_own_namespace() {
+    let dir = temp_dir("ros2-fleet");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let socket = dir.join("control.sock");
+    let env = ros_env(53);
+    let swap = root.join("scenarios/fleet/swap-2.toml");
+    let demo = demo_ros2(&dir, &swap, &["--socket".as_ref(), socket.as_os_str()], &env);
+    let peer = Command::new(python::python())
+        .arg(python::peer("ros2"))
+        .args(["--fleet", env!("CARGO_BIN_EXE_flowgate"), socket.to_str().unwrap()])
+        .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
+        .output()
+        .unwrap();
+    let demo = demo.wait_with_output().unwrap();
+    let said = |o: &std::process::Output| {
+        String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
+    };
+    assert!(peer.status.success(), "peer: {}\ndemo: {}", said(&peer), said(&demo));
+    let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
+    assert_eq!(seen["types"]["/v1/goal_pose"], serde_json::json!(["geometry_msgs/msg/PoseStamped"]), "{seen}");
+    assert_eq!(seen["arm"], serde_json::json!({"success": true, "message": "armed"}));
+    assert_eq!(seen["start"]["success"], true, "{seen}");
+    assert_eq!(seen["estop"], serde_json::json!({"success": true, "message": "fault: operator emergency stop"}));
+    assert_eq!(seen["reset"], serde_json::json!({"success": true, "message": "idle"}));
+    // The robot stood idle while v1 was driven, e-stopped and reset.
+    for step in ["goal", "reached", "estopped", "after_reset"] {
+        assert_eq!(seen[step][0], "idle", "{step}: {seen}");
+    }
+    assert_eq!(seen["robot_stopped"], "stopped: goal reached", "{seen}");
+    assert!(demo.status.success(), "demo: {}", said(&demo));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -42,6 +42,9 @@ pub struct LedMap {
     pub first_obstacle: u8,
     /// Robot LEDs' distance ahead of / behind its centre, m.
     pub robot_led_offset: f64,
+    /// The LEDs the controller drives (`Info::max_leds`), ids 1 to this: [`MAX_LEDS`], or
+    /// up to the protocol's 64 for a larger controller ([`LedMap::driving`]).
+    pub driven: u8,
 }
 
 /// What the camera looks at: the vehicles (0: the robot), the obstacles, and a calibration
@@ -89,7 +92,18 @@ impl Scene for crate::world::fleet::Fleet {
 impl LedMap {
     /// The default rig: robot front LED 1, rear LED 2, obstacles from LED 3.
     pub fn standard(robot_radius: f64) -> Self {
-        Self { robot_front: 1, robot_rear: 2, first_obstacle: 3, robot_led_offset: 0.5 * robot_radius }
+        Self {
+            robot_front: 1,
+            robot_rear: 2,
+            first_obstacle: 3,
+            robot_led_offset: 0.5 * robot_radius,
+            driven: MAX_LEDS,
+        }
+    }
+
+    /// The same map on a controller that drives `leds` LEDs.
+    pub fn driving(self, leds: u8) -> Self {
+        Self { driven: leds, ..self }
     }
 
     /// Vehicle `k`'s LEDs (front, rear; `k` from 1) among `obstacles` obstacles, and the
@@ -260,7 +274,12 @@ impl PsdController {
     }
 
     pub fn info(&self) -> Info {
-        Info { firmware: FIRMWARE, psd_counts: [self.camera.counts; 2], max_leds: MAX_LEDS, clock_hz: 1_000_000 }
+        Info {
+            firmware: FIRMWARE,
+            psd_counts: [self.camera.counts; 2],
+            max_leds: self.leds.driven,
+            clock_hz: 1_000_000,
+        }
     }
 
     /// The controller clock at sim time `t`, µs.
@@ -302,9 +321,13 @@ impl PsdController {
                 match message {
                     Message::GetInfo => Message::Info { request_seq: seq, info: self.info() },
                     Message::SetSchedule(_) if self.streaming => nack(NackReason::Busy),
-                    Message::SetSchedule(s) if s.slots().len() > usize::from(MAX_LEDS) => nack(NackReason::TooManyLeds),
+                    Message::SetSchedule(s) if s.slots().len() > usize::from(self.leds.driven) => {
+                        nack(NackReason::TooManyLeds)
+                    }
                     // An LED id this controller has no driver for.
-                    Message::SetSchedule(s) if s.slots().iter().any(|l| l.led > MAX_LEDS) => nack(NackReason::BadValue),
+                    Message::SetSchedule(s) if s.slots().iter().any(|l| l.led > self.leds.driven) => {
+                        nack(NackReason::BadValue)
+                    }
                     Message::SetSchedule(s) => {
                         self.schedule = Some(s);
                         ack

@@ -150,10 +150,10 @@ impl RigConfig {
                 0 => Some((self.leds.robot_front, self.leds.robot_rear, self.leds.robot_led_offset)),
                 _ => self.leds.vehicle_leds(s.obstacles.len(), k, body.radius),
             };
-            let leds = leds.filter(|&(_, rear, _)| rear <= crate::psd_controller::MAX_LEDS).ok_or_else(|| {
+            let leds = leds.filter(|&(_, rear, _)| rear <= self.leds.driven).ok_or_else(|| {
                 RigError::Unplayed(format!(
                     "vehicle {name}: its LEDs would be past LED {}, the last the simulated controller drives",
-                    crate::psd_controller::MAX_LEDS
+                    self.leds.driven
                 ))
             })?;
             let motors = self.motor_kind().for_vehicle(k).ok_or_else(|| {

@@ -163,14 +163,7 @@ fn print_reply(reply: &Reply) {
         say!("not in view {}", absent.join(", "));
     }
     for v in &s.vehicles {
-        let pose = v.pose.map_or("-".into(), |[x, y, h]| format!("({x:.3}, {y:.3}) m, heading {:.1}°", h.to_degrees()));
-        let goal = v.goals.first().map_or("-".into(), |g| format!("({}, {})", g.position[0], g.position[1]));
-        say!(
-            "vehicle {:<12} {}  last stop {}  goal {goal}  pose {pose}",
-            v.name,
-            v.state,
-            v.last_stop.as_deref().unwrap_or("-")
-        );
+        say!("{}", vehicle_line(v));
     }
     say!("cycles     {}", s.cycles);
     if let Some(l) = &s.latency_us {
@@ -186,4 +179,24 @@ fn print_reply(reply: &Reply) {
         let _ = write_stage_table(&mut table, stages, "stages (µs) ");
         say_raw!("{table}");
     }
+}
+
+/// A vehicle's line of `status`: its state, last stop, goal (or its script) and pose.
+fn vehicle_line(v: &flowgate::gateway::core::operator::VehicleStatus) -> String {
+    let pose = v.pose.map_or("-".into(), |[x, y, h]| format!("({x:.3}, {y:.3}) m, heading {:.1}°", h.to_degrees()));
+    let mut goal = v.goals.first().map_or("-".into(), |g| format!("({}, {})", g.position[0], g.position[1]));
+    if let Some(sc) = v.script {
+        goal = format!(
+            "its script, {:.1} s along, {:.1} mm off (at most {:.1} mm where not held)",
+            sc.along,
+            sc.error * 1e3,
+            sc.largest * 1e3
+        );
+    }
+    format!(
+        "vehicle {:<12} {}  last stop {}  goal {goal}  pose {pose}",
+        v.name,
+        v.state,
+        v.last_stop.as_deref().unwrap_or("-")
+    )
 }

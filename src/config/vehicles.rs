@@ -334,6 +334,26 @@ impl VehicleSection {
     }
 }
 
+/// No two of `places` (each its key, where, and its vehicle's radius) closer than their
+/// radii.
+fn places_apart(places: &[(String, [f64; 2], f64)]) -> Result<(), Invalid> {
+    for (k, (name, at, radius)) in places.iter().enumerate() {
+        for (other, there, r) in &places[..k] {
+            let apart = (at[0] - there[0]).hypot(at[1] - there[1]);
+            if apart < radius + r {
+                return invalid(
+                    name,
+                    format!(
+                        "{at:?} is {apart:.3} m from {other} {there:?}: two vehicles {:.3} m across could not both stand there",
+                        radius + r
+                    ),
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
 impl RigFile {
     /// The schedule of every LED: the robot's and the obstacles' (`leds`, as
     /// [`LedSection`](super::LedSection) gave them), then each vehicle's pair, each LED once;
@@ -397,34 +417,18 @@ impl RigFile {
         Ok(vehicles)
     }
 
-    /// No two vehicles' goals (the robot's `[goal]` among them) closer than their radii:
-    /// both could never stand there.
+    /// No two vehicles' goals (the robot's `[goal]` among them), and no two scripts'
+    /// starts, closer than their radii: both could never stand there.
     fn check_goals_apart(&self, vehicles: &[Vehicle]) -> Result<(), Invalid> {
         let robot = self.goal.map(|g| ("goal.position".to_string(), g.position, self.robot.radius));
-        let goals: Vec<(String, [f64; 2], f64)> = robot
-            .into_iter()
-            .chain(
-                vehicles
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, v)| Some((key(i, "goal"), v.goal?.position, v.robot.radius))),
-            )
-            .collect();
-        for (k, (name, at, radius)) in goals.iter().enumerate() {
-            for (other, there, r) in &goals[..k] {
-                let apart = (at[0] - there[0]).hypot(at[1] - there[1]);
-                if apart < radius + r {
-                    return invalid(
-                        name,
-                        format!(
-                            "{at:?} is {apart:.3} m from {other} {there:?}: two vehicles {:.3} m across could not both stand there",
-                            radius + r
-                        ),
-                    );
-                }
-            }
-        }
-        Ok(())
+        let goals =
+            vehicles.iter().enumerate().filter_map(|(i, v)| Some((key(i, "goal"), v.goal?.position, v.robot.radius)));
+        let starts = vehicles.iter().enumerate().filter_map(|(i, v)| {
+            let start = v.script.as_ref()?.script.start();
+            Some((key(i, "start"), [start.re, start.im], v.robot.radius))
+        });
+        places_apart(&robot.into_iter().chain(goals).collect::<Vec<_>>())?;
+        places_apart(&starts.collect::<Vec<_>>())
     }
 
     /// Who uses `led` besides vehicle `i`: the robot, an obstacle or a vehicle before it.

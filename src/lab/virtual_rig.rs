@@ -74,6 +74,12 @@ pub struct Options {
     /// the PCL-80K-like board. They do not play the board's own faults
     /// ([`Motors::unplayed`](flowgate_sim::motors::Motors::unplayed)).
     pub cia402: bool,
+    /// The PSD controller drives this many LEDs (up to the protocol's 64), not the
+    /// simulated one's 16: a fleet past it, for the benchmark.
+    pub controller_leds: Option<u8>,
+    /// Time, on the host's clock, each handling of the controller's bytes that ran a
+    /// cycle ([`VirtualRig::cycle_ns`]).
+    pub time_cycles: bool,
 }
 
 /// The gateway's CAN link in the virtual rig.
@@ -335,6 +341,7 @@ pub struct VirtualRig<K: StageClock = NoClock> {
     reached_at: Vec<Option<f64>>,
     motion_outside_running: u64,
     lines: LineTruth,
+    cycle_ns: Option<Vec<u64>>,
 }
 
 /// The world's truth of the lines.
@@ -373,7 +380,9 @@ fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (C
     let camera = scenario.camera;
     let spec = ControllerSpec {
         camera,
-        leds: LedMap::standard(scenario.robot.radius),
+        leds: options
+            .controller_leds
+            .map_or(LedMap::standard(scenario.robot.radius), |n| LedMap::standard(scenario.robot.radius).driving(n)),
         noise_counts: scenario.sensing.position_noise * counts_per_metre(&camera),
         seed: scenario.sensing.seed,
         faults: plan.clone(),
@@ -411,6 +420,9 @@ fn fleet_motors(scenario: &Scenario, wired: &[WiredVehicle], plan: &FaultPlan) -
 /// How the simulated rig wires the scenario's vehicles.
 fn wiring(scenario: &Scenario, options: &Options) -> RigConfig {
     let mut wiring = RigConfig::new(scenario.sim.clone());
+    if let Some(n) = options.controller_leds {
+        wiring.leds = wiring.leds.driving(n);
+    }
     if options.cia402 {
         let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
         wiring.cia402 = Some([node(1), node(2)]);
@@ -511,6 +523,7 @@ impl<K: StageClock> VirtualRig<K> {
             reached_at: vec![None; wired.len()],
             motion_outside_running: 0,
             lines: LineTruth::default(),
+            cycle_ns: options.time_cycles.then(Vec::new),
         };
         rig.core_deadline = rig.core.next_deadline();
         // The shell opens the adapter (close, bitrate, open) and the PSD line at start.

@@ -274,6 +274,15 @@ fn a_scripted_vehicle_follows_its_motion_cut_at_the_arenas_edge() {
             "moves at 0.2 m/s: faster than the vehicle's max_speed, 0.12 m/s",
         ),
         (
+            scripted("start = [0.35, 0.1]\nmotion = { kind = \"stationary\" }").replacen(
+                "node = 2\n",
+                "node = 2\nrole = \"script\"\nstart = [0.3, 0.1]\nmotion = { kind = \"stationary\" }\n",
+                1,
+            ),
+            "vehicles[1].start",
+            "[0.35, 0.1] is 0.050 m from vehicles[0].start [0.3, 0.1]: two vehicles 0.120 m across",
+        ),
+        (
             scripted("start = [0.3, 0.1]\nscript_tolerance = 0.001\nmotion = { kind = \"stationary\" }"),
             "vehicles[1].script_tolerance",
             "must be 0.01 to 2 m",

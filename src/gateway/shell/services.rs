@@ -143,7 +143,8 @@ fn start_ros2(
         settings.cmd_vel = Some((config.cmd_vel.clone(), config.cmd_vel_stamped));
     }
     let every = settings.publish_every;
-    let setup = super::ros2::Ros2Setup { settings, view: view::ViewSetup::of(rig), start_time_s };
+    let vehicles = rig.vehicles.iter().map(|v| v.name.clone()).collect();
+    let setup = super::ros2::Ros2Setup { settings, view: view::ViewSetup::of(rig), start_time_s, vehicles };
     let node = super::ros2::start(setup, stats, requests)?;
     Ok((node, HostTime::ZERO, every))
 }

@@ -150,6 +150,13 @@ impl<K: StageClock> VirtualRig<K> {
         }
     }
 
+    /// How long, on the host's clock, each handling of the controller's bytes that ran a
+    /// cycle took (with [`Options::time_cycles`](super::Options::time_cycles)), ns: the
+    /// decode of its bytes and the cycle of every vehicle.
+    pub fn cycle_ns(&self) -> &[u64] {
+        self.cycle_ns.as_deref().unwrap_or_default()
+    }
+
     /// Everything the lines deliver by now.
     pub(super) fn deliver(&mut self) {
         let t = self.time();
@@ -165,7 +172,17 @@ impl<K: StageClock> VirtualRig<K> {
             self.lines.psd_delivered += self.scratch.len() as u64;
             // In reads of at most a chunk, as the shell's.
             for chunk in self.scratch.chunks(PSD_CHUNK) {
+                let Some(times) = self.cycle_ns.as_mut() else {
+                    feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::PsdBytes(chunk));
+                    continue;
+                };
+                let cycles = self.core.progress().cycles;
+                let start = std::time::Instant::now();
                 feed(&mut self.core, &mut self.inputs, &mut self.core_deadline, now, Input::PsdBytes(chunk));
+                let took = start.elapsed().as_nanos() as u64;
+                if self.core.progress().cycles > cycles {
+                    times.push(took);
+                }
             }
         }
         while self.can_down.take(self.t, &mut self.scratch) {

@@ -4,7 +4,9 @@
 //! socket cannot, and gets the same words back.
 //!
 //! Publishes `/odom`, `/tf`, `~/obstacles`, `~/path` and `/diagnostics`; takes `/goal_pose`;
-//! serves `~/arm`, `~/start`, `~/stop`, `~/reset` and `~/estop` (`std_srvs/srv/Trigger`).
+//! serves `~/arm`, `~/start`, `~/stop`, `~/reset` and `~/estop` (`std_srvs/srv/Trigger`;
+//! `~/estop` stops every vehicle). Each of the rig's other vehicles has its own in its
+//! namespace: `/<name>/goal_pose` and `/<name>/arm`, `start`, `stop`, `reset`, `estop`.
 //! The DDS is RustDDS, through `ros2-client`: no ROS installation is needed.
 
 pub mod convert;
@@ -49,6 +51,9 @@ pub struct Ros2Setup {
     pub view: ViewSetup,
     /// When the gateway started, s since the Unix epoch (the messages' stamps are Unix time).
     pub start_time_s: f64,
+    /// The rig's other vehicles (`[[vehicles]]`), by name: each has its goal topic and
+    /// services in its own namespace.
+    pub vehicles: Vec<String>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -92,10 +97,12 @@ struct Endpoints {
     obstacles: Publisher<msgs::MarkerArray>,
     path: Publisher<msgs::Path>,
     diagnostics: Publisher<msgs::DiagnosticArray>,
-    goal: ros2_client::Subscription<msgs::PoseStamped>,
+    /// The goal topics: the robot's (`None`), then each vehicle's.
+    goals: GoalTopics,
     /// An outside planner's velocity commands (`planner.method = "ros2"`).
     cmd_vel: Option<CmdVel>,
-    services: Vec<(Request, Server<TriggerRequest, TriggerResponse>)>,
+    /// Each service, for the robot (`None`; `estop` for every vehicle) or a vehicle.
+    services: Services,
 }
 
 /// `cmd_vel`, plain or stamped.
@@ -124,7 +131,7 @@ fn node_fqn(s: &Ros2Settings) -> String {
     format!("{ns}/{}", s.node_name)
 }
 
-fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
+fn join(s: &Ros2Settings, vehicles: &[String]) -> Result<Endpoints, Ros2Error> {
     let mut participant = rustdds::DomainParticipantBuilder::new(s.domain_id);
     if s.discovery_range == DiscoveryRange::Localhost {
         participant = participant.with_only_networks([std::net::Ipv4Addr::LOCALHOST]);
@@ -152,7 +159,6 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
     let t_obstacles = topic(&fqn, "obstacles", "visualization_msgs", "MarkerArray")?;
     let t_path = topic(&fqn, "path", "nav_msgs", "Path")?;
     let t_diagnostics = topic("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray")?;
-    let t_goal = topic("/", "goal_pose", "geometry_msgs", "PoseStamped")?;
     let t_cmd_vel = match &s.cmd_vel {
         Some((name, stamped)) => {
             let kind = if *stamped { "TwistStamped" } else { "Twist" };
@@ -167,7 +173,6 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
     let obstacles = node.create_publisher(&t_obstacles, None).map_err(|e| publisher_err(&e))?;
     let path = node.create_publisher(&t_path, None).map_err(|e| publisher_err(&e))?;
     let diagnostics = node.create_publisher(&t_diagnostics, None).map_err(|e| publisher_err(&e))?;
-    let goal = node.create_subscription(&t_goal, None).map_err(|e| create("/goal_pose")(&e))?;
     let cmd_vel = match (&s.cmd_vel, t_cmd_vel) {
         (Some((name, stamped)), Some(t)) => {
             let failed = |e: &dyn std::fmt::Display| create(name)(e);
@@ -179,22 +184,52 @@ fn join(s: &Ros2Settings) -> Result<Endpoints, Ros2Error> {
         }
         _ => None,
     };
-    let mut services = Vec::new();
-    for (request, base) in [
-        (Request::Arm, "arm"),
-        (Request::Start, "start"),
-        (Request::Stop, "stop"),
-        (Request::Reset, "reset"),
-        (Request::EStop, "estop"),
-    ] {
-        let name = Name::new(&fqn, base).map_err(|e| create(base)(&e))?;
-        let kind = ServiceTypeName::new("std_srvs", "Trigger");
-        let server = node
-            .create_server(ServiceMapping::Enhanced, &name, &kind, qos.clone(), qos.clone())
-            .map_err(|e| create(&format!("~/{base}"))(&e))?;
-        services.push((request, server));
+    let (goals, services) = operator_endpoints(&mut node, &qos, &fqn, vehicles)?;
+    Ok(Endpoints { context, node, odom, tf, obstacles, path, diagnostics, goals, cmd_vel, services })
+}
+
+type GoalTopics = Vec<(Option<String>, ros2_client::Subscription<msgs::PoseStamped>)>;
+type Services = Vec<(Option<String>, Request, Server<TriggerRequest, TriggerResponse>)>;
+
+/// The goal topic and the services of the robot (under the node, `~/`) and of each vehicle
+/// (in its own namespace).
+fn operator_endpoints(
+    node: &mut ros2_client::Node,
+    qos: &QosProfile,
+    fqn: &str,
+    vehicles: &[String],
+) -> Result<(GoalTopics, Services), Ros2Error> {
+    let create = |what: &str| {
+        let what = what.to_owned();
+        move |e: &dyn std::fmt::Display| Ros2Error::Create { what: what.clone(), why: e.to_string() }
+    };
+    let owners = std::iter::once((None, fqn.to_string(), "/".to_string()))
+        .chain(vehicles.iter().map(|v| (Some(v.clone()), format!("/{v}"), format!("/{v}"))));
+    let (mut goals, mut services) = (Vec::new(), Vec::new());
+    for (vehicle, service_ns, goal_ns) in owners {
+        let what = format!("{}/goal_pose", goal_ns.trim_end_matches('/'));
+        let failed = |e: &dyn std::fmt::Display| create(&what)(e);
+        let name = Name::new(&goal_ns, "goal_pose").map_err(|e| failed(&e))?;
+        let kind = MessageTypeName::new("geometry_msgs", "PoseStamped");
+        let t_goal = node.create_topic(&name, kind, qos).map_err(|e| failed(&e))?;
+        let goal = node.create_subscription(&t_goal, None).map_err(|e| failed(&e))?;
+        goals.push((vehicle.clone(), goal));
+        for (request, base) in [
+            (Request::Arm, "arm"),
+            (Request::Start, "start"),
+            (Request::Stop, "stop"),
+            (Request::Reset, "reset"),
+            (Request::EStop, "estop"),
+        ] {
+            let name = Name::new(&service_ns, base).map_err(|e| create(base)(&e))?;
+            let kind = ServiceTypeName::new("std_srvs", "Trigger");
+            let server = node
+                .create_server(ServiceMapping::Enhanced, &name, &kind, qos.clone(), qos.clone())
+                .map_err(|e| create(&format!("{service_ns}/{base}"))(&e))?;
+            services.push((vehicle.clone(), request, server));
+        }
     }
-    Ok(Endpoints { context, node, odom, tf, obstacles, path, diagnostics, goal, cmd_vel, services })
+    Ok((goals, services))
 }
 
 /// Join the ROS 2 domain and start the node's thread. It ends when the returned node is
@@ -204,7 +239,7 @@ pub fn start(
     stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: RequestSender,
 ) -> Result<Ros2Node, Ros2Error> {
-    let endpoints = join(&setup.settings)?;
+    let endpoints = join(&setup.settings, &setup.vehicles)?;
     let (tx, rx) = watch::channel(ViewSnapshot::default());
     let (done_tx, done) = oneshot::channel();
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
@@ -225,12 +260,16 @@ pub fn start(
     Ok(Ros2Node { tx, done })
 }
 
-/// A reply as a Trigger's response: the refusal's words, or the state now.
-fn trigger_response(reply: Reply) -> TriggerResponse {
-    let message = match (&reply.error, &reply.status) {
-        (Some(e), _) => e.clone(),
-        (None, Some(status)) => status.state.to_string(),
-        (None, None) => "ok".into(),
+/// A reply as a Trigger's response: the refusal's words, or the state now (of `vehicle`,
+/// the robot's without one).
+fn trigger_response(reply: Reply, vehicle: Option<&str>) -> TriggerResponse {
+    let message = match (&reply.error, &reply.status, vehicle) {
+        (Some(e), _, _) => e.clone(),
+        (None, Some(status), Some(name)) => {
+            status.vehicles.iter().find(|v| v.name == name).map_or("ok".into(), |v| v.state.to_string())
+        }
+        (None, Some(status), None) => status.state.to_string(),
+        (None, None, _) => "ok".into(),
     };
     TriggerResponse { success: reply.ok, message }
 }
@@ -259,7 +298,7 @@ async fn serve(
     mut stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: RequestSender,
 ) {
-    let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goal, cmd_vel, services } = e;
+    let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goals, cmd_vel, services } = e;
     let frames = Frames { floor: setup.settings.floor_frame.clone(), base: setup.settings.base_frame.clone() };
     let hardware_id = node_fqn(&setup.settings);
     let mut state = NodeState { setup, frames, hardware_id, last_refusal: None };
@@ -268,11 +307,14 @@ async fn serve(
         Err(e) => return tracing::warn!("ROS 2: the node's spinner: {e:?}"),
     };
     let mut spin = Box::pin(spin);
-    let mut goals = Box::pin(goal.async_stream());
-    let mut commands = twists(&cmd_vel);
-    let mut calls = futures_util::stream::select_all(
-        services.iter().map(|(request, server)| server.receive_request_stream().map(move |r| (request, server, r))),
+    let mut goal_poses = futures_util::stream::select_all(
+        goals.iter().map(|(vehicle, goal)| Box::pin(goal.async_stream().map(move |r| (vehicle, r)))),
     );
+    let mut commands = twists(&cmd_vel);
+    let mut calls =
+        futures_util::stream::select_all(services.iter().map(|(vehicle, request, server)| {
+            server.receive_request_stream().map(move |r| (vehicle, request, server, r))
+        }));
     let mut stats_open = true;
     loop {
         tokio::select! {
@@ -300,17 +342,17 @@ async fn serve(
                 Ok(twist) => take_command(&mut state, &requests, twist).await,
                 Err(e) => tracing::warn!("ROS 2: cmd_vel: {e}"),
             },
-            Some(received) = goals.next() => match received {
-                Ok((pose, _)) => take_goal(&mut state, &requests, pose).await,
-                Err(e) => tracing::warn!("ROS 2: /goal_pose: {e:?}"),
+            Some((vehicle, received)) = goal_poses.next() => match received {
+                Ok((pose, _)) => take_goal(&mut state, &requests, vehicle.clone(), pose).await,
+                Err(e) => tracing::warn!("ROS 2: a goal pose: {e:?}"),
             },
-            Some((request, server, received)) = calls.next() => match received {
+            Some((vehicle, request, server, received)) = calls.next() => match received {
                 Ok((id, _)) => {
-                    let reply = requests.ask(request.clone(), Peer::Ros2).await;
+                    let reply = requests.ask_for(vehicle.clone(), request.clone(), Peer::Ros2).await;
                     if let Some(e) = &reply.error {
                         state.last_refusal = Some(e.clone());
                     }
-                    if let Err(e) = server.send_response(id, trigger_response(reply)) {
+                    if let Err(e) = server.send_response(id, trigger_response(reply, vehicle.as_deref())) {
                         tracing::warn!("ROS 2: answering {request:?}: {e:?}");
                     }
                 }
@@ -321,9 +363,9 @@ async fn serve(
     // Leave the graph in order while the participant still runs: our endpoints, the node
     // (which tells the spinner to stop), the spinner's own endpoints, the participant last.
     drop(calls);
-    drop(goals);
+    drop(goal_poses);
     drop(commands);
-    drop((services, goal, cmd_vel, odom, tf, obstacles, path, diagnostics));
+    drop((services, goals, cmd_vel, odom, tf, obstacles, path, diagnostics));
     drop(node);
     drop(spin);
     drop(context);
@@ -360,9 +402,9 @@ async fn take_command(state: &mut NodeState, requests: &RequestSender, twist: ms
     }
 }
 
-/// A goal from `/goal_pose` (RViz's "2D Goal Pose"), checked by the loop as `ctl goal` is; a
-/// goal in another frame is refused here.
-async fn take_goal(state: &mut NodeState, requests: &RequestSender, goal: msgs::PoseStamped) {
+/// A goal from `/goal_pose` (RViz's "2D Goal Pose"; `/<name>/goal_pose` for `vehicle`),
+/// checked by the loop as `ctl goal` is; a goal in another frame is refused here.
+async fn take_goal(state: &mut NodeState, requests: &RequestSender, vehicle: Option<String>, goal: msgs::PoseStamped) {
     let frame = &goal.header.frame_id;
     let (x, y) = (goal.pose.position.x, goal.pose.position.y);
     if !frame.is_empty() && *frame != state.frames.floor {
@@ -372,7 +414,7 @@ async fn take_goal(state: &mut NodeState, requests: &RequestSender, goal: msgs::
         return;
     }
     let goals = vec![crate::config::Goal { position: [x, y], tolerance: crate::config::default_tolerance() }];
-    let reply = requests.ask(Request::Goal { goals }, Peer::Ros2).await;
+    let reply = requests.ask_for(vehicle, Request::Goal { goals }, Peer::Ros2).await;
     if let Some(e) = reply.error {
         state.last_refusal = Some(e);
     }
