@@ -381,3 +381,21 @@ fn a_fleets_inputs_replay_to_the_same_frames() {
     assert_eq!(replayed.can.len(), e.can_sent.len());
     assert!(replayed.can == e.can_sent, "the replay's frames differ from the run's");
 }
+
+/// The fleet's fault swarm through the whole stack, as `flowgate plan --whole-stack --swarm
+/// N` runs it (docs/fleet.md's figures come from 10,000 episodes each): lost links on the
+/// simulated bus, the operator's stops and the fleet's e-stops through the gateway; no
+/// episode breaks an invariant, and no vehicle coasting after its link failed touches
+/// anything. Every kind of fault is drawn and stops vehicles.
+#[test]
+fn the_fleets_swarm_through_the_whole_stack_breaks_no_invariant() {
+    use flowgate::lab::fleet::swarm::stack;
+    for (name, n) in [("swap-4.toml", 100), ("e5-scripted.toml", 40)] {
+        let report = stack::run(&scenario(name), n, 1, 2).unwrap();
+        assert_eq!(report.episodes, n as usize);
+        assert_eq!(report.broken_episodes, 0, "{name}: {report}\n{:?}", report.broken);
+        assert_eq!(report.coasting_contacts, 0, "{name}: {report}");
+        assert!(report.stopped.iter().all(|&k| k > 0), "{name}: every kind stops vehicles: {report}");
+        assert!(report.unfaulted_home > 0, "{name}: {report}");
+    }
+}

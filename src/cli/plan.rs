@@ -71,8 +71,8 @@ pub struct PlanArgs {
     planner_only: bool,
     /// A fleet through the whole stack (the gateway core driving every vehicle, navigating
     /// or scripted, against the simulator's firmware, in virtual time) rather than at the
-    /// planner level: one run, `--sweep N`, or `--sweep N --compare-obstacles`.
-    #[arg(long, conflicts_with_all = ["planner_only", "policy", "swarm", "compare", "shard"])]
+    /// planner level: one run, `--sweep N`, `--sweep N --compare-obstacles` or `--swarm N`.
+    #[arg(long, conflicts_with_all = ["planner_only", "policy", "compare", "shard"])]
     whole_stack: bool,
     /// Let the planner drive without the safety supervisor (for before-and-after
     /// comparisons; the gateway always runs it).
@@ -449,11 +449,11 @@ fn fleet_flags_refused(args: &PlanArgs, file: &Path) -> Result<()> {
 fn fleet_command(args: &PlanArgs, file: &Path, scenario: &Scenario, out: &Path) -> Result<()> {
     use flowgate::lab::fleet::{self, sweep as fleet_sweep, FleetOptions};
     let driven = fleet_driven(args, scenario)?;
-    if args.whole_stack {
-        return fleet_stack_command(args, scenario, out);
-    }
     if let Some(n) = args.swarm {
         return fleet_swarm_command(args, file, scenario, n, out);
+    }
+    if args.whole_stack {
+        return fleet_stack_command(args, scenario, out);
     }
     let options = FleetOptions::default();
     let run_traced = |s: &Scenario| fleet_run_traced(args, s, options, driven);
@@ -554,7 +554,11 @@ fn fleet_swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64
             bail!("--episode {k}: the swarm has episodes 0 to {}", n - 1);
         }
         let mut trace = FleetTrace::default();
-        let (episode, summary) = fleet_swarm::episode(scenario, args.seed, k, Some(&mut trace));
+        let (episode, summary) = if args.whole_stack {
+            fleet_swarm::stack::episode(scenario, args.seed, k)
+        } else {
+            fleet_swarm::episode(scenario, args.seed, k, Some(&mut trace))
+        };
         say!("episode {k} of the fleet swarm around {} (seed {}):", scenario.name, args.seed);
         let names: Vec<&str> = scenario.fleet().map(|(name, _, _)| name).collect();
         for (v, fault, at) in &episode.stopped {
@@ -563,11 +567,19 @@ fn fleet_swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64
         fleet::lines(&summary).iter().for_each(|l| say!("{l}"));
         episode.broken.iter().for_each(|b| say!("  broken: {b}"));
         let s = fleet::sweep::place(scenario, args.seed, k);
-        outputs::write_fleet_run(out, &s, &summary, &trace)?;
+        if args.whole_stack {
+            outputs::write_json(&out.join("summary.json"), &summary)?;
+        } else {
+            outputs::write_fleet_run(out, &s, &summary, &trace)?;
+        }
         return Ok(());
     }
     let started = std::time::Instant::now();
-    let report = fleet_swarm::run(scenario, n, args.seed, args.threads())?;
+    let report = if args.whole_stack {
+        fleet_swarm::stack::run(scenario, n, args.seed, args.threads())?
+    } else {
+        fleet_swarm::run(scenario, n, args.seed, args.threads())?
+    };
     say!("{report}");
     say!("  ({} episodes in {:.1} s)", report.episodes, started.elapsed().as_secs_f64());
     outputs::write_json(&out.join("fleet_swarm.json"), &report)?;
@@ -575,7 +587,8 @@ fn fleet_swarm_command(args: &PlanArgs, file: &Path, scenario: &Scenario, n: u64
     for (k, broken) in &report.broken {
         say!("episode {k} broke:");
         broken.iter().for_each(|b| say!("  {b}"));
-        say!("  replay: flowgate plan --swarm {n} --seed {} --episode {k} {}", args.seed, file.display());
+        let level = if args.whole_stack { " --whole-stack" } else { "" };
+        say!("  replay: flowgate plan{level} --swarm {n} --seed {} --episode {k} {}", args.seed, file.display());
     }
     if report.broken_episodes > 0 {
         bail!("{} of {} episodes broke an invariant", report.broken_episodes, report.episodes);

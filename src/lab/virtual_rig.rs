@@ -18,13 +18,12 @@ use std::path::Path;
 
 use bytes::BytesMut;
 use flowgate_protocol::codec::{PsdCodec, SlcanAdapterCodec, SlcanHostCodec};
-use flowgate_protocol::slcan::{Bitrate, Command};
+use flowgate_protocol::slcan::Command;
 use flowgate_protocol::CanFrame;
 use flowgate_sim::camera::CameraModel;
 use flowgate_sim::faults::{CanFaults, FaultPlan, SerialFaults};
-use flowgate_sim::motors::{FleetMotors, MotorKind};
+use flowgate_sim::motors::FleetMotors;
 use flowgate_sim::psd_controller::{LedMap, Outgoing, PsdController, SerialQueue};
-use flowgate_sim::rig::{RigConfig, WiredVehicle};
 use flowgate_sim::truth::TruthRecord;
 use flowgate_sim::world::fleet::Fleet;
 use flowgate_sim::world::World;
@@ -38,6 +37,9 @@ use crate::gateway::shell::Report;
 use crate::time::HostTime;
 
 mod events;
+mod wiring;
+
+use wiring::{fault_plan, firmware_spec, fleet_motors, gateway_rig};
 
 /// The PSD line's and the SLCAN adapter's serial rate, baud.
 pub const SERIAL_BAUD: f64 = 921_600.0;
@@ -80,6 +82,9 @@ pub struct Options {
     /// Time, on the host's clock, each handling of the controller's bytes that ran a
     /// cycle ([`VirtualRig::cycle_ns`]).
     pub time_cycles: bool,
+    /// The robot's own CAN link fails at this time, s, as a vehicle's `link_lost_at` does
+    /// (the fleet's swarm): its motors neither hear the bus nor are heard on it.
+    pub robot_link_lost_at: Option<f64>,
 }
 
 /// The gateway's CAN link in the virtual rig.
@@ -373,81 +378,6 @@ fn fnv(mut hash: u64, bytes: &[u8]) -> u64 {
     hash
 }
 
-/// The simulated controller (the scenario's camera, LEDs, noise and faults) and every
-/// vehicle as the simulated rig wires it (the robot's motors a board at node 1, or CiA 402
-/// drives at nodes 1 and 2; the other vehicles' after them).
-fn firmware_spec(scenario: &Scenario, options: &Options, plan: &FaultPlan) -> (ControllerSpec, Vec<WiredVehicle>) {
-    let camera = scenario.camera;
-    let spec = ControllerSpec {
-        camera,
-        leds: options
-            .controller_leds
-            .map_or(LedMap::standard(scenario.robot.radius), |n| LedMap::standard(scenario.robot.radius).driving(n)),
-        noise_counts: scenario.sensing.position_noise * counts_per_metre(&camera),
-        seed: scenario.sensing.seed,
-        faults: plan.clone(),
-    };
-    let wired = wiring(scenario, options).vehicles().expect("loading refused a fleet the simulated rig cannot wire");
-    (spec, wired)
-}
-
-/// The scenario's faults, its sensing delay played as the controller's sample delay.
-fn fault_plan(scenario: &Scenario) -> FaultPlan {
-    let mut plan = scenario.faults.clone();
-    if plan.sample_delay_ms == 0.0 {
-        plan.sample_delay_ms = scenario.sensing.delay * 1e3;
-    }
-    plan
-}
-
-/// Every vehicle's motors on the simulated bus (the robot's playing the scenario's faults,
-/// each vehicle's own link failing at its `link_lost_at`), and each one's board node.
-fn fleet_motors(scenario: &Scenario, wired: &[WiredVehicle], plan: &FaultPlan) -> (FleetMotors, Vec<Option<u8>>) {
-    let kinds: Vec<MotorKind> = wired.iter().map(|v| v.motors).collect();
-    let link_lost_at = std::iter::once(f64::INFINITY)
-        .chain(scenario.sim.vehicles.iter().map(|v| v.link_lost_at.unwrap_or(f64::INFINITY)))
-        .collect();
-    let board_nodes = kinds
-        .iter()
-        .map(|k| match k {
-            MotorKind::Board(n) => Some(n.get()),
-            MotorKind::Cia402 { .. } => None,
-        })
-        .collect();
-    (FleetMotors::new(&kinds, plan, link_lost_at), board_nodes)
-}
-
-/// How the simulated rig wires the scenario's vehicles.
-fn wiring(scenario: &Scenario, options: &Options) -> RigConfig {
-    let mut wiring = RigConfig::new(scenario.sim.clone());
-    if let Some(n) = options.controller_leds {
-        wiring.leds = wiring.leds.driving(n);
-    }
-    if options.cia402 {
-        let node = |n| flowgate_protocol::canopen::NodeId::new(n).expect("1-127");
-        wiring.cia402 = Some([node(1), node(2)]);
-    }
-    wiring
-}
-
-/// The gateway's rig for the scenario, and the bitrate the shell opens its SLCAN adapter at
-/// (the simulated bus runs at 1 Mbit/s).
-fn gateway_rig(scenario: &Scenario, options: &Options) -> (crate::config::Rig, Bitrate) {
-    let wiring = wiring(scenario, options);
-    let mut rig = match options.can {
-        CanTransport::Slcan => scenario.rig_wired("slcan:/dev/null", &wiring),
-        CanTransport::SocketCan => scenario.rig_wired("socketcan:vcan0", &wiring),
-    };
-    if let Some(adjust) = options.adjust_rig {
-        adjust(&mut rig);
-    }
-    let bitrate = match &rig.can {
-        crate::config::CanUrl::Slcan { bitrate, .. } => Bitrate::from_bps(*bitrate).unwrap_or(Bitrate::M1),
-        _ => Bitrate::M1,
-    };
-    (rig, bitrate)
-}
-
 impl VirtualRig<NoClock> {
     /// The scenario's rig, deterministic.
     pub fn new(scenario: &Scenario, options: Options) -> Self {
@@ -464,7 +394,7 @@ impl<K: StageClock> VirtualRig<K> {
         let (spec, wired) = firmware_spec(scenario, &options, &plan);
         let mut fleet = Fleet::for_rig(&scenario.sim);
         let mut controller = spec.build(0.0);
-        let (mut motors, board_nodes) = fleet_motors(scenario, &wired, &plan);
+        let (mut motors, board_nodes) = fleet_motors(scenario, &wired, &plan, &options);
         let (mut psd_out, mut can_out) = (Vec::with_capacity(32), Vec::with_capacity(32));
         controller.boot(0.0, &mut psd_out);
         motors.boot(0.0, &mut fleet, &mut can_out);
@@ -782,15 +712,5 @@ fn ns(s: f64) -> u64 {
         (s * 1e9).ceil().clamp(0.0, u64::MAX as f64) as u64
     } else {
         u64::MAX
-    }
-}
-
-/// PSD counts per metre of floor near the origin, from the camera model.
-fn counts_per_metre(camera: &CameraModel) -> f64 {
-    let (a, b) =
-        (camera.project(num_complex::Complex64::new(0.0, 0.0)), camera.project(num_complex::Complex64::new(0.01, 0.0)));
-    match (a, b) {
-        (Some(a), Some(b)) => (b.0 - a.0).hypot(b.1 - a.1) / 0.01,
-        _ => 0.0,
     }
 }

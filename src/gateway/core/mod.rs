@@ -249,6 +249,10 @@ impl<K: StageClock> Core<K> {
     pub fn vehicle_state(&self, k: usize) -> Option<State> {
         self.vehicles.get(k).map(|v| v.state())
     }
+    /// Vehicle `k`'s states since it started, each with when it was entered, s.
+    pub fn vehicle_history(&self, k: usize) -> &[(f64, State)] {
+        self.vehicles.get(k).map_or(&[], |v| &v.safety.history)
+    }
     /// Scripted vehicle `k`'s distance from its script (`None`: not scripted).
     pub fn vehicle_script(&self, k: usize) -> Option<ScriptStatus> {
         self.vehicles.get(k)?.script.as_ref().map(script_run::ScriptRun::status)

@@ -54,7 +54,7 @@ pub fn run(s: &Scenario) -> FleetSummary {
 }
 
 /// What the run came to, vehicle by vehicle, as the planner-level fleet reports it.
-fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
+pub(crate) fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
     let (fleet, core) = (rig.fleet(), rig.core());
     let vehicles: Vec<VehicleSummary> = s
         .fleet()
@@ -66,9 +66,11 @@ fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
             let end = fleet.world(k).pose().position;
             let home = (end.re - goal.position[0]).hypot(end.im - goal.position[1]) <= goal.tolerance + 0.01;
             let script = core.vehicle_script(k);
+            // At its goal, stopped there by the gateway: an e-stop after it changes nothing.
+            let reached = rig.reached_at(k).is_some() && home;
             let outcome = match state {
                 _ if contact.is_some() => Outcome::Collision,
-                State::Stopped(StopReason::GoalReached) if home => Outcome::Goal,
+                _ if reached => Outcome::Goal,
                 // A script kept to its end, or to the run's.
                 State::Stopped(StopReason::ScriptEnded) | State::Stopping(StopReason::ScriptEnded) | State::Running
                     if script.is_some() =>
@@ -93,11 +95,29 @@ fn summary(s: &Scenario, rig: &VirtualRig) -> FleetSummary {
                 min_vehicle_gap: fleet.min_vehicle_gap(k),
                 min_clearance: fleet.min_vehicle_gap(k).min(truth.min_obstacle_clearance),
                 supervised_cycles: 0,
-                stop_reason: (outcome != Outcome::Goal).then(|| state.to_string()),
+                stop_reason: (outcome != Outcome::Goal).then(|| stops(core.vehicle_history(k))),
             }
         })
         .collect();
     FleetSummary::of(s, rig.time(), vehicles)
+}
+
+/// Every stop or fault in `history`, in order, each named by the last state it gave
+/// (`stopped: operator stop, then fault: motor board 2 heartbeat lost`); the state it ended
+/// in when there was none.
+fn stops(history: &[(f64, State)]) -> String {
+    let mut named: Vec<State> = Vec::new();
+    for &(_, state) in history {
+        match named.last_mut() {
+            Some(last) if state.reason().is_some() && last.reason() == state.reason() => *last = state,
+            _ if state.reason().is_some() => named.push(state),
+            _ => {}
+        }
+    }
+    match named.is_empty() {
+        true => history.last().map_or(String::new(), |(_, s)| s.to_string()),
+        false => named.iter().map(State::to_string).collect::<Vec<_>>().join(", then "),
+    }
 }
 
 /// Episode `i` of a sweep through the whole stack: the fleet placed as the planner-level

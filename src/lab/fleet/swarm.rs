@@ -14,7 +14,8 @@
 //!   names that fault.
 //!
 //! An episode is a pure function of the scenario, the seed and its index: `--episode K`
-//! runs one alone, to the same outcome.
+//! runs one alone, to the same outcome. [`stack`] plays the same episodes through the whole
+//! stack.
 
 use std::fmt;
 
@@ -26,6 +27,28 @@ use super::sweep::place;
 use super::{drive_with, motors_hold, FleetControl, FleetOptions, FleetSummary, FleetTrace};
 use crate::lab::sweep::{Shard, TooLarge};
 use crate::lab::{Outcome, Scenario};
+
+pub mod stack;
+
+/// Where the swarm runs, and so how a stop names its fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Level {
+    /// Each vehicle's control step on the world's truth ([`episode`]).
+    Planner,
+    /// The gateway core and the simulator's firmware ([`stack::episode`]): a stop is named
+    /// as the gateway names the vehicle's state.
+    WholeStack,
+}
+
+impl Level {
+    fn name(self) -> &'static str {
+        match self {
+            Self::Planner => "planner level",
+            Self::WholeStack => "whole stack",
+        }
+    }
+}
 
 /// The stop reason of a vehicle the operator stopped.
 pub const STOPPED_BY_THE_OPERATOR: &str = "stopped by the operator";
@@ -73,12 +96,21 @@ impl FleetFault {
         }
     }
 
-    /// Whether a stop reason names this fault.
-    fn named_in(self, reason: &str) -> bool {
-        match self {
-            Self::LinkLost { .. } => reason.starts_with(LINK_FAILED),
-            Self::Stop { .. } => reason == STOPPED_BY_THE_OPERATOR,
-            Self::EStop { .. } => reason == E_STOP,
+    /// Whether a stop reason names this fault. Through the whole stack the gateway names
+    /// what it can know: a link's failure by the motors' heartbeat, once it is missed; a
+    /// stop before then (the operator's, or an orderly stop of its own: its goal reached or
+    /// blocked) names the vehicle's stop instead, and a stopped vehicle's heartbeat is not
+    /// watched. An operator's stop is named as such, or as the fleet's e-stop after it.
+    fn named_in(self, reason: &str, level: Level) -> bool {
+        match (self, level) {
+            (Self::LinkLost { .. }, Level::Planner) => reason.starts_with(LINK_FAILED),
+            (Self::Stop { .. }, Level::Planner) => reason == STOPPED_BY_THE_OPERATOR,
+            (Self::EStop { .. }, Level::Planner) => reason == E_STOP,
+            (Self::LinkLost { .. }, Level::WholeStack) => {
+                reason.contains("heartbeat lost") || reason.contains("operator") || reason.starts_with("stopped:")
+            }
+            (Self::Stop { .. }, Level::WholeStack) => reason.contains("operator"),
+            (Self::EStop { .. }, Level::WholeStack) => reason.contains("operator emergency stop"),
         }
     }
 }
@@ -138,7 +170,7 @@ pub fn episode(base: &Scenario, seed: u64, i: u64, trace: Option<&mut FleetTrace
     faults.extend(own.map(|(vehicle, at)| FleetFault::LinkLost { vehicle, at }));
     faults.sort_by(|a, b| a.at().total_cmp(&b.at()));
     let (summary, stopped, log) = play(&s, &faults, trace);
-    let episode = judged(&s, i, faults, &summary, stopped, &log);
+    let episode = judged(&s, i, faults, &summary, stopped, &log, Level::Planner);
     (episode, summary)
 }
 
@@ -150,6 +182,7 @@ fn judged(
     summary: &FleetSummary,
     stopped: Stopped,
     log: &WheelLog,
+    level: Level,
 ) -> SwarmEpisode {
     let mut episode = SwarmEpisode {
         index,
@@ -161,7 +194,7 @@ fn judged(
         coasting_contacts: 0,
         broken: Vec::new(),
     };
-    judge(s, summary, log, &mut episode);
+    judge(s, summary, log, &mut episode, level);
     episode
 }
 
@@ -218,7 +251,7 @@ fn inject(fault: FleetFault, control: &mut FleetControl, t: f64, stopped: &mut S
 }
 
 /// The invariants (module docs), over the run's summary and its wheels cycle by cycle.
-fn judge(s: &Scenario, summary: &FleetSummary, log: &WheelLog, e: &mut SwarmEpisode) {
+fn judge(s: &Scenario, summary: &FleetSummary, log: &WheelLog, e: &mut SwarmEpisode, level: Level) {
     let n = summary.vehicles.len();
     let dt = s.sensing.sample_time;
     for (k, v) in summary.vehicles.iter().enumerate() {
@@ -268,10 +301,16 @@ fn judge(s: &Scenario, summary: &FleetSummary, log: &WheelLog, e: &mut SwarmEpis
                 fault.name()
             ));
         }
-        if v.outcome == Outcome::Goal && v.time_to_goal.is_some_and(|g| g > at) {
+        // Its link lost, a vehicle coasts on its last command until its motors' timeout: the
+        // gateway, which cannot know of the loss before the motors' heartbeat is missed, may
+        // see it come to its goal meanwhile and stop it there.
+        let coasted_home = matches!(fault, FleetFault::LinkLost { .. })
+            && v.outcome == Outcome::Goal
+            && v.time_to_goal.is_some_and(|g| g <= at + motors_hold(s, k) + 2.0 * dt);
+        if v.outcome == Outcome::Goal && !coasted_home && v.time_to_goal.is_some_and(|g| g > at) {
             e.broken.push(format!("{} reached its goal after {} stopped it at {at:.2} s", v.name, fault.name()));
         }
-        if !v.stop_reason.as_deref().is_some_and(|r| fault.named_in(r)) {
+        if !coasted_home && !v.stop_reason.as_deref().is_some_and(|r| fault.named_in(r, level)) {
             e.broken.push(format!("{}, stopped by {}, names its stop {:?}", v.name, fault.name(), v.stop_reason));
         }
     }
@@ -281,6 +320,7 @@ fn judge(s: &Scenario, summary: &FleetSummary, log: &WheelLog, e: &mut SwarmEpis
 #[derive(Debug, Clone, Serialize)]
 pub struct FleetSwarmReport {
     pub scenario: String,
+    pub level: Level,
     pub vehicles: usize,
     pub episodes: usize,
     pub seed: u64,
@@ -304,7 +344,7 @@ pub struct FleetSwarmReport {
 pub fn run(base: &Scenario, n: u64, seed: u64, threads: usize) -> Result<FleetSwarmReport, TooLarge> {
     let mut episodes = Shard::WHOLE.run(n, threads, |i| episode(base, seed, i, None).0)?;
     episodes.sort_by_key(|e| e.index);
-    Ok(report(base, seed, &episodes))
+    Ok(report(base, seed, &episodes, Level::Planner))
 }
 
 fn kind(f: FleetFault) -> usize {
@@ -320,7 +360,7 @@ fn listed(episodes: &[SwarmEpisode], matches: impl Fn(&SwarmEpisode) -> bool) ->
     episodes.iter().filter(|e| matches(e)).take(LISTED).map(|e| e.index).collect()
 }
 
-fn report(base: &Scenario, seed: u64, episodes: &[SwarmEpisode]) -> FleetSwarmReport {
+fn report(base: &Scenario, seed: u64, episodes: &[SwarmEpisode], level: Level) -> FleetSwarmReport {
     let (mut faults, mut stopped) = ([0; 3], [0; 3]);
     for e in episodes {
         e.faults.iter().for_each(|&f| faults[kind(f)] += 1);
@@ -329,6 +369,7 @@ fn report(base: &Scenario, seed: u64, episodes: &[SwarmEpisode]) -> FleetSwarmRe
     let broken: Vec<&SwarmEpisode> = episodes.iter().filter(|e| !e.broken.is_empty()).collect();
     FleetSwarmReport {
         scenario: base.name.clone(),
+        level,
         vehicles: 1 + base.vehicles.len(),
         episodes: episodes.len(),
         seed,
@@ -350,8 +391,11 @@ impl fmt::Display for FleetSwarmReport {
         let [l, s, e] = self.stopped;
         writeln!(
             f,
-            "fleet swarm of {} episodes around {} (seed {}, planner level):",
-            self.episodes, self.scenario, self.seed
+            "fleet swarm of {} episodes around {} (seed {}, {}):",
+            self.episodes,
+            self.scenario,
+            self.seed,
+            self.level.name()
         )?;
         writeln!(f, "  faults: {links} links lost, {stops} operator's stops of one vehicle, {estops} e-stops")?;
         writeln!(f, "  vehicles stopped: {l} by their link, {s} by the operator, {e} by an e-stop")?;

@@ -13,7 +13,7 @@ fn tampered(
 ) -> (SwarmEpisode, FleetSummary) {
     let (mut summary, stopped, mut log) = play(s, faults, None);
     tamper(&mut summary, &mut log);
-    (judged(s, 0, faults.to_vec(), &summary, stopped, &log), summary)
+    (judged(s, 0, faults.to_vec(), &summary, stopped, &log, Level::Planner), summary)
 }
 
 /// Each episode's faults come from the seed and its index alone, in time order within the
@@ -140,7 +140,7 @@ fn the_report_lists_the_episodes_to_look_at() {
         broken: Vec::new(),
     };
     let episodes = [episode(0, 4, 0), episode(1, 3, 0), episode(2, 4, 1), episode(3, 2, 0)];
-    let report = report(&s, 1, &episodes);
+    let report = report(&s, 1, &episodes, Level::Planner);
     assert_eq!(
         (report.unfaulted_short_episodes.as_slice(), report.coasting_episodes.as_slice()),
         (&[1, 3][..], &[2][..])
