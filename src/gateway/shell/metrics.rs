@@ -39,6 +39,8 @@ pub const STAGE_BUCKETS_S: [f64; 11] = [1e-6, 2e-6, 5e-6, 1e-5, 2e-5, 5e-5, 1e-4
 #[derive(Debug, Clone)]
 pub struct Snapshot {
     pub state: State,
+    /// Each of the rig's other vehicles (`[[vehicles]]`) by name, and its state.
+    pub vehicles: Vec<(String, State)>,
     pub counters: Counters,
     /// End-to-end cycle latency, ns (serial frame read to CAN write done).
     pub e2e_ns: Histogram<u64>,
@@ -60,6 +62,7 @@ impl Snapshot {
         let timing = Timing::default();
         Self {
             state: State::Idle,
+            vehicles: Vec::new(),
             counters: Counters::default(),
             e2e_ns: timing.e2e_histogram().clone(),
             deadline_misses: 0,
@@ -300,6 +303,20 @@ fn encode_gauges(encoder: &mut DescriptorEncoder<'_>, s: &Snapshot) -> fmt::Resu
     for st in STATES {
         ConstGauge::new(i64::from(st == now)).encode(state.encode_family(&[("state", st)])?)?;
     }
+    if !s.vehicles.is_empty() {
+        let mut vehicles = encoder.encode_descriptor(
+            "flowgate_vehicle_state",
+            "Each of the rig's other vehicles' safety state (1 for the current one), by its name.",
+            None,
+            MetricType::Gauge,
+        )?;
+        for (name, state) in &s.vehicles {
+            for st in STATES {
+                let labels = [("vehicle", name.as_str()), ("state", st)];
+                ConstGauge::new(i64::from(st == state.name())).encode(vehicles.encode_family(&labels)?)?;
+            }
+        }
+    }
     let uptime = encoder.encode_descriptor(
         "flowgate_uptime_seconds",
         "Seconds since the gateway started.",
@@ -431,9 +448,12 @@ mod tests {
             uptime_s: 12.5,
             stops: vec![("pose_lost".into(), true, 2), ("goal_reached".into(), false, 1)],
             view_frames_dropped: 3,
+            vehicles: vec![("v1".into(), State::Armed)],
             ..Snapshot::empty(1_700_000_000.0)
         };
         let text = render(Arc::new(s));
+        assert!(text.contains("flowgate_vehicle_state{vehicle=\"v1\",state=\"armed\"} 1\n"), "{text}");
+        assert!(text.contains("flowgate_vehicle_state{vehicle=\"v1\",state=\"running\"} 0\n"), "{text}");
         assert!(text.contains("flowgate_cycles_total 4\n"), "{text}");
         assert!(text.contains("flowgate_faults_total{reason=\"pose_lost\"} 2\n"), "{text}");
         assert!(text.contains("flowgate_stops_total{reason=\"goal_reached\"} 1\n"), "{text}");

@@ -575,8 +575,12 @@ impl Io {
         counters.telemetry_dropped = self.services.recorder.dropped();
         self.count_operator(&mut counters);
         let Some((tx, next)) = &mut self.services.metrics else { return HostTime::NEVER };
+        let vehicles = (1..core.vehicle_count())
+            .map(|k| (core.vehicle_name(k).to_string(), core.vehicle_state(k).unwrap_or_default()))
+            .collect();
         tx.send_replace(Arc::new(metrics::Snapshot {
             state: core.state(),
+            vehicles,
             counters,
             e2e_ns: self.timing.e2e_histogram().clone(),
             deadline_misses: self.timing.deadline_misses,
