@@ -301,12 +301,11 @@ fn judge(s: &Scenario, summary: &FleetSummary, log: &WheelLog, e: &mut SwarmEpis
                 fault.name()
             ));
         }
-        // Its link lost, a vehicle coasts on its last command until its motors' timeout: the
-        // gateway, which cannot know of the loss before the motors' heartbeat is missed, may
-        // see it come to its goal meanwhile and stop it there.
-        let coasted_home = matches!(fault, FleetFault::LinkLost { .. })
-            && v.outcome == Outcome::Goal
-            && v.time_to_goal.is_some_and(|g| g <= at + motors_hold(s, k) + 2.0 * dt);
+        // Its link lost, a vehicle coasts on its last command until its motors' timeout, and
+        // is at rest from then on (judged below): the gateway, which cannot know of the loss
+        // before the motors' heartbeat is missed, may see it come to its goal on the way and
+        // stop it there.
+        let coasted_home = matches!(fault, FleetFault::LinkLost { .. }) && v.outcome == Outcome::Goal;
         if v.outcome == Outcome::Goal && !coasted_home && v.time_to_goal.is_some_and(|g| g > at) {
             e.broken.push(format!("{} reached its goal after {} stopped it at {at:.2} s", v.name, fault.name()));
         }
