@@ -501,8 +501,8 @@ fn fleet_command(args: &PlanArgs, file: &Path, scenario: &Scenario, out: &Path) 
     Ok(())
 }
 
-/// `--whole-stack`: a fleet of navigating vehicles through the whole stack, one run or
-/// `--sweep N` (`--episode K` of it).
+/// `--whole-stack`: a fleet through the whole stack (navigating and scripted vehicles), one
+/// run, `--sweep N` (`--episode K` of it) or `--sweep N --compare-obstacles`.
 fn fleet_stack_command(args: &PlanArgs, scenario: &Scenario, out: &Path) -> Result<()> {
     use flowgate::lab::fleet::{self, stack, sweep as fleet_sweep};
     let placed = match (args.sweep, args.episode) {
