@@ -276,8 +276,9 @@ fn the_demo_drives_a_fleet_and_a_script() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// A scripted vehicle through the gateway: it takes no goal; it is not started away from
-/// its script's start; and it is guarded as every vehicle is. E2's oncoming vehicle, its
+/// A scripted vehicle through the gateway: it takes no goal; it is guarded as every vehicle
+/// is; stopped, it is started again along its script from the start; it is not started away
+/// from its script's start. E2's oncoming vehicle, its
 /// script running head-on into the robot standing idle in the lane, is held by its
 /// supervisor short of the robot (no contact), and once its script has run more than its
 /// tolerance ahead of it, it is stopped, named with the numbers.
@@ -288,8 +289,11 @@ fn a_scripted_vehicle_is_held_short_of_a_standing_robot_and_stopped_off_its_scri
     rig.run_until(0.5);
     let goal = Request::Goal { goals: vec![Goal { position: [0.0, 0.0], tolerance: 0.02 }] };
     assert_eq!(rig.vehicle_request(1, &goal), Err(Refusal::Scripted { name: "oncoming".into() }));
-    rig.vehicle_request(1, &Request::Arm).unwrap();
-    rig.vehicle_request(1, &Request::Start).unwrap();
+    let go = |rig: &mut VirtualRig| {
+        rig.vehicle_request(1, &Request::Arm).unwrap();
+        rig.vehicle_request(1, &Request::Start).unwrap();
+    };
+    go(&mut rig);
     rig.run_until(25.0);
     let core = rig.core();
     let Some(State::Stopped(StopReason::OffScript { error_mm, tolerance_mm })) = core.vehicle_state(1) else {
@@ -308,6 +312,25 @@ fn a_scripted_vehicle_is_held_short_of_a_standing_robot_and_stopped_off_its_scri
     let gap = rig.fleet().min_vehicle_gap(1);
     assert!(gap > 0.0 && gap < 0.06, "held short of the robot, not far off: {gap:.3} m");
     assert_eq!(rig.motion_outside_running(), 0);
+
+    // Stopped a little way along and started again, without a restart: its script from the
+    // start, which the vehicle, a few centimetres past it, waits for and follows again.
+    let mut rig = VirtualRig::new(&s, Options { wait_for_operator: true, ..Default::default() });
+    rig.run_until(0.5);
+    go(&mut rig);
+    rig.run_until(1.0);
+    assert_eq!(rig.core().vehicle_state(1), Some(State::Running));
+    rig.vehicle_request(1, &Request::Stop).unwrap();
+    rig.run_until(1.5);
+    assert_eq!(rig.core().vehicle_state(1), Some(State::Stopped(StopReason::Operator)));
+    let (at, start) = (rig.fleet().world(1).pose().position, s.vehicles[0].start);
+    let off = (at.re - start[0]).hypot(at.im - start[1]);
+    assert!((0.01..0.05).contains(&off), "it had gone {off:.3} m along");
+    go(&mut rig);
+    rig.run_until(4.0);
+    assert_eq!(rig.core().vehicle_state(1), Some(State::Running), "back to Running");
+    let again = rig.core().vehicle_script(1).unwrap();
+    assert!(again.along > 2.0 && again.error < 0.01, "on its script again: {again:?}");
 
     // Its script moved 10 cm from where the vehicle stands: the start is refused, named.
     fn moved(rig: &mut flowgate::config::Rig) {

@@ -85,19 +85,8 @@ fn a_ros2_node_watches_and_drives_flowgate() {
     let demo = demo_ros2(&dir, &e1, &["--socket".as_ref(), socket.as_os_str()], &env);
     // The peer waits on each topic and service with a deadline of its own.
     let (gx, gy) = (0.3, 0.06);
-    let peer = Command::new(python::python())
-        .arg(python::peer("ros2"))
-        .args([flowgate, socket.to_str().unwrap(), &gx.to_string(), &gy.to_string()])
-        .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
-        .output()
-        .unwrap();
-    let demo = demo.wait_with_output().unwrap();
-    let said = |o: &std::process::Output| {
-        String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
-    };
-    assert!(peer.status.success(), "peer: {}\ndemo: {}", said(&peer), said(&demo));
+    let (seen, demo) = beside(demo, &[flowgate, socket.to_str().unwrap(), &gx.to_string(), &gy.to_string()], &env);
     assert!(demo.status.success(), "demo: {}", said(&demo));
-    let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
 
     let types = &seen["types"];
     for (topic, kind) in [
@@ -253,21 +242,33 @@ fn drive_on_cmd_vel(name: &str, mode: &str, domain: u32) -> (Value, (bool, Strin
     let recording = dir.join("run.mcap");
     let env = ros_env(domain);
     let demo = demo_ros2(&dir, &scenario, stamped, &env);
+    let (seen, demo) = beside(demo, &["--cmd-vel", mode, "0.35", "0.05"], &env);
+    let cycles = recorded(&recording, "/cycle").into_iter().map(|(_, c)| c).collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    (seen, (demo.status.success(), said(&demo)), cycles)
+}
+
+/// What a process said, its output and its errors.
+fn said(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
+}
+
+/// The rclpy peer run with `args` beside `demo` until it ends, then the demo's end: what
+/// the peer saw (its JSON line), and the demo's output.
+fn beside(
+    demo: std::process::Child,
+    args: &[&str],
+    env: &[(&'static str, String); 3],
+) -> (Value, std::process::Output) {
     let peer = Command::new(python::python())
         .arg(python::peer("ros2"))
-        .args(["--cmd-vel", mode, "0.35", "0.05"])
+        .args(args)
         .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
         .output()
         .unwrap();
     let demo = demo.wait_with_output().unwrap();
-    let said = |o: &std::process::Output| {
-        String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
-    };
     assert!(peer.status.success(), "peer: {}\ndemo: {}", said(&peer), said(&demo));
-    let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
-    let cycles = recorded(&recording, "/cycle").into_iter().map(|(_, c)| c).collect();
-    let _ = std::fs::remove_dir_all(&dir);
-    (seen, (demo.status.success(), said(&demo)), cycles)
+    (serde_json::from_slice(&peer.stdout).unwrap(), demo)
 }
 
 /// An rclpy node publishes `cmd_vel` straight at the standing obstacle: the supervisor
@@ -328,18 +329,7 @@ fn each_vehicle_of_a_fleet_is_driven_over_its_own_namespace() {
     let env = ros_env(53);
     let swap = root.join("scenarios/fleet/swap-2.toml");
     let demo = demo_ros2(&dir, &swap, &["--socket".as_ref(), socket.as_os_str()], &env);
-    let peer = Command::new(python::python())
-        .arg(python::peer("ros2"))
-        .args(["--fleet", env!("CARGO_BIN_EXE_flowgate"), socket.to_str().unwrap()])
-        .envs(env.iter().map(|(k, v)| (*k, v.as_str())))
-        .output()
-        .unwrap();
-    let demo = demo.wait_with_output().unwrap();
-    let said = |o: &std::process::Output| {
-        String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr)
-    };
-    assert!(peer.status.success(), "peer: {}\ndemo: {}", said(&peer), said(&demo));
-    let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
+    let (seen, demo) = beside(demo, &["--fleet", env!("CARGO_BIN_EXE_flowgate"), socket.to_str().unwrap()], &env);
     assert_eq!(seen["types"]["/v1/goal_pose"], serde_json::json!(["geometry_msgs/msg/PoseStamped"]), "{seen}");
     assert_eq!(seen["arm"], serde_json::json!({"success": true, "message": "armed"}));
     assert_eq!(seen["start"]["success"], true, "{seen}");
