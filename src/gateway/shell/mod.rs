@@ -425,6 +425,7 @@ impl Io {
 
     fn state_changed<K: StageClock>(&mut self, core: &Core<K>, state: State, at: HostTime) {
         tracing::info!("state: {state}");
+        self.publish_state_soon();
         if let Some(n) = &mut self.notifier {
             n.status(&state.to_string());
         }
@@ -437,10 +438,20 @@ impl Io {
         }
     }
 
+    /// `/metrics`, the view's statistics and ROS 2's `/diagnostics` show a new state at the
+    /// loop's next pass, not up to a second late: a client waiting for a stop sees it before
+    /// a run that ends there is gone.
+    fn publish_state_soon(&mut self) {
+        if let Some((_, next)) = &mut self.services.metrics {
+            *next = HostTime::ZERO;
+        }
+    }
+
     /// A vehicle's other than the robot's: logged and recorded, named.
     fn vehicle_state_changed<K: StageClock>(&mut self, core: &Core<K>, vehicle: usize, state: State, at: HostTime) {
         let name = core.vehicle_name(vehicle);
         tracing::info!("vehicle {name}: state: {state}");
+        self.publish_state_soon();
         let text = format!("vehicle {name}: state: {state}");
         let fields = Some(serde_json::json!({ "vehicle": name }));
         let event = telemetry::EventRecord { at_s: at.secs(), level: Level::Info, kind: "state", text, fields };
