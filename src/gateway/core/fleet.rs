@@ -142,7 +142,7 @@ impl<K: StageClock> Core<K> {
 
 #[cfg(test)]
 mod tests {
-    use flowgate_protocol::motor::{BoardState, MotorMessage, NodeId};
+    use flowgate_protocol::motor::{BoardState, MotorMessage, NmtCommand, NodeId, Target};
 
     use super::super::input::CanEvent;
     use super::super::operator::Request;
@@ -171,6 +171,12 @@ mod tests {
     fn heartbeat(node: u8, state: BoardState) -> CanEvent {
         let node = NodeId::new(node).unwrap();
         CanEvent::Frame(MotorMessage::Heartbeat { node, state }.to_frame().unwrap())
+    }
+
+    fn is_enable(output: &Output, node: u8) -> bool {
+        let enable =
+            MotorMessage::Nmt { target: Target::Node(NodeId::new(node).unwrap()), command: NmtCommand::Enable };
+        matches!(output, Output::Can(f) if MotorMessage::parse(f).is_ok_and(|m| m == enable))
     }
 
     fn drain(c: &mut Core<NoClock>) -> Vec<Output> {
@@ -212,7 +218,15 @@ mod tests {
         drain(&mut c);
         let states = |c: &Core<NoClock>| (0..3).map(|k| c.vehicle_state(k).unwrap()).collect::<Vec<_>>();
         assert_eq!(states(&c), [State::Idle, State::Armed, State::Armed]);
+        // Powered up with the gateway: its boot-up heard while it is being enabled is no
+        // reboot; it is enabled afresh (the enable it missed goes out again).
+        drain(&mut c);
         c.handle(t(4), Input::Can(heartbeat(3, BoardState::BootUp)));
+        assert_eq!(states(&c), [State::Idle, State::Armed, State::Armed]);
+        let enables = drain(&mut c).iter().filter(|o| is_enable(o, 3)).count();
+        assert_eq!(enables, 1, "node 3 is told to enable again");
+        c.handle(t(5), Input::Can(heartbeat(3, BoardState::Enabled)));
+        c.handle(t(6), Input::Can(heartbeat(3, BoardState::BootUp)));
         let rebooted = State::Fault(StopReason::BoardReboot { node: 3 });
         assert_eq!(states(&c), [State::Idle, State::Armed, rebooted]);
         let named = drain(&mut c)

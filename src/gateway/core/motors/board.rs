@@ -172,9 +172,15 @@ impl BoardMaster {
         match MotorMessage::parse(frame) {
             Ok(m) if m.node() == Some(self.node) => match m {
                 MotorMessage::Heartbeat { state: board, .. } => {
+                    // Booted while being enabled (powered up with the gateway, its boot-up
+                    // heard after the arm): it missed the enable and nothing moves yet, so it
+                    // is enabled afresh. Once it has reported Enabled, a boot-up is a reboot.
+                    let enabling = state == State::Armed && self.state != Some(BoardState::Enabled);
                     self.last_heartbeat = Some(now);
                     self.state = Some(board);
-                    if board == BoardState::BootUp && state.is_active() {
+                    if board == BoardState::BootUp && enabling {
+                        effect.enable_again = true;
+                    } else if board == BoardState::BootUp && state.is_active() {
                         effect.stop = Some(StopReason::BoardReboot { node });
                     }
                 }
