@@ -271,8 +271,13 @@ fn the_demo_drives_a_fleet_and_a_script() {
     let names: Vec<&str> =
         truth["summary"]["vehicles"].as_array().unwrap().iter().map(|v| v["name"].as_str().unwrap()).collect();
     assert_eq!(names, ["robot", "v1"]);
+    // The plot draws every vehicle's true path, each named at its start.
+    let plot = |out: &Path| std::fs::read_to_string(out.join("trajectory.svg")).unwrap();
+    let svg = plot(&out);
+    assert!(svg.contains("| 2 vehicles | outcome: goal |") && svg.contains(">v1</text>"), "{svg}");
     let stdout = demo("e5-scripted.toml");
     assert!(stdout.contains("vehicle crossing at its script's end, no contact"), "{stdout}");
+    assert!(plot(&out).contains(">crossing</text>"));
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -341,5 +341,40 @@ fn each_vehicle_of_a_fleet_is_driven_over_its_own_namespace() {
     }
     assert_eq!(seen["robot_stopped"], "stopped: goal reached", "{seen}");
     assert!(demo.status.success(), "demo: {}", said(&demo));
+    // v1 on its own /v1/odom, in its own frame: from its start, (0, 0.3) in swap-2, to the
+    // node's goal, with its name and goal in ~/obstacles.
+    let odom = &seen["v1_odom"];
+    assert_eq!(odom["frames"], serde_json::json!([["map", "v1/base_link"]]), "{odom}");
+    let off = |p: &Value, [x, y]: [f64; 2]| (p[0].as_f64().unwrap() - x).hypot(p[1].as_f64().unwrap() - y);
+    assert!(off(&odom["first"], [0.0, 0.3]) < 0.03, "{odom}");
+    assert!(off(&odom["last"], [0.2, 0.3]) < 0.05, "{odom}");
+    assert!(odom["fastest"].as_f64().unwrap() > 0.03, "{odom}");
+    let markers: Vec<(String, i64, String)> = serde_json::from_value(seen["v1_markers"].clone()).unwrap();
+    let named = |ns: &str, text: &str| markers.iter().any(|(n, id, t)| n == ns && *id == 0 && t == text);
+    assert!(named("vehicle", "") && named("vehicle_name", "v1") && named("vehicle_goal", ""), "{markers:?}");
+
+    // The recording as a bag: v1 has its /v1/odom and its frame in /tf at each of the robot's
+    // cycles (the robot drove last, v1 standing at the node's goal).
+    let bag = dir.join("bag");
+    let flowgate = env!("CARGO_BIN_EXE_flowgate");
+    let export = Command::new(flowgate)
+        .args(["record", "export", "--ros2"])
+        .arg(&bag)
+        .arg(dir.join("run.mcap"))
+        .output()
+        .unwrap();
+    assert!(export.status.success(), "{}", said(&export));
+    let read = Command::new(python::python()).arg(python::peer("ros2")).arg("--bag").arg(&bag).output().unwrap();
+    assert!(read.status.success(), "rosbags: {}", said(&read));
+    let bag: Value = serde_json::from_slice(&read.stdout).unwrap();
+    assert_eq!(bag["types"]["/v1/odom"], "nav_msgs/msg/Odometry");
+    assert_eq!(bag["tf_children"], serde_json::json!(["base_link", "v1/base_link"]));
+    let v1 = bag["vehicle_odom"]["/v1/odom"].as_array().unwrap();
+    assert_eq!(v1.len(), bag["odom"].as_array().unwrap().len(), "a /v1/odom at each of the robot's cycles");
+    for m in v1 {
+        assert!(m["frame"] == "map" && m["child"] == "v1/base_link", "{m}");
+        let (x, y) = (m["x"].as_f64().unwrap(), m["y"].as_f64().unwrap());
+        assert!((x - 0.2).hypot(y - 0.3) < 0.05, "v1 at ({x}, {y}) while the robot drove");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

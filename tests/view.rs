@@ -5,7 +5,8 @@
 //! the latency histogram, and takes a screenshot. The page's JSON frame and its refusals are
 //! checked over plain HTTP too. The same run serves Foxglove live and records to MCAP: an
 //! independent Foxglove client and Python's `mcap` reader each decode the room from
-//! `/arena` (`foxglove.SceneUpdate`).
+//! `/arena` (`foxglove.SceneUpdate`). A fleet's run is drawn vehicle by vehicle, each named,
+//! in the browser, through Foxglove live and in the recording, which replays byte for byte.
 
 #[path = "support/python.rs"]
 mod python;
@@ -178,5 +179,104 @@ fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
         let page: Vec<[f64; 2]> = serde_json::from_value(item["points"].clone()).unwrap();
         assert!(drawn.iter().zip(&page).all(|(a, b)| (a[0] - b[0]).abs() < 1e-4 && (a[1] - b[1]).abs() < 1e-4));
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A fleet (E5 with its crossing obstacle a scripted vehicle): the page draws the crossing
+/// vehicle, named, moving and with its distance from its script; Foxglove live and the
+/// recording carry its pose on `/crossing/pose`, its numbers on `/vehicles` and its name over
+/// it in `/arena`; the recording replays to the same CAN frames, byte for byte.
+#[test]
+fn a_fleets_run_is_drawn_vehicle_by_vehicle_live_and_in_the_recording() {
+    let dir = std::env::temp_dir().join(format!("flowgate-view-fleet-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    let python = python::python();
+    let shot = dir.join("fleet.png");
+    let mut browser = python::niced(&python)
+        .arg(python::peer("view"))
+        .args(["--fleet", &format!("http://{addr}/"), shot.to_str().unwrap(), "crossing"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut browser_out = std::io::BufReader::new(browser.stdout.take().unwrap());
+    let mut ready = String::new();
+    std::io::BufRead::read_line(&mut browser_out, &mut ready).unwrap();
+    assert_eq!(ready.trim(), "ready", "the browser did not start");
+    let e5 = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/fleet/e5-scripted.toml");
+    let recording = dir.join("run.mcap");
+    let foxglove = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    let mut demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--scenario", e5.to_str().unwrap(), "--out", dir.to_str().unwrap()])
+        .args(["--view", &addr.to_string(), "--foxglove", &foxglove.to_string()])
+        .args(["--record", recording.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+
+    let seen_live = python::niced(&python)
+        .arg(python::peer("foxglove"))
+        .args([&format!("ws://{foxglove}"), "10", "/arena", "/crossing/pose", "/vehicles"])
+        .output()
+        .unwrap();
+    let live: serde_json::Value = serde_json::from_slice(&seen_live.stdout)
+        .unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&seen_live.stderr)));
+    let names: std::collections::BTreeSet<&str> = live["messages"]["/arena"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|a| a["entities"].as_array().unwrap())
+        .flat_map(|e| e["texts"].as_array().into_iter().flatten())
+        .filter_map(|t| t["text"].as_str())
+        .collect();
+    assert_eq!(names, ["crossing", "robot"].into(), "{live}");
+    let poses = live["messages"]["/crossing/pose"].as_array().unwrap();
+    assert!(poses.len() >= 10 && poses.iter().all(|p| p["frame_id"] == "floor"), "{live}");
+    let listed = &live["messages"]["/vehicles"][0]["vehicles"][0];
+    assert_eq!(listed["name"], "crossing", "{live}");
+
+    let mut stdout = Vec::new();
+    browser_out.read_to_end(&mut stdout).unwrap();
+    let mut stderr = String::new();
+    browser.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = browser.wait().unwrap();
+    let page: serde_json::Value =
+        serde_json::from_slice(&stdout).unwrap_or_else(|_| panic!("{}{stderr}", String::from_utf8_lossy(&stdout)));
+    assert!(status.success() && page["failures"].as_array().unwrap().is_empty(), "{page}");
+    let running = &page["running"]["crossing"];
+    assert_eq!(running["label"], "crossing", "{page}");
+    assert!(running["path"].as_u64().unwrap() > 5, "{page}");
+    assert!(running["row"].as_str().unwrap().contains("mm off its script"), "{page}");
+    let last = &page["final"]["crossing"];
+    assert_eq!(last["state"], "stopped", "{page}");
+
+    let status = demo.wait().unwrap();
+    let mut text = String::new();
+    demo.stdout.take().unwrap().read_to_string(&mut text).unwrap();
+    assert!(status.success() && text.contains("at its script's end"), "{text}");
+
+    // The recording, read by Python's `mcap`: the crossing vehicle's states in order, its
+    // poses down its script (from (-0.08, 0.2), 7 cm/s toward -y), within 5 cm of it.
+    let out = Command::new(&python).arg(python::peer("replay")).arg("vehicles").arg(&recording).output().unwrap();
+    let recorded: serde_json::Value =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&out.stderr)));
+    let crossing = &recorded["vehicles"]["crossing"];
+    assert_eq!(crossing["states"][0], "idle", "{recorded}");
+    assert!(crossing["states"].as_array().unwrap().iter().any(|s| s == "running"), "{recorded}");
+    assert_eq!(crossing["states"].as_array().unwrap().last().unwrap(), "stopped", "{recorded}");
+    let error = crossing["script_error"].as_f64().unwrap();
+    assert!(error > 0.0 && error < 0.05, "{recorded}");
+    let [first, last] =
+        [&crossing["first"], &crossing["last"]].map(|p| [p[0].as_f64().unwrap(), p[1].as_f64().unwrap()]);
+    assert!((first[0] + 0.08).abs() < 0.02 && (first[1] - 0.2).abs() < 0.02, "{recorded}");
+    assert!((last[0] + 0.08).abs() < 0.05 && last[1] < first[1] - 0.3, "{recorded}");
+    assert!(crossing["poses"].as_u64().unwrap() > 50, "{recorded}");
+    assert_eq!(recorded["pose_frames"], serde_json::json!(["floor"]));
+    assert_eq!(recorded["arena_names"], serde_json::json!(["crossing", "robot"]));
+
+    let replay = Command::new(env!("CARGO_BIN_EXE_flowgate")).arg("replay").arg(&recording).output().unwrap();
+    let said = String::from_utf8_lossy(&replay.stdout);
+    assert!(replay.status.success() && said.contains("identical, byte for byte"), "{said}");
     let _ = std::fs::remove_dir_all(&dir);
 }

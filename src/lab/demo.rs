@@ -9,8 +9,9 @@ use flowgate_sim::rig::{self, CanEndpoint, RigConfig};
 use flowgate_sim::truth::TruthRecord;
 use tokio::sync::watch;
 
+use super::fleet::{contact_report, FleetTrace};
 use super::planner_only::TraceRow;
-use super::plots::{trajectory_svg, Ending};
+use super::plots::{fleet_svg, trajectory_svg, Ending, FleetEnding};
 use super::{Outcome, Scenario};
 use crate::config::ConfigError;
 use crate::gateway;
@@ -66,12 +67,39 @@ impl DemoRun {
         rows.collect()
     }
 
-    /// `trajectory.svg`, `truth.json` and `report.json` into `dir`.
+    /// A fleet's true paths, every vehicle's (the robot's first) and the obstacles'.
+    pub fn fleet_trace(&self) -> FleetTrace {
+        let samples = &self.truth.samples;
+        let others = samples.first().map_or(0, |s| s.vehicles.len());
+        let obstacles = samples.first().map_or(0, |s| s.obstacles.len());
+        let robot = samples.iter().map(|s| Point::new(s.x, s.y)).collect();
+        let other = |k: usize| samples.iter().filter_map(|s| s.vehicles.get(k)).map(|v| Point::new(v.x, v.y)).collect();
+        let obstacle =
+            |k: usize| samples.iter().filter_map(|s| s.obstacles.get(k)).map(|o| Point::new(o[0], o[1])).collect();
+        FleetTrace {
+            t: samples.iter().map(|s| s.t).collect(),
+            vehicles: std::iter::once(robot).chain((0..others).map(other)).collect(),
+            obstacles: (0..obstacles).map(obstacle).collect(),
+        }
+    }
+
+    /// `trajectory.svg` (a fleet's: every vehicle's path), `truth.json` and `report.json`
+    /// into `dir`.
     pub fn write_files(&self, scenario: &Scenario, dir: &Path) -> std::io::Result<()> {
         let t = &self.truth.summary;
-        let ending =
-            Ending { outcome: self.outcome(), min_obstacle_clearance: t.min_obstacle_clearance, end_time: t.duration };
-        std::fs::write(dir.join("trajectory.svg"), trajectory_svg(scenario, &self.trace(), ending))?;
+        let svg = if scenario.vehicles.is_empty() {
+            let ending = Ending {
+                outcome: self.outcome(),
+                min_obstacle_clearance: t.min_obstacle_clearance,
+                end_time: t.duration,
+            };
+            trajectory_svg(scenario, &self.trace(), ending)
+        } else {
+            let contacts = t.vehicles.iter().map(|v| contact_report(&scenario.sim, v.contact, v.vehicle_contact));
+            let ending = FleetEnding { outcome: self.outcome(), end_time: t.duration, contacts: contacts.collect() };
+            fleet_svg(scenario, &ending, &self.fleet_trace())
+        };
+        std::fs::write(dir.join("trajectory.svg"), svg)?;
         self.truth.write(&dir.join("truth.json"))?;
         self.report.write_json(dir).map(drop)
     }

@@ -526,6 +526,15 @@ fn carry_out(d: &mut Driver, world: &World, out: &StepOutput, t: f64) -> [i32; 2
 /// Vehicle `k`'s first contact with anything: a vehicle, an obstacle or a wall.
 pub(crate) fn contact_of(fleet: &Fleet, s: &SimScenario, k: usize) -> Option<VehicleContactReport> {
     let world: Option<Contact> = fleet.world(k).first_contact().and_then(|_| fleet.world(k).truth().contact);
+    contact_report(s, world, fleet.vehicle_contact(k))
+}
+
+/// The first of a vehicle's contact with the world and with another vehicle, named.
+pub(crate) fn contact_report(
+    s: &SimScenario,
+    world: Option<Contact>,
+    vehicle: Option<flowgate_sim::world::fleet::VehicleContact>,
+) -> Option<VehicleContactReport> {
     let with_world = world.map(|c| VehicleContactReport {
         at: c.at,
         with: match c.with {
@@ -536,7 +545,7 @@ pub(crate) fn contact_of(fleet: &Fleet, s: &SimScenario, k: usize) -> Option<Veh
         approach_speed: c.approach_speed,
         active: c.active,
     });
-    let with_vehicle = fleet.vehicle_contact(k).map(|c| VehicleContactReport {
+    let with_vehicle = vehicle.map(|c| VehicleContactReport {
         at: c.at,
         with: format!("vehicle {}", s.fleet().nth(c.with).map_or("?", |v| v.0)),
         approach_speed: c.approach_speed,

@@ -170,7 +170,7 @@ pub fn write_fleet_run(
 ) -> Result<(), OutputError> {
     folder(dir)?;
     write(&dir.join("summary.json"), json(summary))?;
-    write(&dir.join("trajectory.svg"), plots::fleet_svg(scenario, summary, trace))
+    write(&dir.join("trajectory.svg"), plots::fleet_svg(scenario, &plots::FleetEnding::of(summary), trace))
 }
 
 /// A fleet sweep: its report (`fleet_sweep.json`) and one JSON line an episode

@@ -219,9 +219,28 @@ const GOAL_RING: f64 = 0.012;
 /// A colour a vehicle, the robot's first.
 const VEHICLES: [&str; 8] = [ROBOT, "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"];
 
+/// How a fleet's run ended, as its plot says: the outcome and time in the title, each
+/// vehicle's contact (the robot's first) by its path's end.
+#[derive(Debug, Clone)]
+pub struct FleetEnding {
+    pub outcome: Outcome,
+    pub end_time: f64,
+    pub contacts: Vec<Option<super::fleet::VehicleContactReport>>,
+}
+
+impl FleetEnding {
+    pub fn of(summary: &super::fleet::FleetSummary) -> Self {
+        Self {
+            outcome: summary.outcome,
+            end_time: summary.end_time,
+            contacts: summary.vehicles.iter().map(|v| v.contact.clone()).collect(),
+        }
+    }
+}
+
 /// `trajectory.svg` of a fleet: the room, each vehicle's path in its colour with its start,
 /// its footprint where it ended and its goal, and the obstacles' paths.
-pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &super::fleet::FleetTrace) -> String {
+pub fn fleet_svg(s: &Scenario, ending: &FleetEnding, trace: &super::fleet::FleetTrace) -> String {
     let mut pts: Vec<Point> = trace.vehicles.iter().chain(&trace.obstacles).flatten().copied().collect();
     let room = room_outlines(s);
     pts.extend(room.iter().flatten().copied());
@@ -232,9 +251,9 @@ pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &sup
     let title = format!(
         "{} | {} vehicles | outcome: {} | t = {:.1} s",
         s.name,
-        summary.vehicles.len(),
-        summary.outcome,
-        summary.end_time
+        ending.contacts.len(),
+        ending.outcome,
+        ending.end_time
     );
     svg.text(svg.width / 2.0, 22.0, &title, "middle", 14.0, "#000");
     if let Some(lane) = s.lane {
@@ -252,7 +271,8 @@ pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &sup
             ax.circle(&mut svg, last, o.radius, OBSTACLE, 0.8, 0.08);
         }
     }
-    for (k, (path, ((name, body, role), v))) in trace.vehicles.iter().zip(s.fleet().zip(&summary.vehicles)).enumerate()
+    for (k, (path, ((name, body, role), contact))) in
+        trace.vehicles.iter().zip(s.fleet().zip(&ending.contacts)).enumerate()
     {
         let color = VEHICLES[k % VEHICLES.len()];
         if role == Role::Navigate {
@@ -263,7 +283,7 @@ pub fn fleet_svg(s: &Scenario, summary: &super::fleet::FleetSummary, trace: &sup
             ax.marker(&mut svg, first, color, name);
             ax.circle(&mut svg, last, body.radius, color, 1.0, 0.1);
         }
-        if let Some(c) = &v.contact {
+        if let Some(c) = contact {
             let at = path.last().copied().unwrap_or_default();
             ax.label(
                 &mut svg,

@@ -254,7 +254,12 @@ fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary
             let (ns, stamp) = unix_stamp(origin, at);
             let scene = core.scene(at);
             bag.put("/odom", "nav_msgs/msg/Odometry", ns, &convert::odometry(&scene, stamp, &frames))?;
-            bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &convert::transform(&scene, stamp, &frames))?;
+            let tf = convert::transform(&scene, &view.vehicles, stamp, &frames);
+            bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &tf)?;
+            for (label, v) in view.vehicles.iter().zip(scene.vehicles()).filter(|(_, v)| v.seen) {
+                let odom = convert::vehicle_odometry(label, v, stamp, &frames);
+                bag.put(&convert::vehicle_odometry_topic(&label.name), "nav_msgs/msg/Odometry", ns, &odom)?;
+            }
             if first_in_slot(last_scene, at.as_nanos(), every) {
                 let obstacles = convert::obstacles(&scene, &view, stamp, &frames);
                 bag.put(&format!("{fqn}/obstacles"), "visualization_msgs/msg/MarkerArray", ns, &obstacles)?;

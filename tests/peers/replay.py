@@ -10,6 +10,10 @@ Usage:
       Decode every `/arena` update (foxglove.SceneUpdate, protobuf) and print the room as
       drawn: how many updates carry the `room` entity, and its lines (type, thickness,
       points) from the first that does.
+  replay.py vehicles RECORDING.mcap
+      A fleet's recording: each `/vehicles` message (JSON), each vehicle's `/<name>/pose`
+      (foxglove.PoseInFrame) and the names `/arena` writes over the vehicles: per vehicle, its
+      states in order, the largest script error, its first and last pose, how many poses.
   replay.py rewrite IN.mcap OUT.mcap COMPRESSION   (zstd, lz4 or none)
       Re-write the recording with Python's own `mcap` writer, as other tools would: every
       schema, channel, message and metadata record copied; the chunks the Python writer's,
@@ -206,6 +210,38 @@ def room(path):
     return 0
 
 
+def vehicles(path):
+    out = {"messages": 0, "vehicles": {}, "arena_names": set(), "pose_frames": set()}
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _schema, _channel, message in reader.iter_messages(topics=["/vehicles"]):
+            out["messages"] += 1
+            for v in json.loads(message.data)["vehicles"]:
+                seen = out["vehicles"].setdefault(v["name"], {"states": [], "script_error": 0.0, "poses": 0})
+                if not seen["states"] or seen["states"][-1] != v["state"]:
+                    seen["states"].append(v["state"])
+                seen["script_error"] = max(seen["script_error"], v.get("script_error", 0.0))
+        drawn = [c.topic for c in reader.get_summary().channels.values()
+                 if c.topic == "/arena" or (c.topic.endswith("/pose") and c.topic != "/robot/pose")]
+        for _schema, channel, _message, decoded in reader.iter_decoded_messages(topics=drawn):
+            topic = channel.topic
+            if topic == "/arena":
+                for e in MessageToDict(decoded, preserving_proto_field_name=True)["entities"]:
+                    out["arena_names"].update(t["text"] for t in e.get("texts", []))
+            elif topic.endswith("/pose") and topic != "/robot/pose":
+                name = topic.strip("/").split("/")[0]
+                seen = out["vehicles"].setdefault(name, {"states": [], "script_error": 0.0, "poses": 0})
+                p = decoded.pose.position
+                seen["poses"] += 1
+                seen.setdefault("first", [p.x, p.y])
+                seen["last"] = [p.x, p.y]
+                out["pose_frames"].add(decoded.frame_id)
+    out["arena_names"] = sorted(out["arena_names"])
+    out["pose_frames"] = sorted(out["pose_frames"])
+    print(json.dumps(out))
+    return 0
+
+
 def rewrite(source, target, compression):
     kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
     with open(source, "rb") as f_in, open(target, "wb") as f_out:
@@ -231,4 +267,4 @@ def rewrite(source, target, compression):
 
 if __name__ == "__main__":
     job, args = sys.argv[1], sys.argv[2:]
-    sys.exit({"read": read, "room": room, "rewrite": rewrite}[job](*args))
+    sys.exit({"read": read, "room": room, "vehicles": vehicles, "rewrite": rewrite}[job](*args))

@@ -15,7 +15,8 @@ usage: ros2.py FLOWGATE SOCKET GOAL_X GOAL_Y
                           services, waits for the stop)
        ros2.py --fleet FLOWGATE SOCKET  (swap-2's vehicle v1 over its own namespace: arm, goal,
                           start, its e-stop, reset; then the robot to a goal; the states as
-                          `flowgate ctl status` prints them at each step)
+                          `flowgate ctl status` prints them at each step; v1's /v1/odom and
+                          its markers in ~/obstacles)
        ros2.py --bag DIR      (reads a `flowgate record export --ros2` bag with rosbags)
        ros2.py --rviz FILE    (the RViz configuration's fixed frame and topics, as JSON)
 """
@@ -106,7 +107,7 @@ def read_bag(folder):
     from rosbags.typesys import Stores, get_typestore
 
     out = {"types": {}, "counts": {}, "odom": [], "tf": [], "namespaces": set(), "states": [], "paths": [],
-           "obstacles": [], "diagnostics": []}
+           "obstacles": [], "diagnostics": [], "tf_children": set(), "vehicle_odom": {}}
     with AnyReader([Path(folder)], default_typestore=get_typestore(Stores.EMPTY)) as reader:
         for c in reader.connections:
             out["types"][c.topic] = c.msgtype
@@ -119,10 +120,16 @@ def read_bag(folder):
                 p = m.pose.pose.position
                 out["odom"].append({"ns": log_time, "x": p.x, "y": p.y, "frame": m.header.frame_id, "child": m.child_frame_id})
             elif conn.topic == "/tf":
-                (t,) = m.transforms
+                t = m.transforms[0]  # the robot's; a fleet's other vehicles follow
                 stamp = t.header.stamp
                 out["tf"].append({"ns": log_time, "x": t.transform.translation.x, "y": t.transform.translation.y,
                                   "frame": t.header.frame_id, "child": t.child_frame_id})
+                out["tf_children"].update(t.child_frame_id for t in m.transforms)
+            elif conn.topic.endswith("/odom"):  # a fleet's other vehicle's, /<name>/odom
+                stamp = m.header.stamp
+                p = m.pose.pose.position
+                out["vehicle_odom"].setdefault(conn.topic, []).append(
+                    {"ns": log_time, "x": p.x, "y": p.y, "frame": m.header.frame_id, "child": m.child_frame_id})
             elif conn.topic.endswith("/obstacles"):
                 out["namespaces"].update(mk.ns for mk in m.markers if mk.ns)
                 bodies = [mk for mk in m.markers if mk.ns == "obstacle"]
@@ -138,6 +145,7 @@ def read_bag(folder):
             if stamp is not None and stamp.sec * 10**9 + stamp.nanosec != log_time:
                 fail(f"{conn.topic}: stamp {stamp} is not its log time {log_time}")
     out["namespaces"] = sorted(out["namespaces"])
+    out["tf_children"] = sorted(out["tf_children"])
     print(json.dumps(out))
 
 
@@ -205,6 +213,8 @@ def fleet(flowgate, socket):
     peer = Peer()
     v1 = {n: peer.create_client(Trigger, f"/v1/{n}") for n in ["arm", "start", "estop", "reset"]}
     v1_goal = peer.create_publisher(PoseStamped, "/v1/goal_pose", 10)
+    v1_odom = []
+    peer.create_subscription(Odometry, "/v1/odom", v1_odom.append, 10)
 
     def call(name):
         client = v1[name]
@@ -240,6 +250,13 @@ def fleet(flowgate, socket):
     seen["goal"] = wait_for("goal (0.2, 0.3)")
     seen["start"] = call("start")
     seen["reached"] = wait_for("stopped: goal reached")
+    peer.spin_until(lambda: len(v1_odom) >= 5, 10, "/v1/odom")
+    at = lambda m: [m.pose.pose.position.x, m.pose.pose.position.y]
+    seen["v1_odom"] = {"count": len(v1_odom), "first": at(v1_odom[0]), "last": at(v1_odom[-1]),
+                       "frames": sorted({(m.header.frame_id, m.child_frame_id) for m in v1_odom}),
+                       "fastest": max(m.twist.twist.linear.x for m in v1_odom)}
+    markers = peer.obstacles[-1].markers if peer.obstacles else []
+    seen["v1_markers"] = sorted({(mk.ns, mk.id, mk.text) for mk in markers if mk.ns.startswith("vehicle")})
     seen["arm_again"] = call("arm")
     seen["estop"] = call("estop")
     seen["estopped"] = wait_for("fault: operator emergency stop")

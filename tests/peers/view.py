@@ -2,6 +2,8 @@
 run drives, and check the page as a person would see it.
 
 Usage: view.py URL SCREENSHOT.png
+       view.py --fleet URL SCREENSHOT.png NAME...   (a fleet's run: each named vehicle drawn
+                  with a body and moving, the fleet table, each one's last state)
 Starts Chromium first and prints "ready" (the caller starts the run then, so a slow browser
 start never misses it), waits for the view to answer, waits for the page to draw the robot, then for the robot marker to move; checks the state,
 the obstacles with their planning circles, the streamlines, the room's items as drawn, the latency bars, the axes in
@@ -16,6 +18,60 @@ import _chromium as chromium
 
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
+
+
+FLEET_READ = """
+    return [...document.querySelectorAll('#vehicles g.vehicle')].map(g => {
+      const body = g.querySelector('circle.body');
+      const name = g.querySelector('text');
+      const row = document.querySelector(`#fleet tr[data-name="${g.dataset.name}"] td`);
+      return { name: g.dataset.name, state: g.dataset.state, label: name ? name.textContent : null,
+               at: body ? [parseFloat(body.dataset.x), parseFloat(body.dataset.y)] : null,
+               path: (g.querySelector('polyline').getAttribute('points') || '').split(' ').filter(p => p).length,
+               row: row ? row.textContent : null };
+    });"""
+
+
+def fleet(url, shot, names):
+    """A fleet's run: every named vehicle drawn with a body, each moving; the fleet table; each
+    vehicle's last state once the run ends."""
+    driver = chromium.headless()
+    failures, out = [], {}
+    print("ready", flush=True)
+    try:
+        chromium.await_view(url)
+        driver.get(url)
+        wait = WebDriverWait(driver, 30, poll_frequency=0.1)
+        drawn = lambda: {v["name"]: v for v in driver.execute_script(FLEET_READ)}
+        try:
+            wait.until(lambda d: all((drawn().get(n) or {}).get("at") for n in names))
+        except Exception:
+            failures.append(f"not every vehicle drawn with a body: {drawn()}")
+        first = drawn()
+        moved = lambda n: (v := drawn().get(n)) and v["at"] and (first.get(n) or {}).get("at") and \
+            abs(v["at"][0] - first[n]["at"][0]) + abs(v["at"][1] - first[n]["at"][1]) > 0.05
+        for n in names:
+            try:
+                wait.until(lambda d: moved(n))
+            except Exception:
+                failures.append(f"{n} stayed at {first.get(n)}")
+        out["running"] = drawn()
+        driver.save_screenshot(shot)
+        try:
+            WebDriverWait(driver, 60, poll_frequency=0.2).until(
+                lambda d: d.find_element(By.ID, "link").text.startswith(("run ended", "disconnected")))
+        except Exception:
+            failures.append("the page never saw the run end")
+        out["final"] = drawn()
+    finally:
+        driver.quit()
+    out["failures"] = failures
+    print(json.dumps(out))
+    return 1 if failures else 0
+
+
+if sys.argv[1] == "--fleet":
+    sys.exit(fleet(sys.argv[2], sys.argv[3], sys.argv[4:]))
 
 url, shot = sys.argv[1], sys.argv[2]
 driver = chromium.headless()

@@ -286,11 +286,15 @@ impl<K: StageClock> Core<K> {
     }
 
     /// What the last cycle believed: the robot's pose, the goal, each obstacle with its
-    /// covariance and planning radius. Reads only (a recording takes one per command).
+    /// covariance and planning radius, each other vehicle. Reads only (a recording takes one per command).
     pub fn scene(&self, now: HostTime) -> SceneRecord {
         // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
         let cycle = self.counters.cycles.saturating_sub(1);
         let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
+        for (slot, v) in scene.vehicles.iter_mut().zip(&self.vehicles[ROBOT + 1..]) {
+            *slot = v.scene();
+            scene.vehicle_count += 1;
+        }
         let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.vehicles[ROBOT].last_estimate else {
             return scene;
         };

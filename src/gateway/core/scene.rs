@@ -1,7 +1,8 @@
-//! What the gateway believed in one cycle: the robot's pose and goal, and each tracked
-//! obstacle. The core builds it ([`Core::scene`](super::Core::scene)); the recording and
+//! What the gateway believed in one cycle: the robot's pose and goal, each tracked
+//! obstacle, and each other vehicle of a fleet. The core builds it ([`Core::scene`](super::Core::scene)); the recording and
 //! the live view draw it.
 
+use super::safety::State;
 use crate::planner::MAX_OBSTACLES;
 use crate::time::HostTime;
 
@@ -18,7 +19,25 @@ pub struct ObstacleView {
     pub radius: f32,
 }
 
-/// What the gateway believed in one cycle: the robot's pose and goal, each obstacle.
+/// One of a fleet's `[[vehicles]]` in a cycle's scene (the robot's is the scene's own pose).
+/// `f32`, as an obstacle's.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SceneVehicle {
+    /// Whether the camera has given its pose (before, nothing below is known).
+    pub seen: bool,
+    pub state: State,
+    /// x, y (m), heading (rad), as its last cycle estimated.
+    pub pose: [f32; 3],
+    /// Forward speed (m/s) and yaw rate (rad/s), from its wheels' speeds.
+    pub twist: [f32; 2],
+    /// Where it is bound: its goal, or a scripted vehicle's script's end.
+    pub goal: [f32; 2],
+    /// A scripted vehicle's distance from its script at its last cycle in Running, m.
+    pub script_error: Option<f32>,
+}
+
+/// What the gateway believed in one cycle: the robot's pose and goal, each obstacle, each
+/// other vehicle.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SceneRecord {
     pub cycle: u64,
@@ -30,10 +49,39 @@ pub struct SceneRecord {
     pub goal: [f64; 2],
     pub count: u8,
     pub obstacles: [ObstacleView; MAX_OBSTACLES],
+    /// The fleet's other vehicles, in the rig's `[[vehicles]]` order (a vehicle's field
+    /// takes every other as a circle, so they are at most [`MAX_OBSTACLES`]).
+    pub vehicle_count: u8,
+    pub vehicles: [SceneVehicle; MAX_OBSTACLES],
+}
+
+/// What a drawing or a message names and sizes a `[[vehicles]]` entry by: fixed for a run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VehicleLabel {
+    pub name: String,
+    /// Its body's radius, m.
+    pub radius: f64,
+    /// It follows a script (else it navigates to goals).
+    pub scripted: bool,
+}
+
+impl VehicleLabel {
+    /// The rig's `[[vehicles]]`, in order (a single robot's rig: none).
+    pub fn of_rig(rig: &crate::config::Rig) -> Vec<Self> {
+        rig.vehicles
+            .iter()
+            .map(|v| Self { name: v.name.clone(), radius: v.driven.control.robot_radius, scripted: v.script.is_some() })
+            .collect()
+    }
 }
 
 impl SceneRecord {
     pub fn obstacles(&self) -> &[ObstacleView] {
         &self.obstacles[..usize::from(self.count).min(MAX_OBSTACLES)]
+    }
+
+    /// The other vehicles: the `k`-th is the rig's `k`-th `[[vehicles]]` entry.
+    pub fn vehicles(&self) -> &[SceneVehicle] {
+        &self.vehicles[..usize::from(self.vehicle_count).min(MAX_OBSTACLES)]
     }
 }

@@ -9,6 +9,7 @@ use super::mission::Mission;
 use super::motors::MotorMaster;
 use super::operator::VehicleStatus;
 use super::safety::{Action, Safety, State, StopReason};
+use super::scene::SceneVehicle;
 use super::script_run::ScriptRun;
 use super::watch::{PoseWatch, RunWatch};
 use super::STOP_GRACE;
@@ -108,6 +109,20 @@ impl DrivenVehicle {
 
     pub(super) fn state(&self) -> State {
         self.safety.state()
+    }
+
+    /// It in a cycle's scene: its last estimate, its state, where it is bound.
+    pub(super) fn scene(&self) -> SceneVehicle {
+        let config = self.control.config();
+        let goal = [config.goal.re as f32, config.goal.im as f32];
+        let script_error = self.script.as_ref().map(|s| s.status().error as f32);
+        let mut scene = SceneVehicle { state: self.state(), goal, script_error, ..SceneVehicle::default() };
+        if let Some(LastEstimate { pose, wheels: [left, right], .. }) = self.last_estimate {
+            scene.seen = true;
+            scene.pose = [pose.position.re as f32, pose.position.im as f32, pose.heading as f32];
+            scene.twist = [(0.5 * (left + right)) as f32, ((right - left) / config.drive.wheel_base) as f32];
+        }
+        scene
     }
 
     /// Running may begin: a start was asked for, and it has a goal or a script.

@@ -16,7 +16,7 @@ use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, Web
 /// The live server and its channels.
 pub struct Live {
     context: Arc<Context>,
-    channels: BTreeMap<&'static str, Arc<RawChannel>>,
+    channels: BTreeMap<String, Arc<RawChannel>>,
     server: foxglove::WebSocketServerHandle,
 }
 
@@ -47,7 +47,7 @@ impl Live {
     /// Advertise a channel with its schema and message encoding.
     pub fn add_channel(
         &mut self,
-        topic: &'static str,
+        topic: &str,
         schema: Schema,
         message_encoding: &str,
     ) -> Result<(), foxglove::FoxgloveError> {
@@ -56,7 +56,7 @@ impl Live {
             .schema(schema)
             .context(&self.context)
             .build_raw()?;
-        self.channels.insert(topic, channel);
+        self.channels.insert(topic.to_string(), channel);
         Ok(())
     }
 

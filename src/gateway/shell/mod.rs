@@ -248,7 +248,7 @@ impl Io {
     /// When to wake if nothing happens: the core's deadline, a publication, the watchdog's
     /// notification. The watchdog is fed from here, the loop itself: a wedged loop starves it.
     fn wake_at<K: StageClock>(&mut self, core: &Core<K>) -> Instant {
-        let publish_at = self.publish_metrics(core).min(self.publish_view(core));
+        let publish_at = self.publish_metrics(core).min(self.services.publish_scene(core, self.now()));
         let mut wake = self.instant(core.next_deadline().min(publish_at));
         if let Some(n) = &mut self.notifier {
             n.alive(std::time::Instant::now());
@@ -605,33 +605,6 @@ impl Io {
         *next
     }
 
-    /// Publish the scene to the live view when due (20 times a second: a copy, no
-    /// allocation). Returns when the next is due.
-    fn publish_view<K: StageClock>(&mut self, core: &Core<K>) -> HostTime {
-        let now = self.now();
-        #[cfg(feature = "ros2")]
-        let ros2_next = match &mut self.services.ros2 {
-            Some((node, next, every)) => {
-                if now >= *next {
-                    let scene = core.scene(now);
-                    node.publish(view::ViewSnapshot { scene, state: core.state(), cycles: core.counters().cycles });
-                    *next = now + *every;
-                }
-                *next
-            }
-            None => HostTime::NEVER,
-        };
-        #[cfg(not(feature = "ros2"))]
-        let ros2_next = HostTime::NEVER;
-        let Some((publisher, next)) = &mut self.services.view else { return ros2_next };
-        if now >= *next {
-            let scene = core.scene(now);
-            publisher.publish(view::ViewSnapshot { scene, state: core.state(), cycles: core.counters().cycles });
-            *next = now + view::PUBLISH_EVERY;
-        }
-        (*next).min(ros2_next)
-    }
-
     /// The serial line failed: close it and tell the core (which asks for it again).
     fn lose_psd<K: StageClock>(&mut self, core: &mut Core<K>) {
         self.psd = None;
@@ -690,15 +663,9 @@ impl Io {
         if let Some((_, next)) = &mut self.services.metrics {
             *next = HostTime::ZERO;
         }
-        if let Some((_, next)) = &mut self.services.view {
-            *next = HostTime::ZERO;
-        }
-        #[cfg(feature = "ros2")]
-        if let Some((_, next, _)) = &mut self.services.ros2 {
-            *next = HostTime::ZERO;
-        }
+        self.services.scenes_due_now();
         self.publish_metrics(core);
-        self.publish_view(core);
+        self.services.publish_scene(core, self.now());
         let timing = std::mem::take(&mut self.timing);
         let mut counters = core.counters();
         counters.telemetry_dropped = self.services.recorder.dropped();

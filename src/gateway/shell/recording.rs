@@ -11,7 +11,9 @@
 //! - for the eye, at most every [`ARENA_EVERY_NS`]: `/obstacles` (position, velocity,
 //!   covariance, planning radius), `/robot/pose` (`foxglove.PoseInFrame`)
 //!   and `/arena` (`foxglove.SceneUpdate`: the lane's lines, the room's walls, static
-//!   obstacles and view's edge, goal, obstacles with their planning circles, the robot); and
+//!   obstacles and view's edge, goal, obstacles with their planning circles, the robot); in a
+//!   fleet also each vehicle's `/<name>/pose` and `/vehicles` (each one's state, pose, speeds,
+//!   goal and script error), and `/arena` draws every vehicle, named, with its goal; and
 //!   `/log` (`foxglove.Log`: state changes, operator requests and answers, and the core's
 //!   notices, each at its level);
 //! - metadata `flowgate`: the configuration the run used (TOML), the version, the clock's
@@ -33,8 +35,7 @@ use std::path::{Path, PathBuf};
 use flowgate_protocol::psd::{self, Packet};
 use flowgate_protocol::CanFrame;
 use foxglove::messages::{
-    ArrowPrimitive, Color, CylinderPrimitive, Duration, LinePrimitive, Log, Pose, PoseInFrame, Quaternion, SceneEntity,
-    SceneUpdate, Timestamp, Vector3,
+    ArrowPrimitive, Duration, LinePrimitive, Log, PoseInFrame, SceneEntity, SceneUpdate, Timestamp,
 };
 use foxglove::{Encode, Schema};
 use serde_json::{json, Value};
@@ -42,13 +43,15 @@ use serde_json::{json, Value};
 use super::foxglove::Live;
 use crate::config::RecordCompression;
 use crate::gateway::core::input::{InputRecord, PSD_CHUNK};
-use crate::gateway::core::scene::SceneRecord;
+use crate::gateway::core::scene::{SceneRecord, SceneVehicle, VehicleLabel};
 use crate::gateway::core::timing::CycleRecord;
 use crate::gateway::core::{Level, Notice};
 use crate::planner::room::{OutlineKind, RoomShape};
 use crate::time::HostTime;
 
+mod floor;
 mod inputs;
+use floor::{disc, floor_line, floor_pose, floor_text, heading_arrow, rgba, FRAME, SCRIPTED_COLOR, VEHICLE_COLOR};
 use inputs::hex;
 pub use inputs::{frame_from_json, frame_json, input_channel, input_from_json, input_json};
 /// The metadata record holding the configuration.
@@ -69,6 +72,13 @@ pub const POSE: &str = "/robot/pose";
 /// The scene, at most every [`ARENA_EVERY_NS`].
 pub const ARENA: &str = "/arena";
 pub const LOG: &str = "/log";
+/// A fleet's vehicles, each one's numbers (each one's pose is also `/<name>/pose`).
+pub const VEHICLES: &str = "/vehicles";
+
+/// A vehicle's pose channel: `/robot/pose`'s for a `[[vehicles]]` entry.
+pub fn vehicle_pose_topic(name: &str) -> String {
+    format!("/{name}/pose")
+}
 
 /// What the recording holds about the rig itself (drawn in every `/arena` update).
 #[derive(Debug, Clone)]
@@ -80,6 +90,8 @@ pub struct RecordingSetup {
     /// The room's walls, static obstacles and view's edge, when the planner keeps to a room.
     pub room: Option<RoomShape>,
     pub robot_radius: f64,
+    /// A fleet's other vehicles (`[[vehicles]]`), in order.
+    pub vehicles: Vec<VehicleLabel>,
     /// Where the host clock's zero is, ns since the Unix epoch (MCAP log times are absolute).
     pub origin_unix_ns: u64,
     /// How the chunks are compressed.
@@ -90,7 +102,7 @@ pub struct RecordingSetup {
 pub struct McapSink {
     /// The recording, when one is written: its path and writer.
     file: Option<(PathBuf, mcap::Writer<BufWriter<File>>)>,
-    channels: BTreeMap<&'static str, u16>,
+    channels: BTreeMap<String, u16>,
     /// Foxglove live, when served: the same messages to its clients.
     live: Option<Live>,
     setup: RecordingSetup,
@@ -99,8 +111,9 @@ pub struct McapSink {
     cycles: u64,
     /// When `/arena` was last drawn (host ns): once in each [`ARENA_EVERY_NS`] of host time.
     arena_at: Option<u64>,
-    /// When the still entities (lane walls, goal) were last drawn, and the goal drawn.
-    still_at: Option<(u64, [f64; 2])>,
+    /// When the still entities (lane walls, goals) were last drawn, and the goals drawn
+    /// (the robot's, then each vehicle's).
+    still_at: Option<(u64, Vec<[f64; 2]>)>,
     flushed: std::time::Instant,
 }
 
@@ -156,26 +169,41 @@ fn object_schema(title: &str, properties: &[(&str, &str)]) -> Vec<u8> {
 
 /// A channel's topic, schema and message encoding.
 struct ChannelSpec {
-    topic: &'static str,
+    topic: String,
     schema: Schema,
     message_encoding: &'static str,
 }
 
 /// A channel of JSON messages with a JSON Schema.
-fn json_channel(topic: &'static str, schema_name: &str, schema: Vec<u8>) -> ChannelSpec {
-    ChannelSpec { topic, schema: Schema::new(schema_name, "jsonschema", schema), message_encoding: "json" }
+fn json_channel(topic: &str, schema_name: &str, schema: Vec<u8>) -> ChannelSpec {
+    ChannelSpec {
+        topic: topic.into(),
+        schema: Schema::new(schema_name, "jsonschema", schema),
+        message_encoding: "json",
+    }
 }
 
 /// A channel of one of Foxglove's well-known messages, protobuf-encoded, with the SDK's
 /// descriptor of it.
-fn foxglove_channel<M: Encode>(topic: &'static str) -> std::io::Result<ChannelSpec> {
+fn foxglove_channel<M: Encode>(topic: &str) -> std::io::Result<ChannelSpec> {
     let schema =
         M::get_schema().ok_or_else(|| std::io::Error::other(format!("the Foxglove SDK has no schema for {topic}")))?;
-    Ok(ChannelSpec { topic, schema, message_encoding: "protobuf" })
+    Ok(ChannelSpec { topic: topic.into(), schema, message_encoding: "protobuf" })
 }
 
-/// Every channel.
-fn channel_table() -> std::io::Result<[ChannelSpec; 10]> {
+/// Every channel: the fixed ones, then a fleet's (`/vehicles`, each vehicle's pose).
+fn channel_table(vehicles: &[VehicleLabel]) -> std::io::Result<Vec<ChannelSpec>> {
+    let mut table = fixed_channels()?.into_iter().collect::<Vec<_>>();
+    if !vehicles.is_empty() {
+        table.push(json_channel(VEHICLES, "flowgate.Vehicles", vehicles_schema()));
+        for v in vehicles {
+            table.push(foxglove_channel::<PoseInFrame>(&vehicle_pose_topic(&v.name))?);
+        }
+    }
+    Ok(table)
+}
+
+fn fixed_channels() -> std::io::Result<[ChannelSpec; 10]> {
     let input_schema = object_schema(
         "flowgate.Input",
         &[("seq", "integer"), ("t_ns", "integer"), ("kind", "string"), ("bytes", "string"), ("event", "string")],
@@ -231,6 +259,30 @@ fn obstacles_schema() -> Vec<u8> {
     .unwrap_or_default()
 }
 
+/// `/vehicles`: each of a fleet's other vehicles as its last cycle estimated it.
+fn vehicles_schema() -> Vec<u8> {
+    let numbers = |n: usize, description: &str| {
+        json!({ "type": "array", "items": { "type": "number" }, "minItems": n, "maxItems": n,
+                "description": description })
+    };
+    let vehicle = json!({
+        "type": "object",
+        "properties": {
+            "name": { "type": "string" }, "state": { "type": "string" }, "seen": { "type": "boolean" },
+            "pose": numbers(3, "x, y (m), heading (rad)"), "twist": numbers(2, "forward m/s, yaw rad/s"),
+            "goal": numbers(2, "x, y (m)"),
+            "script_error": { "type": "number", "description": "a scripted vehicle's distance from its script, m" }
+        }
+    });
+    let timestamp =
+        json!({ "type": "object", "properties": { "sec": { "type": "integer" }, "nsec": { "type": "integer" } } });
+    serde_json::to_vec(&json!({
+        "title": "flowgate.Vehicles", "type": "object",
+        "properties": { "timestamp": timestamp, "vehicles": { "type": "array", "items": vehicle } }
+    }))
+    .unwrap_or_default()
+}
+
 /// Columns of `cycles.csv` that `/cycle` leaves out, each exactly another's sum:
 /// `can_done_ns` is `rx_ns + e2e_ns` (0 when no frame was written, as `e2e_ns`).
 const CYCLE_DERIVED: [&str; 1] = ["can_done_ns"];
@@ -259,45 +311,17 @@ fn significant3(v: f32) -> f64 {
     format!("{v:.2e}").parse().unwrap_or(0.0)
 }
 
-/// The frame every pose and entity is in: the floor's, in metres.
-const FRAME: &str = "floor";
-
-/// A pose on the floor at height `z`, turned `heading` rad about the vertical.
-fn floor_pose(x: f64, y: f64, heading: f64, z: f64) -> Pose {
-    Pose {
-        position: Some(Vector3 { x, y, z }),
-        orientation: Some(Quaternion { x: 0.0, y: 0.0, z: (heading / 2.0).sin(), w: (heading / 2.0).cos() }),
+/// A vehicle's line in `/vehicles`.
+fn vehicle_json(label: &VehicleLabel, v: &SceneVehicle) -> Value {
+    let mut line = json!({
+        "name": label.name, "state": v.state.name(), "seen": v.seen,
+        "pose": [decimals(v.pose[0], 5), decimals(v.pose[1], 5), decimals(v.pose[2], 4)],
+        "twist": v.twist.map(|x| decimals(x, 4)), "goal": v.goal.map(|x| decimals(x, 5)),
+    });
+    if let Some(error) = v.script_error {
+        line["script_error"] = json!(decimals(error, 5));
     }
-}
-
-fn rgba([r, g, b, a]: [f64; 4]) -> Color {
-    Color { r, g, b, a }
-}
-
-/// A disc (a flat cylinder) of radius `r` and height `h` standing on the floor at `(x, y)`.
-fn disc(x: f64, y: f64, r: f64, h: f64, color: [f64; 4]) -> CylinderPrimitive {
-    CylinderPrimitive {
-        pose: Some(floor_pose(x, y, 0.0, h / 2.0)),
-        size: Some(Vector3 { x: 2.0 * r, y: 2.0 * r, z: h }),
-        bottom_scale: 1.0,
-        top_scale: 1.0,
-        color: Some(rgba(color)),
-    }
-}
-
-/// A line on the floor through `points` (a loop back to the first when `closed`).
-fn floor_line(points: &[[f64; 2]], closed: bool, thickness: f64, color: [f64; 4]) -> LinePrimitive {
-    use foxglove::messages::line_primitive::Type;
-    LinePrimitive {
-        r#type: if closed { Type::LineLoop } else { Type::LineStrip } as i32,
-        pose: Some(floor_pose(0.0, 0.0, 0.0, 0.0)),
-        thickness,
-        scale_invariant: false,
-        points: points.iter().map(|&[x, y]| foxglove::messages::Point3 { x, y, z: 0.0 }).collect(),
-        color: Some(rgba(color)),
-        colors: Vec::new(),
-        indices: Vec::new(),
-    }
+    line
 }
 
 fn io_error(e: mcap::McapError) -> std::io::Error {
@@ -313,17 +337,17 @@ impl McapSink {
             None => None,
         };
         let mut channels = BTreeMap::new();
-        for spec in channel_table()? {
+        for spec in channel_table(&setup.vehicles)? {
             if let Some((_, writer)) = &mut writer {
                 let schema_id =
                     writer.add_schema(&spec.schema.name, &spec.schema.encoding, &spec.schema.data).map_err(io_error)?;
                 let id = writer
-                    .add_channel(schema_id, spec.topic, spec.message_encoding, &BTreeMap::new())
+                    .add_channel(schema_id, &spec.topic, spec.message_encoding, &BTreeMap::new())
                     .map_err(io_error)?;
-                channels.insert(spec.topic, id);
+                channels.insert(spec.topic.clone(), id);
             }
             if let Some(live) = &mut live {
-                live.add_channel(spec.topic, spec.schema, spec.message_encoding).map_err(std::io::Error::other)?;
+                live.add_channel(&spec.topic, spec.schema, spec.message_encoding).map_err(std::io::Error::other)?;
             }
         }
         if let Some((_, writer)) = &mut writer {
@@ -515,12 +539,41 @@ impl McapSink {
             pose: Some(floor_pose(x, y, heading, 0.0)),
         };
         self.put_message(POSE, s.cycle as u32, at, &pose)?;
-        let still = self.still_at.is_none_or(|(last, goal)| at >= last + STILL_EVERY_NS || goal != s.goal);
+        self.vehicles(s)?;
+        let goals: Vec<[f64; 2]> =
+            std::iter::once(s.goal).chain(s.vehicles().iter().map(|v| v.goal.map(f64::from))).collect();
+        let still = self.still_at.as_ref().is_none_or(|(last, drawn)| at >= last + STILL_EVERY_NS || *drawn != goals);
         if still {
-            self.still_at = Some((at, s.goal));
+            self.still_at = Some((at, goals));
         }
         let arena = self.arena(s, self.stamp(at), still);
         self.put_message(ARENA, s.cycle as u32, at, &arena)
+    }
+
+    /// A fleet's `/vehicles`, and each seen vehicle's `/<name>/pose`.
+    fn vehicles(&mut self, s: &SceneRecord) -> std::io::Result<()> {
+        if self.setup.vehicles.is_empty() {
+            return Ok(());
+        }
+        let (at, stamp) = (s.at.as_nanos(), self.stamp(s.at.as_nanos()));
+        let labelled = || self.setup.vehicles.iter().zip(s.vehicles());
+        let listed: Vec<Value> = labelled().map(|(l, v)| vehicle_json(l, v)).collect();
+        let poses: Vec<(String, PoseInFrame)> = labelled()
+            .filter(|(_, v)| v.seen)
+            .map(|(label, v)| {
+                let [x, y, heading] = v.pose.map(f64::from);
+                let pose = floor_pose(x, y, heading, 0.0);
+                (
+                    vehicle_pose_topic(&label.name),
+                    PoseInFrame { timestamp: Some(stamp), frame_id: FRAME.into(), pose: Some(pose) },
+                )
+            })
+            .collect();
+        self.put(VEHICLES, s.cycle as u32, at, &json!({ "timestamp": self.stamp_json(at), "vehicles": listed }))?;
+        for (topic, pose) in &poses {
+            self.put_message(topic, s.cycle as u32, at, pose)?;
+        }
+        Ok(())
     }
 
     /// The arena as Foxglove scene entities: `arena` (the robot, each obstacle's planning
@@ -530,6 +583,17 @@ impl McapSink {
     fn arena(&self, s: &SceneRecord, stamp: Timestamp, still: bool) -> SceneUpdate {
         let mut cylinders = vec![disc(s.pose[0], s.pose[1], self.setup.robot_radius, 0.05, [0.1, 0.3, 0.9, 0.9])];
         let mut arrows = Vec::new();
+        let mut texts = Vec::new();
+        if !self.setup.vehicles.is_empty() {
+            texts.push(floor_text(s.pose[0], s.pose[1], "robot"));
+        }
+        for (label, v) in self.setup.vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen) {
+            let [x, y, heading] = v.pose.map(f64::from);
+            let color = if label.scripted { SCRIPTED_COLOR } else { VEHICLE_COLOR };
+            cylinders.push(disc(x, y, label.radius, 0.05, color));
+            arrows.push(heading_arrow(x, y, heading, label.radius));
+            texts.push(floor_text(x, y, &label.name));
+        }
         for o in s.obstacles() {
             let [x, y] = o.position.map(f64::from);
             cylinders.push(disc(x, y, f64::from(o.planning_radius), 0.01, [0.9, 0.5, 0.1, 0.25]));
@@ -574,7 +638,7 @@ impl McapSink {
             lifetime: Some(Duration::new(0, 0)),
             ..Default::default()
         };
-        let mut entities = vec![SceneEntity { arrows, cylinders, ..entity("arena") }];
+        let mut entities = vec![SceneEntity { arrows, cylinders, texts, ..entity("arena") }];
         if still {
             if !lane.is_empty() {
                 entities.push(SceneEntity { lines: lane, ..entity("lane") });
@@ -582,8 +646,13 @@ impl McapSink {
             if !room.is_empty() {
                 entities.push(SceneEntity { lines: room, ..entity("room") });
             }
-            let goal = disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0]);
-            entities.push(SceneEntity { cylinders: vec![goal], ..entity("goal") });
+            let mut goals = vec![disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0])];
+            for (label, v) in self.setup.vehicles.iter().zip(s.vehicles()) {
+                let color = if label.scripted { SCRIPTED_COLOR } else { VEHICLE_COLOR };
+                let [x, y] = v.goal.map(f64::from);
+                goals.push(disc(x, y, 0.02, 0.002, color));
+            }
+            entities.push(SceneEntity { cylinders: goals, ..entity("goal") });
         }
         SceneUpdate { deletions: Vec::new(), entities }
     }

@@ -18,6 +18,8 @@ use super::telemetry::{self, Recorder, Sinks, WrittenFiles};
 use super::{metrics, unix_now, view, GatewayError};
 use crate::config::CanUrl;
 use crate::config::Rig;
+use crate::gateway::core::scene::VehicleLabel;
+use crate::gateway::core::{Core, StageClock};
 use crate::time::HostTime;
 
 /// The services of one run.
@@ -34,6 +36,9 @@ pub(super) struct Services {
     /// The ROS 2 node: where the loop publishes its scene, when it next does, and how often.
     #[cfg(feature = "ros2")]
     pub ros2: Option<(super::ros2::Ros2Node, HostTime, std::time::Duration)>,
+    /// A fleet's recording: when it next takes a scene of its own (the robot's cycles give it
+    /// theirs, but the other vehicles drive while the robot stands too).
+    pub fleet_scene: Option<HostTime>,
     /// When the gateway started, s since the Unix epoch.
     pub start_time_s: f64,
     /// What the control socket did to its clients.
@@ -91,6 +96,7 @@ impl Services {
             return Err(GatewayError::Ros2Missing);
         }
         let metrics = stats.map(|(tx, _)| (tx, HostTime::ZERO));
+        let fleet_scene = (recorder.recording() && !rig.vehicles.is_empty()).then_some(HostTime::ZERO);
         Ok(Self {
             recorder,
             inputs_taken,
@@ -98,11 +104,58 @@ impl Services {
             view,
             #[cfg(feature = "ros2")]
             ros2,
+            fleet_scene,
             start_time_s,
             control_clients,
             writer,
             socket,
         })
+    }
+
+    /// Publish the scene where it is due: to the live view (20 times a second: a copy, no
+    /// allocation), to the ROS 2 node (at its rate), and in a fleet to the recording (at its
+    /// display rate). Returns when the next is due.
+    pub fn publish_scene<K: StageClock>(&mut self, core: &Core<K>, now: HostTime) -> HostTime {
+        let snapshot =
+            || view::ViewSnapshot { scene: core.scene(now), state: core.state(), cycles: core.counters().cycles };
+        let mut next_due = HostTime::NEVER;
+        #[cfg(feature = "ros2")]
+        if let Some((node, next, every)) = &mut self.ros2 {
+            if now >= *next {
+                node.publish(snapshot());
+                *next = now + *every;
+            }
+            next_due = next_due.min(*next);
+        }
+        if let Some((publisher, next)) = &mut self.view {
+            if now >= *next {
+                publisher.publish(snapshot());
+                *next = now + view::PUBLISH_EVERY;
+            }
+            next_due = next_due.min(*next);
+        }
+        if let Some(next) = &mut self.fleet_scene {
+            if now >= *next {
+                self.recorder.record(telemetry::Record::Scene(core.scene(now)));
+                *next = now + std::time::Duration::from_nanos(super::recording::ARENA_EVERY_NS);
+            }
+            next_due = next_due.min(*next);
+        }
+        next_due
+    }
+
+    /// Every scene is due now (the run's end publishes its last).
+    pub fn scenes_due_now(&mut self) {
+        if let Some((_, next)) = &mut self.view {
+            *next = HostTime::ZERO;
+        }
+        #[cfg(feature = "ros2")]
+        if let Some((_, next, _)) = &mut self.ros2 {
+            *next = HostTime::ZERO;
+        }
+        if let Some(next) = &mut self.fleet_scene {
+            *next = HostTime::ZERO;
+        }
     }
 
     /// Stop the services and wait for the telemetry writer to finish its files.
@@ -199,6 +252,7 @@ fn start_telemetry(
                 lane_half_width: lane_half_width(rig),
                 room: rig.room_outline(),
                 robot_radius: rig.control.robot_radius,
+                vehicles: VehicleLabel::of_rig(rig),
                 origin_unix_ns,
                 compression: rig.telemetry.record_compression,
             };

@@ -8,8 +8,8 @@
 //! [`SceneRecord`], no allocation) into a `watch` channel. Everything else runs on a thread
 //! of its own, with its own runtime: a renderer turns the latest scene into a frame (JSON:
 //! the lane's lines and the room's walls, static obstacles and view's edge, goal, obstacles
-//! with planning circles and velocities, the robot and its path,
-//! streamlines of the field, the state, the latency histogram) ten times a second, and the
+//! with planning circles and velocities, the robot and its path, a fleet's other vehicles
+//! (each named, with its path, goal and state), streamlines of the field, the state, the latency histogram) ten times a second, and the
 //! server hands the latest frame to each client. A client too slow for every frame skips to
 //! the latest; the frames it skipped are counted (`dropped` in each frame, and in
 //! `/metrics`). A client that takes a write over two seconds is dropped. Nothing a client
@@ -27,7 +27,7 @@ use tokio::sync::watch;
 
 use super::http::{self, Asked};
 use super::metrics;
-use crate::gateway::core::scene::SceneRecord;
+use crate::gateway::core::scene::{SceneRecord, VehicleLabel};
 use crate::gateway::core::State;
 use crate::planner::room::{OutlineKind, Room, RoomShape};
 use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
@@ -74,6 +74,8 @@ pub struct ViewSetup {
     pub room: Option<Arc<Room>>,
     /// The room as drawn ([`Rig::room_outline`](crate::config::Rig::room_outline)).
     pub outline: Option<RoomShape>,
+    /// A fleet's other vehicles, in order.
+    pub vehicles: Vec<VehicleLabel>,
 }
 
 impl ViewSetup {
@@ -85,6 +87,7 @@ impl ViewSetup {
             lane_half_width: lane_half_width(rig),
             room: rig.control.room.clone(),
             outline: rig.room_outline(),
+            vehicles: VehicleLabel::of_rig(rig),
         }
     }
 }
@@ -94,6 +97,26 @@ pub fn lane_half_width(rig: &crate::config::Rig) -> Option<f64> {
     match rig.control.planner.space {
         crate::planner::Space::Lane { half_width } => Some(half_width),
         crate::planner::Space::Free => None,
+    }
+}
+
+/// Where a vehicle has been: a point every 5 mm of travel, at most [`MAX_PATH`] (the
+/// oldest go first).
+#[derive(Debug, Default)]
+struct Trail(std::collections::VecDeque<[f64; 2]>);
+
+impl Trail {
+    fn extend_to(&mut self, [x, y]: [f64; 2]) {
+        if self.0.back().is_none_or(|&[px, py]| (x - px).hypot(y - py) >= 0.005) {
+            if self.0.len() == MAX_PATH {
+                self.0.pop_front();
+            }
+            self.0.push_back([x, y]);
+        }
+    }
+
+    fn points(&self) -> Vec<[f64; 2]> {
+        self.0.iter().copied().collect()
     }
 }
 
@@ -174,7 +197,8 @@ async fn render(
     setup: ViewSetup,
     frames: watch::Sender<Frame>,
 ) {
-    let mut path: Vec<[f64; 2]> = Vec::with_capacity(MAX_PATH);
+    let mut path = Trail::default();
+    let mut trails: Vec<Trail> = setup.vehicles.iter().map(|_| Trail::default()).collect();
     let mut seq = 0;
     let mut last: Option<ViewSnapshot> = None;
     let mut speed = None;
@@ -187,7 +211,8 @@ async fn render(
             // The run is over: its last scene once more, marked so, for the page to keep.
             if let Some(snapshot) = last {
                 seq += 1;
-                let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq, speed, true);
+                let paths = Paths { robot: path.points(), vehicles: trails.iter().map(Trail::points).collect() };
+                let json = frame_json(&snapshot, &setup, &paths, &stats.borrow(), seq, speed, true);
                 frames.send_replace(Frame { seq, json: json.into() });
             }
             return;
@@ -195,13 +220,10 @@ async fn render(
         let snapshot = *scenes.borrow_and_update();
         let [x, y, _] = snapshot.scene.pose;
         if snapshot.scene.count > 0 || snapshot.cycles > 0 {
-            let moved = path.last().is_none_or(|&[px, py]| (x - px).hypot(y - py) >= 0.005);
-            if moved {
-                if path.len() == MAX_PATH {
-                    path.remove(0);
-                }
-                path.push([x, y]);
-            }
+            path.extend_to([x, y]);
+        }
+        for (trail, v) in trails.iter_mut().zip(snapshot.scene.vehicles()).filter(|(_, v)| v.seen) {
+            trail.extend_to([f64::from(v.pose[0]), f64::from(v.pose[1])]);
         }
         if last.is_none_or(|b| snapshot.scene.cycle > b.scene.cycle) {
             if recent.len() == SPEED_OVER {
@@ -215,7 +237,8 @@ async fn render(
         }
         last = Some(snapshot);
         seq += 1;
-        let json = frame_json(&snapshot, &setup, &path, &stats.borrow(), seq, speed, false);
+        let paths = Paths { robot: path.points(), vehicles: trails.iter().map(Trail::points).collect() };
+        let json = frame_json(&snapshot, &setup, &paths, &stats.borrow(), seq, speed, false);
         frames.send_replace(Frame { seq, json: json.into() });
         tokio::time::sleep(RENDER_EVERY).await;
     }
@@ -226,13 +249,24 @@ async fn render(
 pub(super) fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
     let mut planned =
         [PlanObstacle { center: Point::default(), velocity: Point::default(), radius: 1.0 }; MAX_OBSTACLES];
-    let n = s.obstacles().len();
-    for (slot, o) in planned.iter_mut().zip(s.obstacles()) {
-        *slot = PlanObstacle {
-            center: Point::new(f64::from(o.position[0]), f64::from(o.position[1])),
-            velocity: Point::new(f64::from(o.velocity[0]), f64::from(o.velocity[1])),
-            radius: f64::from(o.planning_radius),
-        };
+    let obstacles = s.obstacles().iter().map(|o| PlanObstacle {
+        center: Point::new(f64::from(o.position[0]), f64::from(o.position[1])),
+        velocity: Point::new(f64::from(o.velocity[0]), f64::from(o.velocity[1])),
+        radius: f64::from(o.planning_radius),
+    });
+    // The other vehicles, each a circle of the two bodies' radii moving on at its speed.
+    let vehicles = setup.vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen).map(|(label, v)| {
+        let heading = f64::from(v.pose[2]);
+        PlanObstacle {
+            center: Point::new(f64::from(v.pose[0]), f64::from(v.pose[1])),
+            velocity: Point::from_polar(f64::from(v.twist[0]), heading),
+            radius: label.radius + setup.robot_radius,
+        }
+    });
+    let mut n = 0;
+    for (slot, o) in planned.iter_mut().zip(obstacles.chain(vehicles)) {
+        *slot = o;
+        n += 1;
     }
     // Built as the control step builds it: no circle closed against a wall over the robot.
     let (space, sink) = (setup.planner.space, Planner::new(setup.planner).sink(Point::new(s.goal[0], s.goal[1])));
@@ -243,18 +277,18 @@ pub(super) fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
 }
 
 /// What the operator reads beside the drawing: the pose, the distance to the goal, the
-/// clearance (the smallest gap between the robot's and an obstacle's footprints, as the
-/// gateway estimates them), the robot's speed over the last frames (`None` until two
+/// clearance (the smallest gap between the robot's and an obstacle's or another vehicle's
+/// footprints, as the gateway estimates them), the robot's speed over the last frames (`None` until two
 /// cycles apart) and each obstacle's.
 fn numbers(s: &SceneRecord, setup: &ViewSetup, speed: Option<f64>) -> serde_json::Value {
     let [x, y, heading] = s.pose;
     let robot = Point::new(x, y);
-    let clearance = s
-        .obstacles()
-        .iter()
-        .map(|o| {
-            let centre = Point::new(f64::from(o.position[0]), f64::from(o.position[1]));
-            (robot - centre).norm() - setup.robot_radius - f64::from(o.radius)
+    let bodies = s.obstacles().iter().map(|o| (o.position, f64::from(o.radius)));
+    let vehicles = setup.vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen);
+    let clearance = bodies
+        .chain(vehicles.map(|(label, v)| ([v.pose[0], v.pose[1]], label.radius)))
+        .map(|([cx, cy], radius)| {
+            (robot - Point::new(f64::from(cx), f64::from(cy))).norm() - setup.robot_radius - radius
         })
         .reduce(f64::min);
     let obstacle_speeds: Vec<f64> =
@@ -266,17 +300,44 @@ fn numbers(s: &SceneRecord, setup: &ViewSetup, speed: Option<f64>) -> serde_json
     })
 }
 
+/// The paths drawn: the robot's, and each other vehicle's.
+struct Paths {
+    robot: Vec<[f64; 2]>,
+    vehicles: Vec<Vec<[f64; 2]>>,
+}
+
+/// Each of a fleet's other vehicles for the page: its name, role and state, and where the
+/// camera last put it (`p` null before), its path and goal.
+fn vehicles_json(s: &SceneRecord, setup: &ViewSetup, paths: &Paths) -> Vec<serde_json::Value> {
+    setup
+        .vehicles
+        .iter()
+        .zip(s.vehicles())
+        .zip(&paths.vehicles)
+        .map(|((label, v), path)| {
+            let p = v.seen.then(|| [round(f64::from(v.pose[0])), round(f64::from(v.pose[1]))]);
+            json!({
+                "name": label.name, "scripted": label.scripted, "radius": label.radius,
+                "state": v.state.to_string(), "state_name": v.state.name(),
+                "p": p, "heading": v.pose[2], "speed": v.twist[0], "goal": v.goal,
+                "script_error": v.script_error, "path": path,
+            })
+        })
+        .collect()
+}
+
 fn frame_json(
     v: &ViewSnapshot,
     setup: &ViewSetup,
-    path: &[[f64; 2]],
+    paths: &Paths,
     stats: &metrics::Snapshot,
     seq: u64,
     speed: Option<f64>,
     ended: bool,
 ) -> String {
     let s = &v.scene;
-    let bounds = drawing_bounds(s, setup, path);
+    let path = &paths.robot;
+    let bounds = drawing_bounds(s, setup, paths);
     let lines = streamline_points(s, setup, path, bounds);
     let obstacles: Vec<_> = s
         .obstacles()
@@ -297,6 +358,7 @@ fn frame_json(
         "lane_half_width": setup.lane_half_width,
         "room": room_json(setup),
         "obstacles": obstacles,
+        "vehicles": vehicles_json(s, setup, paths),
         "path": path,
         "streamlines": lines,
         "bounds": [[bounds.0.re, bounds.0.im], [bounds.1.re, bounds.1.im]],
@@ -323,9 +385,10 @@ fn room_json(setup: &ViewSetup) -> serde_json::Value {
     json!(items)
 }
 
-/// The drawing's extent: the robot, the goal, the obstacles, the path and the room's walls
-/// and static obstacles (not the view's edge: the drawing follows the robot), with a margin.
-fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, path: &[[f64; 2]]) -> (Point, Point) {
+/// The drawing's extent: the robot, the goal, the obstacles, the other vehicles, the paths
+/// and the room's walls and static obstacles (not the view's edge: the drawing follows the
+/// robot), with a margin.
+fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, paths: &Paths) -> (Point, Point) {
     let robot = Point::new(s.pose[0], s.pose[1]);
     let mut lo = robot;
     let mut hi = robot;
@@ -337,8 +400,14 @@ fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, path: &[[f64; 2]]) -> (Poi
     for o in s.obstacles() {
         grow(Point::new(f64::from(o.position[0]), f64::from(o.position[1])), f64::from(o.planning_radius));
     }
-    for p in path {
+    for p in &paths.robot {
         grow(Point::new(p[0], p[1]), setup.robot_radius);
+    }
+    for ((label, v), path) in setup.vehicles.iter().zip(s.vehicles()).zip(&paths.vehicles) {
+        grow(Point::new(f64::from(v.goal[0]), f64::from(v.goal[1])), 0.05);
+        for p in path {
+            grow(Point::new(p[0], p[1]), label.radius);
+        }
     }
     if let Some(h) = setup.lane_half_width {
         grow(Point::new(robot.re, 0.0), h);
@@ -467,6 +536,10 @@ mod tests {
     use crate::gateway::core::scene::ObstacleView;
     use crate::planner::Space;
 
+    fn robot_path(points: &[[f64; 2]]) -> Paths {
+        Paths { robot: points.to_vec(), vehicles: Vec::new() }
+    }
+
     fn setup() -> ViewSetup {
         let planner = PlannerConfig {
             space: Space::Lane { half_width: 0.3 },
@@ -481,7 +554,14 @@ mod tests {
             anticipation: 0.0,
             lane_residual: crate::planner::lane_series::EXACT_AIM,
         };
-        ViewSetup { planner, robot_radius: 0.05, lane_half_width: Some(0.3), room: None, outline: None }
+        ViewSetup {
+            planner,
+            robot_radius: 0.05,
+            lane_half_width: Some(0.3),
+            room: None,
+            outline: None,
+            vehicles: Vec::new(),
+        }
     }
 
     #[test]
@@ -496,7 +576,7 @@ mod tests {
         };
         let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
         let stats = metrics::Snapshot::empty(0.0);
-        let text = frame_json(&v, &setup(), &[[-0.6, 0.0], [-0.5, 0.0]], &stats, 7, Some(0.12), false);
+        let text = frame_json(&v, &setup(), &robot_path(&[[-0.6, 0.0], [-0.5, 0.0]]), &stats, 7, Some(0.12), false);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
         assert_eq!(f["seq"], 7);
         assert_eq!(f["state_name"], "running");
@@ -519,6 +599,49 @@ mod tests {
             }
         }
         assert_eq!(f["latency"]["histogram"].as_array().unwrap().len(), metrics::BUCKETS_S.len());
+    }
+
+    /// A fleet's frame names each other vehicle with its state, place, path and goal; the
+    /// robot's clearance counts it, and no streamline enters the circle it plans around it.
+    #[test]
+    fn a_fleets_frame_draws_every_vehicle() {
+        use crate::gateway::core::scene::SceneVehicle;
+        let mut scene =
+            SceneRecord { pose: [-0.5, 0.0, 0.0], goal: [0.6, 0.0], vehicle_count: 2, ..SceneRecord::default() };
+        scene.vehicles[0] = SceneVehicle {
+            seen: true,
+            state: State::Running,
+            pose: [0.0, 0.0, std::f32::consts::PI],
+            twist: [0.05, 0.0],
+            goal: [-0.6, 0.0],
+            script_error: Some(0.004),
+        };
+        scene.vehicles[1] = SceneVehicle { goal: [0.3, 0.3], ..SceneVehicle::default() };
+        let label = |name: &str, scripted| VehicleLabel { name: name.into(), radius: 0.06, scripted };
+        let setup = ViewSetup { vehicles: vec![label("oncoming", true), label("late", false)], ..setup() };
+        let paths = Paths { robot: vec![[-0.5, 0.0]], vehicles: vec![vec![[0.1, 0.0], [0.0, 0.0]], Vec::new()] };
+        let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
+        let text = frame_json(&v, &setup, &paths, &metrics::Snapshot::empty(0.0), 1, None, false);
+        let f: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let [oncoming, late] = [&f["vehicles"][0], &f["vehicles"][1]];
+        assert_eq!((oncoming["name"].as_str(), oncoming["scripted"].as_bool()), (Some("oncoming"), Some(true)));
+        assert_eq!(oncoming["state_name"], "running");
+        assert_eq!(oncoming["p"], json!([0.0, 0.0]));
+        assert_eq!(oncoming["path"].as_array().unwrap().len(), 2);
+        assert!((oncoming["script_error"].as_f64().unwrap() - 0.004).abs() < 1e-6);
+        assert!(late["p"].is_null(), "a vehicle the camera has not shown has no place: {late}");
+        assert_eq!(late["state_name"], "idle");
+        // 0.5 m between centres less the robot's 0.05 m and the vehicle's 0.06 m.
+        let clearance = f["numbers"]["clearance"].as_f64().unwrap();
+        assert!((clearance - 0.39).abs() < 1e-6, "{clearance}");
+        for line in f["streamlines"].as_array().unwrap() {
+            for p in line.as_array().unwrap() {
+                let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+                assert!(x.hypot(y) > 0.11 - 0.011, "a streamline at ({x}, {y}) inside the vehicle's circle");
+            }
+        }
+        let [[x0, _], [x1, _]] = [0, 1].map(|k| [f["bounds"][k][0].as_f64().unwrap(), 0.0]);
+        assert!(x0 < -0.6 && x1 > 0.6, "the bounds take every goal: {}", f["bounds"]);
     }
 
     /// In a room the frame carries its items, and the streamlines are the room's: none
@@ -544,7 +667,7 @@ mod tests {
         let scene = SceneRecord { pose: [-0.6, 0.05, 0.0], goal: [0.6, 0.0], ..SceneRecord::default() };
         let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
         let stats = metrics::Snapshot::empty(0.0);
-        let text = frame_json(&v, &setup, &[[-0.7, 0.05], [-0.6, 0.05]], &stats, 1, None, false);
+        let text = frame_json(&v, &setup, &robot_path(&[[-0.7, 0.05], [-0.6, 0.05]]), &stats, 1, None, false);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
         let kinds: Vec<_> = f["room"].as_array().unwrap().iter().map(|r| r["kind"].as_str().unwrap()).collect();
         assert_eq!(kinds, ["wall", "static_obstacle", "view"]);
@@ -571,9 +694,16 @@ mod tests {
             state: State::Stopped(crate::gateway::core::safety::StopReason::GoalReached),
             cycles: 10,
         };
-        let f: serde_json::Value =
-            serde_json::from_str(&frame_json(&v, &setup(), &[], &metrics::Snapshot::empty(0.0), 9, None, true))
-                .unwrap();
+        let f: serde_json::Value = serde_json::from_str(&frame_json(
+            &v,
+            &setup(),
+            &robot_path(&[]),
+            &metrics::Snapshot::empty(0.0),
+            9,
+            None,
+            true,
+        ))
+        .unwrap();
         assert_eq!((f["state_name"].as_str(), f["reason"].as_str()), (Some("stopped"), Some("goal reached")));
         assert_eq!(f["ended"], true);
         assert!(f["numbers"]["clearance"].is_null() && f["numbers"]["speed"].is_null());

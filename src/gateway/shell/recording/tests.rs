@@ -64,3 +64,52 @@ fn a_damaged_input_is_refused_saying_what_is_wrong() {
     let long = format!(r#"{{"kind":"psd_bytes","bytes":"{}"}}"#, "00".repeat(PSD_CHUNK + 1));
     assert_eq!(bad(&long), format!("{} bytes in one read: at most {PSD_CHUNK}", PSD_CHUNK + 1));
 }
+
+/// Each channel's topic and its messages' count in the recording at `path`.
+fn channel_counts(path: &Path) -> BTreeMap<String, usize> {
+    let bytes = std::fs::read(path).unwrap();
+    let mut counts = BTreeMap::new();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        *counts.entry(message.unwrap().channel.topic.clone()).or_insert(0) += 1;
+    }
+    counts
+}
+
+/// A scene written with `vehicles` in the setup; its channels and their counts.
+fn record_a_scene(name: &str, vehicles: Vec<VehicleLabel>, scene: &SceneRecord) -> BTreeMap<String, usize> {
+    let path = std::env::temp_dir().join(format!("flowgate-scene-{name}-{}.mcap", std::process::id()));
+    let setup = RecordingSetup {
+        config_toml: String::new(),
+        lane_half_width: Some(0.3),
+        room: None,
+        robot_radius: 0.07,
+        vehicles,
+        origin_unix_ns: 0,
+        compression: RecordCompression::None,
+    };
+    let mut sink = McapSink::create(Some(&path), setup, None).unwrap();
+    sink.scene(scene).unwrap();
+    sink.finish(0, 0).unwrap();
+    let counts = channel_counts(&path);
+    let _ = std::fs::remove_file(&path);
+    counts
+}
+
+/// A fleet's recording has `/vehicles` and a pose channel for each vehicle the camera has
+/// shown; a single robot's has neither (its recordings are as they were).
+#[test]
+fn a_fleets_scene_names_each_vehicle_and_a_robots_alone_is_unchanged() {
+    use crate::gateway::core::scene::SceneVehicle;
+    let mut scene =
+        SceneRecord { pose: [-0.4, 0.0, 0.0], goal: [0.4, 0.0], vehicle_count: 2, ..SceneRecord::default() };
+    scene.vehicles[0] =
+        SceneVehicle { seen: true, pose: [0.2, 0.1, 3.0], goal: [-0.4, 0.1], ..SceneVehicle::default() };
+    let label = |name: &str| VehicleLabel { name: name.into(), radius: 0.06, scripted: false };
+    let fleet = record_a_scene("fleet", vec![label("v1"), label("v2")], &scene);
+    assert_eq!(fleet.get(VEHICLES), Some(&1));
+    assert_eq!(fleet.get("/v1/pose"), Some(&1));
+    assert_eq!(fleet.get("/v2/pose"), None, "v2 not yet seen: no pose");
+    let alone = record_a_scene("alone", Vec::new(), &SceneRecord { vehicle_count: 0, ..scene });
+    let topics: Vec<&str> = alone.keys().map(String::as_str).collect();
+    assert_eq!(topics, [ARENA, OBSTACLES, POSE]);
+}

@@ -6,7 +6,7 @@ use super::msgs::{
     PoseStamped, PoseWithCovariance, Quaternion, TfMessage, Time, Transform, TransformStamped, Twist,
     TwistWithCovariance,
 };
-use crate::gateway::core::scene::SceneRecord;
+use crate::gateway::core::scene::{SceneRecord, SceneVehicle, VehicleLabel};
 use crate::gateway::core::State;
 use crate::gateway::shell::metrics;
 use crate::gateway::shell::view::{self, ViewSetup};
@@ -26,32 +26,56 @@ fn header(stamp: Time, frame: &str) -> Header {
     Header { stamp, frame_id: frame.to_owned() }
 }
 
-fn pose_of(s: &SceneRecord) -> Pose {
-    Pose { position: Point { x: s.pose[0], y: s.pose[1], z: 0.0 }, orientation: Quaternion::yaw(s.pose[2]) }
+fn floor_pose([x, y, heading]: [f64; 3]) -> Pose {
+    Pose { position: Point { x, y, z: 0.0 }, orientation: Quaternion::yaw(heading) }
 }
 
-/// `/odom`: the tracker's pose in the floor frame, its twist in the robot's.
-pub fn odometry(s: &SceneRecord, stamp: Time, frames: &Frames) -> Odometry {
-    let twist =
-        Twist { linear: Point { x: s.twist[0], y: 0.0, z: 0.0 }, angular: Point { x: 0.0, y: 0.0, z: s.twist[1] } };
+/// A `[[vehicles]]` entry's own frame: its name before the robot's (`v1/base_link`).
+pub fn vehicle_frame(name: &str, frames: &Frames) -> String {
+    format!("{name}/{}", frames.base)
+}
+
+/// A vehicle's odometry topic: `/<name>/odom`.
+pub fn vehicle_odometry_topic(name: &str) -> String {
+    format!("/{name}/odom")
+}
+
+fn odometry_at(pose: [f64; 3], [v, w]: [f64; 2], stamp: Time, floor: &str, child: String) -> Odometry {
+    let twist = Twist { linear: Point { x: v, y: 0.0, z: 0.0 }, angular: Point { x: 0.0, y: 0.0, z: w } };
     Odometry {
-        header: header(stamp, &frames.floor),
-        child_frame_id: frames.base.clone(),
-        pose: PoseWithCovariance { pose: pose_of(s), covariance: Default::default() },
+        header: header(stamp, floor),
+        child_frame_id: child,
+        pose: PoseWithCovariance { pose: floor_pose(pose), covariance: Default::default() },
         twist: TwistWithCovariance { twist, covariance: Default::default() },
     }
 }
 
-/// `/tf`: the floor frame to the robot's.
-pub fn transform(s: &SceneRecord, stamp: Time, frames: &Frames) -> TfMessage {
-    let p = pose_of(s);
-    TfMessage {
-        transforms: vec![TransformStamped {
+/// `/odom`: the tracker's pose in the floor frame, its twist in the robot's.
+pub fn odometry(s: &SceneRecord, stamp: Time, frames: &Frames) -> Odometry {
+    odometry_at(s.pose, s.twist, stamp, &frames.floor, frames.base.clone())
+}
+
+/// `/<name>/odom`: another vehicle's, its twist in its own frame ([`vehicle_frame`]).
+pub fn vehicle_odometry(label: &VehicleLabel, v: &SceneVehicle, stamp: Time, frames: &Frames) -> Odometry {
+    let (pose, twist) = (v.pose.map(f64::from), v.twist.map(f64::from));
+    odometry_at(pose, twist, stamp, &frames.floor, vehicle_frame(&label.name, frames))
+}
+
+/// `/tf`: the floor frame to the robot's, and to each other vehicle's the camera has shown.
+pub fn transform(s: &SceneRecord, vehicles: &[VehicleLabel], stamp: Time, frames: &Frames) -> TfMessage {
+    let to = |child: String, pose: [f64; 3]| {
+        let p = floor_pose(pose);
+        TransformStamped {
             header: header(stamp, &frames.floor),
-            child_frame_id: frames.base.clone(),
+            child_frame_id: child,
             transform: Transform { translation: p.position, rotation: p.orientation },
-        }],
-    }
+        }
+    };
+    let others = vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen);
+    let transforms = std::iter::once(to(frames.base.clone(), s.pose))
+        .chain(others.map(|(label, v)| to(vehicle_frame(&label.name, frames), v.pose.map(f64::from))))
+        .collect();
+    TfMessage { transforms }
 }
 
 fn rgba(r: f32, g: f32, b: f32, a: f32) -> ColorRgba {
@@ -76,8 +100,9 @@ fn cylinder(stamp: Time, frames: &Frames, ns: &str, id: i32, at: [f32; 2], radiu
 }
 
 /// `~/obstacles`: a clearing marker, then each tracked obstacle (its body, its planning
-/// circle, its velocity as an arrow over a second) and the room's walls, static obstacles and
-/// view's edge as line strips.
+/// circle, its velocity as an arrow over a second), each other vehicle of a fleet (its body,
+/// its name over it, its goal) and the room's walls, static obstacles and view's edge as line
+/// strips.
 pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> MarkerArray {
     let mut markers = vec![Marker { action: Marker::DELETEALL, ..Marker::default() }];
     for (k, o) in s.obstacles().iter().enumerate() {
@@ -99,6 +124,7 @@ pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frame
             ..Marker::default()
         });
     }
+    markers.extend(vehicle_markers(s, setup, stamp, frames));
     if let Some(outline) = &setup.outline {
         for (k, (kind, points)) in outline.outlines().enumerate() {
             let (ns, color) = match kind {
@@ -124,6 +150,36 @@ pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frame
         }
     }
     MarkerArray { markers }
+}
+
+/// Each other vehicle's markers: its body where seen (`vehicle`), its name over it
+/// (`vehicle_name`), its goal (`vehicle_goal`), each with the vehicle's index as its id.
+fn vehicle_markers(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> Vec<Marker> {
+    let mut markers = Vec::new();
+    for (k, (label, v)) in setup.vehicles.iter().zip(s.vehicles()).enumerate() {
+        let id = k as i32;
+        let color = if label.scripted { rgba(0.6, 0.3, 0.8, 0.9) } else { rgba(0.1, 0.6, 0.6, 0.9) };
+        markers.push(cylinder(stamp, frames, "vehicle_goal", id, v.goal, 0.02, color));
+        if !v.seen {
+            continue;
+        }
+        let at = [v.pose[0], v.pose[1]];
+        markers.push(cylinder(stamp, frames, "vehicle", id, at, label.radius as f32, color));
+        let position = Point { x: f64::from(at[0]), y: f64::from(at[1]), z: 0.2 };
+        markers.push(Marker {
+            header: header(stamp, &frames.floor),
+            ns: "vehicle_name".into(),
+            id,
+            kind: Marker::TEXT_VIEW_FACING,
+            action: Marker::ADD,
+            pose: Pose { position, orientation: Quaternion::default() },
+            scale: Point { x: 0.0, y: 0.0, z: 0.05 },
+            color: rgba(0.1, 0.1, 0.1, 1.0),
+            text: label.name.clone(),
+            ..Marker::default()
+        });
+    }
+    markers
 }
 
 /// How far ahead `~/path` follows the field, m.

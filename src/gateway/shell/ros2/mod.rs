@@ -6,7 +6,9 @@
 //! Publishes `/odom`, `/tf`, `~/obstacles`, `~/path` and `/diagnostics`; takes `/goal_pose`;
 //! serves `~/arm`, `~/start`, `~/stop`, `~/reset` and `~/estop` (`std_srvs/srv/Trigger`;
 //! `~/estop` stops every vehicle). Each of the rig's other vehicles has its own in its
-//! namespace: `/<name>/goal_pose` and `/<name>/arm`, `start`, `stop`, `reset`, `estop`.
+//! namespace: `/<name>/odom`, `/<name>/goal_pose` and `/<name>/arm`, `start`, `stop`,
+//! `reset`, `estop`; `/tf` carries its frame (`<name>/base_link`) and `~/obstacles` its
+//! body, name and goal.
 //! The DDS is RustDDS, through `ros2-client`: no ROS installation is needed.
 
 pub mod convert;
@@ -92,10 +94,8 @@ struct Endpoints {
     /// Held past the node: the participant must outlive every endpoint as it leaves.
     context: Context,
     node: ros2_client::Node,
-    odom: Publisher<msgs::Odometry>,
-    tf: Publisher<msgs::TfMessage>,
-    obstacles: Publisher<msgs::MarkerArray>,
-    path: Publisher<msgs::Path>,
+    /// Where each scene goes.
+    scene: SceneOut,
     diagnostics: Publisher<msgs::DiagnosticArray>,
     /// The goal topics: the robot's (`None`), then each vehicle's.
     goals: GoalTopics,
@@ -159,6 +159,8 @@ fn join(s: &Ros2Settings, vehicles: &[String]) -> Result<Endpoints, Ros2Error> {
     let t_obstacles = topic(&fqn, "obstacles", "visualization_msgs", "MarkerArray")?;
     let t_path = topic(&fqn, "path", "nav_msgs", "Path")?;
     let t_diagnostics = topic("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray")?;
+    let t_vehicle_odoms: Vec<_> =
+        vehicles.iter().map(|v| topic(&format!("/{v}"), "odom", "nav_msgs", "Odometry")).collect::<Result<_, _>>()?;
     let t_cmd_vel = match &s.cmd_vel {
         Some((name, stamped)) => {
             let kind = if *stamped { "TwistStamped" } else { "Twist" };
@@ -184,8 +186,13 @@ fn join(s: &Ros2Settings, vehicles: &[String]) -> Result<Endpoints, Ros2Error> {
         }
         _ => None,
     };
+    let mut vehicle_odoms = Vec::with_capacity(vehicles.len());
+    for t in &t_vehicle_odoms {
+        vehicle_odoms.push(node.create_publisher(t, None).map_err(|e| publisher_err(&e))?);
+    }
     let (goals, services) = operator_endpoints(&mut node, &qos, &fqn, vehicles)?;
-    Ok(Endpoints { context, node, odom, tf, obstacles, path, diagnostics, goals, cmd_vel, services })
+    let scene = SceneOut { odom, vehicle_odoms, tf, obstacles, path };
+    Ok(Endpoints { context, node, scene, diagnostics, goals, cmd_vel, services })
 }
 
 type GoalTopics = Vec<(Option<String>, ros2_client::Subscription<msgs::PoseStamped>)>;
@@ -298,7 +305,7 @@ async fn serve(
     mut stats: watch::Receiver<Arc<metrics::Snapshot>>,
     requests: RequestSender,
 ) {
-    let Endpoints { context, mut node, odom, tf, obstacles, path, diagnostics, goals, cmd_vel, services } = e;
+    let Endpoints { context, mut node, scene: scene_out, diagnostics, goals, cmd_vel, services } = e;
     let frames = Frames { floor: setup.settings.floor_frame.clone(), base: setup.settings.base_frame.clone() };
     let hardware_id = node_fqn(&setup.settings);
     let mut state = NodeState { setup, frames, hardware_id, last_refusal: None };
@@ -324,7 +331,7 @@ async fn serve(
                     break;
                 }
                 let snapshot = *scenes.borrow_and_update();
-                publish_scene(&state, &snapshot, &odom, &tf, &obstacles, &path);
+                publish_scene(&state, &snapshot, &scene_out);
             }
             changed = stats.changed(), if stats_open => {
                 if changed.is_err() {
@@ -365,32 +372,43 @@ async fn serve(
     drop(calls);
     drop(goal_poses);
     drop(commands);
-    drop((services, goals, cmd_vel, odom, tf, obstacles, path, diagnostics));
+    drop((services, goals, cmd_vel, scene_out, diagnostics));
     drop(node);
     drop(spin);
     drop(context);
 }
 
-/// `/odom`, `/tf`, `~/obstacles` and `~/path` for one scene (nothing before a pose).
-fn publish_scene(
-    state: &NodeState,
-    snapshot: &ViewSnapshot,
-    odom: &Publisher<msgs::Odometry>,
-    tf: &Publisher<msgs::TfMessage>,
-    obstacles: &Publisher<msgs::MarkerArray>,
-    path: &Publisher<msgs::Path>,
-) {
+/// What a scene is published on.
+struct SceneOut {
+    odom: Publisher<msgs::Odometry>,
+    /// Each other vehicle's `/<name>/odom`, in the rig's order.
+    vehicle_odoms: Vec<Publisher<msgs::Odometry>>,
+    tf: Publisher<msgs::TfMessage>,
+    obstacles: Publisher<msgs::MarkerArray>,
+    path: Publisher<msgs::Path>,
+}
+
+/// `/odom`, `/tf`, `~/obstacles` and `~/path` for one scene (nothing before a pose), and each
+/// other vehicle's `/<name>/odom` (nothing before the camera shows it).
+fn publish_scene(state: &NodeState, snapshot: &ViewSnapshot, out: &SceneOut) {
     let s = &snapshot.scene;
     let stamp = state.stamp(s.at);
     let (frames, view) = (&state.frames, &state.setup.view);
     let has_pose = s.pose != [0.0; 3] || s.goal != [0.0; 2];
     let failed = |topic: &str, e: &dyn std::fmt::Debug| tracing::debug!("ROS 2: {topic}: {e:?}");
     if has_pose {
-        odom.publish(convert::odometry(s, stamp, frames)).unwrap_or_else(|e| failed("/odom", &e));
-        tf.publish(convert::transform(s, stamp, frames)).unwrap_or_else(|e| failed("/tf", &e));
-        path.publish(convert::path(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
+        out.odom.publish(convert::odometry(s, stamp, frames)).unwrap_or_else(|e| failed("/odom", &e));
+        let tf = convert::transform(s, &view.vehicles, stamp, frames);
+        out.tf.publish(tf).unwrap_or_else(|e| failed("/tf", &e));
+        out.path.publish(convert::path(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
     }
-    obstacles.publish(convert::obstacles(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/obstacles", &e));
+    for ((label, v), odom) in view.vehicles.iter().zip(s.vehicles()).zip(&out.vehicle_odoms) {
+        if v.seen {
+            let message = convert::vehicle_odometry(label, v, stamp, frames);
+            odom.publish(message).unwrap_or_else(|e| failed(&convert::vehicle_odometry_topic(&label.name), &e));
+        }
+    }
+    out.obstacles.publish(convert::obstacles(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/obstacles", &e));
 }
 
 /// A velocity command from `cmd_vel`: forward speed and yaw rate, to the loop as a `drive`

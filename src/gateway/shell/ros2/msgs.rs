@@ -256,6 +256,7 @@ impl Marker {
     pub const ARROW: i32 = 0;
     pub const CYLINDER: i32 = 3;
     pub const LINE_STRIP: i32 = 4;
+    pub const TEXT_VIEW_FACING: i32 = 9;
     pub const ADD: i32 = 0;
     pub const DELETEALL: i32 = 3;
 }
