@@ -10,6 +10,8 @@ use core::f64::consts::{PI, TAU};
 #[cfg(feature = "std")]
 pub mod orca;
 #[cfg(feature = "std")]
+pub mod script;
+#[cfg(feature = "std")]
 pub mod social_force;
 
 /// A point or vector on the floor, `x + iy`, m (or m/s).

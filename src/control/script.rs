@@ -5,15 +5,7 @@
 //! the vehicle's wheels and cuts it where it would leave the room's free region.
 
 use crate::Point;
-
-/// How closely a scripted vehicle follows its script where nothing holds it, m: a script
-/// that asks for more (a corner its wheels cannot turn, a start its ramps cannot reach) is
-/// refused at load.
-pub const PRECISION: f64 = 0.01;
-
-/// Beyond this distance from its script (unless set per vehicle) a scripted vehicle is
-/// stopped and the stop named, m.
-pub const DEFAULT_TOLERANCE: f64 = 0.05;
+pub use flowgate_protocol::plane::script::{Unfollowable, Wheels, DEFAULT_TOLERANCE, PRECISION};
 
 /// One straight leg: set off at `at` (s after the start) from `from` at `velocity`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,15 +25,6 @@ pub struct Script {
     end: f64,
     repeat: bool,
     speed: f64,
-}
-
-/// What a vehicle's wheels allow: its speed limit, its wheels' speed and ramp, its track.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Wheels {
-    pub max_speed: f64,
-    pub max_wheel_speed: f64,
-    pub wheel_accel: f64,
-    pub wheel_base: f64,
 }
 
 impl Script {
@@ -137,52 +120,14 @@ impl Script {
     }
 
     /// Whether a vehicle with these wheels can follow it within [`PRECISION`]: no faster
-    /// than its speed limit, a start its ramps reach, corners its wheels can turn. Why not,
-    /// with the numbers.
-    pub fn followable(&self, w: &Wheels) -> Result<(), String> {
-        let speed = self.speed;
-        if speed > w.max_speed {
-            return Err(format!("moves at {speed} m/s: faster than the vehicle's max_speed, {} m/s", w.max_speed));
-        }
-        // From rest to the script's speed on the wheels' ramp, the vehicle falls behind by
-        // v²/2a.
-        let lag = speed * speed / (2.0 * w.wheel_accel);
-        if lag > 0.5 * PRECISION {
-            return Err(format!(
-                "starts at {speed} m/s: from rest on its wheel_accel of {} m/s² the vehicle falls {:.1} mm behind, \
-                 more than half of {} mm",
-                w.wheel_accel,
-                lag * 1e3,
-                PRECISION * 1e3
-            ));
-        }
-        // Turning at the script's speed, the wheels' headroom sets the tightest arc.
-        let turn_rate = 2.0 * (w.max_wheel_speed.min(w.max_speed) - speed) / w.wheel_base;
-        let mut way: Vec<Point> = self.legs.iter().map(|l| l.velocity).collect();
+    /// than its speed limit, a start its ramps reach, corners its wheels can turn
+    /// ([`flowgate_protocol::plane::script::followable`], the simulator's rule too).
+    pub fn followable(&self, wheels: &Wheels) -> Result<(), Unfollowable> {
+        let mut directions: Vec<Point> = self.legs.iter().map(|l| l.velocity).collect();
         if self.repeat {
-            way.extend(self.legs.first().map(|l| l.velocity));
+            directions.extend(self.legs.first().map(|l| l.velocity));
         }
-        for (k, pair) in way.windows(2).enumerate() {
-            let angle = (pair[1] / pair[0]).arg().abs();
-            if angle < 1e-9 {
-                continue;
-            }
-            let arc = if turn_rate > 0.0 { speed / turn_rate } else { f64::INFINITY };
-            // Cutting the corner on the arc, and falling behind the script along it.
-            let half = 0.5 * angle;
-            let error = arc * (1.0 / half.cos() - 1.0) + arc * (half.tan() - half);
-            if error.is_nan() || error > PRECISION {
-                return Err(format!(
-                    "turns {:.0}° at its corner {k} at {speed} m/s: the tightest arc the wheels allow ({:.1} cm) \
-                     leaves the vehicle {:.1} cm off its script, more than {} cm",
-                    angle.to_degrees(),
-                    arc * 100.0,
-                    error * 100.0,
-                    PRECISION * 100.0
-                ));
-            }
-        }
-        Ok(())
+        flowgate_protocol::plane::script::followable(self.speed, &directions, wheels)
     }
 }
 
@@ -230,10 +175,11 @@ mod tests {
         let w = Wheels { max_speed: 0.15, max_wheel_speed: 0.25, wheel_accel: 1.0, wheel_base: 0.108 };
         let line = |speed| Script::through(p(0.0, 0.0), &[p(0.5, 0.0)], speed, false);
         assert!(line(0.07).followable(&w).is_ok());
-        assert!(line(0.2).followable(&w).unwrap_err().contains("faster than the vehicle's max_speed"));
+        assert!(line(0.2).followable(&w).unwrap_err().to_string().contains("faster than the vehicle's max_speed"));
         let slow = Wheels { wheel_accel: 0.1, ..w };
-        assert!(line(0.07).followable(&slow).unwrap_err().contains("falls 24.5 mm behind"));
+        assert!(line(0.07).followable(&slow).unwrap_err().to_string().contains("falls 24.5 mm behind"));
         let corner = Script::through(p(0.0, 0.0), &[p(0.3, 0.0), p(0.3, 0.3)], 0.09, false);
-        assert!(corner.followable(&w).unwrap_err().contains("turns 90°"), "{:?}", corner.followable(&w));
+        let turn = corner.followable(&w).unwrap_err().to_string();
+        assert!(turn.starts_with("turns 90° at point 0"), "{turn}");
     }
 }

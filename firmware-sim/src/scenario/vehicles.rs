@@ -4,7 +4,8 @@
 //!
 //! Everything that no run could begin from is refused here, naming the key and the numbers:
 //! two vehicles overlapping at the start, goals closer together than their radii, a script
-//! faster or sharper than its vehicle can follow within [`SCRIPT_PRECISION`], more LEDs than
+//! faster or sharper than its vehicle can follow within [`SCRIPT_PRECISION`] (the rule the
+//! gateway's rig loader applies too, [`flowgate_protocol::plane::script`]), more LEDs than
 //! the PSD schedule drives. (A script that leaves the room is cut where it leaves by
 //! [`crate::world::fleet::cut_script`].)
 
@@ -13,13 +14,10 @@ use serde::Deserialize;
 use super::{point, Motion, ObstacleSpec, RobotSpec, SimScenario};
 use crate::Point;
 
-/// How closely a scripted vehicle follows its script where nothing holds it, m: a script
-/// that asks for more (a corner its wheels cannot turn, a start its ramps cannot reach) is
-/// refused at load.
-pub const SCRIPT_PRECISION: f64 = 0.01;
-/// Beyond this distance from its script (unless set per vehicle) a scripted vehicle is
-/// stopped and the stop named, m.
-pub const DEFAULT_SCRIPT_TOLERANCE: f64 = 0.05;
+use flowgate_protocol::plane::script::{followable, Unfollowable, Wheels};
+pub use flowgate_protocol::plane::script::{
+    DEFAULT_TOLERANCE as DEFAULT_SCRIPT_TOLERANCE, PRECISION as SCRIPT_PRECISION,
+};
 /// The most vehicles a scenario holds, the robot among them: each takes two of the
 /// simulated controller's LEDs.
 pub const MAX_VEHICLES: usize = super::CONTROLLER_LEDS as usize / 2;
@@ -327,36 +325,11 @@ impl SimScenario {
     }
 
     /// A script its vehicle can follow within [`SCRIPT_PRECISION`]: no faster than the
-    /// vehicle's speed limit, a start its ramps reach, corners its wheels can turn.
+    /// vehicle's speed limit, a start its ramps reach, corners its wheels can turn; a
+    /// heading given at the start along its first leg.
     fn validate_script(&self, i: usize, v: &VehicleSpec, motion: &Motion, body: &RobotSpec) -> Refused {
         let key = format!("vehicles[{i}].motion");
         super::validate_motion(&key, motion)?;
-        let speed = match motion {
-            Motion::Stationary => 0.0,
-            Motion::Constant { velocity } => point(*velocity).norm(),
-            Motion::Waypoints { speed, .. } => *speed,
-        };
-        if speed > body.max_speed {
-            return Err((
-                key,
-                format!("moves at {speed} m/s: faster than the vehicle's max_speed, {} m/s", body.max_speed),
-            ));
-        }
-        // From rest to the script's speed on the wheels' ramp, the vehicle falls behind by
-        // v²/2a.
-        let lag = speed * speed / (2.0 * body.wheel_accel);
-        if lag > 0.5 * SCRIPT_PRECISION {
-            return Err((
-                key,
-                format!(
-                    "starts at {speed} m/s: from rest on its wheel_accel of {} m/s² the vehicle falls {:.1} mm \
-                     behind, more than half of {} mm",
-                    body.wheel_accel,
-                    lag * 1e3,
-                    SCRIPT_PRECISION * 1e3
-                ),
-            ));
-        }
         if let (Some(given), Some(way)) = (v.heading_deg, v.first_direction()) {
             let off = crate::wrap_angle((given - way).to_radians()).abs().to_degrees();
             if off > 5.0 {
@@ -366,54 +339,29 @@ impl SimScenario {
                 ));
             }
         }
-        if let Motion::Waypoints { points, speed, repeat } = motion {
-            self.validate_corners(i, v, points, *speed, *repeat, body)?;
-        }
-        Ok(())
-    }
-
-    fn validate_corners(
-        &self,
-        i: usize,
-        v: &VehicleSpec,
-        points: &[[f64; 2]],
-        speed: f64,
-        repeat: bool,
-        body: &RobotSpec,
-    ) -> Refused {
-        let mut way: Vec<Point> = std::iter::once(v.start).chain(points.iter().copied()).map(point).collect();
-        if repeat {
-            way.push(point(v.start));
-            way.push(way[1]);
-        }
-        way.dedup();
-        // Turning at the script's speed, the wheels' headroom sets the tightest arc.
-        let turn_rate = 2.0 * (body.max_wheel_speed.min(body.max_speed) - speed) / body.wheel_base;
-        for (k, w) in way.windows(3).enumerate() {
-            let (a, b) = (w[1] - w[0], w[2] - w[1]);
-            let angle = (b / a).arg().abs();
-            if angle < 1e-9 {
-                continue; // straight on
+        let (speed, directions) = match motion {
+            Motion::Stationary => (0.0, Vec::new()),
+            Motion::Constant { velocity } => (point(*velocity).norm(), vec![point(*velocity)]),
+            Motion::Waypoints { speed, points, repeat } => {
+                let mut way: Vec<Point> = std::iter::once(v.start).chain(points.iter().copied()).map(point).collect();
+                if *repeat {
+                    way.push(point(v.start));
+                    way.push(way[1]);
+                }
+                way.dedup();
+                (*speed, way.windows(2).map(|w| w[1] - w[0]).collect())
             }
-            let arc = if turn_rate > 0.0 { speed / turn_rate } else { f64::INFINITY };
-            // Cutting the corner on the arc, and falling behind the script along it.
-            let half = 0.5 * angle;
-            let error = arc * (1.0 / half.cos() - 1.0) + arc * (half.tan() - half);
-            if error.is_nan() || error > SCRIPT_PRECISION {
-                return Err((
-                    format!("vehicles[{i}].motion.points"),
-                    format!(
-                        "turns {:.0}° at point {k} at {speed} m/s: the tightest arc the wheels allow ({:.1} cm) \
-                         leaves the vehicle {:.1} cm off its script, more than {} cm",
-                        angle.to_degrees(),
-                        arc * 100.0,
-                        error * 100.0,
-                        SCRIPT_PRECISION * 100.0
-                    ),
-                ));
-            }
-        }
-        Ok(())
+        };
+        let wheels = Wheels {
+            max_speed: body.max_speed,
+            max_wheel_speed: body.max_wheel_speed,
+            wheel_accel: body.wheel_accel,
+            wheel_base: body.wheel_base,
+        };
+        followable(speed, &directions, &wheels).map_err(|why| match why {
+            Unfollowable::Corner { .. } => (format!("vehicles[{i}].motion.points"), why.to_string()),
+            _ => (key, why.to_string()),
+        })
     }
 
     /// The fleet together: no two vehicles (or a vehicle and an obstacle) overlap at the

@@ -105,7 +105,7 @@ impl VehicleSection {
             );
         }
         let script = laid_out(i, at(start), motion)?;
-        script.followable(wheels).or_else(|why| invalid(&key(i, "motion"), why))?;
+        script.followable(wheels).or_else(|why| invalid(&key(i, "motion"), why.to_string()))?;
         let seen = |p: Point, way: Point| {
             let along = if way.norm() > 0.0 { way / way.norm() } else { Point::new(1.0, 0.0) };
             let (front, rear) = leds.leds(p, along);
