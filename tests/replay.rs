@@ -29,6 +29,19 @@ fn figure(text: &str, label: &str, unit: &str) -> f64 {
     before.split_whitespace().last().unwrap().trim_start_matches('(').parse().unwrap_or_else(|_| panic!("{line}"))
 }
 
+/// A recording made before the gateway drove fleets (`flowgate demo --record` of E1, built
+/// at commit d7fea01) replays on this build to the same CAN frames, byte for byte: the
+/// scene's vehicles and the fleet's channels change nothing a single robot records.
+#[test]
+fn a_recording_from_before_fleets_replays_byte_for_byte() {
+    let old = root().join("tests/recordings/e1-d7fea01.mcap");
+    let (ok, text) = flowgate(&["replay", old.to_str().unwrap()]);
+    assert!(ok, "{text}");
+    assert!(text.contains("whole: every input the gateway took"), "{text}");
+    assert!(text.contains("CAN frames   664 recorded, 664 replayed: identical, byte for byte"), "{text}");
+    assert!(text.contains("final state stopped: goal reached"), "{text}");
+}
+
 #[test]
 fn a_recorded_demo_is_read_by_mcap_and_replays_byte_for_byte() {
     let dir: PathBuf = std::env::temp_dir().join(format!("flowgate-replay-{}", std::process::id()));
