@@ -252,18 +252,18 @@ fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary
             let Output::Command { record, .. } = out else { continue };
             let at = HostTime::from_nanos(record.rx_ns);
             let (ns, stamp) = unix_stamp(origin, at);
-            let scene = core.scene(at);
+            let (scene, fleet) = (core.scene(at), core.fleet_scene());
             bag.put("/odom", "nav_msgs/msg/Odometry", ns, &convert::odometry(&scene, stamp, &frames))?;
-            let tf = convert::transform(&scene, &view.vehicles, stamp, &frames);
+            let tf = convert::transform(&scene, &fleet, &view.vehicles, stamp, &frames);
             bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &tf)?;
-            for (label, v) in view.vehicles.iter().zip(scene.vehicles()).filter(|(_, v)| v.seen) {
+            for (label, v) in view.vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen) {
                 let odom = convert::vehicle_odometry(label, v, stamp, &frames);
                 bag.put(&convert::vehicle_odometry_topic(&label.name), "nav_msgs/msg/Odometry", ns, &odom)?;
             }
             if first_in_slot(last_scene, at.as_nanos(), every) {
-                let obstacles = convert::obstacles(&scene, &view, stamp, &frames);
+                let obstacles = convert::obstacles(&scene, &fleet, &view, stamp, &frames);
                 bag.put(&format!("{fqn}/obstacles"), "visualization_msgs/msg/MarkerArray", ns, &obstacles)?;
-                let path = convert::path(&scene, &view, stamp, &frames);
+                let path = convert::path(&scene, &fleet, &view, stamp, &frames);
                 bag.put(&format!("{fqn}/path"), "nav_msgs/msg/Path", ns, &path)?;
                 last_scene = Some(at.as_nanos());
             }

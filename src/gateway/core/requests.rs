@@ -2,7 +2,7 @@
 //! refusal says exactly why and changes nothing.
 
 use super::operator::{Goal, ObstacleStatus, Refusal, Request, Status, MAX_GOALS};
-use super::scene::{ObstacleView, SceneRecord};
+use super::scene::{FleetScene, ObstacleView, SceneRecord};
 use super::vehicle::{DrivenVehicle, LastEstimate};
 use super::ROBOT;
 use super::{Answer, Core, StageClock, State, StopReason};
@@ -286,15 +286,11 @@ impl<K: StageClock> Core<K> {
     }
 
     /// What the last cycle believed: the robot's pose, the goal, each obstacle with its
-    /// covariance and planning radius, each other vehicle. Reads only (a recording takes one per command).
+    /// covariance and planning radius. Reads only (a recording takes one per command).
     pub fn scene(&self, now: HostTime) -> SceneRecord {
         // The last cycle's number (its `CycleRecord::cycle`): cycles count from 0.
         let cycle = self.counters.cycles.saturating_sub(1);
         let mut scene = SceneRecord { cycle, at: now, ..SceneRecord::default() };
-        for (slot, v) in scene.vehicles.iter_mut().zip(&self.vehicles[ROBOT + 1..]) {
-            *slot = v.scene();
-            scene.vehicle_count += 1;
-        }
         let Some(LastEstimate { pose, delay, wheels: [left, right] }) = self.vehicles[ROBOT].last_estimate else {
             return scene;
         };
@@ -314,6 +310,16 @@ impl<K: StageClock> Core<K> {
             scene.count += 1;
         }
         scene
+    }
+
+    /// Each other vehicle of a fleet as its last cycle left it: its pose, state and goal.
+    /// Reads only.
+    pub fn fleet_scene(&self) -> FleetScene {
+        let mut fleet = FleetScene::default();
+        for v in &self.vehicles[ROBOT + 1..] {
+            fleet.push(v.scene());
+        }
+        fleet
     }
 
     /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,

@@ -43,7 +43,7 @@ use serde_json::{json, Value};
 use super::foxglove::Live;
 use crate::config::RecordCompression;
 use crate::gateway::core::input::{InputRecord, PSD_CHUNK};
-use crate::gateway::core::scene::{SceneRecord, SceneVehicle, VehicleLabel};
+use crate::gateway::core::scene::{FleetScene, SceneRecord, SceneVehicle, VehicleChunk, VehicleLabel};
 use crate::gateway::core::timing::CycleRecord;
 use crate::gateway::core::{Level, Notice};
 use crate::planner::room::{OutlineKind, RoomShape};
@@ -111,6 +111,8 @@ pub struct McapSink {
     cycles: u64,
     /// When `/arena` was last drawn (host ns): once in each [`ARENA_EVERY_NS`] of host time.
     arena_at: Option<u64>,
+    /// A fleet's other vehicles as their chunks last brought them, for the next scene.
+    fleet: FleetScene,
     /// When the still entities (lane walls, goals) were last drawn, and the goals drawn
     /// (the robot's, then each vehicle's).
     still_at: Option<(u64, Vec<[f64; 2]>)>,
@@ -368,6 +370,7 @@ impl McapSink {
             messages: 0,
             cycles: 0,
             arena_at: None,
+            fleet: FleetScene::default(),
             still_at: None,
             flushed: std::time::Instant::now(),
         })
@@ -512,6 +515,12 @@ impl McapSink {
         json!({ "sec": t / 1_000_000_000, "nsec": t % 1_000_000_000 })
     }
 
+    /// Part of the fleet's vehicles, for the scene that follows it.
+    pub fn vehicles_chunk(&mut self, chunk: &VehicleChunk) {
+        self.fleet.take(chunk);
+    }
+
+    /// A cycle's scene, with the fleet's vehicles as their chunks brought them.
     pub fn scene(&mut self, s: &SceneRecord) -> std::io::Result<()> {
         // For the eye, at a display's rate (`/cycle` has every cycle's position, and a
         // replay recomputes every cycle's estimates from the inputs).
@@ -541,7 +550,7 @@ impl McapSink {
         self.put_message(POSE, s.cycle as u32, at, &pose)?;
         self.vehicles(s)?;
         let goals: Vec<[f64; 2]> =
-            std::iter::once(s.goal).chain(s.vehicles().iter().map(|v| v.goal.map(f64::from))).collect();
+            std::iter::once(s.goal).chain(self.fleet.vehicles().iter().map(|v| v.goal.map(f64::from))).collect();
         let still = self.still_at.as_ref().is_none_or(|(last, drawn)| at >= last + STILL_EVERY_NS || *drawn != goals);
         if still {
             self.still_at = Some((at, goals));
@@ -556,7 +565,7 @@ impl McapSink {
             return Ok(());
         }
         let (at, stamp) = (s.at.as_nanos(), self.stamp(s.at.as_nanos()));
-        let labelled = || self.setup.vehicles.iter().zip(s.vehicles());
+        let labelled = || self.setup.vehicles.iter().zip(self.fleet.vehicles());
         let listed: Vec<Value> = labelled().map(|(l, v)| vehicle_json(l, v)).collect();
         let poses: Vec<(String, PoseInFrame)> = labelled()
             .filter(|(_, v)| v.seen)
@@ -587,7 +596,7 @@ impl McapSink {
         if !self.setup.vehicles.is_empty() {
             texts.push(floor_text(s.pose[0], s.pose[1], "robot"));
         }
-        for (label, v) in self.setup.vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen) {
+        for (label, v) in self.setup.vehicles.iter().zip(self.fleet.vehicles()).filter(|(_, v)| v.seen) {
             let [x, y, heading] = v.pose.map(f64::from);
             let color = if label.scripted { SCRIPTED_COLOR } else { VEHICLE_COLOR };
             cylinders.push(disc(x, y, label.radius, 0.05, color));
@@ -647,7 +656,7 @@ impl McapSink {
                 entities.push(SceneEntity { lines: room, ..entity("room") });
             }
             let mut goals = vec![disc(s.goal[0], s.goal[1], 0.02, 0.002, [0.1, 0.7, 0.2, 1.0])];
-            for (label, v) in self.setup.vehicles.iter().zip(s.vehicles()) {
+            for (label, v) in self.setup.vehicles.iter().zip(self.fleet.vehicles()) {
                 let color = if label.scripted { SCRIPTED_COLOR } else { VEHICLE_COLOR };
                 let [x, y] = v.goal.map(f64::from);
                 goals.push(disc(x, y, 0.02, 0.002, color));

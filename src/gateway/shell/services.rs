@@ -116,8 +116,12 @@ impl Services {
     /// allocation), to the ROS 2 node (at its rate), and in a fleet to the recording (at its
     /// display rate). Returns when the next is due.
     pub fn publish_scene<K: StageClock>(&mut self, core: &Core<K>, now: HostTime) -> HostTime {
-        let snapshot =
-            || view::ViewSnapshot { scene: core.scene(now), state: core.state(), cycles: core.counters().cycles };
+        let snapshot = || view::ViewSnapshot {
+            scene: core.scene(now),
+            fleet: core.fleet_scene(),
+            state: core.state(),
+            cycles: core.counters().cycles,
+        };
         let mut next_due = HostTime::NEVER;
         #[cfg(feature = "ros2")]
         if let Some((node, next, every)) = &mut self.ros2 {
@@ -136,7 +140,7 @@ impl Services {
         }
         if let Some(next) = &mut self.fleet_scene {
             if now >= *next {
-                self.recorder.record(telemetry::Record::Scene(core.scene(now)));
+                self.recorder.scene(core.scene(now), &core.fleet_scene());
                 *next = now + std::time::Duration::from_nanos(super::recording::ARENA_EVERY_NS);
             }
             next_due = next_due.min(*next);

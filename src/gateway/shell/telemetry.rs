@@ -32,8 +32,9 @@ use tokio::sync::mpsc;
 
 pub use super::recording::{CanRecord, EventRecord};
 use super::recording::{McapSink, RecordingSummary};
+use crate::gateway::core::input::InputRecord;
+use crate::gateway::core::scene::{FleetScene, SceneRecord, VehicleChunk};
 pub use crate::gateway::core::timing::{write_stage_table, CycleRecord, Distribution, Stage, StageSummary, Timing};
-use crate::gateway::core::{input::InputRecord, scene::SceneRecord};
 use crate::time::HostTime;
 
 // Large by design: a record is copied into the queue, never boxed (no allocation per cycle).
@@ -52,6 +53,8 @@ pub enum Record {
         packet: Packet,
     },
     Scene(SceneRecord),
+    /// Part of a fleet's other vehicles, ahead of the scene they belong to.
+    Vehicles(VehicleChunk),
     /// A frame the core asked for while the CAN link was down (not written, not in can.log).
     CanUnwritten {
         at: HostTime,
@@ -81,6 +84,15 @@ impl Recorder {
                 self.dropped.fetch_add(1, Ordering::Relaxed);
             }
         }
+    }
+
+    /// A scene, a fleet's other vehicles ahead of it in chunks (a record each, so that every
+    /// record stays small enough to queue by value).
+    pub fn scene(&self, scene: SceneRecord, fleet: &FleetScene) {
+        for chunk in fleet.chunks() {
+            self.record(Record::Vehicles(chunk));
+        }
+        self.record(Record::Scene(scene));
     }
 
     /// Whether an MCAP recording wants the core's inputs and each cycle's scene.
@@ -171,7 +183,11 @@ impl TextFiles {
                 serde_json::to_writer(&mut self.events, &e.json())?;
                 writeln!(self.events)?;
             }
-            Record::Input(_) | Record::PsdSent { .. } | Record::Scene(_) | Record::CanUnwritten { .. } => {}
+            Record::Input(_)
+            | Record::PsdSent { .. }
+            | Record::Scene(_)
+            | Record::Vehicles(_)
+            | Record::CanUnwritten { .. } => {}
         }
         Ok(())
     }
@@ -264,6 +280,7 @@ pub fn start_writer(
                     Record::Input(i) => m.input(i)?,
                     Record::PsdSent { at, packet } => m.psd_sent(*at, packet)?,
                     Record::Scene(s) => m.scene(s)?,
+                    Record::Vehicles(chunk) => m.vehicles_chunk(chunk),
                     Record::CanUnwritten { at, frame } => m.can_unwritten(*at, frame)?,
                 }
             }

@@ -27,7 +27,7 @@ use tokio::sync::watch;
 
 use super::http::{self, Asked};
 use super::metrics;
-use crate::gateway::core::scene::{SceneRecord, VehicleLabel};
+use crate::gateway::core::scene::{FleetScene, SceneRecord, VehicleLabel};
 use crate::gateway::core::State;
 use crate::planner::room::{OutlineKind, Room, RoomShape};
 use crate::planner::{streamlines, Field, PlanObstacle, Planner, PlannerConfig, MAX_OBSTACLES};
@@ -60,6 +60,8 @@ const PAGE: &str = include_str!("view.html");
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ViewSnapshot {
     pub scene: SceneRecord,
+    /// A fleet's other vehicles.
+    pub fleet: FleetScene,
     pub state: State,
     pub cycles: u64,
 }
@@ -222,7 +224,7 @@ async fn render(
         if snapshot.scene.count > 0 || snapshot.cycles > 0 {
             path.extend_to([x, y]);
         }
-        for (trail, v) in trails.iter_mut().zip(snapshot.scene.vehicles()).filter(|(_, v)| v.seen) {
+        for (trail, v) in trails.iter_mut().zip(snapshot.fleet.vehicles()).filter(|(_, v)| v.seen) {
             trail.extend_to([f64::from(v.pose[0]), f64::from(v.pose[1])]);
         }
         if last.is_none_or(|b| snapshot.scene.cycle > b.scene.cycle) {
@@ -246,7 +248,7 @@ async fn render(
 
 /// The planner's field for the scene (planning circles as the loop last grew them), for
 /// streamlines. `None` before a pose, or when the planner could not make one.
-pub(super) fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
+pub(super) fn field(s: &SceneRecord, fleet: &FleetScene, setup: &ViewSetup) -> Option<Field> {
     let mut planned =
         [PlanObstacle { center: Point::default(), velocity: Point::default(), radius: 1.0 }; MAX_OBSTACLES];
     let obstacles = s.obstacles().iter().map(|o| PlanObstacle {
@@ -255,7 +257,7 @@ pub(super) fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
         radius: f64::from(o.planning_radius),
     });
     // The other vehicles, each a circle of the two bodies' radii moving on at its speed.
-    let vehicles = setup.vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen).map(|(label, v)| {
+    let vehicles = setup.vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen).map(|(label, v)| {
         let heading = f64::from(v.pose[2]);
         PlanObstacle {
             center: Point::new(f64::from(v.pose[0]), f64::from(v.pose[1])),
@@ -280,11 +282,11 @@ pub(super) fn field(s: &SceneRecord, setup: &ViewSetup) -> Option<Field> {
 /// clearance (the smallest gap between the robot's and an obstacle's or another vehicle's
 /// footprints, as the gateway estimates them), the robot's speed over the last frames (`None` until two
 /// cycles apart) and each obstacle's.
-fn numbers(s: &SceneRecord, setup: &ViewSetup, speed: Option<f64>) -> serde_json::Value {
+fn numbers(s: &SceneRecord, fleet: &FleetScene, setup: &ViewSetup, speed: Option<f64>) -> serde_json::Value {
     let [x, y, heading] = s.pose;
     let robot = Point::new(x, y);
     let bodies = s.obstacles().iter().map(|o| (o.position, f64::from(o.radius)));
-    let vehicles = setup.vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen);
+    let vehicles = setup.vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen);
     let clearance = bodies
         .chain(vehicles.map(|(label, v)| ([v.pose[0], v.pose[1]], label.radius)))
         .map(|([cx, cy], radius)| {
@@ -308,11 +310,11 @@ struct Paths {
 
 /// Each of a fleet's other vehicles for the page: its name, role and state, and where the
 /// camera last put it (`p` null before), its path and goal.
-fn vehicles_json(s: &SceneRecord, setup: &ViewSetup, paths: &Paths) -> Vec<serde_json::Value> {
+fn vehicles_json(fleet: &FleetScene, setup: &ViewSetup, paths: &Paths) -> Vec<serde_json::Value> {
     setup
         .vehicles
         .iter()
-        .zip(s.vehicles())
+        .zip(fleet.vehicles())
         .zip(&paths.vehicles)
         .map(|((label, v), path)| {
             let p = v.seen.then(|| [round(f64::from(v.pose[0])), round(f64::from(v.pose[1]))]);
@@ -337,8 +339,8 @@ fn frame_json(
 ) -> String {
     let s = &v.scene;
     let path = &paths.robot;
-    let bounds = drawing_bounds(s, setup, paths);
-    let lines = streamline_points(s, setup, path, bounds);
+    let bounds = drawing_bounds(v, setup, paths);
+    let lines = streamline_points(v, setup, path, bounds);
     let obstacles: Vec<_> = s
         .obstacles()
         .iter()
@@ -351,14 +353,14 @@ fn frame_json(
         "reason": v.state.reason().map(|r| r.to_string()),
         "ended": ended,
         "cycles": v.cycles,
-        "numbers": numbers(s, setup, speed),
+        "numbers": numbers(s, &v.fleet, setup, speed),
         "t": s.at.secs(),
         "robot": { "p": [s.pose[0], s.pose[1]], "heading": s.pose[2], "radius": setup.robot_radius },
         "goal": s.goal,
         "lane_half_width": setup.lane_half_width,
         "room": room_json(setup),
         "obstacles": obstacles,
-        "vehicles": vehicles_json(s, setup, paths),
+        "vehicles": vehicles_json(&v.fleet, setup, paths),
         "path": path,
         "streamlines": lines,
         "bounds": [[bounds.0.re, bounds.0.im], [bounds.1.re, bounds.1.im]],
@@ -388,7 +390,8 @@ fn room_json(setup: &ViewSetup) -> serde_json::Value {
 /// The drawing's extent: the robot, the goal, the obstacles, the other vehicles, the paths
 /// and the room's walls and static obstacles (not the view's edge: the drawing follows the
 /// robot), with a margin.
-fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, paths: &Paths) -> (Point, Point) {
+fn drawing_bounds(v: &ViewSnapshot, setup: &ViewSetup, paths: &Paths) -> (Point, Point) {
+    let (s, fleet) = (&v.scene, &v.fleet);
     let robot = Point::new(s.pose[0], s.pose[1]);
     let mut lo = robot;
     let mut hi = robot;
@@ -403,7 +406,7 @@ fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, paths: &Paths) -> (Point, 
     for p in &paths.robot {
         grow(Point::new(p[0], p[1]), setup.robot_radius);
     }
-    for ((label, v), path) in setup.vehicles.iter().zip(s.vehicles()).zip(&paths.vehicles) {
+    for ((label, v), path) in setup.vehicles.iter().zip(fleet.vehicles()).zip(&paths.vehicles) {
         grow(Point::new(f64::from(v.goal[0]), f64::from(v.goal[1])), 0.05);
         for p in path {
             grow(Point::new(p[0], p[1]), label.radius);
@@ -425,12 +428,15 @@ fn drawing_bounds(s: &SceneRecord, setup: &ViewSetup, paths: &Paths) -> (Point, 
 
 /// The field's streamlines through seeds across the way to the goal, within `bounds`.
 fn streamline_points(
-    s: &SceneRecord,
+    v: &ViewSnapshot,
     setup: &ViewSetup,
     path: &[[f64; 2]],
     bounds: (Point, Point),
 ) -> Vec<Vec<[f64; 2]>> {
-    let Some(field) = (s.count > 0 || path.len() > 1).then(|| field(s, setup)).flatten() else { return Vec::new() };
+    let s = &v.scene;
+    let Some(field) = (s.count > 0 || path.len() > 1).then(|| field(s, &v.fleet, setup)).flatten() else {
+        return Vec::new();
+    };
     let robot = Point::new(s.pose[0], s.pose[1]);
     let to_goal = Point::new(s.goal[0], s.goal[1]) - robot;
     let across = Point::i() * to_goal / to_goal.norm().max(1e-9);
@@ -574,7 +580,7 @@ mod tests {
             radius: 0.05,
             ..ObstacleView::default()
         };
-        let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
+        let v = ViewSnapshot { scene, state: State::Running, cycles: 10, ..ViewSnapshot::default() };
         let stats = metrics::Snapshot::empty(0.0);
         let text = frame_json(&v, &setup(), &robot_path(&[[-0.6, 0.0], [-0.5, 0.0]]), &stats, 7, Some(0.12), false);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -606,21 +612,21 @@ mod tests {
     #[test]
     fn a_fleets_frame_draws_every_vehicle() {
         use crate::gateway::core::scene::SceneVehicle;
-        let mut scene =
-            SceneRecord { pose: [-0.5, 0.0, 0.0], goal: [0.6, 0.0], vehicle_count: 2, ..SceneRecord::default() };
-        scene.vehicles[0] = SceneVehicle {
+        let scene = SceneRecord { pose: [-0.5, 0.0, 0.0], goal: [0.6, 0.0], ..SceneRecord::default() };
+        let mut fleet = FleetScene::default();
+        fleet.push(SceneVehicle {
             seen: true,
             state: State::Running,
             pose: [0.0, 0.0, std::f32::consts::PI],
             twist: [0.05, 0.0],
             goal: [-0.6, 0.0],
             script_error: Some(0.004),
-        };
-        scene.vehicles[1] = SceneVehicle { goal: [0.3, 0.3], ..SceneVehicle::default() };
+        });
+        fleet.push(SceneVehicle { goal: [0.3, 0.3], ..SceneVehicle::default() });
         let label = |name: &str, scripted| VehicleLabel { name: name.into(), radius: 0.06, scripted };
         let setup = ViewSetup { vehicles: vec![label("oncoming", true), label("late", false)], ..setup() };
         let paths = Paths { robot: vec![[-0.5, 0.0]], vehicles: vec![vec![[0.1, 0.0], [0.0, 0.0]], Vec::new()] };
-        let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
+        let v = ViewSnapshot { scene, fleet, state: State::Running, cycles: 10 };
         let text = frame_json(&v, &setup, &paths, &metrics::Snapshot::empty(0.0), 1, None, false);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
         let [oncoming, late] = [&f["vehicles"][0], &f["vehicles"][1]];
@@ -665,7 +671,7 @@ mod tests {
             ..setup()
         };
         let scene = SceneRecord { pose: [-0.6, 0.05, 0.0], goal: [0.6, 0.0], ..SceneRecord::default() };
-        let v = ViewSnapshot { scene, state: State::Running, cycles: 10 };
+        let v = ViewSnapshot { scene, state: State::Running, cycles: 10, ..ViewSnapshot::default() };
         let stats = metrics::Snapshot::empty(0.0);
         let text = frame_json(&v, &setup, &robot_path(&[[-0.7, 0.05], [-0.6, 0.05]]), &stats, 1, None, false);
         let f: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -693,6 +699,7 @@ mod tests {
             scene,
             state: State::Stopped(crate::gateway::core::safety::StopReason::GoalReached),
             cycles: 10,
+            ..ViewSnapshot::default()
         };
         let f: serde_json::Value = serde_json::from_str(&frame_json(
             &v,
@@ -719,7 +726,7 @@ mod tests {
         let view = start(addr, setup(), stats).unwrap();
         let scene =
             SceneRecord { pose: [0.6, 0.0, 0.0], goal: [0.6, 0.0], count: 1, cycle: 1, ..SceneRecord::default() };
-        view.publish(ViewSnapshot { scene, state: State::Running, cycles: 1 });
+        view.publish(ViewSnapshot { scene, state: State::Running, cycles: 1, ..ViewSnapshot::default() });
         let (first_tx, first) = tokio::sync::oneshot::channel();
         let reader = std::thread::spawn(move || {
             let mut stream = std::net::TcpStream::connect(addr).unwrap();
@@ -753,7 +760,7 @@ mod tests {
         let mut scene = SceneRecord { pose: [0.0, 0.297, 0.0], goal: [0.6, 0.0], count: 1, ..SceneRecord::default() };
         scene.obstacles[0] =
             ObstacleView { position: [0.0, 0.175], planning_radius: 0.12, radius: 0.05, ..ObstacleView::default() };
-        let f = field(&scene, &setup()).unwrap();
+        let f = field(&scene, &FleetScene::default(), &setup()).unwrap();
         assert!(f.velocity(Point::new(0.0, 0.297)).is_ok());
         assert!((f.obstacles()[0].radius - 0.12).abs() < 1e-6, "left as planned");
     }

@@ -76,7 +76,12 @@ fn channel_counts(path: &Path) -> BTreeMap<String, usize> {
 }
 
 /// A scene written with `vehicles` in the setup; its channels and their counts.
-fn record_a_scene(name: &str, vehicles: Vec<VehicleLabel>, scene: &SceneRecord) -> BTreeMap<String, usize> {
+fn record_a_scene(
+    name: &str,
+    vehicles: Vec<VehicleLabel>,
+    scene: &SceneRecord,
+    fleet: &FleetScene,
+) -> BTreeMap<String, usize> {
     let path = std::env::temp_dir().join(format!("flowgate-scene-{name}-{}.mcap", std::process::id()));
     let setup = RecordingSetup {
         config_toml: String::new(),
@@ -88,6 +93,9 @@ fn record_a_scene(name: &str, vehicles: Vec<VehicleLabel>, scene: &SceneRecord) 
         compression: RecordCompression::None,
     };
     let mut sink = McapSink::create(Some(&path), setup, None).unwrap();
+    for chunk in fleet.chunks() {
+        sink.vehicles_chunk(&chunk);
+    }
     sink.scene(scene).unwrap();
     sink.finish(0, 0).unwrap();
     let counts = channel_counts(&path);
@@ -100,16 +108,16 @@ fn record_a_scene(name: &str, vehicles: Vec<VehicleLabel>, scene: &SceneRecord) 
 #[test]
 fn a_fleets_scene_names_each_vehicle_and_a_robots_alone_is_unchanged() {
     use crate::gateway::core::scene::SceneVehicle;
-    let mut scene =
-        SceneRecord { pose: [-0.4, 0.0, 0.0], goal: [0.4, 0.0], vehicle_count: 2, ..SceneRecord::default() };
-    scene.vehicles[0] =
-        SceneVehicle { seen: true, pose: [0.2, 0.1, 3.0], goal: [-0.4, 0.1], ..SceneVehicle::default() };
+    let scene = SceneRecord { pose: [-0.4, 0.0, 0.0], goal: [0.4, 0.0], ..SceneRecord::default() };
+    let mut fleet = FleetScene::default();
+    fleet.push(SceneVehicle { seen: true, pose: [0.2, 0.1, 3.0], goal: [-0.4, 0.1], ..SceneVehicle::default() });
+    fleet.push(SceneVehicle::default());
     let label = |name: &str| VehicleLabel { name: name.into(), radius: 0.06, scripted: false };
-    let fleet = record_a_scene("fleet", vec![label("v1"), label("v2")], &scene);
-    assert_eq!(fleet.get(VEHICLES), Some(&1));
-    assert_eq!(fleet.get("/v1/pose"), Some(&1));
-    assert_eq!(fleet.get("/v2/pose"), None, "v2 not yet seen: no pose");
-    let alone = record_a_scene("alone", Vec::new(), &SceneRecord { vehicle_count: 0, ..scene });
+    let recorded = record_a_scene("fleet", vec![label("v1"), label("v2")], &scene, &fleet);
+    assert_eq!(recorded.get(VEHICLES), Some(&1));
+    assert_eq!(recorded.get("/v1/pose"), Some(&1));
+    assert_eq!(recorded.get("/v2/pose"), None, "v2 not yet seen: no pose");
+    let alone = record_a_scene("alone", Vec::new(), &scene, &FleetScene::default());
     let topics: Vec<&str> = alone.keys().map(String::as_str).collect();
     assert_eq!(topics, [ARENA, OBSTACLES, POSE]);
 }

@@ -6,7 +6,7 @@ use super::msgs::{
     PoseStamped, PoseWithCovariance, Quaternion, TfMessage, Time, Transform, TransformStamped, Twist,
     TwistWithCovariance,
 };
-use crate::gateway::core::scene::{SceneRecord, SceneVehicle, VehicleLabel};
+use crate::gateway::core::scene::{FleetScene, SceneRecord, SceneVehicle, VehicleLabel};
 use crate::gateway::core::State;
 use crate::gateway::shell::metrics;
 use crate::gateway::shell::view::{self, ViewSetup};
@@ -62,7 +62,13 @@ pub fn vehicle_odometry(label: &VehicleLabel, v: &SceneVehicle, stamp: Time, fra
 }
 
 /// `/tf`: the floor frame to the robot's, and to each other vehicle's the camera has shown.
-pub fn transform(s: &SceneRecord, vehicles: &[VehicleLabel], stamp: Time, frames: &Frames) -> TfMessage {
+pub fn transform(
+    s: &SceneRecord,
+    fleet: &FleetScene,
+    vehicles: &[VehicleLabel],
+    stamp: Time,
+    frames: &Frames,
+) -> TfMessage {
     let to = |child: String, pose: [f64; 3]| {
         let p = floor_pose(pose);
         TransformStamped {
@@ -71,7 +77,7 @@ pub fn transform(s: &SceneRecord, vehicles: &[VehicleLabel], stamp: Time, frames
             transform: Transform { translation: p.position, rotation: p.orientation },
         }
     };
-    let others = vehicles.iter().zip(s.vehicles()).filter(|(_, v)| v.seen);
+    let others = vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen);
     let transforms = std::iter::once(to(frames.base.clone(), s.pose))
         .chain(others.map(|(label, v)| to(vehicle_frame(&label.name, frames), v.pose.map(f64::from))))
         .collect();
@@ -103,7 +109,7 @@ fn cylinder(stamp: Time, frames: &Frames, ns: &str, id: i32, at: [f32; 2], radiu
 /// circle, its velocity as an arrow over a second), each other vehicle of a fleet (its body,
 /// its name over it, its goal) and the room's walls, static obstacles and view's edge as line
 /// strips.
-pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> MarkerArray {
+pub fn obstacles(s: &SceneRecord, fleet: &FleetScene, setup: &ViewSetup, stamp: Time, frames: &Frames) -> MarkerArray {
     let mut markers = vec![Marker { action: Marker::DELETEALL, ..Marker::default() }];
     for (k, o) in s.obstacles().iter().enumerate() {
         let id = k as i32;
@@ -124,7 +130,7 @@ pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frame
             ..Marker::default()
         });
     }
-    markers.extend(vehicle_markers(s, setup, stamp, frames));
+    markers.extend(vehicle_markers(fleet, setup, stamp, frames));
     if let Some(outline) = &setup.outline {
         for (k, (kind, points)) in outline.outlines().enumerate() {
             let (ns, color) = match kind {
@@ -154,9 +160,9 @@ pub fn obstacles(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frame
 
 /// Each other vehicle's markers: its body where seen (`vehicle`), its name over it
 /// (`vehicle_name`), its goal (`vehicle_goal`), each with the vehicle's index as its id.
-fn vehicle_markers(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> Vec<Marker> {
+fn vehicle_markers(fleet: &FleetScene, setup: &ViewSetup, stamp: Time, frames: &Frames) -> Vec<Marker> {
     let mut markers = Vec::new();
-    for (k, (label, v)) in setup.vehicles.iter().zip(s.vehicles()).enumerate() {
+    for (k, (label, v)) in setup.vehicles.iter().zip(fleet.vehicles()).enumerate() {
         let id = k as i32;
         let color = if label.scripted { rgba(0.6, 0.3, 0.8, 0.9) } else { rgba(0.1, 0.6, 0.6, 0.9) };
         markers.push(cylinder(stamp, frames, "vehicle_goal", id, v.goal, 0.02, color));
@@ -188,12 +194,12 @@ const PATH_STEP: f64 = 0.01;
 
 /// `~/path`: the streamline of the planner's field from the robot toward the goal (empty
 /// before a pose).
-pub fn path(s: &SceneRecord, setup: &ViewSetup, stamp: Time, frames: &Frames) -> Path {
+pub fn path(s: &SceneRecord, fleet: &FleetScene, setup: &ViewSetup, stamp: Time, frames: &Frames) -> Path {
     let mut out = Path { header: header(stamp, &frames.floor), poses: Vec::new() };
     if s.pose == [0.0; 3] && s.goal == [0.0; 2] {
         return out;
     }
-    let Some(field) = view::field(s, setup) else { return out };
+    let Some(field) = view::field(s, fleet, setup) else { return out };
     let robot = crate::Point::new(s.pose[0], s.pose[1]);
     let reach = crate::Point::new(PATH_AHEAD, PATH_AHEAD);
     let steps = (PATH_AHEAD / PATH_STEP) as usize;

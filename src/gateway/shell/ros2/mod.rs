@@ -391,24 +391,25 @@ struct SceneOut {
 /// `/odom`, `/tf`, `~/obstacles` and `~/path` for one scene (nothing before a pose), and each
 /// other vehicle's `/<name>/odom` (nothing before the camera shows it).
 fn publish_scene(state: &NodeState, snapshot: &ViewSnapshot, out: &SceneOut) {
-    let s = &snapshot.scene;
+    let (s, fleet) = (&snapshot.scene, &snapshot.fleet);
     let stamp = state.stamp(s.at);
     let (frames, view) = (&state.frames, &state.setup.view);
     let has_pose = s.pose != [0.0; 3] || s.goal != [0.0; 2];
     let failed = |topic: &str, e: &dyn std::fmt::Debug| tracing::debug!("ROS 2: {topic}: {e:?}");
     if has_pose {
         out.odom.publish(convert::odometry(s, stamp, frames)).unwrap_or_else(|e| failed("/odom", &e));
-        let tf = convert::transform(s, &view.vehicles, stamp, frames);
+        let tf = convert::transform(s, fleet, &view.vehicles, stamp, frames);
         out.tf.publish(tf).unwrap_or_else(|e| failed("/tf", &e));
-        out.path.publish(convert::path(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
+        out.path.publish(convert::path(s, fleet, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
     }
-    for ((label, v), odom) in view.vehicles.iter().zip(s.vehicles()).zip(&out.vehicle_odoms) {
+    for ((label, v), odom) in view.vehicles.iter().zip(fleet.vehicles()).zip(&out.vehicle_odoms) {
         if v.seen {
             let message = convert::vehicle_odometry(label, v, stamp, frames);
             odom.publish(message).unwrap_or_else(|e| failed(&convert::vehicle_odometry_topic(&label.name), &e));
         }
     }
-    out.obstacles.publish(convert::obstacles(s, view, stamp, frames)).unwrap_or_else(|e| failed("~/obstacles", &e));
+    let markers = convert::obstacles(s, fleet, view, stamp, frames);
+    out.obstacles.publish(markers).unwrap_or_else(|e| failed("~/obstacles", &e));
 }
 
 /// A velocity command from `cmd_vel`: forward speed and yaw rate, to the loop as a `drive`
