@@ -37,40 +37,80 @@ fn inside(polygon: &[[f64; 2]], p: [f64; 2]) -> bool {
     inside
 }
 
-#[test]
-fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
-    let dir = std::env::temp_dir().join(format!("flowgate-view-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
-    // The browser first: Chromium takes seconds to start on a loaded machine, and the demo
-    // lasts nine. The script says "ready" with its browser up, then waits for the view.
-    let python = python::python();
-    let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
-    let mut browser = python::niced(&python)
+/// A browser peer (`tests/peers/view.py ARGS`) started and up: it says "ready" with its
+/// browser running, and waits for the view itself.
+fn start_browser(args: &[&str]) -> (std::process::Child, std::io::BufReader<std::process::ChildStdout>) {
+    let mut browser = python::niced(&python::python())
         .arg(python::peer("view"))
-        .args([&format!("http://{addr}/"), &shot])
+        .args(args)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let mut browser_out = std::io::BufReader::new(browser.stdout.take().unwrap());
+    let mut out = std::io::BufReader::new(browser.stdout.take().unwrap());
     let mut ready = String::new();
-    std::io::BufRead::read_line(&mut browser_out, &mut ready).unwrap();
+    std::io::BufRead::read_line(&mut out, &mut ready).unwrap();
     if ready.trim() != "ready" {
         let mut err = String::new();
         browser.stderr.take().unwrap().read_to_string(&mut err).unwrap();
         panic!("the browser did not start: {ready}{err}");
     }
-    let doorway = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms/doorway.toml");
-    let recording = dir.join("run.mcap");
-    let foxglove = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
-    let mut demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["demo", "--scenario", doorway.to_str().unwrap(), "--out", dir.to_str().unwrap()])
-        .args(["--view", &addr.to_string(), "--foxglove", &foxglove.to_string()])
+    (browser, out)
+}
+
+/// What the browser peer saw, once it is done; it must have seen no failure.
+fn browser_said(
+    mut browser: std::process::Child,
+    mut out: std::io::BufReader<std::process::ChildStdout>,
+) -> serde_json::Value {
+    let mut stdout = Vec::new();
+    out.read_to_end(&mut stdout).unwrap();
+    let mut stderr = String::new();
+    browser.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = browser.wait().unwrap();
+    let seen: serde_json::Value =
+        serde_json::from_slice(&stdout).unwrap_or_else(|_| panic!("{}{stderr}", String::from_utf8_lossy(&stdout)));
+    assert!(status.success() && seen["failures"].as_array().unwrap().is_empty(), "{seen}");
+    seen
+}
+
+/// `flowgate demo` of `scenario` into `dir`, serving the view on `view` and Foxglove on
+/// `foxglove`, recording to `recording`; its output piped.
+fn start_demo(
+    scenario: &Path,
+    dir: &Path,
+    view: std::net::SocketAddr,
+    foxglove: std::net::SocketAddr,
+    recording: &Path,
+) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_flowgate"))
+        .args(["demo", "--scenario", scenario.to_str().unwrap(), "--out", dir.to_str().unwrap()])
+        .args(["--view", &view.to_string(), "--foxglove", &foxglove.to_string()])
         .args(["--record", recording.to_str().unwrap()])
         .stdout(Stdio::piped())
         .spawn()
-        .unwrap();
+        .unwrap()
+}
+
+/// A free port on loopback.
+fn free_port() -> std::net::SocketAddr {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap()
+}
+
+#[test]
+fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
+    let dir = std::env::temp_dir().join(format!("flowgate-view-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let addr = free_port();
+    // The browser first: Chromium takes seconds to start on a loaded machine, and the demo
+    // lasts nine. The script says "ready" with its browser up, then waits for the view.
+    let python = python::python();
+    let shot = std::env::var("FLOWGATE_VIEW_SCREENSHOT").unwrap_or_else(|_| dir.join("view.png").display().to_string());
+    let (browser, browser_out) = start_browser(&[&format!("http://{addr}/"), &shot]);
+    let doorway = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/rooms/doorway.toml");
+    let recording = dir.join("run.mcap");
+    let foxglove = free_port();
+    let mut demo = start_demo(&doorway, &dir, addr, foxglove, &recording);
     // The view answers once the gateway is up (its first frame follows the first scene).
     let started = Instant::now();
     let frame = loop {
@@ -126,14 +166,7 @@ fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
     assert!(get(addr, "POST / HTTP/1.1").unwrap().starts_with("HTTP/1.1 405"), "the view takes no commands");
     assert!(get(addr, "GET /arm HTTP/1.1").unwrap().starts_with("HTTP/1.1 404"));
 
-    let mut stdout = Vec::new();
-    browser_out.read_to_end(&mut stdout).unwrap();
-    let mut stderr = String::new();
-    browser.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
-    let status = browser.wait().unwrap();
-    let seen: serde_json::Value =
-        serde_json::from_slice(&stdout).unwrap_or_else(|_| panic!("{}{stderr}", String::from_utf8_lossy(&stdout)));
-    assert!(status.success() && seen["failures"].as_array().unwrap().is_empty(), "{seen}");
+    let seen = browser_said(browser, browser_out);
     let (x0, x1) = (seen["first"][0].as_f64().unwrap(), seen["second"][0].as_f64().unwrap());
     assert!(x1 - x0 > 0.02, "the robot marker moved {x0} -> {x1}: {seen}");
     assert_eq!(seen["obstacles"], 1);
@@ -190,30 +223,15 @@ fn the_live_view_foxglove_and_the_recording_draw_the_run_and_its_room() {
 fn a_fleets_run_is_drawn_vehicle_by_vehicle_live_and_in_the_recording() {
     let dir = std::env::temp_dir().join(format!("flowgate-view-fleet-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let addr = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    let addr = free_port();
     let python = python::python();
     let shot = dir.join("fleet.png");
-    let mut browser = python::niced(&python)
-        .arg(python::peer("view"))
-        .args(["--fleet", &format!("http://{addr}/"), shot.to_str().unwrap(), "crossing"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut browser_out = std::io::BufReader::new(browser.stdout.take().unwrap());
-    let mut ready = String::new();
-    std::io::BufRead::read_line(&mut browser_out, &mut ready).unwrap();
-    assert_eq!(ready.trim(), "ready", "the browser did not start");
+    let (browser, browser_out) =
+        start_browser(&["--fleet", &format!("http://{addr}/"), shot.to_str().unwrap(), "crossing"]);
     let e5 = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/fleet/e5-scripted.toml");
     let recording = dir.join("run.mcap");
-    let foxglove = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
-    let mut demo = Command::new(env!("CARGO_BIN_EXE_flowgate"))
-        .args(["demo", "--scenario", e5.to_str().unwrap(), "--out", dir.to_str().unwrap()])
-        .args(["--view", &addr.to_string(), "--foxglove", &foxglove.to_string()])
-        .args(["--record", recording.to_str().unwrap()])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let foxglove = free_port();
+    let mut demo = start_demo(&e5, &dir, addr, foxglove, &recording);
 
     let seen_live = python::niced(&python)
         .arg(python::peer("foxglove"))
@@ -236,14 +254,7 @@ fn a_fleets_run_is_drawn_vehicle_by_vehicle_live_and_in_the_recording() {
     let listed = &live["messages"]["/vehicles"][0]["vehicles"][0];
     assert_eq!(listed["name"], "crossing", "{live}");
 
-    let mut stdout = Vec::new();
-    browser_out.read_to_end(&mut stdout).unwrap();
-    let mut stderr = String::new();
-    browser.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
-    let status = browser.wait().unwrap();
-    let page: serde_json::Value =
-        serde_json::from_slice(&stdout).unwrap_or_else(|_| panic!("{}{stderr}", String::from_utf8_lossy(&stdout)));
-    assert!(status.success() && page["failures"].as_array().unwrap().is_empty(), "{page}");
+    let page = browser_said(browser, browser_out);
     let running = &page["running"]["crossing"];
     assert_eq!(running["label"], "crossing", "{page}");
     assert!(running["path"].as_u64().unwrap() > 5, "{page}");
