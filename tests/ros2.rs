@@ -353,8 +353,8 @@ fn each_vehicle_of_a_fleet_is_driven_over_its_own_namespace() {
     let named = |ns: &str, text: &str| markers.iter().any(|(n, id, t)| n == ns && *id == 0 && t == text);
     assert!(named("vehicle", "") && named("vehicle_name", "v1") && named("vehicle_goal", ""), "{markers:?}");
 
-    // The recording as a bag: v1 has its /v1/odom and its frame in /tf at each of the robot's
-    // cycles (the robot drove last, v1 standing at the node's goal).
+    // The recording as a bag: v1 has its /v1/odom and its frame in /tf at the node's 20 Hz
+    // from the start, the robot standing or not: from its start, on its way, at its goal.
     let bag = dir.join("bag");
     let flowgate = env!("CARGO_BIN_EXE_flowgate");
     let export = Command::new(flowgate)
@@ -370,11 +370,13 @@ fn each_vehicle_of_a_fleet_is_driven_over_its_own_namespace() {
     assert_eq!(bag["types"]["/v1/odom"], "nav_msgs/msg/Odometry");
     assert_eq!(bag["tf_children"], serde_json::json!(["base_link", "v1/base_link"]));
     let v1 = bag["vehicle_odom"]["/v1/odom"].as_array().unwrap();
-    assert_eq!(v1.len(), bag["odom"].as_array().unwrap().len(), "a /v1/odom at each of the robot's cycles");
-    for m in v1 {
-        assert!(m["frame"] == "map" && m["child"] == "v1/base_link", "{m}");
-        let (x, y) = (m["x"].as_f64().unwrap(), m["y"].as_f64().unwrap());
-        assert!((x - 0.2).hypot(y - 0.3) < 0.05, "v1 at ({x}, {y}) while the robot drove");
-    }
+    assert!(v1.len() > 100, "{} /v1/odom", v1.len());
+    assert!(v1.iter().all(|m| m["frame"] == "map" && m["child"] == "v1/base_link"));
+    let ns: Vec<u64> = v1.iter().map(|m| m["ns"].as_u64().unwrap()).collect();
+    assert!(ns.windows(2).all(|w| w[1] - w[0] >= 50_000_000), "at most 20 Hz");
+    let at = |m: &Value| [m["x"].as_f64().unwrap(), m["y"].as_f64().unwrap()];
+    let [first, last] = [at(&v1[0]), at(&v1[v1.len() - 1])];
+    assert!((first[0] - 0.0).hypot(first[1] - 0.3) < 0.03 && (last[0] - 0.2).hypot(last[1] - 0.3) < 0.05, "{v1:?}");
+    assert!(v1.iter().any(|m| (0.05..0.15).contains(&at(m)[0])), "v1 on its way, the robot standing");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -4,7 +4,8 @@
 //! every cycle's scene exactly; each cycle gives `/odom` and `/tf` stamped at its log time,
 //! `~/obstacles` and `~/path` on the first cycle of each `1 / [ros2] publish_hz` of host
 //! time (at the default 20 Hz, at each instant of the recording's own 10 Hz `/obstacles`),
-//! `/diagnostics` once a second.
+//! `/diagnostics` once a second; a fleet's other vehicles' `/<name>/odom` and their frames on
+//! `/tf` at `publish_hz` from the first input on, whether or not the robot has cycles.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -13,11 +14,12 @@ use serde::Serialize;
 
 use super::{Recording, ReplayError};
 use crate::config::Ros2Section;
+use crate::gateway::core::scene::FleetScene;
 use crate::gateway::core::{Core, NoClock, Output};
 use crate::gateway::shell::metrics::Snapshot;
 use crate::gateway::shell::recording::first_in_slot;
 use crate::gateway::shell::ros2::convert::{self, Frames};
-use crate::gateway::shell::ros2::msgs::Time;
+use crate::gateway::shell::ros2::msgs::{TfMessage, Time};
 use crate::gateway::shell::view::ViewSetup;
 use crate::time::HostTime;
 
@@ -246,20 +248,21 @@ fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary
     let every = u64::try_from(settings.publish_every.as_nanos()).unwrap_or(u64::MAX);
     let (mut last_scene, mut next_stats) = (None, HostTime::ZERO);
     let mut core = Core::new(rig, NoClock);
+    // A fleet's other vehicles at the node's rate, whether or not the robot has cycles.
+    let mut next_fleet = (!view.vehicles.is_empty()).then_some(HostTime::ZERO);
     for input in &recording.inputs {
         core.handle(input.at, input.input.as_input());
+        if let Some(next) = next_fleet.as_mut().filter(|next| input.at >= **next) {
+            put_fleet(&mut bag, &core.fleet_scene(), &view, &frames, unix_stamp(origin, input.at))?;
+            *next = input.at + settings.publish_every;
+        }
         while let Some(out) = core.poll() {
             let Output::Command { record, .. } = out else { continue };
             let at = HostTime::from_nanos(record.rx_ns);
             let (ns, stamp) = unix_stamp(origin, at);
             let (scene, fleet) = (core.scene(at), core.fleet_scene());
             bag.put("/odom", "nav_msgs/msg/Odometry", ns, &convert::odometry(&scene, stamp, &frames))?;
-            let tf = convert::transform(&scene, &fleet, &view.vehicles, stamp, &frames);
-            bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &tf)?;
-            for (label, v) in view.vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen) {
-                let odom = convert::vehicle_odometry(label, v, stamp, &frames);
-                bag.put(&convert::vehicle_odometry_topic(&label.name), "nav_msgs/msg/Odometry", ns, &odom)?;
-            }
+            bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &convert::transform(&scene, stamp, &frames))?;
             if first_in_slot(last_scene, at.as_nanos(), every) {
                 let obstacles = convert::obstacles(&scene, &fleet, &view, stamp, &frames);
                 bag.put(&format!("{fqn}/obstacles"), "visualization_msgs/msg/MarkerArray", ns, &obstacles)?;
@@ -293,6 +296,26 @@ fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary
         bag.put("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", ns, &diagnostics)?;
     }
     finish(bag, dir, &file, name)
+}
+
+/// Each of a fleet's other vehicles the camera has shown: its `/<name>/odom` and its frame
+/// on `/tf`.
+fn put_fleet(
+    bag: &mut BagWriter,
+    fleet: &FleetScene,
+    view: &ViewSetup,
+    frames: &Frames,
+    (ns, stamp): (u64, Time),
+) -> Result<(), BagError> {
+    for (label, v) in view.vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen) {
+        let odom = convert::vehicle_odometry(label, v, stamp, frames);
+        bag.put(&convert::vehicle_odometry_topic(&label.name), "nav_msgs/msg/Odometry", ns, &odom)?;
+    }
+    let transforms = convert::vehicle_transforms(fleet, &view.vehicles, stamp, frames);
+    if !transforms.is_empty() {
+        bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &TfMessage { transforms })?;
+    }
+    Ok(())
 }
 
 /// Close the MCAP file and write `metadata.yaml` beside it, as rosbag2 (Jazzy) does.

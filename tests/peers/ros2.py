@@ -120,11 +120,13 @@ def read_bag(folder):
                 p = m.pose.pose.position
                 out["odom"].append({"ns": log_time, "x": p.x, "y": p.y, "frame": m.header.frame_id, "child": m.child_frame_id})
             elif conn.topic == "/tf":
-                t = m.transforms[0]  # the robot's; a fleet's other vehicles follow
+                t = m.transforms[0]
                 stamp = t.header.stamp
-                out["tf"].append({"ns": log_time, "x": t.transform.translation.x, "y": t.transform.translation.y,
-                                  "frame": t.header.frame_id, "child": t.child_frame_id})
                 out["tf_children"].update(t.child_frame_id for t in m.transforms)
+                if t.child_frame_id == "base_link":  # the robot's (a fleet's other vehicles come apart)
+                    out["tf"].append({"ns": log_time, "x": t.transform.translation.x,
+                                      "y": t.transform.translation.y, "frame": t.header.frame_id,
+                                      "child": t.child_frame_id})
             elif conn.topic.endswith("/odom"):  # a fleet's other vehicle's, /<name>/odom
                 stamp = m.header.stamp
                 p = m.pose.pose.position

@@ -61,27 +61,30 @@ pub fn vehicle_odometry(label: &VehicleLabel, v: &SceneVehicle, stamp: Time, fra
     odometry_at(pose, twist, stamp, &frames.floor, vehicle_frame(&label.name, frames))
 }
 
-/// `/tf`: the floor frame to the robot's, and to each other vehicle's the camera has shown.
-pub fn transform(
-    s: &SceneRecord,
+/// `/tf`: the floor frame to the robot's.
+pub fn transform(s: &SceneRecord, stamp: Time, frames: &Frames) -> TfMessage {
+    TfMessage { transforms: vec![floor_to(frames.base.clone(), s.pose, stamp, frames)] }
+}
+
+/// The floor frame to each of a fleet's other vehicles the camera has shown
+/// ([`vehicle_frame`]): `/tf` carries them after the robot's.
+pub fn vehicle_transforms(
     fleet: &FleetScene,
     vehicles: &[VehicleLabel],
     stamp: Time,
     frames: &Frames,
-) -> TfMessage {
-    let to = |child: String, pose: [f64; 3]| {
-        let p = floor_pose(pose);
-        TransformStamped {
-            header: header(stamp, &frames.floor),
-            child_frame_id: child,
-            transform: Transform { translation: p.position, rotation: p.orientation },
-        }
-    };
-    let others = vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen);
-    let transforms = std::iter::once(to(frames.base.clone(), s.pose))
-        .chain(others.map(|(label, v)| to(vehicle_frame(&label.name, frames), v.pose.map(f64::from))))
-        .collect();
-    TfMessage { transforms }
+) -> Vec<TransformStamped> {
+    let shown = vehicles.iter().zip(fleet.vehicles()).filter(|(_, v)| v.seen);
+    shown.map(|(label, v)| floor_to(vehicle_frame(&label.name, frames), v.pose.map(f64::from), stamp, frames)).collect()
+}
+
+fn floor_to(child: String, pose: [f64; 3], stamp: Time, frames: &Frames) -> TransformStamped {
+    let p = floor_pose(pose);
+    TransformStamped {
+        header: header(stamp, &frames.floor),
+        child_frame_id: child,
+        transform: Transform { translation: p.position, rotation: p.orientation },
+    }
 }
 
 fn rgba(r: f32, g: f32, b: f32, a: f32) -> ColorRgba {

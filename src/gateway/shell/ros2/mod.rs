@@ -398,7 +398,8 @@ fn publish_scene(state: &NodeState, snapshot: &ViewSnapshot, out: &SceneOut) {
     let failed = |topic: &str, e: &dyn std::fmt::Debug| tracing::debug!("ROS 2: {topic}: {e:?}");
     if has_pose {
         out.odom.publish(convert::odometry(s, stamp, frames)).unwrap_or_else(|e| failed("/odom", &e));
-        let tf = convert::transform(s, fleet, &view.vehicles, stamp, frames);
+        let mut tf = convert::transform(s, stamp, frames);
+        tf.transforms.extend(convert::vehicle_transforms(fleet, &view.vehicles, stamp, frames));
         out.tf.publish(tf).unwrap_or_else(|e| failed("/tf", &e));
         out.path.publish(convert::path(s, fleet, view, stamp, frames)).unwrap_or_else(|e| failed("~/path", &e));
     }
