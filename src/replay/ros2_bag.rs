@@ -253,14 +253,14 @@ fn write_bag(recording: &Recording, dir: &Path, name: &str) -> Result<BagSummary
     for input in &recording.inputs {
         core.handle(input.at, input.input.as_input());
         if let Some(next) = next_fleet.as_mut().filter(|next| input.at >= **next) {
-            put_fleet(&mut bag, &core.fleet_scene(), &view, &frames, unix_stamp(origin, input.at))?;
+            put_fleet(&mut bag, &core.fleet_scene().unwrap_or_default(), &view, &frames, unix_stamp(origin, input.at))?;
             *next = input.at + settings.publish_every;
         }
         while let Some(out) = core.poll() {
             let Output::Command { record, .. } = out else { continue };
             let at = HostTime::from_nanos(record.rx_ns);
             let (ns, stamp) = unix_stamp(origin, at);
-            let (scene, fleet) = (core.scene(at), core.fleet_scene());
+            let (scene, fleet) = (core.scene(at), core.fleet_scene().unwrap_or_default());
             bag.put("/odom", "nav_msgs/msg/Odometry", ns, &convert::odometry(&scene, stamp, &frames))?;
             bag.put("/tf", "tf2_msgs/msg/TFMessage", ns, &convert::transform(&scene, stamp, &frames))?;
             if first_in_slot(last_scene, at.as_nanos(), every) {

@@ -20,6 +20,15 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 
 
+def await_end(driver, failures):
+    """Wait for the page to say the run ended (or the gateway went), at most 60 s."""
+    try:
+        WebDriverWait(driver, 60, poll_frequency=0.2).until(
+            lambda d: d.find_element(By.ID, "link").text.startswith(("run ended", "disconnected")))
+    except Exception:
+        failures.append("the page never saw the run end")
+
+
 FLEET_READ = """
     return [...document.querySelectorAll('#vehicles g.vehicle')].map(g => {
       const body = g.querySelector('circle.body');
@@ -57,11 +66,7 @@ def fleet(url, shot, names):
                 failures.append(f"{n} stayed at {first.get(n)}")
         out["running"] = drawn()
         driver.save_screenshot(shot)
-        try:
-            WebDriverWait(driver, 60, poll_frequency=0.2).until(
-                lambda d: d.find_element(By.ID, "link").text.startswith(("run ended", "disconnected")))
-        except Exception:
-            failures.append("the page never saw the run end")
+        await_end(driver, failures)
         out["final"] = drawn()
     finally:
         driver.quit()
@@ -142,11 +147,7 @@ try:
             failures.append(f"no {key} shown while running")
     driver.save_screenshot(shot)
     # The run ends: the page keeps its last state, says so, and its counts agree.
-    try:
-        WebDriverWait(driver, 60, poll_frequency=0.2).until(
-            lambda d: d.find_element(By.ID, "link").text.startswith(("run ended", "disconnected")))
-    except Exception:
-        failures.append("the page never saw the run end")
+    await_end(driver, failures)
     final = driver.execute_script("""
         const v = id => document.getElementById(id).textContent;
         const caption = document.getElementById('latency-caption');

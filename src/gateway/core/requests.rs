@@ -312,14 +312,15 @@ impl<K: StageClock> Core<K> {
         scene
     }
 
-    /// Each other vehicle of a fleet as its last cycle left it: its pose, state and goal.
-    /// Reads only.
-    pub fn fleet_scene(&self) -> FleetScene {
+    /// Each other vehicle of a fleet as its last cycle left it: its pose, state and goal
+    /// (`None`: the robot alone, nothing to build). Reads only.
+    pub fn fleet_scene(&self) -> Option<FleetScene> {
+        let others = self.vehicles.get(ROBOT + 1..).filter(|others| !others.is_empty())?;
         let mut fleet = FleetScene::default();
-        for v in &self.vehicles[ROBOT + 1..] {
+        for v in others {
             fleet.push(v.scene());
         }
-        fleet
+        Some(fleet)
     }
 
     /// Check and take a goal or a queue: each inside the calibrated arena, inside the lane,

@@ -408,7 +408,7 @@ impl Io {
         let recorder = &mut self.services.recorder;
         recorder.record(Record::Cycle(record));
         if recorder.recording() {
-            recorder.scene(core.scene(HostTime::from_nanos(record.rx_ns)), &core.fleet_scene());
+            recorder.scene(core.scene(HostTime::from_nanos(record.rx_ns)), core.fleet_scene());
         }
         if let Some(tx) = &self.progress {
             // Sampled by displays at their own pace: no wake-up per cycle.

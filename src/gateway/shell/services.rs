@@ -118,7 +118,7 @@ impl Services {
     pub fn publish_scene<K: StageClock>(&mut self, core: &Core<K>, now: HostTime) -> HostTime {
         let snapshot = || view::ViewSnapshot {
             scene: core.scene(now),
-            fleet: core.fleet_scene(),
+            fleet: core.fleet_scene().unwrap_or_default(),
             state: core.state(),
             cycles: core.counters().cycles,
         };
@@ -140,7 +140,7 @@ impl Services {
         }
         if let Some(next) = &mut self.fleet_scene {
             if now >= *next {
-                self.recorder.scene(core.scene(now), &core.fleet_scene());
+                self.recorder.scene(core.scene(now), core.fleet_scene());
                 *next = now + std::time::Duration::from_nanos(super::recording::ARENA_EVERY_NS);
             }
             next_due = next_due.min(*next);

@@ -88,8 +88,8 @@ impl Recorder {
 
     /// A scene, a fleet's other vehicles ahead of it in chunks (a record each, so that every
     /// record stays small enough to queue by value).
-    pub fn scene(&self, scene: SceneRecord, fleet: &FleetScene) {
-        for chunk in fleet.chunks() {
+    pub fn scene(&self, scene: SceneRecord, fleet: Option<FleetScene>) {
+        for chunk in fleet.iter().flat_map(FleetScene::chunks) {
             self.record(Record::Vehicles(chunk));
         }
         self.record(Record::Scene(scene));
