@@ -252,13 +252,7 @@ fn obstacles_schema() -> Vec<u8> {
             "planning_radius": { "type": "number" }, "radius": { "type": "number" }
         }
     });
-    let timestamp =
-        json!({ "type": "object", "properties": { "sec": { "type": "integer" }, "nsec": { "type": "integer" } } });
-    serde_json::to_vec(&json!({
-        "title": "flowgate.Obstacles", "type": "object",
-        "properties": { "timestamp": timestamp, "obstacles": { "type": "array", "items": obstacle } }
-    }))
-    .unwrap_or_default()
+    stamped_list_schema("flowgate.Obstacles", "obstacles", obstacle)
 }
 
 /// `/vehicles`: each of a fleet's other vehicles as its last cycle estimated it.
@@ -276,13 +270,17 @@ fn vehicles_schema() -> Vec<u8> {
             "script_error": { "type": "number", "description": "a scripted vehicle's distance from its script, m" }
         }
     });
+    stamped_list_schema("flowgate.Vehicles", "vehicles", vehicle)
+}
+
+/// A message of a timestamp and a list under `key`, each item as `item` says.
+fn stamped_list_schema(title: &str, key: &str, item: Value) -> Vec<u8> {
     let timestamp =
         json!({ "type": "object", "properties": { "sec": { "type": "integer" }, "nsec": { "type": "integer" } } });
-    serde_json::to_vec(&json!({
-        "title": "flowgate.Vehicles", "type": "object",
-        "properties": { "timestamp": timestamp, "vehicles": { "type": "array", "items": vehicle } }
-    }))
-    .unwrap_or_default()
+    let mut properties = serde_json::Map::new();
+    properties.insert("timestamp".into(), timestamp);
+    properties.insert(key.into(), json!({ "type": "array", "items": item }));
+    serde_json::to_vec(&json!({ "title": title, "type": "object", "properties": properties })).unwrap_or_default()
 }
 
 /// Columns of `cycles.csv` that `/cycle` leaves out, each exactly another's sum:
