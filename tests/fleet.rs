@@ -46,7 +46,31 @@ fn scripted_vehicles_keep_to_their_scripts() {
         assert!(c.clearance_as_vehicles[0] >= c.clearance_as_obstacles[0], "{file}: {c}");
         assert!(c.script_error_max <= 0.01 && c.script_error_max > 0.0, "{file}: {c}");
         assert_eq!((c.script_error_over_1cm, c.scripts_lost), (0, 0), "{file}: {c}");
+        assert!(c.failed_as_vehicles.is_empty() && c.failed_as_obstacles.is_empty(), "{file}: {c}");
     }
+}
+
+/// A comparison names the first episodes in which the robot did not get home, each way, to
+/// replay with `--episode K`: here the robot is taken to have stalled with the scripts as
+/// vehicles wherever its start was jittered to the right.
+#[test]
+fn a_comparison_names_the_episodes_the_robot_did_not_get_home() {
+    use flowgate::lab::fleet::sweep::compare_scripts_with;
+    let e5 = scenario("e5-scripted.toml");
+    let right_of_start = |s: &Scenario| s.sim.robot.start[0] > e5.sim.robot.start[0];
+    let c = compare_scripts_with(&e5, 40, 1, 2, |s| {
+        let mut f = run(s, FleetOptions::default());
+        if right_of_start(s) && !s.sim.vehicles.is_empty() {
+            f.vehicles[0].outcome = Outcome::Stall;
+        }
+        f
+    })
+    .unwrap();
+    let expected: Vec<u64> = (0..40).filter(|&i| right_of_start(&place(&e5, 1, i))).take(10).collect();
+    assert!(expected.len() >= 5, "{expected:?}");
+    assert_eq!(c.failed_as_vehicles, expected, "{c}");
+    assert!(c.failed_as_obstacles.is_empty(), "{c}");
+    assert!(c.to_string().contains(&format!("first episodes not home as vehicles: {expected:?}")), "{c}");
 }
 
 const DRIVEN_INTO: &str = r#"

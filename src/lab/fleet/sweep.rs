@@ -296,6 +296,10 @@ pub struct ScriptedComparison {
     pub script_error_over_1cm: usize,
     /// Episodes in which a scripted vehicle was stopped for losing its script.
     pub scripts_lost: usize,
+    /// The first episodes (at most ten) in which the robot did not reach its goal with no
+    /// contact: scripts as vehicles, and as obstacles; each replays with `--episode K`.
+    pub failed_as_vehicles: Vec<u64>,
+    pub failed_as_obstacles: Vec<u64>,
 }
 
 /// Run `n` episodes of a fleet with scripted vehicles twice: as written, and with every
@@ -318,10 +322,13 @@ pub fn compare_scripts_with(
     threads: usize,
     run: impl Fn(&Scenario) -> FleetSummary + Sync,
 ) -> Result<ScriptedComparison, TooLarge> {
-    let pairs = Shard::WHOLE.run(n, threads, |i| {
+    let mut indexed = Shard::WHOLE.run(n, threads, |i| {
         let s = place(base, seed, i);
-        (run(&s), run(&scripts_as_obstacles(&s)))
+        (i, (run(&s), run(&scripts_as_obstacles(&s))))
     })?;
+    // The workers finish in no particular order: each pair at its episode's index.
+    indexed.sort_by_key(|&(i, _)| i);
+    let pairs: Vec<(FleetSummary, FleetSummary)> = indexed.into_iter().map(|(_, pair)| pair).collect();
     let home = |f: &FleetSummary| f.vehicles[0].outcome == Outcome::Goal && f.vehicles[0].contact.is_none();
     let quantiles = |pick: &dyn Fn(&(FleetSummary, FleetSummary)) -> f64| {
         let mut v: Vec<f64> = pairs.iter().map(pick).collect();
@@ -330,6 +337,9 @@ pub fn compare_scripts_with(
     };
     let errors: Vec<f64> =
         pairs.iter().map(|(a, _)| a.vehicles.iter().filter_map(|v| v.script_error).fold(0.0, f64::max)).collect();
+    let first_failed = |home: &dyn Fn(&(FleetSummary, FleetSummary)) -> bool| -> Vec<u64> {
+        (0..).zip(&pairs).filter(|(_, pair)| !home(pair)).map(|(i, _)| i).take(10).collect()
+    };
     let lost = pairs
         .iter()
         .filter(|(a, _)| a.vehicles.iter().any(|v| v.role == Role::Script && v.outcome == Outcome::Stopped))
@@ -345,6 +355,8 @@ pub fn compare_scripts_with(
         script_error_max: errors.iter().copied().fold(0.0, f64::max),
         script_error_over_1cm: errors.iter().filter(|&&e| e > 0.01).count(),
         scripts_lost: lost,
+        failed_as_vehicles: first_failed(&|(a, _)| home(a)),
+        failed_as_obstacles: first_failed(&|(_, b)| home(b)),
     })
 }
 
@@ -366,6 +378,12 @@ impl std::fmt::Display for ScriptedComparison {
             self.script_error_max * 1e3,
             self.script_error_over_1cm,
             self.scripts_lost
-        )
+        )?;
+        for (mode, failed) in [("as vehicles", &self.failed_as_vehicles), ("as obstacles", &self.failed_as_obstacles)] {
+            if !failed.is_empty() {
+                write!(f, "\n  first episodes not home {mode}: {failed:?}")?;
+            }
+        }
+        Ok(())
     }
 }
