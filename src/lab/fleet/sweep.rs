@@ -297,7 +297,8 @@ pub struct ScriptedComparison {
     /// Episodes in which a scripted vehicle was stopped for losing its script.
     pub scripts_lost: usize,
     /// The first episodes (at most ten) in which the robot did not reach its goal with no
-    /// contact: scripts as vehicles, and as obstacles; each replays with `--episode K`.
+    /// contact: scripts as vehicles, and as obstacles (`--episode K` on the same sweep runs
+    /// one alone, the scripts as vehicles).
     pub failed_as_vehicles: Vec<u64>,
     pub failed_as_obstacles: Vec<u64>,
 }
