@@ -427,3 +427,39 @@ fn the_fleets_swarm_through_the_whole_stack_breaks_no_invariant() {
         assert!(report.unfaulted_home > 0, "{name}: {report}");
     }
 }
+
+/// A vehicle stopped while it turns hard is braked on its arc: both wheels come down
+/// together until its centre stands, then both to zero. From the fastest its centre goes
+/// once the stop is asked (`v`), it travels no further than a straight stop would (`v²/2a`,
+/// and `v` for the cycle the stop waits for), where zero to each wheel would carry it up to
+/// `(v_r - v_l)²/8a` further.
+#[test]
+fn a_vehicle_stopped_while_it_turns_keeps_its_arc() {
+    let s = scenario("swap-4.toml");
+    let accel = s.robot.wheel_accel;
+    let mut rig = VirtualRig::new(&s, Options::default());
+    let turning = |w: [f64; 2]| (w[1] - w[0]).abs() >= 0.15 && (w[0] + w[1]).abs() / 2.0 >= 0.03;
+    while !turning(rig.fleet().world(1).wheel_speeds()) {
+        assert!(rig.time() < 10.0, "vehicle 1 never turned hard");
+        rig.step();
+    }
+    let from = rig.fleet().world(1).truth().path_length;
+    rig.vehicle_request(1, &Request::Stop).unwrap();
+    let (mut fastest, mut spread) = (0.0f64, 0.0f64);
+    loop {
+        let w = rig.fleet().world(1).wheel_speeds();
+        if w == [0.0; 2] {
+            break;
+        }
+        (fastest, spread) = (fastest.max(((w[0] + w[1]) / 2.0).abs()), spread.max((w[1] - w[0]).abs()));
+        assert!(rig.time() < 12.0, "vehicle 1 never stood");
+        rig.step();
+    }
+    let travelled = rig.fleet().world(1).truth().path_length - from;
+    let straight = fastest * fastest / (2.0 * accel) + fastest * s.sensing.sample_time;
+    let pivot = spread * spread / (8.0 * accel);
+    assert!(travelled <= straight, "{travelled:.4} m on the brake, a straight stop {straight:.4} m");
+    assert!(pivot > 2.0 * straight, "zero to each wheel could go {pivot:.4} m further");
+    rig.run_until(rig.time() + 0.2);
+    assert_eq!(rig.core().vehicle_state(1), Some(State::Stopped(StopReason::Operator)));
+}

@@ -32,7 +32,7 @@ pub use motors::{
     CIA402_CONSUMER_TIME_MS,
 };
 pub use planning::{default_tolerance, Goal, LaneSection, PlannerMethod, PlannerSection, RobotSection};
-pub use safety::{SafetySection, SafetySettings};
+pub use safety::{SafetySection, SafetySettings, StopBrake};
 pub use service::{OperatorSection, RealtimeSection, RealtimeSettings, RecordCompression, TelemetrySection};
 pub use vehicles::{DrivenSettings, MotionSection, RoleName, Vehicle, VehicleMotors, VehicleScript, VehicleSection};
 mod can_url;
@@ -227,7 +227,7 @@ impl RigFile {
             control,
             board,
             tracking: self.tracking_settings(),
-            safety: self.safety.settings(),
+            safety: self.safety.settings(!self.vehicles.is_empty()),
             telemetry: self.telemetry.clone(),
             goal: self.goal,
             operator: self.operator.clone(),

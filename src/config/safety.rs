@@ -39,6 +39,23 @@ pub struct SafetySection {
     pub stall_window_ms: u32,
     #[serde(default = "default_stall_progress")]
     pub stall_progress_m: f64,
+    /// How an orderly stop brings a vehicle's wheels down (unset: `arc` on a rig with
+    /// `[[vehicles]]`, `each-wheel` for a single robot).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stop_brake: Option<StopBrake>,
+}
+
+/// How an orderly stop (the operator's, a goal reached, a stall) or a wait brings a
+/// vehicle's wheels down.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StopBrake {
+    /// Both wheels lowered together until the centre stands, then both to zero: the
+    /// vehicle holds its turn and stays on the arc its supervisor certified.
+    Arc,
+    /// Zero to each wheel at once: each board ramps its own wheel down, so a turning
+    /// vehicle pivots off its arc, by up to `(v_r - v_l)² / 8a` along its way.
+    EachWheel,
 }
 
 pub(super) fn default_stall_window() -> u32 {
@@ -86,6 +103,7 @@ impl Default for SafetySection {
             max_obstacle_speed: default_max_obstacle_speed(),
             stall_window_ms: default_stall_window(),
             stall_progress_m: default_stall_progress(),
+            stop_brake: None,
         }
     }
 }
@@ -158,8 +176,12 @@ impl SafetySection {
         Ok(())
     }
 
-    pub(super) fn settings(&self) -> SafetySettings {
+    /// The watchdogs' settings; `fleet`: the rig has other vehicles (the stop's brake
+    /// defaults to `arc`).
+    pub(super) fn settings(&self, fleet: bool) -> SafetySettings {
+        let brake_default = if fleet { StopBrake::Arc } else { StopBrake::EachWheel };
         SafetySettings {
+            stop_brake: self.stop_brake.unwrap_or(brake_default),
             pose_timeout: ms(self.pose_timeout_ms),
             bad_frames_per_s: self.bad_frames_per_s,
             heartbeat_timeout: ms(self.heartbeat_timeout_ms),
@@ -179,4 +201,5 @@ pub struct SafetySettings {
     pub sample_timeout: Duration,
     pub pose_tolerance: f64,
     pub occlusion_timeout: Duration,
+    pub stop_brake: StopBrake,
 }

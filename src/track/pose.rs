@@ -156,6 +156,11 @@ impl PoseTrack {
         self.still_since = Some(t);
     }
 
+    /// The wheels' rim speeds at `t`, as the commands and the boards' ramp have brought them.
+    pub fn wheels_at(&self, t: f64) -> [f64; 2] {
+        self.dead_reckoning.wheels_at(t)
+    }
+
     /// The wheels were commanded these speeds at `t` (for dead reckoning).
     pub fn commanded(&mut self, t: f64, left: f64, right: f64) {
         self.dead_reckoning.command(t, left, right);

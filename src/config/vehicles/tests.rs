@@ -294,3 +294,25 @@ fn a_scripted_vehicle_follows_its_motion_cut_at_the_arenas_edge() {
         assert!(w.starts_with(why), "{key}: {w}");
     }
 }
+
+/// A rig with vehicles brakes its stops on the arc by default; a single robot's stop is as
+/// it was (zero to each wheel) unless `safety.stop_brake` asks for the arc; a brake the
+/// gateway does not know is refused, naming it.
+#[test]
+fn a_fleet_stops_on_the_arc_and_a_single_robot_as_configured() {
+    use crate::config::StopBrake;
+    assert_eq!(rig(TWO).unwrap().safety.stop_brake, StopBrake::Arc);
+    assert_eq!(rig("").unwrap().safety.stop_brake, StopBrake::EachWheel);
+    let arc = EXAMPLE.replace("[safety]\n", "[safety]\nstop_brake = \"arc\"\n");
+    let r = RigFile::from_toml(&arc, "rig.toml").unwrap().rig("rig.toml").unwrap();
+    assert_eq!(r.safety.stop_brake, StopBrake::Arc);
+    let each = format!("{}\n{TWO}", EXAMPLE.replace("[safety]\n", "[safety]\nstop_brake = \"each-wheel\"\n"));
+    assert_eq!(
+        RigFile::from_toml(&each, "rig.toml").unwrap().rig("rig.toml").unwrap().safety.stop_brake,
+        StopBrake::EachWheel
+    );
+    let bad = EXAMPLE.replace("[safety]\n", "[safety]\nstop_brake = \"coast\"\n");
+    let Err(e) = RigFile::from_toml(&bad, "rig.toml") else { panic!("an unknown brake was taken") };
+    let said = e.to_string();
+    assert!(said.contains("stop_brake") && said.contains("coast"), "{said}");
+}

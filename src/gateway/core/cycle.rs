@@ -10,6 +10,8 @@ use super::timing::CycleRecord;
 use super::vehicle::LastEstimate;
 use super::ROBOT;
 use super::{Core, Notice, Output, StageClock, State, StopReason};
+use crate::config::StopBrake;
+use crate::control::drive::braking_pulse_rates;
 use crate::control::{StepOutput, StepStatus, Supervision};
 use crate::planner::PlannerError;
 use crate::time::{ClockOffset, CtrlTime, HostTime};
@@ -56,8 +58,11 @@ impl<K: StageClock> Core<K> {
     fn drive(&mut self, k: usize, now: HostTime, stages: Option<(u32, CtrlTime, u64, u64, u64)>) {
         let track_start = stages.map_or_else(|| self.clock.now_ns(), |s| s.4);
         // No fresh pose: no command (the pose watchdog stops a running vehicle; the keep-alive
-        // feeds a board that waits for its first pose).
-        let Some(d) = self.decide(k, now, track_start) else { return };
+        // feeds a board that waits for its first pose), but an arc brake goes on.
+        let Some(d) = self.decide(k, now, track_start) else {
+            let _braking = self.brake_unseen(k, now);
+            return;
+        };
         if d.started {
             self.state_changed(k, now);
         }
@@ -69,10 +74,8 @@ impl<K: StageClock> Core<K> {
             self.progress.clearance = d.clearance.map(|c| c - self.rig.control.robot_radius);
         }
         let asked = d.step.map_or([0.0; 2], |out| [out.asked.left, out.asked.right]);
-        let (pulses, wheels) = match d.step {
-            Some(out) => self.carry_out(k, now, out),
-            None => ([0; 2], (0.0, 0.0)),
-        };
+        let (pulses, wheels) =
+            d.step.and_then(|out| self.carry_out(k, now, out)).unwrap_or_else(|| self.brake(k, d.wheels));
         let plan_ns = self.clock.now_ns().saturating_sub(d.plan_start);
         // Commands go out in Running (motion), Armed and Stopping (zero, keeping the
         // enabled board's command timeout fed).
@@ -90,7 +93,7 @@ impl<K: StageClock> Core<K> {
             passed: [wheels.0, wheels.1],
             ..self.record(now, frame_no, end, pulses, d.delay, d.pose.position)
         });
-        self.command(k, now, pulses, record, d.pose.position);
+        self.command(k, now, pulses, record.map(|r| (r, d.pose.position)));
     }
 
     /// Vehicle `k` was commanded these wheel speeds: the vehicles after it plan on the
@@ -161,9 +164,38 @@ impl<K: StageClock> Core<K> {
         Some(Decision { pose, delay, wheels, clearance, step, started, script_stop, track_ns, plan_start })
     }
 
+    /// The command that brings vehicle `k`'s wheels down, stopping or waiting, from their
+    /// rim speeds `wheels` now: with `[safety] stop_brake = "arc"` both together
+    /// ([`braking_pulse_rates`]: it keeps the arc the supervisor certified), else zero to each.
+    fn brake(&self, k: usize, wheels: [f64; 2]) -> ([i32; 2], (f64, f64)) {
+        if self.rig.safety.stop_brake != StopBrake::Arc {
+            return ([0; 2], (0.0, 0.0));
+        }
+        let drive = &self.vehicles[k].control.config().drive;
+        let pulses = braking_pulse_rates(wheels, drive);
+        let ppm = drive.pulses_per_metre();
+        (pulses, (f64::from(pulses[0]) / ppm, f64::from(pulses[1]) / ppm))
+    }
+
+    /// Vehicle `k` stopping on the arc brake without a fresh pose: the brake goes on, from
+    /// where its commands and the boards' ramp have brought the wheels, so that it ends
+    /// whether or not the camera sees the vehicle. Whether it commanded.
+    pub(super) fn brake_unseen(&mut self, k: usize, now: HostTime) -> bool {
+        let v = &self.vehicles[k];
+        let stopping = matches!(v.state(), State::Stopping(_)) && v.motors.takes_commands();
+        if self.rig.safety.stop_brake != StopBrake::Arc || !stopping {
+            return false;
+        }
+        let t = now.secs();
+        let (pulses, wheels) = self.brake(k, self.vehicles[k].pose.wheels_at(t));
+        self.vehicles[k].pose.commanded(t, wheels.0, wheels.1);
+        self.command(k, now, pulses, None);
+        true
+    }
+
     /// Count what vehicle `k`'s step saw and act on its status; the pulses and wheel speeds
-    /// to command.
-    fn carry_out(&mut self, k: usize, now: HostTime, out: StepOutput) -> ([i32; 2], (f64, f64)) {
+    /// to command, `None` when it does not drive (the brake's, then).
+    fn carry_out(&mut self, k: usize, now: HostTime, out: StepOutput) -> Option<([i32; 2], (f64, f64))> {
         let t = now.secs();
         let c = &mut self.counters;
         c.obstacle_outran_robot += u64::from(out.outrun);
@@ -177,7 +209,7 @@ impl<K: StageClock> Core<K> {
         }
         if out.status != StepStatus::Driving {
             self.step_stopped(k, now, out.status);
-            return ([0; 2], (0.0, 0.0));
+            return None;
         }
         c.outside_commands_saturated += u64::from(out.saturated);
         match out.supervision {
@@ -186,7 +218,7 @@ impl<K: StageClock> Core<K> {
             Supervision::Braking { .. } => c.supervisor_braking += 1,
             Supervision::Evaded { .. } => c.supervisor_evaded += 1,
         }
-        (out.pulses, (out.wheels.left, out.wheels.right))
+        Some((out.pulses, (out.wheels.left, out.wheels.right)))
     }
 
     /// Vehicle `k`'s step did not drive: the goal reached, a stall, an occupied goal, a
@@ -406,7 +438,7 @@ impl<K: StageClock> Core<K> {
     }
 
     /// The cycle's command to vehicle `k`'s motors; the robot's with the cycle's record.
-    fn command(&mut self, k: usize, now: HostTime, pulses: [i32; 2], record: Option<CycleRecord>, position: Point) {
+    fn command(&mut self, k: usize, now: HostTime, pulses: [i32; 2], record: Option<(CycleRecord, Point)>) {
         if !self.vehicles[k].motors.takes_commands() {
             return;
         }
@@ -420,7 +452,7 @@ impl<K: StageClock> Core<K> {
             return;
         };
         self.vehicles[k].run.commanded(now);
-        let Some(record) = record else {
+        let Some((record, position)) = record else {
             self.out.push(Output::Can(frame));
             return;
         };

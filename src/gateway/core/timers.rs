@@ -242,7 +242,8 @@ impl<K: StageClock> Core<K> {
                 }
             }
             Timer::StopGrace => self.check_at_rest(k, now),
-            Timer::KeepAlive => {
+            // An arc brake under way is the command that keeps the board fed.
+            Timer::KeepAlive if !self.brake_unseen(k, now) => {
                 let v = &mut self.vehicles[k];
                 v.run.commanded(now);
                 v.motors.keep_alive(&mut self.out.can());

@@ -298,21 +298,29 @@ impl<K: StageClock> VirtualRig<K> {
         self.core_deadline = self.core.next_deadline();
     }
 
-    /// A velocity command that is not zero, outside Running, is counted: motion only in
-    /// Running.
+    /// A velocity command outside Running that is neither zero nor a brake is counted:
+    /// motion only in Running. A brake (`[safety] stop_brake = "arc"`) asks for the centre
+    /// at rest (the wheels' targets opposite, within a pulse a second) and neither wheel
+    /// faster than the faster turns now: it takes speed off, never adds it.
     pub(super) fn check_motion(&mut self, frame: &CanFrame) {
-        if let Ok(flowgate_protocol::motor::MotorMessage::Velocity { left, right, .. }) =
-            flowgate_protocol::motor::MotorMessage::parse(frame)
-        {
-            let node = flowgate_protocol::motor::MotorMessage::parse(frame).ok().and_then(|m| m.node());
-            let k = node.and_then(|n| self.board_nodes.iter().position(|&b| b == Some(n.get()))).unwrap_or(0);
-            if (left, right) != (0, 0) && self.announced[k] != State::Running {
-                self.motion_outside_running += 1;
-            }
+        use flowgate_protocol::motor::MotorMessage;
+        let Ok(message) = MotorMessage::parse(frame) else { return };
+        let MotorMessage::Velocity { left, right, .. } = message else { return };
+        let node = message.node();
+        let k = node.and_then(|n| self.board_nodes.iter().position(|&b| b == Some(n.get()))).unwrap_or(0);
+        if (left, right) == (0, 0) || self.announced[k] == State::Running {
+            return;
+        }
+        let turning = self.fleet.world(k).axes().iter().map(|a| a.rate().abs()).fold(0.0, f64::max);
+        let (left, right) = (i64::from(left), i64::from(right));
+        let brake = (left + right).abs() <= 1 && left.abs().max(right.abs()) as f64 <= turning + 1.0;
+        if !brake {
+            self.motion_outside_running += 1;
         }
     }
 
-    /// Velocity commands that were not zero, given outside Running (the invariant: none).
+    /// Velocity commands outside Running that were neither zero nor a brake (the invariant:
+    /// none).
     pub fn motion_outside_running(&self) -> u64 {
         self.motion_outside_running
     }
