@@ -428,6 +428,24 @@ fn the_fleets_swarm_through_the_whole_stack_breaks_no_invariant() {
     }
 }
 
+/// The fleet's e-stop before the first stream has armed the fleet latches every vehicle,
+/// and the swarm's judge counts each as stopped by it, not as a vehicle no fault stopped
+/// that missed its goal (episode 2350 of E5's swarm: the e-stop at 4.12 s, before the PSD
+/// controller's handshake is done).
+#[test]
+fn an_e_stop_before_the_first_arm_is_counted_as_the_stop() {
+    use flowgate::lab::fleet::swarm::{stack, FleetFault};
+    let (e, summary) = stack::episode(&scenario("e5-scripted.toml"), 1, 2350);
+    assert!(e.broken.is_empty(), "{:?}", e.broken);
+    assert_eq!(e.stopped.len(), 2, "{:?}", e.stopped);
+    assert!(e.stopped.iter().all(|&(_, f, _)| matches!(f, FleetFault::EStop { .. })), "{:?}", e.stopped);
+    assert_eq!(e.unfaulted, 0);
+    for v in &summary.vehicles {
+        assert_eq!(v.path_length, 0.0, "{} never moved", v.name);
+        assert!(v.stop_reason.as_deref().is_some_and(|r| r.contains("operator emergency stop")), "{v:?}");
+    }
+}
+
 /// A vehicle stopped while it turns hard is braked on its arc: both wheels come down
 /// together until its centre stands, then both to zero. From the fastest its centre goes
 /// once the stop is asked (`v`), it travels no further than a straight stop would (`v²/2a`,

@@ -84,7 +84,14 @@ fn inject(fault: FleetFault, rig: &mut VirtualRig, t: f64, stopped: &mut Stopped
             let _ = rig.vehicle_request(vehicle as u8, &Request::Stop);
         }
         FleetFault::EStop { .. } => {
-            (0..rig.core().vehicle_count()).for_each(|k| hit(k, fault, t, rig, stopped));
+            // The fleet's e-stop latches a vehicle not yet armed too: it never starts.
+            let latches = |k| rig.core().vehicle_state(k) == Some(State::Idle);
+            (0..rig.core().vehicle_count()).for_each(|k| {
+                if latches(k) && !stopped.iter().any(|&(j, _, _)| j == k) {
+                    stopped.push((k, fault, t));
+                }
+                hit(k, fault, t, rig, stopped);
+            });
             let _ = rig.request(&Request::EStop);
         }
     }
