@@ -430,10 +430,10 @@ fn the_fleets_swarm_through_the_whole_stack_breaks_no_invariant() {
 
 /// The fleet's e-stop before the first stream has armed the fleet latches every vehicle,
 /// and the swarm's judge counts each as stopped by it, not as a vehicle no fault stopped
-/// that missed its goal (episode 2350 of E5's swarm: the e-stop at 4.12 s, before the PSD
-/// controller's handshake is done).
+/// that missed its goal (episode 2350 of E5's swarm); faults before the first stream that
+/// stop nobody do not end the run before the fleet has started.
 #[test]
-fn an_e_stop_before_the_first_arm_is_counted_as_the_stop() {
+fn faults_before_the_first_arm_are_judged_by_what_they_did() {
     use flowgate::lab::fleet::swarm::{stack, FleetFault};
     let (e, summary) = stack::episode(&scenario("e5-scripted.toml"), 1, 2350);
     assert!(e.broken.is_empty(), "{:?}", e.broken);
@@ -444,6 +444,12 @@ fn an_e_stop_before_the_first_arm_is_counted_as_the_stop() {
         assert_eq!(v.path_length, 0.0, "{} never moved", v.name);
         assert!(v.stop_reason.as_deref().is_some_and(|r| r.contains("operator emergency stop")), "{v:?}");
     }
+    // Episode 2782's faults all come before the first stream and end nothing (a stop
+    // refused, a vehicle not yet armed): the run goes on until the fleet is done, and the
+    // robot reaches its goal.
+    let (e, summary) = stack::episode(&scenario("e5-scripted.toml"), 1, 2782);
+    assert!(e.broken.is_empty() && e.stopped.is_empty(), "{:?} {:?}", e.broken, e.stopped);
+    assert_eq!((e.unfaulted, e.unfaulted_home), (1, 1), "{summary:?}");
 }
 
 /// A vehicle stopped while it turns hard is braked on its arc: both wheels come down

@@ -41,9 +41,15 @@ pub fn episode(base: &Scenario, seed: u64, i: u64) -> (SwarmEpisode, FleetSummar
     (episode, summary)
 }
 
-/// Whether vehicle `k` is done: no longer armed or running.
+/// Whether vehicle `k` is under way: armed or running.
+fn under_way(rig: &VirtualRig, k: usize) -> bool {
+    matches!(rig.core().vehicle_state(k), Some(State::Running | State::Armed))
+}
+
+/// Whether vehicle `k` is done: stopping, stopped or faulted. One not yet armed (the fleet
+/// is armed at the first stream) is still to start, and the run goes on for it.
 fn done(rig: &VirtualRig, k: usize) -> bool {
-    !matches!(rig.core().vehicle_state(k), Some(State::Running | State::Armed))
+    matches!(rig.core().vehicle_state(k), Some(State::Stopping(_) | State::Stopped(_) | State::Fault(_)))
 }
 
 /// Run `rig` to the episode's end, each fault applied as the run reaches its time; whom
@@ -101,7 +107,7 @@ fn inject(fault: FleetFault, rig: &mut VirtualRig, t: f64, stopped: &mut Stopped
 /// under way (a stop sent after its link failed does not reach it, and that failure was
 /// its first).
 fn hit(k: usize, fault: FleetFault, t: f64, rig: &VirtualRig, stopped: &mut Stopped) {
-    if !done(rig, k) && !stopped.iter().any(|&(j, _, _)| j == k) {
+    if under_way(rig, k) && !stopped.iter().any(|&(j, _, _)| j == k) {
         stopped.push((k, fault, t));
     }
 }
