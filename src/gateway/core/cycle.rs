@@ -60,7 +60,7 @@ impl<K: StageClock> Core<K> {
         // No fresh pose: no command (the pose watchdog stops a running vehicle; the keep-alive
         // feeds a board that waits for its first pose), but an arc brake goes on.
         let Some(d) = self.decide(k, now, track_start) else {
-            let _braking = self.brake_unseen(k, now);
+            self.brake_unseen(k, now);
             return;
         };
         if d.started {
@@ -77,8 +77,8 @@ impl<K: StageClock> Core<K> {
         let (pulses, wheels) =
             d.step.and_then(|out| self.carry_out(k, now, out)).unwrap_or_else(|| self.brake(k, d.wheels));
         let plan_ns = self.clock.now_ns().saturating_sub(d.plan_start);
-        // Commands go out in Running (motion), Armed and Stopping (zero, keeping the
-        // enabled board's command timeout fed).
+        // Commands go out in Running (motion), Armed and Stopping (zero or the arc brake,
+        // keeping the enabled board's command timeout fed).
         if !matches!(self.vehicles[k].state(), State::Running | State::Armed | State::Stopping(_)) {
             return;
         }

@@ -84,30 +84,26 @@ fn play(s: &Scenario, rig: &mut VirtualRig, faults: &[FleetFault]) -> (Stopped, 
 /// Apply `fault` at `t`, noting each vehicle it stops.
 fn inject(fault: FleetFault, rig: &mut VirtualRig, t: f64, stopped: &mut Stopped) {
     match fault {
-        FleetFault::LinkLost { vehicle, .. } => hit(vehicle, fault, t, rig, stopped),
+        FleetFault::LinkLost { vehicle, .. } => note(vehicle, fault, t, under_way(rig, vehicle), stopped),
         FleetFault::Stop { vehicle, .. } => {
-            hit(vehicle, fault, t, rig, stopped);
+            note(vehicle, fault, t, under_way(rig, vehicle), stopped);
             let _ = rig.vehicle_request(vehicle as u8, &Request::Stop);
         }
         FleetFault::EStop { .. } => {
             // The fleet's e-stop latches a vehicle not yet armed too: it never starts.
-            let latches = |k| rig.core().vehicle_state(k) == Some(State::Idle);
-            (0..rig.core().vehicle_count()).for_each(|k| {
-                if latches(k) && !stopped.iter().any(|&(j, _, _)| j == k) {
-                    stopped.push((k, fault, t));
-                }
-                hit(k, fault, t, rig, stopped);
-            });
+            for k in 0..rig.core().vehicle_count() {
+                let reaches = under_way(rig, k) || rig.core().vehicle_state(k) == Some(State::Idle);
+                note(k, fault, t, reaches, stopped);
+            }
             let _ = rig.request(&Request::EStop);
         }
     }
 }
 
-/// Note that `fault` stopped vehicle `k` at `t`: the first fault to reach it while it was
-/// under way (a stop sent after its link failed does not reach it, and that failure was
-/// its first).
-fn hit(k: usize, fault: FleetFault, t: f64, rig: &VirtualRig, stopped: &mut Stopped) {
-    if under_way(rig, k) && !stopped.iter().any(|&(j, _, _)| j == k) {
+/// Note that `fault` stopped vehicle `k` at `t`, if it `reaches` it and is the first to: a
+/// stop sent after its link failed does not reach it, and that failure was its first.
+fn note(k: usize, fault: FleetFault, t: f64, reaches: bool, stopped: &mut Stopped) {
+    if reaches && !stopped.iter().any(|&(j, _, _)| j == k) {
         stopped.push((k, fault, t));
     }
 }
