@@ -298,8 +298,8 @@ impl<K: StageClock> VirtualRig<K> {
         self.core_deadline = self.core.next_deadline();
     }
 
-    /// A velocity command outside Running that is neither zero nor a brake is counted:
-    /// motion only in Running. A brake (`[safety] stop_brake = "arc"`) asks for the centre
+    /// A velocity command outside Running that is neither zero nor, in Stopping, a brake is
+    /// counted: motion only in Running. A brake (`[safety] stop_brake = "arc"`) asks for the centre
     /// at rest (the wheels' targets opposite, within a pulse a second) and neither wheel
     /// faster than the faster turns now: it takes speed off, never adds it.
     pub(super) fn check_motion(&mut self, frame: &CanFrame) {
@@ -313,7 +313,8 @@ impl<K: StageClock> VirtualRig<K> {
         }
         let turning = self.fleet.world(k).axes().iter().map(|a| a.rate().abs()).fold(0.0, f64::max);
         let (left, right) = (i64::from(left), i64::from(right));
-        let brake = (left + right).abs() <= 1 && left.abs().max(right.abs()) as f64 <= turning + 1.0;
+        let stopping = matches!(self.announced[k], State::Stopping(_));
+        let brake = stopping && (left + right).abs() <= 1 && left.abs().max(right.abs()) as f64 <= turning + 1.0;
         if !brake {
             self.motion_outside_running += 1;
         }
