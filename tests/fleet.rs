@@ -35,6 +35,23 @@ fn swaps_bring_every_vehicle_home_without_contact() {
     }
 }
 
+/// The 8-vehicle swap's episodes in which a vehicle, its way out past another that had
+/// stopped at its goal, sat on the edge of the other's spacing and crawled for seconds
+/// after every other vehicle was home (2.30, 2.39 and 2.28 times the slowest vehicle's time
+/// alone): a vehicle gives up another's spacing once the other is behind it, and each
+/// episode ends within 1.5 times.
+#[test]
+fn a_vehicle_leaving_another_does_not_crawl_on_its_spacing() {
+    use flowgate::lab::fleet::sweep::episode;
+    let swap = scenario("swap-8.toml");
+    for index in [9115, 8627, 3344] {
+        let e = episode(&swap, 1, index, FleetOptions::default());
+        assert_eq!((e.home, e.contacts), (8, 0), "episode {index}: {e:?}");
+        let ratio = e.makespan_ratio().expect("every vehicle home");
+        assert!(ratio < 1.5, "episode {index}: makespan {ratio:.2} times the slowest alone");
+    }
+}
+
 /// E2, E5 and E6 with their moving obstacles as scripted vehicles, 100 episodes each, each
 /// episode run twice: the robot reaches its goal as often and keeps as far off as with
 /// the obstacles, and every script is followed within 1 cm where nothing held it.

@@ -281,6 +281,7 @@ impl Planner {
             // (the supervisor guards what the margin gives up). Inside the true circle they
             // stay invalid: a robot there is in contact, a goal there cannot be reached.
             let cover = r0 + (p.center - anticipated).length();
+            flags.margin_shrunk |= give_up_spacing_behind(&mut p, o.keep, cover, input.position, to_goal);
             for point in [input.position, input.goal] {
                 let distance = (point - p.center).length();
                 if distance <= p.radius && distance > cover {
@@ -333,6 +334,30 @@ impl Planner {
         };
         Ok(Plan { field: v, velocity, flags })
     }
+}
+
+/// The cosine of the half-angle, round straight behind a vehicle, in which another's
+/// spacing is given up: 60°, where the flow along a circle's edge is still sin 60° (0.87)
+/// of its most; nearer the still point it falls to nothing.
+const STILL_CONE_COS: f64 = 0.5;
+
+/// A vehicle inside another vehicle's spacing (`keep`) with the other behind it, within
+/// [`STILL_CONE_COS`]'s angle of straight away from its goal, gives the spacing up whole,
+/// not shrunk to a millimetre short of itself: between a circle and the sink, where the
+/// vehicle would hug the circle's edge, the flow along the edge stops (the circle's still
+/// point facing the sink), and the vehicle would crawl off it for seconds. Leaving the
+/// other behind, it needs no room from it; anywhere else round it, the flow slides the
+/// vehicle along the edge and the spacing is shrunk as every margin is. Returns whether it
+/// gave the spacing up.
+fn give_up_spacing_behind(p: &mut PlanObstacle, keep: f64, cover: f64, position: Point, to_goal: Point) -> bool {
+    let from_here = p.center - position;
+    let (distance, way) = (from_here.length(), to_goal.length());
+    let behind = from_here.re * to_goal.re + from_here.im * to_goal.im < -STILL_CONE_COS * distance * way;
+    let inside = keep > 0.0 && behind && distance <= p.radius;
+    if inside {
+        p.radius = (p.radius - keep).max(cover);
+    }
+    inside
 }
 
 /// Where obstacle `o` is planned relative to its estimate, for a robot heading for the goal

@@ -560,6 +560,45 @@ fn a_robot_inside_a_margin_is_steered_not_frozen() {
     assert!((planned[0].radius - 0.21).abs() < 1e-12);
 }
 
+/// A vehicle inside another's spacing, the other behind it and its goal ahead, gives the
+/// spacing up whole: shrunk to a millimetre short of it, as any margin, it would sit by the
+/// still point of the circle's flow facing the goal and crawl. Ahead of the other, its
+/// goal beyond it, the spacing is shrunk as before.
+#[test]
+fn a_vehicle_leaving_another_gives_up_its_spacing_rather_than_crawl() {
+    let planner = planner(None);
+    // The fleet's spacing round a vehicle of 7 cm standing at the origin; ours 17 cm off.
+    let other = [ObstacleEstimate { keep: 0.04, ..ObstacleEstimate::exact(Point::default(), Point::default(), 0.07) }];
+    let at = Point::new(0.17, 0.0);
+    let leaving =
+        PlanInput { position: at, goal: Point::new(0.6, 0.0), robot_radius: 0.07, obstacles: &other, delay: 0.0 };
+    let mut planned = arrayvec::ArrayVec::new();
+    assert!(planner.plan_obstacles(&leaving, &mut planned).unwrap().margin_shrunk);
+    assert!((planned[0].radius - 0.14).abs() < 1e-12, "{}", planned[0].radius);
+    let speed = planner.plan(&leaving).unwrap().velocity.norm();
+    // Hugging the spacing's edge a millimetre off, the flow there is a few mm/s.
+    let mut hugging = Field::empty(Space::Free, planner.sink(leaving.goal));
+    let edge = PlanObstacle { center: Point::default(), velocity: Point::default(), radius: 0.17 - SHRUNK_GAP };
+    hugging.rebuild_clear_of(Space::Free, planner.sink(leaving.goal), &[edge], Some(at)).unwrap();
+    let crawl = hugging.velocity(at).unwrap().norm();
+    assert!(crawl < 0.005 && speed > 0.03, "given up: {speed} m/s; hugging its edge: {crawl} m/s");
+    // The other beside it (its goal square to the way from the other: the flow slides it
+    // along the edge), or ahead of it: the spacing is kept, shrunk to just short of it.
+    for goal in [Point::new(0.17, 0.6), Point::new(-0.6, 0.3)] {
+        planner.plan_obstacles(&PlanInput { goal, ..leaving }, &mut planned).unwrap();
+        assert!((planned[0].radius - (0.17 - SHRUNK_GAP)).abs() < 1e-12, "{goal}: {}", planned[0].radius);
+    }
+    // Within 60° of straight behind: given up.
+    let goal = at + Point::from_polar(0.4, 0.9 * PI / 3.0);
+    planner.plan_obstacles(&PlanInput { goal, ..leaving }, &mut planned).unwrap();
+    assert!((planned[0].radius - 0.14).abs() < 1e-12, "{}", planned[0].radius);
+    // An obstacle without a spacing (a single robot's) behind: shrunk as before.
+    let obstacle = [ObstacleEstimate { keep: 0.0, ..other[0] }];
+    let margin = Planner::new(PlannerConfig { margin: Margin::Factor { factor: 1.5 }, ..*planner.config() });
+    margin.plan_obstacles(&PlanInput { obstacles: &obstacle, ..leaving }, &mut planned).unwrap();
+    assert!((planned[0].radius - (0.17 - SHRUNK_GAP)).abs() < 1e-12, "{}", planned[0].radius);
+}
+
 /// The planning radius grows by the configured standard deviations of the predicted
 /// centre, and by the supervisor's margin.
 #[test]
