@@ -487,3 +487,18 @@ fn a_vehicle_stopped_while_it_turns_keeps_its_arc() {
     rig.run_until(rig.time() + 0.2);
     assert_eq!(rig.core().vehicle_state(1), Some(State::Stopped(StopReason::Operator)));
 }
+
+/// A vehicle whose link fails is stopped dead by its motors' timeout before the gateway
+/// hears of it (the heartbeat). A follower's supervisor judges each other vehicle anywhere
+/// between where it stands and where its command would take it, so it keeps its stop's
+/// length behind where that vehicle stands: in episode 3397 of the 8-vehicle swap's swarm,
+/// `v4`'s link fails at 4.98 s as `v5` follows it a centimetre clear, and `v5` stops short
+/// of it (judged as a supervisor seeing `v4` only going on, it drove into `v4` at 5.32 s).
+#[test]
+fn a_follower_stops_short_of_a_vehicle_its_motors_stopped_dead() {
+    use flowgate::lab::fleet::swarm::stack;
+    let (e, summary) = stack::episode(&scenario("swap-8.toml"), 1, 3397);
+    assert!(e.broken.is_empty(), "{:?}", e.broken);
+    let v5 = summary.vehicles.iter().find(|v| v.name == "v5").unwrap();
+    assert!(v5.contact.is_none(), "{v5:?}");
+}

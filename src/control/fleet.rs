@@ -21,7 +21,8 @@
 //!   ramp toward (its command; standing, once it is stopped), its footprint grown by how far
 //!   behind that way the ramps may still leave it: a vehicle setting off, or braking, is not
 //!   yet, or no longer, where its command would put it, and one following it must not run
-//!   into it there.
+//!   into it there. And anywhere short of that way: it may stop dead (its link lost, its
+//!   motors timing out) before anyone knows ([`crate::control::supervisor`]).
 
 use crate::planner::ObstacleEstimate;
 use crate::Point;

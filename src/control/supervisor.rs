@@ -21,7 +21,11 @@
 //!   standard deviations of the velocity times the time ahead, a fixed `clearance` and one
 //!   step's travel of both from it (each step is judged at its start), or else be moving
 //!   away from it (or toward it no faster than [`APPROACH_TOLERANCE`]). Once the centre
-//!   has stopped it drives into nothing;
+//!   has stopped it drives into nothing. Another vehicle of a fleet may stop dead anywhere
+//!   on its way (its link lost, its motors holding their last command until their timeout)
+//!   before anyone knows: it is kept clear of wherever between where it stands now and
+//!   where its command would take it, so a follower keeps its stop's length behind where
+//!   the vehicle ahead stands, not where it will be;
 //! - a line (a lane's line, or the edge of a wall, a static obstacle or the view near the
 //!   robot: the line that touches it, grown by the robot's radius, nearest the robot): the
 //!   robot's centre keeps `clearance` and a step's travel from it, or moves away from it
@@ -173,9 +177,12 @@ impl Hazard {
     /// anywhere in the step is then seen at its start, the last one included.
     fn driven_into(&self, s: f64, h: f64, position: Point, velocity: Point, slack: f64, tolerance: f64) -> bool {
         match *self {
-            Hazard::Obstacle { center, velocity: v, speed, keep, growth, .. } => {
+            Hazard::Obstacle { center, velocity: v, speed, keep, growth, vehicle, .. } => {
                 let d = center + v * s - position;
                 let reach = keep + slack + growth * (s + h) + speed * h;
+                if vehicle {
+                    return toward_the_way(center - position, d, reach, velocity, tolerance);
+                }
                 // Toward it faster than the tolerance: `d · v > tol |d|`.
                 let toward = d.re * velocity.re + d.im * velocity.im;
                 let distance_sqr = d.norm_sqr();
@@ -186,6 +193,58 @@ impl Hazard {
             }
         }
     }
+}
+
+/// Whether a robot moving at `velocity` is within `reach` of some point of the segment from
+/// offset `from` to offset `to` (relative to the robot) and moves toward it faster than
+/// `tolerance`: [`Hazard::driven_into`] for another vehicle, which may stop dead anywhere
+/// on its way (its link lost, its motors timing out) before anyone knows. The points
+/// within reach form one piece of the segment; the approach `p · velocity` is linear along
+/// it, so largest at one of its ends, and is weighed against the piece's nearest point
+/// (more cautious than the point it is largest at, which is no nearer).
+fn toward_the_way(from: Point, to: Point, reach: f64, velocity: Point, tolerance: f64) -> bool {
+    let way = to - from;
+    let length_sqr = way.norm_sqr();
+    let (first, last) = if length_sqr == 0.0 {
+        if from.norm_sqr() >= reach * reach {
+            return false;
+        }
+        (0.0, 0.0)
+    } else {
+        // |from + way u|² < reach²: between the roots of a quadratic in u, within [0, 1].
+        let half_b = from.re * way.re + from.im * way.im;
+        let disc = half_b * half_b - length_sqr * (from.norm_sqr() - reach * reach);
+        if disc <= 0.0 {
+            return false;
+        }
+        let root = disc.sqrt();
+        let (first, last) = (((-half_b - root) / length_sqr).max(0.0), ((-half_b + root) / length_sqr).min(1.0));
+        if first > last {
+            return false;
+        }
+        (first, last)
+    };
+    let approach = |u: f64| {
+        let p = from + way * u;
+        p.re * velocity.re + p.im * velocity.im
+    };
+    let toward = approach(first).max(approach(last));
+    let nearest = if length_sqr == 0.0 {
+        from
+    } else {
+        from + way * (-(from.re * way.re + from.im * way.im) / length_sqr).clamp(first, last)
+    };
+    toward > 0.0 && toward * toward > tolerance * tolerance * nearest.norm_sqr()
+}
+
+/// The point of the segment from offset `from` to offset `to` nearest the robot.
+fn nearest_on(from: Point, to: Point) -> Point {
+    let way = to - from;
+    let length_sqr = way.norm_sqr();
+    if length_sqr == 0.0 {
+        return from;
+    }
+    from + way * (-(from.re * way.re + from.im * way.im) / length_sqr).clamp(0.0, 1.0)
 }
 
 /// How fast the robot may still be moving toward an obstacle within its reach, m/s: a fifth
@@ -391,9 +450,11 @@ impl Context<'_> {
         let turned = turn_rate.abs() * left;
         self.hazards.iter().all(|hz| {
             let far = match *hz {
-                Hazard::Obstacle { center, velocity, speed, keep, growth, .. } => {
+                Hazard::Obstacle { center, velocity, speed, keep, growth, vehicle, .. } => {
                     let reach = keep + margin + growth * (s + left) + speed * left;
-                    (center + velocity * s - position).norm_sqr() > reach * reach
+                    let ahead = center + velocity * s - position;
+                    let nearest = if vehicle { nearest_on(center - position, ahead) } else { ahead };
+                    nearest.norm_sqr() > reach * reach
                 }
                 Hazard::Line { normal, offset, keep } => offset - dot(normal, position) > keep + margin,
             };
@@ -696,11 +757,17 @@ fn never_toward(hazard: &Hazard, s: f64, position: Point, facing: Point, span: f
     let bound = |along: f64, across: f64| if along < 0.0 { along * shrink } else { along } + across.abs() * turned;
     const FUZZ: f64 = 1e-9;
     match *hazard {
-        Hazard::Obstacle { center, velocity, speed, .. } => {
-            let d = center + velocity * s - position;
-            let along = d.re * facing.re + d.im * facing.im;
-            let across = d.im * facing.re - d.re * facing.im;
-            bound(along, across) + speed * span < -FUZZ
+        Hazard::Obstacle { center, velocity, speed, vehicle, .. } => {
+            let bound_at = |d: Point| {
+                let along = d.re * facing.re + d.im * facing.im;
+                let across = d.im * facing.re - d.re * facing.im;
+                bound(along, across)
+            };
+            // Another vehicle may stand anywhere on its way so far: the bound is convex in
+            // the offset, so it is largest at one end of it.
+            let ahead = bound_at(center + velocity * s - position);
+            let worst = if vehicle { ahead.max(bound_at(center - position)) } else { ahead };
+            worst + speed * span < -FUZZ
         }
         Hazard::Line { normal, .. } => {
             bound(dot(normal, facing), normal.re * facing.im - normal.im * facing.re) < -FUZZ

@@ -46,6 +46,8 @@ fn scene() -> impl Strategy<Value = Scene> {
                 0.02f64..0.1,
                 0.0f64..0.01,
                 0.0f64..0.02,
+                // Another vehicle of a fleet (judged anywhere on its way), or not.
+                prop::sample::select(vec![0.0, 0.04]),
             ),
             1..=3,
         ),
@@ -56,7 +58,7 @@ fn scene() -> impl Strategy<Value = Scene> {
             let position = Point::new(0.0, y);
             let predicted = obstacles
                 .iter()
-                .map(|&(distance, bearing, speed, course, radius, position_sd, velocity_sd)| ObstacleEstimate {
+                .map(|&(distance, bearing, speed, course, radius, position_sd, velocity_sd, keep)| ObstacleEstimate {
                     center: position + Point::from_polar(distance + 0.07 + radius, heading + bearing),
                     velocity: Point::from_polar(speed, course),
                     radius,
@@ -64,7 +66,7 @@ fn scene() -> impl Strategy<Value = Scene> {
                     velocity_sd,
                     drift: Point::from_polar(speed, course),
                     spread: 0.0,
-                    keep: 0.0,
+                    keep,
                 })
                 .collect();
             Scene { cfg, position, facing: Point::from_polar(1.0, heading), wheels, predicted }
@@ -224,4 +226,34 @@ fn a_vehicle_closes_on_another_only_as_it_slows() {
         predicted: vec![beside(0.04)],
     };
     assert_eq!(scene.judge(|ctx| ctx.first_driven_into(WheelSpeeds::default(), 0.0)).map(|h| h.is_vehicle()), None);
+}
+
+/// A follower keeps its stop's length behind where the vehicle ahead stands, not where it
+/// is going: that vehicle may stop dead (its link lost, its motors' timeout) before anyone
+/// knows. An obstacle that is not a vehicle is judged going on.
+#[test]
+fn a_follower_keeps_its_stop_behind_where_the_vehicle_ahead_stands() {
+    let cfg = SupervisorConfig::new(1.0, 0.108, 0.07, 0.02, None);
+    let (speed, contact) = (0.15, 0.14);
+    let steady = WheelSpeeds { left: speed, right: speed };
+    let verdict = |gap: f64, keep: f64| {
+        let ahead = ObstacleEstimate {
+            keep,
+            ..ObstacleEstimate::exact(Point::new(contact + gap, 0.0), Point::new(speed, 0.0), 0.07)
+        };
+        let scene = Scene {
+            cfg: cfg.clone(),
+            position: Point::default(),
+            facing: Point::new(1.0, 0.0),
+            wheels: [speed; 2],
+            predicted: vec![ahead],
+        };
+        scene.judge(|ctx| ctx.first_driven_into(steady, ROBUSTNESS).is_none())
+    };
+    // Its stop: the reaction time at speed, then v²/2a (11 mm), and the margins.
+    let stop = speed * cfg.reaction_time + speed * speed / (2.0 * cfg.wheel_accel);
+    assert!(verdict(0.008, 0.0), "an obstacle going on as fast");
+    assert!(!verdict(0.008, 0.04), "a vehicle {:.1} mm ahead, inside the follower's stop", 8.0);
+    assert!(!verdict(stop, 0.04), "the stop alone, without the margins");
+    assert!(verdict(stop + 0.01, 0.04), "a stop and a centimetre behind");
 }
