@@ -208,10 +208,23 @@ async fn a_fleet_the_simulator_serves_passes_every_line() {
             cfg.vehicles = s.sim_vehicles(&rig).unwrap();
         }
         let out = check(if cia402 { "fleet-served-cia402" } else { "fleet-served" }, &cfg);
+        // A radius the config has wrong: where the camera sees `v1`, it would overlap a
+        // neighbour, which no two bodies can.
+        let wrong = (!cia402).then(|| {
+            let mut cfg = cfg.clone();
+            // Its goal goes too: the loader refuses goals closer than their radii.
+            let v1 = &mut cfg.vehicles[0];
+            (v1.radius, v1.goal, v1.goal_tolerance) = (Some(0.55), None, None);
+            check("fleet-served-overlap", &cfg)
+        });
         handle.stop().await;
         assert!(out.ok, "{}", out.stdout);
         assert!(!out.stdout.contains("FAIL") && !out.stdout.contains("WARN"), "{}", out.stdout);
         assert!(out.line("LEDs in view").contains("all 8 LEDs seen"), "{}", out.stdout);
+        assert!(out.line("vehicles apart").contains("4 seen clear of each other, the closest"), "{}", out.stdout);
+        if let Some(wrong) = wrong {
+            wrong.fails_only("vehicles apart", &["v1 at (", "closer than their radii (55.0 + 7.0 cm)", "are wrong"]);
+        }
         let motors: Vec<&str> = out.stdout.lines().filter(|l| l.contains("vehicle motors")).collect();
         let expected: &[&str] = if cia402 {
             &[

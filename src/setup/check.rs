@@ -116,6 +116,7 @@ const TIME_SYNC: &str = "time sync";
 const STREAM: &str = "sample stream";
 const LEDS: &str = "LEDs in view";
 const GOAL: &str = "goal reachable";
+const APART: &str = "vehicles apart";
 const CAN_IF: &str = "CAN interface";
 const HEARTBEAT: &str = "board heartbeat";
 const OTHERS: &str = "no other master";
@@ -345,8 +346,8 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
     let mut seen = vec![0u64; leds.len()];
     let mut weak = vec![0u64; leds.len()];
     let mut saturated = vec![0u64; leds.len()];
-    // The robot's LEDs on the floor, as last seen clearly: where the robot stands.
-    let (mut front, mut rear) = (None, None);
+    // Each LED on the floor, as last seen clearly: where the robot and every vehicle stand.
+    let mut at: Vec<Option<Point>> = vec![None; leds.len()];
     let before = client.tally;
     let start = Instant::now();
     let end = start + STREAM_WATCH;
@@ -355,11 +356,10 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
             Ok(Some(s)) => {
                 let clear = !s.flags.contains(flowgate_protocol::psd::SampleFlags::WEAK_SIGNAL)
                     && !s.flags.contains(flowgate_protocol::psd::SampleFlags::SATURATED);
-                if clear && (s.led == rig.robot_front || s.led == rig.robot_rear) {
-                    let at = rig.calibration.to_floor(f64::from(s.x), f64::from(s.y));
-                    *if s.led == rig.robot_front { &mut front } else { &mut rear } = at;
-                }
                 if let Some(k) = leds.iter().position(|&l| l == s.led) {
+                    if clear {
+                        at[k] = rig.calibration.to_floor(f64::from(s.x), f64::from(s.y));
+                    }
                     seen[k] += 1;
                     weak[k] += u64::from(s.flags.contains(flowgate_protocol::psd::SampleFlags::WEAK_SIGNAL));
                     saturated[k] += u64::from(s.flags.contains(flowgate_protocol::psd::SampleFlags::SATURATED));
@@ -390,8 +390,62 @@ async fn watch_stream(rig: &Rig, client: &mut PsdClient, port: &str, report: &mu
     );
     report.add(STREAM, port, stream_verdict(frames, expected, faults, bad + lost + discarded), detail);
     judge_leds(rig, &leds, &seen, &weak, &saturated, report);
-    let robot = front.zip(rear).and_then(|(f, r)| rig.led_geometry.locate(f, r)).map(|(at, _)| at);
+    let floor = |led: u8| leds.iter().position(|&l| l == led).and_then(|k| at[k]);
+    let locate = |front: u8, rear: u8, geometry: &crate::track::LedGeometry| {
+        floor(front).zip(floor(rear)).and_then(|(f, r)| geometry.locate(f, r)).map(|(at, _)| at)
+    };
+    let robot = locate(rig.robot_front, rig.robot_rear, &rig.led_geometry);
     check_goal(rig, robot, report);
+    if !rig.vehicles.is_empty() {
+        let mut bodies = vec![("robot", robot, rig.control.robot_radius)];
+        let vehicles = rig.vehicles.iter();
+        bodies.extend(
+            vehicles.map(|v| (v.name.as_str(), locate(v.front_led, v.rear_led, &v.led_geometry), v.robot.radius)),
+        );
+        check_apart(&bodies, report);
+    }
+}
+
+/// A fleet's vehicles (`bodies`: each one's name, where the camera puts it and its radius)
+/// no two closer than their radii, which no two bodies can be: one's LEDs, their offsets or
+/// its radius are wrong in the config, and every field and supervisor would plan on a body
+/// where none is. The closest pair is shown.
+fn check_apart(bodies: &[(&str, Option<Point>, f64)], report: &mut CheckReport) {
+    let seen: Vec<(&str, Point, f64)> = bodies.iter().filter_map(|&(name, at, r)| Some((name, at?, r))).collect();
+    let unseen: Vec<&str> = bodies.iter().filter(|b| b.1.is_none()).map(|b| b.0).collect();
+    let (mut overlaps, mut closest) = (Vec::new(), None::<(f64, &str, &str)>);
+    for (i, &(a, pa, ra)) in seen.iter().enumerate() {
+        for &(b, pb, rb) in &seen[i + 1..] {
+            let apart = (pa - pb).norm();
+            if apart < ra + rb {
+                overlaps.push(format!(
+                    "{a} at ({:.3}, {:.3}) and {b} at ({:.3}, {:.3}) are {:.1} cm apart, closer than their radii ({:.1} + {:.1} cm)",
+                    pa.re, pa.im, pb.re, pb.im, apart * 100.0, ra * 100.0, rb * 100.0
+                ));
+            }
+            if closest.is_none_or(|(gap, _, _)| apart - ra - rb < gap) {
+                closest = Some((apart - ra - rb, a, b));
+            }
+        }
+    }
+    let unseen = if unseen.is_empty() { String::new() } else { format!("; not seen clearly: {}", unseen.join(", ")) };
+    match closest {
+        _ if !overlaps.is_empty() => report.fail(
+            APART,
+            "vehicles",
+            format!("{}: a vehicle's LEDs, their offsets or its radius are wrong{unseen}", overlaps.join("; ")),
+        ),
+        Some((gap, a, b)) => report.pass(
+            APART,
+            "vehicles",
+            format!(
+                "{} seen clear of each other, the closest {a} and {b}, {:.1} cm between them{unseen}",
+                seen.len(),
+                gap * 100.0
+            ),
+        ),
+        None => report.skip(&[APART], "vehicles", &format!("fewer than two vehicles seen clearly{unseen}")),
+    }
 }
 
 /// The robot's two LEDs and every required obstacle's must be seen to arm; any other
