@@ -229,22 +229,18 @@ fn toward_the_way(from: Point, to: Point, reach: f64, velocity: Point, tolerance
         p.re * velocity.re + p.im * velocity.im
     };
     let toward = approach(first).max(approach(last));
-    let nearest = if length_sqr == 0.0 {
-        from
-    } else {
-        from + way * (-(from.re * way.re + from.im * way.im) / length_sqr).clamp(first, last)
-    };
+    let nearest = nearest_between(from, way, (first, last));
     toward > 0.0 && toward * toward > tolerance * tolerance * nearest.norm_sqr()
 }
 
-/// The point of the segment from offset `from` to offset `to` nearest the robot.
-fn nearest_on(from: Point, to: Point) -> Point {
-    let way = to - from;
+/// The point `from + way u`, `u` within `lo..=hi`, nearest the robot (offsets from it):
+/// `from` itself when `way` is zero.
+fn nearest_between(from: Point, way: Point, (lo, hi): (f64, f64)) -> Point {
     let length_sqr = way.norm_sqr();
     if length_sqr == 0.0 {
         return from;
     }
-    from + way * (-(from.re * way.re + from.im * way.im) / length_sqr).clamp(0.0, 1.0)
+    from + way * (-(from.re * way.re + from.im * way.im) / length_sqr).clamp(lo, hi)
 }
 
 /// How fast the robot may still be moving toward an obstacle within its reach, m/s: a fifth
@@ -453,7 +449,8 @@ impl Context<'_> {
                 Hazard::Obstacle { center, velocity, speed, keep, growth, vehicle, .. } => {
                     let reach = keep + margin + growth * (s + left) + speed * left;
                     let ahead = center + velocity * s - position;
-                    let nearest = if vehicle { nearest_on(center - position, ahead) } else { ahead };
+                    let from = center - position;
+                    let nearest = if vehicle { nearest_between(from, ahead - from, (0.0, 1.0)) } else { ahead };
                     nearest.norm_sqr() > reach * reach
                 }
                 Hazard::Line { normal, offset, keep } => offset - dot(normal, position) > keep + margin,
