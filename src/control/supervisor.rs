@@ -212,7 +212,7 @@ fn toward_the_way(from: Point, to: Point, reach: f64, velocity: Point, tolerance
         (0.0, 0.0)
     } else {
         // |from + way u|² < reach²: between the roots of a quadratic in u, within [0, 1].
-        let half_b = from.re * way.re + from.im * way.im;
+        let half_b = dot(from, way);
         let disc = half_b * half_b - length_sqr * (from.norm_sqr() - reach * reach);
         if disc <= 0.0 {
             return false;
@@ -224,10 +224,7 @@ fn toward_the_way(from: Point, to: Point, reach: f64, velocity: Point, tolerance
         }
         (first, last)
     };
-    let approach = |u: f64| {
-        let p = from + way * u;
-        p.re * velocity.re + p.im * velocity.im
-    };
+    let approach = |u: f64| dot(from + way * u, velocity);
     let toward = approach(first).max(approach(last));
     let nearest = nearest_between(from, way, (first, last));
     toward > 0.0 && toward * toward > tolerance * tolerance * nearest.norm_sqr()
@@ -240,7 +237,7 @@ fn nearest_between(from: Point, way: Point, (lo, hi): (f64, f64)) -> Point {
     if length_sqr == 0.0 {
         return from;
     }
-    from + way * (-(from.re * way.re + from.im * way.im) / length_sqr).clamp(lo, hi)
+    from + way * (-dot(from, way) / length_sqr).clamp(lo, hi)
 }
 
 /// How fast the robot may still be moving toward an obstacle within its reach, m/s: a fifth
